@@ -1,0 +1,7 @@
+//! sparkout-datasets: synthetic recorded runs (a plugin's forward model +
+//! injected effects from the DESIGN.md catalogue + noise), seeded and
+//! deterministic, and the `sparkout validate` harness.
+
+pub mod observations;
+pub mod robot;
+pub mod validate;

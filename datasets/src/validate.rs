@@ -1,0 +1,532 @@
+//! `sparkout validate` (issue 4, point 6; DESIGN.md "Checked on data whose
+//! effect is withheld"): fleets whose `real` carries one effect that `sim`
+//! lacks — every catalogue effect at several SNRs (effect RMS / noise σ) —
+//! plus effect-free fleets and out-of-catalogue fleets, each diagnosed, then
+//! scored: confusion matrix (true × top-1 named), localisation (share of the
+//! true effect's energy inside the reported `where` cells), parameter
+//! recovery, held-out shrink against the oracle 1 − σ/√(σ² + effect_rms²),
+//! false alarms, and confident wrong names on out-of-catalogue effects
+//! (a selection whose unexplained RMS is below 1.5 σ).
+
+use std::collections::BTreeMap;
+use std::fmt::Write;
+use std::time::Instant;
+
+use rayon::prelude::*;
+use serde::Serialize;
+use sparkout_pipeline::diagnose::{diagnose, DiagnoseConfig, Diagnosis, WhereCell};
+use sparkout_pipeline::{EffectSpec, Result};
+
+use crate::observations::{
+    apply_effect, layout, noise, resolved_spec, rms, scale_to_snr, to_batch, ObsFleetConfig,
+    ObsLayout,
+};
+
+/// Catalogue effects validated, on the covariate the generator gives each.
+pub const CATALOGUE_CASES: [&str; 15] = [
+    "offset",
+    "scale:x_mm",
+    "drift:t_s",
+    "lag:feed_mm_s",
+    "inertia:a_mm_s2",
+    "backlash:dir",
+    "wear:removed_mm3",
+    "wear:pass",
+    "compliance:force_n",
+    "bow:y_mm",
+    "periodic:x_mm",
+    "periodic:t_s",
+    "edge:path_end_mm",
+    "squareness:x_mm,y_mm",
+    "thermal:temp_c",
+];
+
+/// Out-of-catalogue effects: a step at an unknown position, a local bump, a
+/// product of two non-position covariates.
+pub const OOC_CASES: [&str; 3] = ["step:x_mm", "bump:x_mm,y_mm", "product:feed_mm_s,force_n"];
+
+#[derive(Debug, Clone, Serialize)]
+pub struct ValidateConfig {
+    pub quick: bool,
+    pub seed: u64,
+    /// SNRs of the catalogue fleets.
+    pub snrs: Vec<f64>,
+    /// Fleets per (effect, SNR).
+    pub fleets_per_case: usize,
+    /// Restrict to these catalogue cases (keys of [`CATALOGUE_CASES`]).
+    pub effects: Option<Vec<String>>,
+    pub free_fleets: usize,
+    /// Fleets per out-of-catalogue effect (SNR 10); 0 skips them.
+    pub ooc_fleets: usize,
+    pub fleet: ObsFleetConfig,
+    pub diagnose: DiagnoseConfig,
+}
+
+impl ValidateConfig {
+    /// The full run (< 5 min release on 2 cores) or `--quick` (< 30 s).
+    pub fn new(quick: bool, seed: u64) -> Self {
+        ValidateConfig {
+            quick,
+            seed,
+            snrs: vec![1.0, 3.0, 10.0],
+            fleets_per_case: if quick { 1 } else { 5 },
+            effects: None,
+            free_fleets: if quick { 4 } else { 20 },
+            ooc_fleets: if quick { 1 } else { 5 },
+            fleet: ObsFleetConfig::default(),
+            diagnose: DiagnoseConfig::default(),
+        }
+    }
+}
+
+impl Default for ValidateConfig {
+    fn default() -> Self {
+        Self::new(false, 0)
+    }
+}
+
+/// One diagnosed fleet.
+#[derive(Debug, Clone, Serialize)]
+pub struct FleetResult {
+    /// `effect:covariate`, or "none" for effect-free fleets.
+    pub truth: String,
+    pub kind: String,
+    pub snr: f64,
+    pub seed: u64,
+    /// First selected effect, or "none".
+    pub named: String,
+    pub selected: Vec<String>,
+    pub localisation: Option<f64>,
+    pub param_rel_error: Option<f64>,
+    pub shrink: f64,
+    pub oracle_shrink: f64,
+    pub unexplained_over_sigma: f64,
+    pub seconds: f64,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct CaseSummary {
+    pub truth: String,
+    pub snr: f64,
+    pub fleets: usize,
+    pub top1_correct: usize,
+    pub accuracy: f64,
+    pub localisation_mean: Option<f64>,
+    pub param_rel_error_median: Option<f64>,
+    pub shrink_mean: f64,
+    pub oracle_shrink: f64,
+    /// Mean over fleets of shrink / oracle.
+    pub shrink_over_oracle: f64,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct ValidationReport {
+    pub quick: bool,
+    pub seed: u64,
+    pub fleets: usize,
+    pub seconds: f64,
+    pub cases: Vec<CaseSummary>,
+    /// SNR label → true effect → named effect → count.
+    pub confusion: BTreeMap<String, BTreeMap<String, BTreeMap<String, usize>>>,
+    /// Top-1 accuracy per SNR label.
+    pub accuracy_by_snr: BTreeMap<String, f64>,
+    /// Over SNR ≥ 3.
+    pub accuracy_snr_ge3: f64,
+    pub shrink_over_oracle_snr_ge3: f64,
+    pub false_alarm_rate: f64,
+    pub free_fleets: usize,
+    pub confident_wrong_rate: f64,
+    pub ooc_fleets: usize,
+    /// Out-of-catalogue: mean share of the effect's energy inside `where`.
+    pub ooc_localisation_mean: Option<f64>,
+    pub results: Vec<FleetResult>,
+}
+
+fn snr_label(s: f64) -> String {
+    format!("snr{s}")
+}
+
+/// Rows inside a reported cell (1-D: lo ≤ c ≤ hi; tile: both axes).
+fn in_cells(cells: &[WhereCell], l: &ObsLayout) -> Vec<bool> {
+    let mut inside = vec![false; l.len()];
+    for c in cells {
+        let names: Vec<&str> = c.covariate.split(',').collect();
+        let bounds: Vec<(f64, f64)> = match (&c.lo, &c.hi) {
+            (serde_json::Value::Array(lo), serde_json::Value::Array(hi)) => lo
+                .iter()
+                .zip(hi)
+                .map(|(a, b)| (a.as_f64().unwrap_or(f64::NAN), b.as_f64().unwrap_or(f64::NAN)))
+                .collect(),
+            (lo, hi) => vec![(lo.as_f64().unwrap_or(f64::NAN), hi.as_f64().unwrap_or(f64::NAN))],
+        };
+        let cols: Vec<&[f64]> = match names.iter().map(|n| l.col(n)).collect::<Result<Vec<_>>>() {
+            Ok(c) => c,
+            Err(_) => continue,
+        };
+        for (i, flag) in inside.iter_mut().enumerate() {
+            if !*flag
+                && cols
+                    .iter()
+                    .zip(&bounds)
+                    .all(|(col, (lo, hi))| col[i] >= *lo && col[i] <= *hi)
+            {
+                *flag = true;
+            }
+        }
+    }
+    inside
+}
+
+/// Largest relative error over the shape and amplitude parameters of the
+/// truth (phase as |Δφ|/π; c0, c1, t0_c are fixed by the frame, skipped).
+fn param_error(truth: &EffectSpec, d: &Diagnosis) -> Option<f64> {
+    let e = d.effects.iter().find(|e| e.selected)?;
+    let mut worst: f64 = 0.0;
+    for (k, t) in &truth.params {
+        if matches!(k.as_str(), "c0" | "c1" | "t0_c") {
+            continue;
+        }
+        let got = if k == "offset_mm" && truth.name == "offset" {
+            *e.params.get("offset_mm")?
+        } else {
+            *e.params.get(k)?
+        };
+        let err = if k == "phase_rad" {
+            let d = (got - t).rem_euclid(2.0 * std::f64::consts::PI);
+            d.min(2.0 * std::f64::consts::PI - d) / std::f64::consts::PI
+        } else {
+            (got - t).abs() / t.abs().max(1e-300)
+        };
+        worst = worst.max(err);
+    }
+    Some(worst)
+}
+
+struct Job {
+    truth: String,
+    kind: &'static str,
+    snr: f64,
+    seed: u64,
+}
+
+fn run_fleet(cfg: &ValidateConfig, job: &Job) -> Result<FleetResult> {
+    let start = Instant::now();
+    let fleet = ObsFleetConfig {
+        seed: job.seed,
+        ..cfg.fleet.clone()
+    };
+    let sigma = fleet.noise_mm;
+    let l = layout(&fleet)?;
+    let (spec, effect) = if job.truth == "none" {
+        (None, vec![0.0; l.len()])
+    } else {
+        let s: EffectSpec = job.truth.parse().map_err(anyhow::Error::msg)?;
+        let s = resolved_spec(&s, &l)?;
+        let (s, v) = scale_to_snr(&s, &l, job.snr, sigma)?;
+        debug_assert_eq!(apply_effect(&s, &l)?.len(), v.len());
+        (Some(s), v)
+    };
+    let real: Vec<f64> = l
+        .sim
+        .iter()
+        .zip(&effect)
+        .zip(noise(&fleet, l.len()))
+        .map(|((s, e), n)| s + e + n)
+        .collect();
+    let batch = to_batch(&l, &real, &fleet.observable)?;
+    let dcfg = DiagnoseConfig {
+        seed: job.seed,
+        ..cfg.diagnose.clone()
+    };
+    let out = diagnose(&batch, &dcfg, &[])?;
+    let d = &out.diagnosis;
+    let named = d.selected.first().cloned().unwrap_or_else(|| "none".into());
+    let e_energy: f64 = effect.iter().map(|e| e * e).sum();
+    let localisation = (e_energy > 0.0).then(|| {
+        let inside = in_cells(&d.where_, &l);
+        effect
+            .iter()
+            .zip(&inside)
+            .filter(|(_, i)| **i)
+            .map(|(e, _)| e * e)
+            .sum::<f64>()
+            / e_energy
+    });
+    let eff_rms = rms(&effect);
+    let oracle = 1.0 - sigma / (sigma * sigma + eff_rms * eff_rms).sqrt();
+    let shrink = if d.gap.rms_mm > 0.0 {
+        1.0 - d.unexplained.rms_mm / d.gap.rms_mm
+    } else {
+        0.0
+    };
+    let param_rel_error = match &spec {
+        Some(s) if named == job.truth && job.kind == "catalogue" => param_error(s, d),
+        _ => None,
+    };
+    Ok(FleetResult {
+        truth: job.truth.clone(),
+        kind: job.kind.into(),
+        snr: job.snr,
+        seed: job.seed,
+        named,
+        selected: d.selected.clone(),
+        localisation,
+        param_rel_error,
+        shrink,
+        oracle_shrink: oracle,
+        unexplained_over_sigma: d.unexplained.rms_mm / sigma.max(1e-300),
+        seconds: start.elapsed().as_secs_f64(),
+    })
+}
+
+fn mix(seed: u64, a: u64, b: u64, c: u64) -> u64 {
+    // SplitMix64 over the case coordinates: independent, reproducible seeds.
+    let mut z = seed
+        ^ a.wrapping_mul(0x9E37_79B9_7F4A_7C15)
+        ^ b.wrapping_mul(0xBF58_476D_1CE4_E5B9)
+        ^ c.wrapping_mul(0x94D0_49BB_1331_11EB);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
+
+/// Runs the validation (rayon over fleets; results in a fixed order).
+pub fn run(cfg: &ValidateConfig) -> Result<ValidationReport> {
+    cfg.diagnose.validate()?;
+    let start = Instant::now();
+    let mut jobs = Vec::new();
+    for (ci, case) in CATALOGUE_CASES.iter().enumerate() {
+        if let Some(only) = &cfg.effects {
+            let name = case.split(':').next().unwrap_or(case);
+            if !only.iter().any(|o| o == case || o == name) {
+                continue;
+            }
+        }
+        for (si, snr) in cfg.snrs.iter().enumerate() {
+            for rep in 0..cfg.fleets_per_case {
+                jobs.push(Job {
+                    truth: case.to_string(),
+                    kind: "catalogue",
+                    snr: *snr,
+                    seed: mix(cfg.seed, ci as u64 + 1, si as u64 + 1, rep as u64),
+                });
+            }
+        }
+    }
+    for rep in 0..cfg.free_fleets {
+        jobs.push(Job {
+            truth: "none".into(),
+            kind: "effect_free",
+            snr: 0.0,
+            seed: mix(cfg.seed, 1000, 0, rep as u64),
+        });
+    }
+    for (oi, case) in OOC_CASES.iter().enumerate() {
+        for rep in 0..cfg.ooc_fleets {
+            jobs.push(Job {
+                truth: case.to_string(),
+                kind: "out_of_catalogue",
+                snr: 10.0,
+                seed: mix(cfg.seed, 2000 + oi as u64, 0, rep as u64),
+            });
+        }
+    }
+    let results: Vec<FleetResult> = jobs
+        .par_iter()
+        .map(|j| run_fleet(cfg, j))
+        .collect::<Result<_>>()?;
+    Ok(summarise(cfg, results, start.elapsed().as_secs_f64()))
+}
+
+fn mean(v: &[f64]) -> Option<f64> {
+    (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
+}
+
+fn summarise(cfg: &ValidateConfig, results: Vec<FleetResult>, seconds: f64) -> ValidationReport {
+    let cat: Vec<&FleetResult> = results.iter().filter(|r| r.kind == "catalogue").collect();
+    let mut cases = Vec::new();
+    let mut keys: Vec<(String, u64)> = cat.iter().map(|r| (r.truth.clone(), r.snr.to_bits())).collect();
+    keys.dedup();
+    let mut seen = std::collections::BTreeSet::new();
+    for (truth, snr_bits) in keys {
+        if !seen.insert((truth.clone(), snr_bits)) {
+            continue;
+        }
+        let rs: Vec<&&FleetResult> = cat
+            .iter()
+            .filter(|r| r.truth == truth && r.snr.to_bits() == snr_bits)
+            .collect();
+        let correct = rs.iter().filter(|r| r.named == r.truth).count();
+        let mut perr: Vec<f64> = rs.iter().filter_map(|r| r.param_rel_error).collect();
+        perr.sort_by(f64::total_cmp);
+        let locs: Vec<f64> = rs.iter().filter_map(|r| r.localisation).collect();
+        let shr: Vec<f64> = rs.iter().map(|r| r.shrink).collect();
+        let ratio: Vec<f64> = rs.iter().map(|r| r.shrink / r.oracle_shrink.max(1e-12)).collect();
+        cases.push(CaseSummary {
+            truth,
+            snr: f64::from_bits(snr_bits),
+            fleets: rs.len(),
+            top1_correct: correct,
+            accuracy: correct as f64 / rs.len().max(1) as f64,
+            localisation_mean: mean(&locs),
+            param_rel_error_median: perr.get(perr.len() / 2).copied(),
+            shrink_mean: mean(&shr).unwrap_or(0.0),
+            oracle_shrink: mean(&rs.iter().map(|r| r.oracle_shrink).collect::<Vec<_>>()).unwrap_or(0.0),
+            shrink_over_oracle: mean(&ratio).unwrap_or(0.0),
+        });
+    }
+    let mut confusion: BTreeMap<String, BTreeMap<String, BTreeMap<String, usize>>> = BTreeMap::new();
+    let mut acc_by: BTreeMap<String, (usize, usize)> = BTreeMap::new();
+    for r in &cat {
+        *confusion
+            .entry(snr_label(r.snr))
+            .or_default()
+            .entry(r.truth.clone())
+            .or_default()
+            .entry(r.named.clone())
+            .or_default() += 1;
+        let a = acc_by.entry(snr_label(r.snr)).or_default();
+        a.0 += usize::from(r.named == r.truth);
+        a.1 += 1;
+    }
+    let ge3: Vec<&&FleetResult> = cat.iter().filter(|r| r.snr >= 3.0).collect();
+    let free: Vec<&FleetResult> = results.iter().filter(|r| r.kind == "effect_free").collect();
+    let ooc: Vec<&FleetResult> = results.iter().filter(|r| r.kind == "out_of_catalogue").collect();
+    ValidationReport {
+        quick: cfg.quick,
+        seed: cfg.seed,
+        fleets: results.len(),
+        seconds,
+        cases,
+        confusion,
+        accuracy_by_snr: acc_by
+            .into_iter()
+            .map(|(k, (c, n))| (k, c as f64 / n.max(1) as f64))
+            .collect(),
+        accuracy_snr_ge3: ge3.iter().filter(|r| r.named == r.truth).count() as f64
+            / ge3.len().max(1) as f64,
+        shrink_over_oracle_snr_ge3: mean(
+            &ge3.iter()
+                .map(|r| r.shrink / r.oracle_shrink.max(1e-12))
+                .collect::<Vec<_>>(),
+        )
+        .unwrap_or(0.0),
+        false_alarm_rate: free.iter().filter(|r| !r.selected.is_empty()).count() as f64
+            / free.len().max(1) as f64,
+        free_fleets: free.len(),
+        confident_wrong_rate: ooc
+            .iter()
+            .filter(|r| !r.selected.is_empty() && r.unexplained_over_sigma < 1.5)
+            .count() as f64
+            / ooc.len().max(1) as f64,
+        ooc_fleets: ooc.len(),
+        ooc_localisation_mean: mean(&ooc.iter().filter_map(|r| r.localisation).collect::<Vec<_>>()),
+        results,
+    }
+}
+
+fn short(k: &str) -> String {
+    k.replace("squareness", "squar")
+        .replace("compliance", "compl")
+        .replace("removed_mm3", "rem")
+        .replace("path_end_mm", "pe")
+        .replace("feed_mm_s", "feed")
+        .replace("a_mm_s2", "a")
+        .replace("force_n", "f")
+        .replace("temp_c", "T")
+        .replace("x_mm,y_mm", "xy")
+        .replace("_mm", "")
+}
+
+/// A readable summary for the terminal: per-case table, confusion matrices,
+/// headline rates.
+pub fn render_text(r: &ValidationReport) -> String {
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "sparkout validate{} — {} fleets in {:.1} s (seed {})",
+        if r.quick { " --quick" } else { "" },
+        r.fleets,
+        r.seconds,
+        r.seed
+    );
+    let _ = writeln!(
+        s,
+        "\n{:<26} {:>5} {:>6} {:>8} {:>8} {:>9} {:>8} {:>8}",
+        "effect", "SNR", "fleets", "top-1", "local.", "par.err", "shrink", "/oracle"
+    );
+    for c in &r.cases {
+        let _ = writeln!(
+            s,
+            "{:<26} {:>5} {:>6} {:>7.0}% {:>8} {:>9} {:>8.3} {:>8.2}",
+            c.truth,
+            c.snr,
+            c.fleets,
+            100.0 * c.accuracy,
+            c.localisation_mean.map(|v| format!("{v:.2}")).unwrap_or_else(|| "—".into()),
+            c.param_rel_error_median.map(|v| format!("{v:.3}")).unwrap_or_else(|| "—".into()),
+            c.shrink_mean,
+            c.shrink_over_oracle
+        );
+    }
+    for (snr, m) in &r.confusion {
+        let mut named: Vec<String> = m.values().flat_map(|row| row.keys().cloned()).collect();
+        named.sort();
+        named.dedup();
+        let _ = writeln!(s, "\nconfusion matrix at {snr} (rows: true, columns: named top-1)");
+        let _ = write!(s, "{:<14}", "");
+        for n in &named {
+            let _ = write!(s, " {:>9}", short(n).chars().take(9).collect::<String>());
+        }
+        let _ = writeln!(s);
+        for (t, row) in m {
+            let _ = write!(s, "{:<14}", short(t).chars().take(14).collect::<String>());
+            for n in &named {
+                match row.get(n) {
+                    Some(c) => {
+                        let _ = write!(s, " {c:>9}");
+                    }
+                    None => {
+                        let _ = write!(s, " {:>9}", ".");
+                    }
+                }
+            }
+            let _ = writeln!(s);
+        }
+    }
+    let _ = writeln!(s);
+    for (k, v) in &r.accuracy_by_snr {
+        let _ = writeln!(s, "top-1 accuracy at {k}: {:.1} %", 100.0 * v);
+    }
+    let _ = writeln!(
+        s,
+        "top-1 accuracy at SNR ≥ 3: {:.1} %; shrink / oracle at SNR ≥ 3: {:.2}",
+        100.0 * r.accuracy_snr_ge3,
+        r.shrink_over_oracle_snr_ge3
+    );
+    let _ = writeln!(
+        s,
+        "false alarms on {} effect-free fleets: {:.1} %",
+        r.free_fleets,
+        100.0 * r.false_alarm_rate
+    );
+    let _ = writeln!(
+        s,
+        "out-of-catalogue fleets: {}; confident wrong names (unexplained < 1.5σ): {:.1} %; localisation {}",
+        r.ooc_fleets,
+        100.0 * r.confident_wrong_rate,
+        r.ooc_localisation_mean
+            .map(|v| format!("{v:.2}"))
+            .unwrap_or_else(|| "—".into())
+    );
+    for f in r.results.iter().filter(|f| f.kind == "out_of_catalogue") {
+        let _ = writeln!(
+            s,
+            "  {:<28} named {:<22} unexplained {:.2}σ",
+            f.truth,
+            f.named,
+            f.unexplained_over_sigma
+        );
+    }
+    s
+}

@@ -1,0 +1,102 @@
+//! Building arrow batches column by column — what stages use to emit
+//! artifacts, and generators to emit recorded-run tables.
+
+use std::sync::Arc;
+
+use arrow::array::{
+    Array,
+    ArrayRef, Float32Array, Float64Array, Int32Array, Int64Array, Int8Array, StringArray,
+};
+use arrow::datatypes::{Field, Schema};
+use arrow::record_batch::RecordBatch;
+
+#[derive(Default)]
+pub struct BatchBuilder {
+    fields: Vec<Field>,
+    columns: Vec<ArrayRef>,
+}
+
+impl BatchBuilder {
+    pub fn new() -> Self {
+        Self::default()
+    }
+    fn push(mut self, name: &str, col: ArrayRef) -> Self {
+        self.fields
+            .push(Field::new(name, col.data_type().clone(), false));
+        self.columns.push(col);
+        self
+    }
+    pub fn f64(self, name: &str, v: Vec<f64>) -> Self {
+        self.push(name, Arc::new(Float64Array::from(v)))
+    }
+    pub fn f32(self, name: &str, v: Vec<f32>) -> Self {
+        self.push(name, Arc::new(Float32Array::from(v)))
+    }
+    pub fn i32(self, name: &str, v: Vec<i32>) -> Self {
+        self.push(name, Arc::new(Int32Array::from(v)))
+    }
+    pub fn i64(self, name: &str, v: Vec<i64>) -> Self {
+        self.push(name, Arc::new(Int64Array::from(v)))
+    }
+    pub fn i8(self, name: &str, v: Vec<i8>) -> Self {
+        self.push(name, Arc::new(Int8Array::from(v)))
+    }
+    pub fn str<S: AsRef<str>>(self, name: &str, v: &[S]) -> Self {
+        let a: StringArray = v.iter().map(|s| Some(s.as_ref())).collect();
+        self.push(name, Arc::new(a))
+    }
+    /// A nullable float column (None → null), for optional measurements.
+    pub fn opt_f64(mut self, name: &str, v: Vec<Option<f64>>) -> Self {
+        self.fields.push(Field::new(name, arrow::datatypes::DataType::Float64, true));
+        self.columns.push(Arc::new(Float64Array::from(v)));
+        self
+    }
+    /// Keep an existing column (pass-through of extra columns).
+    pub fn column(mut self, field: Field, col: ArrayRef) -> Self {
+        self.fields.push(field);
+        self.columns.push(col);
+        self
+    }
+    pub fn build(self) -> RecordBatch {
+        RecordBatch::try_new(Arc::new(Schema::new(self.fields)), self.columns)
+            .expect("BatchBuilder: columns must have equal lengths")
+    }
+}
+
+/// Read a float64 column out of a batch (artifacts written by sparkout).
+pub fn batch_f64<'a>(batch: &'a RecordBatch, name: &str) -> anyhow::Result<&'a [f64]> {
+    batch
+        .column_by_name(name)
+        .and_then(|c| c.as_any().downcast_ref::<Float64Array>())
+        .map(|a| a.values().as_ref())
+        .ok_or_else(|| anyhow::anyhow!("artifact has no float64 column `{name}`"))
+}
+
+pub fn batch_i32<'a>(batch: &'a RecordBatch, name: &str) -> anyhow::Result<&'a [i32]> {
+    batch
+        .column_by_name(name)
+        .and_then(|c| c.as_any().downcast_ref::<Int32Array>())
+        .map(|a| a.values().as_ref())
+        .ok_or_else(|| anyhow::anyhow!("artifact has no int32 column `{name}`"))
+}
+
+pub fn batch_str(batch: &RecordBatch, name: &str) -> anyhow::Result<Vec<String>> {
+    let a = batch
+        .column_by_name(name)
+        .and_then(|c| c.as_any().downcast_ref::<StringArray>())
+        .ok_or_else(|| anyhow::anyhow!("artifact has no utf8 column `{name}`"))?;
+    Ok((0..a.len()).map(|i| a.value(i).to_string()).collect())
+}
+
+/// Read a whole Parquet file sparkout wrote (artifacts are small).
+pub fn read_parquet(path: &std::path::Path) -> anyhow::Result<RecordBatch> {
+    use anyhow::Context;
+    let builder = super::table::open_parquet(path)?;
+    let schema = builder.schema().clone();
+    let batches: Vec<RecordBatch> = builder
+        .build()
+        .with_context(|| format!("cannot decode {}", path.display()))?
+        .collect::<Result<_, _>>()
+        .with_context(|| format!("cannot decode {}", path.display()))?;
+    Ok(arrow::compute::concat_batches(&schema, &batches)?)
+}

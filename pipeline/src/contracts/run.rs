@@ -1,0 +1,277 @@
+//! run.toml (CONTRACTS.md §1) and machine configs.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use crate::error::InputError;
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum AeKind {
+    Raw,
+    Rms,
+}
+
+/// `[ae]` of run.toml.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct AeSpec {
+    pub sample_rate_hz: f64,
+    pub kind: AeKind,
+    pub clock_offset_s: f64,
+}
+
+/// A parsed, checked run.toml.
+#[derive(Debug, Clone)]
+pub struct RunSpec {
+    /// The run directory.
+    pub dir: PathBuf,
+    pub id: String,
+    pub machine: String,
+    pub plugin: String,
+    pub started: Option<String>,
+    /// `[process]`: plugin-specific parameters.
+    pub process: toml::Table,
+    pub ae: Option<AeSpec>,
+    /// An inline `[machine]` table, if the run carries its own machine config.
+    pub inline_machine: Option<toml::Table>,
+    /// The file's text (hashed into cache keys).
+    pub text: String,
+}
+
+fn req_str(path: &Path, run: &toml::Table, key: &str) -> Result<String, InputError> {
+    match run.get(key) {
+        Some(toml::Value::String(s)) if !s.trim().is_empty() => Ok(s.clone()),
+        Some(v) => Err(InputError::new(
+            path,
+            format!("[run].{key} must be a non-empty string, found {}", v.type_str()),
+        )
+        .column(format!("run.{key}"))),
+        None => Err(InputError::new(path, format!("required key [run].{key} is missing"))
+            .column(format!("run.{key}"))),
+    }
+}
+
+fn num(v: &toml::Value) -> Option<f64> {
+    match v {
+        toml::Value::Float(f) => Some(*f),
+        toml::Value::Integer(i) => Some(*i as f64),
+        _ => None,
+    }
+}
+
+impl RunSpec {
+    pub const FILE: &'static str = "run.toml";
+
+    /// Load `<dir>/run.toml`.
+    pub fn load(dir: &Path) -> Result<RunSpec, InputError> {
+        let path = dir.join(Self::FILE);
+        let text = std::fs::read_to_string(&path).map_err(|e| {
+            InputError::new(
+                &path,
+                format!("cannot read run.toml ({e}); every run directory needs one (CONTRACTS.md §1)"),
+            )
+        })?;
+        Self::parse(dir, &text)
+    }
+
+    pub fn parse(dir: &Path, text: &str) -> Result<RunSpec, InputError> {
+        let path = dir.join(Self::FILE);
+        let doc: toml::Table = text
+            .parse()
+            .map_err(|e| InputError::new(&path, format!("not valid TOML: {e}")))?;
+        let run = doc
+            .get("run")
+            .and_then(|v| v.as_table())
+            .ok_or_else(|| InputError::new(&path, "missing the [run] table").column("run"))?;
+        let id = req_str(&path, run, "id")?;
+        let machine = req_str(&path, run, "machine")?;
+        let plugin = req_str(&path, run, "plugin")?;
+        let started = run.get("started").map(|v| match v {
+            toml::Value::String(s) => s.clone(),
+            other => other.to_string(),
+        });
+        let process = doc
+            .get("process")
+            .and_then(|v| v.as_table())
+            .cloned()
+            .unwrap_or_default();
+        let ae = match doc.get("ae") {
+            None => None,
+            Some(v) => {
+                let t = v
+                    .as_table()
+                    .ok_or_else(|| InputError::new(&path, "[ae] must be a table").column("ae"))?;
+                let sample_rate_hz = t.get("sample_rate_hz").and_then(num).ok_or_else(|| {
+                    InputError::new(&path, "[ae].sample_rate_hz (a positive number) is required")
+                        .column("ae.sample_rate_hz")
+                })?;
+                if !(sample_rate_hz.is_finite() && sample_rate_hz > 0.0) {
+                    return Err(InputError::new(&path, "[ae].sample_rate_hz must be > 0")
+                        .column("ae.sample_rate_hz"));
+                }
+                let kind = match t.get("kind").and_then(|v| v.as_str()).unwrap_or("raw") {
+                    "raw" => AeKind::Raw,
+                    "rms" => AeKind::Rms,
+                    other => {
+                        return Err(InputError::new(
+                            &path,
+                            format!("[ae].kind must be \"raw\" or \"rms\", found \"{other}\""),
+                        )
+                        .column("ae.kind"))
+                    }
+                };
+                let clock_offset_s = t.get("clock_offset_s").and_then(num).unwrap_or(0.0);
+                Some(AeSpec {
+                    sample_rate_hz,
+                    kind,
+                    clock_offset_s,
+                })
+            }
+        };
+        let inline_machine = doc.get("machine").and_then(|v| v.as_table()).cloned();
+        Ok(RunSpec {
+            dir: dir.to_path_buf(),
+            id,
+            machine,
+            plugin,
+            started,
+            process,
+            ae,
+            inline_machine,
+            text: text.to_string(),
+        })
+    }
+
+    pub fn run_toml_path(&self) -> PathBuf {
+        self.dir.join(Self::FILE)
+    }
+
+    /// A number from `[process]`, with a default.
+    pub fn process_f64(&self, key: &str, default: f64) -> f64 {
+        self.process.get(key).and_then(num).unwrap_or(default)
+    }
+}
+
+/// A resolved machine config: where it came from and its TOML.
+#[derive(Debug, Clone)]
+pub struct MachineConfig {
+    pub id: String,
+    pub source: String,
+    pub table: toml::Table,
+    pub text: String,
+}
+
+impl MachineConfig {
+    /// The value at a dotted path, e.g. `wheel.radius_mm`.
+    pub fn get(&self, dotted: &str) -> Option<&toml::Value> {
+        let mut parts = dotted.split('.');
+        let mut cur = self.table.get(parts.next()?)?;
+        for p in parts {
+            cur = cur.get(p)?;
+        }
+        Some(cur)
+    }
+    /// A number at a dotted path.
+    pub fn f64(&self, dotted: &str) -> Option<f64> {
+        self.get(dotted).and_then(num)
+    }
+}
+
+/// Resolves machine ids in the order CONTRACTS.md §1 gives: `--machines DIR`
+/// (or SPARKOUT_MACHINES), ./configs/machines/, the run's inline [machine],
+/// then the configs built into the binary.
+#[derive(Debug, Clone, Default)]
+pub struct MachineResolver {
+    pub dirs: Vec<PathBuf>,
+    pub builtins: BTreeMap<String, String>,
+}
+
+impl MachineResolver {
+    pub fn new(explicit: Option<PathBuf>, builtins: BTreeMap<String, String>) -> Self {
+        let mut dirs = Vec::new();
+        if let Some(d) = explicit {
+            dirs.push(d);
+        } else if let Ok(d) = std::env::var("SPARKOUT_MACHINES") {
+            if !d.is_empty() {
+                dirs.push(PathBuf::from(d));
+            }
+        }
+        dirs.push(PathBuf::from("configs/machines"));
+        MachineResolver { dirs, builtins }
+    }
+
+    pub fn resolve(&self, spec: &RunSpec) -> Result<MachineConfig, InputError> {
+        let id = &spec.machine;
+        let parse = |text: &str, source: String| -> Result<MachineConfig, InputError> {
+            let table: toml::Table = text.parse().map_err(|e| {
+                InputError::new(&source, format!("machine config is not valid TOML: {e}"))
+            })?;
+            Ok(MachineConfig {
+                id: id.clone(),
+                source,
+                table,
+                text: text.to_string(),
+            })
+        };
+        for dir in &self.dirs {
+            let p = dir.join(format!("{id}.toml"));
+            if let Ok(text) = std::fs::read_to_string(&p) {
+                return parse(&text, p.display().to_string());
+            }
+        }
+        if let Some(t) = &spec.inline_machine {
+            return Ok(MachineConfig {
+                id: id.clone(),
+                source: format!("{} [machine]", spec.run_toml_path().display()),
+                text: toml::to_string(t).unwrap_or_default(),
+                table: t.clone(),
+            });
+        }
+        if let Some(text) = self.builtins.get(id) {
+            return parse(text, format!("built-in machine `{id}`"));
+        }
+        let searched: Vec<String> = self.dirs.iter().map(|d| d.display().to_string()).collect();
+        let known: Vec<&str> = self.builtins.keys().map(|s| s.as_str()).collect();
+        Err(InputError::new(
+            spec.run_toml_path(),
+            format!(
+                "unknown machine `{id}`: no {id}.toml in {}, no inline [machine] table, and no built-in machine of that name (built in: {}). Add configs/machines/{id}.toml or pass --machines DIR",
+                searched.join(", "),
+                known.join(", ")
+            ),
+        )
+        .column("run.machine"))
+    }
+}
+
+/// Every run directory under `root` (`<root>/<machine>/<run>/run.toml`; a
+/// root that is itself a run, or holds runs directly, works too), sorted.
+pub fn discover_runs(root: &Path) -> std::io::Result<Vec<PathBuf>> {
+    fn walk(dir: &Path, depth: usize, out: &mut Vec<PathBuf>) -> std::io::Result<()> {
+        if dir.join(RunSpec::FILE).is_file() {
+            out.push(dir.to_path_buf());
+            return Ok(());
+        }
+        if depth == 0 {
+            return Ok(());
+        }
+        let mut entries: Vec<PathBuf> = std::fs::read_dir(dir)?
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| p.is_dir())
+            .collect();
+        entries.sort();
+        for e in entries {
+            walk(&e, depth - 1, out)?;
+        }
+        Ok(())
+    }
+    if !root.is_dir() {
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::NotFound,
+            format!("input root {} is not a directory", root.display()),
+        ));
+    }
+    let mut out = Vec::new();
+    walk(root, 3, &mut out)?;
+    Ok(out)
+}

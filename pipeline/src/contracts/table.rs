@@ -1,0 +1,318 @@
+//! Validated, in-memory tables (everything but the AE log, which streams: see
+//! `ae_stream`). A `Table` is an arrow `RecordBatch` whose contract columns
+//! have been checked and normalised to their v1 types; extra columns are kept
+//! untouched (CONTRACTS.md: "extra columns are kept and passed through").
+
+use std::fs::File;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use arrow::array::{
+    Array, ArrayRef, Float32Array, Float64Array, Int32Array, Int64Array, Int8Array, StringArray,
+};
+use arrow::compute::{cast, concat_batches};
+use arrow::datatypes::{DataType, Field, Schema};
+use arrow::record_batch::RecordBatch;
+use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
+
+use super::schema::{ColumnKind, TableSchema};
+use crate::error::InputError;
+
+#[derive(Debug, Clone)]
+pub struct Table {
+    path: PathBuf,
+    batch: RecordBatch,
+}
+
+pub(crate) fn arrow_type(kind: ColumnKind) -> DataType {
+    match kind {
+        ColumnKind::F64 => DataType::Float64,
+        ColumnKind::F32 => DataType::Float32,
+        ColumnKind::I32 => DataType::Int32,
+        ColumnKind::I64 => DataType::Int64,
+        ColumnKind::I8 => DataType::Int8,
+        ColumnKind::Utf8 => DataType::Utf8,
+    }
+}
+
+/// Whether a physical type is acceptable for a logical kind (CONTRACTS.md
+/// "Conventions": readers may accept more than they write).
+pub(crate) fn type_accepted(kind: ColumnKind, dt: &DataType) -> bool {
+    use DataType::*;
+    match kind {
+        ColumnKind::F64 | ColumnKind::F32 => matches!(dt, Float64 | Float32 | Float16),
+        ColumnKind::I32 | ColumnKind::I64 | ColumnKind::I8 => {
+            matches!(dt, Int8 | Int16 | Int32 | Int64 | UInt8 | UInt16 | UInt32)
+        }
+        ColumnKind::Utf8 => matches!(dt, Utf8 | LargeUtf8 | Utf8View),
+    }
+}
+
+/// Open a Parquet file for reading, with errors that say what to do.
+pub(crate) fn open_parquet(
+    path: &Path,
+) -> Result<ParquetRecordBatchReaderBuilder<File>, InputError> {
+    let file = File::open(path).map_err(|e| {
+        InputError::new(path, format!("cannot open: {e}"))
+    })?;
+    ParquetRecordBatchReaderBuilder::try_new(file).map_err(|e| {
+        InputError::new(
+            path,
+            format!("not a readable Parquet file (truncated or corrupt?): {e}"),
+        )
+    })
+}
+
+/// Check the file's schema against the contract: required columns present,
+/// known columns of an accepted type.
+pub(crate) fn check_schema(
+    path: &Path,
+    schema: &TableSchema,
+    file_schema: &Schema,
+) -> Result<(), InputError> {
+    for spec in schema.columns {
+        match file_schema.field_with_name(spec.name) {
+            Ok(field) => {
+                if !type_accepted(spec.kind, field.data_type()) {
+                    return Err(InputError::new(
+                        path,
+                        format!(
+                            "wrong type {} (the contract says {})",
+                            field.data_type(),
+                            spec.kind.label()
+                        ),
+                    )
+                    .column(spec.name));
+                }
+            }
+            Err(_) if spec.required => {
+                let have: Vec<&str> = file_schema
+                    .fields()
+                    .iter()
+                    .map(|f| f.name().as_str())
+                    .collect();
+                return Err(InputError::new(
+                    path,
+                    format!(
+                        "required column missing from `{}` (columns present: {})",
+                        schema.name,
+                        have.join(", ")
+                    ),
+                )
+                .column(spec.name));
+            }
+            Err(_) => {}
+        }
+    }
+    Ok(())
+}
+
+/// First row (0-based, within `offset`) that is null, NaN or infinite.
+pub(crate) fn first_non_finite(col: &dyn Array) -> Option<(usize, &'static str)> {
+    if col.null_count() > 0 {
+        let i = (0..col.len()).find(|&i| col.is_null(i)).unwrap_or(0);
+        return Some((i, "null"));
+    }
+    let classify = |v: f64| if v.is_nan() { "NaN" } else { "infinite value" };
+    if let Some(a) = col.as_any().downcast_ref::<Float64Array>() {
+        return a
+            .values()
+            .iter()
+            .position(|v| !v.is_finite())
+            .map(|i| (i, classify(a.value(i))));
+    }
+    if let Some(a) = col.as_any().downcast_ref::<Float32Array>() {
+        return a
+            .values()
+            .iter()
+            .position(|v| !v.is_finite())
+            .map(|i| (i, classify(a.value(i) as f64)));
+    }
+    None
+}
+
+/// First row `i` with t[i] < t[i-1].
+pub(crate) fn first_decrease(t: &[f64]) -> Option<usize> {
+    t.windows(2).position(|w| w[1] < w[0]).map(|i| i + 1)
+}
+
+impl Table {
+    /// Read and validate a whole table (not for AE logs: use `AeStream`).
+    pub fn read(path: &Path, schema: &TableSchema) -> Result<Table, InputError> {
+        let builder = open_parquet(path)?;
+        check_schema(path, schema, builder.schema())?;
+        let file_schema = builder.schema().clone();
+        let reader = builder.build().map_err(|e| {
+            InputError::new(path, format!("cannot decode Parquet: {e}"))
+        })?;
+        let mut batches = Vec::new();
+        for b in reader {
+            let b = b.map_err(|e| {
+                InputError::new(
+                    path,
+                    format!("cannot decode a row group (truncated or corrupt file?): {e}"),
+                )
+            })?;
+            batches.push(b);
+        }
+        let batch = concat_batches(&file_schema, &batches)
+            .map_err(|e| InputError::new(path, format!("cannot assemble table: {e}")))?;
+        Self::from_batch(path, schema, batch)
+    }
+
+    /// Validate and normalise an in-memory batch against a schema.
+    pub fn from_batch(
+        path: &Path,
+        schema: &TableSchema,
+        batch: RecordBatch,
+    ) -> Result<Table, InputError> {
+        check_schema(path, schema, &batch.schema())?;
+        if batch.num_rows() == 0 {
+            return Err(InputError::new(
+                path,
+                format!("table `{}` is empty (a required table needs rows)", schema.name),
+            ));
+        }
+        let mut fields = Vec::with_capacity(batch.num_columns());
+        let mut columns: Vec<ArrayRef> = Vec::with_capacity(batch.num_columns());
+        for (field, col) in batch.schema().fields().iter().zip(batch.columns()) {
+            match schema.column(field.name()) {
+                Some(spec) => {
+                    let target = match spec.kind {
+                        // Keep f32 signals f32 (memory), everything else canonical.
+                        ColumnKind::F32 if col.data_type() == &DataType::Float32 => {
+                            DataType::Float32
+                        }
+                        ColumnKind::F32 => DataType::Float64,
+                        k => arrow_type(k),
+                    };
+                    let col = if col.data_type() == &target {
+                        col.clone()
+                    } else {
+                        cast(col, &target).map_err(|e| {
+                            InputError::new(path, format!("cannot convert to {target}: {e}"))
+                                .column(spec.name)
+                        })?
+                    };
+                    if spec.required {
+                        if let Some((row, what)) = first_non_finite(col.as_ref()) {
+                            return Err(InputError::new(
+                                path,
+                                format!("{what} in a required column"),
+                            )
+                            .column(spec.name)
+                            .row(row));
+                        }
+                    }
+                    fields.push(Field::new(field.name(), target, !spec.required));
+                    columns.push(col);
+                }
+                None => {
+                    fields.push(field.as_ref().clone());
+                    columns.push(col.clone());
+                }
+            }
+        }
+        let batch = RecordBatch::try_new(Arc::new(Schema::new(fields)), columns)
+            .map_err(|e| InputError::new(path, format!("cannot assemble table: {e}")))?;
+        let table = Table {
+            path: path.to_path_buf(),
+            batch,
+        };
+        if schema.monotonic_t_s {
+            if let Some(t) = table.opt_f64("t_s") {
+                if let Some(row) = first_decrease(t) {
+                    return Err(InputError::new(
+                        path,
+                        format!(
+                            "t_s decreases ({} after {}); timestamps must be non-decreasing",
+                            t[row],
+                            t[row - 1]
+                        ),
+                    )
+                    .column("t_s")
+                    .row(row));
+                }
+            }
+        }
+        Ok(table)
+    }
+
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+    pub fn batch(&self) -> &RecordBatch {
+        &self.batch
+    }
+    pub fn len(&self) -> usize {
+        self.batch.num_rows()
+    }
+    pub fn is_empty(&self) -> bool {
+        self.batch.num_rows() == 0
+    }
+    pub fn has(&self, column: &str) -> bool {
+        self.batch.column_by_name(column).is_some()
+    }
+    fn missing(&self, column: &str) -> InputError {
+        InputError::new(&self.path, "column missing").column(column)
+    }
+    fn col(&self, column: &str) -> Result<&ArrayRef, InputError> {
+        self.batch
+            .column_by_name(column)
+            .ok_or_else(|| self.missing(column))
+    }
+
+    /// A float64 column's values (contract columns are normalised to f64).
+    pub fn f64(&self, column: &str) -> Result<&[f64], InputError> {
+        self.col(column)?
+            .as_any()
+            .downcast_ref::<Float64Array>()
+            .map(|a| a.values().as_ref())
+            .ok_or_else(|| {
+                InputError::new(&self.path, "expected float64").column(column)
+            })
+    }
+    pub fn opt_f64(&self, column: &str) -> Option<&[f64]> {
+        self.f64(column).ok()
+    }
+    pub fn f32(&self, column: &str) -> Result<&[f32], InputError> {
+        self.col(column)?
+            .as_any()
+            .downcast_ref::<Float32Array>()
+            .map(|a| a.values().as_ref())
+            .ok_or_else(|| InputError::new(&self.path, "expected float32").column(column))
+    }
+    pub fn i32(&self, column: &str) -> Result<&[i32], InputError> {
+        self.col(column)?
+            .as_any()
+            .downcast_ref::<Int32Array>()
+            .map(|a| a.values().as_ref())
+            .ok_or_else(|| InputError::new(&self.path, "expected int32").column(column))
+    }
+    pub fn opt_i32(&self, column: &str) -> Option<&[i32]> {
+        self.i32(column).ok()
+    }
+    pub fn i64(&self, column: &str) -> Result<&[i64], InputError> {
+        self.col(column)?
+            .as_any()
+            .downcast_ref::<Int64Array>()
+            .map(|a| a.values().as_ref())
+            .ok_or_else(|| InputError::new(&self.path, "expected int64").column(column))
+    }
+    pub fn i8(&self, column: &str) -> Result<&[i8], InputError> {
+        self.col(column)?
+            .as_any()
+            .downcast_ref::<Int8Array>()
+            .map(|a| a.values().as_ref())
+            .ok_or_else(|| InputError::new(&self.path, "expected int8").column(column))
+    }
+    /// A text column as string slices.
+    pub fn str(&self, column: &str) -> Result<Vec<&str>, InputError> {
+        let a = self
+            .col(column)?
+            .as_any()
+            .downcast_ref::<StringArray>()
+            .ok_or_else(|| InputError::new(&self.path, "expected utf8").column(column))?;
+        Ok((0..a.len()).map(|i| a.value(i)).collect())
+    }
+}

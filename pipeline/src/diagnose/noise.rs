@@ -1,0 +1,127 @@
+//! The noise floor σ of one observable (issue 4, point 2; DESIGN.md
+//! "Where is the gap?"): the repeatability of replicate observations where
+//! the table has them, else a robust estimate of point-to-point scatter.
+
+use std::collections::BTreeMap;
+use std::ops::Range;
+
+/// Which estimate the floor came from (diagnosis.json `noise_floor_source`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum NoiseSource {
+    Replicates,
+    PointToPoint,
+}
+
+impl NoiseSource {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            NoiseSource::Replicates => "replicates",
+            NoiseSource::PointToPoint => "point_to_point",
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy)]
+pub struct NoiseFloor {
+    pub sigma_mm: f64,
+    /// Degrees of freedom of σ² (for the F-tests of cells against it).
+    pub df: f64,
+    pub source: NoiseSource,
+}
+
+/// Minimum replicate degrees of freedom before the replicate estimate is
+/// trusted over point-to-point scatter.
+const MIN_REPLICATE_DF: f64 = 10.0;
+
+/// Pooled within-group standard deviation of replicates: rows sharing a
+/// `key` (run, point or position, pass) with at least two distinct trials.
+/// σ² = Σ_groups Σ (g − ḡ)² / Σ (n_g − 1).
+pub fn replicate_floor(gap: &[f64], key: &[Vec<i64>], trial: &[i64]) -> Option<NoiseFloor> {
+    let mut groups: BTreeMap<&[i64], Vec<usize>> = BTreeMap::new();
+    for (i, k) in key.iter().enumerate() {
+        groups.entry(k.as_slice()).or_default().push(i);
+    }
+    let (mut ss, mut df) = (0.0, 0.0);
+    for rows in groups.values() {
+        if rows.len() < 2 {
+            continue;
+        }
+        let t0 = trial[rows[0]];
+        if rows.iter().all(|&i| trial[i] == t0) {
+            continue; // not replicates: the same trial seen twice
+        }
+        let m = rows.iter().map(|&i| gap[i]).sum::<f64>() / rows.len() as f64;
+        ss += rows.iter().map(|&i| (gap[i] - m).powi(2)).sum::<f64>();
+        df += (rows.len() - 1) as f64;
+    }
+    (df >= MIN_REPLICATE_DF).then(|| NoiseFloor {
+        sigma_mm: (ss / df).sqrt(),
+        df,
+        source: NoiseSource::Replicates,
+    })
+}
+
+/// Robust point-to-point scatter: successive differences of the gap within
+/// each run (rows ordered by time, else as given), σ = 1.4826·MAD(Δg)/√2.
+/// Smooth effects barely change from one sample to the next, so Δg is
+/// mostly noise; the MAD ignores the jumps at path ends and reversals.
+/// Efficiency of the MAD ≈ 37 %, hence the effective df.
+pub fn point_to_point_floor(gap: &[f64], runs: &[Range<usize>]) -> NoiseFloor {
+    let mut d: Vec<f64> = Vec::with_capacity(gap.len());
+    for r in runs {
+        let g = &gap[r.clone()];
+        d.extend(g.windows(2).map(|w| w[1] - w[0]));
+    }
+    if d.is_empty() {
+        return NoiseFloor {
+            sigma_mm: 0.0,
+            df: 0.0,
+            source: NoiseSource::PointToPoint,
+        };
+    }
+    let med = median(&mut d.clone());
+    let mut dev: Vec<f64> = d.iter().map(|v| (v - med).abs()).collect();
+    let mad = median(&mut dev);
+    NoiseFloor {
+        sigma_mm: 1.4826 * mad / std::f64::consts::SQRT_2,
+        df: (0.37 * d.len() as f64).max(1.0),
+        source: NoiseSource::PointToPoint,
+    }
+}
+
+pub fn median(v: &mut [f64]) -> f64 {
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    let m = v.len() / 2;
+    let (_, x, _) = v.select_nth_unstable_by(m, f64::total_cmp);
+    *x
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+    use rand_distr::{Distribution, Normal};
+
+    #[test]
+    fn replicates_and_point_to_point_recover_sigma() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        let nd = Normal::new(0.0, 0.01).unwrap();
+        let mut gap = Vec::new();
+        let mut key = Vec::new();
+        let mut trial = Vec::new();
+        for p in 0..2000 {
+            let smooth = 0.05 * (p as f64 / 300.0).sin();
+            for t in 0..2 {
+                gap.push(smooth + nd.sample(&mut rng));
+                key.push(vec![0, p]);
+                trial.push(t);
+            }
+        }
+        let r = replicate_floor(&gap, &key, &trial).unwrap();
+        assert!((r.sigma_mm - 0.01).abs() < 0.0008, "{}", r.sigma_mm);
+        let p = point_to_point_floor(&gap, &[0..gap.len()]);
+        assert!((p.sigma_mm - 0.01).abs() < 0.001, "{}", p.sigma_mm);
+    }
+}

@@ -1,0 +1,215 @@
+//! observations.parquet (CONTRACTS.md §2): validated reading, and the
+//! column-major table the diagnosis works on.
+
+use std::fs::File;
+use std::path::Path;
+use std::sync::Arc;
+
+use anyhow::Context;
+use arrow::array::{Array, ArrayRef, AsArray, Float64Array, RecordBatch};
+use arrow::compute::{cast, concat_batches};
+use arrow::datatypes::{DataType, Field, Schema};
+use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
+
+use crate::{InputError, Result};
+
+/// Columns that are never covariates (CONTRACTS.md §2, last paragraph).
+pub const RESERVED: [&str; 6] = ["run", "observable", "sim", "real", "trial", "point"];
+
+/// Reads observations.parquet (all row groups, concatenated) and validates it
+/// per CONTRACTS.md §2: `run`/`observable` text, `sim`/`real` float64
+/// (float32 accepted and widened), no NaN/±inf in sim/real (the first bad row
+/// is named), not empty. Extra columns are kept.
+pub fn read_observations(path: &Path) -> Result<RecordBatch> {
+    let file = File::open(path).with_context(|| format!("opening {}", path.display()))?;
+    let builder = ParquetRecordBatchReaderBuilder::try_new(file)
+        .map_err(|e| InputError::new(path, format!("not a readable Parquet file: {e}")))?;
+    let schema = builder.schema().clone();
+    let reader = builder
+        .with_batch_size(65_536)
+        .build()
+        .map_err(|e| InputError::new(path, format!("cannot read: {e}")))?;
+    let mut batches = Vec::new();
+    for b in reader {
+        batches.push(b.map_err(|e| InputError::new(path, format!("cannot decode: {e}")))?);
+    }
+    let batch = concat_batches(&schema, &batches)?;
+    validate_observations(&batch, path)
+}
+
+/// Validation shared by the reader and `diagnose` (a batch built in memory
+/// by the DAG is checked the same way). Returns the batch with sim/real as
+/// float64.
+pub fn validate_observations(batch: &RecordBatch, path: &Path) -> Result<RecordBatch> {
+    if batch.num_rows() == 0 {
+        return Err(InputError::new(path, "no observations (empty table)").into());
+    }
+    let schema = batch.schema();
+    for name in ["run", "observable"] {
+        let f = schema
+            .field_with_name(name)
+            .map_err(|_| InputError::new(path, "missing required column").column(name))?;
+        if !matches!(f.data_type(), DataType::Utf8 | DataType::LargeUtf8) {
+            return Err(InputError::new(
+                path,
+                format!("expected utf8 text, found {}", f.data_type()),
+            )
+            .column(name)
+            .into());
+        }
+        let a = batch.column_by_name(name).expect("checked");
+        if let Some(i) = (0..a.len()).find(|&i| a.is_null(i)) {
+            return Err(InputError::new(path, "null value").column(name).row(i).into());
+        }
+    }
+    let mut fields: Vec<Arc<Field>> = schema.fields().iter().cloned().collect();
+    let mut cols: Vec<ArrayRef> = batch.columns().to_vec();
+    for name in ["sim", "real"] {
+        let (idx, f) = schema
+            .column_with_name(name)
+            .ok_or_else(|| InputError::new(path, "missing required column").column(name))?;
+        let a = match f.data_type() {
+            DataType::Float64 => cols[idx].clone(),
+            DataType::Float32 => cast(&cols[idx], &DataType::Float64)?,
+            t => {
+                return Err(InputError::new(path, format!("expected float64, found {t}"))
+                    .column(name)
+                    .into())
+            }
+        };
+        let v = a.as_primitive::<arrow::datatypes::Float64Type>();
+        for i in 0..v.len() {
+            if v.is_null(i) {
+                return Err(InputError::new(path, "null value").column(name).row(i).into());
+            }
+            let x = v.value(i);
+            if !x.is_finite() {
+                let what = if x.is_nan() { "NaN" } else { "infinite value" };
+                return Err(InputError::new(path, format!("{what} in {name}"))
+                    .column(name)
+                    .row(i)
+                    .into());
+            }
+        }
+        fields[idx] = Arc::new(Field::new(name, DataType::Float64, f.is_nullable()));
+        cols[idx] = a;
+    }
+    Ok(RecordBatch::try_new(
+        Arc::new(Schema::new_with_metadata(fields, schema.metadata().clone())),
+        cols,
+    )?)
+}
+
+/// Is this column a covariate? Any numeric column except the reserved ones.
+pub fn is_covariate(name: &str, t: &DataType) -> bool {
+    !RESERVED.contains(&name)
+        && (t.is_integer() || t.is_floating())
+}
+
+/// The observations as the engine uses them: ids instead of strings,
+/// covariates widened to f64, sorted names (deterministic order).
+pub struct Table {
+    pub n: usize,
+    pub run_names: Vec<String>,
+    pub run: Vec<u32>,
+    pub obs_names: Vec<String>,
+    pub obs: Vec<u32>,
+    pub gap: Vec<f64>,
+    /// Covariates with only finite values, sorted by name.
+    pub covs: Vec<(String, Vec<f64>)>,
+    /// Covariates dropped for non-finite values (reported as notes).
+    pub dropped: Vec<String>,
+    pub trial: Option<Vec<i64>>,
+    pub point: Option<Vec<i64>>,
+}
+
+/// Sorted distinct strings of a text column and each row's index into
+/// them (no per-row allocation: 10⁶-row tables are common).
+fn ids(a: &ArrayRef) -> (Vec<String>, Vec<u32>) {
+    fn go<'a>(it: impl Iterator<Item = Option<&'a str>> + Clone) -> (Vec<String>, Vec<u32>) {
+        let mut names: std::collections::BTreeMap<&str, u32> = std::collections::BTreeMap::new();
+        for s in it.clone() {
+            names.entry(s.unwrap_or("")).or_insert(0);
+        }
+        for (i, v) in names.values_mut().enumerate() {
+            *v = i as u32;
+        }
+        let mut last: (&str, u32) = ("", u32::MAX);
+        let id = it
+            .map(|s| {
+                let s = s.unwrap_or("");
+                if last.1 == u32::MAX || last.0 != s {
+                    last = (s, names[s]);
+                }
+                last.1
+            })
+            .collect();
+        (names.keys().map(|k| k.to_string()).collect(), id)
+    }
+    match a.data_type() {
+        DataType::LargeUtf8 => go(a.as_string::<i64>().iter()),
+        _ => go(a.as_string::<i32>().iter()),
+    }
+}
+
+fn f64s(a: &ArrayRef) -> Result<Vec<f64>> {
+    let c = cast(a, &DataType::Float64)?;
+    let v = c.as_any().downcast_ref::<Float64Array>().expect("cast");
+    Ok((0..v.len())
+        .map(|i| if v.is_null(i) { f64::NAN } else { v.value(i) })
+        .collect())
+}
+
+impl Table {
+    /// From a validated batch.
+    pub fn from_batch(b: &RecordBatch) -> Result<Table> {
+        let (run_names, run) = ids(b.column_by_name("run").expect("validated"));
+        let (obs_names, obs) = ids(b.column_by_name("observable").expect("validated"));
+        let sim = f64s(b.column_by_name("sim").expect("validated"))?;
+        let real = f64s(b.column_by_name("real").expect("validated"))?;
+        let gap: Vec<f64> = real.iter().zip(&sim).map(|(r, s)| r - s).collect();
+        let mut covs = Vec::new();
+        let mut dropped = Vec::new();
+        let schema = b.schema();
+        for (i, f) in schema.fields().iter().enumerate() {
+            if !is_covariate(f.name(), f.data_type()) {
+                continue;
+            }
+            let v = f64s(b.column(i))?;
+            if v.iter().all(|x| x.is_finite()) {
+                covs.push((f.name().clone(), v));
+            } else {
+                dropped.push(f.name().clone());
+            }
+        }
+        covs.sort_by(|a, b| a.0.cmp(&b.0));
+        dropped.sort();
+        let int = |name: &str| -> Result<Option<Vec<i64>>> {
+            match b.column_by_name(name) {
+                Some(a) if a.data_type().is_integer() || a.data_type().is_floating() => {
+                    Ok(Some(f64s(a)?.iter().map(|v| if v.is_finite() { *v as i64 } else { i64::MIN }).collect()))
+                }
+                _ => Ok(None),
+            }
+        };
+        Ok(Table {
+            n: b.num_rows(),
+            run_names,
+            run,
+            obs_names,
+            obs,
+            gap,
+            covs,
+            dropped,
+            trial: int("trial")?,
+            point: int("point")?,
+        })
+    }
+
+    pub fn cov(&self, name: &str) -> Option<&[f64]> {
+        self.covs
+            .iter()
+            .find(|(n, _)| n == name)
+            .map(|(_, v)| v.as_slice())
+    }
+}

@@ -1,0 +1,178 @@
+//! The diagnosis section of the fleet report (DESIGN.md "Reports"):
+//! self-contained HTML, inline SVG, no script, no network.
+
+use std::fmt::Write;
+
+use super::Diagnosis;
+
+fn esc(s: &str) -> String {
+    s.replace('&', "&amp;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
+        .replace('"', "&quot;")
+}
+
+fn num(x: Option<f64>) -> String {
+    match x {
+        Some(v) => format!("{v:.4e}"),
+        None => "—".into(),
+    }
+}
+
+fn json_num(v: &serde_json::Value) -> String {
+    match v {
+        serde_json::Value::Number(n) => format!("{:.4}", n.as_f64().unwrap_or(f64::NAN)),
+        serde_json::Value::Array(a) => {
+            let parts: Vec<String> = a.iter().map(json_num).collect();
+            format!("({})", parts.join(", "))
+        }
+        other => other.to_string(),
+    }
+}
+
+/// The effect ranking as horizontal bars: held-out RMS after each candidate
+/// against the RMS before (the dashed line), best first.
+fn ranking_svg(d: &Diagnosis) -> String {
+    let rows: Vec<_> = d
+        .effects
+        .iter()
+        .filter(|e| e.cv_rms_after_mm.is_some())
+        .take(24)
+        .collect();
+    if rows.is_empty() {
+        return String::new();
+    }
+    let vmax = rows
+        .iter()
+        .flat_map(|e| [e.cv_rms_after_mm, e.cv_rms_before_mm])
+        .flatten()
+        .fold(0.0f64, f64::max)
+        .max(1e-300);
+    let (w, left, bar_h) = (640.0, 220.0, 16.0);
+    let h = 20.0 + rows.len() as f64 * (bar_h + 4.0);
+    let scale = (w - left - 20.0) / vmax;
+    let mut s = format!(
+        r#"<svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="{h}" font-family="sans-serif" font-size="11">"#
+    );
+    for (i, e) in rows.iter().enumerate() {
+        let y = 10.0 + i as f64 * (bar_h + 4.0);
+        let after = e.cv_rms_after_mm.unwrap_or(0.0) * scale;
+        let before = e.cv_rms_before_mm.unwrap_or(0.0) * scale;
+        let label = match &e.covariate {
+            Some(c) => format!("{}:{} [{}]", e.name, c, e.observable),
+            None => format!("{} [{}]", e.name, e.observable),
+        };
+        let color = if e.selected { "#2a7" } else { "#99a" };
+        let _ = write!(
+            s,
+            r##"<text x="{tx}" y="{ty}" text-anchor="end">{label}</text><rect x="{left}" y="{y}" width="{after:.1}" height="{bar_h}" fill="{color}"/><line x1="{bx:.1}" x2="{bx:.1}" y1="{y}" y2="{y2}" stroke="#c33" stroke-dasharray="3,2"/>"##,
+            tx = left - 6.0,
+            ty = y + bar_h - 4.0,
+            label = esc(&label),
+            bx = left + before,
+            y2 = y + bar_h,
+        );
+    }
+    s.push_str("</svg>");
+    s
+}
+
+/// The `<section>` of the fleet report.
+pub fn section(d: &Diagnosis) -> String {
+    let mut s = String::from(r#"<section class="diagnosis"><h2>Sim-to-real gap diagnosis</h2>"#);
+    let _ = write!(
+        s,
+        "<p>Gap RMS {} mm (max |gap| {} mm, n = {}) against a noise floor of {} mm ({}). Held-out RMS after the selected effects: {} mm ({:.1} % of the gap energy unexplained).</p>",
+        num(Some(d.gap.rms_mm)),
+        num(Some(d.gap.max_abs_mm)),
+        d.gap.n,
+        num(Some(d.gap.noise_floor_mm)),
+        esc(&d.noise_floor_source),
+        num(Some(d.unexplained.rms_mm)),
+        100.0 * d.unexplained.share
+    );
+    let _ = write!(
+        s,
+        "<p>Selected: <b>{}</b>. Cross-validation: {} folds by {}; {}.</p>",
+        if d.selected.is_empty() {
+            "none".to_string()
+        } else {
+            esc(&d.selected.join(", "))
+        },
+        d.cv.folds,
+        esc(&d.cv.by),
+        esc(&d.cv.test)
+    );
+    if !d.notes.is_empty() {
+        s.push_str("<ul class=\"notes\">");
+        for n in &d.notes {
+            let _ = write!(s, "<li>{}</li>", esc(n));
+        }
+        s.push_str("</ul>");
+    }
+    s.push_str("<h3>Where</h3>");
+    if d.where_.is_empty() {
+        s.push_str("<p>No cell of covariate space is significantly above the noise floor.</p>");
+    } else {
+        s.push_str("<table><tr><th>observable</th><th>covariate</th><th>lo</th><th>hi</th><th>n</th><th>RMS mm</th><th>share</th><th>p</th></tr>");
+        for c in d.where_.iter().take(20) {
+            let _ = write!(
+                s,
+                "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{:.3}</td><td>{:.2e}</td></tr>",
+                esc(&c.observable),
+                esc(&c.covariate),
+                json_num(&c.lo),
+                json_num(&c.hi),
+                c.n,
+                num(Some(c.rms_mm)),
+                c.share,
+                c.p_value
+            );
+        }
+        s.push_str("</table>");
+    }
+    s.push_str("<h3>Which: every candidate, held-out</h3>");
+    s.push_str(&ranking_svg(d));
+    s.push_str("<table><tr><th>effect</th><th>observable</th><th>before mm</th><th>after mm</th><th>shrink</th><th>p</th><th>selected</th><th>params</th></tr>");
+    for e in &d.effects {
+        let params: Vec<String> = e.params.iter().map(|(k, v)| format!("{k}={v:.4e}")).collect();
+        let name = match &e.covariate {
+            Some(c) => format!("{}:{}", e.name, c),
+            None => e.name.clone(),
+        };
+        let _ = write!(
+            s,
+            "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
+            esc(&name),
+            esc(&e.observable),
+            num(e.cv_rms_before_mm),
+            num(e.cv_rms_after_mm),
+            e.shrink.map(|v| format!("{:.3}", v)).unwrap_or_else(|| "—".into()),
+            e.p_value.map(|v| format!("{v:.2e}")).unwrap_or_else(|| "—".into()),
+            if e.selected { "yes" } else { "" },
+            esc(&e.skipped_reason.clone().unwrap_or_else(|| params.join(", ")))
+        );
+    }
+    s.push_str("</table><h3>Unexplained</h3>");
+    if d.unexplained.where_.is_empty() {
+        s.push_str("<p>No cell remains significantly above the noise floor.</p>");
+    } else {
+        s.push_str("<table><tr><th>observable</th><th>covariate</th><th>lo</th><th>hi</th><th>RMS before mm</th><th>RMS after mm</th><th>shrink</th></tr>");
+        for c in d.unexplained.where_.iter().take(20) {
+            let _ = write!(
+                s,
+                "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
+                esc(&c.observable),
+                esc(&c.covariate),
+                json_num(&c.lo),
+                json_num(&c.hi),
+                num(c.rms_before_mm),
+                num(Some(c.rms_mm)),
+                c.shrink.map(|v| format!("{v:.3}")).unwrap_or_else(|| "—".into())
+            );
+        }
+        s.push_str("</table>");
+    }
+    s.push_str("</section>");
+    s
+}

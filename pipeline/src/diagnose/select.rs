@@ -1,0 +1,595 @@
+//! "Which unmodelled effect causes it?" (DESIGN.md point 2, issue 4 point 4):
+//! leave-runs-out cross-validation of every candidate, the paired run-by-run
+//! test, and forward selection.
+//!
+//! Cross-validation: runs are assigned to k folds by a seeded shuffle; each
+//! fold fits on the other folds' runs and scores its own. The error of a
+//! candidate is scored per *unit* — a held-out run, or, with fewer than 6
+//! runs, contiguous blocks of a held-out run, so the paired test has enough
+//! pairs; units never straddle runs, so nothing scored was fitted on.
+//!
+//! Test: one-sided paired t-test on d_u = ln(rms_before_u / rms_after_u)
+//! over the units (H0: mean d ≤ 0). Runs differ a lot in scale (feeds,
+//! loads), so a ratio per unit is compared, not pooled sums (DESIGN.md).
+//!
+//! Forward selection is stagewise: after an effect is chosen, each fold's
+//! target becomes its residual after that effect (fitted on the fold's
+//! training runs), and the remaining candidates are re-scored against it.
+//! It stops when the best candidate's p ≥ α, or the held-out RMS is at the
+//! noise floor (≤ `noise_margin`·σ), or `max_effects` are chosen. Parsimony:
+//! a candidate with fewer parameters that is itself significant and not
+//! significantly worse than the best (same paired test) is preferred, so
+//! `offset` wins when no shape does better (DESIGN.md).
+
+use std::collections::BTreeMap;
+use std::ops::Range;
+use std::sync::Arc;
+
+use anyhow::anyhow;
+use rayon::prelude::*;
+use statrs::distribution::{ContinuousCDF, StudentsT};
+
+use super::effect::{CovStats, Effect, EffectData, FittedEffect, Frame};
+use super::fit::{self, add_into, choose_theta, dot, scan_rows, FoldSpec};
+use crate::Result;
+
+/// The rows of one observable, sorted by run (then time), with its folds.
+pub struct Problem<'a> {
+    pub x: EffectData<'a>,
+    pub gap: &'a [f64],
+    /// Scoring units, contiguous, each inside one run.
+    pub units: Vec<Range<usize>>,
+    /// The CV fold that holds each unit out.
+    pub unit_fold: Vec<usize>,
+    /// Number of CV folds k; fold index k is "all runs" (the final fit).
+    pub k: usize,
+    pub frames: BTreeMap<String, CovStats>,
+}
+
+impl Problem<'_> {
+    /// Training masks: folds 0..k leave their units out, fold k trains on all.
+    pub fn train_masks(&self) -> Vec<Vec<bool>> {
+        let mut m: Vec<Vec<bool>> = (0..self.k)
+            .map(|f| self.unit_fold.iter().map(|&uf| uf != f).collect())
+            .collect();
+        m.push(vec![true; self.units.len()]);
+        m
+    }
+    fn frame(&self, e: &dyn Effect) -> Result<Frame> {
+        e.covariates()
+            .iter()
+            .map(|c| {
+                self.frames
+                    .get(c)
+                    .copied()
+                    .ok_or_else(|| anyhow!("covariate `{c}` not available"))
+            })
+            .collect()
+    }
+    fn min_train_rows(&self, masks: &[Vec<bool>]) -> usize {
+        masks
+            .iter()
+            .map(|m| {
+                self.units
+                    .iter()
+                    .zip(m)
+                    .filter(|(_, t)| **t)
+                    .map(|(u, _)| u.len())
+                    .sum::<usize>()
+            })
+            .min()
+            .unwrap_or(0)
+    }
+}
+
+/// Per-fold targets (fold k = all runs) and their Σy² per unit.
+pub struct Targets {
+    pub per_fold: Vec<Arc<Vec<f64>>>,
+    distinct: Vec<Arc<Vec<f64>>>,
+    of_fold: Vec<usize>,
+    yy_u: Vec<Vec<f64>>,
+}
+
+impl Targets {
+    pub fn new(per_fold: Vec<Arc<Vec<f64>>>, units: &[Range<usize>]) -> Targets {
+        let mut distinct: Vec<Arc<Vec<f64>>> = Vec::new();
+        let mut of_fold = Vec::new();
+        for t in &per_fold {
+            match distinct.iter().position(|d| Arc::ptr_eq(d, t)) {
+                Some(i) => of_fold.push(i),
+                None => {
+                    of_fold.push(distinct.len());
+                    distinct.push(t.clone());
+                }
+            }
+        }
+        let yy_u = distinct
+            .iter()
+            .map(|t| units.iter().map(|u| dot(&t[u.clone()], &t[u.clone()])).collect())
+            .collect();
+        Targets {
+            per_fold,
+            distinct,
+            of_fold,
+            yy_u,
+        }
+    }
+}
+
+/// A candidate's cross-validated fit.
+pub enum CandFit {
+    /// θ and [offset, coefs…] per fold (k + 1 entries).
+    Fast { theta: Vec<f64>, beta: Vec<Vec<f64>> },
+    /// A plugin effect without a linear form: one fitted effect per fold.
+    Slow { fitted: Vec<Box<dyn FittedEffect>> },
+}
+
+pub struct CandEval {
+    pub fit: CandFit,
+    /// Held-out SSE per unit.
+    pub unit_sse: Vec<f64>,
+}
+
+/// Cross-validates one candidate against the current targets.
+pub fn evaluate(e: &dyn Effect, prob: &Problem, tg: &Targets) -> Result<CandEval> {
+    let masks = prob.train_masks();
+    let frame = prob.frame(e)?;
+    let Some(form) = e.linear_form() else {
+        return evaluate_slow(e, prob, tg, &masks);
+    };
+    let nf = masks.len();
+    let tslices: Vec<&[f64]> = tg.distinct.iter().map(|t| t.as_slice()).collect();
+    let thetas: Vec<f64> = match form.theta(&frame) {
+        None => vec![f64::NAN; nf],
+        Some(tr) => {
+            let mut store = Vec::new();
+            let rows = scan_rows(
+                form.as_ref(),
+                &frame,
+                &tr,
+                &prob.x,
+                &prob.units,
+                &tslices,
+                &mut store,
+            )?;
+            let spec = FoldSpec {
+                train: &masks,
+                target_of_fold: &tg.of_fold,
+            };
+            choose_theta(form.as_ref(), &frame, &tr, &rows, &tg.yy_u, &spec)?
+        }
+    };
+    let p = form.n_linear() + 1;
+    let mut beta = vec![Vec::new(); nf];
+    let mut unit_sse = vec![f64::NAN; prob.units.len()];
+    let mut done = vec![false; nf];
+    let mut buf = vec![Vec::new(); form.n_linear()];
+    for f0 in 0..nf {
+        if done[f0] {
+            continue;
+        }
+        let th = thetas[f0];
+        let same: Vec<usize> = (f0..nf)
+            .filter(|&f| !done[f] && (thetas[f].to_bits() == th.to_bits()))
+            .collect();
+        form.features(&frame, &prob.x, th, &mut buf)?;
+        let g_u: Vec<Vec<f64>> = prob
+            .units
+            .iter()
+            .map(|u| fit::design_gram(&buf, None, u.clone()))
+            .collect();
+        let mut h_cache: BTreeMap<usize, Vec<Vec<f64>>> = BTreeMap::new();
+        for &f in &same {
+            done[f] = true;
+            let t = tg.of_fold[f];
+            let h_u = h_cache.entry(t).or_insert_with(|| {
+                prob.units
+                    .iter()
+                    .map(|u| fit::design_xy(&buf, &tslices[t], u.clone()))
+                    .collect()
+            });
+            let mut g = vec![0.0; p * p];
+            let mut h = vec![0.0; p];
+            for (u, tr) in masks[f].iter().enumerate() {
+                if *tr {
+                    add_into(&mut g, &g_u[u]);
+                    add_into(&mut h, &h_u[u]);
+                }
+            }
+            let b = fit::solve(&g, &h).ok_or_else(|| anyhow!("singular normal equations"))?;
+            for (u, tr) in masks[f].iter().enumerate() {
+                if !*tr {
+                    unit_sse[u] = fit::sse(&g_u[u], &h_u[u], tg.yy_u[t][u], &b);
+                }
+            }
+            beta[f] = b;
+        }
+    }
+    Ok(CandEval {
+        fit: CandFit::Fast {
+            theta: thetas,
+            beta,
+        },
+        unit_sse,
+    })
+}
+
+fn gather<'a>(
+    prob: &Problem,
+    covs: &[String],
+    rows: &[usize],
+    store: &'a mut Vec<Vec<f64>>,
+) -> Result<EffectData<'a>> {
+    store.clear();
+    for c in covs {
+        let col = prob.x.require(c)?;
+        store.push(rows.iter().map(|&i| col[i]).collect());
+    }
+    let mut d = EffectData::new(rows.len());
+    for (c, v) in covs.iter().zip(store.iter()) {
+        d.push(c, v);
+    }
+    Ok(d)
+}
+
+fn evaluate_slow(
+    e: &dyn Effect,
+    prob: &Problem,
+    tg: &Targets,
+    masks: &[Vec<bool>],
+) -> Result<CandEval> {
+    let covs = e.covariates();
+    let mut fitted = Vec::new();
+    let mut unit_sse = vec![f64::NAN; prob.units.len()];
+    for (f, m) in masks.iter().enumerate() {
+        let rows: Vec<usize> = prob
+            .units
+            .iter()
+            .zip(m)
+            .filter(|(_, t)| **t)
+            .flat_map(|(u, _)| u.clone())
+            .collect();
+        let y: Vec<f64> = rows.iter().map(|&i| tg.per_fold[f][i]).collect();
+        let mut store = Vec::new();
+        let xd = gather(prob, &covs, &rows, &mut store)?;
+        let fe = e.fit(&xd, &y)?;
+        let pred = fe.predict(&prob.x);
+        let off = fe.offset_mm();
+        for (u, t) in m.iter().enumerate() {
+            if !*t {
+                let r = prob.units[u].clone();
+                unit_sse[u] = r
+                    .map(|i| (tg.per_fold[f][i] - off - pred[i]).powi(2))
+                    .sum();
+            }
+        }
+        fitted.push(fe);
+    }
+    Ok(CandEval {
+        fit: CandFit::Slow { fitted },
+        unit_sse,
+    })
+}
+
+/// The prediction (offset included) of fold `f`'s fit on every row.
+pub fn predict_fold(e: &dyn Effect, prob: &Problem, ev: &CandEval, f: usize) -> Result<Vec<f64>> {
+    match &ev.fit {
+        CandFit::Fast { theta, beta } => {
+            let form = e.linear_form().expect("fast fit has a form");
+            let frame = prob.frame(e)?;
+            let mut buf = vec![Vec::new(); form.n_linear()];
+            form.features(&frame, &prob.x, theta[f], &mut buf)?;
+            let b = &beta[f];
+            let mut out = vec![b[0]; prob.x.len()];
+            for (col, bj) in buf.iter().zip(&b[1..]) {
+                for (o, v) in out.iter_mut().zip(col) {
+                    *o += bj * v;
+                }
+            }
+            Ok(out)
+        }
+        CandFit::Slow { fitted } => {
+            let off = fitted[f].offset_mm();
+            Ok(fitted[f]
+                .predict(&prob.x)
+                .into_iter()
+                .map(|v| v + off)
+                .collect())
+        }
+    }
+}
+
+/// Contract parameters and offset of fold `f`'s fit (f = k: all runs).
+pub fn params_of(
+    e: &dyn Effect,
+    prob: &Problem,
+    ev: &CandEval,
+    f: usize,
+) -> (BTreeMap<String, f64>, f64) {
+    match &ev.fit {
+        CandFit::Fast { theta, beta } => {
+            let form = e.linear_form().expect("fast");
+            match prob.frame(e) {
+                Ok(frame) => form.params(&frame, theta[f], &beta[f][1..], beta[f][0]),
+                Err(_) => (BTreeMap::new(), f64::NAN),
+            }
+        }
+        CandFit::Slow { fitted } => (fitted[f].params(), fitted[f].offset_mm()),
+    }
+}
+
+/// One-sided paired t-test that `after` is smaller than `before`, on the
+/// log ratio of each unit's RMS. Returns (mean log ratio, p-value).
+pub fn paired_log_test(before: &[f64], after: &[f64]) -> (f64, f64) {
+    let d: Vec<f64> = before
+        .iter()
+        .zip(after)
+        .filter(|(b, a)| b.is_finite() && a.is_finite())
+        .map(|(b, a)| 0.5 * ((b + 1e-300) / (a + 1e-300)).ln())
+        .collect();
+    let m = d.len();
+    if m == 0 {
+        return (f64::NAN, f64::NAN);
+    }
+    let mean = d.iter().sum::<f64>() / m as f64;
+    if m < 2 {
+        return (mean, f64::NAN);
+    }
+    let var = d.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (m - 1) as f64;
+    let se = (var / m as f64).sqrt();
+    let p = if se <= 1e-300 * mean.abs().max(1.0) {
+        if mean > 0.0 {
+            0.0
+        } else {
+            1.0
+        }
+    } else {
+        match StudentsT::new(0.0, 1.0, (m - 1) as f64) {
+            Ok(t) => t.sf(mean / se),
+            Err(_) => f64::NAN,
+        }
+    };
+    (mean, p)
+}
+
+/// A candidate's record in `effects`: its score in the last round it was
+/// evaluated in (the round it was selected in, or the final round).
+pub struct Record {
+    pub idx: usize,
+    pub step: usize,
+    pub skipped: Option<String>,
+    pub sse_before: f64,
+    pub sse_after: f64,
+    pub mean_log_ratio: f64,
+    pub p_value: f64,
+    pub params: BTreeMap<String, f64>,
+    pub offset_mm: f64,
+    pub selected: bool,
+}
+
+pub struct Selection {
+    pub records: Vec<Record>,
+    /// Candidate indices in the order they were selected.
+    pub chosen: Vec<usize>,
+    /// Held-out contribution of each chosen effect per row (offset included).
+    pub contrib: Vec<Vec<f64>>,
+    /// All-runs fits of the chosen effects, stagewise: (params, offset).
+    pub final_params: Vec<(BTreeMap<String, f64>, f64)>,
+    /// Held-out residual after the selection, per row.
+    pub residual: Vec<f64>,
+    /// Held-out Σ residual² per unit before any effect (the raw gap) and
+    /// after the selection.
+    pub unit_sse_gap: Vec<f64>,
+    pub unit_sse_after: Vec<f64>,
+    pub stop_reason: String,
+}
+
+pub struct SelectOptions {
+    pub alpha: f64,
+    pub noise_margin: f64,
+    pub sigma_mm: f64,
+    pub max_effects: usize,
+    /// False: score every candidate but select nothing ("no gap above noise").
+    pub allow_selection: bool,
+}
+
+/// Scores every candidate and runs forward selection.
+pub fn select(prob: &Problem, cands: &[&dyn Effect], opt: &SelectOptions) -> Result<Selection> {
+    let n = prob.x.len();
+    let k = prob.k;
+    let masks = prob.train_masks();
+    let min_train = prob.min_train_rows(&masks);
+    let mut records: Vec<Option<Record>> = (0..cands.len()).map(|_| None).collect();
+    for (i, c) in cands.iter().enumerate() {
+        let need = c.n_params() + 1;
+        if need > min_train {
+            records[i] = Some(Record {
+                idx: i,
+                step: 1,
+                skipped: Some(format!(
+                    "{need} parameters but only {min_train} observations in the smallest training fold"
+                )),
+                sse_before: f64::NAN,
+                sse_after: f64::NAN,
+                mean_log_ratio: f64::NAN,
+                p_value: f64::NAN,
+                params: BTreeMap::new(),
+                offset_mm: f64::NAN,
+                selected: false,
+            });
+        }
+    }
+    let gap = Arc::new(prob.gap.to_vec());
+    let mut tg = Targets::new(vec![gap.clone(); k + 1], &prob.units);
+    let unit_sse_gap: Vec<f64> = prob
+        .units
+        .iter()
+        .map(|u| dot(&prob.gap[u.clone()], &prob.gap[u.clone()]))
+        .collect();
+    let mut before = unit_sse_gap.clone();
+    let mut chosen: Vec<usize> = Vec::new();
+    let mut contrib: Vec<Vec<f64>> = Vec::new();
+    let mut final_params = Vec::new();
+    let stop_reason;
+    let mut step = 0;
+    loop {
+        step += 1;
+        // After the first round (which scores every candidate against the
+        // raw gap), stop before re-scoring when nothing is left to explain;
+        // the candidates keep their scores from the previous round.
+        let rms_now = (before.iter().sum::<f64>() / n as f64).sqrt();
+        if step > 1 && rms_now <= opt.noise_margin * opt.sigma_mm {
+            stop_reason = format!(
+                "held-out RMS {rms_now:.3e} mm at the noise floor (≤ {}·σ)",
+                opt.noise_margin
+            );
+            break;
+        }
+        if chosen.len() >= opt.max_effects {
+            stop_reason = format!("{} effects selected (maximum)", opt.max_effects);
+            break;
+        }
+        let live: Vec<usize> = (0..cands.len())
+            .filter(|i| !chosen.contains(i) && records[*i].as_ref().is_none_or(|r| r.skipped.is_none()))
+            .collect();
+        if live.is_empty() {
+            stop_reason = "no candidate left".to_string();
+            break;
+        }
+        let evals: Vec<(usize, Result<CandEval>)> = live
+            .par_iter()
+            .map(|&i| (i, evaluate(cands[i], prob, &tg)))
+            .collect();
+        let sse_before: f64 = before.iter().sum();
+        let mut scored: Vec<(usize, CandEval, f64, f64)> = Vec::new();
+        for (i, ev) in evals {
+            match ev {
+                Err(e) => {
+                    records[i] = Some(Record {
+                        idx: i,
+                        step,
+                        skipped: Some(format!("fit failed: {e}")),
+                        sse_before,
+                        sse_after: f64::NAN,
+                        mean_log_ratio: f64::NAN,
+                        p_value: f64::NAN,
+                        params: BTreeMap::new(),
+                        offset_mm: f64::NAN,
+                        selected: false,
+                    });
+                }
+                Ok(ev) => {
+                    let (mlr, p) = paired_log_test(&before, &ev.unit_sse);
+                    let (params, off) = params_of(cands[i], prob, &ev, k);
+                    records[i] = Some(Record {
+                        idx: i,
+                        step,
+                        skipped: None,
+                        sse_before,
+                        sse_after: ev.unit_sse.iter().sum(),
+                        mean_log_ratio: mlr,
+                        p_value: p,
+                        params,
+                        offset_mm: off,
+                        selected: false,
+                    });
+                    scored.push((i, ev, mlr, p));
+                }
+            }
+        }
+        if !opt.allow_selection {
+            stop_reason = "no gap above noise".to_string();
+            break;
+        }
+        if rms_now <= opt.noise_margin * opt.sigma_mm {
+            stop_reason = format!(
+                "held-out RMS {rms_now:.3e} mm at the noise floor (≤ {}·σ)",
+                opt.noise_margin
+            );
+            break;
+        }
+        // Best by mean log ratio; ties by fewer parameters, then name order.
+        let significant = |s: &(usize, CandEval, f64, f64)| {
+            s.3 < opt.alpha && s.1.unit_sse.iter().sum::<f64>() < sse_before
+        };
+        let mut best: Option<usize> = None;
+        for (j, s) in scored.iter().enumerate() {
+            if !significant(s) {
+                continue;
+            }
+            best = match best {
+                None => Some(j),
+                Some(b) => {
+                    let (sb, np_b) = (scored[b].2, cands[scored[b].0].n_params());
+                    let np = cands[s.0].n_params();
+                    if s.2 > sb || (s.2 == sb && np < np_b) {
+                        Some(j)
+                    } else {
+                        Some(b)
+                    }
+                }
+            };
+        }
+        let Some(mut b) = best else {
+            stop_reason = format!("no candidate lowers the held-out gap significantly (p < {})", opt.alpha);
+            break;
+        };
+        // Parsimony: a simpler significant candidate not significantly worse.
+        let np_best = cands[scored[b].0].n_params();
+        let mut alt: Option<usize> = None;
+        for (j, s) in scored.iter().enumerate() {
+            if j == b || !significant(s) || cands[s.0].n_params() >= np_best {
+                continue;
+            }
+            let (_, p_worse) = paired_log_test(&s.1.unit_sse, &scored[b].1.unit_sse);
+            if p_worse.is_nan() || p_worse >= opt.alpha {
+                alt = match alt {
+                    Some(a) if scored[a].2 >= s.2 => Some(a),
+                    _ => Some(j),
+                };
+            }
+        }
+        if let Some(a) = alt {
+            b = a;
+        }
+        let (ci, ev, _, _) = scored.swap_remove(b);
+        // Update every fold's target; record held-out contributions.
+        let mut new_targets = Vec::with_capacity(k + 1);
+        let mut c = vec![0.0; n];
+        for f in 0..=k {
+            let pred = predict_fold(cands[ci], prob, &ev, f)?;
+            let t: Vec<f64> = tg.per_fold[f].iter().zip(&pred).map(|(y, p)| y - p).collect();
+            if f < k {
+                for (u, uf) in prob.unit_fold.iter().enumerate() {
+                    if *uf == f {
+                        for i in prob.units[u].clone() {
+                            c[i] = pred[i];
+                        }
+                    }
+                }
+            }
+            new_targets.push(Arc::new(t));
+        }
+        contrib.push(c);
+        final_params.push(params_of(cands[ci], prob, &ev, k));
+        if let Some(r) = records[ci].as_mut() {
+            r.selected = true;
+        }
+        before = ev.unit_sse.clone();
+        chosen.push(ci);
+        tg = Targets::new(new_targets, &prob.units);
+    }
+    let residual: Vec<f64> = (0..n)
+        .map(|i| prob.gap[i] - contrib.iter().map(|c| c[i]).sum::<f64>())
+        .collect();
+    Ok(Selection {
+        records: records.into_iter().flatten().collect(),
+        chosen,
+        contrib,
+        final_params,
+        residual,
+        unit_sse_gap,
+        unit_sse_after: before,
+        stop_reason,
+    })
+}

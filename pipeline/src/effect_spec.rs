@@ -1,0 +1,107 @@
+//! `--effect NAME[:COVARIATE]=KEY=VALUE,...` as used by `sparkout generate`.
+
+use std::collections::BTreeMap;
+use std::fmt;
+use std::str::FromStr;
+
+/// An effect to inject into a generated fleet (or a fitted effect written
+/// back out): catalogue name, optional covariate, named parameters.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct EffectSpec {
+    pub name: String,
+    pub covariate: Option<String>,
+    pub params: BTreeMap<String, f64>,
+}
+
+impl EffectSpec {
+    /// `name:covariate` as diagnosis.json's `selected` spells it.
+    pub fn key(&self) -> String {
+        match &self.covariate {
+            Some(c) => format!("{}:{}", self.name, c),
+            None => self.name.clone(),
+        }
+    }
+    pub fn param(&self, key: &str) -> Option<f64> {
+        self.params.get(key).copied()
+    }
+    /// Parameter with a default when the user did not give it.
+    pub fn param_or(&self, key: &str, default: f64) -> f64 {
+        self.param(key).unwrap_or(default)
+    }
+}
+
+impl FromStr for EffectSpec {
+    type Err = String;
+    /// Parses `drift:t_s=amplitude_mm=0.02,tau_s=600`, `wear=k=1e-6`,
+    /// `trigger_latency` (no parameters: plugin defaults).
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        let s = s.trim();
+        if s.is_empty() {
+            return Err("empty --effect; expected NAME[:COVARIATE]=KEY=VALUE,...".into());
+        }
+        let (head, rest) = match s.find('=') {
+            Some(i) => (&s[..i], Some(&s[i + 1..])),
+            None => (s, None),
+        };
+        let (name, covariate) = match head.split_once(':') {
+            Some((n, c)) => (n.trim(), Some(c.trim().to_string())),
+            None => (head.trim(), None),
+        };
+        if name.is_empty() {
+            return Err(format!("--effect `{s}`: missing effect name"));
+        }
+        let mut params = BTreeMap::new();
+        if let Some(rest) = rest {
+            for kv in rest.split(',').filter(|p| !p.trim().is_empty()) {
+                let (k, v) = kv.split_once('=').ok_or_else(|| {
+                    format!("--effect `{s}`: parameter `{kv}` is not KEY=VALUE")
+                })?;
+                let v: f64 = v.trim().parse().map_err(|_| {
+                    format!("--effect `{s}`: value of `{}` is not a number: `{v}`", k.trim())
+                })?;
+                params.insert(k.trim().to_string(), v);
+            }
+        }
+        Ok(EffectSpec {
+            name: name.to_string(),
+            covariate,
+            params,
+        })
+    }
+}
+
+impl fmt::Display for EffectSpec {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}", self.key())?;
+        let mut first = true;
+        for (k, v) in &self.params {
+            write!(f, "{}{k}={v}", if first { "=" } else { "," })?;
+            first = false;
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn parses_full_form() {
+        let e: EffectSpec = "drift:t_s=amplitude_mm=0.02,tau_s=600".parse().unwrap();
+        assert_eq!(e.name, "drift");
+        assert_eq!(e.covariate.as_deref(), Some("t_s"));
+        assert_eq!(e.param("amplitude_mm"), Some(0.02));
+        assert_eq!(e.param("tau_s"), Some(600.0));
+        assert_eq!(e.to_string(), "drift:t_s=amplitude_mm=0.02,tau_s=600");
+    }
+
+    #[test]
+    fn parses_bare_and_rejects_garbage() {
+        let e: EffectSpec = "trigger_latency".parse().unwrap();
+        assert!(e.params.is_empty() && e.covariate.is_none());
+        assert!("wear=k".parse::<EffectSpec>().is_err());
+        assert!("wear=k=abc".parse::<EffectSpec>().is_err());
+        assert!(":x=k=1".parse::<EffectSpec>().is_err());
+    }
+}

@@ -1,0 +1,127 @@
+//! The pipeline config (configs/nightly.toml and `--set key=value`).
+
+use std::path::Path;
+
+use anyhow::{anyhow, bail, Context};
+
+use crate::error::Result;
+
+/// The default DAG, built into the binary so `sparkout run` works from any
+/// directory without `--config`.
+pub const NIGHTLY_TOML: &str = include_str!("../../../configs/nightly.toml");
+
+#[derive(Debug, Clone)]
+pub struct PipelineConfig {
+    pub table: toml::Table,
+    /// Where it came from (a path, or "built-in nightly.toml").
+    pub source: String,
+}
+
+impl PipelineConfig {
+    pub fn builtin() -> Self {
+        Self::parse(NIGHTLY_TOML, "built-in configs/nightly.toml").expect("nightly.toml parses")
+    }
+
+    pub fn load(path: &Path) -> Result<Self> {
+        let text = std::fs::read_to_string(path)
+            .with_context(|| format!("cannot read config {}", path.display()))?;
+        Self::parse(&text, &path.display().to_string())
+    }
+
+    pub fn parse(text: &str, source: &str) -> Result<Self> {
+        let table: toml::Table = text
+            .parse()
+            .map_err(|e| anyhow!("config {source} is not valid TOML: {e}"))?;
+        Ok(PipelineConfig {
+            table,
+            source: source.to_string(),
+        })
+    }
+
+    /// Apply `key.path=value` (value read as TOML: numbers, booleans,
+    /// arrays; anything else is a string).
+    pub fn set(&mut self, assignment: &str) -> Result<()> {
+        let (key, raw) = assignment
+            .split_once('=')
+            .ok_or_else(|| anyhow!("--set `{assignment}`: expected KEY=VALUE, e.g. --set robot.ingest.k_sigma=8"))?;
+        let key = key.trim();
+        if key.is_empty() || key.split('.').any(|p| p.is_empty()) {
+            bail!("--set `{assignment}`: the key must be a dotted path like robot.ingest.k_sigma");
+        }
+        let value = parse_value(raw.trim());
+        let parts: Vec<&str> = key.split('.').collect();
+        let mut cur = &mut self.table;
+        for p in &parts[..parts.len() - 1] {
+            let entry = cur
+                .entry(p.to_string())
+                .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+            cur = entry.as_table_mut().ok_or_else(|| {
+                anyhow!("--set `{assignment}`: `{p}` is not a table in the config")
+            })?;
+        }
+        cur.insert(parts[parts.len() - 1].to_string(), value);
+        Ok(())
+    }
+
+    /// A top-level or dotted section, empty when absent.
+    pub fn section(&self, dotted: &str) -> toml::Table {
+        let mut cur = &self.table;
+        for p in dotted.split('.') {
+            match cur.get(p).and_then(|v| v.as_table()) {
+                Some(t) => cur = t,
+                None => return toml::Table::new(),
+            }
+        }
+        cur.clone()
+    }
+
+    /// `[pipeline].<key>` as a list of strings, if given.
+    pub fn pipeline_list(&self, key: &str) -> Result<Option<Vec<String>>> {
+        let p = self.section("pipeline");
+        match p.get(key) {
+            None => Ok(None),
+            Some(toml::Value::Array(a)) => a
+                .iter()
+                .map(|v| {
+                    v.as_str()
+                        .map(|s| s.to_string())
+                        .ok_or_else(|| anyhow!("[pipeline].{key} must be a list of strings"))
+                })
+                .collect::<Result<Vec<_>>>()
+                .map(Some),
+            Some(_) => bail!("[pipeline].{key} must be a list of strings"),
+        }
+    }
+}
+
+fn parse_value(raw: &str) -> toml::Value {
+    let doc = format!("v = {raw}");
+    match doc.parse::<toml::Table>() {
+        Ok(mut t) => t.remove("v").unwrap_or(toml::Value::String(raw.to_string())),
+        Err(_) => toml::Value::String(raw.to_string()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn set_overrides_nested_keys() {
+        let mut c = PipelineConfig::parse("[robot.ingest]\nk_sigma = 6\n", "t").unwrap();
+        c.set("robot.ingest.k_sigma=8.5").unwrap();
+        c.set("diagnose.effects=[\"drift\"]").unwrap();
+        c.set("report.title=night shift").unwrap();
+        assert_eq!(c.section("robot.ingest")["k_sigma"].as_float(), Some(8.5));
+        assert!(c.section("diagnose")["effects"].is_array());
+        assert_eq!(c.section("report")["title"].as_str(), Some("night shift"));
+        assert!(c.set("nokey").is_err());
+        assert!(c.set("robot..x=1").is_err());
+    }
+
+    #[test]
+    fn builtin_nightly_parses() {
+        let c = PipelineConfig::builtin();
+        assert!(c.table.contains_key("diagnose"));
+    }
+}

@@ -1,0 +1,935 @@
+//! The DAG engine: runs every plugin stage of every run (rayon across runs,
+//! per-run isolation, content-hash cache), then the fleet diagnosis and the
+//! reports, then failures.json and — last — manifest.json.
+
+pub mod cache;
+pub mod config;
+pub mod dag;
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use anyhow::{anyhow, bail, Context};
+use arrow::record_batch::RecordBatch;
+use serde::Serialize;
+
+use crate::contracts::{
+    discover_runs, table_schema, write_atomic, write_json_atomic,
+    AeStream, MachineResolver, RunSpec, Table,
+};
+use crate::diagnose::{self, DiagnoseConfig, Effect};
+use crate::error::{InputError, Result};
+use crate::report;
+use crate::traits::{ArtifactStore, MachinePlugin, Run, Stage, StageContext, StageOutput};
+use cache::{hash_bytes, hash_file, read_run_cache, record_valid, KeyBuilder, StageRecord};
+pub use config::PipelineConfig;
+
+/// Version of the fleet `diagnose` step (bump when its output changes).
+pub const DIAGNOSE_STAGE_VERSION: u32 = 1;
+
+/// Version of the manifest/failures layout.
+pub const MANIFEST_VERSION: u32 = 1;
+
+/// Receives progress from a long batch (the CLI draws a bar or logs lines).
+pub trait Progress: Sync {
+    fn start(&self, _runs: usize) {}
+    fn run_done(&self, _label: &str, _ok: bool, _computed: usize, _cached: usize) {}
+    fn message(&self, _msg: &str) {}
+}
+
+/// Progress that says nothing (tests, library use).
+pub struct Quiet;
+impl Progress for Quiet {}
+
+/// A rejected run, as failures.json lists it.
+#[derive(Debug, Clone, Serialize)]
+pub struct Failure {
+    pub run_dir: String,
+    pub machine: Option<String>,
+    pub run: Option<String>,
+    pub stage: Option<String>,
+    pub file: Option<String>,
+    pub column: Option<String>,
+    pub row: Option<usize>,
+    pub error: String,
+}
+
+impl Failure {
+    fn from_error(run_dir: &Path, spec: Option<&RunSpec>, stage: Option<&str>, e: &anyhow::Error) -> Self {
+        let input = e.chain().find_map(|c| c.downcast_ref::<InputError>());
+        Failure {
+            run_dir: run_dir.display().to_string(),
+            machine: spec.map(|s| s.machine.clone()),
+            run: spec.map(|s| s.id.clone()),
+            stage: stage.map(|s| s.to_string()),
+            file: input.map(|i| i.file.display().to_string()),
+            column: input.and_then(|i| i.column.clone()),
+            row: input.and_then(|i| i.row),
+            error: format!("{e:#}"),
+        }
+    }
+}
+
+/// One run that went through.
+#[derive(Debug, Clone, Serialize)]
+pub struct RunResult {
+    pub machine: String,
+    pub run: String,
+    pub plugin: String,
+    pub run_dir: String,
+    pub out_dir: String,
+    pub inputs: BTreeMap<String, String>,
+    pub stages: Vec<StageRecord>,
+    #[serde(skip)]
+    pub observations: Option<PathBuf>,
+}
+
+impl RunResult {
+    pub fn computed(&self) -> usize {
+        self.stages.iter().filter(|s| !s.cached).count()
+    }
+    pub fn cached(&self) -> usize {
+        self.stages.iter().filter(|s| s.cached).count()
+    }
+}
+
+/// What a whole batch did.
+#[derive(Debug, Clone, Serialize)]
+pub struct FleetOutcome {
+    pub out_dir: PathBuf,
+    pub runs: Vec<RunResult>,
+    pub failures: Vec<Failure>,
+    /// Fleet-level steps (observations, diagnose, report) with their keys.
+    pub fleet: Vec<StageRecord>,
+    pub report: Option<PathBuf>,
+    pub diagnosis: Option<PathBuf>,
+}
+
+impl FleetOutcome {
+    pub fn stages_computed(&self) -> usize {
+        self.runs.iter().map(|r| r.computed()).sum::<usize>()
+            + self.fleet.iter().filter(|s| !s.cached).count()
+    }
+    pub fn stages_cached(&self) -> usize {
+        self.runs.iter().map(|r| r.cached()).sum::<usize>()
+            + self.fleet.iter().filter(|s| s.cached).count()
+    }
+    /// 0 all good, 2 some runs failed (1 is for usage/config errors, which
+    /// never get this far).
+    pub fn exit_code(&self) -> i32 {
+        if self.failures.is_empty() {
+            0
+        } else {
+            2
+        }
+    }
+}
+
+/// A problem `validate-input` found.
+#[derive(Debug, Clone, Serialize)]
+pub struct Problem {
+    pub run_dir: String,
+    pub message: String,
+}
+
+pub struct Engine {
+    plugins: Vec<Arc<dyn MachinePlugin>>,
+    resolver: MachineResolver,
+    config: PipelineConfig,
+}
+
+fn config_text(t: &toml::Table) -> String {
+    toml::to_string(t).unwrap_or_default()
+}
+
+impl Engine {
+    /// Checks the config against the registered plugins and their stages
+    /// before anything runs (unknown plugin, unknown stage, bad values).
+    pub fn new(
+        plugins: Vec<Arc<dyn MachinePlugin>>,
+        resolver: MachineResolver,
+        config: PipelineConfig,
+    ) -> Result<Self> {
+        let engine = Engine {
+            plugins,
+            resolver,
+            config,
+        };
+        engine.validate_config()?;
+        Ok(engine)
+    }
+
+    pub fn config(&self) -> &PipelineConfig {
+        &self.config
+    }
+
+    pub fn plugins(&self) -> &[Arc<dyn MachinePlugin>] {
+        &self.plugins
+    }
+
+    pub fn plugin(&self, name: &str) -> Option<&Arc<dyn MachinePlugin>> {
+        self.plugins.iter().find(|p| p.name() == name)
+    }
+
+    fn plugin_names(&self) -> Vec<&'static str> {
+        self.plugins.iter().map(|p| p.name()).collect()
+    }
+
+    fn validate_config(&self) -> Result<()> {
+        let src = &self.config.source;
+        if let Some(list) = self.config.pipeline_list("plugins")? {
+            for p in &list {
+                if self.plugin(p).is_none() {
+                    bail!(
+                        "config {src}: [pipeline].plugins names unknown plugin `{p}` (known: {})",
+                        self.plugin_names().join(", ")
+                    );
+                }
+            }
+        }
+        let all_stages: BTreeSet<&str> = self
+            .plugins
+            .iter()
+            .flat_map(|p| p.stages().into_iter().map(|s| s.name()).collect::<Vec<_>>())
+            .chain(["diagnose", "report"])
+            .collect();
+        if let Some(list) = self.config.pipeline_list("stages")? {
+            for s in &list {
+                if !all_stages.contains(s.as_str()) {
+                    bail!(
+                        "config {src}: [pipeline].stages names unknown stage `{s}` (known: {})",
+                        all_stages.iter().copied().collect::<Vec<_>>().join(", ")
+                    );
+                }
+            }
+        }
+        for plugin in &self.plugins {
+            let section = self.config.section(plugin.name());
+            let stages = plugin.stages();
+            for (key, value) in &section {
+                let stage = stages.iter().find(|s| s.name() == key).ok_or_else(|| {
+                    anyhow!(
+                        "config {src}: [{}.{key}] is not a stage of plugin `{}` (its stages: {})",
+                        plugin.name(),
+                        plugin.name(),
+                        stages.iter().map(|s| s.name()).collect::<Vec<_>>().join(", ")
+                    )
+                })?;
+                let t = value.as_table().ok_or_else(|| {
+                    anyhow!("config {src}: [{}.{key}] must be a table", plugin.name())
+                })?;
+                stage
+                    .validate_config(t)
+                    .with_context(|| format!("config {src}: [{}.{key}]", plugin.name()))?;
+            }
+        }
+        self.diagnose_config()?;
+        Ok(())
+    }
+
+    /// `[diagnose]` as the diagnosis takes it.
+    pub fn diagnose_config(&self) -> Result<DiagnoseConfig> {
+        diagnose_config_from(&self.config.section("diagnose"))
+            .with_context(|| format!("config {}: [diagnose]", self.config.source))
+    }
+
+    /// Every effect the plugins add to the catalogue.
+    pub fn plugin_effects(&self) -> Vec<Box<dyn Effect>> {
+        self.plugins.iter().flat_map(|p| p.effects()).collect()
+    }
+
+    /// Load and resolve one run: run.toml, plugin, machine, required tables.
+    pub fn open_run(&self, dir: &Path) -> Result<(Run, Arc<dyn MachinePlugin>)> {
+        let spec = RunSpec::load(dir)?;
+        let plugin = self.plugin(&spec.plugin).cloned().ok_or_else(|| {
+            InputError::new(
+                spec.run_toml_path(),
+                format!(
+                    "unknown plugin `{}` (known: {})",
+                    spec.plugin,
+                    self.plugin_names().join(", ")
+                ),
+            )
+            .column("run.plugin")
+        })?;
+        let machine = self.resolver.resolve(&spec)?;
+        let run = Run::new(spec, machine);
+        let alternatives = plugin.required_tables();
+        let satisfied = alternatives.is_empty()
+            || alternatives.iter().any(|set| {
+                set.iter().all(|t| {
+                    table_schema(t)
+                        .map(|s| run.has_table(s))
+                        .unwrap_or(false)
+                })
+            });
+        if !satisfied {
+            let alts: Vec<String> = alternatives
+                .iter()
+                .map(|s| s.iter().map(|t| format!("{t}.parquet")).collect::<Vec<_>>().join(" + "))
+                .collect();
+            return Err(InputError::new(
+                run.dir(),
+                format!(
+                    "plugin `{}` needs {} (CONTRACTS.md §3); none of these sets is complete",
+                    plugin.name(),
+                    alts.join(", or ")
+                ),
+            )
+            .into());
+        }
+        Ok((run, plugin))
+    }
+
+    /// The stages to run for a plugin, per `[pipeline].stages`, with their
+    /// upstream stages, in topological order.
+    fn plan(&self, plugin: &dyn MachinePlugin) -> Result<Vec<Arc<dyn Stage>>> {
+        let ordered = dag::topological_order(&plugin.stages())?;
+        match self.config.pipeline_list("stages")? {
+            None => Ok(ordered),
+            Some(list) => {
+                let targets: BTreeSet<String> = list.into_iter().collect();
+                Ok(dag::with_upstream(&ordered, &targets))
+            }
+        }
+    }
+
+    fn stage_config(&self, plugin: &str, stage: &str) -> toml::Table {
+        self.config.section(&format!("{plugin}.{stage}"))
+    }
+
+    fn plugins_enabled(&self) -> Result<Option<BTreeSet<String>>> {
+        Ok(self
+            .config
+            .pipeline_list("plugins")?
+            .map(|l| l.into_iter().collect()))
+    }
+
+    /// The whole batch.
+    pub fn run_fleet(
+        &self,
+        input_root: &Path,
+        out: &Path,
+        jobs: Option<usize>,
+        progress: &dyn Progress,
+    ) -> Result<FleetOutcome> {
+        let run_dirs = discover_runs(input_root)
+            .with_context(|| format!("cannot list runs under {}", input_root.display()))?;
+        if run_dirs.is_empty() {
+            bail!(
+                "no runs under {} (expected <root>/<machine>/<run>/run.toml); generate some with `sparkout generate robot --runs 4 --seed 1 --out {}`",
+                input_root.display(),
+                input_root.display()
+            );
+        }
+        std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+        progress.start(run_dirs.len());
+        let enabled = self.plugins_enabled()?;
+        let work = |dir: &PathBuf| -> Option<std::result::Result<RunResult, Failure>> {
+            let r = self.process_run(dir, out, enabled.as_ref());
+            match &r {
+                Some(Ok(rr)) => progress.run_done(
+                    &format!("{}/{}", rr.machine, rr.run),
+                    true,
+                    rr.computed(),
+                    rr.cached(),
+                ),
+                Some(Err(f)) => progress.run_done(&f.run_dir, false, 0, 0),
+                None => {}
+            }
+            r
+        };
+        let results: Vec<Option<std::result::Result<RunResult, Failure>>> = {
+            use rayon::prelude::*;
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(jobs.unwrap_or(0))
+                .build()
+                .context("cannot start worker threads")?;
+            pool.install(|| run_dirs.par_iter().map(work).collect())
+        };
+        let mut runs = Vec::new();
+        let mut failures = Vec::new();
+        for r in results.into_iter().flatten() {
+            match r {
+                Ok(rr) => runs.push(rr),
+                Err(f) => failures.push(f),
+            }
+        }
+        let mut outcome = FleetOutcome {
+            out_dir: out.to_path_buf(),
+            runs,
+            failures,
+            fleet: Vec::new(),
+            report: None,
+            diagnosis: None,
+        };
+        self.run_fleet_stages(out, &mut outcome, progress)?;
+        write_json_atomic(&out.join("failures.json"), &outcome.failures)?;
+        self.write_manifest(input_root, out, &outcome)?;
+        Ok(outcome)
+    }
+
+    /// One run through its plugin's stages. `None` when its plugin is not
+    /// enabled by `[pipeline].plugins`.
+    fn process_run(
+        &self,
+        dir: &Path,
+        out: &Path,
+        enabled: Option<&BTreeSet<String>>,
+    ) -> Option<std::result::Result<RunResult, Failure>> {
+        let spec = match RunSpec::load(dir) {
+            Ok(s) => s,
+            Err(e) => return Some(Err(Failure::from_error(dir, None, None, &e.into()))),
+        };
+        if let Some(en) = enabled {
+            if !en.contains(&spec.plugin) {
+                return None;
+            }
+        }
+        let run_out = out.join(&spec.machine).join(&spec.id);
+        let mut failed_stage: Option<String> = None;
+        // A panic in a stage is a bug, but it must not take the batch down:
+        // the run is rejected like any other failure.
+        let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            self.process_run_inner(dir, &run_out, &mut failed_stage)
+        }))
+        .unwrap_or_else(|panic| {
+            let msg = panic
+                .downcast_ref::<String>()
+                .cloned()
+                .or_else(|| panic.downcast_ref::<&str>().map(|s| s.to_string()))
+                .unwrap_or_else(|| "unknown panic".into());
+            Err(anyhow!("internal error (a bug in sparkout, please report it): {msg}"))
+        });
+        Some(result.map_err(|e| {
+            // CONTRACTS.md: nothing of a rejected run is written — drop any
+            // artifacts an earlier batch left for it too.
+            let _ = std::fs::remove_dir_all(&run_out);
+            tracing::warn!("run {} rejected: {e:#}", dir.display());
+            Failure::from_error(dir, Some(&spec), failed_stage.as_deref(), &e)
+        }))
+    }
+
+    fn process_run_inner(
+        &self,
+        dir: &Path,
+        run_out: &Path,
+        failed_stage: &mut Option<String>,
+    ) -> Result<RunResult> {
+        let (run, plugin) = self.open_run(dir)?;
+        let stages = self.plan(plugin.as_ref())?;
+        let previous = read_run_cache(run_out);
+        let store = ArtifactStore::default();
+        let mut table_hashes: BTreeMap<String, String> = BTreeMap::new();
+        let mut producer_key: BTreeMap<String, String> = BTreeMap::new();
+        let mut records: Vec<StageRecord> = Vec::new();
+        let mut pending: Vec<(PathBuf, Pending)> = Vec::new();
+
+        for stage in &stages {
+            *failed_stage = Some(stage.name().to_string());
+            let cfg = self.stage_config(plugin.name(), stage.name());
+            let mut key = KeyBuilder::new("stage");
+            key.part("stage", stage.name())
+                .part("version", &stage.version().to_string())
+                .part("plugin", plugin.name())
+                .part("config", &config_text(&cfg))
+                .part("run.toml", &run.spec.text)
+                .part("machine", &run.machine.text);
+            for t in stage.reads_tables() {
+                let schema = table_schema(t)
+                    .ok_or_else(|| anyhow!("stage `{}` reads unknown table `{t}`", stage.name()))?;
+                if !run.has_table(schema) {
+                    key.part(t, "absent");
+                    continue;
+                }
+                if !table_hashes.contains_key(*t) {
+                    let h = hash_file(&run.table_path(schema))
+                        .with_context(|| format!("cannot hash {}", run.table_path(schema).display()))?;
+                    table_hashes.insert(t.to_string(), h);
+                }
+                key.part(t, &table_hashes[*t]);
+            }
+            for a in stage.reads_artifacts() {
+                key.part(a, producer_key.get(*a).map(|s| s.as_str()).unwrap_or("absent"));
+            }
+            let key = key.finish();
+            for w in stage.writes() {
+                producer_key.insert(w.to_string(), key.clone());
+            }
+            let summary_file = format!("{}.json", stage.name());
+            if let Some(prev) = previous.get(stage.name()) {
+                if record_valid(run_out, prev, &key) {
+                    for w in stage.writes() {
+                        let f = format!("{w}.parquet");
+                        if prev.files.contains_key(&f) {
+                            store.insert_on_disk(w, run_out.join(&f));
+                        }
+                    }
+                    if let Ok(b) = std::fs::read(run_out.join(&summary_file)) {
+                        if let Ok(v) = serde_json::from_slice(&b) {
+                            store.set_summary(stage.name(), v);
+                        }
+                    }
+                    let mut rec = prev.clone();
+                    rec.cached = true;
+                    records.push(rec);
+                    continue;
+                }
+            }
+            let ctx = StageContext {
+                run: &run,
+                config: &cfg,
+                artifacts: &store,
+            };
+            let output = stage
+                .run(&ctx)
+                .with_context(|| format!("stage `{}` of run `{}`", stage.name(), run.spec.id))?;
+            let mut files = BTreeMap::new();
+            for (name, batch) in &output.artifacts {
+                if !stage.writes().contains(&name.as_str()) {
+                    bail!(
+                        "stage `{}` produced undeclared artifact `{name}`",
+                        stage.name()
+                    );
+                }
+                let bytes = parquet_bytes(batch)?;
+                files.insert(format!("{name}.parquet"), hash_bytes(&bytes));
+                pending.push((run_out.join(format!("{name}.parquet")), Pending(bytes)));
+                store.insert(name, batch.clone());
+            }
+            let summary_bytes = json_bytes(&output.summary)?;
+            files.insert(summary_file.clone(), hash_bytes(&summary_bytes));
+            pending.push((run_out.join(&summary_file), Pending(summary_bytes)));
+            store.set_summary(stage.name(), output.summary);
+            records.push(StageRecord {
+                stage: stage.name().to_string(),
+                version: stage.version(),
+                key,
+                files,
+                cached: false,
+            });
+        }
+        *failed_stage = Some("report".into());
+        // The run's report: a step of its own, cached on every stage's key.
+        let mut rkey = KeyBuilder::new("run-report");
+        rkey.part("version", &report::REPORT_VERSION.to_string())
+            .part("config", &config_text(&self.config.section("report")));
+        for r in &records {
+            rkey.part(&r.stage, &r.key);
+        }
+        let rkey = rkey.finish();
+        let report_cached = previous
+            .get("report")
+            .map(|p| record_valid(run_out, p, &rkey))
+            .unwrap_or(false);
+        if report_cached {
+            let mut rec = previous["report"].clone();
+            rec.cached = true;
+            records.push(rec);
+        } else {
+            let sections = plugin.report_sections(&run, &store);
+            let html = report::run_page(
+                &self.config.section("report"),
+                &run,
+                &store.summaries(),
+                &sections,
+            );
+            let bytes = html.into_bytes();
+            let mut files = BTreeMap::new();
+            files.insert("report.html".to_string(), hash_bytes(&bytes));
+            pending.push((run_out.join("report.html"), Pending(bytes)));
+            records.push(StageRecord {
+                stage: "report".into(),
+                version: report::REPORT_VERSION,
+                key: rkey,
+                files,
+                cached: false,
+            });
+        }
+        *failed_stage = None;
+        // Everything computed: now (and only now) write, cache file last.
+        for (path, Pending(bytes)) in &pending {
+            write_atomic(path, bytes)?;
+        }
+        let cache: Vec<&StageRecord> = records.iter().collect();
+        write_json_atomic(&run_out.join(cache::RUN_CACHE_FILE), &cache)?;
+        let observations = run_out.join("observations.parquet");
+        Ok(RunResult {
+            machine: run.spec.machine.clone(),
+            run: run.spec.id.clone(),
+            plugin: plugin.name().to_string(),
+            run_dir: dir.display().to_string(),
+            out_dir: run_out.display().to_string(),
+            inputs: table_hashes,
+            stages: records,
+            observations: observations.is_file().then_some(observations),
+        })
+    }
+
+    /// Fleet steps: join observations, diagnose, fleet report.
+    fn run_fleet_stages(
+        &self,
+        out: &Path,
+        outcome: &mut FleetOutcome,
+        progress: &dyn Progress,
+    ) -> Result<()> {
+        let fleet_dir = out.join("fleet");
+        std::fs::create_dir_all(&fleet_dir)?;
+        let previous: BTreeMap<String, StageRecord> = read_run_cache(&fleet_dir);
+        let mut records = Vec::new();
+        let mut diagnosis_json: Option<serde_json::Value> = None;
+        let mut diagnosis_html: Option<String> = None;
+        let want_diagnose = self
+            .config
+            .pipeline_list("stages")?
+            .map(|l| l.iter().any(|s| s == "diagnose" || s == "observe"))
+            .unwrap_or(true);
+
+        let obs_paths: Vec<&PathBuf> = outcome
+            .runs
+            .iter()
+            .filter_map(|r| r.observations.as_ref())
+            .collect();
+        let obs_file = fleet_dir.join("observations.parquet");
+        if want_diagnose && !obs_paths.is_empty() {
+            progress.message(&format!("joining observations of {} runs", obs_paths.len()));
+            let mut batches = Vec::new();
+            for p in &obs_paths {
+                batches.push(crate::contracts::read_parquet(p)?);
+            }
+            let joined = union_concat(&batches)?;
+            let bytes = parquet_bytes(&joined)?;
+            let obs_hash = hash_bytes(&bytes);
+            let mut okey = KeyBuilder::new("fleet-observations");
+            okey.part("hash", &obs_hash);
+            let okey = okey.finish();
+            let obs_cached = previous
+                .get("observations")
+                .map(|p| record_valid(&fleet_dir, p, &okey))
+                .unwrap_or(false);
+            if !obs_cached {
+                write_atomic(&obs_file, &bytes)?;
+            }
+            records.push(StageRecord {
+                stage: "observations".into(),
+                version: 1,
+                key: okey.clone(),
+                files: [("observations.parquet".to_string(), obs_hash)].into(),
+                cached: obs_cached,
+            });
+
+            let dcfg = self.diagnose_config()?;
+            let effects = self.plugin_effects();
+            let mut dkey = KeyBuilder::new("diagnose");
+            dkey.part("version", &DIAGNOSE_STAGE_VERSION.to_string())
+                .part("config", &config_text(&self.config.section("diagnose")))
+                .part("observations", &okey);
+            for e in &effects {
+                dkey.part("effect", e.name());
+            }
+            let dkey = dkey.finish();
+            let d_cached = previous
+                .get("diagnose")
+                .map(|p| record_valid(&fleet_dir, p, &dkey))
+                .unwrap_or(false);
+            if d_cached {
+                let mut rec = previous["diagnose"].clone();
+                rec.cached = true;
+                records.push(rec);
+                diagnosis_json = std::fs::read(fleet_dir.join("diagnosis.json"))
+                    .ok()
+                    .and_then(|b| serde_json::from_slice(&b).ok());
+                diagnosis_html = std::fs::read_to_string(fleet_dir.join("diagnosis_section.html")).ok();
+            } else {
+                progress.message("diagnosing the sim-to-real gap");
+                let d = diagnose::diagnose(&joined, &dcfg, &effects)
+                    .context("fleet diagnosis")?;
+                let mut files = BTreeMap::new();
+                let dj = json_bytes(&d.diagnosis)?;
+                let dp = parquet_bytes(&d.per_row)?;
+                let am = json_bytes(&d.augmented_model)?;
+                let dh = d.report_html.clone().into_bytes();
+                for (name, bytes) in [
+                    ("diagnosis.json", &dj),
+                    ("diagnosis.parquet", &dp),
+                    ("augmented_model.json", &am),
+                    ("diagnosis_section.html", &dh),
+                ] {
+                    write_atomic(&fleet_dir.join(name), bytes)?;
+                    files.insert(name.to_string(), hash_bytes(bytes));
+                }
+                diagnosis_json = serde_json::to_value(&d.diagnosis).ok();
+                diagnosis_html = Some(d.report_html);
+                records.push(StageRecord {
+                    stage: "diagnose".into(),
+                    version: DIAGNOSE_STAGE_VERSION,
+                    key: dkey,
+                    files,
+                    cached: false,
+                });
+            }
+            outcome.diagnosis = Some(fleet_dir.join("diagnosis.json"));
+        }
+
+        // Fleet report: cached on every run's stage keys + failures + diagnosis.
+        let mut rkey = KeyBuilder::new("fleet-report");
+        rkey.part("version", &report::REPORT_VERSION.to_string())
+            .part("config", &config_text(&self.config.section("report")));
+        for r in &outcome.runs {
+            for s in &r.stages {
+                rkey.part(&format!("{}/{}/{}", r.machine, r.run, s.stage), &s.key);
+            }
+        }
+        for f in &outcome.failures {
+            rkey.part("failure", &format!("{}: {}", f.run_dir, f.error));
+        }
+        for r in &records {
+            rkey.part(&r.stage, &r.key);
+        }
+        let rkey = rkey.finish();
+        let cached = previous
+            .get("report")
+            .map(|p| record_valid(&fleet_dir, p, &rkey))
+            .unwrap_or(false);
+        if cached {
+            let mut rec = previous["report"].clone();
+            rec.cached = true;
+            records.push(rec);
+        } else {
+            let html = report::fleet_page(
+                &self.config.section("report"),
+                outcome,
+                diagnosis_json.as_ref(),
+                diagnosis_html.as_deref(),
+            );
+            let bytes = html.into_bytes();
+            write_atomic(&fleet_dir.join("report.html"), &bytes)?;
+            records.push(StageRecord {
+                stage: "report".into(),
+                version: report::REPORT_VERSION,
+                key: rkey,
+                files: [("report.html".to_string(), hash_bytes(&bytes))].into(),
+                cached: false,
+            });
+        }
+        outcome.report = Some(fleet_dir.join("report.html"));
+        let cache: Vec<&StageRecord> = records.iter().collect();
+        write_json_atomic(&fleet_dir.join(cache::RUN_CACHE_FILE), &cache)?;
+        outcome.fleet = records;
+        Ok(())
+    }
+
+    fn write_manifest(&self, input_root: &Path, out: &Path, o: &FleetOutcome) -> Result<()> {
+        let config: serde_json::Value =
+            serde_json::to_value(&self.config.table).unwrap_or(serde_json::Value::Null);
+        let manifest = serde_json::json!({
+            "version": MANIFEST_VERSION,
+            "sparkout_version": env!("CARGO_PKG_VERSION"),
+            "input_root": input_root.display().to_string(),
+            "config_source": self.config.source,
+            "config": config,
+            "runs": o.runs,
+            "fleet": o.fleet,
+            "failures": o.failures.len(),
+            "stages_computed": o.stages_computed(),
+            "stages_cached": o.stages_cached(),
+        });
+        write_json_atomic(&out.join("manifest.json"), &manifest)
+    }
+
+    /// `sparkout stage <name> --run <dir>`: that stage of that run, with its
+    /// upstream stages computed in memory.
+    pub fn run_single_stage(&self, run_dir: &Path, stage_name: &str) -> Result<(Arc<dyn Stage>, StageOutput)> {
+        let (run, plugin) = self.open_run(run_dir)?;
+        let ordered = dag::topological_order(&plugin.stages())?;
+        let target = ordered
+            .iter()
+            .find(|s| s.name() == stage_name)
+            .cloned()
+            .ok_or_else(|| {
+                anyhow!(
+                    "plugin `{}` has no stage `{stage_name}` (its stages: {})",
+                    plugin.name(),
+                    ordered.iter().map(|s| s.name()).collect::<Vec<_>>().join(", ")
+                )
+            })?;
+        let chain = dag::with_upstream(&ordered, &[stage_name.to_string()].into());
+        let store = ArtifactStore::default();
+        let mut last = None;
+        for stage in &chain {
+            let cfg = self.stage_config(plugin.name(), stage.name());
+            let ctx = StageContext {
+                run: &run,
+                config: &cfg,
+                artifacts: &store,
+            };
+            let output = stage
+                .run(&ctx)
+                .with_context(|| format!("stage `{}` of run `{}`", stage.name(), run.spec.id))?;
+            for (name, batch) in &output.artifacts {
+                store.insert(name, batch.clone());
+            }
+            store.set_summary(stage.name(), output.summary.clone());
+            last = Some(output);
+        }
+        Ok((target, last.expect("chain includes the target")))
+    }
+
+    /// A stage by name across all plugins (for run-less `sparkout stage`).
+    pub fn find_stage(&self, name: &str) -> Option<Arc<dyn Stage>> {
+        self.plugins
+            .iter()
+            .flat_map(|p| p.stages())
+            .find(|s| s.name() == name)
+    }
+
+    /// `sparkout validate-input`: every problem of every run; writes nothing.
+    pub fn validate_input(&self, root: &Path) -> Result<(usize, Vec<Problem>)> {
+        let dirs = discover_runs(root)?;
+        let mut problems = Vec::new();
+        for dir in &dirs {
+            let d = dir.display().to_string();
+            let mut push = |m: String| {
+                problems.push(Problem {
+                    run_dir: d.clone(),
+                    message: m,
+                })
+            };
+            match self.open_run(dir) {
+                Err(e) => push(format!("{e:#}")),
+                Ok(_) => {}
+            }
+            // Validate every table that is present, whatever else is wrong.
+            for schema in crate::contracts::ALL_TABLES {
+                let path = dir.join(schema.file_name());
+                if !path.is_file() {
+                    continue;
+                }
+                let r: std::result::Result<(), InputError> = if schema.name == "ae" {
+                    AeStream::open(&path).and_then(|s| s.map(|c| c.map(|_| ())).collect())
+                } else {
+                    Table::read(&path, schema).map(|_| ())
+                };
+                if let Err(e) = r {
+                    push(e.to_string());
+                }
+            }
+        }
+        Ok((dirs.len(), problems))
+    }
+}
+
+struct Pending(Vec<u8>);
+
+/// Parquet bytes of a batch (zstd), so the hash is known before writing.
+pub fn parquet_bytes(batch: &RecordBatch) -> Result<Vec<u8>> {
+    let mut buf = Vec::new();
+    let mut w = parquet::arrow::ArrowWriter::try_new(
+        &mut buf,
+        batch.schema(),
+        Some(crate::contracts::write::writer_properties()),
+    )?;
+    w.write(batch)?;
+    w.close()?;
+    Ok(buf)
+}
+
+fn json_bytes(v: &impl Serialize) -> Result<Vec<u8>> {
+    let mut s = serde_json::to_string_pretty(v)?;
+    s.push('\n');
+    Ok(s.into_bytes())
+}
+
+/// Concatenate batches whose schemas may differ (different plugins emit
+/// different covariates): the union of columns in first-seen order, nulls
+/// where a batch lacks a column.
+pub fn union_concat(batches: &[RecordBatch]) -> Result<RecordBatch> {
+    use arrow::array::new_null_array;
+    use arrow::datatypes::{Field, Schema};
+    let mut fields: Vec<Field> = Vec::new();
+    for b in batches {
+        for f in b.schema().fields() {
+            match fields.iter().position(|g| g.name() == f.name()) {
+                Some(i) => {
+                    if fields[i].data_type() != f.data_type() {
+                        bail!(
+                            "observations disagree on the type of `{}`: {} vs {}",
+                            f.name(),
+                            fields[i].data_type(),
+                            f.data_type()
+                        );
+                    }
+                    if f.is_nullable() {
+                        fields[i] = fields[i].clone().with_nullable(true);
+                    }
+                }
+                None => fields.push(f.as_ref().clone()),
+            }
+        }
+    }
+    for f in fields.iter_mut() {
+        if batches.iter().any(|b| b.column_by_name(f.name()).is_none()) {
+            *f = f.clone().with_nullable(true);
+        }
+    }
+    let schema = Arc::new(Schema::new(fields));
+    let mut columns = Vec::new();
+    for f in schema.fields() {
+        let parts: Vec<arrow::array::ArrayRef> = batches
+            .iter()
+            .map(|b| {
+                b.column_by_name(f.name())
+                    .cloned()
+                    .unwrap_or_else(|| new_null_array(f.data_type(), b.num_rows()))
+            })
+            .collect();
+        let refs: Vec<&dyn arrow::array::Array> = parts.iter().map(|a| a.as_ref()).collect();
+        columns.push(arrow::compute::concat(&refs)?);
+    }
+    Ok(RecordBatch::try_new(schema, columns)?)
+}
+
+/// `[diagnose]` → DiagnoseConfig (checked).
+pub fn diagnose_config_from(section: &toml::Table) -> Result<DiagnoseConfig> {
+    let mut c = DiagnoseConfig::default();
+    for (k, v) in section {
+        match k.as_str() {
+            "folds" => {
+                c.folds = v
+                    .as_integer()
+                    .filter(|&f| f >= 2)
+                    .ok_or_else(|| anyhow!("folds must be an integer ≥ 2"))? as usize
+            }
+            "seed" => {
+                c.seed = v
+                    .as_integer()
+                    .filter(|&s| s >= 0)
+                    .ok_or_else(|| anyhow!("seed must be a non-negative integer"))? as u64
+            }
+            "alpha" => {
+                c.alpha = v
+                    .as_float()
+                    .or_else(|| v.as_integer().map(|i| i as f64))
+                    .filter(|a| *a > 0.0 && *a < 1.0)
+                    .ok_or_else(|| anyhow!("alpha must be a number in (0, 1)"))?
+            }
+            "effects" => {
+                let list = v
+                    .as_array()
+                    .ok_or_else(|| anyhow!("effects must be a list of effect names"))?
+                    .iter()
+                    .map(|e| {
+                        e.as_str()
+                            .map(|s| s.to_string())
+                            .ok_or_else(|| anyhow!("effects must be a list of effect names"))
+                    })
+                    .collect::<Result<Vec<_>>>()?;
+                c.effects = Some(list);
+            }
+            other => bail!("unknown key `{other}` (known: folds, seed, alpha, effects)"),
+        }
+    }
+    c.validate()?;
+    Ok(c)
+}

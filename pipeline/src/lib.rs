@@ -1,0 +1,18 @@
+//! sparkout-pipeline: the DAG engine, the Stage/MachinePlugin/Effect traits,
+//! data contracts (validated readers and atomic writers), the gap diagnosis
+//! and reports. It knows no concrete machine: plugins plug in by trait.
+
+pub mod contracts;
+pub mod diagnose;
+pub mod effect_spec;
+pub mod engine;
+pub mod error;
+pub mod report;
+pub mod traits;
+
+pub use effect_spec::EffectSpec;
+pub use error::{InputError, Result};
+pub use traits::{
+    cfg_f64, ArtifactStore, MachinePlugin, ReportSection, Run, Stage, StageArgs, StageContext,
+    StageOutput,
+};

@@ -1,0 +1,197 @@
+//! Self-contained HTML reports (inline SVG, no network, no JavaScript) per run
+//! and for the fleet. Plugins contribute sections; the diagnosis contributes
+//! its own. Same inputs → same bytes (no timestamps).
+
+pub mod gap_table;
+pub mod svg;
+
+use std::collections::BTreeMap;
+use std::fmt::Write;
+
+use crate::engine::FleetOutcome;
+use crate::traits::{ReportSection, Run};
+
+/// Bump when the report layout changes (cache key of report steps).
+pub const REPORT_VERSION: u32 = 1;
+
+/// HTML-escape text.
+pub fn esc(s: &str) -> String {
+    s.replace('&', "&amp;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
+        .replace('"', "&quot;")
+}
+
+/// A number for a report: mm shown with µm resolution, NaN as "—".
+pub fn fmt_mm(v: f64) -> String {
+    if v.is_finite() {
+        format!("{v:.4}")
+    } else {
+        "—".into()
+    }
+}
+
+/// A simple table: header and rows of already-formatted cells.
+pub fn table(header: &[&str], rows: &[Vec<String>]) -> String {
+    let mut s = String::from("<table><thead><tr>");
+    for h in header {
+        let _ = write!(s, "<th>{}</th>", esc(h));
+    }
+    s.push_str("</tr></thead><tbody>");
+    for r in rows {
+        s.push_str("<tr>");
+        for c in r {
+            let _ = write!(s, "<td>{}</td>", esc(c));
+        }
+        s.push_str("</tr>");
+    }
+    s.push_str("</tbody></table>");
+    s
+}
+
+const STYLE: &str = "body{font-family:system-ui,sans-serif;margin:2em;max-width:1100px;color:#222}\
+h1{font-size:1.5em}h2{font-size:1.2em;border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:2em}\
+table{border-collapse:collapse;margin:.5em 0}td,th{border:1px solid #ccc;padding:.25em .6em;text-align:right;font-variant-numeric:tabular-nums}\
+th{background:#f3f3f3}td:first-child,th:first-child{text-align:left}.bad{color:#b00}.ok{color:#070}\
+.note{color:#555;font-size:.9em}pre{background:#f6f6f6;padding:.5em;overflow-x:auto}";
+
+fn page(title: &str, body: &str) -> String {
+    format!(
+        "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>{t}</title><style>{STYLE}</style></head><body>\n<h1>{t}</h1>\n{body}\n</body></html>\n",
+        t = esc(title)
+    )
+}
+
+fn title_of(cfg: &toml::Table, default: &str) -> String {
+    cfg.get("title")
+        .and_then(|v| v.as_str())
+        .unwrap_or(default)
+        .to_string()
+}
+
+/// A run's report: header, each plugin section, then every stage's summary.
+pub fn run_page(
+    cfg: &toml::Table,
+    run: &Run,
+    summaries: &BTreeMap<String, serde_json::Value>,
+    sections: &[ReportSection],
+) -> String {
+    let mut body = String::new();
+    let _ = write!(
+        body,
+        "<p>Run <b>{}</b> of machine <b>{}</b> (plugin <code>{}</code>, machine config from {}){}.</p>",
+        esc(&run.spec.id),
+        esc(&run.spec.machine),
+        esc(&run.spec.plugin),
+        esc(&run.machine.source),
+        run.spec
+            .started
+            .as_ref()
+            .map(|s| format!(", started {}", esc(s)))
+            .unwrap_or_default()
+    );
+    for s in sections {
+        let _ = write!(body, "<section><h2>{}</h2>\n{}\n</section>\n", esc(&s.title), s.html);
+    }
+    body.push_str("<section><h2>Stage summaries (JSON)</h2>");
+    for (stage, v) in summaries {
+        let _ = write!(
+            body,
+            "<h3>{}</h3><pre>{}</pre>",
+            esc(stage),
+            esc(&serde_json::to_string_pretty(v).unwrap_or_default())
+        );
+    }
+    body.push_str("</section>");
+    page(
+        &format!("{} — {}/{}", title_of(cfg, "sparkout report"), run.spec.machine, run.spec.id),
+        &body,
+    )
+}
+
+/// The fleet report: runs, failures, the gap per run and observable, the
+/// diagnosis section.
+pub fn fleet_page(
+    cfg: &toml::Table,
+    outcome: &FleetOutcome,
+    diagnosis: Option<&serde_json::Value>,
+    diagnosis_html: Option<&str>,
+) -> String {
+    let mut body = String::new();
+    let _ = write!(
+        body,
+        "<p>{} runs processed, {} rejected.</p>",
+        outcome.runs.len(),
+        outcome.failures.len()
+    );
+    if let Some(d) = diagnosis {
+        let sel = d
+            .get("selected")
+            .and_then(|s| s.as_array())
+            .map(|a| {
+                a.iter()
+                    .filter_map(|v| v.as_str())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            })
+            .unwrap_or_default();
+        let rms = d.pointer("/gap/rms_mm").and_then(|v| v.as_f64()).unwrap_or(f64::NAN);
+        let after = d
+            .pointer("/unexplained/rms_mm")
+            .and_then(|v| v.as_f64())
+            .unwrap_or(f64::NAN);
+        let _ = write!(
+            body,
+            "<p><b>Sim-to-real gap:</b> RMS {} mm; {}; held-out RMS after the selected effects {} mm.</p>",
+            fmt_mm(rms),
+            if sel.is_empty() {
+                "no effect selected".to_string()
+            } else {
+                format!("explained by <b>{}</b>", esc(&sel))
+            },
+            fmt_mm(after)
+        );
+    }
+    body.push_str("<h2>Runs</h2>");
+    let rows: Vec<Vec<String>> = outcome
+        .runs
+        .iter()
+        .map(|r| {
+            vec![
+                format!("{}/{}", r.machine, r.run),
+                r.plugin.clone(),
+                r.computed().to_string(),
+                r.cached().to_string(),
+            ]
+        })
+        .collect();
+    body.push_str(&table(&["run", "plugin", "stages computed", "stages cached"], &rows));
+    if !outcome.failures.is_empty() {
+        body.push_str("<h2 class=\"bad\">Rejected runs</h2>");
+        let rows: Vec<Vec<String>> = outcome
+            .failures
+            .iter()
+            .map(|f| vec![f.run_dir.clone(), f.stage.clone().unwrap_or_default(), f.error.clone()])
+            .collect();
+        body.push_str(&table(&["run", "stage", "error"], &rows));
+    }
+    let obs = outcome.out_dir.join("fleet").join("observations.parquet");
+    if obs.is_file() {
+        match gap_table::gap_by_run_observable(&obs) {
+            Ok(rows) => {
+                body.push_str("<h2>Gap by run and observable</h2>");
+                body.push_str(&table(
+                    &["run", "observable", "n", "mean gap (mm)", "RMS gap (mm)"],
+                    &rows,
+                ));
+            }
+            Err(e) => {
+                let _ = write!(body, "<p class=\"bad\">gap table unavailable: {}</p>", esc(&e.to_string()));
+            }
+        }
+    }
+    if let Some(h) = diagnosis_html {
+        body.push_str(h);
+    }
+    page(&title_of(cfg, "sparkout fleet report"), &body)
+}

@@ -1,0 +1,13 @@
+//! sparkout-plugins: one module per machine type, each implementing the
+//! pipeline's traits. A plugin knows no other plugin.
+
+use std::sync::Arc;
+
+use sparkout_pipeline::MachinePlugin;
+
+pub mod robot;
+
+/// Every plugin this build knows, in a fixed order.
+pub fn all_plugins() -> Vec<Arc<dyn MachinePlugin>> {
+    vec![Arc::new(robot::RobotPlugin)]
+}

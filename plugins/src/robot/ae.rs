@@ -1,0 +1,688 @@
+//! The AE contact detector (MODELS.md §1.2): RMS envelope over a window of
+//! `w` samples, then contact events where the envelope exceeds
+//! `mean + k·σ` of the pre-contact noise floor for a minimum dwell, with
+//! hysteresis so one contact gives one event.
+//!
+//! This is the ingest stage's hot loop (AE logs are 10⁶–10⁸ samples per run),
+//! so the detector is a streaming state machine: chunks from `AeStream` are
+//! fed one after another and the envelope (its running sum of squares and the
+//! last `w` samples) is carried across chunk boundaries. No allocation per
+//! sample; f32 input, f64 accumulation. The running sum is updated by
+//! `+x[i]² − x[i−w]²`; to keep rounding from accumulating (a large burst
+//! followed by a quiet floor would otherwise leave the burst's rounding error
+//! in the floor's sum) it is recomputed exactly every `RECOMPUTE_EVERY`
+//! samples of the stream (at fixed *global* sample indices, so the result
+//! does not depend on how the stream is chunked).
+//!
+//! Comparisons are done on the sum of squares (`sum > w·T²`), so the hot
+//! loop has no square root.
+
+/// Exact recomputation period of the running sum (samples of the stream).
+pub const RECOMPUTE_EVERY: u64 = 1 << 16;
+
+/// Detector parameters, in samples (the stage converts from seconds).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AeParams {
+    /// RMS window length `w`, samples (≥ 1).
+    pub window: usize,
+    /// Threshold = mean + k·σ of the envelope over the noise window.
+    pub k_sigma: f64,
+    /// Envelope must stay above the threshold this many samples (≥ 1).
+    pub min_dwell: usize,
+    /// Re-arm when the envelope falls below mean + hysteresis·k·σ (0..=1).
+    pub hysteresis: f64,
+    /// Envelope samples used to estimate the noise floor at the start of
+    /// each contiguous recording block (after the window has filled).
+    pub noise_window: usize,
+}
+
+impl AeParams {
+    /// From seconds and a sample rate (MODELS.md §1.2 uses e.g. a 1 ms window).
+    pub fn from_seconds(
+        sample_rate_hz: f64,
+        window_s: f64,
+        k_sigma: f64,
+        min_dwell_s: f64,
+        hysteresis: f64,
+        noise_window_s: f64,
+    ) -> AeParams {
+        AeParams {
+            window: ((window_s * sample_rate_hz).round() as usize).max(1),
+            k_sigma,
+            min_dwell: ((min_dwell_s * sample_rate_hz).ceil() as usize).max(1),
+            hysteresis,
+            noise_window: ((noise_window_s * sample_rate_hz).round() as usize).max(2),
+        }
+    }
+}
+
+/// Noise floor of one recording block: mean and σ of the envelope (V) and
+/// the thresholds derived from them.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NoiseFloor {
+    pub mean_v: f64,
+    pub sigma_v: f64,
+    /// Envelope level that starts a contact (V).
+    pub threshold_v: f64,
+    /// Envelope level that ends it (V).
+    pub release_v: f64,
+}
+
+/// One contact event.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AeEvent {
+    /// Global sample index of the first above-threshold sample of the event.
+    pub onset_index: u64,
+    /// Time of that sample (the recorder's clock).
+    pub onset_t_s: f64,
+    /// Time of the first sample back below the release level (or of the
+    /// last sample of the block when it ended first).
+    pub end_t_s: f64,
+    /// Peak envelope during the event (V).
+    pub peak_v: f64,
+    /// Noise floor and thresholds in force.
+    pub floor: NoiseFloor,
+}
+
+impl AeEvent {
+    pub fn duration_s(&self) -> f64 {
+        self.end_t_s - self.onset_t_s
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Phase {
+    /// Filling the first window of a block.
+    Warmup,
+    /// Estimating the noise floor.
+    Calibrate,
+    /// Armed, below threshold.
+    Idle,
+    /// Above threshold since `start`, not yet for the full dwell.
+    Candidate,
+    /// In contact.
+    Active,
+}
+
+/// Streaming detector state. Feed contiguous samples with [`AeDetector::feed`];
+/// call [`AeDetector::reset`] at a gap in the recording (a new block: the
+/// window restarts and the noise floor is re-estimated) and
+/// [`AeDetector::finish`] at the end of the stream.
+#[derive(Debug, Clone)]
+pub struct AeDetector {
+    p: AeParams,
+    /// The last `window` samples before the current chunk, oldest first
+    /// (ring: `hist[(head + j) % window]`).
+    hist: Vec<f32>,
+    head: usize,
+    /// Samples seen in the current block.
+    block_seen: u64,
+    /// Samples seen in the whole stream (global index of the next sample).
+    global: u64,
+    sum: f64,
+    phase: Phase,
+    // noise calibration (sums of the envelope and its square)
+    cal_n: usize,
+    cal_s: f64,
+    cal_ss: f64,
+    floor: Option<NoiseFloor>,
+    /// `window·threshold²` and `window·release²`.
+    on_sum: f64,
+    off_sum: f64,
+    // candidate / active event
+    start_index: u64,
+    start_t: f64,
+    dwell: usize,
+    peak_sum: f64,
+    last_t: f64,
+    /// Noise floors of every block, in order (for the "no contact" message
+    /// and the contacts table).
+    floors: Vec<NoiseFloor>,
+    /// Largest envelope seen while armed (V²·w), for diagnostics.
+    max_sum_armed: f64,
+}
+
+impl AeDetector {
+    pub fn new(p: AeParams) -> AeDetector {
+        assert!(p.window >= 1 && p.min_dwell >= 1 && p.noise_window >= 2);
+        AeDetector {
+            p,
+            hist: vec![0.0; p.window],
+            head: 0,
+            block_seen: 0,
+            global: 0,
+            sum: 0.0,
+            phase: Phase::Warmup,
+            cal_n: 0,
+            cal_s: 0.0,
+            cal_ss: 0.0,
+            floor: None,
+            on_sum: f64::INFINITY,
+            off_sum: f64::INFINITY,
+            start_index: 0,
+            start_t: 0.0,
+            dwell: 0,
+            peak_sum: 0.0,
+            last_t: f64::NAN,
+            floors: Vec::new(),
+            max_sum_armed: 0.0,
+        }
+    }
+
+    pub fn params(&self) -> &AeParams {
+        &self.p
+    }
+
+    /// Noise floors estimated so far (one per block that got past calibration).
+    pub fn floors(&self) -> &[NoiseFloor] {
+        &self.floors
+    }
+
+    /// Largest envelope (V) seen while armed — what "no contact" reports.
+    pub fn max_envelope_armed_v(&self) -> f64 {
+        (self.max_sum_armed / self.p.window as f64).sqrt()
+    }
+
+    /// Global index of the next sample.
+    pub fn samples_seen(&self) -> u64 {
+        self.global
+    }
+
+    /// A gap in the recording: close any open event at the last sample seen,
+    /// restart the window and the noise-floor estimate.
+    pub fn reset(&mut self, out: &mut Vec<AeEvent>) {
+        self.close_open(out);
+        self.hist.iter_mut().for_each(|h| *h = 0.0);
+        self.head = 0;
+        self.block_seen = 0;
+        self.sum = 0.0;
+        self.phase = Phase::Warmup;
+        self.cal_n = 0;
+        self.cal_s = 0.0;
+        self.cal_ss = 0.0;
+        self.floor = None;
+        self.on_sum = f64::INFINITY;
+        self.off_sum = f64::INFINITY;
+    }
+
+    /// End of the stream: an event still open ends at the last sample.
+    pub fn finish(&mut self, out: &mut Vec<AeEvent>) {
+        self.close_open(out);
+    }
+
+    fn close_open(&mut self, out: &mut Vec<AeEvent>) {
+        if self.phase == Phase::Active {
+            out.push(self.event(self.last_t));
+        }
+        if matches!(self.phase, Phase::Active | Phase::Candidate) {
+            self.phase = Phase::Idle;
+        }
+    }
+
+    fn event(&self, end_t: f64) -> AeEvent {
+        AeEvent {
+            onset_index: self.start_index,
+            onset_t_s: self.start_t,
+            end_t_s: end_t,
+            peak_v: (self.peak_sum / self.p.window as f64).sqrt(),
+            floor: self.floor.expect("armed only after calibration"),
+        }
+    }
+
+    /// The sample `window` positions before chunk index `i`: in the chunk
+    /// or in the carried history.
+    #[inline(always)]
+    fn old(&self, v: &[f32], i: usize) -> f32 {
+        let w = self.p.window;
+        if i >= w {
+            v[i - w]
+        } else {
+            self.hist[(self.head + i) % w]
+        }
+    }
+
+    /// Exact sum of squares of the `window` samples ending at chunk index
+    /// `i` (inclusive), with four accumulators.
+    fn exact_sum(&self, v: &[f32], i: usize) -> f64 {
+        let w = self.p.window;
+        let mut acc = [0.0f64; 4];
+        let lo_chunk = (i + 1).saturating_sub(w);
+        let from_hist = w - (i + 1 - lo_chunk); // samples taken from history
+        for j in 0..from_hist {
+            // the newest `from_hist` history samples
+            let h = self.hist[(self.head + w - from_hist + j) % w] as f64;
+            acc[j & 3] += h * h;
+        }
+        let s = &v[lo_chunk..=i];
+        let mut it = s.chunks_exact(4);
+        for c in &mut it {
+            for k in 0..4 {
+                let x = c[k] as f64;
+                acc[k] += x * x;
+            }
+        }
+        for (k, &x) in it.remainder().iter().enumerate() {
+            acc[k] += (x as f64) * (x as f64);
+        }
+        (acc[0] + acc[1]) + (acc[2] + acc[3])
+    }
+
+    /// Feed contiguous samples (`t_s[i]` is the time of `v[i]`). Events that
+    /// end within this chunk are pushed to `out`; an open event carries over.
+    pub fn feed(&mut self, t_s: &[f64], v: &[f32], out: &mut Vec<AeEvent>) {
+        assert_eq!(t_s.len(), v.len(), "t_s and ae_v lengths differ");
+        let n = v.len();
+        if n == 0 {
+            return;
+        }
+        let w = self.p.window;
+        let mut i = 0usize;
+        while i < n {
+            // Run up to the next exact-recompute point (global index) or the
+            // end of the chunk; the phase's loop may stop earlier.
+            let to_recompute = RECOMPUTE_EVERY - (self.global + i as u64) % RECOMPUTE_EVERY;
+            let end = (i as u64 + to_recompute).min(n as u64) as usize;
+            i = match self.phase {
+                Phase::Idle => {
+                    let (j, crossed) = self.run_idle(v, i, end);
+                    if crossed {
+                        // The crossing sample (j − 1) starts a candidate.
+                        self.start_candidate(t_s, j - 1);
+                        if self.dwell >= self.p.min_dwell {
+                            self.phase = Phase::Active;
+                        }
+                    }
+                    j
+                }
+                _ => self.run_slow(t_s, v, i, end, out),
+            };
+            if i > 0 && (self.global + i as u64) % RECOMPUTE_EVERY == 0 {
+                // Re-synchronise the running sum with the exact one (the
+                // window ends at the previous sample; history zeros before
+                // a block's first full window contribute nothing).
+                self.sum = self.exact_sum(v, i - 1);
+            }
+        }
+        // Carry the last `w` samples into the history ring.
+        if n >= w {
+            self.hist.copy_from_slice(&v[n - w..]);
+            self.head = 0;
+        } else {
+            for &x in v {
+                self.hist[self.head] = x;
+                self.head = (self.head + 1) % w;
+            }
+        }
+        self.block_seen += n as u64;
+        self.global += n as u64;
+        self.last_t = t_s[n - 1];
+    }
+
+    fn start_candidate(&mut self, t_s: &[f64], i: usize) {
+        self.phase = Phase::Candidate;
+        self.start_index = self.global + i as u64;
+        self.start_t = t_s[i];
+        self.dwell = 1;
+        self.peak_sum = self.sum;
+    }
+
+    /// The fast path: armed and below threshold. Returns the index after the
+    /// last sample processed; stops right after a sample whose envelope
+    /// crosses the threshold.
+    #[inline(never)]
+    fn run_idle(&mut self, v: &[f32], start: usize, end: usize) -> (usize, bool) {
+        let w = self.p.window;
+        let on = self.on_sum;
+        let mut sum = self.sum;
+        let mut mx = self.max_sum_armed;
+        let mut i = start;
+        // Samples whose outgoing partner is in the history ring.
+        while i < end.min(w) {
+            let x = v[i] as f64;
+            let o = self.hist[(self.head + i) % w] as f64;
+            sum += x * x - o * o;
+            i += 1;
+            if sum > on {
+                self.sum = sum;
+                self.max_sum_armed = mx.max(sum);
+                return (i, true);
+            }
+            mx = mx.max(sum);
+        }
+        // Both samples in the chunk: the hot loop. Four samples per step,
+        // the crossing test once per step on the maximum, then the exact
+        // position found by replaying the step.
+        while i + 4 <= end {
+            let d0 = (v[i] as f64).powi(2) - (v[i - w] as f64).powi(2);
+            let d1 = (v[i + 1] as f64).powi(2) - (v[i + 1 - w] as f64).powi(2);
+            let d2 = (v[i + 2] as f64).powi(2) - (v[i + 2 - w] as f64).powi(2);
+            let d3 = (v[i + 3] as f64).powi(2) - (v[i + 3 - w] as f64).powi(2);
+            let s0 = sum + d0;
+            let s1 = s0 + d1;
+            let s2 = s1 + d2;
+            let s3 = s2 + d3;
+            let m = s0.max(s1).max(s2.max(s3));
+            if m > on {
+                // Replay sample by sample to stop exactly at the crossing.
+                for (k, s) in [s0, s1, s2, s3].into_iter().enumerate() {
+                    if s > on {
+                        self.sum = s;
+                        self.max_sum_armed = mx.max(s);
+                        return (i + k + 1, true);
+                    }
+                    mx = mx.max(s);
+                }
+                unreachable!("the maximum crossed, so one sample did");
+            }
+            mx = mx.max(m);
+            sum = s3;
+            i += 4;
+        }
+        while i < end {
+            let x = v[i] as f64;
+            let o = v[i - w] as f64;
+            sum += x * x - o * o;
+            i += 1;
+            if sum > on {
+                self.sum = sum;
+                self.max_sum_armed = mx.max(sum);
+                return (i, true);
+            }
+            mx = mx.max(sum);
+        }
+        self.sum = sum;
+        self.max_sum_armed = mx;
+        (end, false)
+    }
+
+    /// Every other phase, sample by sample (warm-up, calibration and contacts
+    /// are a small share of the samples). Returns where it stopped: `end`, or
+    /// earlier when the phase became Idle (so the fast path takes over).
+    fn run_slow(
+        &mut self,
+        t_s: &[f64],
+        v: &[f32],
+        start: usize,
+        end: usize,
+        out: &mut Vec<AeEvent>,
+    ) -> usize {
+        let w = self.p.window;
+        let wf = w as f64;
+        let mut i = start;
+        while i < end {
+            let x = v[i] as f64;
+            let o = self.old(v, i) as f64;
+            self.sum += x * x - o * o;
+            let seen = self.block_seen + i as u64 + 1; // samples of the block incl. this one
+            match self.phase {
+                Phase::Warmup => {
+                    if seen >= w as u64 {
+                        // The first full window: make the sum exact.
+                        self.sum = self.exact_sum(v, i);
+                        self.phase = Phase::Calibrate;
+                        self.cal_n = 0;
+                        self.cal_s = 0.0;
+                        self.cal_ss = 0.0;
+                    }
+                }
+                Phase::Calibrate => {
+                    let env = (self.sum.max(0.0) / wf).sqrt();
+                    self.cal_n += 1;
+                    self.cal_s += env;
+                    self.cal_ss += env * env;
+                    if self.cal_n >= self.p.noise_window {
+                        let nf = self.cal_n as f64;
+                        let mean = self.cal_s / nf;
+                        let var = ((self.cal_ss - self.cal_s * self.cal_s / nf) / (nf - 1.0)).max(0.0);
+                        // A perfectly flat floor (σ = 0) would make any
+                        // rounding a contact: floor σ at 0.1 % of the mean.
+                        let sigma = var.sqrt().max(1e-3 * mean).max(1e-12);
+                        let thr = mean + self.p.k_sigma * sigma;
+                        let rel = mean + self.p.hysteresis * self.p.k_sigma * sigma;
+                        let floor = NoiseFloor {
+                            mean_v: mean,
+                            sigma_v: sigma,
+                            threshold_v: thr,
+                            release_v: rel,
+                        };
+                        self.floor = Some(floor);
+                        self.floors.push(floor);
+                        self.on_sum = wf * thr * thr;
+                        self.off_sum = wf * rel * rel;
+                        self.phase = Phase::Idle;
+                        return i + 1;
+                    }
+                }
+                Phase::Idle => {
+                    self.max_sum_armed = self.max_sum_armed.max(self.sum);
+                    if self.sum > self.on_sum {
+                        self.start_candidate(t_s, i);
+                        if self.dwell >= self.p.min_dwell {
+                            self.phase = Phase::Active;
+                        }
+                    } else {
+                        return i + 1;
+                    }
+                }
+                Phase::Candidate => {
+                    if self.sum > self.on_sum {
+                        self.dwell += 1;
+                        self.peak_sum = self.peak_sum.max(self.sum);
+                        if self.dwell >= self.p.min_dwell {
+                            self.phase = Phase::Active;
+                        }
+                    } else {
+                        // Too short: not a contact.
+                        self.phase = Phase::Idle;
+                        return i + 1;
+                    }
+                }
+                Phase::Active => {
+                    self.peak_sum = self.peak_sum.max(self.sum);
+                    if self.sum < self.off_sum {
+                        out.push(self.event(t_s[i]));
+                        self.phase = Phase::Idle;
+                        return i + 1;
+                    }
+                }
+            }
+            i += 1;
+        }
+        end
+    }
+}
+
+/// Split a chunk's times into contiguous runs: a new run starts where the
+/// step exceeds `max_step_s` (a gap in a triggered recording). Returns the
+/// start indices of runs after the first.
+pub fn gaps(t_s: &[f64], prev_t: Option<f64>, max_step_s: f64) -> Vec<usize> {
+    let mut out = Vec::new();
+    if let (Some(p), Some(&t0)) = (prev_t, t_s.first()) {
+        if t0 - p > max_step_s {
+            out.push(0);
+        }
+    }
+    out.extend(
+        t_s.windows(2)
+            .enumerate()
+            .filter(|(_, w)| w[1] - w[0] > max_step_s)
+            .map(|(i, _)| i + 1),
+    );
+    out
+}
+
+/// Reference RMS envelope (trailing window, partial at the start), computed
+/// naively — for tests and reports, not the hot path.
+pub fn rms_envelope(v: &[f32], window: usize) -> Vec<f64> {
+    let mut out = Vec::with_capacity(v.len());
+    for i in 0..v.len() {
+        let lo = (i + 1).saturating_sub(window);
+        let s: f64 = v[lo..=i].iter().map(|&x| (x as f64) * (x as f64)).sum();
+        out.push((s / (i + 1 - lo) as f64).sqrt());
+    }
+    out
+}
+
+/// Detect events on one contiguous slice (convenience over the streaming
+/// detector; splits at gaps larger than `max_step_s`).
+pub fn detect_events(t_s: &[f64], v: &[f32], p: AeParams, max_step_s: f64) -> (Vec<AeEvent>, AeDetector) {
+    let mut det = AeDetector::new(p);
+    let mut out = Vec::new();
+    let mut lo = 0;
+    for g in gaps(t_s, None, max_step_s) {
+        det.feed(&t_s[lo..g], &v[lo..g], &mut out);
+        det.reset(&mut out);
+        lo = g;
+    }
+    det.feed(&t_s[lo..], &v[lo..], &mut out);
+    det.finish(&mut out);
+    (out, det)
+}
+
+#[cfg(test)]
+pub(crate) mod tests {
+    use super::*;
+
+    /// A deterministic test signal: Gaussian-ish noise (sum of uniforms from
+    /// an LCG) plus decaying bursts at the given onsets.
+    pub fn synth(
+        n: usize,
+        fs: f64,
+        noise_v: f64,
+        bursts: &[(f64, f64, f64)], // (onset_s, amplitude_v, decay_s)
+        seed: u64,
+    ) -> (Vec<f64>, Vec<f32>) {
+        let mut s = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        let mut uni = || {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            ((s >> 11) as f64) / ((1u64 << 53) as f64)
+        };
+        let t: Vec<f64> = (0..n).map(|i| i as f64 / fs).collect();
+        let v: Vec<f32> = t
+            .iter()
+            .map(|&ti| {
+                // Irwin–Hall(12) − 6 ≈ N(0, 1)
+                let g: f64 = (0..12).map(|_| uni()).sum::<f64>() - 6.0;
+                let mut x = noise_v * g;
+                for &(t0, a, tau) in bursts {
+                    if ti >= t0 {
+                        let dt = ti - t0;
+                        x += a * (-dt / tau).exp() * (2.0 * std::f64::consts::PI * 250e3 * dt).sin();
+                    }
+                }
+                x as f32
+            })
+            .collect();
+        (t, v)
+    }
+
+    fn params(fs: f64) -> AeParams {
+        AeParams::from_seconds(fs, 1e-3, 8.0, 0.5e-3, 0.5, 5e-3)
+    }
+
+    #[test]
+    fn envelope_of_constant_sine_is_amplitude_over_sqrt2() {
+        let fs = 1e6;
+        let v: Vec<f32> = (0..10_000)
+            .map(|i| (2.0 * std::f64::consts::PI * 1e4 * i as f64 / fs).sin() as f32)
+            .collect();
+        let e = rms_envelope(&v, 1000);
+        assert!((e[9_999] - std::f64::consts::FRAC_1_SQRT_2).abs() < 1e-3);
+    }
+
+    #[test]
+    fn events_within_one_window_of_burst_onsets_one_per_burst() {
+        let fs = 1e6;
+        let onsets = [0.012, 0.030, 0.0473, 0.081];
+        let bursts: Vec<(f64, f64, f64)> = onsets.iter().map(|&t| (t, 0.2, 2e-3)).collect();
+        let (t, v) = synth(100_000, fs, 0.005, &bursts, 7);
+        let p = params(fs);
+        let (ev, det) = detect_events(&t, &v, p, 1.5 / fs);
+        assert_eq!(ev.len(), onsets.len(), "one event per burst: {ev:?}");
+        for (e, &t0) in ev.iter().zip(&onsets) {
+            assert!(
+                e.onset_t_s >= t0 && e.onset_t_s - t0 <= 1e-3,
+                "onset {} vs truth {}",
+                e.onset_t_s,
+                t0
+            );
+            assert!(e.peak_v > 0.05 && e.duration_s() > 0.5e-3);
+        }
+        let f = det.floors()[0];
+        // Noise floor ≈ σ of the noise (5 mV); threshold a bit above it.
+        assert!((f.mean_v - 0.005).abs() < 5e-4, "{f:?}");
+        assert!(f.threshold_v > f.mean_v && f.release_v < f.threshold_v);
+    }
+
+    #[test]
+    fn chunking_does_not_change_events() {
+        let fs = 1e6;
+        let bursts = [(0.02, 0.15, 1e-3), (0.05, 0.3, 3e-3), (0.09, 0.1, 1e-3)];
+        let (t, v) = synth(200_000, fs, 0.004, &bursts, 3);
+        let p = params(fs);
+        let (whole, _) = detect_events(&t, &v, p, 1.5 / fs);
+        assert_eq!(whole.len(), 3);
+        for chunk in [1usize, 7, 999, 1000, 1001, 4096, 65_537] {
+            let mut det = AeDetector::new(p);
+            let mut out = Vec::new();
+            for (tc, vc) in t.chunks(chunk).zip(v.chunks(chunk)) {
+                det.feed(tc, vc, &mut out);
+            }
+            det.finish(&mut out);
+            assert_eq!(out.len(), whole.len(), "chunk {chunk}");
+            for (a, b) in out.iter().zip(&whole) {
+                assert_eq!(a.onset_index, b.onset_index, "chunk {chunk}");
+                assert!((a.peak_v - b.peak_v).abs() < 1e-9 * b.peak_v);
+            }
+        }
+    }
+
+    #[test]
+    fn running_sum_matches_naive_envelope_after_a_huge_burst() {
+        // Cancellation check: a burst 10⁴× the floor, then quiet floor; the
+        // envelope the detector carries must match the naive one.
+        let fs = 1e6;
+        let (t, v) = synth(300_000, fs, 0.001, &[(0.02, 10.0, 5e-3)], 11);
+        let p = params(fs);
+        let mut det = AeDetector::new(p);
+        let mut out = Vec::new();
+        det.feed(&t, &v, &mut out);
+        let naive = rms_envelope(&v, p.window);
+        let env = (det.sum / p.window as f64).sqrt();
+        assert!((env - naive[v.len() - 1]).abs() < 1e-9, "{env} vs {}", naive[v.len() - 1]);
+        assert_eq!(out.len(), 1);
+    }
+
+    #[test]
+    fn short_spike_below_dwell_is_not_a_contact() {
+        let fs = 1e6;
+        // 0.2 ms burst: shorter than the 0.5 ms dwell once it decays.
+        let (t, v) = synth(50_000, fs, 0.005, &[(0.02, 0.2, 2e-5)], 5);
+        let (ev, det) = detect_events(&t, &v, params(fs), 1.5 / fs);
+        assert!(ev.is_empty(), "{ev:?}");
+        assert!(det.max_envelope_armed_v() > det.floors()[0].threshold_v);
+    }
+
+    #[test]
+    fn gaps_restart_window_and_noise_floor() {
+        let fs = 1e6;
+        // Two recording blocks 1 s apart, each with its own burst and a
+        // different noise level.
+        let (t1, v1) = synth(20_000, fs, 0.002, &[(0.012, 0.1, 2e-3)], 1);
+        let (t2, mut v2) = synth(20_000, fs, 0.002, &[(0.013, 0.1, 2e-3)], 2);
+        v2.iter_mut().for_each(|x| *x *= 2.0);
+        let mut t = t1.clone();
+        t.extend(t2.iter().map(|x| x + 1.0));
+        let mut v = v1;
+        v.extend(v2);
+        let (ev, det) = detect_events(&t, &v, params(fs), 1.5 / fs);
+        assert_eq!(ev.len(), 2, "{ev:?}");
+        assert!((ev[0].onset_t_s - 0.012).abs() < 1e-3);
+        assert!((ev[1].onset_t_s - 1.013).abs() < 1e-3);
+        assert_eq!(det.floors().len(), 2);
+        assert!(det.floors()[1].mean_v > 1.5 * det.floors()[0].mean_v);
+        assert_eq!(gaps(&t, None, 1.5 / fs), vec![20_000]);
+    }
+}

@@ -1,0 +1,218 @@
+//! `observe`: paired observations (CONTRACTS.md §2) for the gap diagnosis.
+//!
+//! - `touch_normal`, one row per touch: real = the registered normal
+//!   coordinate; sim = the normal coordinate the run's fitted face plane
+//!   (TLS over all touches of the face) predicts at the touch's in-plane
+//!   position — the block pose is the modelled part, what is left is what
+//!   the model lacks (trigger latency, drift, backlash, …). Covariates:
+//!   x_mm, y_mm, z_mm (nominal point), approach_mm_s, approach_normal_mm_s
+//!   (approach speed × the direction's component along the +axis of the
+//!   normal coordinate, so a latency L gives gap = L·approach_normal_mm_s),
+//!   t_s, trial, point, dir (sign of the last move along the normal before
+//!   the approach, for backlash; null when the motion log does not say).
+//! - `cut_depth`, one row per pass: real = measured cut, sim = the
+//!   compliance model's cut with α from the first pass (MODELS.md §1.4).
+//!   Covariates: pass, t_s, feed_mm_s, nominal_doc_mm, removed_mm3
+//!   (cumulative removal before the pass).
+//!
+//! Covariates that do not apply to an observable are null in its rows.
+
+use std::collections::BTreeMap;
+use std::sync::Arc;
+
+use anyhow::anyhow;
+use arrow::array::Int32Array;
+use arrow::datatypes::{DataType, Field};
+use nalgebra::Vector3;
+use serde_json::json;
+use sparkout_pipeline::contracts::{batch_f64, batch_i32, batch_str, BatchBuilder};
+use sparkout_pipeline::{Result, Stage, StageContext, StageOutput};
+
+use super::config::{check_config, Check};
+use super::planes::{Face, Plane};
+use super::touches::{self, opt_col};
+
+pub struct ObserveStage;
+
+const KEYS: &[(&str, Check)] = &[("fit", Check::OneOf(&["tls", "ols"]))];
+
+/// One observation row.
+#[derive(Debug, Clone, Default)]
+struct Row {
+    observable: &'static str,
+    sim: f64,
+    real: f64,
+    x: Option<f64>,
+    y: Option<f64>,
+    z: Option<f64>,
+    approach: Option<f64>,
+    approach_normal: Option<f64>,
+    t: Option<f64>,
+    trial: Option<i32>,
+    point: Option<i32>,
+    dir: Option<f64>,
+    pass: Option<i32>,
+    feed: Option<f64>,
+    doc: Option<f64>,
+    removed: Option<f64>,
+}
+
+/// The face planes (scope `all`) of the `planes` artifact for one fit.
+fn face_planes(b: &arrow::record_batch::RecordBatch, fit: &str) -> Result<BTreeMap<Face, Plane>> {
+    let face = batch_str(b, "face")?;
+    let fits = batch_str(b, "fit")?;
+    let scope = batch_str(b, "scope")?;
+    let (nx, ny, nz, d) = (
+        batch_f64(b, "nx")?,
+        batch_f64(b, "ny")?,
+        batch_f64(b, "nz")?,
+        batch_f64(b, "d_mm")?,
+    );
+    let mut out = BTreeMap::new();
+    for i in 0..b.num_rows() {
+        if fits[i] == fit && scope[i] == "all" {
+            let f = Face::parse(&face[i]).ok_or_else(|| anyhow!("planes: unknown face `{}`", face[i]))?;
+            out.insert(
+                f,
+                Plane {
+                    n: Vector3::new(nx[i], ny[i], nz[i]),
+                    d: d[i],
+                    cov: nalgebra::Matrix4::zeros(),
+                },
+            );
+        }
+    }
+    Ok(out)
+}
+
+fn opt_i32(name: &str, v: Vec<Option<i32>>) -> (Field, Arc<Int32Array>) {
+    (Field::new(name, DataType::Int32, true), Arc::new(Int32Array::from(v)))
+}
+
+fn build(run: &str, rows: &[Row]) -> arrow::record_batch::RecordBatch {
+    let f = |g: &dyn Fn(&Row) -> Option<f64>| rows.iter().map(g).collect::<Vec<_>>();
+    let i = |g: &dyn Fn(&Row) -> Option<i32>| rows.iter().map(g).collect::<Vec<_>>();
+    let (tf, tc) = opt_i32("trial", i(&|r| r.trial));
+    let (pf, pc) = opt_i32("point", i(&|r| r.point));
+    let (sf, sc) = opt_i32("pass", i(&|r| r.pass));
+    BatchBuilder::new()
+        .str("run", &vec![run; rows.len()])
+        .str("observable", &rows.iter().map(|r| r.observable).collect::<Vec<_>>())
+        .f64("sim", rows.iter().map(|r| r.sim).collect())
+        .f64("real", rows.iter().map(|r| r.real).collect())
+        .opt_f64("x_mm", f(&|r| r.x))
+        .opt_f64("y_mm", f(&|r| r.y))
+        .opt_f64("z_mm", f(&|r| r.z))
+        .opt_f64("approach_mm_s", f(&|r| r.approach))
+        .opt_f64("approach_normal_mm_s", f(&|r| r.approach_normal))
+        .opt_f64("t_s", f(&|r| r.t))
+        .column(tf, tc)
+        .column(pf, pc)
+        .opt_f64("dir", f(&|r| r.dir))
+        .column(sf, sc)
+        .opt_f64("feed_mm_s", f(&|r| r.feed))
+        .opt_f64("nominal_doc_mm", f(&|r| r.doc))
+        .opt_f64("removed_mm3", f(&|r| r.removed))
+        .build()
+}
+
+impl Stage for ObserveStage {
+    fn name(&self) -> &'static str {
+        "observe"
+    }
+    fn version(&self) -> u32 {
+        1
+    }
+    fn reads_tables(&self) -> &'static [&'static str] {
+        &[]
+    }
+    fn reads_artifacts(&self) -> &'static [&'static str] {
+        &["touches", "planes", "cycle"]
+    }
+    fn writes(&self) -> &'static [&'static str] {
+        &["observations"]
+    }
+    fn about(&self) -> &'static str {
+        "paired observations touch_normal and cut_depth for the gap diagnosis (CONTRACTS.md §2)"
+    }
+    fn validate_config(&self, config: &toml::Table) -> Result<()> {
+        check_config(config, KEYS)
+    }
+    fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
+        let fit = ctx.cfg_str("fit", "tls");
+        let all = touches::require(ctx)?;
+        let planes_batch = ctx.artifacts.require("planes")?;
+        let planes = face_planes(&planes_batch, fit)?;
+        let mut rows = Vec::with_capacity(all.len() + 16);
+        for t in &all {
+            let plane = planes
+                .get(&t.face)
+                .ok_or_else(|| anyhow!("no fitted plane for face {}", t.face.label()))?;
+            rows.push(Row {
+                observable: "touch_normal",
+                sim: plane.normal_coordinate_at(t.face, &t.p),
+                real: t.normal(),
+                x: Some(t.nom.x),
+                y: Some(t.nom.y),
+                z: Some(t.nom.z),
+                approach: Some(t.approach_mm_s),
+                approach_normal: Some(t.approach_normal_mm_s()),
+                t: Some(t.t_s),
+                trial: Some(t.trial),
+                point: Some(t.point),
+                dir: t.prev_move_dir,
+                ..Row::default()
+            });
+        }
+        let n_touch = rows.len();
+        if let Some(c) = ctx.artifacts.get("cycle")? {
+            if c.num_rows() > 0 {
+                let pass = batch_i32(&c, "pass")?;
+                let pred = batch_f64(&c, "predicted_cut_mm")?;
+                let meas = opt_col(&c, "measured_cut_mm")?;
+                let feed = batch_f64(&c, "feed_mm_s")?;
+                let doc = batch_f64(&c, "nominal_doc_mm")?;
+                let removed = batch_f64(&c, "removed_mm3")?;
+                let ts = opt_col(&c, "t_start_s")?;
+                let te = opt_col(&c, "t_end_s")?;
+                for i in 0..c.num_rows() {
+                    let Some(m) = meas[i] else { continue };
+                    let t = match (ts[i], te[i]) {
+                        (Some(a), Some(b)) => Some(0.5 * (a + b)),
+                        (a, _) => a,
+                    };
+                    rows.push(Row {
+                        observable: "cut_depth",
+                        sim: pred[i],
+                        real: m,
+                        t,
+                        pass: Some(pass[i]),
+                        feed: Some(feed[i]),
+                        doc: Some(doc[i]),
+                        removed: Some(removed[i]),
+                        ..Row::default()
+                    });
+                }
+            }
+        }
+        let rms = |obs: &str| {
+            let g: Vec<f64> = rows
+                .iter()
+                .filter(|r| r.observable == obs)
+                .map(|r| r.real - r.sim)
+                .collect();
+            if g.is_empty() {
+                serde_json::Value::Null
+            } else {
+                json!((g.iter().map(|x| x * x).sum::<f64>() / g.len() as f64).sqrt())
+            }
+        };
+        let summary = json!({
+            "rows": rows.len(),
+            "touch_normal": {"n": n_touch, "rms_gap_mm": rms("touch_normal")},
+            "cut_depth": {"n": rows.len() - n_touch, "rms_gap_mm": rms("cut_depth")},
+            "plane_fit": fit,
+        });
+        Ok(StageOutput::new(summary).with("observations", build(&ctx.run.spec.id, &rows)))
+    }
+}

@@ -1,0 +1,376 @@
+//! Report sections of a robot run (issue 3 item 7): repeatability by
+//! method × speed, the fitted planes' residuals, the datum with its
+//! uncertainty, predicted vs measured cuts per pass, and how far recorded
+//! and AE-derived touches disagree.
+
+use serde_json::Value;
+use sparkout_pipeline::report::svg::{bar_chart, xy_chart, Mark, Series};
+use sparkout_pipeline::report::{esc, table};
+use sparkout_pipeline::{ArtifactStore, ReportSection, Run};
+
+use super::planes::Face;
+use super::touches;
+
+fn um(v: &Value) -> String {
+    v.as_f64()
+        .filter(|x| x.is_finite())
+        .map(|x| format!("{:.1}", x * 1e3))
+        .unwrap_or_else(|| "—".into())
+}
+
+fn num(v: &Value, digits: usize) -> String {
+    v.as_f64()
+        .filter(|x| x.is_finite())
+        .map(|x| format!("{x:.digits$}"))
+        .unwrap_or_else(|| "—".into())
+}
+
+fn repeatability(s: &Value) -> Option<ReportSection> {
+    let groups = s.get("groups")?.as_array()?;
+    let mut rows = Vec::new();
+    let mut bars = Vec::new();
+    for g in groups {
+        let label = format!(
+            "{} @ {} mm/s",
+            g["method"].as_str().unwrap_or("?"),
+            num(&g["approach_mm_s"], 3)
+        );
+        for f in Face::ALL {
+            let x = &g["faces"][f.label()];
+            if x.is_null() {
+                continue;
+            }
+            rows.push(vec![
+                g["method"].as_str().unwrap_or("?").to_string(),
+                num(&g["approach_mm_s"], 3),
+                f.label().to_string(),
+                x["n"].to_string(),
+                um(&x["range_mm"]),
+                um(&x["std_mm"]),
+                um(&x["bias_mm"]),
+                um(&x["bias_latency_corrected_mm"]),
+            ]);
+        }
+        if let Some(v) = g["mean_range_mm"].as_f64() {
+            bars.push((label, v * 1e3));
+        }
+    }
+    let mut html = table(
+        &[
+            "method",
+            "approach (mm/s)",
+            "face",
+            "n",
+            "range (µm)",
+            "std (µm)",
+            "bias (µm)",
+            "bias, latency-corrected (µm)",
+        ],
+        &rows,
+    );
+    html.push_str(&bar_chart(
+        "Mean range over faces (the thesis's accuracy error)",
+        "µm",
+        &bars,
+    ));
+    let lat = match s["latency_s"].as_f64() {
+        Some(l) => format!(
+            "<p>Trigger latency from the bias at ≥ 2 approach speeds: <b>{:.3} ms</b> (bias ≈ v·L along the approach direction).</p>",
+            l * 1e3
+        ),
+        None => "<p class=\"note\">Trigger latency: not estimable (fewer than two approach speeds per point).</p>".into(),
+    };
+    html.push_str(&lat);
+    Some(ReportSection {
+        title: "Repeatability by method and approach speed".into(),
+        html,
+    })
+}
+
+fn planes(s: &Value, run_artifacts: &ArtifactStore) -> Option<ReportSection> {
+    let p = s.get("planes")?;
+    let mut rows = Vec::new();
+    for f in Face::ALL {
+        let x = &p[f.label()];
+        if x.is_null() {
+            continue;
+        }
+        let ols: Vec<String> = x["ols"]
+            .as_array()
+            .map(|a| a.iter().map(|v| num(v, 6)).collect())
+            .unwrap_or_default();
+        rows.push(vec![
+            f.label().to_string(),
+            x["n"].to_string(),
+            x["n_rejected"].to_string(),
+            ols.join(", "),
+            um(&x["ols_residual_rms_mm"]),
+            um(&x["tls_residual_rms_mm"]),
+            um(&x["residual_max_mm"]),
+        ]);
+    }
+    let mut html = table(
+        &[
+            "face",
+            "touches",
+            "rejected",
+            "OLS b0, b1, b2",
+            "OLS RMS (µm)",
+            "TLS RMS (µm)",
+            "max |res| (µm)",
+        ],
+        &rows,
+    );
+    // Residual of each touch from its face's TLS plane, in touch order.
+    if let (Ok(Some(t)), Some(pl)) = (run_artifacts.get("touches"), p.as_object()) {
+        if let Ok(t) = touches::from_batch(&t) {
+            let mut series: Vec<(String, Vec<(f64, f64)>)> = Vec::new();
+            for f in Face::ALL {
+                let x = &pl.get(f.label());
+                let (Some(n), Some(d)) = (
+                    x.and_then(|x| x["tls_normal"].as_array()).map(|a| {
+                        nalgebra::Vector3::new(
+                            a[0].as_f64().unwrap_or(0.0),
+                            a[1].as_f64().unwrap_or(0.0),
+                            a[2].as_f64().unwrap_or(0.0),
+                        )
+                    }),
+                    x.and_then(|x| x["tls_d"].as_f64()),
+                ) else {
+                    continue;
+                };
+                let pts: Vec<(f64, f64)> = t
+                    .iter()
+                    .filter(|q| q.face == f)
+                    .enumerate()
+                    .map(|(i, q)| (i as f64, (n.dot(&q.p) - d) * 1e3))
+                    .collect();
+                series.push((f.label().to_string(), pts));
+            }
+            let s: Vec<Series> = series
+                .iter()
+                .map(|(name, pts)| Series {
+                    name,
+                    points: pts,
+                    mark: Mark::Points,
+                })
+                .collect();
+            html.push_str(&xy_chart(
+                "Orthogonal residuals from each face's TLS plane",
+                "touch (in time order within its face)",
+                "residual (µm)",
+                &s,
+            ));
+        }
+    }
+    Some(ReportSection {
+        title: "Fitted face planes".into(),
+        html,
+    })
+}
+
+fn datum(s: &Value) -> Option<ReportSection> {
+    let p = s.get("datum_mm")?.as_array()?;
+    let sig = &s["datum_sigma_mm"];
+    let ell = &s["datum_ellipsoid_mm"]["semi_axes_mm"];
+    let conf = s["datum_ellipsoid_mm"]["confidence"].as_f64().unwrap_or(0.95);
+    let rows: Vec<Vec<String>> = ["x", "y", "z"]
+        .iter()
+        .enumerate()
+        .map(|(i, a)| {
+            vec![
+                a.to_string(),
+                num(&p[i], 4),
+                um(&sig[i]),
+                um(&ell[i]),
+            ]
+        })
+        .collect();
+    let mut html = format!(
+        "<p>Datum = intersection of the three face planes ({} fit); condition number {}.</p>",
+        esc(s["fit"].as_str().unwrap_or("tls")),
+        num(&s["condition"], 3)
+    );
+    html.push_str(&table(
+        &[
+            "axis",
+            "datum (mm)",
+            "1σ (µm)",
+            &format!("{:.0} % ellipsoid semi-axis (µm)", conf * 100.0),
+        ],
+        &rows,
+    ));
+    let sq = &s["squareness_rad"];
+    html.push_str(&table(
+        &["faces", "deviation from 90° (µrad)"],
+        &["xy_yz", "yz_zx", "zx_xy"]
+            .iter()
+            .map(|k| {
+                vec![
+                    k.replace('_', "–"),
+                    sq[*k].as_f64().map(|x| format!("{:.1}", x * 1e6)).unwrap_or_else(|| "—".into()),
+                ]
+            })
+            .collect::<Vec<_>>(),
+    ));
+    if let Some(sq) = s["by_square"].as_array().filter(|a| !a.is_empty()) {
+        let rows: Vec<Vec<String>> = sq
+            .iter()
+            .map(|q| {
+                let d = &q["datum_mm"];
+                vec![
+                    q["square"].as_str().unwrap_or("?").to_string(),
+                    num(&d[0], 4),
+                    num(&d[1], 4),
+                    num(&d[2], 4),
+                ]
+            })
+            .collect();
+        html.push_str("<p>Datum per square of the thesis's pattern:</p>");
+        html.push_str(&table(&["square", "x (mm)", "y (mm)", "z (mm)"], &rows));
+    }
+    if let Some(e) = s["error_vector_mm"].as_array() {
+        html.push_str(&format!(
+            "<p class=\"note\">Thesis error vector E = A·α: ({}, {}, {}) µm.</p>",
+            um(&e[0]),
+            um(&e[1]),
+            um(&e[2])
+        ));
+    }
+    Some(ReportSection {
+        title: "Datum and its uncertainty".into(),
+        html,
+    })
+}
+
+fn cycle(s: &Value) -> Option<ReportSection> {
+    let passes = s.get("passes")?.as_array()?;
+    if passes.is_empty() {
+        return Some(ReportSection {
+            title: "Grinding cycle".into(),
+            html: format!(
+                "<p class=\"note\">{}</p>",
+                esc(s["note"].as_str().unwrap_or("no passes"))
+            ),
+        });
+    }
+    let pt = |k: &str| -> Vec<(f64, f64)> {
+        passes
+            .iter()
+            .filter_map(|p| Some((p["pass"].as_f64()?, p[k].as_f64()? * 1e3)))
+            .collect()
+    };
+    let (pred, meas, fit) = (pt("predicted_cut_mm"), pt("measured_cut_mm"), pt("predicted_cut_fit_mm"));
+    let mut series = vec![
+        Series {
+            name: "predicted (α from pass 1)",
+            points: &pred,
+            mark: Mark::Line,
+        },
+        Series {
+            name: "measured",
+            points: &meas,
+            mark: Mark::Points,
+        },
+    ];
+    if !fit.is_empty() {
+        series.push(Series {
+            name: "predicted (α refit)",
+            points: &fit,
+            mark: Mark::Line,
+        });
+    }
+    let mut html = format!(
+        "<p>α from the first pass {} (ratio α/(1+α) {}); α refit over all passes {}.</p>",
+        num(&s["alpha_first_pass"], 4),
+        num(&s["ratio_first_pass"], 4),
+        num(&s["alpha_fit"], 4)
+    );
+    html.push_str(&xy_chart("Real cut per pass", "pass", "cut (µm)", &series));
+    let rows: Vec<Vec<String>> = passes
+        .iter()
+        .map(|p| {
+            vec![
+                p["pass"].to_string(),
+                p["stage"].as_str().unwrap_or("?").to_string(),
+                um(&p["nominal_doc_mm"]),
+                um(&p["predicted_cut_mm"]),
+                um(&p["measured_cut_mm"]),
+                um(&p["predicted_cut_fit_mm"]),
+            ]
+        })
+        .collect();
+    html.push_str(&table(
+        &["pass", "stage", "δ′ (µm)", "predicted (µm)", "measured (µm)", "refit (µm)"],
+        &rows,
+    ));
+    let r = &s["remaining_after_mm"];
+    let rm = &s["remaining_after_measured_mm"];
+    html.push_str(&table(
+        &["after", "remaining predicted (µm)", "remaining measured (µm)"],
+        &["rough", "finish", "spark"]
+            .iter()
+            .map(|k| vec![k.to_string(), um(&r[*k]), um(&rm[*k])])
+            .collect::<Vec<_>>(),
+    ));
+    if let Some(t) = s["tau_s"].as_object().filter(|t| !t.is_empty()) {
+        let rows: Vec<Vec<String>> = t.iter().map(|(k, v)| vec![k.clone(), num(v, 3)]).collect();
+        html.push_str(&table(&["feed (mm/s)", "spark-out τ (s)"], &rows));
+    }
+    Some(ReportSection {
+        title: "Grinding cycle: predicted vs measured cuts".into(),
+        html,
+    })
+}
+
+fn compare(s: &Value) -> Option<ReportSection> {
+    let c = s.get("compare").filter(|c| !c.is_null())?;
+    let mut html = format!(
+        "<p>{} touches both registered by the controller and detected from AE: RMS distance {} µm (max {} µm); mean normal difference {} µm; the controller registers on average {} ms after the AE contact.</p>",
+        c["n"],
+        um(&c["rms_dist_mm"]),
+        um(&c["max_dist_mm"]),
+        um(&c["mean_dnormal_mm"]),
+        c["mean_dt_s"].as_f64().map(|x| format!("{:.3}", x * 1e3)).unwrap_or_else(|| "—".into())
+    );
+    if let Some(b) = c["by_speed"].as_array() {
+        let rows: Vec<Vec<String>> = b
+            .iter()
+            .map(|g| {
+                vec![
+                    g["method"].as_str().unwrap_or("?").to_string(),
+                    num(&g["approach_mm_s"], 3),
+                    g["n"].to_string(),
+                    um(&g["mean_dnormal_mm"]),
+                    g["mean_dt_s"].as_f64().map(|x| format!("{:.3}", x * 1e3)).unwrap_or_else(|| "—".into()),
+                ]
+            })
+            .collect();
+        html.push_str(&table(
+            &["method", "approach (mm/s)", "n", "mean Δnormal (µm)", "mean Δt (ms)"],
+            &rows,
+        ));
+    }
+    Some(ReportSection {
+        title: "Recorded vs AE-derived touches".into(),
+        html,
+    })
+}
+
+pub fn sections(_run: &Run, a: &ArtifactStore) -> Vec<ReportSection> {
+    let mut out = Vec::new();
+    if let Some(s) = a.summary("repeatability") {
+        out.extend(repeatability(&s));
+    }
+    if let Some(s) = a.summary("datum") {
+        out.extend(planes(&s, a));
+        out.extend(datum(&s));
+    }
+    if let Some(s) = a.summary("cycle") {
+        out.extend(cycle(&s));
+    }
+    if let Some(s) = a.summary("ingest") {
+        out.extend(compare(&s));
+    }
+    out
+}

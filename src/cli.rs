@@ -1,0 +1,183 @@
+//! Command-line arguments (clap). Exit codes: 0 all good, 2 some runs failed
+//! (or problems found), 1 usage or config error.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use clap::{Args, Parser, Subcommand};
+
+#[derive(Parser, Debug)]
+#[command(
+    name = "sparkout",
+    version,
+    about = "Batch processor for precision grinding and polishing machines: datums, compensation, \
+             prediction, removal, reports — and a diagnosis of the sim-to-real gap.",
+    after_help = "Start with `sparkout demo`. Exit codes: 0 all good, 2 some runs failed, 1 usage or config error."
+)]
+pub struct Cli {
+    /// More log output (-v debug, -vv trace).
+    #[arg(short, long, global = true, action = clap::ArgAction::Count)]
+    pub verbose: u8,
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+#[derive(Args, Debug, Clone)]
+pub struct ConfigArgs {
+    /// Pipeline config (TOML). Default: the built-in configs/nightly.toml.
+    #[arg(long, value_name = "TOML")]
+    pub config: Option<PathBuf>,
+    /// Override a config key, e.g. --set robot.ingest.k_sigma=8 (repeatable).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub set: Vec<String>,
+    /// Directory of machine configs (<machine>.toml); also SPARKOUT_MACHINES.
+    #[arg(long, value_name = "DIR")]
+    pub machines: Option<PathBuf>,
+}
+
+#[derive(Subcommand, Debug)]
+pub enum Command {
+    /// Run the DAG over every recorded run under --input (the nightly batch).
+    #[command(
+        after_help = "Example: sparkout run --input runs/ --out out/ --set diagnose.folds=4\n\
+                      Writes <out>/<machine>/<run>/*.parquet, report.html; <out>/fleet/{observations.parquet,\
+                      diagnosis.json,report.html}; <out>/failures.json; <out>/manifest.json (last).\n\
+                      Unchanged stages are skipped (content-hash cache)."
+    )]
+    Run {
+        #[command(flatten)]
+        config: ConfigArgs,
+        /// Root of the recorded runs: <root>/<machine>/<run>/run.toml.
+        #[arg(long, value_name = "DIR")]
+        input: PathBuf,
+        /// Output directory.
+        #[arg(long, value_name = "DIR")]
+        out: PathBuf,
+        /// Worker threads across runs (default: all cores).
+        #[arg(long, value_name = "N")]
+        jobs: Option<usize>,
+    },
+    /// Run one stage of one run (its upstream stages are computed in memory),
+    /// or a stage that takes its inputs from flags (e.g. datum --planes).
+    #[command(
+        after_help = "Examples:\n  sparkout stage datum --run runs/kr16-lab/r0000 --out /tmp/d --json\n  \
+                      sparkout stage datum --planes \"0,0,1,12.4;1,0,0,-20;0,1,0,-13\" --json\n  \
+                      sparkout stage cycle --weld-mm 2.27 --rough 7 --finish 2 --spark 2 --doc-rough 0.3 \
+                      --doc-finish 0.1 --first-cut 0.2 --json\n\
+                      Stage-specific flags (--planes, --weld-mm, ...) are passed to the stage."
+    )]
+    Stage {
+        /// Stage name (e.g. ingest, repeatability, datum, cycle, observe).
+        name: String,
+        /// The run directory (holds run.toml).
+        #[arg(long, value_name = "DIR")]
+        run: Option<PathBuf>,
+        /// Where the stage's artifacts go (<artifact>.parquet).
+        #[arg(long, value_name = "DIR")]
+        out: Option<PathBuf>,
+        /// Print the stage's JSON summary to stdout.
+        #[arg(long)]
+        json: bool,
+        #[command(flatten)]
+        config: ConfigArgs,
+        /// Stage-specific flags, e.g. --planes "a,b,c,d;..." or --weld-mm 2.27.
+        #[arg(trailing_var_arg = true, allow_hyphen_values = true, value_name = "STAGE FLAGS")]
+        extra: Vec<String>,
+    },
+    /// Check every run under ROOT against the data contracts; writes nothing.
+    #[command(after_help = "Example: sparkout validate-input runs/\nExit 0 when clean, 2 when problems were found.")]
+    ValidateInput {
+        root: PathBuf,
+        #[arg(long, value_name = "DIR")]
+        machines: Option<PathBuf>,
+    },
+    /// Generate a synthetic fleet (or an observations table) with injected effects.
+    #[command(
+        after_help = "Examples:\n  sparkout generate robot --runs 6 --seed 1 --out runs/ --effect wheel_wear\n  \
+                      sparkout generate observations --runs 8 --seed 3 --out obs.parquet \
+                      --effect drift:t_s=amplitude_mm=0.02,tau_s=600\n\
+                      Effects: NAME[:COVARIATE]=KEY=VALUE,... (repeatable). `sparkout generate robot --list-effects` lists them."
+    )]
+    Generate {
+        /// What to generate: a plugin name (robot) or `observations`.
+        what: String,
+        /// Number of runs.
+        #[arg(long, default_value_t = 4)]
+        runs: usize,
+        /// Random seed (same seed → identical bytes).
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        /// Output: a fleet root directory (plugins) or a .parquet file (observations).
+        #[arg(long, value_name = "PATH")]
+        out: Option<PathBuf>,
+        /// Inject an effect: NAME[:COVARIATE]=KEY=VALUE,... (repeatable).
+        #[arg(long = "effect", value_name = "SPEC")]
+        effects: Vec<String>,
+        /// AE sample rate for plugins that record AE (default: the generator's, 1 MHz).
+        #[arg(long, value_name = "HZ")]
+        ae_rate_hz: Option<f64>,
+        /// List the injectable effects and exit.
+        #[arg(long)]
+        list_effects: bool,
+    },
+    /// Generate a small fleet, run everything, print where the report is.
+    #[command(after_help = "Example: sparkout demo --out /tmp/sparkout-demo")]
+    Demo {
+        /// Where the demo fleet and outputs go.
+        #[arg(long, value_name = "DIR", default_value = "sparkout-demo")]
+        out: PathBuf,
+    },
+    /// Diagnose the sim-to-real gap of a paired-observations table.
+    #[command(
+        after_help = "Example: sparkout diagnose out/fleet/observations.parquet --out diag/ --folds 5 --json\n\
+                      Writes diagnosis.json (v1), diagnosis.parquet, augmented_model.json, report.html."
+    )]
+    Diagnose {
+        /// observations.parquet (CONTRACTS.md §2).
+        observations: PathBuf,
+        #[arg(long, value_name = "DIR")]
+        out: PathBuf,
+        /// Cross-validation folds (by run).
+        #[arg(long)]
+        folds: Option<usize>,
+        /// Restrict the catalogue: comma-separated effect names.
+        #[arg(long, value_delimiter = ',')]
+        effects: Option<Vec<String>>,
+        #[arg(long)]
+        seed: Option<u64>,
+        /// Print diagnosis.json to stdout.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Check the diagnosis on generated fleets whose effect is known (withheld from sim).
+    #[command(after_help = "Example: sparkout validate --quick --out validation/")]
+    Validate {
+        /// A smaller grid of fleets (under 30 s in release).
+        #[arg(long)]
+        quick: bool,
+        #[arg(long, value_name = "DIR")]
+        out: Option<PathBuf>,
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        /// Print the report as JSON to stdout.
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+/// Parse argv; help/version print and exit 0, usage errors exit 1.
+pub fn parse() -> Result<Cli, ExitCode> {
+    match Cli::try_parse() {
+        Ok(c) => Ok(c),
+        Err(e) => {
+            use clap::error::ErrorKind;
+            let _ = e.print();
+            match e.kind() {
+                ErrorKind::DisplayHelp
+                | ErrorKind::DisplayVersion
+                | ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand => Err(ExitCode::SUCCESS),
+                _ => Err(ExitCode::from(1)),
+            }
+        }
+    }
+}

@@ -1,0 +1,59 @@
+//! One file per subcommand.
+
+mod demo;
+mod diagnose;
+mod generate;
+mod run;
+mod stage;
+mod validate;
+mod validate_input;
+
+use crate::cli::{Cli, Command};
+
+pub const ALL_GOOD: u8 = 0;
+pub const USAGE_OR_CONFIG_ERROR: u8 = 1;
+pub const SOME_RUNS_FAILED: u8 = 2;
+
+pub fn dispatch(cli: Cli) -> anyhow::Result<u8> {
+    match cli.command {
+        Command::Run {
+            config,
+            input,
+            out,
+            jobs,
+        } => run::run(&config, &input, &out, jobs),
+        Command::Stage {
+            name,
+            run,
+            out,
+            json,
+            config,
+            extra,
+        } => stage::stage(&name, run, out, json, config, &extra),
+        Command::ValidateInput { root, machines } => validate_input::validate_input(&root, machines),
+        Command::Generate {
+            what,
+            runs,
+            seed,
+            out,
+            effects,
+            ae_rate_hz,
+            list_effects,
+        } => generate::generate(&what, runs, seed, out, &effects, ae_rate_hz, list_effects),
+        Command::Demo { out } => demo::demo(&out),
+        Command::Diagnose {
+            observations,
+            out,
+            folds,
+            effects,
+            seed,
+            json,
+        } => diagnose::diagnose(&observations, &out, folds, effects, seed, json),
+        Command::Validate {
+            quick,
+            out,
+            seed,
+            json,
+        } => validate::validate(quick, out, seed, json),
+    }
+}

@@ -1,0 +1,62 @@
+//! `sparkout run`: the nightly batch.
+
+use std::path::Path;
+
+use sparkout_pipeline::engine::FleetOutcome;
+
+use crate::cli::ConfigArgs;
+use crate::progress::BatchProgress;
+use crate::registry;
+
+pub fn run(config: &ConfigArgs, input: &Path, out: &Path, jobs: Option<usize>) -> anyhow::Result<u8> {
+    if jobs == Some(0) {
+        anyhow::bail!("--jobs must be at least 1");
+    }
+    let engine = registry::engine(config)?;
+    let progress = BatchProgress::new();
+    let outcome = engine.run_fleet(input, out, jobs, &progress)?;
+    progress.finish();
+    print_outcome(&outcome);
+    Ok(outcome.exit_code() as u8)
+}
+
+/// The end-of-batch summary an engineer reads first.
+pub fn print_outcome(o: &FleetOutcome) {
+    let computed = o.stages_computed();
+    let cached = o.stages_cached();
+    println!(
+        "{} runs ok, {} rejected; stages: {computed} computed, {cached} cached{}",
+        o.runs.len(),
+        o.failures.len(),
+        if computed == 0 { " (everything cached)" } else { "" }
+    );
+    for f in &o.failures {
+        println!("  rejected {}: {}", f.run_dir, f.error);
+    }
+    if let Some(d) = &o.diagnosis {
+        println!("diagnosis: {}", d.display());
+        if let Ok(bytes) = std::fs::read(d) {
+            if let Ok(v) = serde_json::from_slice::<serde_json::Value>(&bytes) {
+                let sel: Vec<&str> = v
+                    .get("selected")
+                    .and_then(|s| s.as_array())
+                    .map(|a| a.iter().filter_map(|x| x.as_str()).collect())
+                    .unwrap_or_default();
+                let before = v.pointer("/gap/rms_mm").and_then(|x| x.as_f64());
+                let after = v.pointer("/unexplained/rms_mm").and_then(|x| x.as_f64());
+                let noise = v.pointer("/gap/noise_floor_mm").and_then(|x| x.as_f64());
+                if let (Some(b), Some(a), Some(n)) = (before, after, noise) {
+                    println!(
+                        "  gap RMS {b:.4} mm (noise floor {n:.4} mm) → held-out {a:.4} mm after: {}",
+                        if sel.is_empty() { "no effect selected".to_string() } else { sel.join(", ") }
+                    );
+                }
+            }
+        }
+    }
+    if let Some(r) = &o.report {
+        println!("fleet report: {}", r.display());
+    }
+    println!("failures: {}", o.out_dir.join("failures.json").display());
+    println!("manifest: {}", o.out_dir.join("manifest.json").display());
+}

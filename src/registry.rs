@@ -1,0 +1,42 @@
+//! The plugin registry: the one place that names concrete plugins.
+
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use sparkout_pipeline::contracts::MachineResolver;
+use sparkout_pipeline::engine::{Engine, PipelineConfig};
+use sparkout_pipeline::MachinePlugin;
+
+use crate::cli::ConfigArgs;
+
+pub fn plugins() -> Vec<Arc<dyn MachinePlugin>> {
+    sparkout_plugins::all_plugins()
+}
+
+pub fn resolver(machines: Option<PathBuf>) -> MachineResolver {
+    let builtins: BTreeMap<String, String> = plugins()
+        .iter()
+        .flat_map(|p| p.builtin_machines())
+        .map(|(id, text)| (id.to_string(), text.to_string()))
+        .collect();
+    MachineResolver::new(machines, builtins)
+}
+
+/// The pipeline config from --config (or the built-in nightly.toml) with
+/// every --set applied.
+pub fn config(args: &ConfigArgs) -> anyhow::Result<PipelineConfig> {
+    let mut c = match &args.config {
+        Some(p) => PipelineConfig::load(p)?,
+        None => PipelineConfig::builtin(),
+    };
+    for s in &args.set {
+        c.set(s)?;
+    }
+    Ok(c)
+}
+
+/// An engine with the config checked against every plugin and stage.
+pub fn engine(args: &ConfigArgs) -> anyhow::Result<Engine> {
+    Engine::new(plugins(), resolver(args.machines.clone()), config(args)?)
+}
