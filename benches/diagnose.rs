@@ -6,7 +6,7 @@
 //! drift + backlash gap, so forward selection runs two rounds plus the stop
 //! round — the realistic worst case rather than a no-gap shortcut.
 
-use criterion::{criterion_group, criterion_main, Criterion};
+use criterion::{criterion_group, Criterion};
 use sparkout_datasets::observations::{generate, ObsFleetConfig};
 use sparkout_pipeline::diagnose::{diagnose, DiagnoseConfig};
 use sparkout_pipeline::EffectSpec;
@@ -44,4 +44,24 @@ fn bench_diagnose(c: &mut Criterion) {
 }
 
 criterion_group!(benches, bench_diagnose);
-criterion_main!(benches);
+
+/// `SPARKOUT_BENCH_VALIDATE=1 cargo bench --bench diagnose` also times
+/// `sparkout validate --quick` and the full validation (issue 4 point 6:
+/// < 30 s and < 5 min in release on 2 cores) in the same release build.
+fn main() {
+    if std::env::var_os("SPARKOUT_BENCH_VALIDATE").is_some() {
+        use sparkout_datasets::validate::{render_text, run, ValidateConfig};
+        for quick in [true, false] {
+            let t = std::time::Instant::now();
+            let r = run(&ValidateConfig::new(quick, 0)).expect("validate");
+            println!("{}", render_text(&r));
+            println!(
+                "validate {}: {:.1} s wall",
+                if quick { "--quick" } else { "(full)" },
+                t.elapsed().as_secs_f64()
+            );
+        }
+    }
+    benches();
+    Criterion::default().configure_from_args().final_summary();
+}

@@ -81,11 +81,17 @@ pub enum Command {
         #[command(flatten)]
         config: ConfigArgs,
         /// Stage-specific flags, e.g. --planes "a,b,c,d;..." or --weld-mm 2.27.
-        #[arg(trailing_var_arg = true, allow_hyphen_values = true, value_name = "STAGE FLAGS")]
+        #[arg(
+            trailing_var_arg = true,
+            allow_hyphen_values = true,
+            value_name = "STAGE FLAGS"
+        )]
         extra: Vec<String>,
     },
     /// Check every run under ROOT against the data contracts; writes nothing.
-    #[command(after_help = "Example: sparkout validate-input runs/\nExit 0 when clean, 2 when problems were found.")]
+    #[command(
+        after_help = "Example: sparkout validate-input runs/\nExit 0 when clean, 2 when problems were found."
+    )]
     ValidateInput {
         root: PathBuf,
         #[arg(long, value_name = "DIR")]

@@ -48,9 +48,11 @@ impl Progress for BatchProgress {
         if self.terminal {
             let b = ProgressBar::new(runs as u64);
             b.set_style(
-                ProgressStyle::with_template("{spinner} [{elapsed_precise}] {bar:40} {pos}/{len} runs {msg}")
-                    .expect("template")
-                    .progress_chars("=> "),
+                ProgressStyle::with_template(
+                    "{spinner} [{elapsed_precise}] {bar:40} {pos}/{len} runs {msg}",
+                )
+                .expect("template")
+                .progress_chars("=> "),
             );
             *self.bar.lock().expect("bar") = Some(b);
         } else {

@@ -77,7 +77,11 @@ fn stage_cached(m: &serde_json::Value) -> BTreeMap<String, bool> {
     for r in m["runs"].as_array().unwrap() {
         for s in r["stages"].as_array().unwrap() {
             out.insert(
-                format!("{}/{}", r["run"].as_str().unwrap(), s["stage"].as_str().unwrap()),
+                format!(
+                    "{}/{}",
+                    r["run"].as_str().unwrap(),
+                    s["stage"].as_str().unwrap()
+                ),
                 s["cached"].as_bool().unwrap(),
             );
         }
@@ -98,7 +102,13 @@ fn second_run_is_fully_cached_and_one_key_recomputes_only_its_readers() {
     let out = d.path().join("out");
     let first = ok(&sparkout(&["run", "--input", p(&root), "--out", p(&out)]));
     assert!(first.contains("3 runs ok, 0 rejected"), "{first}");
-    for f in ["manifest.json", "failures.json", "fleet/report.html", "fleet/diagnosis.json", "fleet/observations.parquet"] {
+    for f in [
+        "manifest.json",
+        "failures.json",
+        "fleet/report.html",
+        "fleet/diagnosis.json",
+        "fleet/observations.parquet",
+    ] {
         assert!(out.join(f).is_file(), "missing {f}");
     }
     let failures: serde_json::Value =
@@ -115,12 +125,21 @@ fn second_run_is_fully_cached_and_one_key_recomputes_only_its_readers() {
     // One key of one stage: that stage and what reads its outputs recompute,
     // nothing upstream of it does.
     ok(&sparkout(&[
-        "run", "--input", p(&root), "--out", p(&out), "--set", "robot.datum.reject_k=5.5",
+        "run",
+        "--input",
+        p(&root),
+        "--out",
+        p(&out),
+        "--set",
+        "robot.datum.reject_k=5.5",
     ]));
     let c = stage_cached(&manifest(&out));
     for run in ["r0000", "r0001", "r0002"] {
         assert!(c[&format!("{run}/ingest")], "ingest should stay cached");
-        assert!(c[&format!("{run}/repeatability")], "repeatability should stay cached");
+        assert!(
+            c[&format!("{run}/repeatability")],
+            "repeatability should stay cached"
+        );
         assert!(c[&format!("{run}/cycle")], "cycle should stay cached");
         assert!(!c[&format!("{run}/datum")], "datum reads the changed key");
     }
@@ -133,8 +152,24 @@ fn same_seed_gives_byte_identical_artifacts() {
     let b = fleet(&d.path().join("b"), 2, 5);
     assert_eq!(files(&a), files(&b), "generated fleets differ");
     let (oa, ob) = (d.path().join("oa"), d.path().join("ob"));
-    ok(&sparkout(&["run", "--input", p(&a), "--out", p(&oa), "--jobs", "1"]));
-    ok(&sparkout(&["run", "--input", p(&b), "--out", p(&ob), "--jobs", "2"]));
+    ok(&sparkout(&[
+        "run",
+        "--input",
+        p(&a),
+        "--out",
+        p(&oa),
+        "--jobs",
+        "1",
+    ]));
+    ok(&sparkout(&[
+        "run",
+        "--input",
+        p(&b),
+        "--out",
+        p(&ob),
+        "--jobs",
+        "2",
+    ]));
     let (fa, fb) = (files(&oa), files(&ob));
     assert_eq!(fa.keys().collect::<Vec<_>>(), fb.keys().collect::<Vec<_>>());
     for (k, v) in &fa {
@@ -144,7 +179,11 @@ fn same_seed_gives_byte_identical_artifacts() {
         assert!(v == &fb[k], "{k} differs between identical runs");
     }
     let c = fleet(&d.path().join("c"), 2, 6);
-    assert_ne!(files(&a), files(&c), "a different seed must give different data");
+    assert_ne!(
+        files(&a),
+        files(&c),
+        "a different seed must give different data"
+    );
 }
 
 #[test]
@@ -159,22 +198,38 @@ fn one_bad_run_is_isolated_and_named() {
     std::fs::write(&motion, &bytes[..bytes.len() / 3]).unwrap();
     // And r0002 claims an unknown plugin.
     let toml = root.join("kr16-lab").join("r0002").join("run.toml");
-    let text = std::fs::read_to_string(&toml).unwrap().replace("plugin = \"robot\"", "plugin = \"lathe\"");
+    let text = std::fs::read_to_string(&toml)
+        .unwrap()
+        .replace("plugin = \"robot\"", "plugin = \"lathe\"");
     std::fs::write(&toml, text).unwrap();
 
     let out = d.path().join("out");
     let o = sparkout(&["run", "--input", p(&root), "--out", p(&out)]);
-    assert_eq!(o.status.code(), Some(2), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(
+        o.status.code(),
+        Some(2),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
     let failures: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("failures.json")).unwrap()).unwrap();
     let f = failures.as_array().unwrap();
     assert_eq!(f.len(), 2, "{failures:#}");
     let by_run: BTreeMap<&str, &serde_json::Value> =
         f.iter().map(|x| (x["run"].as_str().unwrap(), x)).collect();
-    assert!(by_run["r0001"]["file"].as_str().unwrap().ends_with("motion.parquet"));
-    assert!(by_run["r0002"]["error"].as_str().unwrap().contains("unknown plugin `lathe`"));
+    assert!(by_run["r0001"]["file"]
+        .as_str()
+        .unwrap()
+        .ends_with("motion.parquet"));
+    assert!(by_run["r0002"]["error"]
+        .as_str()
+        .unwrap()
+        .contains("unknown plugin `lathe`"));
     assert!(out.join("kr16-lab/r0000/report.html").is_file());
-    assert!(!out.join("kr16-lab/r0001").exists(), "nothing of a rejected run is written");
+    assert!(
+        !out.join("kr16-lab/r0001").exists(),
+        "nothing of a rejected run is written"
+    );
     assert!(!out.join("kr16-lab/r0002").exists());
     assert!(out.join("manifest.json").is_file());
 
@@ -231,7 +286,15 @@ fn a_killed_batch_leaves_only_complete_artifacts() {
 
 #[test]
 fn usage_and_config_errors_exit_1() {
-    let o = sparkout(&["run", "--input", "/nonexistent", "--out", "/tmp/x", "--set", "robot.nostage.k=1"]);
+    let o = sparkout(&[
+        "run",
+        "--input",
+        "/nonexistent",
+        "--out",
+        "/tmp/x",
+        "--set",
+        "robot.nostage.k=1",
+    ]);
     assert_eq!(o.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&o.stderr).contains("nostage"));
     let o = sparkout(&["frobnicate"]);

@@ -72,8 +72,11 @@ fn wrong_type_is_rejected() {
 #[test]
 fn nan_names_the_first_row() {
     let d = tempfile::tempdir().unwrap();
-    let e = read_probe(d.path(), probe_batch(vec![0.0, 1.0, 2.0], vec![3.0, f64::NAN, 3.0]))
-        .unwrap_err();
+    let e = read_probe(
+        d.path(),
+        probe_batch(vec![0.0, 1.0, 2.0], vec![3.0, f64::NAN, 3.0]),
+    )
+    .unwrap_err();
     assert_eq!(e.column.as_deref(), Some("z_mm"));
     assert_eq!(e.row, Some(1));
     assert!(e.to_string().contains("NaN"), "{e}");
@@ -161,7 +164,10 @@ fn unknown_machine_says_where_it_looked() {
     .unwrap();
     let r = MachineResolver::new(Some(d.path().to_path_buf()), Default::default());
     let e = r.resolve(&spec).unwrap_err();
-    assert!(e.to_string().contains("unknown machine `no-such-machine`"), "{e}");
+    assert!(
+        e.to_string().contains("unknown machine `no-such-machine`"),
+        "{e}"
+    );
     // An inline [machine] table resolves it.
     let spec = RunSpec::parse(
         d.path(),

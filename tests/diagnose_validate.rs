@@ -26,20 +26,24 @@ fn validation_subset_meets_the_bar() {
     let mut cfg = ValidateConfig::new(true, 11);
     cfg.snrs = vec![3.0, 10.0];
     cfg.fleets_per_case = 1;
-    cfg.effects = Some(
-        ["drift:t_s", "backlash:dir", "periodic:x_mm", "edge:path_end_mm", "compliance:force_n", "bow:y_mm"]
-            .iter()
-            .map(|s| s.to_string())
-            .collect(),
-    );
-    cfg.free_fleets = 4;
-    cfg.ooc_fleets = 0;
+    // Every catalogue case (15) at SNR 3 and 10, one fleet each.
+    cfg.effects = None;
+    cfg.free_fleets = 6;
+    cfg.ooc_fleets = 1;
     let r = validate::run(&cfg).unwrap();
     let text = validate::render_text(&r);
     println!("{text}");
     assert!(text.contains("confusion matrix"));
-    assert!(r.accuracy_snr_ge3 >= 0.9, "top-1 accuracy {}", r.accuracy_snr_ge3);
-    assert!(r.false_alarm_rate <= 0.1, "false alarms {}", r.false_alarm_rate);
+    assert!(
+        r.accuracy_snr_ge3 >= 0.9,
+        "top-1 accuracy {}",
+        r.accuracy_snr_ge3
+    );
+    assert!(
+        r.false_alarm_rate <= 0.1,
+        "false alarms {}",
+        r.false_alarm_rate
+    );
     assert!(
         r.shrink_over_oracle_snr_ge3 >= 0.8,
         "shrink / oracle {}",
@@ -72,20 +76,35 @@ fn nan_in_real_is_rejected_naming_the_row() {
     assert_eq!(ie.row, Some(7));
     assert!(ie.to_string().contains("observations.parquet"));
     // The in-memory entry point rejects it too.
-    let err = diagnose(&bad, &DiagnoseConfig::default(), &[]).err().unwrap();
+    let err = diagnose(&bad, &DiagnoseConfig::default(), &[])
+        .err()
+        .unwrap();
     assert_eq!(err.downcast_ref::<InputError>().unwrap().row, Some(7));
 }
 
 #[test]
 fn single_run_uses_blocked_folds() {
     let b = fleet(1, 2, &["drift:t_s=amplitude_mm=0.01,tau_s=400"]);
-    let d = diagnose(&b, &DiagnoseConfig::default(), &[]).unwrap().diagnosis;
+    let d = diagnose(&b, &DiagnoseConfig::default(), &[])
+        .unwrap()
+        .diagnosis;
     assert_eq!(d.cv.by, "blocked_within_run");
-    assert!(d.notes.iter().any(|n| n == "single run: blocked folds within the run"), "{:?}", d.notes);
+    assert!(
+        d.notes
+            .iter()
+            .any(|n| n == "single run: blocked folds within the run"),
+        "{:?}",
+        d.notes
+    );
 }
 
 fn with_column(b: &RecordBatch, name: &str, v: Vec<f64>) -> RecordBatch {
-    let mut fields: Vec<Field> = b.schema().fields().iter().map(|f| f.as_ref().clone()).collect();
+    let mut fields: Vec<Field> = b
+        .schema()
+        .fields()
+        .iter()
+        .map(|f| f.as_ref().clone())
+        .collect();
     fields.push(Field::new(name, DataType::Float64, false));
     let mut cols = b.columns().to_vec();
     cols.push(Arc::new(Float64Array::from(v)));
@@ -96,9 +115,20 @@ fn with_column(b: &RecordBatch, name: &str, v: Vec<f64>) -> RecordBatch {
 fn constant_covariate_is_skipped_and_said() {
     let b = fleet(3, 3, &["scale:x_mm=k=3e-4"]);
     let b = with_column(&b, "z_mm", vec![12.5; b.num_rows()]);
-    let d = diagnose(&b, &DiagnoseConfig::default(), &[]).unwrap().diagnosis;
-    assert!(d.notes.iter().any(|n| n == "constant covariate z_mm skipped"), "{:?}", d.notes);
-    assert!(d.effects.iter().all(|e| e.covariate.as_deref() != Some("z_mm")));
+    let d = diagnose(&b, &DiagnoseConfig::default(), &[])
+        .unwrap()
+        .diagnosis;
+    assert!(
+        d.notes
+            .iter()
+            .any(|n| n == "constant covariate z_mm skipped"),
+        "{:?}",
+        d.notes
+    );
+    assert!(d
+        .effects
+        .iter()
+        .all(|e| e.covariate.as_deref() != Some("z_mm")));
     assert_eq!(d.selected.first().map(String::as_str), Some("scale:x_mm"));
 }
 
@@ -126,8 +156,14 @@ fn no_covariates_diagnoses_the_offset_only() {
         Field::new("real", DataType::Float64, false),
     ]);
     let b = RecordBatch::try_new(Arc::new(schema), cols).unwrap();
-    let d = diagnose(&b, &DiagnoseConfig::default(), &[]).unwrap().diagnosis;
-    assert!(d.notes.iter().any(|n| n == "no covariates: offset only"), "{:?}", d.notes);
+    let d = diagnose(&b, &DiagnoseConfig::default(), &[])
+        .unwrap()
+        .diagnosis;
+    assert!(
+        d.notes.iter().any(|n| n == "no covariates: offset only"),
+        "{:?}",
+        d.notes
+    );
     assert_eq!(d.effects.len(), 1);
     assert_eq!(d.effects[0].name, "offset");
     assert!(d.effects[0].covariate.is_none());
@@ -137,9 +173,15 @@ fn no_covariates_diagnoses_the_offset_only() {
 #[test]
 fn gap_at_noise_selects_nothing() {
     let b = fleet(4, 5, &[]);
-    let d = diagnose(&b, &DiagnoseConfig::default(), &[]).unwrap().diagnosis;
+    let d = diagnose(&b, &DiagnoseConfig::default(), &[])
+        .unwrap()
+        .diagnosis;
     assert!(d.selected.is_empty(), "{:?}", d.selected);
-    assert!(d.notes.iter().any(|n| n == "no gap above noise"), "{:?}", d.notes);
+    assert!(
+        d.notes.iter().any(|n| n == "no gap above noise"),
+        "{:?}",
+        d.notes
+    );
     assert_eq!(d.noise_floor_source, "replicates");
     assert!((d.gap.noise_floor_mm - 0.001).abs() < 0.0002);
     // every candidate still scored
@@ -149,7 +191,14 @@ fn gap_at_noise_selects_nothing() {
 
 #[test]
 fn same_seed_gives_byte_identical_json_and_per_row_columns() {
-    let b = fleet(4, 6, &["drift:t_s=amplitude_mm=0.01,tau_s=500", "backlash:dir=b_mm=0.006"]);
+    let b = fleet(
+        4,
+        6,
+        &[
+            "drift:t_s=amplitude_mm=0.01,tau_s=500",
+            "backlash:dir=b_mm=0.006",
+        ],
+    );
     let cfg = DiagnoseConfig {
         seed: 42,
         ..Default::default()
@@ -162,23 +211,55 @@ fn same_seed_gives_byte_identical_json_and_per_row_columns() {
     assert_eq!(a.augmented_model, c.augmented_model);
     // v1 contract fields
     let v: serde_json::Value = serde_json::from_str(&ja).unwrap();
-    for k in ["version", "observables", "gap", "where", "effects", "selected", "unexplained"] {
+    for k in [
+        "version",
+        "observables",
+        "gap",
+        "where",
+        "effects",
+        "selected",
+        "unexplained",
+    ] {
         assert!(v.get(k).is_some(), "{k}");
     }
     for k in ["rms_mm", "max_abs_mm", "noise_floor_mm", "n"] {
         assert!(v["gap"].get(k).is_some(), "gap.{k}");
     }
     let e0 = &v["effects"][0];
-    for k in ["name", "covariate", "params", "cv_rms_before_mm", "cv_rms_after_mm", "shrink", "p_value", "selected"] {
+    for k in [
+        "name",
+        "covariate",
+        "params",
+        "cv_rms_before_mm",
+        "cv_rms_after_mm",
+        "shrink",
+        "p_value",
+        "selected",
+    ] {
         assert!(e0.get(k).is_some(), "effects[].{k}");
     }
     let sel = &a.diagnosis.selected;
-    assert!(sel.contains(&"drift:t_s".to_string()) && sel.contains(&"backlash:dir".to_string()), "{sel:?}");
+    assert!(
+        sel.contains(&"drift:t_s".to_string()) && sel.contains(&"backlash:dir".to_string()),
+        "{sel:?}"
+    );
     // per-row table
     let pr = &a.per_row;
     assert_eq!(pr.num_rows(), b.num_rows());
-    let names: Vec<String> = pr.schema().fields().iter().map(|f| f.name().clone()).collect();
-    for want in ["run", "observable", "gap", "contrib_drift:t_s", "contrib_backlash:dir", "residual_after"] {
+    let names: Vec<String> = pr
+        .schema()
+        .fields()
+        .iter()
+        .map(|f| f.name().clone())
+        .collect();
+    for want in [
+        "run",
+        "observable",
+        "gap",
+        "contrib_drift:t_s",
+        "contrib_backlash:dir",
+        "residual_after",
+    ] {
         assert!(names.iter().any(|n| n == want), "{want} in {names:?}");
     }
     let col = |n: &str| {

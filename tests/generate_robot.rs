@@ -127,12 +127,21 @@ fn same_seed_is_byte_identical_whatever_the_threads_and_seed_matters() {
         .install(|| generate_fleet(b.path(), &tiny(11), &effects).unwrap());
     generate_fleet(c.path(), &tiny(12), &effects).unwrap();
     let (sa, sb, sc) = (snapshot(a.path()), snapshot(b.path()), snapshot(c.path()));
-    assert_eq!(sa.len(), 2 * 6 + 2 * 5 - 1, "{:?}", sa.keys().collect::<Vec<_>>());
+    assert_eq!(sa.len(), 7 + 6, "{:?}", sa.keys().collect::<Vec<_>>());
     assert_eq!(sa.keys().collect::<Vec<_>>(), sb.keys().collect::<Vec<_>>());
     for (k, v) in &sa {
-        assert!(v == &sb[k], "{} differs between runs with the same seed", k.display());
+        assert!(
+            v == &sb[k],
+            "{} differs between runs with the same seed",
+            k.display()
+        );
     }
-    for name in ["ae.parquet", "motion.parquet", "truth.json", "passes.parquet"] {
+    for name in [
+        "ae.parquet",
+        "motion.parquet",
+        "truth.json",
+        "passes.parquet",
+    ] {
         let k = Path::new("kr16-lab/r0000").join(name);
         assert!(sa[&k] != sc[&k], "{name} identical for different seeds");
     }
@@ -222,7 +231,10 @@ fn motion_log_covers_contacts_with_the_plan_segment_and_the_true_point() {
             c["surface_z_mm"].as_f64().unwrap(),
         ];
         for ax in 0..3 {
-            assert!((p[ax] - want[ax]).abs() < 0.002, "act at contact {p:?} vs {want:?}");
+            assert!(
+                (p[ax] - want[ax]).abs() < 0.002,
+                "act at contact {p:?} vs {want:?}"
+            );
             // No effect injected: the controller's contact is the surface point.
             assert!((want[ax] - surf[ax]).abs() < 1e-9);
         }
@@ -241,6 +253,35 @@ fn motion_log_covers_contacts_with_the_plan_segment_and_the_true_point() {
     for w in ts.windows(2) {
         assert!(w[1] > w[0]);
     }
+    // truth `dir` is the sign, along the face's +normal axis, of the last
+    // commanded move before the approach segment (the plugin's covariate).
+    let plan = Table::read(&run.join("plan.parquet"), &PLAN).unwrap();
+    let faces = plan.str("face").unwrap();
+    let cmd: Vec<Vec<f64>> = ["cmd_x_mm", "cmd_y_mm", "cmd_z_mm"]
+        .iter()
+        .map(|c| f64s(&m, c))
+        .collect();
+    let mut signs = BTreeMap::new();
+    for c in tr["contacts"].as_array().unwrap() {
+        let seq = c["seq"].as_i64().unwrap() as usize;
+        let ax = match faces[seq] {
+            "xy" => 2,
+            "yz" => 0,
+            _ => 1,
+        };
+        let first = seg.iter().position(|&s| s == seq as i32).unwrap();
+        let mut i = first;
+        let sign = loop {
+            let d = cmd[ax][i] - cmd[ax][i - 1];
+            if d.abs() > 1e-9 {
+                break d.signum();
+            }
+            i -= 1;
+        };
+        assert_eq!(sign, c["dir"].as_f64().unwrap(), "seq {seq}");
+        *signs.entry(sign as i64).or_insert(0) += 1;
+    }
+    assert!(signs[&1] > 20 && signs[&-1] > 20, "{signs:?}");
 }
 
 #[test]
@@ -259,7 +300,11 @@ fn passes_reproduce_the_compliance_model_with_the_true_alpha() {
             let model = (alpha * prev + d) / (1.0 + alpha);
             prev = model;
             // Two readings of 2 µm σ: 6σ of the difference ≈ 17 µm.
-            assert!((m - model).abs() < 0.017, "pass {} cut {m} vs model {model}", i + 1);
+            assert!(
+                (m - model).abs() < 0.017,
+                "pass {} cut {m} vs model {model}",
+                i + 1
+            );
         }
         // Rough passes follow the closed form [1 − (α/(1+α))^i]·δ′.
         let r = alpha / (1.0 + alpha);
@@ -269,7 +314,10 @@ fn passes_reproduce_the_compliance_model_with_the_true_alpha() {
         }
         // α from the first pass as the thesis does it.
         let alpha_first = 0.3 / measured[0] - 1.0;
-        assert!((alpha_first - alpha).abs() < 0.1, "{alpha_first} vs {alpha}");
+        assert!(
+            (alpha_first - alpha).abs() < 0.1,
+            "{alpha_first} vs {alpha}"
+        );
         let hb = f64s(&p, "height_before_mm");
         assert!((hb[0] - 2.27).abs() < 0.01);
         let t0 = f64s(&p, "t_start_s");
@@ -333,9 +381,14 @@ fn trigger_latency_drift_and_backlash_show_in_the_touches() {
     let pl = Table::read(&l[0].join("probe.parquet"), &PROBE).unwrap();
     let v = f64s(&pb, "approach_mm_s");
     let faces = pb.str("face").unwrap();
-    let (tb, tl) = (f64s(&pb, "t_s"), f64s(&pl, "t_s"));
+    let tl = f64s(&pl, "t_s");
+    let contacts_l = truth(&l[0])["contacts"].as_array().unwrap().clone();
     for i in 0..pb.len() {
-        assert!((tl[i] - tb[i] - 0.02).abs() < 1e-9, "registration delayed by L");
+        let tc = contacts_l[i]["t_s"].as_f64().unwrap();
+        assert!(
+            (tl[i] - tc - 0.02).abs() < 1e-9,
+            "registration delayed by L"
+        );
         // Overshoot v·L into the face: the normal coordinate along the
         // outward normal drops by v·L.
         let (col, sign) = match faces[i] {
@@ -346,19 +399,28 @@ fn trigger_latency_drift_and_backlash_show_in_the_touches() {
         let d = sign * (pl.f64(col).unwrap()[i] - pb.f64(col).unwrap()[i]);
         assert!((d + v[i] * 0.02).abs() < 1e-9, "row {i}: {d} vs −v·L");
     }
-    // The AE burst still marks the true contact (same times as the baseline).
-    let (cb, cl) = (truth(&b[0]), truth(&l[0]));
-    for (x, y) in cb["contacts"].as_array().unwrap().iter().zip(cl["contacts"].as_array().unwrap()) {
-        assert_eq!(x["ae_t_s"], y["ae_t_s"]);
+    // The AE burst still marks the true contact: the motion log at the
+    // burst's controller time is the same point as in the baseline.
+    let cb = truth(&b[0]);
+    for (x, y) in cb["contacts"].as_array().unwrap().iter().zip(&contacts_l) {
+        for k in ["x_mm", "y_mm", "z_mm"] {
+            assert!((x[k].as_f64().unwrap() - y[k].as_f64().unwrap()).abs() < 1e-9);
+        }
+        let off = truth(&l[0])["ae_clock_offset_s"].as_f64().unwrap();
+        assert!((y["ae_t_s"].as_f64().unwrap() + off - y["t_s"].as_f64().unwrap()).abs() < 1e-9);
     }
 
     // Thermal drift (+z TCP) lowers xy-face touches by the drift; backlash
-    // shifts every touch by b/2·dir along the outward normal.
+    // shifts every touch's normal-axis coordinate by b/2·dir (dir = sign of
+    // the last move along +axis, the plugin's covariate).
     let d = tempfile::tempdir().unwrap();
     let r = generate_fleet(
         d.path(),
         &cfg,
-        &[fx("thermal_drift=amplitude_mm=0.2,tau_s=100"), fx("backlash=b_mm=0.1")],
+        &[
+            fx("thermal_drift=amplitude_mm=0.2,tau_s=100"),
+            fx("backlash=b_mm=0.1"),
+        ],
     )
     .unwrap();
     let tr = truth(&r[0]);
@@ -373,7 +435,7 @@ fn trigger_latency_drift_and_backlash_show_in_the_touches() {
             "xy" => assert!((dz - (-drift + 0.05 * dir)).abs() < 1e-9),
             "yz" => {
                 assert!((dz + drift).abs() < 1e-9);
-                assert!((dx + 0.05 * dir).abs() < 1e-9);
+                assert!((dx - 0.05 * dir).abs() < 1e-9);
             }
             _ => assert!((dz + drift).abs() < 1e-9),
         }
@@ -387,14 +449,111 @@ fn unknown_effects_and_parameters_are_errors() {
         .unwrap_err()
         .to_string();
     assert!(err.contains("unknown effect `gremlins`"), "{err}");
-    for name in ["trigger_latency", "wheel_wear", "thermal_drift", "compliance", "backlash"] {
+    for name in [
+        "trigger_latency",
+        "wheel_wear",
+        "thermal_drift",
+        "compliance",
+        "backlash",
+    ] {
         assert!(err.contains(name), "{err} does not list {name}");
         assert!(known_effects().iter().any(|(n, _)| *n == name));
     }
     let err = generate_fleet(dir.path(), &tiny(1), &[fx("backlash=b=0.1")])
         .unwrap_err()
         .to_string();
-    assert!(err.contains("unknown parameter `b`") && err.contains("b_mm"), "{err}");
+    assert!(
+        err.contains("unknown parameter `b`") && err.contains("b_mm"),
+        "{err}"
+    );
     // Nothing was written.
     assert!(!dir.path().join("kr16-lab").exists());
+}
+
+/// Sizes and timings of the demo and default fleets (run by hand:
+/// `cargo test --test generate_robot -- --ignored --nocapture`).
+#[test]
+#[ignore]
+fn fleet_size_and_time_report() {
+    for (name, cfg) in [
+        ("demo", RobotFleetConfig::demo()),
+        (
+            "default (1 run)",
+            RobotFleetConfig {
+                runs: 1,
+                ..RobotFleetConfig::default()
+            },
+        ),
+    ] {
+        let dir = tempfile::tempdir().unwrap();
+        let t0 = std::time::Instant::now();
+        let runs = generate_fleet(dir.path(), &cfg, &[]).unwrap();
+        let dt = t0.elapsed();
+        let snap = snapshot(&runs[0]);
+        let sizes: Vec<String> = snap
+            .iter()
+            .map(|(k, v)| format!("{}={}kB", k.display(), v.len() / 1024))
+            .collect();
+        let ae = AeStream::open(&runs[0].join("ae.parquet"))
+            .unwrap()
+            .total_rows();
+        let m = Table::read(&runs[0].join("motion.parquet"), &MOTION)
+            .unwrap()
+            .len();
+        println!(
+            "{name}: {} runs in {:.2} s; run 0: ae rows {ae}, motion rows {m}; {}",
+            runs.len(),
+            dt.as_secs_f64(),
+            sizes.join(" ")
+        );
+    }
+}
+
+#[test]
+fn catalogue_shapes_apply_directly_to_the_observables() {
+    let base = tempfile::tempdir().unwrap();
+    let shaped = tempfile::tempdir().unwrap();
+    let b = generate_fleet(base.path(), &tiny(6), &[]).unwrap();
+    let s = generate_fleet(
+        shaped.path(),
+        &tiny(6),
+        &[
+            fx("lag:approach_normal_mm_s=k=0.01"),
+            fx("wear:pass=k=-0.001"),
+        ],
+    )
+    .unwrap();
+    let plan = Table::read(&b[0].join("plan.parquet"), &PLAN).unwrap();
+    let faces = plan.str("face").unwrap();
+    let v = f64s(&plan, "approach_mm_s");
+    let dirs: Vec<Vec<f64>> = ["dir_x", "dir_y", "dir_z"]
+        .iter()
+        .map(|c| f64s(&plan, c))
+        .collect();
+    let (tb, ts) = (truth(&b[0]), truth(&s[0]));
+    for (cb, cs) in tb["contacts"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .zip(ts["contacts"].as_array().unwrap())
+    {
+        let seq = cs["seq"].as_i64().unwrap() as usize;
+        let (ax, key) = match faces[seq] {
+            "xy" => (2, "z_mm"),
+            "yz" => (0, "x_mm"),
+            _ => (1, "y_mm"),
+        };
+        let gap = cs[key].as_f64().unwrap() - cb[key].as_f64().unwrap();
+        assert!(
+            (gap - 0.01 * v[seq] * dirs[ax][seq]).abs() < 1e-9,
+            "seq {seq}: {gap}"
+        );
+    }
+    let (cb, cs) = (cuts(&b[0]), cuts(&s[0]));
+    for i in 0..cb.len() {
+        assert!(
+            (cs[i] - cb[i] + 0.001 * (i + 1) as f64).abs() < 1e-9,
+            "{cb:?} {cs:?}"
+        );
+    }
 }

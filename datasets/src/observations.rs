@@ -124,7 +124,11 @@ pub fn layout(cfg: &ObsFleetConfig) -> Result<ObsLayout> {
     if cfg.runs == 0 || cfg.nx < 2 || cfg.ny < 2 || cfg.passes == 0 {
         bail!("observation fleet needs ≥ 1 run, a grid of at least 2×2 and ≥ 1 pass");
     }
-    if !(cfg.spacing_mm > 0.0) || !(cfg.noise_mm >= 0.0) {
+    if cfg.spacing_mm.is_nan()
+        || cfg.spacing_mm <= 0.0
+        || cfg.noise_mm.is_nan()
+        || cfg.noise_mm < 0.0
+    {
         bail!("spacing_mm must be > 0 and noise_mm ≥ 0");
     }
     let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed);
@@ -172,7 +176,11 @@ pub fn layout(cfg: &ObsFleetConfig) -> Result<ObsLayout> {
                 for k in 0..n_along {
                     let kk = if forward { k } else { n_along - 1 - k };
                     let s = k as f64 * cfg.spacing_mm; // distance from the line's start
-                    let (ix, iy) = if along_x { (kk, line_idx) } else { (line_idx, kk) };
+                    let (ix, iy) = if along_x {
+                        (kk, line_idx)
+                    } else {
+                        (line_idx, kk)
+                    };
                     let x = ix as f64 * cfg.spacing_mm;
                     let y = iy as f64 * cfg.spacing_mm;
                     let a = a_peak * ((-s / d_acc).exp() - (-(line_len - s) / d_acc).exp());
@@ -196,17 +204,7 @@ pub fn layout(cfg: &ObsFleetConfig) -> Result<ObsLayout> {
                         rows.trial.push(trial);
                         rows.point.push(point);
                         let v = [
-                            x,
-                            y,
-                            tt,
-                            feed,
-                            force,
-                            a,
-                            path_end,
-                            dir,
-                            removed,
-                            p as f64,
-                            temp,
+                            x, y, tt, feed, force, a, path_end, dir, removed, p as f64, temp,
                         ];
                         for (c, v) in rows.c.iter_mut().zip(v) {
                             c.push(v);
@@ -262,7 +260,14 @@ pub fn default_covariate(name: &str) -> Option<&'static str> {
 
 /// Parameters that scale with the effect's size (the rest are shape: τ, λ,
 /// phase, positions). [`scale_spec`] multiplies these.
-pub const AMPLITUDE_PARAMS: [&str; 6] = ["k", "b_mm", "amplitude_mm", "k_mm", "offset_mm", "height_mm"];
+pub const AMPLITUDE_PARAMS: [&str; 6] = [
+    "k",
+    "b_mm",
+    "amplitude_mm",
+    "k_mm",
+    "offset_mm",
+    "height_mm",
+];
 
 /// Out-of-catalogue effects the validation uses to test honesty.
 pub const OUT_OF_CATALOGUE: [&str; 3] = ["step", "bump", "product"];
@@ -289,7 +294,9 @@ pub fn apply_effect(spec: &EffectSpec, l: &ObsLayout) -> Result<Vec<f64>> {
     };
     let range = |v: &[f64]| {
         v.iter()
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), x| (a.min(*x), b.max(*x)))
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), x| {
+                (a.min(*x), b.max(*x))
+            })
     };
     let mut params = spec.params.clone();
     let g = |p: &BTreeMap<String, f64>, k: &str, d: f64| p.get(k).copied().unwrap_or(d);
@@ -351,7 +358,11 @@ pub fn apply_effect(spec: &EffectSpec, l: &ObsLayout) -> Result<Vec<f64>> {
             if kind == Kind::Periodic {
                 params.entry("lambda".into()).or_insert((hi - lo) / 3.3);
             }
-            let c2 = if kind == Kind::Squareness { Some(c(1)?) } else { None };
+            let c2 = if kind == Kind::Squareness {
+                Some(c(1)?)
+            } else {
+                None
+            };
             Ok(shape_value(kind, &params, v, c2))
         }
     }
@@ -369,7 +380,9 @@ pub fn resolved_spec(spec: &EffectSpec, l: &ObsLayout) -> Result<EffectSpec> {
         let v = l.col(&first)?;
         let (lo, hi) = v
             .iter()
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), x| (a.min(*x), b.max(*x)));
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), x| {
+                (a.min(*x), b.max(*x))
+            });
         let defaults: Vec<(&str, f64)> = match kind {
             Kind::Scale => vec![("k", 2e-4)],
             Kind::Lag => vec![("k", 1e-4)],
@@ -426,7 +439,7 @@ pub fn scale_to_snr(
     let base = resolved_spec(spec, l)?;
     let v = apply_effect(&base, l)?;
     let r = rms(&v);
-    if !(r > 0.0) {
+    if r.is_nan() || r <= 0.0 {
         bail!("effect {} is zero on this layout", spec.key());
     }
     let f = snr * sigma_mm / r;
@@ -525,11 +538,23 @@ mod tests {
         let a = generate(&cfg, std::slice::from_ref(&e)).unwrap();
         let b = generate(&cfg, &[e]).unwrap();
         assert_eq!(a, b);
-        for c in ["run", "observable", "sim", "real", "trial", "point", "x_mm", "t_s", "dir", "pass", "temp_c"] {
+        for c in [
+            "run",
+            "observable",
+            "sim",
+            "real",
+            "trial",
+            "point",
+            "x_mm",
+            "t_s",
+            "dir",
+            "pass",
+            "temp_c",
+        ] {
             assert!(a.column_by_name(c).is_some(), "{c}");
         }
         let l = layout(&cfg).unwrap();
-        assert!(l.trial.iter().any(|t| *t == 1), "replicates present");
+        assert!(l.trial.contains(&1), "replicates present");
         let t = l.col("t_s").unwrap();
         // time non-decreasing within a run
         for i in 1..l.len() {
@@ -542,7 +567,15 @@ mod tests {
     #[test]
     fn snr_scaling_hits_target() {
         let l = layout(&ObsFleetConfig::default()).unwrap();
-        for name in ["bow", "periodic", "edge", "step", "bump", "product", "wear:pass"] {
+        for name in [
+            "bow",
+            "periodic",
+            "edge",
+            "step",
+            "bump",
+            "product",
+            "wear:pass",
+        ] {
             let s: EffectSpec = name.parse().unwrap();
             let (_, v) = scale_to_snr(&s, &l, 3.0, 0.001).unwrap();
             assert!((rms(&v) - 0.003).abs() < 1e-12, "{name}");

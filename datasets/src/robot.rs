@@ -25,6 +25,16 @@
 //! retracts. The AE burst starts at `t_c` on the recorder clock
 //! (`ae t_s = controller t_s − clock_offset_s`).
 //!
+//! Observables (docs/robot_data_spec.md; conventions as the robot plugin
+//! reads them): a touch's "normal coordinate" is its coordinate on the face's
+//! normal axis (z, x, y for `xy`, `yz`, `zx`); `approach_normal_mm_s` = v ×
+//! the approach direction's +axis component; `dir` = sign along +axis of the
+//! last commanded move before the approach segment (the generator alternates
+//! inward legs and outward "reversal" legs at random). Registered touches
+//! (probe.parquet) scatter with the AE method's thesis repeatability
+//! (σ = range/d2(12), 7.7 µm at 5 mm/s, 26 µm at 10 mm/s); the contact
+//! itself scatters by 2 µm (what AE-derived touches see).
+//!
 //! Determinism: every run draws from its own `ChaCha8Rng` streams keyed by
 //! (seed, run index), so the files are byte-identical for a seed whatever
 //! the number of rayon threads.
@@ -84,6 +94,10 @@ const OVERTRAVEL_MM: f64 = 0.5;
 const SAFE_CLEARANCE_MM: f64 = 15.0;
 /// Deceleration after the touch is registered, mm/s².
 const STOP_DECEL_MM_S2: f64 = 1000.0;
+/// Settle at the approach start before the slow probing move, s. Logged
+/// with the approach's segment, so the move before the segment's first
+/// sample is the leg (what a reader takes as the `dir` of the approach).
+const SETTLE_S: f64 = 0.02;
 /// Dwell after the stop before retracting, s.
 const DWELL_S: f64 = 0.05;
 /// Scatter of the contact itself along the normal (grain protrusion, surface
@@ -144,7 +158,7 @@ impl ProbeMode {
     pub fn has_probe(self, run_index: usize) -> bool {
         match self {
             ProbeMode::All => true,
-            ProbeMode::Alternate => run_index % 2 == 0,
+            ProbeMode::Alternate => run_index.is_multiple_of(2),
             ProbeMode::None => false,
         }
     }
@@ -341,7 +355,8 @@ impl RobotFleetConfig {
         // The true surface must stay outside the closest point of the leg
         // (standoff − overtravel): offset on 3 axes plus rotation over the
         // largest lever arm of a probe point (~75 mm), with 0.1 mm margin.
-        let budget = self.pose_offset_mm * 3f64.sqrt() + self.pose_rotation_rad * 3f64.sqrt() * 80.0;
+        let budget =
+            self.pose_offset_mm * 3f64.sqrt() + self.pose_rotation_rad * 3f64.sqrt() * 80.0;
         if budget + 0.1 > self.standoff_mm - OVERTRAVEL_MM {
             bail!(
                 "robot generator: standoff_mm {} is too small for the pose spread (offset ±{} mm, rotation ±{} rad can put the surface {:.3} mm outward; need standoff ≥ {:.3} mm)",
@@ -380,7 +395,7 @@ pub fn known_effects() -> Vec<(&'static str, &'static str)> {
     vec![
         (
             "trigger_latency",
-            "controller registers each touch latency_s after the true contact (default latency_s=0.024, two 12 ms KRC interpolation cycles): probe touches overshoot by v·L along the approach; touch_normal gap = L·approach_normal_mm_s (AE-derived touches are unaffected: the burst starts at the true contact)",
+            "controller registers each touch latency_s after the true contact (default latency_s=0.024, two 12 ms KRC interpolation cycles): probe touches overshoot by v·L along the approach; touch_normal gap = L·approach_normal_mm_s (v times the approach direction's component along the face's +normal axis; AE-derived touches are unaffected: the burst starts at the true contact)",
         ),
         (
             "wheel_wear",
@@ -396,7 +411,7 @@ pub fn known_effects() -> Vec<(&'static str, &'static str)> {
         ),
         (
             "backlash",
-            "reversal error: touches shift by b_mm/2·dir along the outward normal, dir = +1 when the move before the approach went outward (a reversal), −1 when it went inward (default b_mm=0.12); touch_normal gap = b·dir/2",
+            "reversal error: touches shift by b_mm/2·dir in the face's normal-axis coordinate, dir = sign along that +axis of the last move before the approach (half the approaches follow an outward move, a reversal; default b_mm=0.12); touch_normal gap = b·dir/2 (AE-derived and probe touches alike)",
         ),
         (
             "<catalogue>:<covariate>",
@@ -449,7 +464,11 @@ fn check_keys(spec: &EffectSpec, known: &[&str]) -> Result<()> {
             bail!(
                 "effect `{}`: unknown parameter `{k}` (known: {})",
                 spec.key(),
-                if known.is_empty() { "none".to_string() } else { known.join(", ") }
+                if known.is_empty() {
+                    "none".to_string()
+                } else {
+                    known.join(", ")
+                }
             );
         }
         if !v.is_finite() {
@@ -485,7 +504,10 @@ fn known_names() -> String {
         .to_string()
 }
 
-fn resolve_effects(specs: &[EffectSpec], bow_range: &dyn Fn(&str) -> (f64, f64)) -> Result<Effects> {
+fn resolve_effects(
+    specs: &[EffectSpec],
+    bow_range: &dyn Fn(&str) -> (f64, f64),
+) -> Result<Effects> {
     let mut fx = Effects::default();
     for spec in specs {
         match (spec.name.as_str(), spec.covariate.as_deref()) {
@@ -598,7 +620,10 @@ fn resolve_effects(specs: &[EffectSpec], bow_range: &dyn Fn(&str) -> (f64, f64))
                     if !matches!(c1.as_str(), "x_mm" | "y_mm" | "z_mm")
                         || !matches!(c2.as_str(), "x_mm" | "y_mm" | "z_mm")
                     {
-                        bail!("effect `{}`: squareness needs two of x_mm, y_mm, z_mm", spec.key());
+                        bail!(
+                            "effect `{}`: squareness needs two of x_mm, y_mm, z_mm",
+                            spec.key()
+                        );
                     }
                 }
                 // The kind must apply to that covariate (CONTRACTS.md table).
@@ -662,6 +687,14 @@ impl Face {
             Face::Xy => "xy",
             Face::Yz => "yz",
             Face::Zx => "zx",
+        }
+    }
+    /// Index of the face's normal axis (the observable's normal coordinate).
+    fn axis(self) -> usize {
+        match self {
+            Face::Xy => 2,
+            Face::Yz => 0,
+            Face::Zx => 1,
         }
     }
     /// Outward unit normal of the nominal face (the block is on the other side).
@@ -824,8 +857,9 @@ struct ContactTruth {
     surface_x_mm: f64,
     surface_y_mm: f64,
     surface_z_mm: f64,
-    /// Sign of the move along the outward normal before the approach
-    /// (+1 outward = a reversal, −1 inward).
+    /// Sign, along the face's +normal axis, of the last move before the
+    /// approach (the plugin's `dir` covariate; a move outward of the block
+    /// is a reversal before the inward approach).
     dir: i32,
     /// Burst peak amplitude, V.
     ae_amplitude_v: f64,
@@ -971,7 +1005,7 @@ pub fn generate_fleet(
                 "y_mm" => r.nom.y,
                 "z_mm" => r.nom.z,
                 "approach_mm_s" => r.speed_mm_s,
-                "approach_normal_mm_s" => -r.speed_mm_s,
+                "approach_normal_mm_s" => r.speed_mm_s * r.dir[r.face.axis()],
                 _ => 0.0,
             })
             .collect();
@@ -1065,6 +1099,15 @@ fn generate_run(
         path.line(V3::new(leg_start.x, leg_start.y, safe_z), TRANSIT_MM_S, -1);
         path.line(leg_start, TRANSIT_MM_S, -1);
         path.line(start, LEG_MM_S, -1);
+        path.pieces.push(Piece {
+            t0: path.t,
+            t1: path.t + SETTLE_S,
+            p0: start,
+            v0: V3::zeros(),
+            a: V3::zeros(),
+            segment: row.seq,
+        });
+        path.t += SETTLE_S;
 
         // Approach along dir at v: solve for the contact of the physical
         // wheel (cmd − o(t)) with the true plane (+ contact scatter).
@@ -1142,16 +1185,34 @@ fn generate_run(
         });
     }
     let last = path.pos;
-    path.line(V3::new(last.x, last.y, safe_z.max(last.z)), TRANSIT_MM_S, -1);
+    path.line(
+        V3::new(last.x, last.y, safe_z.max(last.z)),
+        TRANSIT_MM_S,
+        -1,
+    );
     path.line(home, TRANSIT_MM_S, -1);
     path.dwell(0.5);
     let t_probe_end = path.t;
 
     // ---- motion.parquet at the controller rate
-    let motion = motion_batch(&path.pieces, cfg.motion_rate_hz, &mut rng);
+    // Own RNG streams for the motion noise and the height readings: an
+    // effect that moves the timeline (and so the number of motion samples)
+    // leaves the other tables' noise draws unchanged, so a fleet with an
+    // effect differs from its effect-free twin by the effect alone.
+    let motion = motion_batch(
+        &path.pieces,
+        cfg.motion_rate_hz,
+        &mut run_rng(cfg.seed, index, 2),
+    );
 
     // ---- grinding cycle
-    let (passes_batch, pass_truth) = passes(cfg, fx, alpha, t_probe_end, &mut rng);
+    let (passes_batch, pass_truth) = passes(
+        cfg,
+        fx,
+        alpha,
+        t_probe_end,
+        &mut run_rng(cfg.seed, index, 3),
+    );
 
     // ---- AE windows (their own RNG stream: AE size does not shift the rest)
     let fs = cfg.ae_sample_rate_hz;
@@ -1184,7 +1245,7 @@ fn generate_run(
             surface_x_mm: tc.surface.x,
             surface_y_mm: tc.surface.y,
             surface_z_mm: tc.surface.z,
-            dir: tc.dir_b,
+            dir: tc.dir_b * row.face.normal()[row.face.axis()] as i32,
             ae_amplitude_v: amp,
         });
     }
@@ -1265,11 +1326,18 @@ fn generate_run(
 
 /// act − physical at a touch: what the encoders cannot see (thermal drift of
 /// the structure, backlash) plus any catalogue shape applied directly to
-/// touch_normal (along the outward normal, so its gap is the shape's value).
+/// touch_normal. The observable's "normal coordinate" is the coordinate of
+/// the face's normal axis (z, x, y for xy, yz, zx) as the robot plugin reads
+/// it, so direct shapes act along +axis and their covariates use the +axis
+/// sign convention (approach_normal_mm_s = v·dir_axis, dir = sign of the
+/// last move along +axis).
 fn frame_offset(fx: &Effects, row: &PlanRow, dir_b: i32, t_s: f64) -> V3 {
     let n = row.face.normal();
+    let ax = row.face.axis();
     // TCP physically higher by D → the controller reads D lower.
     let mut o = V3::new(0.0, 0.0, -fx.drift_mm(t_s));
+    // b/2 along the outward normal per the outward-relative dir_b equals
+    // b/2·dir_axis along +axis: the catalogue's b·dir/2 in the plugin's frame.
     o += n * (fx.backlash_b_mm / 2.0 * dir_b as f64);
     if !fx.touch.is_empty() {
         let cov = |c: &str| -> f64 {
@@ -1278,14 +1346,16 @@ fn frame_offset(fx: &Effects, row: &PlanRow, dir_b: i32, t_s: f64) -> V3 {
                 "y_mm" => row.nom.y,
                 "z_mm" => row.nom.z,
                 "approach_mm_s" => row.speed_mm_s,
-                "approach_normal_mm_s" => row.speed_mm_s * row.dir.dot(&n),
+                "approach_normal_mm_s" => row.speed_mm_s * row.dir[ax],
                 "t_s" => t_s,
-                "dir" => dir_b as f64,
+                "dir" => dir_b as f64 * n[ax],
                 _ => 0.0,
             }
         };
         let g: f64 = fx.touch.iter().map(|e| e.value(&cov)).sum();
-        o += n * g;
+        let mut e = V3::zeros();
+        e[ax] = 1.0;
+        o += e * g;
     }
     o
 }
@@ -1387,8 +1457,14 @@ fn passes(
     rng: &mut ChaCha8Rng,
 ) -> (RecordBatch, Vec<PassTruth>) {
     let mut stages = Vec::new();
-    stages.extend(std::iter::repeat_n(("rough", cfg.doc_rough_mm), cfg.rough_passes));
-    stages.extend(std::iter::repeat_n(("finish", cfg.doc_finish_mm), cfg.finish_passes));
+    stages.extend(std::iter::repeat_n(
+        ("rough", cfg.doc_rough_mm),
+        cfg.rough_passes,
+    ));
+    stages.extend(std::iter::repeat_n(
+        ("finish", cfg.doc_finish_mm),
+        cfg.finish_passes,
+    ));
     stages.extend(std::iter::repeat_n(("spark", 0.0), cfg.spark_passes));
     let duration = PASS_LENGTH_MM / cfg.grind_feed_mm_s;
     let mut t = t_probe_end + GRIND_START_DELAY_S;
@@ -1428,9 +1504,7 @@ fn passes(
             }
         };
         let direct: f64 = fx.cut.iter().map(|e| e.value(&cov)).sum();
-        let real = (comp
-            - fx.compliance_k_per_mm * doc * doc
-            - fx.wear_k_mm_per_mm3 * removed_mm3
+        let real = (comp - fx.compliance_k_per_mm * doc * doc - fx.wear_k_mm_per_mm3 * removed_mm3
             + direct)
             .max(0.0);
         truth.push(PassTruth {
@@ -1575,10 +1649,10 @@ mod tests {
             }
             // Three concentric squares: distances from the face centre.
             let c = (f.point(0) + f.point(2)) / 2.0;
-            for sq in 0..3 {
+            for (sq, half) in SQUARE_HALF_MM.iter().enumerate() {
                 for k in 0..4 {
                     let d = (f.point(sq * 4 + k) - c).norm();
-                    assert!((d - SQUARE_HALF_MM[sq] * 2f64.sqrt()).abs() < 1e-9);
+                    assert!((d - half * 2f64.sqrt()).abs() < 1e-9);
                 }
             }
         }
@@ -1608,10 +1682,16 @@ mod tests {
     #[test]
     fn effects_resolve_with_defaults_and_reject_unknowns() {
         let range = |_: &str| (0.0, 1.0);
-        let specs: Vec<EffectSpec> = ["trigger_latency", "wheel_wear", "thermal_drift", "compliance", "backlash"]
-            .iter()
-            .map(|s| s.parse().unwrap())
-            .collect();
+        let specs: Vec<EffectSpec> = [
+            "trigger_latency",
+            "wheel_wear",
+            "thermal_drift",
+            "compliance",
+            "backlash",
+        ]
+        .iter()
+        .map(|s| s.parse().unwrap())
+        .collect();
         let fx = resolve_effects(&specs, &range).unwrap();
         assert_eq!(fx.latency_s, DEF_LATENCY_S);
         assert_eq!(fx.wear_k_mm_per_mm3, DEF_WEAR_K_MM_PER_MM3);
@@ -1622,11 +1702,17 @@ mod tests {
         let err = resolve_effects(&["chatter".parse().unwrap()], &range)
             .unwrap_err()
             .to_string();
-        assert!(err.contains("unknown effect `chatter`") && err.contains("wheel_wear"), "{err}");
+        assert!(
+            err.contains("unknown effect `chatter`") && err.contains("wheel_wear"),
+            "{err}"
+        );
         let err = resolve_effects(&["wheel_wear=k=1".parse().unwrap()], &range)
             .unwrap_err()
             .to_string();
-        assert!(err.contains("unknown parameter `k`") && err.contains("k_mm_per_mm3"), "{err}");
+        assert!(
+            err.contains("unknown parameter `k`") && err.contains("k_mm_per_mm3"),
+            "{err}"
+        );
         let err = resolve_effects(&["drift:t_s=amplitude_mm=0.1".parse().unwrap()], &range)
             .unwrap_err()
             .to_string();

@@ -69,7 +69,7 @@ impl ValidateConfig {
             quick,
             seed,
             snrs: vec![1.0, 3.0, 10.0],
-            fleets_per_case: if quick { 1 } else { 5 },
+            fleets_per_case: if quick { 1 } else { 10 },
             effects: None,
             free_fleets: if quick { 4 } else { 20 },
             ooc_fleets: if quick { 1 } else { 5 },
@@ -155,9 +155,17 @@ fn in_cells(cells: &[WhereCell], l: &ObsLayout) -> Vec<bool> {
             (serde_json::Value::Array(lo), serde_json::Value::Array(hi)) => lo
                 .iter()
                 .zip(hi)
-                .map(|(a, b)| (a.as_f64().unwrap_or(f64::NAN), b.as_f64().unwrap_or(f64::NAN)))
+                .map(|(a, b)| {
+                    (
+                        a.as_f64().unwrap_or(f64::NAN),
+                        b.as_f64().unwrap_or(f64::NAN),
+                    )
+                })
                 .collect(),
-            (lo, hi) => vec![(lo.as_f64().unwrap_or(f64::NAN), hi.as_f64().unwrap_or(f64::NAN))],
+            (lo, hi) => vec![(
+                lo.as_f64().unwrap_or(f64::NAN),
+                hi.as_f64().unwrap_or(f64::NAN),
+            )],
         };
         let cols: Vec<&[f64]> = match names.iter().map(|n| l.col(n)).collect::<Result<Vec<_>>>() {
             Ok(c) => c,
@@ -331,10 +339,17 @@ pub fn run(cfg: &ValidateConfig) -> Result<ValidationReport> {
             });
         }
     }
-    let results: Vec<FleetResult> = jobs
-        .par_iter()
-        .map(|j| run_fleet(cfg, j))
-        .collect::<Result<_>>()?;
+    // A pool of its own with large stacks: fleets run in parallel and each
+    // diagnosis runs its candidates in parallel too; a worker waiting on an
+    // inner join steals other fleets, which nests their frames on its stack.
+    let pool = rayon::ThreadPoolBuilder::new()
+        .stack_size(256 << 20)
+        .build()?;
+    let results: Vec<FleetResult> = pool.install(|| {
+        jobs.par_iter()
+            .map(|j| run_fleet(cfg, j))
+            .collect::<Result<_>>()
+    })?;
     Ok(summarise(cfg, results, start.elapsed().as_secs_f64()))
 }
 
@@ -345,7 +360,10 @@ fn mean(v: &[f64]) -> Option<f64> {
 fn summarise(cfg: &ValidateConfig, results: Vec<FleetResult>, seconds: f64) -> ValidationReport {
     let cat: Vec<&FleetResult> = results.iter().filter(|r| r.kind == "catalogue").collect();
     let mut cases = Vec::new();
-    let mut keys: Vec<(String, u64)> = cat.iter().map(|r| (r.truth.clone(), r.snr.to_bits())).collect();
+    let mut keys: Vec<(String, u64)> = cat
+        .iter()
+        .map(|r| (r.truth.clone(), r.snr.to_bits()))
+        .collect();
     keys.dedup();
     let mut seen = std::collections::BTreeSet::new();
     for (truth, snr_bits) in keys {
@@ -361,7 +379,10 @@ fn summarise(cfg: &ValidateConfig, results: Vec<FleetResult>, seconds: f64) -> V
         perr.sort_by(f64::total_cmp);
         let locs: Vec<f64> = rs.iter().filter_map(|r| r.localisation).collect();
         let shr: Vec<f64> = rs.iter().map(|r| r.shrink).collect();
-        let ratio: Vec<f64> = rs.iter().map(|r| r.shrink / r.oracle_shrink.max(1e-12)).collect();
+        let ratio: Vec<f64> = rs
+            .iter()
+            .map(|r| r.shrink / r.oracle_shrink.max(1e-12))
+            .collect();
         cases.push(CaseSummary {
             truth,
             snr: f64::from_bits(snr_bits),
@@ -371,11 +392,13 @@ fn summarise(cfg: &ValidateConfig, results: Vec<FleetResult>, seconds: f64) -> V
             localisation_mean: mean(&locs),
             param_rel_error_median: perr.get(perr.len() / 2).copied(),
             shrink_mean: mean(&shr).unwrap_or(0.0),
-            oracle_shrink: mean(&rs.iter().map(|r| r.oracle_shrink).collect::<Vec<_>>()).unwrap_or(0.0),
+            oracle_shrink: mean(&rs.iter().map(|r| r.oracle_shrink).collect::<Vec<_>>())
+                .unwrap_or(0.0),
             shrink_over_oracle: mean(&ratio).unwrap_or(0.0),
         });
     }
-    let mut confusion: BTreeMap<String, BTreeMap<String, BTreeMap<String, usize>>> = BTreeMap::new();
+    let mut confusion: BTreeMap<String, BTreeMap<String, BTreeMap<String, usize>>> =
+        BTreeMap::new();
     let mut acc_by: BTreeMap<String, (usize, usize)> = BTreeMap::new();
     for r in &cat {
         *confusion
@@ -391,7 +414,10 @@ fn summarise(cfg: &ValidateConfig, results: Vec<FleetResult>, seconds: f64) -> V
     }
     let ge3: Vec<&&FleetResult> = cat.iter().filter(|r| r.snr >= 3.0).collect();
     let free: Vec<&FleetResult> = results.iter().filter(|r| r.kind == "effect_free").collect();
-    let ooc: Vec<&FleetResult> = results.iter().filter(|r| r.kind == "out_of_catalogue").collect();
+    let ooc: Vec<&FleetResult> = results
+        .iter()
+        .filter(|r| r.kind == "out_of_catalogue")
+        .collect();
     ValidationReport {
         quick: cfg.quick,
         seed: cfg.seed,
@@ -420,7 +446,11 @@ fn summarise(cfg: &ValidateConfig, results: Vec<FleetResult>, seconds: f64) -> V
             .count() as f64
             / ooc.len().max(1) as f64,
         ooc_fleets: ooc.len(),
-        ooc_localisation_mean: mean(&ooc.iter().filter_map(|r| r.localisation).collect::<Vec<_>>()),
+        ooc_localisation_mean: mean(
+            &ooc.iter()
+                .filter_map(|r| r.localisation)
+                .collect::<Vec<_>>(),
+        ),
         results,
     }
 }
@@ -463,8 +493,12 @@ pub fn render_text(r: &ValidationReport) -> String {
             c.snr,
             c.fleets,
             100.0 * c.accuracy,
-            c.localisation_mean.map(|v| format!("{v:.2}")).unwrap_or_else(|| "—".into()),
-            c.param_rel_error_median.map(|v| format!("{v:.3}")).unwrap_or_else(|| "—".into()),
+            c.localisation_mean
+                .map(|v| format!("{v:.2}"))
+                .unwrap_or_else(|| "—".into()),
+            c.param_rel_error_median
+                .map(|v| format!("{v:.3}"))
+                .unwrap_or_else(|| "—".into()),
             c.shrink_mean,
             c.shrink_over_oracle
         );
@@ -473,7 +507,10 @@ pub fn render_text(r: &ValidationReport) -> String {
         let mut named: Vec<String> = m.values().flat_map(|row| row.keys().cloned()).collect();
         named.sort();
         named.dedup();
-        let _ = writeln!(s, "\nconfusion matrix at {snr} (rows: true, columns: named top-1)");
+        let _ = writeln!(
+            s,
+            "\nconfusion matrix at {snr} (rows: true, columns: named top-1)"
+        );
         let _ = write!(s, "{:<14}", "");
         for n in &named {
             let _ = write!(s, " {:>9}", short(n).chars().take(9).collect::<String>());
@@ -523,9 +560,7 @@ pub fn render_text(r: &ValidationReport) -> String {
         let _ = writeln!(
             s,
             "  {:<28} named {:<22} unexplained {:.2}σ",
-            f.truth,
-            f.named,
-            f.unexplained_over_sigma
+            f.truth, f.named, f.unexplained_over_sigma
         );
     }
     s

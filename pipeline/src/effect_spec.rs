@@ -53,11 +53,14 @@ impl FromStr for EffectSpec {
         let mut params = BTreeMap::new();
         if let Some(rest) = rest {
             for kv in rest.split(',').filter(|p| !p.trim().is_empty()) {
-                let (k, v) = kv.split_once('=').ok_or_else(|| {
-                    format!("--effect `{s}`: parameter `{kv}` is not KEY=VALUE")
-                })?;
+                let (k, v) = kv
+                    .split_once('=')
+                    .ok_or_else(|| format!("--effect `{s}`: parameter `{kv}` is not KEY=VALUE"))?;
                 let v: f64 = v.trim().parse().map_err(|_| {
-                    format!("--effect `{s}`: value of `{}` is not a number: `{v}`", k.trim())
+                    format!(
+                        "--effect `{s}`: value of `{}` is not a number: `{v}`",
+                        k.trim()
+                    )
                 })?;
                 params.insert(k.trim().to_string(), v);
             }

@@ -14,7 +14,9 @@ pub fn demo(out: &Path) -> anyhow::Result<u8> {
     let results = out.join("out");
     let cfg = sparkout_datasets::robot::RobotFleetConfig::demo();
     // The demo's "real" machine wears its wheel; the model does not know.
-    let effects: Vec<EffectSpec> = vec!["wheel_wear".parse().map_err(|e: String| anyhow::anyhow!(e))?];
+    let effects: Vec<EffectSpec> = vec!["wheel_wear"
+        .parse()
+        .map_err(|e: String| anyhow::anyhow!(e))?];
     eprintln!(
         "sparkout demo: generating {} robot runs (seed {}) with an unmodelled effect: {}",
         cfg.runs, cfg.seed, effects[0]

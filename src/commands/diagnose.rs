@@ -50,7 +50,11 @@ pub fn diagnose(
             "gap RMS {:.4} mm, noise floor {:.4} mm; selected: {}; held-out RMS after {:.4} mm",
             v["gap"]["rms_mm"].as_f64().unwrap_or(f64::NAN),
             v["gap"]["noise_floor_mm"].as_f64().unwrap_or(f64::NAN),
-            if sel.is_empty() { "none (no effect explains the gap)".to_string() } else { sel.join(", ") },
+            if sel.is_empty() {
+                "none (no effect explains the gap)".to_string()
+            } else {
+                sel.join(", ")
+            },
             v["unexplained"]["rms_mm"].as_f64().unwrap_or(f64::NAN),
         );
         println!("wrote {}", out.join("diagnosis.json").display());

@@ -42,7 +42,11 @@ pub fn generate(
             }
             cfg.validate()?;
             let dirs = sparkout_datasets::robot::generate_fleet(&out, &cfg, &effects)?;
-            println!("generated {} robot runs under {}", dirs.len(), out.display());
+            println!(
+                "generated {} robot runs under {}",
+                dirs.len(),
+                out.display()
+            );
             Ok(0)
         }
         "observations" => {
@@ -66,7 +70,10 @@ pub fn generate(
             Ok(0)
         }
         other => {
-            let plugins: Vec<&str> = sparkout_plugins::all_plugins().iter().map(|p| p.name()).collect();
+            let plugins: Vec<&str> = sparkout_plugins::all_plugins()
+                .iter()
+                .map(|p| p.name())
+                .collect();
             bail!(
                 "no generator for `{other}` (plugins registered: {}; generators: robot, observations)",
                 plugins.join(", ")

@@ -30,7 +30,9 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<u8> {
             config,
             extra,
         } => stage::stage(&name, run, out, json, config, &extra),
-        Command::ValidateInput { root, machines } => validate_input::validate_input(&root, machines),
+        Command::ValidateInput { root, machines } => {
+            validate_input::validate_input(&root, machines)
+        }
         Command::Generate {
             what,
             runs,

@@ -8,7 +8,12 @@ use crate::cli::ConfigArgs;
 use crate::progress::BatchProgress;
 use crate::registry;
 
-pub fn run(config: &ConfigArgs, input: &Path, out: &Path, jobs: Option<usize>) -> anyhow::Result<u8> {
+pub fn run(
+    config: &ConfigArgs,
+    input: &Path,
+    out: &Path,
+    jobs: Option<usize>,
+) -> anyhow::Result<u8> {
     if jobs == Some(0) {
         anyhow::bail!("--jobs must be at least 1");
     }
@@ -28,7 +33,11 @@ pub fn print_outcome(o: &FleetOutcome) {
         "{} runs ok, {} rejected; stages: {computed} computed, {cached} cached{}",
         o.runs.len(),
         o.failures.len(),
-        if computed == 0 { " (everything cached)" } else { "" }
+        if computed == 0 {
+            " (everything cached)"
+        } else {
+            ""
+        }
     );
     for f in &o.failures {
         println!("  rejected {}: {}", f.run_dir, f.error);

@@ -57,9 +57,9 @@ pub fn stage(
     let engine = registry::engine(&config)?;
     match run {
         None => {
-            let stage = engine.find_stage(name).with_context(|| {
-                format!("unknown stage `{name}`; see `sparkout stage --help`")
-            })?;
+            let stage = engine
+                .find_stage(name)
+                .with_context(|| format!("unknown stage `{name}`; see `sparkout stage --help`"))?;
             let result = stage.run_standalone(&args).with_context(|| {
                 format!(
                     "stage `{name}` needs --run <run dir> (it has no run-less form with these flags)"
@@ -111,10 +111,17 @@ mod tests {
 
     #[test]
     fn stage_flags_parse() {
-        let v: Vec<String> = ["--weld-mm", "2.27", "--json", "--planes=1,2,3,4", "--x", "-0.5"]
-            .iter()
-            .map(|s| s.to_string())
-            .collect();
+        let v: Vec<String> = [
+            "--weld-mm",
+            "2.27",
+            "--json",
+            "--planes=1,2,3,4",
+            "--x",
+            "-0.5",
+        ]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
         let a = parse_stage_flags(&v).unwrap();
         assert_eq!(a["weld-mm"], "2.27");
         assert_eq!(a["json"], "true");

@@ -15,12 +15,17 @@ pub fn validate_input(root: &Path, machines: Option<PathBuf>) -> anyhow::Result<
     for p in &problems {
         println!("{}: {}", p.run_dir, p.message);
     }
-    let bad: std::collections::BTreeSet<&str> = problems.iter().map(|p| p.run_dir.as_str()).collect();
+    let bad: std::collections::BTreeSet<&str> =
+        problems.iter().map(|p| p.run_dir.as_str()).collect();
     println!(
         "{runs} runs checked: {} clean, {} with problems ({} problems)",
         runs - bad.len(),
         bad.len(),
         problems.len()
     );
-    Ok(if problems.is_empty() { super::ALL_GOOD } else { super::SOME_RUNS_FAILED })
+    Ok(if problems.is_empty() {
+        super::ALL_GOOD
+    } else {
+        super::SOME_RUNS_FAILED
+    })
 }

@@ -84,9 +84,11 @@ impl AeStream {
         let v = batch.column_by_name("ae_v").expect("projected");
         for (name, col) in [("t_s", t), ("ae_v", v)] {
             if let Some((row, what)) = first_non_finite(col.as_ref()) {
-                return Err(InputError::new(&self.path, format!("{what} in a required column"))
-                    .column(name)
-                    .row(first_row + row));
+                return Err(
+                    InputError::new(&self.path, format!("{what} in a required column"))
+                        .column(name)
+                        .row(first_row + row),
+                );
             }
         }
         let t = cast(t, &DataType::Float64)

@@ -4,8 +4,7 @@
 use std::sync::Arc;
 
 use arrow::array::{
-    Array,
-    ArrayRef, Float32Array, Float64Array, Int32Array, Int64Array, Int8Array, StringArray,
+    Array, ArrayRef, Float32Array, Float64Array, Int32Array, Int64Array, Int8Array, StringArray,
 };
 use arrow::datatypes::{Field, Schema};
 use arrow::record_batch::RecordBatch;
@@ -47,7 +46,8 @@ impl BatchBuilder {
     }
     /// A nullable float column (None → null), for optional measurements.
     pub fn opt_f64(mut self, name: &str, v: Vec<Option<f64>>) -> Self {
-        self.fields.push(Field::new(name, arrow::datatypes::DataType::Float64, true));
+        self.fields
+            .push(Field::new(name, arrow::datatypes::DataType::Float64, true));
         self.columns.push(Arc::new(Float64Array::from(v)));
         self
     }

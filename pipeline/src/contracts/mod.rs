@@ -13,4 +13,6 @@ pub use batch::{batch_f64, batch_i32, batch_str, read_parquet, BatchBuilder};
 pub use run::{discover_runs, AeKind, AeSpec, MachineConfig, MachineResolver, RunSpec};
 pub use schema::{table_schema, ColumnKind, ColumnSpec, TableSchema, ALL_TABLES};
 pub use table::Table;
-pub use write::{write_atomic, write_json_atomic, write_parquet_atomic, write_parquet_batches_atomic};
+pub use write::{
+    write_atomic, write_json_atomic, write_parquet_atomic, write_parquet_batches_atomic,
+};

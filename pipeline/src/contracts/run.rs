@@ -43,11 +43,16 @@ fn req_str(path: &Path, run: &toml::Table, key: &str) -> Result<String, InputErr
         Some(toml::Value::String(s)) if !s.trim().is_empty() => Ok(s.clone()),
         Some(v) => Err(InputError::new(
             path,
-            format!("[run].{key} must be a non-empty string, found {}", v.type_str()),
+            format!(
+                "[run].{key} must be a non-empty string, found {}",
+                v.type_str()
+            ),
         )
         .column(format!("run.{key}"))),
-        None => Err(InputError::new(path, format!("required key [run].{key} is missing"))
-            .column(format!("run.{key}"))),
+        None => Err(
+            InputError::new(path, format!("required key [run].{key} is missing"))
+                .column(format!("run.{key}")),
+        ),
     }
 }
 
@@ -68,7 +73,9 @@ impl RunSpec {
         let text = std::fs::read_to_string(&path).map_err(|e| {
             InputError::new(
                 &path,
-                format!("cannot read run.toml ({e}); every run directory needs one (CONTRACTS.md §1)"),
+                format!(
+                    "cannot read run.toml ({e}); every run directory needs one (CONTRACTS.md §1)"
+                ),
             )
         })?;
         Self::parse(dir, &text)

@@ -52,9 +52,7 @@ pub(crate) fn type_accepted(kind: ColumnKind, dt: &DataType) -> bool {
 pub(crate) fn open_parquet(
     path: &Path,
 ) -> Result<ParquetRecordBatchReaderBuilder<File>, InputError> {
-    let file = File::open(path).map_err(|e| {
-        InputError::new(path, format!("cannot open: {e}"))
-    })?;
+    let file = File::open(path).map_err(|e| InputError::new(path, format!("cannot open: {e}")))?;
     ParquetRecordBatchReaderBuilder::try_new(file).map_err(|e| {
         InputError::new(
             path,
@@ -142,9 +140,9 @@ impl Table {
         let builder = open_parquet(path)?;
         check_schema(path, schema, builder.schema())?;
         let file_schema = builder.schema().clone();
-        let reader = builder.build().map_err(|e| {
-            InputError::new(path, format!("cannot decode Parquet: {e}"))
-        })?;
+        let reader = builder
+            .build()
+            .map_err(|e| InputError::new(path, format!("cannot decode Parquet: {e}")))?;
         let mut batches = Vec::new();
         for b in reader {
             let b = b.map_err(|e| {
@@ -170,7 +168,10 @@ impl Table {
         if batch.num_rows() == 0 {
             return Err(InputError::new(
                 path,
-                format!("table `{}` is empty (a required table needs rows)", schema.name),
+                format!(
+                    "table `{}` is empty (a required table needs rows)",
+                    schema.name
+                ),
             ));
         }
         let mut fields = Vec::with_capacity(batch.num_columns());
@@ -268,9 +269,7 @@ impl Table {
             .as_any()
             .downcast_ref::<Float64Array>()
             .map(|a| a.values().as_ref())
-            .ok_or_else(|| {
-                InputError::new(&self.path, "expected float64").column(column)
-            })
+            .ok_or_else(|| InputError::new(&self.path, "expected float64").column(column))
     }
     pub fn opt_f64(&self, column: &str) -> Option<&[f64]> {
         self.f64(column).ok()

@@ -61,7 +61,7 @@ pub fn cell_p(ms: f64, n: usize, sigma: f64, df_sigma: f64) -> f64 {
     if n == 0 {
         return 1.0;
     }
-    if !(sigma > 0.0) {
+    if sigma.is_nan() || sigma <= 0.0 {
         return if ms > 0.0 { 0.0 } else { 1.0 };
     }
     f_sf(ms / (sigma * sigma), n as f64, df_sigma)
@@ -95,11 +95,7 @@ fn bin_ids(v: &[f64], sorted: &[f64], bins: usize) -> Vec<u32> {
 
 /// Aggregates every binning of one observable. `covs`: (name, values in
 /// row order, the same values sorted); `g`/`r`: gap and held-out residual.
-pub fn cells(
-    covs: &[(&str, &[f64], &[f64])],
-    g: &[f64],
-    r: &[f64],
-) -> Result<Vec<Cell>> {
+pub fn cells(covs: &[(&str, &[f64], &[f64])], g: &[f64], r: &[f64]) -> Result<Vec<Cell>> {
     let n = g.len();
     let g2: Vec<f64> = g.iter().map(|v| v * v).collect();
     let r2: Vec<f64> = r.iter().map(|v| v * v).collect();
@@ -111,7 +107,10 @@ pub fn cells(
     // 1-D binnings.
     let mut plans: Vec<(String, Vec<String>)> = Vec::new();
     for (i, (name, v, s)) in covs.iter().enumerate() {
-        base.push(pl::Column::new(format!("b{i}").into(), bin_ids(v, s, QUANTILE_BINS)));
+        base.push(pl::Column::new(
+            format!("b{i}").into(),
+            bin_ids(v, s, QUANTILE_BINS),
+        ));
         base.push(pl::Column::new(format!("v{i}").into(), v.to_vec()));
         plans.push((format!("b{i}"), vec![name.to_string()]));
     }
@@ -152,8 +151,12 @@ pub fn cells(
             Ok((0..c.len()).map(|i| c.get(i).unwrap_or(f64::NAN)).collect())
         };
         let (sg2, sr2, cnt) = (f("sg2")?, f("sr2")?, f("n")?);
-        let los: Vec<Vec<f64>> = (0..vcols.len()).map(|j| f(&format!("lo{j}"))).collect::<Result<_>>()?;
-        let his: Vec<Vec<f64>> = (0..vcols.len()).map(|j| f(&format!("hi{j}"))).collect::<Result<_>>()?;
+        let los: Vec<Vec<f64>> = (0..vcols.len())
+            .map(|j| f(&format!("lo{j}")))
+            .collect::<Result<_>>()?;
+        let his: Vec<Vec<f64>> = (0..vcols.len())
+            .map(|j| f(&format!("hi{j}")))
+            .collect::<Result<_>>()?;
         for k in 0..sg2.len() {
             out.push(Cell {
                 covariate: names.join(","),
@@ -175,10 +178,15 @@ mod tests {
     #[test]
     fn quantile_and_discrete_bins() {
         let v: Vec<f64> = (0..120).map(|i| i as f64).collect();
-        let d: Vec<f64> = (0..120).map(|i| if i % 2 == 0 { -1.0 } else { 1.0 }).collect();
+        let d: Vec<f64> = (0..120)
+            .map(|i| if i % 2 == 0 { -1.0 } else { 1.0 })
+            .collect();
         let mut ds = d.clone();
         ds.sort_by(f64::total_cmp);
-        let g: Vec<f64> = v.iter().map(|x| if *x >= 100.0 { 1.0 } else { 0.0 }).collect();
+        let g: Vec<f64> = v
+            .iter()
+            .map(|x| if *x >= 100.0 { 1.0 } else { 0.0 })
+            .collect();
         let c = cells(&[("x_mm", &v, &v), ("dir", &d, &ds)], &g, &g).unwrap();
         let xs: Vec<&Cell> = c.iter().filter(|c| c.covariate == "x_mm").collect();
         assert_eq!(xs.len(), QUANTILE_BINS);

@@ -167,7 +167,8 @@ impl CovStats {
     }
     /// A covariate that does not vary cannot carry a shape (skipped, said).
     pub fn is_constant(&self) -> bool {
-        !(self.range() > 1e-12 * self.max_abs.max(1e-300))
+        let r = self.range();
+        r.is_nan() || r <= 1e-12 * self.max_abs.max(1e-300)
     }
 }
 
@@ -201,13 +202,23 @@ pub trait LinearForm: Send + Sync {
     fn theta(&self, frame: &Frame) -> Option<ThetaRange>;
     /// Writes the shape features of every row of `x` into `out[j][i]`
     /// (`out.len() == n_linear()`, each `x.len()` long).
-    fn features(&self, frame: &Frame, x: &EffectData, theta: f64, out: &mut [Vec<f64>])
-        -> Result<()>;
+    fn features(
+        &self,
+        frame: &Frame,
+        x: &EffectData,
+        theta: f64,
+        out: &mut [Vec<f64>],
+    ) -> Result<()>;
     /// Reported parameters (contract units) from θ, the feature
     /// coefficients and the fitted offset; returns the parameters and the
     /// offset in the convention `offset_mm + form(c; params)`.
-    fn params(&self, frame: &Frame, theta: f64, coef: &[f64], offset: f64)
-        -> (BTreeMap<String, f64>, f64);
+    fn params(
+        &self,
+        frame: &Frame,
+        theta: f64,
+        coef: &[f64],
+        offset: f64,
+    ) -> (BTreeMap<String, f64>, f64);
 }
 
 /// The v1 catalogue kinds (CONTRACTS.md table).
@@ -312,7 +323,7 @@ pub struct Shape {
 }
 
 fn log_grid(lo: f64, hi: f64, n: usize) -> Vec<f64> {
-    if !(hi > lo) || n < 2 {
+    if hi.is_nan() || lo.is_nan() || hi <= lo || n < 2 {
         return vec![lo];
     }
     let (a, b) = (lo.ln(), hi.ln());
@@ -819,11 +830,14 @@ impl LinearForm for ProductForm {
     }
     fn theta(&self, frame: &Frame) -> Option<ThetaRange> {
         let (fa, fb) = self.split(frame);
-        self.a.theta(&fa).or_else(|| self.b.theta(&fb)).map(|mut t| {
-            // Rows are not pooled for products: features depend on two covariates.
-            t.resolution = 0.0;
-            t
-        })
+        self.a
+            .theta(&fa)
+            .or_else(|| self.b.theta(&fb))
+            .map(|mut t| {
+                // Rows are not pooled for products: features depend on two covariates.
+                t.resolution = 0.0;
+                t
+            })
     }
     fn features(
         &self,

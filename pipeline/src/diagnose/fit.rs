@@ -109,7 +109,7 @@ pub fn solve(g: &[f64], h: &[f64]) -> Option<Vec<f64>> {
         return Some(Vec::new());
     }
     let scale = (0..p).map(|i| g[i * p + i].abs()).fold(0.0, f64::max);
-    if !(scale > 0.0) || !scale.is_finite() {
+    if scale.is_nan() || scale <= 0.0 || !scale.is_finite() {
         return None;
     }
     let mut m = DMatrix::from_row_slice(p, p, g);
@@ -153,6 +153,12 @@ pub struct ScanRows<'a> {
     pub units: Vec<Range<usize>>,
 }
 
+/// Pooled covariate, counts, Σy per target, pooled unit ranges.
+pub type Pooled = (Vec<f64>, Vec<f64>, Vec<Vec<f64>>, Vec<Range<usize>>);
+
+/// Per-unit X'X, and X'y per target per unit.
+type UnitStats = (Vec<Vec<f64>>, Vec<Vec<Vec<f64>>>);
+
 /// Pools the rows of each unit into bins of width `res` of one covariate
 /// (bin value = mean covariate inside). Returns the pooled covariate, the
 /// counts, Σy per target and the pooled unit ranges.
@@ -162,7 +168,7 @@ pub fn pool_rows(
     res: f64,
     units: &[Range<usize>],
     targets: &[&[f64]],
-) -> (Vec<f64>, Vec<f64>, Vec<Vec<f64>>, Vec<Range<usize>>) {
+) -> Pooled {
     let span = c.iter().fold(0.0f64, |m, v| m.max(v - c_min));
     // At most 1<<16 bins: beyond that pooling saves nothing.
     let res = res.max(span / 65_536.0).max(1e-300);
@@ -216,8 +222,8 @@ fn unit_stats(
     frame: &Frame,
     rows: &ScanRows,
     theta: f64,
-    buf: &mut Vec<Vec<f64>>,
-) -> Result<(Vec<Vec<f64>>, Vec<Vec<Vec<f64>>>)> {
+    buf: &mut [Vec<f64>],
+) -> Result<UnitStats> {
     form.features(frame, &rows.x, theta, buf)?;
     let g: Vec<Vec<f64>> = rows
         .units
@@ -238,13 +244,7 @@ fn unit_stats(
 }
 
 /// Training SSE at the least-squares optimum: y'y − β'h.
-fn train_sse(
-    g_u: &[Vec<f64>],
-    h_u: &[Vec<f64>],
-    yy_u: &[f64],
-    train: &[bool],
-    p: usize,
-) -> f64 {
+fn train_sse(g_u: &[Vec<f64>], h_u: &[Vec<f64>], yy_u: &[f64], train: &[bool], p: usize) -> f64 {
     let mut g = vec![0.0; p * p];
     let mut h = vec![0.0; p];
     let mut yy = 0.0;
@@ -279,11 +279,11 @@ pub fn choose_theta(
     let mut best = vec![(f64::INFINITY, 0usize); nf];
     for (gi, &theta) in tr.grid.iter().enumerate() {
         let (g_u, h_u) = unit_stats(form, frame, rows, theta, &mut buf)?;
-        for f in 0..nf {
+        for (f, b) in best.iter_mut().enumerate() {
             let t = folds.target_of_fold[f];
             let s = train_sse(&g_u, &h_u[t], &yy_u[t], &folds.train[f], p);
-            if s < best[f].0 {
-                best[f] = (s, gi);
+            if s < b.0 {
+                *b = (s, gi);
             }
         }
     }
@@ -302,8 +302,7 @@ pub fn choose_theta(
         }
     };
     let mut out = Vec::with_capacity(nf);
-    for f in 0..nf {
-        let gi = best[f].1;
+    for (f, &(best_sse, gi)) in best.iter().enumerate() {
         let lo_t = tr.grid[gi.saturating_sub(1)];
         let hi_t = tr.grid[(gi + 1).min(tr.grid.len() - 1)];
         let (mut a, mut b) = (to(lo_t), to(hi_t));
@@ -315,7 +314,7 @@ pub fn choose_theta(
             let (g_u, h_u) = unit_stats(form, frame, rows, from(z), &mut buf)?;
             Ok(train_sse(&g_u, &h_u[t], &yy_u[t], &folds.train[f], p))
         };
-        let (mut bz, mut bs) = (to(tr.grid[gi]), best[f].0);
+        let (mut bz, mut bs) = (to(tr.grid[gi]), best_sse);
         if b > a {
             let r = 0.5 * (5f64.sqrt() - 1.0);
             let (mut x1, mut x2) = (b - r * (b - a), a + r * (b - a));
@@ -392,7 +391,12 @@ pub struct FormFit {
 
 /// Fits a form with an offset on all rows of `x` (the `Effect::fit` path
 /// and the augmented model): θ scan + refine, then exact least squares.
-pub fn fit_form(form: &dyn LinearForm, frame: &Frame, x: &EffectData, y: &[f64]) -> Result<FormFit> {
+pub fn fit_form(
+    form: &dyn LinearForm,
+    frame: &Frame,
+    x: &EffectData,
+    y: &[f64],
+) -> Result<FormFit> {
     let n = x.len();
     if y.len() != n {
         bail!("fit: {} gap values for {} rows", y.len(), n);
@@ -401,7 +405,7 @@ pub fn fit_form(form: &dyn LinearForm, frame: &Frame, x: &EffectData, y: &[f64])
     if n < p {
         bail!("fit: {n} observations for {p} parameters");
     }
-    let units = vec![0..n];
+    let units: Vec<Range<usize>> = std::iter::once(0..n).collect();
     let theta = match form.theta(frame) {
         None => f64::NAN,
         Some(tr) => {

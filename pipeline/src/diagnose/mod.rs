@@ -24,8 +24,8 @@ use anyhow::bail;
 use arrow::array::{ArrayRef, Float64Array, RecordBatch};
 use arrow::datatypes::{DataType, Field, Schema};
 use rand::seq::SliceRandom;
-use rayon::prelude::*;
 use rand::SeedableRng;
+use rayon::prelude::*;
 use serde::Serialize;
 
 pub use effect::{
@@ -53,6 +53,10 @@ pub struct DiagnoseConfig {
     pub noise_margin: f64,
     /// At most this many effects are selected per observable.
     pub max_effects: usize,
+    /// Smallest held-out gain that counts (mean ln of RMS before/after over
+    /// held-out units): selection needs it, and a more complex candidate
+    /// must beat a simpler one by it (parsimony).
+    pub min_gain: f64,
 }
 
 impl Default for DiagnoseConfig {
@@ -64,6 +68,7 @@ impl Default for DiagnoseConfig {
             alpha: 0.01,
             noise_margin: 1.1,
             max_effects: 4,
+            min_gain: 0.01,
         }
     }
 }
@@ -77,7 +82,13 @@ impl DiagnoseConfig {
             bail!("diagnose.alpha must be in (0, 1) (got {})", self.alpha);
         }
         if !(self.noise_margin >= 1.0 && self.noise_margin.is_finite()) {
-            bail!("diagnose.noise_margin must be ≥ 1 (got {})", self.noise_margin);
+            bail!(
+                "diagnose.noise_margin must be ≥ 1 (got {})",
+                self.noise_margin
+            );
+        }
+        if !(self.min_gain >= 0.0 && self.min_gain.is_finite()) {
+            bail!("diagnose.min_gain must be ≥ 0 (got {})", self.min_gain);
         }
         if self.max_effects == 0 {
             bail!("diagnose.max_effects must be at least 1");
@@ -231,7 +242,10 @@ pub fn diagnose(
         }
     };
     for d in &table.dropped {
-        note(format!("covariate {d} has non-finite values: skipped"), &mut notes);
+        note(
+            format!("covariate {d} has non-finite values: skipped"),
+            &mut notes,
+        );
     }
     if let Some(wanted) = &cfg.effects {
         for w in wanted {
@@ -254,7 +268,9 @@ pub fn diagnose(
     for (oi, oname) in table.obs_names.iter().enumerate() {
         // Rows of the observable sorted by run, then time (else input order).
         let t = table.cov("t_s");
-        let mut rows: Vec<usize> = (0..n_all).filter(|&i| table.obs[i] as usize == oi).collect();
+        let mut rows: Vec<usize> = (0..n_all)
+            .filter(|&i| table.obs[i] as usize == oi)
+            .collect();
         rows.sort_by(|&a, &b| {
             table.run[a]
                 .cmp(&table.run[b])
@@ -344,7 +360,9 @@ pub fn diagnose(
         };
         folds_used = folds_used.max(k);
         let mut order: Vec<usize> = (0..fold_groups.len()).collect();
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(cfg.seed ^ (oi as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(
+            cfg.seed ^ (oi as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15),
+        );
         order.shuffle(&mut rng);
         let mut group_fold = vec![0usize; fold_groups.len()];
         for (pos, &g) in order.iter().enumerate() {
@@ -381,19 +399,35 @@ pub fn diagnose(
         };
         // Candidates: catalogue on the varying covariates + plugin effects.
         let names: Vec<String> = cols.iter().map(|c| c.0.clone()).collect();
-        let wanted = |e: &dyn Effect| cfg.effects.as_ref().is_none_or(|w| w.iter().any(|n| n == e.name()));
+        let wanted = |e: &dyn Effect| {
+            cfg.effects
+                .as_ref()
+                .is_none_or(|w| w.iter().any(|n| n == e.name()))
+        };
         let builtin = catalogue(&names);
-        let mut cands: Vec<&dyn Effect> = builtin.iter().map(|b| b.as_ref()).filter(|e| wanted(*e)).collect();
+        let mut cands: Vec<&dyn Effect> = builtin
+            .iter()
+            .map(|b| b.as_ref())
+            .filter(|e| wanted(*e))
+            .collect();
         for e in extra_effects {
             if !wanted(e.as_ref()) {
                 continue;
             }
-            let missing: Vec<String> = e.covariates().into_iter().filter(|c| !names.contains(c)).collect();
+            let missing: Vec<String> = e
+                .covariates()
+                .into_iter()
+                .filter(|c| !names.contains(c))
+                .collect();
             if missing.is_empty() {
                 cands.push(e.as_ref());
             } else {
                 note(
-                    format!("{} not applicable: covariate {} absent or constant", e.key(), missing.join(",")),
+                    format!(
+                        "{} not applicable: covariate {} absent or constant",
+                        e.key(),
+                        missing.join(",")
+                    ),
                     &mut notes,
                 );
             }
@@ -409,6 +443,7 @@ pub fn diagnose(
             noise_margin: cfg.noise_margin,
             sigma_mm: nf.sigma_mm,
             max_effects: cfg.max_effects,
+            min_gain: cfg.min_gain,
             allow_selection: above,
         };
         let sel = select::select(&prob, &cands, &opt)?;
@@ -417,7 +452,10 @@ pub fn diagnose(
         recs.sort_by(|a, b| {
             let rank = |r: &select::Record| {
                 if r.selected {
-                    (0usize, sel.chosen.iter().position(|&c| c == r.idx).unwrap_or(0) as f64)
+                    (
+                        0usize,
+                        sel.chosen.iter().position(|&c| c == r.idx).unwrap_or(0) as f64,
+                    )
                 } else if r.skipped.is_some() {
                     (2, 0.0)
                 } else {
@@ -438,7 +476,12 @@ pub fn diagnose(
                 name: e.name().to_string(),
                 covariate: (!covs.is_empty()).then(|| covs.join(",")),
                 observable: oname.clone(),
-                params: r.params.iter().filter(|(_, v)| v.is_finite()).map(|(k, v)| (k.clone(), *v)).collect(),
+                params: r
+                    .params
+                    .iter()
+                    .filter(|(_, v)| v.is_finite())
+                    .map(|(k, v)| (k.clone(), *v))
+                    .collect(),
                 offset_mm: fin(r.offset_mm),
                 n_params: e.n_params(),
                 cv_rms_before_mm: fin(before),
@@ -460,7 +503,9 @@ pub fn diagnose(
                 selected_keys.push(key.clone());
             }
             obs_selected.push(key.clone());
-            let col = contrib_cols.entry(key.clone()).or_insert_with(|| vec![0.0; n_all]);
+            let col = contrib_cols
+                .entry(key.clone())
+                .or_insert_with(|| vec![0.0; n_all]);
             for (pos, &i) in rows.iter().enumerate() {
                 col[i] = sel.contrib[j][pos];
             }
@@ -512,7 +557,10 @@ pub fn diagnose(
         }
     }
     if blocked {
-        note("single run: blocked folds within the run".into(), &mut notes);
+        note(
+            "single run: blocked folds within the run".into(),
+            &mut notes,
+        );
     }
     if summaries.iter().all(|s| !s.gap_above_noise) {
         note("no gap above noise".into(), &mut notes);
@@ -520,18 +568,38 @@ pub fn diagnose(
     // Gap summary over all observables.
     let sum_g2: f64 = table.gap.iter().map(|g| g * g).sum();
     let sum_r2: f64 = residual_all.iter().map(|r| r * r).sum();
-    let noise_floor = (summaries.iter().map(|s| s.n as f64 * s.noise_floor_mm.powi(2)).sum::<f64>() / n_all as f64).sqrt();
-    let sources: BTreeSet<&str> = summaries.iter().map(|s| s.noise_floor_source.as_str()).collect();
+    let noise_floor = (summaries
+        .iter()
+        .map(|s| s.n as f64 * s.noise_floor_mm.powi(2))
+        .sum::<f64>()
+        / n_all as f64)
+        .sqrt();
+    let sources: BTreeSet<&str> = summaries
+        .iter()
+        .map(|s| s.noise_floor_source.as_str())
+        .collect();
     let noise_src = if sources.len() == 1 {
-        sources.into_iter().next().unwrap_or("point_to_point").to_string()
+        sources
+            .into_iter()
+            .next()
+            .unwrap_or("point_to_point")
+            .to_string()
     } else {
         "mixed".into()
     };
     let m_cells = all_cells.len().max(1) as f64;
     let mk = |o: &str, c: &cells::Cell, ss: f64, total: f64, p: f64| WhereCell {
         covariate: c.covariate.clone(),
-        lo: if c.lo.len() == 1 { serde_json::json!(c.lo[0]) } else { serde_json::json!(c.lo) },
-        hi: if c.hi.len() == 1 { serde_json::json!(c.hi[0]) } else { serde_json::json!(c.hi) },
+        lo: if c.lo.len() == 1 {
+            serde_json::json!(c.lo[0])
+        } else {
+            serde_json::json!(c.lo)
+        },
+        hi: if c.hi.len() == 1 {
+            serde_json::json!(c.hi[0])
+        } else {
+            serde_json::json!(c.hi)
+        },
         observable: o.to_string(),
         share: if total > 0.0 { ss / total } else { 0.0 },
         rms_mm: (ss / c.n.max(1) as f64).sqrt(),
@@ -585,7 +653,11 @@ pub fn diagnose(
         noise_floor_source: noise_src,
         cv: CvInfo {
             folds: folds_used,
-            by: if blocked { "blocked_within_run".into() } else { "run".into() },
+            by: if blocked {
+                "blocked_within_run".into()
+            } else {
+                "run".into()
+            },
             test: PAIRED_TEST.into(),
             seed: cfg.seed,
         },

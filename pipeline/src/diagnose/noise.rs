@@ -121,7 +121,8 @@ mod tests {
         }
         let r = replicate_floor(&gap, &key, &trial).unwrap();
         assert!((r.sigma_mm - 0.01).abs() < 0.0008, "{}", r.sigma_mm);
-        let p = point_to_point_floor(&gap, &[0..gap.len()]);
+        let whole: Vec<Range<usize>> = std::iter::once(0..gap.len()).collect();
+        let p = point_to_point_floor(&gap, &whole);
         assert!((p.sigma_mm - 0.01).abs() < 0.001, "{}", p.sigma_mm);
     }
 }

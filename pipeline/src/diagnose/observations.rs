@@ -59,7 +59,10 @@ pub fn validate_observations(batch: &RecordBatch, path: &Path) -> Result<RecordB
         }
         let a = batch.column_by_name(name).expect("checked");
         if let Some(i) = (0..a.len()).find(|&i| a.is_null(i)) {
-            return Err(InputError::new(path, "null value").column(name).row(i).into());
+            return Err(InputError::new(path, "null value")
+                .column(name)
+                .row(i)
+                .into());
         }
     }
     let mut fields: Vec<Arc<Field>> = schema.fields().iter().cloned().collect();
@@ -72,15 +75,20 @@ pub fn validate_observations(batch: &RecordBatch, path: &Path) -> Result<RecordB
             DataType::Float64 => cols[idx].clone(),
             DataType::Float32 => cast(&cols[idx], &DataType::Float64)?,
             t => {
-                return Err(InputError::new(path, format!("expected float64, found {t}"))
-                    .column(name)
-                    .into())
+                return Err(
+                    InputError::new(path, format!("expected float64, found {t}"))
+                        .column(name)
+                        .into(),
+                )
             }
         };
         let v = a.as_primitive::<arrow::datatypes::Float64Type>();
         for i in 0..v.len() {
             if v.is_null(i) {
-                return Err(InputError::new(path, "null value").column(name).row(i).into());
+                return Err(InputError::new(path, "null value")
+                    .column(name)
+                    .row(i)
+                    .into());
             }
             let x = v.value(i);
             if !x.is_finite() {
@@ -102,8 +110,7 @@ pub fn validate_observations(batch: &RecordBatch, path: &Path) -> Result<RecordB
 
 /// Is this column a covariate? Any numeric column except the reserved ones.
 pub fn is_covariate(name: &str, t: &DataType) -> bool {
-    !RESERVED.contains(&name)
-        && (t.is_integer() || t.is_floating())
+    !RESERVED.contains(&name) && (t.is_integer() || t.is_floating())
 }
 
 /// The observations as the engine uses them: ids instead of strings,
@@ -186,9 +193,12 @@ impl Table {
         dropped.sort();
         let int = |name: &str| -> Result<Option<Vec<i64>>> {
             match b.column_by_name(name) {
-                Some(a) if a.data_type().is_integer() || a.data_type().is_floating() => {
-                    Ok(Some(f64s(a)?.iter().map(|v| if v.is_finite() { *v as i64 } else { i64::MIN }).collect()))
-                }
+                Some(a) if a.data_type().is_integer() || a.data_type().is_floating() => Ok(Some(
+                    f64s(a)?
+                        .iter()
+                        .map(|v| if v.is_finite() { *v as i64 } else { i64::MIN })
+                        .collect(),
+                )),
                 _ => Ok(None),
             }
         };

@@ -135,7 +135,11 @@ pub fn section(d: &Diagnosis) -> String {
     s.push_str(&ranking_svg(d));
     s.push_str("<table><tr><th>effect</th><th>observable</th><th>before mm</th><th>after mm</th><th>shrink</th><th>p</th><th>selected</th><th>params</th></tr>");
     for e in &d.effects {
-        let params: Vec<String> = e.params.iter().map(|(k, v)| format!("{k}={v:.4e}")).collect();
+        let params: Vec<String> = e
+            .params
+            .iter()
+            .map(|(k, v)| format!("{k}={v:.4e}"))
+            .collect();
         let name = match &e.covariate {
             Some(c) => format!("{}:{}", e.name, c),
             None => e.name.clone(),

@@ -19,7 +19,8 @@
 //! noise floor (≤ `noise_margin`·σ), or `max_effects` are chosen. Parsimony:
 //! a candidate with fewer parameters that is itself significant and not
 //! significantly worse than the best (same paired test) is preferred, so
-//! `offset` wins when no shape does better (DESIGN.md).
+//! `offset` wins when no shape does better (DESIGN.md). "Better" also needs
+//! a practical margin: a mean log RMS ratio of at least `min_gain` (1 %).
 
 use std::collections::BTreeMap;
 use std::ops::Range;
@@ -32,6 +33,9 @@ use statrs::distribution::{ContinuousCDF, StudentsT};
 use super::effect::{CovStats, Effect, EffectData, FittedEffect, Frame};
 use super::fit::{self, add_into, choose_theta, dot, scan_rows, FoldSpec};
 use crate::Result;
+
+/// Level of the parsimony comparison (see `select`).
+pub const PARSIMONY_ALPHA: f64 = 0.05;
 
 /// The rows of one observable, sorted by run (then time), with its folds.
 pub struct Problem<'a> {
@@ -105,7 +109,12 @@ impl Targets {
         }
         let yy_u = distinct
             .iter()
-            .map(|t| units.iter().map(|u| dot(&t[u.clone()], &t[u.clone()])).collect())
+            .map(|t| {
+                units
+                    .iter()
+                    .map(|u| dot(&t[u.clone()], &t[u.clone()]))
+                    .collect()
+            })
             .collect();
         Targets {
             per_fold,
@@ -119,7 +128,10 @@ impl Targets {
 /// A candidate's cross-validated fit.
 pub enum CandFit {
     /// θ and [offset, coefs…] per fold (k + 1 entries).
-    Fast { theta: Vec<f64>, beta: Vec<Vec<f64>> },
+    Fast {
+        theta: Vec<f64>,
+        beta: Vec<Vec<f64>>,
+    },
     /// A plugin effect without a linear form: one fitted effect per fold.
     Slow { fitted: Vec<Box<dyn FittedEffect>> },
 }
@@ -185,7 +197,7 @@ pub fn evaluate(e: &dyn Effect, prob: &Problem, tg: &Targets) -> Result<CandEval
             let h_u = h_cache.entry(t).or_insert_with(|| {
                 prob.units
                     .iter()
-                    .map(|u| fit::design_xy(&buf, &tslices[t], u.clone()))
+                    .map(|u| fit::design_xy(&buf, tslices[t], u.clone()))
                     .collect()
             });
             let mut g = vec![0.0; p * p];
@@ -258,9 +270,7 @@ fn evaluate_slow(
         for (u, t) in m.iter().enumerate() {
             if !*t {
                 let r = prob.units[u].clone();
-                unit_sse[u] = r
-                    .map(|i| (tg.per_fold[f][i] - off - pred[i]).powi(2))
-                    .sum();
+                unit_sse[u] = r.map(|i| (tg.per_fold[f][i] - off - pred[i]).powi(2)).sum();
             }
         }
         fitted.push(fe);
@@ -389,6 +399,9 @@ pub struct SelectOptions {
     pub noise_margin: f64,
     pub sigma_mm: f64,
     pub max_effects: usize,
+    /// Smallest mean log RMS ratio that counts as a gain (selection and
+    /// parsimony).
+    pub min_gain: f64,
     /// False: score every candidate but select nothing ("no gap above noise").
     pub allow_selection: bool,
 }
@@ -450,7 +463,9 @@ pub fn select(prob: &Problem, cands: &[&dyn Effect], opt: &SelectOptions) -> Res
             break;
         }
         let live: Vec<usize> = (0..cands.len())
-            .filter(|i| !chosen.contains(i) && records[*i].as_ref().is_none_or(|r| r.skipped.is_none()))
+            .filter(|i| {
+                !chosen.contains(i) && records[*i].as_ref().is_none_or(|r| r.skipped.is_none())
+            })
             .collect();
         if live.is_empty() {
             stop_reason = "no candidate left".to_string();
@@ -509,8 +524,10 @@ pub fn select(prob: &Problem, cands: &[&dyn Effect], opt: &SelectOptions) -> Res
             break;
         }
         // Best by mean log ratio; ties by fewer parameters, then name order.
+        // Statistically *and* practically significant: a consistent 0.01 %
+        // gain over many points passes a t-test but explains nothing.
         let significant = |s: &(usize, CandEval, f64, f64)| {
-            s.3 < opt.alpha && s.1.unit_sse.iter().sum::<f64>() < sse_before
+            s.3 < opt.alpha && s.2 >= opt.min_gain && s.1.unit_sse.iter().sum::<f64>() < sse_before
         };
         let mut best: Option<usize> = None;
         for (j, s) in scored.iter().enumerate() {
@@ -531,7 +548,10 @@ pub fn select(prob: &Problem, cands: &[&dyn Effect], opt: &SelectOptions) -> Res
             };
         }
         let Some(mut b) = best else {
-            stop_reason = format!("no candidate lowers the held-out gap significantly (p < {})", opt.alpha);
+            stop_reason = format!(
+                "no candidate lowers the held-out gap significantly (p < {})",
+                opt.alpha
+            );
             break;
         };
         // Parsimony: a simpler significant candidate not significantly worse.
@@ -541,11 +561,26 @@ pub fn select(prob: &Problem, cands: &[&dyn Effect], opt: &SelectOptions) -> Res
             if j == b || !significant(s) || cands[s.0].n_params() >= np_best {
                 continue;
             }
-            let (_, p_worse) = paired_log_test(&s.1.unit_sse, &scored[b].1.unit_sse);
-            if p_worse.is_nan() || p_worse >= opt.alpha {
+            let (gain, p_worse) = paired_log_test(&s.1.unit_sse, &scored[b].1.unit_sse);
+            // "Not significantly worse" at α_p = max(α, 0.05): this test
+            // asks which of two explanations holds, with only as many pairs
+            // as held-out runs, so it is run at a less strict level than the
+            // "is there an effect" test.
+            let alpha_p = opt.alpha.max(PARSIMONY_ALPHA);
+            if p_worse.is_nan() || p_worse >= alpha_p || gain < opt.min_gain {
+                // The simplest such candidate; among equally simple ones the
+                // best scored.
+                let np = cands[s.0].n_params();
                 alt = match alt {
-                    Some(a) if scored[a].2 >= s.2 => Some(a),
-                    _ => Some(j),
+                    Some(a) => {
+                        let np_a = cands[scored[a].0].n_params();
+                        if np < np_a || (np == np_a && s.2 > scored[a].2) {
+                            Some(j)
+                        } else {
+                            Some(a)
+                        }
+                    }
+                    None => Some(j),
                 };
             }
         }
@@ -558,7 +593,11 @@ pub fn select(prob: &Problem, cands: &[&dyn Effect], opt: &SelectOptions) -> Res
         let mut c = vec![0.0; n];
         for f in 0..=k {
             let pred = predict_fold(cands[ci], prob, &ev, f)?;
-            let t: Vec<f64> = tg.per_fold[f].iter().zip(&pred).map(|(y, p)| y - p).collect();
+            let t: Vec<f64> = tg.per_fold[f]
+                .iter()
+                .zip(&pred)
+                .map(|(y, p)| y - p)
+                .collect();
             if f < k {
                 for (u, uf) in prob.unit_fold.iter().enumerate() {
                     if *uf == f {

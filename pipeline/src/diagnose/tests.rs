@@ -41,29 +41,83 @@ fn check(kind: Kind, covs: &[&str], cols: &[Vec<f64>], truth: &[(&str, f64)], to
         .sum::<f64>()
         / y.len() as f64)
         .sqrt();
-    assert!(rms < 1e-4 * y0.iter().fold(1e-12f64, |m, v| m.max(v.abs())), "{}: rms {rms}", kind.name());
+    assert!(
+        rms < 1e-4 * y0.iter().fold(1e-12f64, |m, v| m.max(v.abs())),
+        "{}: rms {rms}",
+        kind.name()
+    );
 }
 
 #[test]
 fn linear_effects_recover_their_gain() {
     let x = grid(400, -50.0, 150.0);
-    check(Kind::Scale, &["x_mm"], &[x.clone()], &[("k", 2e-4)], &[("k", 1e-6)]);
-    check(Kind::Lag, &["feed_mm_s"], &[grid(300, 10.0, 90.0)], &[("k", 1e-4)], &[("k", 1e-6)]);
-    check(Kind::Inertia, &["a_mm_s2"], &[grid(300, -500.0, 500.0)], &[("k", 3e-6)], &[("k", 1e-6)]);
-    check(Kind::Wear, &["removed_mm3"], &[grid(300, 0.0, 9e4)], &[("k", 1e-7)], &[("k", 1e-6)]);
-    check(Kind::Compliance, &["force_n"], &[grid(300, 20.0, 200.0)], &[("k", 5e-5)], &[("k", 1e-6)]);
-    check(Kind::Thermal, &["temp_c"], &[grid(300, 19.0, 24.0)], &[("k", 2e-3), ("t0_c", 20.0)], &[("k", 1e-6)]);
-    let dir: Vec<f64> = (0..300).map(|i| if i % 3 == 0 { 1.0 } else { -1.0 }).collect();
-    check(Kind::Backlash, &["dir"], &[dir], &[("b_mm", 0.004)], &[("b_mm", 1e-6)]);
+    check(
+        Kind::Scale,
+        &["x_mm"],
+        std::slice::from_ref(&x),
+        &[("k", 2e-4)],
+        &[("k", 1e-6)],
+    );
+    check(
+        Kind::Lag,
+        &["feed_mm_s"],
+        &[grid(300, 10.0, 90.0)],
+        &[("k", 1e-4)],
+        &[("k", 1e-6)],
+    );
+    check(
+        Kind::Inertia,
+        &["a_mm_s2"],
+        &[grid(300, -500.0, 500.0)],
+        &[("k", 3e-6)],
+        &[("k", 1e-6)],
+    );
+    check(
+        Kind::Wear,
+        &["removed_mm3"],
+        &[grid(300, 0.0, 9e4)],
+        &[("k", 1e-7)],
+        &[("k", 1e-6)],
+    );
+    check(
+        Kind::Compliance,
+        &["force_n"],
+        &[grid(300, 20.0, 200.0)],
+        &[("k", 5e-5)],
+        &[("k", 1e-6)],
+    );
+    check(
+        Kind::Thermal,
+        &["temp_c"],
+        &[grid(300, 19.0, 24.0)],
+        &[("k", 2e-3), ("t0_c", 20.0)],
+        &[("k", 1e-6)],
+    );
+    let dir: Vec<f64> = (0..300)
+        .map(|i| if i % 3 == 0 { 1.0 } else { -1.0 })
+        .collect();
+    check(
+        Kind::Backlash,
+        &["dir"],
+        &[dir],
+        &[("b_mm", 0.004)],
+        &[("b_mm", 1e-6)],
+    );
     check(
         Kind::Bow,
         &["y_mm"],
-        &[x.clone()],
+        std::slice::from_ref(&x),
         &[("amplitude_mm", 0.01), ("c0", -50.0), ("c1", 150.0)],
         &[("amplitude_mm", 1e-6)],
     );
     let y = grid(400, 0.0, 80.0);
-    check(Kind::Squareness, &["x_mm", "y_mm"], &[x, y], &[("k", 1e-6)], &[("k", 1e-6)]);
+    check(
+        Kind::Squareness,
+        &["x_mm", "y_mm"],
+        &[x, y],
+        &[("k", 1e-6)],
+        &[("k", 1e-6)],
+    );
 }
 
 #[test]
@@ -72,7 +126,7 @@ fn nonlinear_effects_recover_theta() {
     check(
         Kind::Drift,
         &["t_s"],
-        &[t.clone()],
+        std::slice::from_ref(&t),
         &[("amplitude_mm", 0.02), ("tau_s", 600.0)],
         &[("amplitude_mm", 1e-3), ("tau_s", 1e-3)],
     );
@@ -80,16 +134,32 @@ fn nonlinear_effects_recover_theta() {
     check(
         Kind::Periodic,
         &["x_mm"],
-        &[x.clone()],
-        &[("amplitude_mm", 0.005), ("lambda", 23.0), ("phase_rad", 0.7)],
-        &[("amplitude_mm", 1e-3), ("lambda", 1e-4), ("phase_rad", 1e-3)],
+        std::slice::from_ref(&x),
+        &[
+            ("amplitude_mm", 0.005),
+            ("lambda", 23.0),
+            ("phase_rad", 0.7),
+        ],
+        &[
+            ("amplitude_mm", 1e-3),
+            ("lambda", 1e-4),
+            ("phase_rad", 1e-3),
+        ],
     );
     check(
         Kind::Periodic,
         &["t_s"],
         &[t],
-        &[("amplitude_mm", 0.005), ("lambda", 900.0), ("phase_rad", -1.2)],
-        &[("amplitude_mm", 1e-3), ("lambda", 1e-4), ("phase_rad", 1e-3)],
+        &[
+            ("amplitude_mm", 0.005),
+            ("lambda", 900.0),
+            ("phase_rad", -1.2),
+        ],
+        &[
+            ("amplitude_mm", 1e-3),
+            ("lambda", 1e-4),
+            ("phase_rad", 1e-3),
+        ],
     );
     let d = grid(800, 0.0, 100.0);
     check(
@@ -103,15 +173,39 @@ fn nonlinear_effects_recover_theta() {
 
 #[test]
 fn catalogue_follows_contract_kinds() {
-    let covs: Vec<String> = ["x_mm", "y_mm", "t_s", "feed_mm_s", "a_mm_s2", "dir", "removed_mm3", "pass", "force_n", "path_end_mm", "temp_c"]
-        .iter()
-        .map(|s| s.to_string())
-        .collect();
+    let covs: Vec<String> = [
+        "x_mm",
+        "y_mm",
+        "t_s",
+        "feed_mm_s",
+        "a_mm_s2",
+        "dir",
+        "removed_mm3",
+        "pass",
+        "force_n",
+        "path_end_mm",
+        "temp_c",
+    ]
+    .iter()
+    .map(|s| s.to_string())
+    .collect();
     let keys: Vec<String> = super::catalogue(&covs).iter().map(|e| e.key()).collect();
     for k in [
-        "offset", "scale:x_mm", "bow:y_mm", "periodic:x_mm", "periodic:t_s", "drift:t_s", "lag:feed_mm_s",
-        "inertia:a_mm_s2", "backlash:dir", "wear:removed_mm3", "wear:pass", "compliance:force_n",
-        "edge:path_end_mm", "thermal:temp_c", "squareness:x_mm,y_mm",
+        "offset",
+        "scale:x_mm",
+        "bow:y_mm",
+        "periodic:x_mm",
+        "periodic:t_s",
+        "drift:t_s",
+        "lag:feed_mm_s",
+        "inertia:a_mm_s2",
+        "backlash:dir",
+        "wear:removed_mm3",
+        "wear:pass",
+        "compliance:force_n",
+        "edge:path_end_mm",
+        "thermal:temp_c",
+        "squareness:x_mm,y_mm",
     ] {
         assert!(keys.contains(&k.to_string()), "{k} missing from {keys:?}");
     }
@@ -126,13 +220,21 @@ fn product_composite_fits() {
     let t: Vec<f64> = (0..600).map(|i| i as f64 * 5.0).collect();
     let bow = shape_value(
         Kind::Bow,
-        &[("amplitude_mm".to_string(), 1.0), ("c0".into(), 0.0), ("c1".into(), 100.0)].into_iter().collect(),
+        &[
+            ("amplitude_mm".to_string(), 1.0),
+            ("c0".into(), 0.0),
+            ("c1".into(), 100.0),
+        ]
+        .into_iter()
+        .collect(),
         &y,
         None,
     );
     let drift = shape_value(
         Kind::Drift,
-        &[("amplitude_mm".to_string(), 0.01), ("tau_s".into(), 700.0)].into_iter().collect(),
+        &[("amplitude_mm".to_string(), 0.01), ("tau_s".into(), 700.0)]
+            .into_iter()
+            .collect(),
         &t,
         None,
     );

@@ -76,8 +76,9 @@ pub fn read_run_cache(dir: &Path) -> BTreeMap<String, StageRecord> {
 /// lists is still there with the same content.
 pub fn record_valid(dir: &Path, rec: &StageRecord, key: &str) -> bool {
     rec.key == key
-        && rec
-            .files
-            .iter()
-            .all(|(name, hash)| hash_file(&dir.join(name)).map(|h| &h == hash).unwrap_or(false))
+        && rec.files.iter().all(|(name, hash)| {
+            hash_file(&dir.join(name))
+                .map(|h| &h == hash)
+                .unwrap_or(false)
+        })
 }

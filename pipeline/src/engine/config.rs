@@ -41,9 +41,9 @@ impl PipelineConfig {
     /// Apply `key.path=value` (value read as TOML: numbers, booleans,
     /// arrays; anything else is a string).
     pub fn set(&mut self, assignment: &str) -> Result<()> {
-        let (key, raw) = assignment
-            .split_once('=')
-            .ok_or_else(|| anyhow!("--set `{assignment}`: expected KEY=VALUE, e.g. --set robot.ingest.k_sigma=8"))?;
+        let (key, raw) = assignment.split_once('=').ok_or_else(|| {
+            anyhow!("--set `{assignment}`: expected KEY=VALUE, e.g. --set robot.ingest.k_sigma=8")
+        })?;
         let key = key.trim();
         if key.is_empty() || key.split('.').any(|p| p.is_empty()) {
             bail!("--set `{assignment}`: the key must be a dotted path like robot.ingest.k_sigma");
@@ -97,7 +97,9 @@ impl PipelineConfig {
 fn parse_value(raw: &str) -> toml::Value {
     let doc = format!("v = {raw}");
     match doc.parse::<toml::Table>() {
-        Ok(mut t) => t.remove("v").unwrap_or(toml::Value::String(raw.to_string())),
+        Ok(mut t) => t
+            .remove("v")
+            .unwrap_or(toml::Value::String(raw.to_string())),
         Err(_) => toml::Value::String(raw.to_string()),
     }
 }

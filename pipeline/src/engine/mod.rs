@@ -15,8 +15,8 @@ use arrow::record_batch::RecordBatch;
 use serde::Serialize;
 
 use crate::contracts::{
-    discover_runs, table_schema, write_atomic, write_json_atomic,
-    AeStream, MachineResolver, RunSpec, Table,
+    discover_runs, table_schema, write_atomic, write_json_atomic, AeStream, MachineResolver,
+    RunSpec, Table,
 };
 use crate::diagnose::{self, DiagnoseConfig, Effect};
 use crate::error::{InputError, Result};
@@ -56,7 +56,12 @@ pub struct Failure {
 }
 
 impl Failure {
-    fn from_error(run_dir: &Path, spec: Option<&RunSpec>, stage: Option<&str>, e: &anyhow::Error) -> Self {
+    fn from_error(
+        run_dir: &Path,
+        spec: Option<&RunSpec>,
+        stage: Option<&str>,
+        e: &anyhow::Error,
+    ) -> Self {
         let input = e.chain().find_map(|c| c.downcast_ref::<InputError>());
         Failure {
             run_dir: run_dir.display().to_string(),
@@ -208,14 +213,15 @@ impl Engine {
             let section = self.config.section(plugin.name());
             let stages = plugin.stages();
             for (key, value) in &section {
-                let stage = stages.iter().find(|s| s.name() == key).ok_or_else(|| {
-                    anyhow!(
+                let stage =
+                    stages.iter().find(|s| s.name() == key).ok_or_else(|| {
+                        anyhow!(
                         "config {src}: [{}.{key}] is not a stage of plugin `{}` (its stages: {})",
                         plugin.name(),
                         plugin.name(),
                         stages.iter().map(|s| s.name()).collect::<Vec<_>>().join(", ")
                     )
-                })?;
+                    })?;
                 let t = value.as_table().ok_or_else(|| {
                     anyhow!("config {src}: [{}.{key}] must be a table", plugin.name())
                 })?;
@@ -258,16 +264,18 @@ impl Engine {
         let alternatives = plugin.required_tables();
         let satisfied = alternatives.is_empty()
             || alternatives.iter().any(|set| {
-                set.iter().all(|t| {
-                    table_schema(t)
-                        .map(|s| run.has_table(s))
-                        .unwrap_or(false)
-                })
+                set.iter()
+                    .all(|t| table_schema(t).map(|s| run.has_table(s)).unwrap_or(false))
             });
         if !satisfied {
             let alts: Vec<String> = alternatives
                 .iter()
-                .map(|s| s.iter().map(|t| format!("{t}.parquet")).collect::<Vec<_>>().join(" + "))
+                .map(|s| {
+                    s.iter()
+                        .map(|t| format!("{t}.parquet"))
+                        .collect::<Vec<_>>()
+                        .join(" + ")
+                })
                 .collect();
             return Err(InputError::new(
                 run.dir(),
@@ -400,7 +408,9 @@ impl Engine {
                 .cloned()
                 .or_else(|| panic.downcast_ref::<&str>().map(|s| s.to_string()))
                 .unwrap_or_else(|| "unknown panic".into());
-            Err(anyhow!("internal error (a bug in sparkout, please report it): {msg}"))
+            Err(anyhow!(
+                "internal error (a bug in sparkout, please report it): {msg}"
+            ))
         });
         Some(result.map_err(|e| {
             // CONTRACTS.md: nothing of a rejected run is written — drop any
@@ -444,14 +454,18 @@ impl Engine {
                     continue;
                 }
                 if !table_hashes.contains_key(*t) {
-                    let h = hash_file(&run.table_path(schema))
-                        .with_context(|| format!("cannot hash {}", run.table_path(schema).display()))?;
+                    let h = hash_file(&run.table_path(schema)).with_context(|| {
+                        format!("cannot hash {}", run.table_path(schema).display())
+                    })?;
                     table_hashes.insert(t.to_string(), h);
                 }
                 key.part(t, &table_hashes[*t]);
             }
             for a in stage.reads_artifacts() {
-                key.part(a, producer_key.get(*a).map(|s| s.as_str()).unwrap_or("absent"));
+                key.part(
+                    a,
+                    producer_key.get(*a).map(|s| s.as_str()).unwrap_or("absent"),
+                );
             }
             let key = key.finish();
             for w in stage.writes() {
@@ -640,11 +654,11 @@ impl Engine {
                 diagnosis_json = std::fs::read(fleet_dir.join("diagnosis.json"))
                     .ok()
                     .and_then(|b| serde_json::from_slice(&b).ok());
-                diagnosis_html = std::fs::read_to_string(fleet_dir.join("diagnosis_section.html")).ok();
+                diagnosis_html =
+                    std::fs::read_to_string(fleet_dir.join("diagnosis_section.html")).ok();
             } else {
                 progress.message("diagnosing the sim-to-real gap");
-                let d = diagnose::diagnose(&joined, &dcfg, &effects)
-                    .context("fleet diagnosis")?;
+                let d = diagnose::diagnose(&joined, &dcfg, &effects).context("fleet diagnosis")?;
                 let mut files = BTreeMap::new();
                 let dj = json_bytes(&d.diagnosis)?;
                 let dp = parquet_bytes(&d.per_row)?;
@@ -740,7 +754,11 @@ impl Engine {
 
     /// `sparkout stage <name> --run <dir>`: that stage of that run, with its
     /// upstream stages computed in memory.
-    pub fn run_single_stage(&self, run_dir: &Path, stage_name: &str) -> Result<(Arc<dyn Stage>, StageOutput)> {
+    pub fn run_single_stage(
+        &self,
+        run_dir: &Path,
+        stage_name: &str,
+    ) -> Result<(Arc<dyn Stage>, StageOutput)> {
         let (run, plugin) = self.open_run(run_dir)?;
         let ordered = dag::topological_order(&plugin.stages())?;
         let target = ordered
@@ -751,7 +769,11 @@ impl Engine {
                 anyhow!(
                     "plugin `{}` has no stage `{stage_name}` (its stages: {})",
                     plugin.name(),
-                    ordered.iter().map(|s| s.name()).collect::<Vec<_>>().join(", ")
+                    ordered
+                        .iter()
+                        .map(|s| s.name())
+                        .collect::<Vec<_>>()
+                        .join(", ")
                 )
             })?;
         let chain = dag::with_upstream(&ordered, &[stage_name.to_string()].into());
@@ -899,13 +921,15 @@ pub fn diagnose_config_from(section: &toml::Table) -> Result<DiagnoseConfig> {
                 c.folds = v
                     .as_integer()
                     .filter(|&f| f >= 2)
-                    .ok_or_else(|| anyhow!("folds must be an integer ≥ 2"))? as usize
+                    .ok_or_else(|| anyhow!("folds must be an integer ≥ 2"))?
+                    as usize
             }
             "seed" => {
                 c.seed = v
                     .as_integer()
                     .filter(|&s| s >= 0)
-                    .ok_or_else(|| anyhow!("seed must be a non-negative integer"))? as u64
+                    .ok_or_else(|| anyhow!("seed must be a non-negative integer"))?
+                    as u64
             }
             "alpha" => {
                 c.alpha = v

@@ -91,7 +91,12 @@ pub fn run_page(
             .unwrap_or_default()
     );
     for s in sections {
-        let _ = write!(body, "<section><h2>{}</h2>\n{}\n</section>\n", esc(&s.title), s.html);
+        let _ = write!(
+            body,
+            "<section><h2>{}</h2>\n{}\n</section>\n",
+            esc(&s.title),
+            s.html
+        );
     }
     body.push_str("<section><h2>Stage summaries (JSON)</h2>");
     for (stage, v) in summaries {
@@ -104,7 +109,12 @@ pub fn run_page(
     }
     body.push_str("</section>");
     page(
-        &format!("{} — {}/{}", title_of(cfg, "sparkout report"), run.spec.machine, run.spec.id),
+        &format!(
+            "{} — {}/{}",
+            title_of(cfg, "sparkout report"),
+            run.spec.machine,
+            run.spec.id
+        ),
         &body,
     )
 }
@@ -135,7 +145,10 @@ pub fn fleet_page(
                     .join(", ")
             })
             .unwrap_or_default();
-        let rms = d.pointer("/gap/rms_mm").and_then(|v| v.as_f64()).unwrap_or(f64::NAN);
+        let rms = d
+            .pointer("/gap/rms_mm")
+            .and_then(|v| v.as_f64())
+            .unwrap_or(f64::NAN);
         let after = d
             .pointer("/unexplained/rms_mm")
             .and_then(|v| v.as_f64())
@@ -165,13 +178,22 @@ pub fn fleet_page(
             ]
         })
         .collect();
-    body.push_str(&table(&["run", "plugin", "stages computed", "stages cached"], &rows));
+    body.push_str(&table(
+        &["run", "plugin", "stages computed", "stages cached"],
+        &rows,
+    ));
     if !outcome.failures.is_empty() {
         body.push_str("<h2 class=\"bad\">Rejected runs</h2>");
         let rows: Vec<Vec<String>> = outcome
             .failures
             .iter()
-            .map(|f| vec![f.run_dir.clone(), f.stage.clone().unwrap_or_default(), f.error.clone()])
+            .map(|f| {
+                vec![
+                    f.run_dir.clone(),
+                    f.stage.clone().unwrap_or_default(),
+                    f.error.clone(),
+                ]
+            })
             .collect();
         body.push_str(&table(&["run", "stage", "error"], &rows));
     }
@@ -186,7 +208,11 @@ pub fn fleet_page(
                 ));
             }
             Err(e) => {
-                let _ = write!(body, "<p class=\"bad\">gap table unavailable: {}</p>", esc(&e.to_string()));
+                let _ = write!(
+                    body,
+                    "<p class=\"bad\">gap table unavailable: {}</p>",
+                    esc(&e.to_string())
+                );
             }
         }
     }

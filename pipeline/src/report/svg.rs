@@ -74,9 +74,9 @@ pub fn xy_chart(title: &str, x_label: &str, y_label: &str, series: &[Series]) ->
                     .collect();
                 let drawn = match s.mark {
                     Mark::Line => chart.draw_series(LineSeries::new(pts, c.stroke_width(2))),
-                    Mark::Points => chart.draw_series(
-                        pts.into_iter().map(|p| Circle::new(p, 3, c.filled())),
-                    ),
+                    Mark::Points => {
+                        chart.draw_series(pts.into_iter().map(|p| Circle::new(p, 3, c.filled())))
+                    }
                 };
                 if let Ok(d) = drawn {
                     d.label(s.name.to_string()).legend(move |(x, y)| {
@@ -128,7 +128,10 @@ pub fn bar_chart(title: &str, value_label: &str, bars: &[(String, f64)]) -> Stri
                 .draw();
             let _ = chart.draw_series(bars.iter().enumerate().map(|(i, b)| {
                 let y = n - 1 - i;
-                Rectangle::new([(0.0, y), (b.1.max(0.0), y + 1)], COLORS[0].mix(0.8).filled())
+                Rectangle::new(
+                    [(0.0, y), (b.1.max(0.0), y + 1)],
+                    COLORS[0].mix(0.8).filled(),
+                )
             }));
         }
         let _ = root.present();

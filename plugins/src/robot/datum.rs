@@ -15,10 +15,10 @@ use statrs::distribution::{ChiSquared, ContinuousCDF};
 
 use super::config::{check_config, Check};
 use super::planes::{
-    fit_ols, fit_tls, intersect, max_abs, rms, robust_keep, squareness, Datum, Face, FitError, OlsFit, Plane,
-    TlsFit,
+    fit_ols, fit_tls, intersect, max_abs, rms, robust_keep, squareness, Datum, Face, FitError,
+    OlsFit, Plane, TlsFit,
 };
-use super::repeatability::pooled_std_by_face;
+use super::repeatability::{latency, pooled_std_by_face};
 use super::touches::{self, Touch};
 
 /// Datum settings (`[robot.datum]`).
@@ -33,6 +33,9 @@ pub struct DatumConfig {
     pub max_condition: f64,
     pub collinear_ratio: f64,
     pub confidence: f64,
+    /// Remove each method's trigger latency (estimated from ≥ 2 approach
+    /// speeds, MODELS.md §1.1) from its touches before fitting: p − v·L·dir.
+    pub correct_latency: bool,
 }
 
 impl Default for DatumConfig {
@@ -45,6 +48,7 @@ impl Default for DatumConfig {
             max_condition: 10.0,
             collinear_ratio: 1e-3,
             confidence: 0.95,
+            correct_latency: true,
         }
     }
 }
@@ -57,6 +61,7 @@ const KEYS: &[(&str, Check)] = &[
     ("max_condition", Check::AtLeastOne),
     ("collinear_ratio", Check::Probability),
     ("confidence", Check::Probability),
+    ("correct_latency", Check::Bool),
 ];
 
 impl DatumConfig {
@@ -70,6 +75,7 @@ impl DatumConfig {
             max_condition: ctx.cfg_f64("max_condition", d.max_condition),
             collinear_ratio: ctx.cfg_f64("collinear_ratio", d.collinear_ratio),
             confidence: ctx.cfg_f64("confidence", d.confidence),
+            correct_latency: ctx.cfg_bool("correct_latency", d.correct_latency),
         }
     }
 }
@@ -97,9 +103,20 @@ impl FaceFit {
 }
 
 /// Fit one face's points (TLS first: its checks name the geometric problem).
-pub fn fit_face(face: Face, pts: &[Vector3<f64>], cfg: &DatumConfig, robust: bool) -> Result<FaceFit, FitError> {
+pub fn fit_face(
+    face: Face,
+    pts: &[Vector3<f64>],
+    cfg: &DatumConfig,
+    robust: bool,
+) -> Result<FaceFit, FitError> {
     let (kept, scale) = if robust {
-        let (k, s) = robust_keep(face, pts, cfg.reject_k, cfg.min_scale_mm, cfg.collinear_ratio)?;
+        let (k, s) = robust_keep(
+            face,
+            pts,
+            cfg.reject_k,
+            cfg.min_scale_mm,
+            cfg.collinear_ratio,
+        )?;
         (k, Some(s))
     } else {
         ((0..pts.len()).collect(), None)
@@ -228,6 +245,35 @@ pub struct DatumAnalysis {
     pub ols: Option<DatumResult>,
     pub squares: Vec<(usize, [FaceFit; 3], Option<DatumResult>)>,
     pub alpha_mm: [Option<f64>; 3],
+    /// Latency removed per method (s), when `correct_latency`.
+    pub latency_s: std::collections::BTreeMap<String, f64>,
+}
+
+/// The touches with each method's estimated trigger latency removed
+/// (MODELS.md §1.1: a touch registered L after contact at speed v overshoots
+/// by v·L along the approach direction). Methods touched at one speed only
+/// are left as they are.
+pub fn latency_corrected(all: &[Touch]) -> (Vec<Touch>, std::collections::BTreeMap<String, f64>) {
+    let mut by: std::collections::BTreeMap<String, Vec<&Touch>> = Default::default();
+    for t in all {
+        by.entry(t.method.clone()).or_default().push(t);
+    }
+    let lat: std::collections::BTreeMap<String, f64> = by
+        .iter()
+        .filter_map(|(m, ts)| latency(ts).map(|l| (m.clone(), l.latency_s)))
+        .filter(|(_, l)| l.is_finite())
+        .collect();
+    let out = all
+        .iter()
+        .map(|t| {
+            let mut c = t.clone();
+            if let Some(l) = lat.get(&t.method) {
+                c.p -= t.dir * (t.approach_mm_s * l);
+            }
+            c
+        })
+        .collect();
+    (out, lat)
 }
 
 /// Where the touches came from (for error messages).
@@ -239,7 +285,13 @@ fn source_file(ctx: &StageContext, t: &[Touch]) -> std::path::PathBuf {
     }
 }
 
-pub fn analyse(all: &[Touch], cfg: &DatumConfig, file: &std::path::Path) -> Result<DatumAnalysis> {
+pub fn analyse(raw: &[Touch], cfg: &DatumConfig, file: &std::path::Path) -> Result<DatumAnalysis> {
+    let (corrected, latency_s) = if cfg.correct_latency {
+        latency_corrected(raw)
+    } else {
+        (raw.to_vec(), Default::default())
+    };
+    let all = &corrected[..];
     let bad = |msg: String| -> anyhow::Error { InputError::new(file, msg).column("face").into() };
     let mut face_touches: [Vec<usize>; 3] = Default::default();
     for (i, t) in all.iter().enumerate() {
@@ -276,7 +328,11 @@ pub fn analyse(all: &[Touch], cfg: &DatumConfig, file: &std::path::Path) -> Resu
         if sfits.len() == 3 {
             let sfits: [FaceFit; 3] = sfits.try_into().map_err(|_| anyhow!("three faces"))?;
             let d = datum_of(
-                [sfits[0].plane(cfg.use_tls), sfits[1].plane(cfg.use_tls), sfits[2].plane(cfg.use_tls)],
+                [
+                    sfits[0].plane(cfg.use_tls),
+                    sfits[1].plane(cfg.use_tls),
+                    sfits[2].plane(cfg.use_tls),
+                ],
                 cfg,
             )
             .ok();
@@ -290,6 +346,7 @@ pub fn analyse(all: &[Touch], cfg: &DatumConfig, file: &std::path::Path) -> Resu
         ols,
         squares,
         alpha_mm: pooled_std_by_face(all),
+        latency_s,
     })
 }
 
@@ -303,9 +360,11 @@ fn transition_angles(all: &[Touch], a: &DatumAnalysis) -> Value {
         let (u, w) = face.in_plane_axes();
         let idx = &a.face_touches[face.index()];
         let extent = |k: usize| {
-            let (lo, hi) = idx.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &i| {
-                (lo.min(all[i].nom[k]), hi.max(all[i].nom[k]))
-            });
+            let (lo, hi) = idx
+                .iter()
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &i| {
+                    (lo.min(all[i].nom[k]), hi.max(all[i].nom[k]))
+                });
             hi - lo
         };
         let l = 0.5 * (extent(u) + extent(w));
@@ -324,7 +383,11 @@ fn transition_angles(all: &[Touch], a: &DatumAnalysis) -> Value {
 }
 
 fn plane_json(f: &FaceFit, use_tls: bool, all: &[Touch], idx: &[usize]) -> Value {
-    let r = if use_tls { &f.tls.residuals } else { &f.ols.residuals };
+    let r = if use_tls {
+        &f.tls.residuals
+    } else {
+        &f.ols.residuals
+    };
     let rejected: Vec<Value> = f
         .rejected
         .iter()
@@ -416,6 +479,7 @@ pub fn summary(all: &[Touch], a: &DatumAnalysis, cfg: &DatumConfig) -> Value {
         "transition_angles_rad": transition_angles(all, a),
         "datum_other_fit": a.ols.as_ref().map(datum_json).unwrap_or(Value::Null),
         "by_square": squares,
+        "latency_corrected_s": a.latency_s,
     })
 }
 
@@ -443,13 +507,23 @@ fn planes_batch(a: &DatumAnalysis, use_tls: bool) -> arrow::record_batch::Record
     let mut rows = Vec::new();
     for f in &a.fits {
         for fit in ["tls", "ols"] {
-            rows.push(Row { face: f.face, fit, scope: "all", f });
+            rows.push(Row {
+                face: f.face,
+                fit,
+                scope: "all",
+                f,
+            });
         }
     }
     for (sq, fits, _) in &a.squares {
         for f in fits {
             for fit in ["tls", "ols"] {
-                rows.push(Row { face: f.face, fit, scope: SQUARES[*sq], f });
+                rows.push(Row {
+                    face: f.face,
+                    fit,
+                    scope: SQUARES[*sq],
+                    f,
+                });
             }
         }
     }
@@ -468,21 +542,47 @@ fn planes_batch(a: &DatumAnalysis, use_tls: bool) -> arrow::record_batch::Record
         }
     }
     let mut b = BatchBuilder::new()
-        .str("face", &rows.iter().map(|r| r.face.label()).collect::<Vec<_>>())
+        .str(
+            "face",
+            &rows.iter().map(|r| r.face.label()).collect::<Vec<_>>(),
+        )
         .str("fit", &rows.iter().map(|r| r.fit).collect::<Vec<_>>())
         .str("scope", &rows.iter().map(|r| r.scope).collect::<Vec<_>>())
-        .i32("primary", rows.iter().map(|r| ((r.fit == "tls") == use_tls) as i32).collect())
+        .i32(
+            "primary",
+            rows.iter()
+                .map(|r| ((r.fit == "tls") == use_tls) as i32)
+                .collect(),
+        )
         .i32("n", rows.iter().map(|r| r.f.kept.len() as i32).collect())
-        .i32("n_rejected", rows.iter().map(|r| r.f.rejected.len() as i32).collect())
-        .f64("b0", rows.iter().map(|r| ols_form(r.face, plane(r))[0]).collect())
-        .f64("b1", rows.iter().map(|r| ols_form(r.face, plane(r))[1]).collect())
-        .f64("b2", rows.iter().map(|r| ols_form(r.face, plane(r))[2]).collect())
+        .i32(
+            "n_rejected",
+            rows.iter().map(|r| r.f.rejected.len() as i32).collect(),
+        )
+        .f64(
+            "b0",
+            rows.iter().map(|r| ols_form(r.face, plane(r))[0]).collect(),
+        )
+        .f64(
+            "b1",
+            rows.iter().map(|r| ols_form(r.face, plane(r))[1]).collect(),
+        )
+        .f64(
+            "b2",
+            rows.iter().map(|r| ols_form(r.face, plane(r))[2]).collect(),
+        )
         .f64("nx", rows.iter().map(|r| plane(r).n[0]).collect())
         .f64("ny", rows.iter().map(|r| plane(r).n[1]).collect())
         .f64("nz", rows.iter().map(|r| plane(r).n[2]).collect())
         .f64("d_mm", rows.iter().map(|r| plane(r).d).collect())
-        .f64("residual_rms_mm", rows.iter().map(|r| rms(resid(r))).collect())
-        .f64("residual_max_mm", rows.iter().map(|r| max_abs(resid(r))).collect());
+        .f64(
+            "residual_rms_mm",
+            rows.iter().map(|r| rms(resid(r))).collect(),
+        )
+        .f64(
+            "residual_max_mm",
+            rows.iter().map(|r| max_abs(resid(r))).collect(),
+        );
     for (i, j, name) in COV_NAMES {
         b = b.f64(name, rows.iter().map(|r| plane(r).cov[(i, j)]).collect());
     }
@@ -502,7 +602,11 @@ fn datum_batch(a: &DatumAnalysis, use_tls: bool) -> arrow::record_batch::RecordB
             rows.push((SQUARES[*sq], primary, d));
         }
     }
-    let c = |i: usize, j: usize| rows.iter().map(|r| r.2.datum.cov[(i, j)]).collect::<Vec<_>>();
+    let c = |i: usize, j: usize| {
+        rows.iter()
+            .map(|r| r.2.datum.cov[(i, j)])
+            .collect::<Vec<_>>()
+    };
     BatchBuilder::new()
         .str("scope", &rows.iter().map(|r| r.0).collect::<Vec<_>>())
         .str("fit", &rows.iter().map(|r| r.1).collect::<Vec<_>>())
@@ -515,13 +619,34 @@ fn datum_batch(a: &DatumAnalysis, use_tls: bool) -> arrow::record_batch::RecordB
         .f64("cov_yy_mm2", c(1, 1))
         .f64("cov_yz_mm2", c(1, 2))
         .f64("cov_zz_mm2", c(2, 2))
-        .f64("ellipsoid_a_mm", rows.iter().map(|r| r.2.ellipsoid_mm[0]).collect())
-        .f64("ellipsoid_b_mm", rows.iter().map(|r| r.2.ellipsoid_mm[1]).collect())
-        .f64("ellipsoid_c_mm", rows.iter().map(|r| r.2.ellipsoid_mm[2]).collect())
-        .f64("condition", rows.iter().map(|r| r.2.datum.condition).collect())
-        .f64("squareness_xy_yz_rad", rows.iter().map(|r| r.2.squareness[0]).collect())
-        .f64("squareness_yz_zx_rad", rows.iter().map(|r| r.2.squareness[1]).collect())
-        .f64("squareness_zx_xy_rad", rows.iter().map(|r| r.2.squareness[2]).collect())
+        .f64(
+            "ellipsoid_a_mm",
+            rows.iter().map(|r| r.2.ellipsoid_mm[0]).collect(),
+        )
+        .f64(
+            "ellipsoid_b_mm",
+            rows.iter().map(|r| r.2.ellipsoid_mm[1]).collect(),
+        )
+        .f64(
+            "ellipsoid_c_mm",
+            rows.iter().map(|r| r.2.ellipsoid_mm[2]).collect(),
+        )
+        .f64(
+            "condition",
+            rows.iter().map(|r| r.2.datum.condition).collect(),
+        )
+        .f64(
+            "squareness_xy_yz_rad",
+            rows.iter().map(|r| r.2.squareness[0]).collect(),
+        )
+        .f64(
+            "squareness_yz_zx_rad",
+            rows.iter().map(|r| r.2.squareness[1]).collect(),
+        )
+        .f64(
+            "squareness_zx_xy_rad",
+            rows.iter().map(|r| r.2.squareness[2]).collect(),
+        )
         .build()
 }
 
@@ -573,15 +698,17 @@ fn standalone(args: &StageArgs) -> Result<Value> {
             bail!("stage datum: unknown option --{k} (known: --planes, --alpha, --max-condition)");
         }
     }
-    let spec = args
-        .get("planes")
-        .ok_or_else(|| anyhow!("stage datum: give --run DIR, or --planes \"a,b,c,d;a,b,c,d;a,b,c,d\""))?;
+    let spec = args.get("planes").ok_or_else(|| {
+        anyhow!("stage datum: give --run DIR, or --planes \"a,b,c,d;a,b,c,d;a,b,c,d\"")
+    })?;
     let parse = |s: &str, n: usize, what: &str| -> Result<Vec<f64>> {
         let v: Vec<f64> = s
             .split(',')
             .map(|x| x.trim().parse::<f64>())
             .collect::<std::result::Result<_, _>>()
-            .map_err(|_| anyhow!("stage datum: {what} `{s}` must be {n} comma-separated numbers"))?;
+            .map_err(|_| {
+                anyhow!("stage datum: {what} `{s}` must be {n} comma-separated numbers")
+            })?;
         if v.len() != n || !v.iter().all(|x| x.is_finite()) {
             bail!("stage datum: {what} `{s}` must be {n} comma-separated finite numbers");
         }
@@ -589,12 +716,18 @@ fn standalone(args: &StageArgs) -> Result<Value> {
     };
     let parts: Vec<&str> = spec.split(';').filter(|s| !s.trim().is_empty()).collect();
     if parts.len() != 3 {
-        bail!("stage datum: --planes needs exactly three planes separated by `;`, got {}", parts.len());
+        bail!(
+            "stage datum: --planes needs exactly three planes separated by `;`, got {}",
+            parts.len()
+        );
     }
     let mut planes = Vec::new();
     for (i, p) in parts.iter().enumerate() {
         let v = parse(p, 4, &format!("plane {}", i + 1))?;
-        planes.push(Plane::from_coefficients(v[0], v[1], v[2], v[3]).map_err(|e| anyhow!("stage datum: {e}"))?);
+        planes.push(
+            Plane::from_coefficients(v[0], v[1], v[2], v[3])
+                .map_err(|e| anyhow!("stage datum: {e}"))?,
+        );
     }
     // Label planes by their dominant normal axis when that is unambiguous.
     let face_of = |p: &Plane| match p.n.iamax() {
@@ -619,12 +752,19 @@ fn standalone(args: &StageArgs) -> Result<Value> {
         },
         ..DatumConfig::default()
     };
-    let d = datum_of([&planes[order[0]], &planes[order[1]], &planes[order[2]]], &cfg)
-        .map_err(|e| anyhow!("stage datum: {e}"))?;
+    let d = datum_of(
+        [&planes[order[0]], &planes[order[1]], &planes[order[2]]],
+        &cfg,
+    )
+    .map_err(|e| anyhow!("stage datum: {e}"))?;
     let mut pj = serde_json::Map::new();
     for (k, &i) in order.iter().enumerate() {
         let p = &planes[i];
-        let label = if distinct { faces[i].label().to_string() } else { format!("p{}", k + 1) };
+        let label = if distinct {
+            faces[i].label().to_string()
+        } else {
+            format!("p{}", k + 1)
+        };
         let mut o = json!({"normal": [p.n[0], p.n[1], p.n[2]], "d": p.d, "tls_normal": [p.n[0], p.n[1], p.n[2]], "tls_d": p.d});
         if distinct {
             o["ols"] = json!(ols_form(faces[i], p));
@@ -666,17 +806,30 @@ mod tests {
     #[test]
     fn standalone_planes_give_their_intersection() {
         // x = 1, y = 2, z = 3 given in scrambled order and scale.
-        let args: StageArgs = [("planes".to_string(), "0,0,2,-6; 1,0,0,-1; 0,-1,0,2".to_string())]
-            .into_iter()
-            .collect();
+        let args: StageArgs = [(
+            "planes".to_string(),
+            "0,0,2,-6; 1,0,0,-1; 0,-1,0,2".to_string(),
+        )]
+        .into_iter()
+        .collect();
         let v = DatumStage.run_standalone(&args).unwrap().unwrap();
-        let p: Vec<f64> = v["datum_mm"].as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect();
-        assert!((p[0] - 1.0).abs() < 1e-12 && (p[1] - 2.0).abs() < 1e-12 && (p[2] - 3.0).abs() < 1e-12);
+        let p: Vec<f64> = v["datum_mm"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|x| x.as_f64().unwrap())
+            .collect();
+        assert!(
+            (p[0] - 1.0).abs() < 1e-12 && (p[1] - 2.0).abs() < 1e-12 && (p[2] - 3.0).abs() < 1e-12
+        );
         assert_eq!(v["planes"]["xy"]["ols"][0].as_f64(), Some(3.0));
         assert!(v["squareness_rad"]["xy_yz"].as_f64().unwrap().abs() < 1e-15);
-        let bad: StageArgs = [("planes".to_string(), "0,0,1,0;0,0.01,1,-1;1,0,0,0".to_string())]
-            .into_iter()
-            .collect();
+        let bad: StageArgs = [(
+            "planes".to_string(),
+            "0,0,1,0;0,0.01,1,-1;1,0,0,0".to_string(),
+        )]
+        .into_iter()
+        .collect();
         let e = DatumStage.run_standalone(&bad).unwrap().unwrap_err();
         assert!(e.to_string().contains("nearly parallel"), "{e}");
     }
@@ -702,6 +855,28 @@ mod tests {
     }
 
     #[test]
+    fn trigger_latency_is_removed_before_the_datum() {
+        // 20 ms at 5 and 10 mm/s: 0.1–0.2 mm of overshoot into each face.
+        let origin = Vector3::new(10.0, 20.0, 30.0);
+        let ts = synth_touches(origin, &[5.0, 10.0], 5, 0.02, 0.005, 33);
+        let f = std::path::Path::new("probe.parquet");
+        let a = analyse(&ts, &DatumConfig::default(), f).unwrap();
+        assert!((a.latency_s["ae"] - 0.02).abs() < 1e-3, "{:?}", a.latency_s);
+        let err = a.main.datum.p - origin;
+        let m = err.dot(&(a.main.datum.cov.try_inverse().unwrap() * err));
+        assert!(m < 16.3, "corrected datum error {err}");
+        let raw = DatumConfig {
+            correct_latency: false,
+            ..DatumConfig::default()
+        };
+        let b = analyse(&ts, &raw, f).unwrap();
+        // Uncorrected, the datum sits inside the block by ≈ v̄·L = 0.15 mm
+        // on every axis (approaches along −axis).
+        let e = b.main.datum.p - origin;
+        assert!(e.iter().all(|x| (x + 0.15).abs() < 0.02), "{e}");
+    }
+
+    #[test]
     fn bad_faces_are_input_errors() {
         let origin = Vector3::zeros();
         let ts = synth_touches(origin, &[5.0], 1, 0.0, 0.001, 1);
@@ -715,7 +890,10 @@ mod tests {
             .collect();
         let e = analyse(&few, &cfg, f).err().unwrap();
         let ie = e.downcast_ref::<InputError>().unwrap();
-        assert!(ie.message.contains("at least 3") && ie.message.contains("zx"), "{ie}");
+        assert!(
+            ie.message.contains("at least 3") && ie.message.contains("zx"),
+            "{ie}"
+        );
         // Collinear: the yz face's points all on one line.
         let mut col = ts.clone();
         for t in col.iter_mut().filter(|t| t.face == Face::Yz) {
@@ -726,7 +904,11 @@ mod tests {
         // Nearly parallel: the zx face's points actually lie on a plane
         // tilted 88° towards xy.
         let mut par = ts.clone();
-        let n = Vector3::new(0.0, (2.0f64).to_radians().sin(), (2.0f64).to_radians().cos());
+        let n = Vector3::new(
+            0.0,
+            (2.0f64).to_radians().sin(),
+            (2.0f64).to_radians().cos(),
+        );
         for t in par.iter_mut().filter(|t| t.face == Face::Zx) {
             // (x, z) in-plane positions kept; put the point on n·p = 0.
             let (x, z) = (t.p.x, t.p.z + 30.0);

@@ -76,7 +76,9 @@ pub struct PlanRow {
 fn unknown_face(path: &Path, label: &str, row: usize) -> InputError {
     InputError::new(
         path,
-        format!("unknown face label `{label}` (expected xy, yz or zx: the faces with normal Z, X, Y)"),
+        format!(
+            "unknown face label `{label}` (expected xy, yz or zx: the faces with normal Z, X, Y)"
+        ),
     )
     .column("face")
     .row(row)
@@ -130,7 +132,10 @@ pub fn read_plan(t: &Table) -> Result<Vec<PlanRow>> {
 /// The machine's default approach direction of a face (when no plan says):
 /// `[probing].approach_dir_<face>` in the machine config, else −normal axis
 /// (the block below/behind the face).
-pub fn default_dir(machine: &sparkout_pipeline::contracts::MachineConfig, face: Face) -> Vector3<f64> {
+pub fn default_dir(
+    machine: &sparkout_pipeline::contracts::MachineConfig,
+    face: Face,
+) -> Vector3<f64> {
     let key = format!("probing.approach_dir_{}", face.label());
     if let Some(a) = machine.get(&key).and_then(|v| v.as_array()) {
         let v: Vec<f64> = a
@@ -199,7 +204,10 @@ impl Motion {
             for (i, &v) in s.iter().enumerate() {
                 if v >= 0 {
                     seg_first.entry(v).or_insert(i);
-                    seg_span.entry(v).and_modify(|e: &mut (usize, usize)| e.1 = i).or_insert((i, i));
+                    seg_span
+                        .entry(v)
+                        .and_modify(|e: &mut (usize, usize)| e.1 = i)
+                        .or_insert((i, i));
                 }
             }
         }
@@ -249,11 +257,11 @@ impl Motion {
         let mut best: Option<(f64, i32)> = None;
         let lo = self.t.partition_point(|&x| x < t - tol);
         let hi = self.t.partition_point(|&x| x <= t + tol);
-        for i in lo..hi {
-            if seg[i] >= 0 {
-                let d = (self.t[i] - t).abs();
+        for (ti, &s) in self.t[lo..hi].iter().zip(&seg[lo..hi]) {
+            if s >= 0 {
+                let d = (ti - t).abs();
                 if best.is_none_or(|b| d < b.0) {
-                    best = Some((d, seg[i]));
+                    best = Some((d, s));
                 }
             }
         }
@@ -278,7 +286,9 @@ impl Motion {
 
     /// Time span of a segment.
     pub fn segment_span_s(&self, seq: i32) -> Option<(f64, f64)> {
-        self.seg_span.get(&seq).map(|&(a, b)| (self.t[a], self.t[b]))
+        self.seg_span
+            .get(&seq)
+            .map(|&(a, b)| (self.t[a], self.t[b]))
     }
 }
 
@@ -292,7 +302,13 @@ pub struct AeResult {
 }
 
 /// Stream ae.parquet through the detector with bounded memory.
-pub fn detect_file(path: &Path, fs_hz: f64, kind: AeKind, cfg: &IngestConfig, clock_offset_s: f64) -> Result<AeResult> {
+pub fn detect_file(
+    path: &Path,
+    fs_hz: f64,
+    kind: AeKind,
+    cfg: &IngestConfig,
+    clock_offset_s: f64,
+) -> Result<AeResult> {
     let p = AeParams::from_seconds(
         fs_hz,
         cfg.window_s,
@@ -369,6 +385,12 @@ impl Role {
     }
 }
 
+/// The AE path's touches, detector result and each event's (seq, role).
+type AePath = (Vec<Touch>, AeResult, Vec<(i32, Role)>);
+
+/// AE-derived touches, each event's (seq, role), and the plan rows missed.
+type AeTouches = (Vec<Touch>, Vec<(i32, Role)>, Vec<i32>);
+
 /// AE events → touches (first event of each approach segment).
 fn ae_touches(
     r: &AeResult,
@@ -376,7 +398,7 @@ fn ae_touches(
     plan: &[PlanRow],
     tol: f64,
     ae_path: &Path,
-) -> Result<(Vec<Touch>, Vec<(i32, Role)>, Vec<i32>)> {
+) -> Result<AeTouches> {
     let by_seq: BTreeMap<i32, &PlanRow> = plan.iter().map(|p| (p.seq, p)).collect();
     let mut taken: BTreeMap<i32, usize> = BTreeMap::new();
     let mut roles = Vec::with_capacity(r.events.len());
@@ -450,7 +472,9 @@ fn probe_touches(
     let (nx, ny, nz) = (t.f64("nom_x_mm")?, t.f64("nom_y_mm")?, t.f64("nom_z_mm")?);
     let (x, y, z) = (t.f64("x_mm")?, t.f64("y_mm")?, t.f64("z_mm")?);
     type Key = (Face, i32, i32, String, u64);
-    let key = |f: Face, p: i32, tr: i32, m: &str, v: f64| -> Key { (f, p, tr, m.to_string(), v.to_bits()) };
+    let key = |f: Face, p: i32, tr: i32, m: &str, v: f64| -> Key {
+        (f, p, tr, m.to_string(), v.to_bits())
+    };
     let plan_by_key: BTreeMap<Key, &PlanRow> = plan
         .unwrap_or(&[])
         .iter()
@@ -503,11 +527,26 @@ fn compare(probe: &[Touch], ae: &[Touch]) -> Option<(arrow::record_batch::Record
     let dist: Vec<f64> = d.iter().map(|v| v.norm()).collect();
     let batch = BatchBuilder::new()
         .i32("seq", pairs.iter().map(|(p, _)| p.seq).collect())
-        .str("face", &pairs.iter().map(|(p, _)| p.face.label()).collect::<Vec<_>>())
+        .str(
+            "face",
+            &pairs
+                .iter()
+                .map(|(p, _)| p.face.label())
+                .collect::<Vec<_>>(),
+        )
         .i32("point", pairs.iter().map(|(p, _)| p.point).collect())
         .i32("trial", pairs.iter().map(|(p, _)| p.trial).collect())
-        .str("method", &pairs.iter().map(|(p, _)| p.method.as_str()).collect::<Vec<_>>())
-        .f64("approach_mm_s", pairs.iter().map(|(p, _)| p.approach_mm_s).collect())
+        .str(
+            "method",
+            &pairs
+                .iter()
+                .map(|(p, _)| p.method.as_str())
+                .collect::<Vec<_>>(),
+        )
+        .f64(
+            "approach_mm_s",
+            pairs.iter().map(|(p, _)| p.approach_mm_s).collect(),
+        )
         .f64("dt_s", dt.clone())
         .f64("dx_mm", d.iter().map(|v| v.x).collect())
         .f64("dy_mm", d.iter().map(|v| v.y).collect())
@@ -557,17 +596,26 @@ fn by_speed(pairs: &[(&Touch, &Touch)], dn: &[f64], dt: &[f64]) -> Value {
 fn contacts_batch(r: &AeResult, roles: &[(i32, Role)]) -> arrow::record_batch::RecordBatch {
     let e = &r.events;
     BatchBuilder::new()
-        .f64("t_s", e.iter().map(|x| x.onset_t_s + r.clock_offset_s).collect())
+        .f64(
+            "t_s",
+            e.iter().map(|x| x.onset_t_s + r.clock_offset_s).collect(),
+        )
         .f64("ae_t_s", e.iter().map(|x| x.onset_t_s).collect())
         .i64("ae_row", e.iter().map(|x| x.onset_index as i64).collect())
         .f64("peak_v", e.iter().map(|x| x.peak_v).collect())
         .f64("duration_s", e.iter().map(|x| x.duration_s()).collect())
-        .f64("threshold_v", e.iter().map(|x| x.floor.threshold_v).collect())
+        .f64(
+            "threshold_v",
+            e.iter().map(|x| x.floor.threshold_v).collect(),
+        )
         .f64("release_v", e.iter().map(|x| x.floor.release_v).collect())
         .f64("noise_mean_v", e.iter().map(|x| x.floor.mean_v).collect())
         .f64("noise_sigma_v", e.iter().map(|x| x.floor.sigma_v).collect())
         .i32("seq", roles.iter().map(|r| r.0).collect())
-        .str("role", &roles.iter().map(|r| r.1.label()).collect::<Vec<_>>())
+        .str(
+            "role",
+            &roles.iter().map(|r| r.1.label()).collect::<Vec<_>>(),
+        )
         .build()
 }
 
@@ -621,7 +669,7 @@ impl Stage for IngestStage {
         // The AE path: whenever the signal, the motion log and the plan are
         // all there (for the touches, or to check the recorded ones).
         let mut ae_summary = Value::Null;
-        let mut ae_out: Option<(Vec<Touch>, AeResult, Vec<(i32, Role)>)> = None;
+        let mut ae_out: Option<AePath> = None;
         if let (true, Some(motion), Some(plan)) = (has_ae, motion.as_ref(), plan.as_ref()) {
             let ae_path = run.table_path(&AE);
             let spec = run.spec.ae.as_ref().ok_or_else(|| {
@@ -639,8 +687,14 @@ impl Stage for IngestStage {
                 .column("segment")
                 .into());
             }
-            let r = detect_file(&ae_path, spec.sample_rate_hz, spec.kind, &cfg, spec.clock_offset_s)
-                .context("AE contact detection")?;
+            let r = detect_file(
+                &ae_path,
+                spec.sample_rate_hz,
+                spec.kind,
+                &cfg,
+                spec.clock_offset_s,
+            )
+            .context("AE contact detection")?;
             let (touches, roles, missed) =
                 ae_touches(&r, motion, plan, cfg.segment_tolerance_s, &ae_path)?;
             let f0 = r.detector.floors()[0];
@@ -683,7 +737,11 @@ impl Stage for IngestStage {
         let mut touches = touches;
         touches.sort_by(|a, b| a.t_s.total_cmp(&b.t_s));
         if touches.is_empty() {
-            return Err(InputError::new(run.dir(), "no touches: nothing was registered or detected").into());
+            return Err(InputError::new(
+                run.dir(),
+                "no touches: nothing was registered or detected",
+            )
+            .into());
         }
         let mut per_face = BTreeMap::new();
         for t in &touches {

@@ -13,6 +13,9 @@
 //!
 //! The data the stages read follow CONTRACTS.md §1 and docs/robot_data_spec.md.
 
+// `!(x > 0.0)` is deliberate throughout: it rejects NaN as well.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
 use std::sync::Arc;
 
 use sparkout_pipeline::diagnose::{catalogue_effect, composite, Effect, Kind};

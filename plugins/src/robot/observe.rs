@@ -71,7 +71,8 @@ fn face_planes(b: &arrow::record_batch::RecordBatch, fit: &str) -> Result<BTreeM
     let mut out = BTreeMap::new();
     for i in 0..b.num_rows() {
         if fits[i] == fit && scope[i] == "all" {
-            let f = Face::parse(&face[i]).ok_or_else(|| anyhow!("planes: unknown face `{}`", face[i]))?;
+            let f = Face::parse(&face[i])
+                .ok_or_else(|| anyhow!("planes: unknown face `{}`", face[i]))?;
             out.insert(
                 f,
                 Plane {
@@ -86,7 +87,10 @@ fn face_planes(b: &arrow::record_batch::RecordBatch, fit: &str) -> Result<BTreeM
 }
 
 fn opt_i32(name: &str, v: Vec<Option<i32>>) -> (Field, Arc<Int32Array>) {
-    (Field::new(name, DataType::Int32, true), Arc::new(Int32Array::from(v)))
+    (
+        Field::new(name, DataType::Int32, true),
+        Arc::new(Int32Array::from(v)),
+    )
 }
 
 fn build(run: &str, rows: &[Row]) -> arrow::record_batch::RecordBatch {
@@ -97,7 +101,10 @@ fn build(run: &str, rows: &[Row]) -> arrow::record_batch::RecordBatch {
     let (sf, sc) = opt_i32("pass", i(&|r| r.pass));
     BatchBuilder::new()
         .str("run", &vec![run; rows.len()])
-        .str("observable", &rows.iter().map(|r| r.observable).collect::<Vec<_>>())
+        .str(
+            "observable",
+            &rows.iter().map(|r| r.observable).collect::<Vec<_>>(),
+        )
         .f64("sim", rows.iter().map(|r| r.sim).collect())
         .f64("real", rows.iter().map(|r| r.real).collect())
         .opt_f64("x_mm", f(&|r| r.x))

@@ -50,7 +50,9 @@ pub fn face_stats(ts: &[&Touch]) -> FaceStats {
         }
         let (lo, hi) = v
             .iter()
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| {
+                (a.min(x), b.max(x))
+            });
         ranges.push(hi - lo);
         let m = v.iter().sum::<f64>() / v.len() as f64;
         ss += v.iter().map(|x| (x - m).powi(2)).sum::<f64>();
@@ -60,8 +62,13 @@ pub fn face_stats(ts: &[&Touch]) -> FaceStats {
     FaceStats {
         range_mm: (!ranges.is_empty()).then(|| ranges.iter().sum::<f64>() / ranges.len() as f64),
         std_mm: (dof > 0).then(|| (ss / dof as f64).sqrt()),
-        bias_mm: ts.iter().map(|t| t.normal() - t.nominal_normal()).sum::<f64>() / n.max(1) as f64,
-        mean_approach_normal_mm_s: ts.iter().map(|t| t.approach_normal_mm_s()).sum::<f64>() / n.max(1) as f64,
+        bias_mm: ts
+            .iter()
+            .map(|t| t.normal() - t.nominal_normal())
+            .sum::<f64>()
+            / n.max(1) as f64,
+        mean_approach_normal_mm_s: ts.iter().map(|t| t.approach_normal_mm_s()).sum::<f64>()
+            / n.max(1) as f64,
         n,
         n_points: by_point.len(),
     }
@@ -114,7 +121,11 @@ pub fn latency(ts: &[&Touch]) -> Option<Latency> {
     let l = sxy / sxx;
     let dof = n as f64 - k as f64 - 1.0;
     let rss: f64 = demeaned.iter().map(|(u, e)| (e - l * u).powi(2)).sum();
-    let se = if dof > 0.0 { (rss / dof / sxx).sqrt() } else { f64::NAN };
+    let se = if dof > 0.0 {
+        (rss / dof / sxx).sqrt()
+    } else {
+        f64::NAN
+    };
     Some(Latency {
         latency_s: l,
         stderr_s: se,
@@ -124,7 +135,9 @@ pub fn latency(ts: &[&Touch]) -> Option<Latency> {
 }
 
 fn opt(v: Option<f64>) -> Value {
-    v.filter(|x| x.is_finite()).map(Value::from).unwrap_or(Value::Null)
+    v.filter(|x| x.is_finite())
+        .map(Value::from)
+        .unwrap_or(Value::Null)
 }
 
 /// Everything the stage computes, for the summary and the report.
@@ -219,15 +232,27 @@ pub fn analyse(all: &[Touch], latency_method: &str) -> (Value, arrow::record_bat
         "latency_by_method": lat_json,
     });
     let batch = BatchBuilder::new()
-        .str("method", &rows.iter().map(|r| r.0.as_str()).collect::<Vec<_>>())
+        .str(
+            "method",
+            &rows.iter().map(|r| r.0.as_str()).collect::<Vec<_>>(),
+        )
         .f64("approach_mm_s", rows.iter().map(|r| r.1).collect())
-        .str("face", &rows.iter().map(|r| r.2.label()).collect::<Vec<_>>())
+        .str(
+            "face",
+            &rows.iter().map(|r| r.2.label()).collect::<Vec<_>>(),
+        )
         .i32("n", rows.iter().map(|r| r.3.n as i32).collect())
-        .i32("n_points", rows.iter().map(|r| r.3.n_points as i32).collect())
+        .i32(
+            "n_points",
+            rows.iter().map(|r| r.3.n_points as i32).collect(),
+        )
         .opt_f64("range_mm", rows.iter().map(|r| r.3.range_mm).collect())
         .opt_f64("std_mm", rows.iter().map(|r| r.3.std_mm).collect())
         .f64("bias_mm", rows.iter().map(|r| r.3.bias_mm).collect())
-        .opt_f64("bias_latency_corrected_mm", rows.iter().map(|r| r.4).collect())
+        .opt_f64(
+            "bias_latency_corrected_mm",
+            rows.iter().map(|r| r.4).collect(),
+        )
         .build();
     (summary, batch)
 }
@@ -320,7 +345,8 @@ pub(crate) mod tests {
                 for point in 0..12 {
                     let sq = point / 4;
                     let half = [20.0, 13.0, 6.0][sq as usize];
-                    let corner = [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)][(point % 4) as usize];
+                    let corner =
+                        [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)][(point % 4) as usize];
                     let mut nom = origin;
                     nom[u] += 25.0 + corner.0 * half;
                     nom[w] += 25.0 + corner.1 * half;
@@ -374,7 +400,11 @@ pub(crate) mod tests {
         assert!(corrected.abs() < 0.002, "{corrected}");
         assert_eq!(b.num_rows(), 6);
         // One speed: no latency.
-        let one: Vec<Touch> = ts.iter().filter(|t| t.approach_mm_s == 5.0).cloned().collect();
+        let one: Vec<Touch> = ts
+            .iter()
+            .filter(|t| t.approach_mm_s == 5.0)
+            .cloned()
+            .collect();
         let (s1, _) = analyse(&one, "auto");
         assert!(s1["latency_s"].is_null());
     }

@@ -173,18 +173,13 @@ fn datum(s: &Value) -> Option<ReportSection> {
     let p = s.get("datum_mm")?.as_array()?;
     let sig = &s["datum_sigma_mm"];
     let ell = &s["datum_ellipsoid_mm"]["semi_axes_mm"];
-    let conf = s["datum_ellipsoid_mm"]["confidence"].as_f64().unwrap_or(0.95);
+    let conf = s["datum_ellipsoid_mm"]["confidence"]
+        .as_f64()
+        .unwrap_or(0.95);
     let rows: Vec<Vec<String>> = ["x", "y", "z"]
         .iter()
         .enumerate()
-        .map(|(i, a)| {
-            vec![
-                a.to_string(),
-                num(&p[i], 4),
-                um(&sig[i]),
-                um(&ell[i]),
-            ]
-        })
+        .map(|(i, a)| vec![a.to_string(), num(&p[i], 4), um(&sig[i]), um(&ell[i])])
         .collect();
     let mut html = format!(
         "<p>Datum = intersection of the three face planes ({} fit); condition number {}.</p>",
@@ -208,7 +203,10 @@ fn datum(s: &Value) -> Option<ReportSection> {
             .map(|k| {
                 vec![
                     k.replace('_', "–"),
-                    sq[*k].as_f64().map(|x| format!("{:.1}", x * 1e6)).unwrap_or_else(|| "—".into()),
+                    sq[*k]
+                        .as_f64()
+                        .map(|x| format!("{:.1}", x * 1e6))
+                        .unwrap_or_else(|| "—".into()),
                 ]
             })
             .collect::<Vec<_>>(),
@@ -260,7 +258,11 @@ fn cycle(s: &Value) -> Option<ReportSection> {
             .filter_map(|p| Some((p["pass"].as_f64()?, p[k].as_f64()? * 1e3)))
             .collect()
     };
-    let (pred, meas, fit) = (pt("predicted_cut_mm"), pt("measured_cut_mm"), pt("predicted_cut_fit_mm"));
+    let (pred, meas, fit) = (
+        pt("predicted_cut_mm"),
+        pt("measured_cut_mm"),
+        pt("predicted_cut_fit_mm"),
+    );
     let mut series = vec![
         Series {
             name: "predicted (α from pass 1)",
@@ -301,13 +303,24 @@ fn cycle(s: &Value) -> Option<ReportSection> {
         })
         .collect();
     html.push_str(&table(
-        &["pass", "stage", "δ′ (µm)", "predicted (µm)", "measured (µm)", "refit (µm)"],
+        &[
+            "pass",
+            "stage",
+            "δ′ (µm)",
+            "predicted (µm)",
+            "measured (µm)",
+            "refit (µm)",
+        ],
         &rows,
     ));
     let r = &s["remaining_after_mm"];
     let rm = &s["remaining_after_measured_mm"];
     html.push_str(&table(
-        &["after", "remaining predicted (µm)", "remaining measured (µm)"],
+        &[
+            "after",
+            "remaining predicted (µm)",
+            "remaining measured (µm)",
+        ],
         &["rough", "finish", "spark"]
             .iter()
             .map(|k| vec![k.to_string(), um(&r[*k]), um(&rm[*k])])
@@ -342,12 +355,21 @@ fn compare(s: &Value) -> Option<ReportSection> {
                     num(&g["approach_mm_s"], 3),
                     g["n"].to_string(),
                     um(&g["mean_dnormal_mm"]),
-                    g["mean_dt_s"].as_f64().map(|x| format!("{:.3}", x * 1e3)).unwrap_or_else(|| "—".into()),
+                    g["mean_dt_s"]
+                        .as_f64()
+                        .map(|x| format!("{:.3}", x * 1e3))
+                        .unwrap_or_else(|| "—".into()),
                 ]
             })
             .collect();
         html.push_str(&table(
-            &["method", "approach (mm/s)", "n", "mean Δnormal (µm)", "mean Δt (ms)"],
+            &[
+                "method",
+                "approach (mm/s)",
+                "n",
+                "mean Δnormal (µm)",
+                "mean Δt (ms)",
+            ],
             &rows,
         ));
     }

@@ -54,10 +54,16 @@ pub fn to_batch(t: &[Touch]) -> RecordBatch {
     let col = |f: &dyn Fn(&Touch) -> f64| t.iter().map(f).collect::<Vec<f64>>();
     BatchBuilder::new()
         .f64("t_s", col(&|x| x.t_s))
-        .str("face", &t.iter().map(|x| x.face.label()).collect::<Vec<_>>())
+        .str(
+            "face",
+            &t.iter().map(|x| x.face.label()).collect::<Vec<_>>(),
+        )
         .i32("point", t.iter().map(|x| x.point).collect())
         .i32("trial", t.iter().map(|x| x.trial).collect())
-        .str("method", &t.iter().map(|x| x.method.as_str()).collect::<Vec<_>>())
+        .str(
+            "method",
+            &t.iter().map(|x| x.method.as_str()).collect::<Vec<_>>(),
+        )
         .f64("approach_mm_s", col(&|x| x.approach_mm_s))
         .f64("nom_x_mm", col(&|x| x.nom.x))
         .f64("nom_y_mm", col(&|x| x.nom.y))
@@ -70,7 +76,10 @@ pub fn to_batch(t: &[Touch]) -> RecordBatch {
         .f64("dir_y", col(&|x| x.dir.y))
         .f64("dir_z", col(&|x| x.dir.z))
         .opt_f64("prev_move_dir", t.iter().map(|x| x.prev_move_dir).collect())
-        .str("source", &t.iter().map(|x| x.source.as_str()).collect::<Vec<_>>())
+        .str(
+            "source",
+            &t.iter().map(|x| x.source.as_str()).collect::<Vec<_>>(),
+        )
         .build()
 }
 
