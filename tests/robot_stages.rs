@@ -605,27 +605,27 @@ fn cycle_observe_and_report_sections() {
     let obs = stage(&dir, "observe").unwrap();
     let b = artifact(&obs, "observations");
     let names = strs(b, "observable");
-    let n_touch = names.iter().filter(|n| *n == "touch_normal").count();
+    let n_touch = names.iter().filter(|n| *n == "touch_normal_ae").count();
     let n_cut = names.iter().filter(|n| *n == "cut_depth").count();
     assert_eq!((n_touch, n_cut), (72, 11));
     assert!(strs(b, "run").iter().all(|r| r == "r0003"));
     let (sim, real) = (f64s(b, "sim"), f64s(b, "real"));
     assert!(sim.iter().chain(&real).all(|v| v.is_finite()));
-    // touch_normal rows have positions, cut_depth rows have passes; the
+    // touch_normal_ae rows (AE-derived touches) have positions, cut_depth rows have passes; the
     // other covariates are null.
     let x = f64s(b, "x_mm");
     let doc = f64s(b, "nominal_doc_mm");
     let an = f64s(b, "approach_normal_mm_s");
     for (i, n) in names.iter().enumerate() {
-        assert_eq!(n == "touch_normal", x[i].is_finite());
+        assert_eq!(n == "touch_normal_ae", x[i].is_finite());
         assert_eq!(n == "cut_depth", doc[i].is_finite());
-        if n == "touch_normal" {
+        if n == "touch_normal_ae" {
             assert!(an[i] == -5.0 || an[i] == -10.0);
         }
     }
     // A touch gap at the noise level (AE touches have no latency).
     let gaps: Vec<f64> = (0..names.len())
-        .filter(|&i| names[i] == "touch_normal")
+        .filter(|&i| names[i] == "touch_normal_ae")
         .map(|i| real[i] - sim[i])
         .collect();
     let rms = (gaps.iter().map(|g| g * g).sum::<f64>() / gaps.len() as f64).sqrt();

@@ -86,6 +86,12 @@ pub trait Effect: Send + Sync {
     }
     /// `name:covariate` as diagnosis.json's `selected` spells it
     /// (`offset` alone; two covariates joined by a comma).
+    /// The key of the catalogue candidate this effect is a physically named
+    /// version of (a plugin composite made by [`composite`]): the diagnosis
+    /// then tries only the named one, so the two never tie for first place.
+    fn replaces(&self) -> Option<String> {
+        None
+    }
     fn key(&self) -> String {
         let c = self.covariates();
         if c.is_empty() {
@@ -777,6 +783,9 @@ impl Effect for Renamed {
     }
     fn linear_form(&self) -> Option<Arc<dyn LinearForm>> {
         self.base.linear_form()
+    }
+    fn replaces(&self) -> Option<String> {
+        Some(self.base.key())
     }
 }
 

@@ -243,7 +243,7 @@ pub fn diagnose(
     };
     for d in &table.dropped {
         note(
-            format!("covariate {d} has non-finite values: skipped"),
+            format!("covariate {d} has no finite value: skipped"),
             &mut notes,
         );
     }
@@ -305,6 +305,27 @@ pub fn diagnose(
             .collect();
         let mut cols = Vec::new();
         for c in gathered {
+            // A covariate belongs to the observables whose rows carry it
+            // (CONTRACTS §2: a fleet table mixes observables, each with its
+            // own covariates; the others are null there). Absent for every
+            // row of this observable → not applicable; absent for some →
+            // skipped and said.
+            let finite = c.1.iter().filter(|v| v.is_finite()).count();
+            if finite == 0 {
+                continue;
+            }
+            if finite < c.1.len() {
+                note(
+                    format!(
+                        "{oname}: covariate {} is missing (null/NaN) in {} of {} rows: skipped",
+                        c.0,
+                        c.1.len() - finite,
+                        c.1.len()
+                    ),
+                    &mut notes,
+                );
+                continue;
+            }
             if c.3.is_constant() {
                 note(format!("constant covariate {} skipped", c.0), &mut notes);
             } else {
@@ -323,26 +344,32 @@ pub fn diagnose(
         let nf: NoiseFloor = {
             let rep = table.trial.as_ref().and_then(|trial| {
                 let tr: Vec<i64> = rows.iter().map(|&i| trial[i]).collect();
-                let positions: Vec<&Vec<f64>> = ["x_mm", "y_mm", "z_mm", "phi_rad"]
+                let has_position = ["x_mm", "y_mm", "z_mm", "phi_rad"]
                     .iter()
-                    .filter_map(|p| cols.iter().find(|c| c.0 == *p).map(|c| &c.1))
-                    .collect();
-                let pass = cols.iter().find(|c| c.0 == "pass").map(|c| &c.1);
-                if table.point.is_none() && positions.is_empty() {
+                    .any(|p| cols.iter().any(|c| c.0 == *p));
+                if table.point.is_none() && !has_position {
                     return None;
                 }
+                // Replicates repeat the same measurement: same run, point and
+                // every setting (position, speed, direction, load, pass);
+                // only the trial and what runs on with time (t_s, temperature,
+                // cumulative usage) may differ. Keying on the point id alone
+                // would pool a point probed at two speeds, or point 3 of two
+                // faces, and count their real difference as noise.
+                let settings: Vec<&Vec<f64>> = cols
+                    .iter()
+                    .filter(|c| !is_time_like(&c.0))
+                    .map(|c| &c.1)
+                    .collect();
                 let key: Vec<Vec<i64>> = rows
                     .iter()
                     .enumerate()
                     .map(|(j, &i)| {
                         let mut k = vec![table.run[i] as i64];
-                        match &table.point {
-                            Some(p) => k.push(p[i]),
-                            None => k.extend(positions.iter().map(|c| c[j].to_bits() as i64)),
+                        if let Some(p) = &table.point {
+                            k.push(p[i]);
                         }
-                        if let Some(p) = pass {
-                            k.push(p[j].to_bits() as i64);
-                        }
+                        k.extend(settings.iter().map(|c| c[j].to_bits() as i64));
                         k
                     })
                     .collect();
@@ -420,6 +447,9 @@ pub fn diagnose(
                 .filter(|c| !names.contains(c))
                 .collect();
             if missing.is_empty() {
+                if let Some(generic) = e.replaces() {
+                    cands.retain(|c| c.key() != generic);
+                }
                 cands.push(e.as_ref());
             } else {
                 note(
@@ -712,3 +742,9 @@ fn per_row_batch(
 
 #[cfg(test)]
 mod tests;
+
+/// Covariates that change between replicates of one measurement by nature:
+/// time, temperature and cumulative usage.
+fn is_time_like(name: &str) -> bool {
+    name == "t_s" || name == "temp_c" || name == "infeed_count" || name.ends_with("_mm3")
+}

@@ -183,7 +183,10 @@ impl Table {
                 continue;
             }
             let v = f64s(b.column(i))?;
-            if v.iter().all(|x| x.is_finite()) {
+            // Nulls are legal where a covariate does not apply to a row's
+            // observable; the diagnosis decides per observable. A covariate
+            // with no finite value at all is dropped here.
+            if v.iter().any(|x| x.is_finite()) {
                 covs.push((f.name().clone(), v));
             } else {
                 dropped.push(f.name().clone());

@@ -1,6 +1,8 @@
 //! `observe`: paired observations (CONTRACTS.md §2) for the gap diagnosis.
 //!
-//! - `touch_normal`, one row per touch: real = the registered normal
+//! - `touch_normal` (touches the controller registered, probe.parquet) and
+//!   `touch_normal_ae` (touches derived from the AE signal by `ingest`),
+//!   one row per touch: real = the registered normal
 //!   coordinate; sim = the normal coordinate the run's fitted face plane
 //!   (TLS over all touches of the face) predicts at the touch's in-plane
 //!   position — the block pose is the modelled part, what is left is what
@@ -18,6 +20,23 @@
 //! Covariates that do not apply to an observable are null in its rows.
 
 use std::collections::BTreeMap;
+
+/// Touches the controller registered (probe.parquet): the position was
+/// latched when the trigger fired, so trigger latency is in them.
+const TOUCH_REGISTERED: &str = "touch_normal";
+/// Touches derived offline from the AE signal (ingest): the contact time is
+/// the burst onset, so no trigger latency. Kept as their own observable —
+/// pooled with registered touches, an effect present in one source and not
+/// the other fails the run-by-run cross-validation of either.
+const TOUCH_AE: &str = "touch_normal_ae";
+
+fn touch_observable(source: &str) -> &'static str {
+    if source == "ae" {
+        TOUCH_AE
+    } else {
+        TOUCH_REGISTERED
+    }
+}
 use std::sync::Arc;
 
 use anyhow::anyhow;
@@ -156,7 +175,7 @@ impl Stage for ObserveStage {
                 .get(&t.face)
                 .ok_or_else(|| anyhow!("no fitted plane for face {}", t.face.label()))?;
             rows.push(Row {
-                observable: "touch_normal",
+                observable: touch_observable(&t.source),
                 sim: plane.normal_coordinate_at(t.face, &t.p),
                 real: t.normal(),
                 x: Some(t.nom.x),
@@ -214,9 +233,11 @@ impl Stage for ObserveStage {
                 json!((g.iter().map(|x| x * x).sum::<f64>() / g.len() as f64).sqrt())
             }
         };
+        let count = |obs: &str| rows.iter().filter(|r| r.observable == obs).count();
         let summary = json!({
             "rows": rows.len(),
-            "touch_normal": {"n": n_touch, "rms_gap_mm": rms("touch_normal")},
+            "touch_normal": {"n": count(TOUCH_REGISTERED), "rms_gap_mm": rms(TOUCH_REGISTERED)},
+            "touch_normal_ae": {"n": count(TOUCH_AE), "rms_gap_mm": rms(TOUCH_AE)},
             "cut_depth": {"n": rows.len() - n_touch, "rms_gap_mm": rms("cut_depth")},
             "plane_fit": fit,
         });
