@@ -1,17 +1,12 @@
 //! End to end through the `sparkout` binary: cache, config-key invalidation,
 //! determinism, isolation, atomicity, validate-input, exit codes.
 
+mod common;
+use common::sparkout;
+
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
-
-fn sparkout(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_sparkout"))
-        .args(args)
-        .env("SPARKOUT_LOG", "warn")
-        .output()
-        .expect("run sparkout")
-}
 
 fn ok(out: &Output) -> String {
     let s = String::from_utf8_lossy(&out.stdout).to_string();

@@ -3,16 +3,10 @@
 //! that effect named first in the fleet's diagnosis.json with a held-out
 //! shrink; an effect-free fleet gets no effect named.
 
-use std::path::Path;
-use std::process::Command;
+mod common;
+use common::sparkout;
 
-fn sparkout(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_sparkout"))
-        .args(args)
-        .env("SPARKOUT_LOG", "warn")
-        .output()
-        .expect("run sparkout")
-}
+use std::path::Path;
 
 fn diagnose_fleet(dir: &Path, seed: u64, effect: Option<&str>) -> serde_json::Value {
     let root = dir.join("runs");

@@ -354,9 +354,8 @@ fn write_run(root: &Path, id: &str, s: &Spec) -> (PathBuf, Truth) {
             t1.push(t_end + 20.0 * i as f64 + 15.0);
         }
         // Heights are read once: each pass's "before" is the previous "after".
-        for i in 1..hb.len() {
-            hb[i] = ha[i - 1];
-        }
+        let n = hb.len();
+        hb[1..].copy_from_slice(&ha[..n - 1]);
         let b = BatchBuilder::new()
             .i32("pass", (1..=docs.len() as i32).collect())
             .str("stage", &stages)

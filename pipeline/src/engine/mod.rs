@@ -818,9 +818,8 @@ impl Engine {
                     message: m,
                 })
             };
-            match self.open_run(dir) {
-                Err(e) => push(format!("{e:#}")),
-                Ok(_) => {}
+            if let Err(e) = self.open_run(dir) {
+                push(format!("{e:#}"));
             }
             // Validate every table that is present, whatever else is wrong.
             for schema in crate::contracts::ALL_TABLES {
@@ -829,7 +828,7 @@ impl Engine {
                     continue;
                 }
                 let r: std::result::Result<(), InputError> = if schema.name == "ae" {
-                    AeStream::open(&path).and_then(|s| s.map(|c| c.map(|_| ())).collect())
+                    AeStream::open(&path).and_then(|mut s| s.try_for_each(|c| c.map(|_| ())))
                 } else {
                     Table::read(&path, schema).map(|_| ())
                 };
