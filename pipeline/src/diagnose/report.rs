@@ -12,10 +12,22 @@ fn esc(s: &str) -> String {
         .replace('"', "&quot;")
 }
 
+/// Millimetres at micrometre resolution (what an engineer reads), with
+/// scientific notation only for values below that.
 fn num(x: Option<f64>) -> String {
     match x {
-        Some(v) => format!("{v:.4e}"),
+        Some(v) => general(v),
         None => "—".into(),
+    }
+}
+
+/// A number in plain notation when it is of a readable size.
+fn general(v: f64) -> String {
+    let a = v.abs();
+    if a == 0.0 || (1e-3..1e5).contains(&a) {
+        format!("{v:.4}")
+    } else {
+        format!("{v:.3e}")
     }
 }
 
@@ -138,7 +150,7 @@ pub fn section(d: &Diagnosis) -> String {
         let params: Vec<String> = e
             .params
             .iter()
-            .map(|(k, v)| format!("{k}={v:.4e}"))
+            .map(|(k, v)| format!("{k}={}", general(*v)))
             .collect();
         let name = match &e.covariate {
             Some(c) => format!("{}:{}", e.name, c),

@@ -26,7 +26,7 @@ use cache::{hash_bytes, hash_file, read_run_cache, record_valid, KeyBuilder, Sta
 pub use config::PipelineConfig;
 
 /// Version of the fleet `diagnose` step (bump when its output changes).
-pub const DIAGNOSE_STAGE_VERSION: u32 = 1;
+pub const DIAGNOSE_STAGE_VERSION: u32 = 2;
 
 /// Version of the manifest/failures layout.
 pub const MANIFEST_VERSION: u32 = 1;

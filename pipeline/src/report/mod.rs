@@ -12,7 +12,7 @@ use crate::engine::FleetOutcome;
 use crate::traits::{ReportSection, Run};
 
 /// Bump when the report layout changes (cache key of report steps).
-pub const REPORT_VERSION: u32 = 1;
+pub const REPORT_VERSION: u32 = 2;
 
 /// HTML-escape text.
 pub fn esc(s: &str) -> String {
@@ -155,7 +155,7 @@ pub fn fleet_page(
             .unwrap_or(f64::NAN);
         let _ = write!(
             body,
-            "<p><b>Sim-to-real gap:</b> RMS {} mm; {}; held-out RMS after the selected effects {} mm.</p>",
+            "<p><b>Sim-to-real gap, all observables:</b> RMS {} mm; {}; held-out RMS after the selected effects {} mm.</p>",
             fmt_mm(rms),
             if sel.is_empty() {
                 "no effect selected".to_string()
@@ -164,6 +164,53 @@ pub fn fleet_page(
             },
             fmt_mm(after)
         );
+    }
+    if let Some(per) = diagnosis
+        .and_then(|d| d.get("per_observable"))
+        .and_then(|p| p.as_array())
+    {
+        // Per observable first: each has its own noise floor and effects,
+        // and a small observable's shrink is invisible in the fleet total.
+        let rows: Vec<Vec<String>> = per
+            .iter()
+            .map(|o| {
+                let f = |k: &str| o.get(k).and_then(|x| x.as_f64()).unwrap_or(f64::NAN);
+                let sel: Vec<&str> = o
+                    .get("selected")
+                    .and_then(|s| s.as_array())
+                    .map(|a| a.iter().filter_map(|x| x.as_str()).collect())
+                    .unwrap_or_default();
+                vec![
+                    o.get("observable")
+                        .and_then(|x| x.as_str())
+                        .unwrap_or("?")
+                        .to_string(),
+                    fmt_mm(f("rms_mm")),
+                    fmt_mm(f("noise_floor_mm")),
+                    if sel.is_empty() {
+                        o.get("stop_reason")
+                            .and_then(|x| x.as_str())
+                            .unwrap_or("—")
+                            .to_string()
+                    } else {
+                        sel.join(", ")
+                    },
+                    fmt_mm(f("cv_rms_after_mm")),
+                    format!("{:.0} %", 100.0 * f("shrink")),
+                ]
+            })
+            .collect();
+        body.push_str(&table(
+            &[
+                "observable",
+                "gap RMS (mm)",
+                "noise floor (mm)",
+                "explained by",
+                "held-out RMS after (mm)",
+                "shrink",
+            ],
+            &rows,
+        ));
     }
     body.push_str("<h2>Runs</h2>");
     let rows: Vec<Vec<String>> = outcome
