@@ -62,33 +62,15 @@ pub fn print_outcome(o: &FleetOutcome) {
                 }
                 // Per observable: each has its own noise floor and effects,
                 // and a small observable's shrink is invisible in the total.
-                for o in v
-                    .get("per_observable")
-                    .and_then(|p| p.as_array())
-                    .into_iter()
-                    .flatten()
-                {
-                    let f = |k: &str| o.get(k).and_then(|x| x.as_f64()).unwrap_or(f64::NAN);
-                    let sel: Vec<&str> = o
-                        .get("selected")
-                        .and_then(|s| s.as_array())
-                        .map(|a| a.iter().filter_map(|x| x.as_str()).collect())
-                        .unwrap_or_default();
+                for o in sparkout_pipeline::report::observable_summaries(&v) {
                     println!(
-                        "  {}: gap RMS {:.4} mm (noise {:.4} mm) → held-out {:.4} mm ({}); {}",
-                        o.get("observable").and_then(|x| x.as_str()).unwrap_or("?"),
-                        f("rms_mm"),
-                        f("noise_floor_mm"),
-                        f("cv_rms_after_mm"),
-                        if sel.is_empty() {
-                            o.get("stop_reason")
-                                .and_then(|x| x.as_str())
-                                .unwrap_or("no effect")
-                                .to_string()
-                        } else {
-                            format!("explained by {}", sel.join(", "))
-                        },
-                        format_args!("{:.0} % shrink", 100.0 * f("shrink")),
+                        "  {}: gap RMS {:.4} mm (noise {:.4} mm) → held-out {:.4} mm, {:.0} % shrink; {}",
+                        o.observable,
+                        o.rms_mm,
+                        o.noise_floor_mm,
+                        o.after_mm,
+                        100.0 * o.shrink,
+                        o.explained_by
                     );
                 }
             }

@@ -119,6 +119,54 @@ pub fn run_page(
     )
 }
 
+/// One observable's line of a diagnosis, as the fleet report and the CLI
+/// summary show it.
+#[derive(Debug, Clone)]
+pub struct ObservableSummary {
+    pub observable: String,
+    pub rms_mm: f64,
+    pub noise_floor_mm: f64,
+    /// The selected effects, or why none was.
+    pub explained_by: String,
+    pub after_mm: f64,
+    pub shrink: f64,
+}
+
+/// The `per_observable` entries of a diagnosis.json.
+pub fn observable_summaries(diagnosis: &serde_json::Value) -> Vec<ObservableSummary> {
+    let per = diagnosis.get("per_observable").and_then(|p| p.as_array());
+    per.into_iter()
+        .flatten()
+        .map(|o| {
+            let f = |k: &str| o.get(k).and_then(|x| x.as_f64()).unwrap_or(f64::NAN);
+            let sel: Vec<&str> = o
+                .get("selected")
+                .and_then(|s| s.as_array())
+                .map(|a| a.iter().filter_map(|x| x.as_str()).collect())
+                .unwrap_or_default();
+            ObservableSummary {
+                observable: o
+                    .get("observable")
+                    .and_then(|x| x.as_str())
+                    .unwrap_or("?")
+                    .to_string(),
+                rms_mm: f("rms_mm"),
+                noise_floor_mm: f("noise_floor_mm"),
+                explained_by: if sel.is_empty() {
+                    o.get("stop_reason")
+                        .and_then(|x| x.as_str())
+                        .unwrap_or("no effect selected")
+                        .to_string()
+                } else {
+                    format!("explained by {}", sel.join(", "))
+                },
+                after_mm: f("cv_rms_after_mm"),
+                shrink: f("shrink"),
+            }
+        })
+        .collect()
+}
+
 /// The fleet report: runs, failures, the gap per run and observable, the
 /// diagnosis section.
 pub fn fleet_page(
@@ -165,38 +213,19 @@ pub fn fleet_page(
             fmt_mm(after)
         );
     }
-    if let Some(per) = diagnosis
-        .and_then(|d| d.get("per_observable"))
-        .and_then(|p| p.as_array())
-    {
+    if let Some(d) = diagnosis {
         // Per observable first: each has its own noise floor and effects,
         // and a small observable's shrink is invisible in the fleet total.
-        let rows: Vec<Vec<String>> = per
+        let rows: Vec<Vec<String>> = observable_summaries(d)
             .iter()
             .map(|o| {
-                let f = |k: &str| o.get(k).and_then(|x| x.as_f64()).unwrap_or(f64::NAN);
-                let sel: Vec<&str> = o
-                    .get("selected")
-                    .and_then(|s| s.as_array())
-                    .map(|a| a.iter().filter_map(|x| x.as_str()).collect())
-                    .unwrap_or_default();
                 vec![
-                    o.get("observable")
-                        .and_then(|x| x.as_str())
-                        .unwrap_or("?")
-                        .to_string(),
-                    fmt_mm(f("rms_mm")),
-                    fmt_mm(f("noise_floor_mm")),
-                    if sel.is_empty() {
-                        o.get("stop_reason")
-                            .and_then(|x| x.as_str())
-                            .unwrap_or("—")
-                            .to_string()
-                    } else {
-                        sel.join(", ")
-                    },
-                    fmt_mm(f("cv_rms_after_mm")),
-                    format!("{:.0} %", 100.0 * f("shrink")),
+                    o.observable.clone(),
+                    fmt_mm(o.rms_mm),
+                    fmt_mm(o.noise_floor_mm),
+                    o.explained_by.clone(),
+                    fmt_mm(o.after_mm),
+                    format!("{:.0} %", 100.0 * o.shrink),
                 ]
             })
             .collect();
