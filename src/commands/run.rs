@@ -54,10 +54,22 @@ pub fn print_outcome(o: &FleetOutcome) {
                 let before = v.pointer("/gap/rms_mm").and_then(|x| x.as_f64());
                 let after = v.pointer("/unexplained/rms_mm").and_then(|x| x.as_f64());
                 let noise = v.pointer("/gap/noise_floor_mm").and_then(|x| x.as_f64());
-                if let (Some(b), Some(a), Some(n)) = (before, after, noise) {
+                let n_obs = v
+                    .get("observables")
+                    .and_then(|o| o.as_array())
+                    .map_or(0, |o| o.len());
+                let named = if sel.is_empty() {
+                    "no effect selected".to_string()
+                } else {
+                    sel.join(", ")
+                };
+                if n_obs > 1 {
+                    // Pooled RMS over observables of different scales says
+                    // nothing; the per-observable lines below do.
+                    println!("  effects named (most signal explained first): {named}");
+                } else if let (Some(b), Some(a), Some(n)) = (before, after, noise) {
                     println!(
-                        "  all observables: gap RMS {b:.4} mm (noise floor {n:.4} mm) → held-out {a:.4} mm after: {}",
-                        if sel.is_empty() { "no effect selected".to_string() } else { sel.join(", ") }
+                        "  gap RMS {b:.4} mm (noise floor {n:.4} mm) → held-out {a:.4} mm after: {named}"
                     );
                 }
                 // Per observable: each has its own noise floor and effects,
