@@ -14,11 +14,25 @@ fn diagnose_fleet(dir: &Path, seed: u64, effect: &str) -> serde_json::Value {
     let out = dir.join("out");
     let seed = seed.to_string();
     let g = sparkout(&[
-        "generate", "guideway", "--runs", "6", "--seed", &seed, "--out",
-        root.to_str().unwrap(), "--effect", effect,
+        "generate",
+        "guideway",
+        "--runs",
+        "6",
+        "--seed",
+        &seed,
+        "--out",
+        root.to_str().unwrap(),
+        "--effect",
+        effect,
     ]);
     assert!(g.status.success(), "{}", String::from_utf8_lossy(&g.stderr));
-    let r = sparkout(&["run", "--input", root.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+    let r = sparkout(&[
+        "run",
+        "--input",
+        root.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
     assert!(
         r.status.success(),
         "{}\n{}",
@@ -56,7 +70,11 @@ fn thermal_growth_with_infeed_count_is_named_first() {
     let d = tempfile::tempdir().unwrap();
     let diag = diagnose_fleet(d.path(), 41, "thermal_infeed");
     let first = first_selected(&diag);
-    assert_eq!(first, "thermal_infeed:infeed_count", "selected {}", diag["selected"]);
+    assert_eq!(
+        first, "thermal_infeed:infeed_count",
+        "selected {}",
+        diag["selected"]
+    );
     assert!(shrink_of(&diag, &first) > 0.3, "{diag:#}");
 }
 

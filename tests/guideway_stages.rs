@@ -34,7 +34,13 @@ fn readings(run: &GuidewayRun, cfg: &GuidewayFleetConfig) -> Readings {
         step_mm: cfg.step_mm,
         speed_mm_s: cfg.speed_mm_s,
     };
-    prepare(Path::new("guideway.parquet"), raw, &g, &InputOptions::default()).unwrap()
+    prepare(
+        Path::new("guideway.parquet"),
+        raw,
+        &g,
+        &InputOptions::default(),
+    )
+    .unwrap()
 }
 
 /// Least-squares line a + b·j through e.
@@ -66,8 +72,11 @@ fn quiet_cfg(seed: u64) -> GuidewayFleetConfig {
 fn noise_free_separation_is_exact_up_to_a_line() {
     for seed in [1, 2] {
         let cfg = quiet_cfg(seed);
-        let fx = resolve_effects(&["reversal".parse().unwrap(), "thermal_infeed".parse().unwrap()])
-            .unwrap();
+        let fx = resolve_effects(&[
+            "reversal".parse().unwrap(),
+            "thermal_infeed".parse().unwrap(),
+        ])
+        .unwrap();
         let run = simulate(&cfg, &fx, &[], 0);
         let r = readings(&run, &cfg);
         let sols: Vec<Separation> = vec![
@@ -76,7 +85,12 @@ fn noise_free_separation_is_exact_up_to_a_line() {
             separate_lsq(&r, Reference::Ends, 1e-4).unwrap(),
         ];
         for s in &sols {
-            let e: Vec<f64> = s.h_mm.iter().zip(&run.truth.h_mm).map(|(a, b)| a - b).collect();
+            let e: Vec<f64> = s
+                .h_mm
+                .iter()
+                .zip(&run.truth.h_mm)
+                .map(|(a, b)| a - b)
+                .collect();
             let (a, b) = line_fit(&e);
             let worst_h = e
                 .iter()
@@ -118,7 +132,10 @@ fn lsq_error_grows_more_slowly_along_the_travel_than_the_recursion() {
         let err = |a: &Separation, b: &Separation| -> Vec<f64> {
             a.h_mm.iter().zip(&b.h_mm).map(|(x, y)| x - y).collect()
         };
-        let e_rec = err(&separate_recursion(&rn).unwrap(), &separate_recursion(&re).unwrap());
+        let e_rec = err(
+            &separate_recursion(&rn).unwrap(),
+            &separate_recursion(&re).unwrap(),
+        );
         let e_lsq = err(
             &separate_lsq(&rn, Reference::Line, 1e-4).unwrap(),
             &separate_lsq(&re, Reference::Line, 1e-4).unwrap(),
@@ -171,7 +188,10 @@ fn fpe_picks_the_true_order_of_an_ar4_in_most_seeds() {
             hits += 1;
         }
     }
-    assert!(hits * 10 >= seeds * 6, "FPE chose 4 in {hits} of {seeds} seeds");
+    assert!(
+        hits * 10 >= seeds * 6,
+        "FPE chose 4 in {hits} of {seeds} seeds"
+    );
 }
 
 #[test]
@@ -186,7 +206,11 @@ fn rls_converges_to_the_batch_least_squares_coefficients() {
     let y = difference(&dz, 2);
     let batch = batch_ls(&y, order, order);
     for (a, b) in p.rls_coefficients.iter().zip(&batch) {
-        assert!((a - b).abs() < 1e-3, "rls {:?} vs batch {batch:?}", p.rls_coefficients);
+        assert!(
+            (a - b).abs() < 1e-3,
+            "rls {:?} vs batch {batch:?}",
+            p.rls_coefficients
+        );
     }
 }
 
@@ -201,7 +225,11 @@ fn generate(root: &Path, runs: usize) {
 }
 
 fn json(out: &std::process::Output) -> serde_json::Value {
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     serde_json::from_slice(&out.stdout).unwrap()
 }
 
@@ -215,14 +243,28 @@ fn stages_run_alone_with_json_and_the_method_flag() {
     assert_eq!(s["method"], "lsq");
     assert!(s["n"].as_u64().unwrap() > 100);
     assert!(s["h_rms_mm"].as_f64().unwrap() > 0.0 && s["dz_rms_mm"].as_f64().unwrap() > 0.0);
-    let s = json(&sparkout(&["stage", "separate", "--run", run, "--method", "recursion", "--json"]));
+    let s = json(&sparkout(&[
+        "stage",
+        "separate",
+        "--run",
+        run,
+        "--method",
+        "recursion",
+        "--json",
+    ]));
     assert_eq!(s["method"], "recursion");
     let bad = sparkout(&["stage", "separate", "--run", run, "--method", "fft"]);
     assert!(!bad.status.success());
     assert!(String::from_utf8_lossy(&bad.stderr).contains("--method"));
     let out = d.path().join("pred");
     let p = json(&sparkout(&[
-        "stage", "predictor", "--run", run, "--json", "--out", out.to_str().unwrap(),
+        "stage",
+        "predictor",
+        "--run",
+        run,
+        "--json",
+        "--out",
+        out.to_str().unwrap(),
     ]));
     assert_eq!(p["d"], 2);
     let order = p["order"].as_u64().unwrap() as usize;
@@ -235,7 +277,13 @@ fn stages_run_alone_with_json_and_the_method_flag() {
     // The compensation curve is replayable: t_s strictly increasing, dz_mm.
     let cdir = d.path().join("comp");
     let c = json(&sparkout(&[
-        "stage", "compensation", "--run", run, "--json", "--out", cdir.to_str().unwrap(),
+        "stage",
+        "compensation",
+        "--run",
+        run,
+        "--json",
+        "--out",
+        cdir.to_str().unwrap(),
     ]));
     assert!(c["rows"].as_u64().unwrap() > 100);
     let f = std::fs::File::open(cdir.join("compensation.parquet")).unwrap();
@@ -303,8 +351,19 @@ fn bad_inputs_are_named_and_the_batch_goes_on() {
     write_parquet_atomic(&m.join("r0004/guideway.parquet"), &table(&r)).unwrap();
 
     let out = d.path().join("out");
-    let o = sparkout(&["run", "--input", root.to_str().unwrap(), "--out", out.to_str().unwrap()]);
-    assert_eq!(o.status.code(), Some(2), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = sparkout(&[
+        "run",
+        "--input",
+        root.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert_eq!(
+        o.status.code(),
+        Some(2),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
     let f: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("failures.json")).unwrap()).unwrap();
     let by_run = |id: &str| {
@@ -316,22 +375,41 @@ fn bad_inputs_are_named_and_the_batch_goes_on() {
             .clone()
     };
     let e = by_run("r0001");
-    assert_eq!((e["column"].as_str(), e["row"].as_u64()), (Some("n"), Some(40)), "{e}");
+    assert_eq!(
+        (e["column"].as_str(), e["row"].as_u64()),
+        (Some("n"), Some(40)),
+        "{e}"
+    );
     assert!(e["file"].as_str().unwrap().ends_with("guideway.parquet"));
     let e = by_run("r0002");
-    assert_eq!((e["column"].as_str(), e["row"].as_u64()), (Some("zb_mm"), Some(100)), "{e}");
+    assert_eq!(
+        (e["column"].as_str(), e["row"].as_u64()),
+        (Some("zb_mm"), Some(100)),
+        "{e}"
+    );
     assert!(e["error"].as_str().unwrap().contains("stuck"));
     let e = by_run("r0003");
-    assert!(e["error"].as_str().unwrap().contains("not a whole number"), "{e}");
+    assert!(
+        e["error"].as_str().unwrap().contains("not a whole number"),
+        "{e}"
+    );
     let e = by_run("r0004");
     assert!(e["error"].as_str().unwrap().contains("too short"), "{e}");
     assert_eq!(e["column"], "n");
     // The good run went through; nothing of the rejected ones was written.
-    assert!(out.join("guideway-grinder/r0000/compensation.parquet").is_file());
+    assert!(out
+        .join("guideway-grinder/r0000/compensation.parquet")
+        .is_file());
     assert!(!out.join("guideway-grinder/r0001").exists());
     // Interpolation makes the 45 mm spacing usable.
     let o = sparkout(&[
-        "stage", "separate", "--run", m.join("r0003").to_str().unwrap(), "--json", "--interpolate", "true",
+        "stage",
+        "separate",
+        "--run",
+        m.join("r0003").to_str().unwrap(),
+        "--json",
+        "--interpolate",
+        "true",
     ]);
     let s = json(&o);
     assert_eq!(s["resampled"], true);

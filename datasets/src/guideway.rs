@@ -37,7 +37,9 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
 use rayon::prelude::*;
 use serde::Serialize;
-use sparkout_pipeline::contracts::{write_atomic, write_json_atomic, write_parquet_atomic, BatchBuilder};
+use sparkout_pipeline::contracts::{
+    write_atomic, write_json_atomic, write_parquet_atomic, BatchBuilder,
+};
 use sparkout_pipeline::diagnose::{shape_value, Kind};
 use sparkout_pipeline::EffectSpec;
 
@@ -123,10 +125,7 @@ impl GuidewayFleetConfig {
         if self.passes == 0 {
             bail!("passes must be at least 1");
         }
-        for (name, v) in [
-            ("step_mm", self.step_mm),
-            ("speed_mm_s", self.speed_mm_s),
-        ] {
+        for (name, v) in [("step_mm", self.step_mm), ("speed_mm_s", self.speed_mm_s)] {
             if !(v.is_finite() && v > 0.0) {
                 bail!("{name} must be > 0, got {v}");
             }
@@ -357,7 +356,12 @@ pub fn trending_ar(coef: &[f64], pole: f64, len: usize, rms: f64, r: &mut ChaCha
 }
 
 /// Simulate run `index` of a fleet (no files).
-pub fn simulate(cfg: &GuidewayFleetConfig, fx: &Effects, specs: &[EffectSpec], index: usize) -> GuidewayRun {
+pub fn simulate(
+    cfg: &GuidewayFleetConfig,
+    fx: &Effects,
+    specs: &[EffectSpec],
+    index: usize,
+) -> GuidewayRun {
     let mut r = rng_for(cfg.seed, index as u64 * 4 + 1);
     let mut machine = rng_for(cfg.seed, u64::MAX / 2);
     let step = cfg.step_mm;
@@ -370,10 +374,14 @@ pub fn simulate(cfg: &GuidewayFleetConfig, fx: &Effects, specs: &[EffectSpec], i
         uniform(&mut machine, 400.0, 900.0),
         uniform(&mut machine, 0.0, 2.0 * PI),
     );
-    let (bl, bp) = (uniform(&mut machine, 600.0, 1500.0), uniform(&mut machine, 0.0, 2.0 * PI));
+    let (bl, bp) = (
+        uniform(&mut machine, 600.0, 1500.0),
+        uniform(&mut machine, 0.0, 2.0 * PI),
+    );
     let s_of = |x: f64| {
         cfg.straightness_mm
-            * (sb * 4.0 * x * (length - x) / (length * length) + sw * (2.0 * PI * x / sl + sp).sin())
+            * (sb * 4.0 * x * (length - x) / (length * length)
+                + sw * (2.0 * PI * x / sl + sp).sin())
     };
     let beta_of = |x: f64| cfg.pitch_rad * (2.0 * PI * x / bl + bp).sin();
     // Workpiece shape, new per run.
@@ -386,7 +394,9 @@ pub fn simulate(cfg: &GuidewayFleetConfig, fx: &Effects, specs: &[EffectSpec], i
     let h: Vec<f64> = (0..cfg.points)
         .map(|j| {
             let u = j as f64 * step;
-            cfg.shape_mm * (hb * 4.0 * u * (length - u) / (length * length) + hw * (2.0 * PI * u / hl + hp).sin())
+            cfg.shape_mm
+                * (hb * 4.0 * u * (length - u) / (length * length)
+                    + hw * (2.0 * PI * u / hl + hp).sin())
         })
         .collect();
     // Zero offsets: a common and a linear part (indistinguishable from δz
@@ -402,7 +412,13 @@ pub fn simulate(cfg: &GuidewayFleetConfig, fx: &Effects, specs: &[EffectSpec], i
     let temp_phase = uniform(&mut r, 0.0, 2.0 * PI);
     let m = cfg.positions();
     let len = m * cfg.passes;
-    let u = trending_ar(&cfg.ar_coefficients, cfg.ar_pole, len, cfg.ar_rms_mm, &mut r);
+    let u = trending_ar(
+        &cfg.ar_coefficients,
+        cfg.ar_pole,
+        len,
+        cfg.ar_rms_mm,
+        &mut r,
+    );
     let mut out = GuidewayRun {
         run: format!("r{index:04}"),
         n: Vec::with_capacity(len),
@@ -533,7 +549,11 @@ passes = {passes}
 }
 
 /// Generate the fleet under `<root>/<machine>/r0000 …`.
-pub fn generate_fleet(root: &Path, cfg: &GuidewayFleetConfig, specs: &[EffectSpec]) -> Result<Vec<PathBuf>> {
+pub fn generate_fleet(
+    root: &Path,
+    cfg: &GuidewayFleetConfig,
+    specs: &[EffectSpec],
+) -> Result<Vec<PathBuf>> {
     cfg.validate()?;
     let fx = resolve_effects(specs)?;
     let dir = root.join(&cfg.machine);
@@ -562,7 +582,10 @@ mod tests {
     fn effects_resolve_and_reject_unknowns() {
         let p = |s: &str| s.parse::<EffectSpec>().unwrap();
         let fx = resolve_effects(&[p("thermal_infeed"), p("reversal=c_mm=0.003")]).unwrap();
-        assert_eq!((fx.thermal_k_mm, fx.reversal_c_mm), (DEF_THERMAL_K_MM, 0.003));
+        assert_eq!(
+            (fx.thermal_k_mm, fx.reversal_c_mm),
+            (DEF_THERMAL_K_MM, 0.003)
+        );
         assert!(resolve_effects(&[p("thermal:temp_c=k=0.001")]).is_ok());
         assert!(resolve_effects(&[p("wobble")]).is_err());
         assert!(resolve_effects(&[p("drift:x_mm=amplitude_mm=1,tau_s=1")]).is_err());

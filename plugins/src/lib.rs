@@ -10,5 +10,8 @@ pub mod robot;
 
 /// Every plugin this build knows, in a fixed order.
 pub fn all_plugins() -> Vec<Arc<dyn MachinePlugin>> {
-    vec![Arc::new(robot::RobotPlugin), Arc::new(guideway::GuidewayPlugin)]
+    vec![
+        Arc::new(robot::RobotPlugin),
+        Arc::new(guideway::GuidewayPlugin),
+    ]
 }

@@ -200,7 +200,7 @@ pub fn forecast(x: &[f64], coef: &[f64], d: usize, sigma2: f64, h: usize) -> Vec
     let psi = psi_weights(coef, d, h);
     let mut var = 0.0;
     let mut out = Vec::with_capacity(h);
-    for step in 0..h {
+    for w in psi.iter().take(h) {
         let yhat: f64 = coef
             .iter()
             .enumerate()
@@ -208,7 +208,7 @@ pub fn forecast(x: &[f64], coef: &[f64], d: usize, sigma2: f64, h: usize) -> Vec
             .sum();
         let prev: Vec<f64> = (1..=d).map(|i| xs[xs.len() - i]).collect();
         let xhat = undifference(yhat, &prev, &c);
-        var += sigma2 * psi[step] * psi[step];
+        var += sigma2 * w * w;
         out.push((xhat, var.sqrt()));
         ys.push(yhat);
         xs.push(xhat);
@@ -263,7 +263,10 @@ pub(crate) mod tests {
         let s = fpe_search(&x, 8).unwrap();
         assert_eq!(s.order, 2, "{:?}", s.fpe);
         let a = s.chosen();
-        assert!((a[0] - 0.6).abs() < 0.05 && (a[1] + 0.3).abs() < 0.05, "{a:?}");
+        assert!(
+            (a[0] - 0.6).abs() < 0.05 && (a[1] + 0.3).abs() < 0.05,
+            "{a:?}"
+        );
         assert!((s.sigma2_chosen() - 1.0).abs() < 0.08);
         // The shifted cross-products equal the direct sums.
         let g = cross_products(&x, 8);

@@ -138,7 +138,9 @@ pub fn fit_thermal_reversal(s: &SepData, thermal: bool, reversal: bool) -> Therm
             sum[j] += v[i];
             cnt[j] += 1;
         }
-        (0..n).map(|i| v[i] - sum[s.j[i]] / cnt[s.j[i]] as f64).collect()
+        (0..n)
+            .map(|i| v[i] - sum[s.j[i]] / cnt[s.j[i]] as f64)
+            .collect()
     };
     let y = demean(&s.dz_mm);
     let points = {

@@ -198,7 +198,12 @@ fn opt_finite(table: &Table, name: &str) -> Result<Option<Vec<f64>>> {
     }
     let v = table.f64(name)?;
     if let Some(i) = v.iter().position(|x| !x.is_finite()) {
-        return Err(bad(table.path(), name, Some(i), "NaN or infinite value".into()));
+        return Err(bad(
+            table.path(),
+            name,
+            Some(i),
+            "NaN or infinite value".into(),
+        ));
     }
     Ok(Some(v.to_vec()))
 }
@@ -233,7 +238,12 @@ pub fn load(run: &Run, opt: &InputOptions) -> Result<Readings> {
 }
 
 /// Check and prepare raw readings (see the module doc for what is an error).
-pub fn prepare(path: &Path, raw: RawReadings, g: &Geometry, opt: &InputOptions) -> Result<Readings> {
+pub fn prepare(
+    path: &Path,
+    raw: RawReadings,
+    g: &Geometry,
+    opt: &InputOptions,
+) -> Result<Readings> {
     let len = raw.n.len();
     if len < 3 {
         return Err(bad(
@@ -253,7 +263,10 @@ pub fn prepare(path: &Path, raw: RawReadings, g: &Geometry, opt: &InputOptions) 
             } else if b < a {
                 format!("n goes back from {a} to {b}")
             } else {
-                format!("gap in n: {a} is followed by {b} ({} samples missing)", b - a - 1)
+                format!(
+                    "gap in n: {a} is followed by {b} ({} samples missing)",
+                    b - a - 1
+                )
             };
             return Err(bad(
                 path,
@@ -310,12 +323,12 @@ pub fn prepare(path: &Path, raw: RawReadings, g: &Geometry, opt: &InputOptions) 
                 .unwrap_or(1.0);
             let mut cur = first;
             out[0] = first;
-            for i in 1..len {
+            for (i, o) in out.iter_mut().enumerate().skip(1) {
                 let d = raw.x_mm[i] - raw.x_mm[i - 1];
                 if d != 0.0 {
                     cur = d.signum();
                 }
-                out[i] = cur;
+                *o = cur;
             }
             out
         }
@@ -342,13 +355,10 @@ pub fn prepare(path: &Path, raw: RawReadings, g: &Geometry, opt: &InputOptions) 
     let k = ratio.round();
     let whole = k >= 1.0 && (ratio - k).abs() <= 1e-6 * ratio;
     let x0 = raw.x_mm.iter().cloned().fold(f64::INFINITY, f64::min);
-    let off_grid = raw
-        .x_mm
-        .iter()
-        .position(|x| {
-            let q = (x - x0) / g.step_mm;
-            (q - q.round()).abs() > 0.01
-        });
+    let off_grid = raw.x_mm.iter().position(|x| {
+        let q = (x - x0) / g.step_mm;
+        (q - q.round()).abs() > 0.01
+    });
     let r = Readings {
         path: path.to_path_buf(),
         n: raw.n,
@@ -465,8 +475,8 @@ fn resample(r: Readings) -> Result<Readings> {
         for x in grid {
             out.n.push(r.n[0] + out.x_mm.len() as i64);
             out.x_mm.push(x);
-            for c in 0..3 {
-                out.z_mm[c].push(interp(&xs, &zs[c], x));
+            for (o, z) in out.z_mm.iter_mut().zip(&zs) {
+                o.push(interp(&xs, z, x));
             }
             out.dir.push(d);
             out.t_s.push(interp(&xs, &ts, x));
@@ -519,16 +529,20 @@ pub(crate) mod tests {
     }
 
     fn err_of(r: Result<Readings>) -> InputError {
-        r.err()
-            .expect("an error")
+        r.expect_err("an error")
             .downcast::<InputError>()
             .expect("an InputError")
     }
 
     #[test]
     fn passes_directions_and_grid() {
-        let r = prepare(Path::new("g.parquet"), raw(10), &geom(30.0, 30.0), &Default::default())
-            .unwrap();
+        let r = prepare(
+            Path::new("g.parquet"),
+            raw(10),
+            &geom(30.0, 30.0),
+            &Default::default(),
+        )
+        .unwrap();
         assert_eq!(r.passes(), 2);
         assert_eq!(r.dir[0], 1.0);
         assert_eq!(r.dir[15], -1.0);

@@ -39,12 +39,12 @@ pub fn leave_pass_out_sim(s: &SepData, model: Option<&ThermalReversal>) -> Vec<O
     let base: Vec<f64> = (0..n).map(|i| s.dz_mm[i] - known(i)).collect();
     let mut by_point: BTreeMap<usize, (f64, usize)> = BTreeMap::new();
     let mut by_pass: BTreeMap<(usize, i32), (f64, usize)> = BTreeMap::new();
-    for i in 0..n {
+    for (i, v) in base.iter().enumerate() {
         let a = by_point.entry(s.j[i]).or_default();
-        a.0 += base[i];
+        a.0 += v;
         a.1 += 1;
         let b = by_pass.entry((s.j[i], s.pass[i])).or_default();
-        b.0 += base[i];
+        b.0 += v;
         b.1 += 1;
     }
     (0..n)

@@ -160,15 +160,28 @@ fn fpe(s: &Value) -> Option<ReportSection> {
     let bars: Vec<(String, f64)> = f
         .iter()
         .enumerate()
-        .map(|(i, v)| (format!("p = {}", i + 1), v.as_f64().unwrap_or(f64::NAN) * 1e6))
+        .map(|(i, v)| {
+            (
+                format!("p = {}", i + 1),
+                v.as_f64().unwrap_or(f64::NAN) * 1e6,
+            )
+        })
         .collect();
     let coef: Vec<String> = s["coefficients"]
         .as_array()
-        .map(|a| a.iter().map(|v| format!("{:.4}", v.as_f64().unwrap_or(f64::NAN))).collect())
+        .map(|a| {
+            a.iter()
+                .map(|v| format!("{:.4}", v.as_f64().unwrap_or(f64::NAN)))
+                .collect()
+        })
         .unwrap_or_default();
     let rls: Vec<String> = s["rls_coefficients"]
         .as_array()
-        .map(|a| a.iter().map(|v| format!("{:.4}", v.as_f64().unwrap_or(f64::NAN))).collect())
+        .map(|a| {
+            a.iter()
+                .map(|v| format!("{:.4}", v.as_f64().unwrap_or(f64::NAN)))
+                .collect()
+        })
         .unwrap_or_default();
     let mut html = format!(
         "<p>δz differenced d = {} times; AR order by FPE: <b>p = {}</b>. Batch coefficients ({}), online RLS after the last sample ({}). One-step prediction-error variance {} µm² (source: below 1 µm).</p>",
@@ -234,7 +247,12 @@ fn compensation(s: &Value, b: &RecordBatch) -> Option<ReportSection> {
         "Compensation curve F − f and its parts",
         "sample n",
         "offset (µm)",
-        &["F − f (dz_mm)", "thermal g", "predicted δz", "table reversal"],
+        &[
+            "F − f (dz_mm)",
+            "thermal g",
+            "predicted δz",
+            "table reversal",
+        ],
         &[
             pts(&n, &total, 1e3),
             pts(&n, &g, 1e3),
@@ -246,15 +264,29 @@ fn compensation(s: &Value, b: &RecordBatch) -> Option<ReportSection> {
         let v = fit[k].as_f64();
         let e = fit[ks].as_f64();
         vec![
-            v.map(|x| format!("{:.4}", x * scale)).unwrap_or_else(|| "not fitted".into()),
-            e.map(|x| format!("{:.4}", x * scale)).unwrap_or_else(|| "—".into()),
+            v.map(|x| format!("{:.4}", x * scale))
+                .unwrap_or_else(|| "not fitted".into()),
+            e.map(|x| format!("{:.4}", x * scale))
+                .unwrap_or_else(|| "—".into()),
         ]
     };
     let mut rows = Vec::new();
     for (label, k, ks) in [
-        ("thermal growth per infeed (µm)", "thermal_k_mm_per_infeed", "thermal_k_sigma_mm_per_infeed"),
-        ("thermal expansion per °C (µm)", "thermal_k_mm_per_c", "thermal_k_sigma_mm_per_c"),
-        ("table reversal C (µm)", "reversal_c_mm", "reversal_c_sigma_mm"),
+        (
+            "thermal growth per infeed (µm)",
+            "thermal_k_mm_per_infeed",
+            "thermal_k_sigma_mm_per_infeed",
+        ),
+        (
+            "thermal expansion per °C (µm)",
+            "thermal_k_mm_per_c",
+            "thermal_k_sigma_mm_per_c",
+        ),
+        (
+            "table reversal C (µm)",
+            "reversal_c_mm",
+            "reversal_c_sigma_mm",
+        ),
     ] {
         let mut r = vec![label.to_string()];
         r.extend(cell(k, ks, 1e3));

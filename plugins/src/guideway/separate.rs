@@ -215,8 +215,7 @@ impl Stage for SeparateStage {
             Method::Lsq => Method::Recursion,
             Method::Recursion => Method::Lsq,
         };
-        let other =
-            three_probe::separate(&r, other_method, cfg.reference, cfg.probe_sigma_mm).ok();
+        let other = three_probe::separate(&r, other_method, cfg.reference, cfg.probe_sigma_mm).ok();
         Ok(StageOutput::new(summary(&r, &s, other.as_ref())).with("separation", batch(&r, &s)))
     }
 }

@@ -437,8 +437,8 @@ mod tests {
         for (j, v) in e.iter().enumerate() {
             assert!((v - line(j)).abs() < 1e-10, "h at {j}: {v} vs line");
         }
-        for i in 0..r.len() {
-            let want = dz[i] - line(r.j[i]);
+        for (i, d) in dz.iter().enumerate() {
+            let want = d - line(r.j[i]);
             assert!((s.dz_mm[i] - want).abs() < 1e-10, "dz at {i}");
         }
     }
