@@ -51,6 +51,13 @@ fn bench(c: &mut Criterion) {
     let mut table = toml::Table::new();
     table.insert("p_max".into(), toml::Value::Integer(20));
     let cfg = PredictorConfig::from_table(&table, None);
+    // Once, untimed: what to compare with benches/reference/ar_fpe.py.
+    let p = predict(&dz, &cfg).expect("predict");
+    let fpe: Vec<String> = p.search.fpe[..5]
+        .iter()
+        .map(|v| format!("{v:.4e}"))
+        .collect();
+    eprintln!("order {}; FPE(1..5) {fpe:?}", p.search.order);
     let mut g = c.benchmark_group("guideway_predictor");
     g.throughput(Throughput::Elements(N as u64));
     g.sample_size(10);
