@@ -348,3 +348,94 @@ impl Stage for CompensationStage {
         Ok(StageOutput::new(summary).with("compensation", batch))
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// δz = s(j) + k·(count − 1) + C/2·dir + small wiggle, 8 passes.
+    fn sep(k: f64, c: f64) -> SepData {
+        let (m, passes) = (20usize, 8);
+        let mut s = SepData {
+            n: Vec::new(),
+            x_mm: Vec::new(),
+            h_mm: Vec::new(),
+            dz_mm: Vec::new(),
+            t_s: Vec::new(),
+            dir: Vec::new(),
+            pass: Vec::new(),
+            infeed_count: Vec::new(),
+            j: Vec::new(),
+            temp_c: None,
+        };
+        for p in 0..passes {
+            let js: Vec<usize> = if p % 2 == 0 {
+                (0..m).collect()
+            } else {
+                (0..m).rev().collect()
+            };
+            for j in js {
+                let i = s.n.len();
+                let dir = if p % 2 == 0 { 1.0 } else { -1.0 };
+                let wiggle = 1e-5 * ((i * 7919) % 13) as f64 / 13.0;
+                s.n.push(i as i64);
+                s.x_mm.push(j as f64 * 30.0);
+                s.h_mm.push(0.0);
+                s.dz_mm
+                    .push(2e-3 * (j as f64 * 0.3).sin() + k * p as f64 + c / 2.0 * dir + wiggle);
+                s.t_s.push(i as f64 * 0.1);
+                s.dir.push(dir);
+                s.pass.push(p as i32);
+                s.infeed_count.push(p as i32 + 1);
+                s.j.push(j);
+            }
+        }
+        s
+    }
+
+    #[test]
+    fn thermal_growth_and_reversal_are_recovered() {
+        let s = sep(4e-4, 2e-3);
+        let f = fit_thermal_reversal(&s, true, true);
+        let (k, c) = (f.k_mm_per_infeed.unwrap(), f.c_mm.unwrap());
+        assert!((k - 4e-4).abs() < 3e-6, "{k}");
+        assert!((c - 2e-3).abs() < 1e-5, "{c}");
+        assert!(f.k_sigma.unwrap() > 0.0 && f.k_sigma.unwrap() < 1e-5);
+        // Switched off: nothing fitted, the curve has no thermal part.
+        let off = fit_thermal_reversal(&s, false, false);
+        assert!(off.k_mm_per_infeed.is_none() && off.c_mm.is_none());
+        // One pass only: not fitted, and said so.
+        let mut one = sep(4e-4, 0.0);
+        one.infeed_count.iter_mut().for_each(|c| *c = 1);
+        let f1 = fit_thermal_reversal(&one, true, false);
+        assert!(f1.k_mm_per_infeed.is_none() && !f1.notes.is_empty());
+    }
+
+    #[test]
+    fn curve_adds_the_parts_and_takes_up_headstock_backlash() {
+        let s = sep(4e-4, 2e-3);
+        let f = fit_thermal_reversal(&s, true, true);
+        let c = curve(&s, &f, 2, &[0.3], 0.005, 0.001);
+        assert_eq!(c.rows[0], 3);
+        for i in 0..c.rows.len() {
+            let sum = c.f[i] + c.g[i] + c.dz_pred[i] + c.reversal[i] + c.backlash[i];
+            assert!((c.big_f[i] - sum).abs() < 1e-15);
+            assert_eq!(c.backlash[i].abs(), 0.0005);
+        }
+        // The table part left after g and C is the smooth straightness:
+        // predicted one step ahead it beats "same as the last sample".
+        let median = |mut r: Vec<f64>| {
+            r.sort_by(f64::total_cmp);
+            r[r.len() / 2]
+        };
+        let table = |i: usize| s.dz_mm[i] - f.g(s.infeed_count[i], None) - f.reversal(s.dir[i]);
+        let ar = median(c.residual.iter().map(|v| v.abs()).collect());
+        let persistence = median(
+            c.rows
+                .iter()
+                .map(|&m| (table(m) - table(m - 1)).abs())
+                .collect(),
+        );
+        assert!(ar < 0.5 * persistence, "{ar} vs {persistence}");
+    }
+}
