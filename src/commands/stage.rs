@@ -38,6 +38,41 @@ fn is_flag(s: &str) -> bool {
     s.starts_with("--") || (s.starts_with('-') && s.parse::<f64>().is_err() && s.len() > 1)
 }
 
+/// `stage NAME --run DIR --key value`: each leftover `--key value` becomes
+/// `--set <plugin>.<NAME>.<key>=value` (dashes in the key read as
+/// underscores) when the stage's config accepts that key — its own
+/// `validate_config` decides — e.g. `stage separate --run R --method
+/// recursion`. Flags it rejects stay in `args` (and are reported below);
+/// a known key with a bad value is an error naming the flag.
+fn flags_as_config(
+    engine: &sparkout_pipeline::engine::Engine,
+    run_dir: &std::path::Path,
+    name: &str,
+    args: &mut StageArgs,
+) -> anyhow::Result<Vec<String>> {
+    let (_, plugin) = engine.open_run(run_dir)?;
+    let Some(stage) = plugin.stages().into_iter().find(|s| s.name() == name) else {
+        return Ok(Vec::new());
+    };
+    let mut sets = Vec::new();
+    for (flag, value) in args.clone() {
+        let key = flag.replace('-', "_");
+        let set = format!("{}.{name}.{key}={value}", plugin.name());
+        let mut probe = sparkout_pipeline::engine::PipelineConfig::parse("", "flags")?;
+        probe.set(&set)?;
+        let section = probe.section(&format!("{}.{name}", plugin.name()));
+        match stage.validate_config(&section) {
+            Ok(()) => {
+                args.remove(&flag);
+                sets.push(set);
+            }
+            Err(e) if e.to_string().contains("unknown key") => {}
+            Err(e) => bail!("--{flag} {value}: {e}"),
+        }
+    }
+    Ok(sets)
+}
+
 pub fn stage(
     name: &str,
     run: Option<PathBuf>,
@@ -54,7 +89,14 @@ pub fn stage(
     if let Some(s) = args.remove("set") {
         config.set.push(s);
     }
-    let engine = registry::engine(&config)?;
+    let mut engine = registry::engine(&config)?;
+    if let Some(run_dir) = run.as_ref().filter(|_| !args.is_empty()) {
+        // With --run, leftover stage flags become config keys of that stage.
+        for set in flags_as_config(&engine, run_dir, name, &mut args)? {
+            config.set.push(set);
+        }
+        engine = registry::engine(&config)?;
+    }
     match run {
         None => {
             let stage = engine
@@ -77,8 +119,7 @@ pub fn stage(
             if !args.is_empty() {
                 let keys: Vec<&String> = args.keys().collect();
                 bail!(
-                    "stage flags {keys:?} are only for the run-less form; with --run, override config keys with --set {}.<stage>.<key>=<value>",
-                    "<plugin>"
+                    "stage flags {keys:?} are not config keys of stage `{name}`; with --run, flags map to its config keys (see configs/nightly.toml), or use --set <plugin>.<stage>.<key>=<value>"
                 );
             }
             let (stage, output) = engine.run_single_stage(&run_dir, name)?;

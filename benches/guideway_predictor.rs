@@ -1,0 +1,74 @@
+//! Criterion bench of the guide-way predictor (issue 6 item 8): AR order
+//! search by FPE over p = 1..20 on the twice-differenced series, online RLS
+//! of the chosen order, one-step prediction undone to δz, scalar Kalman
+//! fusion and a 20-step forecast — over 10⁶ samples of δz.
+//!
+//! The series: ARIMA(4,2,0) (MODELS.md §3.2's Φ(B)(1 − B)²δz = ε) driven by
+//! Irwin–Hall(4) noise from a xorshift64 generator, 1 µm innovations, in mm.
+//! benches/reference/ar_fpe.py builds the identical series and times
+//! statsmodels' AutoReg per order on it (target: ≥ 20× faster here).
+
+use criterion::{criterion_group, criterion_main, Criterion, Throughput};
+use sparkout_plugins::guideway::config::PredictorConfig;
+use sparkout_plugins::guideway::predictor::predict;
+use std::hint::black_box;
+
+const N: usize = 1_000_000;
+const AR: [f64; 4] = [0.5, -0.3, 0.25, -0.3];
+
+/// Same generator as benches/reference/ar_fpe.py.
+pub fn series() -> Vec<f64> {
+    let mut s: u64 = 0x2545_F491_4F6C_DD1D;
+    let mut uni = || {
+        s ^= s << 13;
+        s ^= s >> 7;
+        s ^= s << 17;
+        (s >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let mut y = vec![0.0; N];
+    for t in 0..N {
+        let e = (uni() + uni() + uni() + uni() - 2.0) * 3f64.sqrt() * 1e-3;
+        let mut v = e;
+        for (i, a) in AR.iter().enumerate() {
+            if t > i {
+                v += a * y[t - 1 - i];
+            }
+        }
+        y[t] = v;
+    }
+    for _ in 0..2 {
+        let mut acc = 0.0;
+        for v in y.iter_mut() {
+            acc += *v;
+            *v = acc;
+        }
+    }
+    y
+}
+
+fn bench(c: &mut Criterion) {
+    let dz = series();
+    let mut table = toml::Table::new();
+    table.insert("p_max".into(), toml::Value::Integer(20));
+    let cfg = PredictorConfig::from_table(&table, None);
+    // Once, untimed: what to compare with benches/reference/ar_fpe.py.
+    let p = predict(&dz, &cfg).expect("predict");
+    let fpe: Vec<String> = p.search.fpe[..5]
+        .iter()
+        .map(|v| format!("{v:.4e}"))
+        .collect();
+    eprintln!("order {}; FPE(1..5) {fpe:?}", p.search.order);
+    let mut g = c.benchmark_group("guideway_predictor");
+    g.throughput(Throughput::Elements(N as u64));
+    g.sample_size(10);
+    g.bench_function("fpe20_rls_kalman_1e6", |b| {
+        b.iter(|| {
+            let p = predict(black_box(&dz), &cfg).expect("predict");
+            black_box(p.prediction_error_var_mm2)
+        })
+    });
+    g.finish();
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);

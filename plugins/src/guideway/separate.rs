@@ -1,0 +1,221 @@
+//! `separate`: three-probe error separation of a run (MODELS.md §3.1), the
+//! published recursion or one least-squares solve over the whole travel
+//! (`[guideway.separate] method`, default `lsq`; see three_probe.rs).
+//!
+//! Artifact `separation`, one row per sample: n, x_mm, h_mm (workpiece
+//! under probe A), dz_mm, beta_rad, and for `lsq` h_sigma_mm, dz_sigma_mm,
+//! beta_sigma_rad (1σ, propagated); plus what the later stages need from the
+//! readings: t_s, dir, pass, infeed_count, j (grid index), temp_c (when
+//! recorded). The only stage that reads guideway.parquet: later stages work
+//! on this artifact, so a resampled run stays consistent downstream.
+
+use anyhow::Context;
+use arrow::array::{Array, Float64Array, Int32Array, Int64Array, Int8Array};
+use arrow::record_batch::RecordBatch;
+use serde_json::{json, Value};
+use sparkout_pipeline::contracts::{batch_f64, batch_i32, BatchBuilder};
+use sparkout_pipeline::{Result, Stage, StageContext, StageOutput};
+
+use super::config::SeparateConfig;
+use super::input::{self, Readings};
+use super::three_probe::{self, straightness_rms, Method, Separation};
+
+pub struct SeparateStage;
+
+fn rms(v: &[f64]) -> f64 {
+    if v.is_empty() {
+        return 0.0;
+    }
+    (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt()
+}
+
+fn num(x: f64) -> Value {
+    if x.is_finite() {
+        json!(x)
+    } else {
+        Value::Null
+    }
+}
+
+/// The `separation` artifact.
+pub fn batch(r: &Readings, s: &Separation) -> RecordBatch {
+    let mut b = BatchBuilder::new()
+        .i64("n", r.n.clone())
+        .f64("x_mm", r.x_mm.clone())
+        .f64("h_mm", s.h_at_samples(r))
+        .f64("dz_mm", s.dz_mm.clone())
+        .f64("beta_rad", s.beta_rad.clone());
+    if let (Some(hs), Some(ds), Some(bs)) = (
+        s.h_sigma_at_samples(r),
+        s.dz_sigma_mm.as_ref(),
+        s.beta_sigma_rad.as_ref(),
+    ) {
+        b = b
+            .f64("h_sigma_mm", hs)
+            .f64("dz_sigma_mm", ds.clone())
+            .f64("beta_sigma_rad", bs.clone());
+    }
+    b = b
+        .f64("t_s", r.t_s.clone())
+        .i8("dir", r.dir.iter().map(|d| *d as i8).collect())
+        .i32("pass", r.pass.clone())
+        .i32("infeed_count", r.infeed_count.clone())
+        .i32("j", r.j.iter().map(|j| *j as i32).collect());
+    if let Some(t) = &r.temp_c {
+        b = b.f64("temp_c", t.clone());
+    }
+    b.build()
+}
+
+/// The separation artifact read back by the later stages.
+#[derive(Debug, Clone)]
+pub struct SepData {
+    pub n: Vec<i64>,
+    pub x_mm: Vec<f64>,
+    pub h_mm: Vec<f64>,
+    pub dz_mm: Vec<f64>,
+    pub t_s: Vec<f64>,
+    pub dir: Vec<f64>,
+    pub pass: Vec<i32>,
+    pub infeed_count: Vec<i32>,
+    pub j: Vec<usize>,
+    pub temp_c: Option<Vec<f64>>,
+}
+
+impl SepData {
+    pub fn from_batch(b: &RecordBatch) -> Result<SepData> {
+        let col = |name: &str| {
+            b.column_by_name(name)
+                .with_context(|| format!("separation artifact has no column `{name}`"))
+        };
+        let n = col("n")?
+            .as_any()
+            .downcast_ref::<Int64Array>()
+            .context("separation.n must be int64")?
+            .values()
+            .to_vec();
+        let dir = col("dir")?
+            .as_any()
+            .downcast_ref::<Int8Array>()
+            .context("separation.dir must be int8")?
+            .values()
+            .iter()
+            .map(|d| *d as f64)
+            .collect();
+        let temp_c = match b.column_by_name("temp_c") {
+            Some(c) => Some(
+                c.as_any()
+                    .downcast_ref::<Float64Array>()
+                    .context("separation.temp_c must be float64")?
+                    .values()
+                    .to_vec(),
+            ),
+            None => None,
+        };
+        let j = col("j")?
+            .as_any()
+            .downcast_ref::<Int32Array>()
+            .filter(|a| a.null_count() == 0)
+            .context("separation.j must be int32")?
+            .values()
+            .iter()
+            .map(|v| *v as usize)
+            .collect();
+        Ok(SepData {
+            n,
+            x_mm: batch_f64(b, "x_mm")?.to_vec(),
+            h_mm: batch_f64(b, "h_mm")?.to_vec(),
+            dz_mm: batch_f64(b, "dz_mm")?.to_vec(),
+            t_s: batch_f64(b, "t_s")?.to_vec(),
+            dir,
+            pass: batch_i32(b, "pass")?.to_vec(),
+            infeed_count: batch_i32(b, "infeed_count")?.to_vec(),
+            j,
+            temp_c,
+        })
+    }
+    pub fn len(&self) -> usize {
+        self.n.len()
+    }
+    pub fn is_empty(&self) -> bool {
+        self.n.is_empty()
+    }
+}
+
+/// The stage's JSON summary (issue 6 item 1: method, n, h_rms_mm,
+/// dz_rms_mm; plus geometry, noise and the other method's figures).
+pub fn summary(r: &Readings, s: &Separation, other: Option<&Separation>) -> Value {
+    let max = |v: &Option<Vec<f64>>| {
+        v.as_ref()
+            .map(|v| num(v.iter().cloned().fold(0.0, f64::max)))
+            .unwrap_or(Value::Null)
+    };
+    let other = other.map(|o| {
+        let dh: f64 = {
+            let a: Vec<f64> = s.h_mm.iter().zip(&o.h_mm).map(|(a, b)| a - b).collect();
+            straightness_rms(&a)
+        };
+        json!({
+            "method": o.method.as_str(),
+            "h_rms_mm": num(straightness_rms(&o.h_mm)),
+            "dz_rms_mm": num(rms(&o.dz_mm)),
+            "h_difference_rms_mm": num(dh),
+        })
+    });
+    json!({
+        "method": s.method.as_str(),
+        "n": r.len(),
+        "h_rms_mm": num(straightness_rms(&s.h_mm)),
+        "dz_rms_mm": num(rms(&s.dz_mm)),
+        "beta_rms_rad": num(rms(&s.beta_rad)),
+        "reference": s.reference.map(|x| x.as_str()).unwrap_or("first_readings"),
+        "positions": s.h_mm.len(),
+        "passes": r.passes(),
+        "k": r.k,
+        "sample_step_mm": r.step_mm,
+        "probe_spacing_mm": r.spacing_mm,
+        "resampled": r.resampled,
+        "t_recorded": r.t_recorded,
+        "sigma_mm": s.sigma_mm.map(num).unwrap_or(Value::Null),
+        "sigma_source": s.sigma_source,
+        "dof": s.dof,
+        "h_sigma_max_mm": max(&s.h_sigma_mm),
+        "dz_sigma_max_mm": max(&s.dz_sigma_mm),
+        "other": other.unwrap_or(Value::Null),
+    })
+}
+
+impl Stage for SeparateStage {
+    fn name(&self) -> &'static str {
+        "separate"
+    }
+    fn version(&self) -> u32 {
+        1
+    }
+    fn reads_tables(&self) -> &'static [&'static str] {
+        &["guideway"]
+    }
+    fn reads_artifacts(&self) -> &'static [&'static str] {
+        &[]
+    }
+    fn writes(&self) -> &'static [&'static str] {
+        &["separation"]
+    }
+    fn about(&self) -> &'static str {
+        "three-probe error separation: workpiece h, table motion error δz, pitch β — published recursion or one LS solve with uncertainty (MODELS.md §3.1)"
+    }
+    fn validate_config(&self, config: &toml::Table) -> Result<()> {
+        SeparateConfig::validate(config)
+    }
+    fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
+        let cfg = SeparateConfig::from_ctx(ctx);
+        let r = input::load(ctx.run, &cfg.input)?;
+        let s = three_probe::separate(&r, cfg.method, cfg.reference, cfg.probe_sigma_mm)?;
+        let other_method = match cfg.method {
+            Method::Lsq => Method::Recursion,
+            Method::Recursion => Method::Lsq,
+        };
+        let other = three_probe::separate(&r, other_method, cfg.reference, cfg.probe_sigma_mm).ok();
+        Ok(StageOutput::new(summary(&r, &s, other.as_ref())).with("separation", batch(&r, &s)))
+    }
+}
