@@ -39,6 +39,7 @@ use super::identify::{function_sigma, identify, split, IdentOptions, Identified,
 pub struct TrackerData {
     pub path: std::path::PathBuf,
     pub point: Vec<i32>,
+    pub trial: Vec<i32>,
     pub tool: Vec<usize>,
     pub obs: Vec<Obs>,
     pub t_s: Option<Vec<f64>>,
@@ -46,8 +47,9 @@ pub struct TrackerData {
 
 /// Read tracker.parquet (CONTRACTS.md §1; NaN in required columns is
 /// rejected by the contract reader) and check what the contract does not:
-/// unique point ids, finite optional t_s, and the optional `tool` column
-/// (index into the machine's [tool] offsets_mm; 0 when absent).
+/// unique (point, trial), finite optional t_s, and the optional `tool`
+/// (index into the machine's [tool] offsets_mm) and `trial` columns (0 when
+/// absent).
 pub fn tracker_points(run: &Run, machine: &MillMachine) -> Result<TrackerData, InputError> {
     let table = run.require(&TRACKER)?;
     tracker_from_table(&table, machine)
@@ -55,13 +57,66 @@ pub fn tracker_points(run: &Run, machine: &MillMachine) -> Result<TrackerData, I
 
 pub fn tracker_from_table(table: &Table, machine: &MillMachine) -> Result<TrackerData, InputError> {
     let path = table.path().to_path_buf();
+    let n = table.len();
     let point = table.i32("point")?.to_vec();
-    let mut first: BTreeMap<i32, usize> = BTreeMap::new();
-    for (i, p) in point.iter().enumerate() {
-        if let Some(f) = first.insert(*p, i) {
+    // Optional integer columns beyond the contract (kept by the reader):
+    // `tool` (index into [tool] offsets_mm) and `trial` (repeat index of a
+    // re-measured point, as in probe.parquet), both 0 when absent.
+    let int_col = |name: &str, lo: i64, hi: i64, what: &str| -> Result<Vec<i64>, InputError> {
+        let Some(col) = table.batch().column_by_name(name) else {
+            return Ok(vec![0; n]);
+        };
+        let c = cast(col, &DataType::Int64).map_err(|e| {
+            InputError::new(&path, format!("`{name}` must be an integer column: {e}")).column(name)
+        })?;
+        let c = c
+            .as_any()
+            .downcast_ref::<Int64Array>()
+            .expect("cast to Int64");
+        (0..n)
+            .map(|i| {
+                let v = if c.is_null(i) { -1 } else { c.value(i) };
+                if v < lo || v > hi {
+                    Err(InputError::new(&path, format!("{name} {v}: {what}"))
+                        .column(name)
+                        .row(i))
+                } else {
+                    Ok(v)
+                }
+            })
+            .collect()
+    };
+    let tool: Vec<usize> = int_col(
+        "tool",
+        0,
+        machine.tools.len() as i64 - 1,
+        &format!(
+            "not one of the machine's {} tool offsets (0..{}); add it to [tool] offsets_mm",
+            machine.tools.len(),
+            machine.tools.len() - 1
+        ),
+    )?
+    .into_iter()
+    .map(|v| v as usize)
+    .collect();
+    let trial: Vec<i32> = int_col(
+        "trial",
+        0,
+        i32::MAX as i64,
+        "trial must be a non-negative integer",
+    )?
+    .into_iter()
+    .map(|v| v as i32)
+    .collect();
+    let mut first: BTreeMap<(i32, i32), usize> = BTreeMap::new();
+    for i in 0..n {
+        if let Some(f) = first.insert((point[i], trial[i]), i) {
             return Err(InputError::new(
                 &path,
-                format!("duplicated point id {p} (first at row {f}); every tracker point needs its own id"),
+                format!(
+                    "duplicated point id {} (trial {}; first at row {f}); every tracker measurement needs its own (point, trial)",
+                    point[i], trial[i]
+                ),
             )
             .column("point")
             .row(i));
@@ -77,38 +132,6 @@ pub fn tracker_from_table(table: &Table, machine: &MillMachine) -> Result<Tracke
             );
         }
     }
-    let n = table.len();
-    let tool: Vec<usize> = match table.batch().column_by_name("tool") {
-        None => vec![0; n],
-        Some(col) => {
-            let c = cast(col, &DataType::Int64).map_err(|e| {
-                InputError::new(&path, format!("`tool` must be an integer index: {e}"))
-                    .column("tool")
-            })?;
-            let c = c
-                .as_any()
-                .downcast_ref::<Int64Array>()
-                .expect("cast to Int64");
-            let mut out = Vec::with_capacity(n);
-            for i in 0..n {
-                let v = if c.is_null(i) { -1 } else { c.value(i) };
-                if v < 0 || v as usize >= machine.tools.len() {
-                    return Err(InputError::new(
-                        &path,
-                        format!(
-                            "tool index {v} is not one of the machine's {} tool offsets (0..{}); add it to [tool] offsets_mm",
-                            machine.tools.len(),
-                            machine.tools.len() - 1
-                        ),
-                    )
-                    .column("tool")
-                    .row(i));
-                }
-                out.push(v as usize);
-            }
-            out
-        }
-    };
     let (x, y, z) = (table.f64("x_mm")?, table.f64("y_mm")?, table.f64("z_mm")?);
     let (mx, my, mz) = (
         table.f64("mx_mm")?,
@@ -127,6 +150,7 @@ pub fn tracker_from_table(table: &Table, machine: &MillMachine) -> Result<Tracke
     Ok(TrackerData {
         path,
         point,
+        trial,
         tool,
         obs,
         t_s,
@@ -259,6 +283,7 @@ pub fn analyse(
     let map_batch = map_batch(model, &table, machine, cfg.map_grid);
     let resid_batch = BatchBuilder::new()
         .i32("point", data.point.clone())
+        .i32("trial", data.trial.clone())
         .i32("tool", data.tool.iter().map(|t| *t as i32).collect())
         .i32("holdout", holdout.iter().map(|h| *h as i32).collect())
         .f64("x_mm", data.obs.iter().map(|o| o.pt.q[0]).collect())

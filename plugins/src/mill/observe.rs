@@ -14,7 +14,8 @@
 //! the run cannot provide is left out of its table (CONTRACTS.md §2: an
 //! absent covariate makes the effects that need it inapplicable); in a
 //! fleet table those rows are null. `point` identifies the measurement
-//! (reserved, never a covariate).
+//! (reserved, never a covariate), with `trial` for re-measured
+//! points: the diagnosis takes its noise floor from such replicates.
 
 use std::collections::BTreeMap;
 
@@ -130,7 +131,8 @@ impl Stage for ObserveStage {
             .str("observable", &obs_name)
             .f64("sim", sim.clone())
             .f64("real", real.clone())
-            .i32("point", rows.iter().map(|&i| data.point[i]).collect());
+            .i32("point", rows.iter().map(|&i| data.point[i]).collect())
+            .i32("trial", rows.iter().map(|&i| data.trial[i]).collect());
         for (a, name) in ["x_mm", "y_mm", "z_mm"].iter().enumerate() {
             b = b.f64(name, rows.iter().map(|&i| data.obs[i].pt.q[a]).collect());
         }
