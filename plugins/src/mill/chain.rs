@@ -493,14 +493,14 @@ mod tests {
             let mut mm = m.clone();
             mm.params[j] -= h;
             let d = (mp.tracker_point(&pt) - mm.tracker_point(&pt)) / (2.0 * h);
-            for r in 0..3 {
-                let scale = d[r].abs().max(rows[r][j].abs()).max(1e-3);
+            for (r, row) in rows.iter().enumerate() {
+                let scale = d[r].abs().max(row[j].abs()).max(1e-3);
                 assert!(
-                    (d[r] - rows[r][j]).abs() / scale < 1e-5,
+                    (d[r] - row[j]).abs() / scale < 1e-5,
                     "param {} row {r}: numeric {} analytic {}",
                     m.layout.param_name(j),
                     d[r],
-                    rows[r][j]
+                    row[j]
                 );
             }
         }

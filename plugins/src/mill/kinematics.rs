@@ -178,8 +178,8 @@ impl CompTable {
             pos[a] = (0..=n)
                 .map(|i| lo + (hi - lo) * i as f64 / n as f64)
                 .collect();
-            for k in 0..6 {
-                values[a][k] = pos[a]
+            for (k, v) in values[a].iter_mut().enumerate() {
+                *v = pos[a]
                     .iter()
                     .map(|q| model.function_value(a * 6 + k, *q))
                     .collect();
@@ -194,13 +194,12 @@ impl CompTable {
     /// Linear interpolation of the tables (clamped at the travel ends).
     pub fn errors(&self, q: [f64; 3]) -> ErrorValues {
         let mut e = ErrorValues::default();
-        for a in 0..3 {
+        for (a, qa) in q.iter().enumerate() {
             let p = &self.pos[a];
-            let j = p.partition_point(|v| *v <= q[a]).clamp(1, p.len() - 1);
+            let j = p.partition_point(|v| v <= qa).clamp(1, p.len() - 1);
             let (q0, q1) = (p[j - 1], p[j]);
-            let w = ((q[a] - q0) / (q1 - q0)).clamp(0.0, 1.0);
-            for k in 0..6 {
-                let v = &self.values[a][k];
+            let w = ((qa - q0) / (q1 - q0)).clamp(0.0, 1.0);
+            for (k, v) in self.values[a].iter().enumerate() {
                 e.set(a * 6 + k, v[j - 1] + w * (v[j] - v[j - 1]));
             }
         }
@@ -544,23 +543,23 @@ fn table_batch(t: &CompTable, id: &Identified) -> RecordBatch {
     let mut pos = Vec::new();
     let mut cols: [Vec<f64>; 6] = Default::default();
     let mut sig: [Vec<f64>; 6] = Default::default();
-    for a in 0..3 {
+    for (a, name) in AXES.iter().enumerate() {
         for (i, q) in t.pos[a].iter().enumerate() {
-            axis.push(AXES[a]);
+            axis.push(*name);
             pos.push(*q);
-            for k in 0..6 {
-                cols[k].push(t.values[a][k][i]);
-                sig[k].push(function_sigma(id, a * 6 + k, *q));
+            for (k, (c, sg)) in cols.iter_mut().zip(sig.iter_mut()).enumerate() {
+                c.push(t.values[a][k][i]);
+                sg.push(function_sigma(id, a * 6 + k, *q));
             }
         }
     }
     let mut b = BatchBuilder::new().str("axis", &axis).f64("pos_mm", pos);
     let names = ["dx_mm", "dy_mm", "dz_mm", "ex_rad", "ey_rad", "ez_rad"];
-    for k in 0..6 {
-        b = b.f64(names[k], std::mem::take(&mut cols[k]));
+    for (name, c) in names.iter().zip(cols) {
+        b = b.f64(name, c);
     }
-    for k in 0..6 {
-        b = b.f64(&format!("sigma_{}", names[k]), std::mem::take(&mut sig[k]));
+    for (name, sg) in names.iter().zip(sig) {
+        b = b.f64(&format!("sigma_{name}"), sg);
     }
     b.build()
 }
@@ -572,7 +571,9 @@ fn map_batch(model: &Model, t: &CompTable, machine: &MillMachine, n: usize) -> R
         let (lo, hi) = model.layout.travels[a];
         lo + (hi - lo) * i as f64 / (n - 1) as f64
     };
-    let mut rows: Vec<([f64; 3], V3, V3)> = Vec::new();
+    // (position, error before, error after)
+    type MapRow = ([f64; 3], V3, V3);
+    let mut rows: Vec<MapRow> = Vec::new();
     for i in 0..n {
         for j in 0..n {
             for k in 0..n {
@@ -585,7 +586,7 @@ fn map_batch(model: &Model, t: &CompTable, machine: &MillMachine, n: usize) -> R
             }
         }
     }
-    let col = |f: &dyn Fn(&([f64; 3], V3, V3)) -> f64| rows.iter().map(f).collect::<Vec<_>>();
+    let col = |f: &dyn Fn(&MapRow) -> f64| rows.iter().map(f).collect::<Vec<_>>();
     BatchBuilder::new()
         .f64("x_mm", col(&|r| r.0[0]))
         .f64("y_mm", col(&|r| r.0[1]))
