@@ -409,7 +409,19 @@ fn summary(
         .collect();
     let w = model.omega();
     let t = model.translation();
+    // A fit far above the tracker's noise is still a fit, but a suspicious
+    // one: wrong tool offsets, mixed-up point ids, a moved tracker.
+    let mut warnings = Vec::new();
+    if id.sigma_mm > 10.0 * machine.tracker_sigma_mm {
+        warnings.push(format!(
+            "residual σ {:.4} mm is {:.0}× the tracker noise of the machine config ({} mm): check the tool offsets ([tool] offsets_mm, tracker.parquet `tool`), the point ids and whether the tracker moved during the measurement",
+            id.sigma_mm,
+            id.sigma_mm / machine.tracker_sigma_mm,
+            machine.tracker_sigma_mm
+        ));
+    }
     json!({
+        "warnings": warnings,
         "params": layout.n_params(),
         "fit_rms_mm": num(fit),
         "holdout_rms_mm": num(hold),

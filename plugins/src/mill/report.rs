@@ -62,6 +62,14 @@ fn identification(s: &Value) -> ReportSection {
             ],
         ],
     );
+    for w in s["warnings"].as_array().into_iter().flatten() {
+        if let Some(w) = w.as_str() {
+            html.push_str(&format!(
+                "<p class=\"bad\">{}</p>",
+                sparkout_pipeline::report::esc(w)
+            ));
+        }
+    }
     let sq = &s["squareness"];
     let rows: Vec<Vec<String>> = ["sq_xy", "sq_xz", "sq_yz"]
         .iter()
