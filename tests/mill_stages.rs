@@ -270,3 +270,46 @@ fn bad_tracker_points_name_file_column_and_row_and_the_batch_goes_on() {
         .is_file());
     assert!(!out.join("xfyz-mill/r0000").exists());
 }
+
+#[test]
+fn observations_pair_measured_and_modelled_deviations_and_leave_absent_covariates_out() {
+    let d = tempfile::tempdir().unwrap();
+    let run = generate(&d.path().join("runs"), 14, 1);
+    let observe = |out: &Path| {
+        let o = sparkout(&[
+            "stage",
+            "observe",
+            "--run",
+            run.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--json",
+        ]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        read_parquet(&out.join("observations.parquet")).unwrap()
+    };
+    let with = observe(&d.path().join("with"));
+    let n = with.num_rows();
+    assert_eq!(n % 3, 0);
+    for c in ["sim", "real", "x_mm", "y_mm", "z_mm", "t_s", "temp_c"] {
+        assert!(with.column_by_name(c).is_some(), "{c}");
+    }
+    // The gap is the identification residual: at the noise (2 µm) in x and y.
+    let (sim, real) = (f64s(&with, "sim"), f64s(&with, "real"));
+    let gap_rms = |r: std::ops::Range<usize>| {
+        (r.clone().map(|i| (real[i] - sim[i]).powi(2)).sum::<f64>() / r.len() as f64).sqrt()
+    };
+    assert!(
+        gap_rms(0..n / 3) < 0.003,
+        "tracker_dx gap {}",
+        gap_rms(0..n / 3)
+    );
+    // sim carries the machine's volumetric error, not zero.
+    assert!(sim.iter().map(|s| s.abs()).fold(0.0, f64::max) > 0.005);
+    // No thermal log: temp_c is left out (CONTRACTS.md §2), t_s stays.
+    std::fs::remove_file(run.join("thermal.parquet")).unwrap();
+    let without = observe(&d.path().join("without"));
+    assert!(without.column_by_name("temp_c").is_none());
+    assert!(without.column_by_name("t_s").is_some());
+    assert_eq!(without.num_rows(), n);
+}
