@@ -101,6 +101,34 @@ fn identification(s: &Value) -> ReportSection {
     }
 }
 
+/// Per error function: largest |value| over the travel and its largest σ.
+fn function_table(s: &Value) -> String {
+    let Some(f) = s["functions"].as_object() else {
+        return String::new();
+    };
+    let rows: Vec<Vec<String>> = f
+        .iter()
+        .map(|(name, v)| {
+            let rot = v["unit"].as_str() == Some("rad");
+            let fmt = |x: &Value| if rot { urad(x) } else { um(x) };
+            vec![
+                name.clone(),
+                if rot { "µrad" } else { "µm" }.to_string(),
+                if v["fixed"].as_bool() == Some(true) {
+                    "held at 0".into()
+                } else {
+                    fmt(&v["max_abs"])
+                },
+                fmt(&v["max_sigma"]),
+            ]
+        })
+        .collect();
+    table(
+        &["function", "unit", "max |value| over travel", "max σ"],
+        &rows,
+    )
+}
+
 fn functions(a: &ArtifactStore) -> Option<ReportSection> {
     let t = a.get("compensation_table").ok()??;
     let axis = sparkout_pipeline::contracts::batch_str(&t, "axis").ok()?;
@@ -110,7 +138,10 @@ fn functions(a: &ArtifactStore) -> Option<ReportSection> {
     if vals.len() != 6 {
         return None;
     }
-    let mut html = String::new();
+    let mut html = a
+        .summary("kinematics")
+        .map(|s| function_table(&s))
+        .unwrap_or_default();
     for ax in AXES {
         for (range, unit, scale) in [(0..3, "µm", 1e3), (3..6, "µrad", 1e6)] {
             let series: Vec<Vec<(f64, f64)>> = range
