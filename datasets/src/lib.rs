@@ -3,6 +3,7 @@
 //! deterministic, and the `sparkout validate` harness.
 
 pub mod guideway;
+pub mod mill;
 pub mod observations;
 pub mod robot;
 pub mod validate;

@@ -6,6 +6,7 @@ use std::sync::Arc;
 use sparkout_pipeline::MachinePlugin;
 
 pub mod guideway;
+pub mod mill;
 pub mod robot;
 
 /// Every plugin this build knows, in a fixed order.
@@ -13,5 +14,6 @@ pub fn all_plugins() -> Vec<Arc<dyn MachinePlugin>> {
     vec![
         Arc::new(robot::RobotPlugin),
         Arc::new(guideway::GuidewayPlugin),
+        Arc::new(mill::MillPlugin),
     ]
 }

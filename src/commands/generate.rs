@@ -70,6 +70,26 @@ pub fn generate(
             );
             Ok(0)
         }
+        "mill" => {
+            if list_effects {
+                for (name, about) in sparkout_datasets::mill::known_effects() {
+                    println!("{name:18} {about}");
+                }
+                return Ok(0);
+            }
+            if ae_rate_hz.is_some() {
+                bail!("--ae-rate-hz applies to `generate robot` only (a mill run has no AE log)");
+            }
+            let out = out.context("--out <fleet root> is required")?;
+            let cfg = sparkout_datasets::mill::MillFleetConfig {
+                runs,
+                seed,
+                ..Default::default()
+            };
+            let dirs = sparkout_datasets::mill::generate_fleet(&out, &cfg, &effects)?;
+            println!("generated {} mill runs under {}", dirs.len(), out.display());
+            Ok(0)
+        }
         "observations" => {
             if list_effects {
                 println!("any catalogue effect (CONTRACTS.md): offset, scale, drift, lag, inertia, backlash, wear, compliance, bow, periodic, edge, squareness, thermal — as NAME:COVARIATE=KEY=VALUE,...");
@@ -96,7 +116,7 @@ pub fn generate(
                 .map(|p| p.name())
                 .collect();
             bail!(
-                "no generator for `{other}` (plugins registered: {}; generators: robot, guideway, observations)",
+                "no generator for `{other}` (plugins registered: {}; generators: robot, guideway, mill, observations)",
                 plugins.join(", ")
             )
         }

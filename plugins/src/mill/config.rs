@@ -1,0 +1,349 @@
+//! The mill's machine config (configs/machines/xfyz-mill.toml) and its stage
+//! sections (`[mill.kinematics]`, `[mill.observe]`), each checked before use:
+//! unknown keys and bad values are errors that say what to do.
+
+use anyhow::{anyhow, bail};
+use serde::Deserialize;
+use sparkout_pipeline::contracts::MachineConfig;
+use sparkout_pipeline::{InputError, Result};
+
+use super::chain::{function_index, function_name, Layout, N_FUNCTIONS, V3};
+
+/// `[axes]`: travels (min, max) in mm.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct AxesToml {
+    x_mm: [f64; 2],
+    y_mm: [f64; 2],
+    z_mm: [f64; 2],
+}
+
+/// `[tool]`: the reflector offsets in the spindle (Z carriage) frame.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ToolToml {
+    offsets_mm: Vec<[f64; 3]>,
+}
+
+/// `[identification]` defaults (a `[mill.kinematics]` key overrides them).
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct IdentToml {
+    degree: Option<i64>,
+    holdout_fraction: Option<f64>,
+    seed: Option<i64>,
+    fixed: Option<Vec<String>>,
+}
+
+/// `[tracker]`: the instrument.
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct TrackerToml {
+    sigma_mm: Option<f64>,
+}
+
+/// A mill as the stages use it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MillMachine {
+    pub travels: [(f64, f64); 3],
+    pub tools: Vec<V3>,
+    pub degree: usize,
+    pub holdout_fraction: f64,
+    pub seed: u64,
+    /// Error functions held at zero.
+    pub fixed: Vec<usize>,
+    /// Tracker noise prior (mm, per coordinate): the generator's default.
+    pub tracker_sigma_mm: f64,
+}
+
+fn section<T: serde::de::DeserializeOwned + Default>(
+    m: &MachineConfig,
+    name: &str,
+    required: bool,
+) -> Result<T, InputError> {
+    match m.table.get(name) {
+        None if required => Err(InputError::new(
+            &m.source,
+            format!("the mill machine config needs a [{name}] table"),
+        )
+        .column(name)),
+        None => Ok(T::default()),
+        Some(v) => v
+            .clone()
+            .try_into()
+            .map_err(|e| InputError::new(&m.source, format!("[{name}]: {e}")).column(name)),
+    }
+}
+
+impl Default for AxesToml {
+    fn default() -> Self {
+        AxesToml {
+            x_mm: [0.0; 2],
+            y_mm: [0.0; 2],
+            z_mm: [0.0; 2],
+        }
+    }
+}
+
+impl Default for ToolToml {
+    fn default() -> Self {
+        ToolToml {
+            offsets_mm: vec![[0.0; 3]],
+        }
+    }
+}
+
+/// Function names → indices, with an error naming the bad one.
+pub fn parse_fixed(names: &[String]) -> Result<Vec<usize>> {
+    names
+        .iter()
+        .map(|n| {
+            function_index(n).ok_or_else(|| {
+                let known: Vec<String> = (0..N_FUNCTIONS).map(function_name).collect();
+                anyhow!(
+                    "`fixed`: unknown error function `{n}` (known: {})",
+                    known.join(", ")
+                )
+            })
+        })
+        .collect()
+}
+
+fn check_degree(d: i64) -> Result<usize> {
+    if !(2..=8).contains(&d) {
+        bail!("`degree` must be an integer in 2..=8 (2 is the least that leaves straightness a shape), found {d}");
+    }
+    Ok(d as usize)
+}
+
+fn check_holdout(f: f64) -> Result<f64> {
+    if !(f.is_finite() && (0.0..0.9).contains(&f)) {
+        bail!("`holdout_fraction` must be in [0, 0.9) (0 = no held-out validation), found {f}");
+    }
+    Ok(f)
+}
+
+impl MillMachine {
+    pub fn from_config(m: &MachineConfig) -> Result<MillMachine, InputError> {
+        let bad = |key: &str, msg: String| InputError::new(&m.source, msg).column(key);
+        let axes: AxesToml = section(m, "axes", true)?;
+        let tool: ToolToml = section(m, "tool", false)?;
+        let ident: IdentToml = section(m, "identification", false)?;
+        let tracker: TrackerToml = section(m, "tracker", false)?;
+        let mut travels = [(0.0, 0.0); 3];
+        for (a, (name, t)) in [
+            ("x_mm", axes.x_mm),
+            ("y_mm", axes.y_mm),
+            ("z_mm", axes.z_mm),
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            if !(t[0].is_finite() && t[1].is_finite() && t[1] > t[0]) {
+                return Err(bad(
+                    &format!("axes.{name}"),
+                    format!("travel must be [min, max] with max > min, found {t:?}"),
+                ));
+            }
+            travels[a] = (t[0], t[1]);
+        }
+        if tool.offsets_mm.is_empty() || tool.offsets_mm.iter().flatten().any(|v| !v.is_finite()) {
+            return Err(bad(
+                "tool.offsets_mm",
+                "needs at least one finite [x, y, z] offset".into(),
+            ));
+        }
+        let degree = check_degree(ident.degree.unwrap_or(3))
+            .map_err(|e| bad("identification.degree", e.to_string()))?;
+        let holdout_fraction = check_holdout(ident.holdout_fraction.unwrap_or(0.2))
+            .map_err(|e| bad("identification.holdout_fraction", e.to_string()))?;
+        let seed = ident.seed.unwrap_or(0);
+        if seed < 0 {
+            return Err(bad("identification.seed", "must be ≥ 0".into()));
+        }
+        let fixed = parse_fixed(&ident.fixed.unwrap_or_default())
+            .map_err(|e| bad("identification.fixed", e.to_string()))?;
+        let tracker_sigma_mm = tracker.sigma_mm.unwrap_or(0.002);
+        if !(tracker_sigma_mm.is_finite() && tracker_sigma_mm > 0.0) {
+            return Err(bad("tracker.sigma_mm", "must be > 0".into()));
+        }
+        Ok(MillMachine {
+            travels,
+            tools: tool.offsets_mm.iter().map(|t| V3::from(*t)).collect(),
+            degree,
+            holdout_fraction,
+            seed: seed as u64,
+            fixed,
+            tracker_sigma_mm,
+        })
+    }
+
+    pub fn layout(&self) -> Layout {
+        Layout::new(self.degree, self.travels, &self.fixed)
+    }
+}
+
+/// `[mill.kinematics]`.
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct KinematicsToml {
+    degree: Option<i64>,
+    holdout_fraction: Option<f64>,
+    seed: Option<i64>,
+    fixed: Option<Vec<String>>,
+    rcond: Option<f64>,
+    max_evaluations: Option<i64>,
+    map_grid: Option<i64>,
+    table_step_mm: Option<f64>,
+}
+
+/// The kinematics stage's settings (machine defaults + stage overrides).
+#[derive(Debug, Clone, PartialEq)]
+pub struct KinematicsConfig {
+    pub degree: Option<usize>,
+    pub holdout_fraction: Option<f64>,
+    pub seed: Option<u64>,
+    pub fixed: Option<Vec<usize>>,
+    /// Smallest reciprocal condition number of the column-scaled Jacobian
+    /// accepted as full rank.
+    pub rcond: f64,
+    pub max_evaluations: usize,
+    /// Volumetric map: points per axis.
+    pub map_grid: usize,
+    /// Spacing of the compensation table, mm.
+    pub table_step_mm: f64,
+}
+
+impl KinematicsConfig {
+    pub fn parse(t: &toml::Table) -> Result<KinematicsConfig> {
+        let k: KinematicsToml = toml::Value::Table(t.clone()).try_into()?;
+        let rcond = k.rcond.unwrap_or(1e-8);
+        if !(rcond > 0.0 && rcond < 1e-2) {
+            bail!("key `rcond` must be in (0, 0.01), found {rcond}");
+        }
+        let max_evaluations = k.max_evaluations.unwrap_or(200);
+        if !(10..=100_000).contains(&max_evaluations) {
+            bail!("key `max_evaluations` must be in 10..=100000, found {max_evaluations}");
+        }
+        let map_grid = k.map_grid.unwrap_or(7);
+        if !(2..=50).contains(&map_grid) {
+            bail!("key `map_grid` must be in 2..=50 points per axis, found {map_grid}");
+        }
+        let table_step_mm = k.table_step_mm.unwrap_or(25.0);
+        if !(table_step_mm.is_finite() && table_step_mm > 0.0) {
+            bail!("key `table_step_mm` must be > 0, found {table_step_mm}");
+        }
+        if let Some(s) = k.seed {
+            if s < 0 {
+                bail!("key `seed` must be ≥ 0, found {s}");
+            }
+        }
+        Ok(KinematicsConfig {
+            degree: k.degree.map(check_degree).transpose()?,
+            holdout_fraction: k.holdout_fraction.map(check_holdout).transpose()?,
+            seed: k.seed.map(|s| s as u64),
+            fixed: k.fixed.as_deref().map(parse_fixed).transpose()?,
+            rcond,
+            max_evaluations: max_evaluations as usize,
+            map_grid: map_grid as usize,
+            table_step_mm,
+        })
+    }
+
+    /// The machine with this section's overrides applied.
+    pub fn apply(&self, m: &MillMachine) -> MillMachine {
+        let mut m = m.clone();
+        if let Some(d) = self.degree {
+            m.degree = d;
+        }
+        if let Some(f) = self.holdout_fraction {
+            m.holdout_fraction = f;
+        }
+        if let Some(s) = self.seed {
+            m.seed = s;
+        }
+        if let Some(f) = &self.fixed {
+            m.fixed = f.clone();
+        }
+        m
+    }
+}
+
+/// `[mill.observe]`.
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ObserveToml {
+    temp_sensor: Option<String>,
+}
+
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ObserveConfig {
+    /// thermal.parquet sensor whose reading is `temp_c`; `None` = the mean
+    /// of all sensors.
+    pub temp_sensor: Option<String>,
+}
+
+impl ObserveConfig {
+    pub fn parse(t: &toml::Table) -> Result<ObserveConfig> {
+        let o: ObserveToml = toml::Value::Table(t.clone()).try_into()?;
+        if o.temp_sensor
+            .as_deref()
+            .is_some_and(|s| s.trim().is_empty())
+        {
+            bail!("key `temp_sensor` must name a sensor of thermal.parquet (or be left out for the mean of all sensors)");
+        }
+        Ok(ObserveConfig {
+            temp_sensor: o.temp_sensor,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn machine(text: &str) -> Result<MillMachine, InputError> {
+        MillMachine::from_config(&MachineConfig {
+            id: "m".into(),
+            source: "m.toml".into(),
+            table: text.parse().unwrap(),
+            text: text.into(),
+        })
+    }
+
+    #[test]
+    fn builtin_machine_parses() {
+        let m = machine(super::super::XFYZ_MILL_TOML).unwrap();
+        assert_eq!(m.tools.len(), 3);
+        assert_eq!(m.degree, 3);
+        assert!(m.travels[0].1 > m.travels[0].0);
+    }
+
+    #[test]
+    fn bad_machine_values_name_the_key() {
+        let e = machine("[axes]\nx_mm = [0, 600]\ny_mm = [0, 400]\nz_mm = [300, 0]\n").unwrap_err();
+        assert_eq!(e.column.as_deref(), Some("axes.z_mm"));
+        let e =
+            machine("[axes]\nx_mm = [0, 600]\ny_mm = [0, 400]\nz_mm = [0, 300]\nw_mm = [0, 1]\n")
+                .unwrap_err();
+        assert!(e.message.contains("w_mm"), "{e}");
+        let e = machine(
+            "[axes]\nx_mm = [0, 600]\ny_mm = [0, 400]\nz_mm = [0, 300]\n[identification]\nfixed = [\"ex_q\"]\n",
+        )
+        .unwrap_err();
+        assert!(e.message.contains("ex_q"), "{e}");
+    }
+
+    #[test]
+    fn stage_sections_reject_unknown_keys_and_bad_values() {
+        let t = |s: &str| s.parse::<toml::Table>().unwrap();
+        assert!(KinematicsConfig::parse(&t("degree = 4\nmap_grid = 5")).is_ok());
+        let e = KinematicsConfig::parse(&t("degre = 4")).unwrap_err();
+        assert!(e.to_string().contains("degre"), "{e}");
+        assert!(KinematicsConfig::parse(&t("holdout_fraction = 0.95")).is_err());
+        assert!(KinematicsConfig::parse(&t("degree = 1")).is_err());
+        assert!(KinematicsConfig::parse(&t("fixed = [\"ez_z\", \"nope\"]")).is_err());
+        assert!(ObserveConfig::parse(&t("temp_sensor = \"spindle\"")).is_ok());
+        assert!(ObserveConfig::parse(&t("sensor = 1")).is_err());
+    }
+}

@@ -1,0 +1,64 @@
+//! Three-axis XFYZ mill, volumetric verification with a laser tracker
+//! (MODELS.md §5): 21 error functions (18 per-axis translations and
+//! rotations as Legendre series of configurable degree, 3 squareness terms)
+//! and the tracker frame identified by Levenberg–Marquardt.
+//!
+//! Stages (edges from the artifacts they read and write):
+//!
+//! | stage | reads | writes |
+//! |---|---|---|
+//! | `kinematics` | tracker | `kinematic_params`, `kinematic_covariance`, `compensation_table`, `volumetric_map`, `tracker_residuals`, `compensation_path` |
+//! | `observe` | tracker, thermal, `kinematic_params` | `observations` |
+//!
+//! tracker.parquet follows CONTRACTS.md §1; an optional integer column
+//! `tool` (an extra column, which the contract passes through) says which of
+//! the machine's `[tool] offsets_mm` each point was measured with — several
+//! offsets are what makes the spindle carriage's rotations identifiable.
+
+use std::sync::Arc;
+
+use sparkout_pipeline::diagnose::Effect;
+use sparkout_pipeline::{ArtifactStore, MachinePlugin, ReportSection, Run, Stage};
+
+pub mod chain;
+pub mod config;
+pub mod identify;
+pub mod kinematics;
+pub mod observe;
+pub mod report;
+
+/// The XFYZ mill of the volumetric verification, built into the binary.
+pub const XFYZ_MILL_TOML: &str = include_str!("../../../configs/machines/xfyz-mill.toml");
+
+/// The `mill` plugin.
+pub struct MillPlugin;
+
+impl MachinePlugin for MillPlugin {
+    fn name(&self) -> &'static str {
+        "mill"
+    }
+    fn required_tables(&self) -> Vec<Vec<&'static str>> {
+        vec![vec!["tracker"]]
+    }
+    fn stages(&self) -> Vec<Arc<dyn Stage>> {
+        vec![
+            Arc::new(kinematics::KinematicsStage),
+            Arc::new(observe::ObserveStage),
+        ]
+    }
+    fn builtin_machines(&self) -> Vec<(&'static str, &'static str)> {
+        vec![("xfyz-mill", XFYZ_MILL_TOML)]
+    }
+    /// No composite: thermal growth during the measurement is the
+    /// catalogue's `drift:t_s` (warm-up, A·(1 − e^(−t/τ))) or, with a
+    /// temperature log, `thermal:temp_c`. A composite renaming drift on t_s
+    /// would replace `drift:t_s` in every diagnosis — plugin effects apply
+    /// to all observables of a fleet, other plugins' and imported
+    /// observations included — so the mill adds none.
+    fn effects(&self) -> Vec<Box<dyn Effect>> {
+        Vec::new()
+    }
+    fn report_sections(&self, run: &Run, artifacts: &ArtifactStore) -> Vec<ReportSection> {
+        report::sections(run, artifacts)
+    }
+}

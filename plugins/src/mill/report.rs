@@ -1,0 +1,294 @@
+//! Report sections of a mill run: the identification (numbers, squareness,
+//! tracker frame), the identified error functions, the volumetric error map
+//! before and after compensation, and the residuals (MODELS.md §5).
+
+use serde_json::Value;
+use sparkout_pipeline::contracts::{batch_f64, batch_i32};
+use sparkout_pipeline::report::svg::{heatmap, xy_chart, Mark, Series};
+use sparkout_pipeline::report::table;
+use sparkout_pipeline::{ArtifactStore, ReportSection, Run};
+
+use super::chain::{AXES, KINDS};
+
+fn um(v: &Value) -> String {
+    v.as_f64()
+        .filter(|x| x.is_finite())
+        .map(|x| format!("{:.2}", x * 1e3))
+        .unwrap_or_else(|| "—".into())
+}
+
+fn urad(v: &Value) -> String {
+    v.as_f64()
+        .filter(|x| x.is_finite())
+        .map(|x| format!("{:.2}", x * 1e6))
+        .unwrap_or_else(|| "—".into())
+}
+
+fn identification(s: &Value) -> ReportSection {
+    let mut html = table(
+        &["quantity", "value"],
+        &[
+            vec!["parameters".into(), s["params"].to_string()],
+            vec![
+                "points (identification / held out)".into(),
+                format!("{} / {}", s["points_identification"], s["points_holdout"]),
+            ],
+            vec!["fit RMS (µm, 3-D)".into(), um(&s["fit_rms_mm"])],
+            vec!["held-out RMS (µm, 3-D)".into(), um(&s["holdout_rms_mm"])],
+            vec!["residual σ per coordinate (µm)".into(), um(&s["sigma_mm"])],
+            vec![
+                "volumetric error before (µm RMS)".into(),
+                um(&s["before_rms_mm"]),
+            ],
+            vec![
+                "volumetric error after table compensation (µm RMS)".into(),
+                um(&s["after_rms_mm"]),
+            ],
+            vec![
+                "degree / tools".into(),
+                format!("{} / {}", s["degree"], s["tools"]),
+            ],
+            vec![
+                "rcond (scaled Jacobian)".into(),
+                format!("{:.2e}", s["rcond"].as_f64().unwrap_or(f64::NAN)),
+            ],
+            vec![
+                "solver".into(),
+                format!(
+                    "{} evaluations, {}",
+                    s["evaluations"],
+                    s["termination"].as_str().unwrap_or("?")
+                ),
+            ],
+        ],
+    );
+    for w in s["warnings"].as_array().into_iter().flatten() {
+        if let Some(w) = w.as_str() {
+            html.push_str(&format!(
+                "<p class=\"bad\">{}</p>",
+                sparkout_pipeline::report::esc(w)
+            ));
+        }
+    }
+    let sq = &s["squareness"];
+    let rows: Vec<Vec<String>> = ["sq_xy", "sq_xz", "sq_yz"]
+        .iter()
+        .map(|k| {
+            vec![
+                k.to_string(),
+                urad(&sq[k]["value_rad"]),
+                urad(&sq[k]["sigma_rad"]),
+            ]
+        })
+        .collect();
+    html.push_str(&table(&["squareness", "value (µrad)", "σ (µrad)"], &rows));
+    let gauge: Vec<String> = s["gauge"]
+        .as_array()
+        .map(|a| {
+            a.iter()
+                .filter_map(|g| g.as_str())
+                .map(|g| format!("<li>{}</li>", sparkout_pipeline::report::esc(g)))
+                .collect()
+        })
+        .unwrap_or_default();
+    html.push_str(&format!(
+        "<p class=\"note\">Fixed gauge freedoms (not identifiable from any tracker data, held at zero):</p><ul class=\"note\">{}</ul>",
+        gauge.join("")
+    ));
+    ReportSection {
+        title: "Volumetric identification (21 errors + tracker frame)".into(),
+        html,
+    }
+}
+
+/// Per error function: largest |value| over the travel and its largest σ.
+fn function_table(s: &Value) -> String {
+    let Some(f) = s["functions"].as_object() else {
+        return String::new();
+    };
+    let rows: Vec<Vec<String>> = f
+        .iter()
+        .map(|(name, v)| {
+            let rot = v["unit"].as_str() == Some("rad");
+            let fmt = |x: &Value| if rot { urad(x) } else { um(x) };
+            vec![
+                name.clone(),
+                if rot { "µrad" } else { "µm" }.to_string(),
+                if v["fixed"].as_bool() == Some(true) {
+                    "held at 0".into()
+                } else {
+                    fmt(&v["max_abs"])
+                },
+                fmt(&v["max_sigma"]),
+            ]
+        })
+        .collect();
+    table(
+        &["function", "unit", "max |value| over travel", "max σ"],
+        &rows,
+    )
+}
+
+fn functions(a: &ArtifactStore) -> Option<ReportSection> {
+    let t = a.get("compensation_table").ok()??;
+    let axis = sparkout_pipeline::contracts::batch_str(&t, "axis").ok()?;
+    let pos = batch_f64(&t, "pos_mm").ok()?;
+    let cols = ["dx_mm", "dy_mm", "dz_mm", "ex_rad", "ey_rad", "ez_rad"];
+    let vals: Vec<&[f64]> = cols.iter().filter_map(|c| batch_f64(&t, c).ok()).collect();
+    if vals.len() != 6 {
+        return None;
+    }
+    let mut html = a
+        .summary("kinematics")
+        .map(|s| function_table(&s))
+        .unwrap_or_default();
+    for ax in AXES {
+        for (range, unit, scale) in [(0..3, "µm", 1e3), (3..6, "µrad", 1e6)] {
+            let series: Vec<Vec<(f64, f64)>> = range
+                .clone()
+                .map(|k| {
+                    (0..pos.len())
+                        .filter(|&i| axis[i] == ax)
+                        .map(|i| (pos[i], vals[k][i] * scale))
+                        .collect()
+                })
+                .collect();
+            let names: Vec<String> = range
+                .clone()
+                .map(|k| format!("{}_{ax}", KINDS[k]))
+                .collect();
+            let s: Vec<Series> = series
+                .iter()
+                .zip(&names)
+                .map(|(p, n)| Series {
+                    name: n,
+                    points: p,
+                    mark: Mark::Line,
+                })
+                .collect();
+            html.push_str(&xy_chart(
+                &format!(
+                    "{} error functions of {}",
+                    if unit == "µm" {
+                        "Translational"
+                    } else {
+                        "Rotational"
+                    },
+                    ax.to_uppercase()
+                ),
+                &format!("{ax}_mm"),
+                unit,
+                &s,
+            ));
+        }
+    }
+    Some(ReportSection {
+        title: "Error functions (compensation table)".into(),
+        html,
+    })
+}
+
+fn map(a: &ArtifactStore) -> Option<ReportSection> {
+    let m = a.get("volumetric_map").ok()??;
+    let (x, y, z) = (
+        batch_f64(&m, "x_mm").ok()?,
+        batch_f64(&m, "y_mm").ok()?,
+        batch_f64(&m, "z_mm").ok()?,
+    );
+    let (before, after) = (
+        batch_f64(&m, "before_mm").ok()?,
+        batch_f64(&m, "after_mm").ok()?,
+    );
+    let mut zs: Vec<f64> = z.to_vec();
+    zs.sort_by(f64::total_cmp);
+    zs.dedup();
+    let mut html = String::new();
+    // Bottom, middle and top Z levels.
+    let levels = [zs[0], zs[zs.len() / 2], zs[zs.len() - 1]];
+    for zl in levels {
+        let pick = |v: &[f64]| -> Vec<(f64, f64, f64)> {
+            (0..x.len())
+                .filter(|&i| z[i] == zl)
+                .map(|i| (x[i], y[i], v[i] * 1e3))
+                .collect()
+        };
+        html.push_str(&heatmap(
+            &format!("|volumetric error| before compensation, z = {zl:.0} mm"),
+            &pick(before),
+            "µm",
+        ));
+        html.push_str(&heatmap(
+            &format!("|volumetric error| after table compensation, z = {zl:.0} mm"),
+            &pick(after),
+            "µm",
+        ));
+    }
+    Some(ReportSection {
+        title: "Volumetric error map before and after compensation".into(),
+        html,
+    })
+}
+
+fn residuals(a: &ArtifactStore) -> Option<ReportSection> {
+    let r = a.get("tracker_residuals").ok()??;
+    let hold = batch_i32(&r, "holdout").ok()?;
+    let res = batch_f64(&r, "residual_mm").ok()?;
+    let before: Vec<f64> = (0..r.num_rows())
+        .map(|i| {
+            let d = |c: &str| batch_f64(&r, c).map(|v| v[i]).unwrap_or(f64::NAN);
+            (d("measured_dx_mm").powi(2)
+                + d("measured_dy_mm").powi(2)
+                + d("measured_dz_mm").powi(2))
+            .sqrt()
+        })
+        .collect();
+    let pts = |h: i32, v: &[f64]| -> Vec<(f64, f64)> {
+        (0..v.len())
+            .filter(|&i| hold[i] == h)
+            .map(|i| (i as f64, v[i] * 1e3))
+            .collect()
+    };
+    let (fi, ho, bf) = (pts(0, res), pts(1, res), pts(0, &before));
+    let mut html = xy_chart(
+        "3-D residual per point (measurement order)",
+        "point (row)",
+        "µm",
+        &[
+            Series {
+                name: "identification",
+                points: &fi,
+                mark: Mark::Points,
+            },
+            Series {
+                name: "held out",
+                points: &ho,
+                mark: Mark::Points,
+            },
+        ],
+    );
+    html.push_str(&xy_chart(
+        "Measured volumetric error (before compensation), identification points",
+        "point (row)",
+        "µm",
+        &[Series {
+            name: "|d|",
+            points: &bf,
+            mark: Mark::Points,
+        }],
+    ));
+    Some(ReportSection {
+        title: "Residuals".into(),
+        html,
+    })
+}
+
+pub fn sections(_run: &Run, artifacts: &ArtifactStore) -> Vec<ReportSection> {
+    let mut out = Vec::new();
+    if let Some(s) = artifacts.summary("kinematics") {
+        out.push(identification(&s));
+    }
+    out.extend(functions(artifacts));
+    out.extend(map(artifacts));
+    out.extend(residuals(artifacts));
+    out
+}

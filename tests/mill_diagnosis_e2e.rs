@@ -1,0 +1,120 @@
+//! Issue 7, end to end through the binary: a generated mill fleet with one
+//! injected effect outside the identified 21-error model, run through
+//! `sparkout run`, gets that effect named first in the fleet's
+//! diagnosis.json with a held-out shrink; an effect-free fleet gets none.
+
+mod common;
+use common::sparkout;
+
+use std::path::Path;
+
+fn diagnose_fleet(dir: &Path, seed: u64, effect: Option<&str>) -> serde_json::Value {
+    let root = dir.join("runs");
+    let out = dir.join("out");
+    let seed = seed.to_string();
+    let mut args = vec![
+        "generate",
+        "mill",
+        "--runs",
+        "6",
+        "--seed",
+        &seed,
+        "--out",
+        root.to_str().unwrap(),
+    ];
+    if let Some(e) = effect {
+        args.extend(["--effect", e]);
+    }
+    let g = sparkout(&args);
+    assert!(g.status.success(), "{}", String::from_utf8_lossy(&g.stderr));
+    let r = sparkout(&[
+        "run",
+        "--input",
+        root.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(
+        r.status.success(),
+        "{}\n{}",
+        String::from_utf8_lossy(&r.stdout),
+        String::from_utf8_lossy(&r.stderr)
+    );
+    serde_json::from_slice(&std::fs::read(out.join("fleet/diagnosis.json")).unwrap()).unwrap()
+}
+
+fn first_selected(d: &serde_json::Value) -> String {
+    d["selected"]
+        .as_array()
+        .and_then(|a| a.first())
+        .and_then(|s| s.as_str())
+        .unwrap_or("")
+        .to_string()
+}
+
+/// The selected entry of `key` (its shrink and parameters).
+fn selected_entry<'a>(d: &'a serde_json::Value, key: &str) -> &'a serde_json::Value {
+    d["effects"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|e| e["selected"].as_bool() == Some(true))
+        .find(|e| {
+            let k = match e["covariate"].as_str() {
+                Some(c) => format!("{}:{c}", e["name"].as_str().unwrap()),
+                None => e["name"].as_str().unwrap().to_string(),
+            };
+            k == key
+        })
+        .unwrap_or_else(|| panic!("no selected entry {key}: {d:#}"))
+}
+
+#[test]
+fn thermal_growth_is_named_first() {
+    let d = tempfile::tempdir().unwrap();
+    let diag = diagnose_fleet(d.path(), 21, Some("thermal_growth"));
+    let first = first_selected(&diag);
+    // Physically one thing: growth that follows the warm-up in time
+    // (catalogue `drift` on t_s) or, since the spindle sensor warms with
+    // it, the catalogue's expansion with temperature.
+    assert!(
+        first == "drift:t_s" || first == "thermal:temp_c",
+        "expected thermal growth first, got {first:?}; selected {}",
+        diag["selected"]
+    );
+    let e = selected_entry(&diag, &first);
+    assert_eq!(e["observable"], "tracker_dz", "{e:#}");
+    assert!(e["shrink"].as_f64().unwrap() > 0.3, "{e:#}");
+    if first == "drift:t_s" {
+        let tau = e["params"]["tau_s"].as_f64().unwrap();
+        assert!((300.0..1200.0).contains(&tau), "τ {tau} (true 600 s)");
+    } else {
+        // 0.025 mm of growth while temp_c (the mean of the spindle sensor,
+        // +6 °C, and the bed sensor, steady) rises by 3 °C.
+        let k = e["params"]["k"].as_f64().unwrap();
+        assert!((0.006..0.011).contains(&k), "k {k} mm/°C (true ≈ 0.0083)");
+    }
+}
+
+#[test]
+fn waviness_beyond_the_polynomial_degree_is_named_periodic_in_x() {
+    let d = tempfile::tempdir().unwrap();
+    let diag = diagnose_fleet(d.path(), 22, Some("x_waviness"));
+    assert_eq!(
+        first_selected(&diag),
+        "periodic:x_mm",
+        "{}",
+        diag["selected"]
+    );
+    let e = selected_entry(&diag, "periodic:x_mm");
+    let lambda = e["params"]["lambda"].as_f64().unwrap();
+    assert!((lambda - 75.0).abs() < 5.0, "λ {lambda} (true 75 mm)");
+    assert!(e["shrink"].as_f64().unwrap() > 0.2, "{e:#}");
+}
+
+#[test]
+fn effect_free_mill_fleet_names_nothing() {
+    let d = tempfile::tempdir().unwrap();
+    let diag = diagnose_fleet(d.path(), 23, None);
+    assert_eq!(diag["selected"], serde_json::json!([]), "{diag:#}");
+}
