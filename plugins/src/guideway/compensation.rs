@@ -390,8 +390,8 @@ mod tests {
                     .push(2e-3 * (j as f64 * 0.3).sin() + k * p as f64 + c / 2.0 * dir + wiggle);
                 s.t_s.push(i as f64 * 0.1);
                 s.dir.push(dir);
-                s.pass.push(p as i32);
-                s.infeed_count.push(p as i32 + 1);
+                s.pass.push(p);
+                s.infeed_count.push(p + 1);
                 s.j.push(j);
             }
         }
