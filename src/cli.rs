@@ -105,7 +105,7 @@ pub enum Command {
                       Effects: NAME[:COVARIATE]=KEY=VALUE,... (repeatable). `sparkout generate robot --list-effects` lists them."
     )]
     Generate {
-        /// What to generate: a plugin name (robot) or `observations`.
+        /// What to generate: a plugin name (robot, guideway) or `observations`.
         what: String,
         /// Number of runs.
         #[arg(long, default_value_t = 4)]

@@ -150,6 +150,9 @@ fn lsq_error_grows_more_slowly_along_the_travel_than_the_recursion() {
     let n = seeds as f64;
     let (rec_end, lsq_end, rec_growth, lsq_growth) =
         (rec_end / n, lsq_end / n, rec_growth / n, lsq_growth / n);
+    eprintln!(
+        "h error, last quarter: lsq {lsq_end:.3e} mm, recursion {rec_end:.3e} mm; growth last/first quarter: lsq {lsq_growth:.2}, recursion {rec_growth:.2}"
+    );
     // The recursion starts exact and integrates the noise twice along the
     // travel; the LS solve spreads it over the travel and averages passes.
     assert!(
@@ -274,6 +277,45 @@ fn stages_run_alone_with_json_and_the_method_flag() {
     for f in ["predictor.parquet", "ar_fpe.parquet", "forecast.parquet"] {
         assert!(out.join(f).is_file(), "{f}");
     }
+    // Run-less forms: a guideway.parquet with its geometry; any δz column.
+    let gw = Path::new(run).join("guideway.parquet");
+    let s = json(&sparkout(&[
+        "stage",
+        "separate",
+        "--guideway",
+        gw.to_str().unwrap(),
+        "--spacing-mm",
+        "30",
+        "--step-mm",
+        "30",
+        "--method",
+        "recursion",
+        "--json",
+    ]));
+    assert_eq!(s["method"], "recursion");
+    assert_eq!(s["other"]["method"], "lsq");
+    let series = out.join("predictor.parquet");
+    let q = json(&sparkout(&[
+        "stage",
+        "predictor",
+        "--series",
+        series.to_str().unwrap(),
+        "--column",
+        "dz_mm",
+        "--p-max",
+        "5",
+        "--json",
+    ]));
+    assert_eq!(q["fpe"].as_array().unwrap().len(), 5);
+    let bad = sparkout(&[
+        "stage",
+        "predictor",
+        "--series",
+        series.to_str().unwrap(),
+        "--column",
+        "nope",
+    ]);
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("nope"));
     // The compensation curve is replayable: t_s strictly increasing, dz_mm.
     let cdir = d.path().join("comp");
     let c = json(&sparkout(&[

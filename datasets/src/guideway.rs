@@ -4,8 +4,10 @@
 //! points = the source's 2.4 m) in `passes` strokes back and forth, one
 //! infeed per pass, while probes A, B, C (spacing L = k·ΔL) read
 //!
-//!     Z_A = h(j) + δz(n) + o_A + e,  Z_B = h(j+k) + δz + L·β + o_B + e,
-//!     Z_C = h(j+2k) + δz + 2L·β + o_C + e
+//! ```text
+//! Z_A = h(j) + δz(n) + o_A + e,  Z_B = h(j+k) + δz + L·β + o_B + e,
+//! Z_C = h(j+2k) + δz + 2L·β + o_C + e
+//! ```
 //!
 //! - h: the workpiece shape (bow + waviness, new per run);
 //! - δz = s(x) + u(n) + effects: s the guide-way straightness (a machine

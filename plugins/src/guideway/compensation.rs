@@ -258,7 +258,7 @@ impl Stage for CompensationStage {
         "compensation"
     }
     fn version(&self) -> u32 {
-        1
+        2
     }
     fn reads_tables(&self) -> &'static [&'static str] {
         &[]
@@ -327,6 +327,11 @@ impl Stage for CompensationStage {
             "infeed_mm": infeed,
             "backlash_mm": backlash,
             "fit": fit.to_json(),
+            // g per mm of cumulative infeed (value × count), when the infeed is known.
+            "thermal_k_per_mm_infeed": fit
+                .k_mm_per_infeed
+                .filter(|_| infeed > 0.0)
+                .map(|k| k / infeed),
             "dz_rms_mm": rms(&offset),
             "prediction_residual_rms_mm": rms(&c.residual),
             "replay_columns": ["t_s", "dz_mm"],
@@ -385,8 +390,8 @@ mod tests {
                     .push(2e-3 * (j as f64 * 0.3).sin() + k * p as f64 + c / 2.0 * dir + wiggle);
                 s.t_s.push(i as f64 * 0.1);
                 s.dir.push(dir);
-                s.pass.push(p as i32);
-                s.infeed_count.push(p as i32 + 1);
+                s.pass.push(p);
+                s.infeed_count.push(p + 1);
                 s.j.push(j);
             }
         }

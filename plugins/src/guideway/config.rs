@@ -61,18 +61,29 @@ impl SeparateConfig {
         check_int(config, "stuck_samples", 2, 1_000_000)
     }
     pub fn from_ctx(ctx: &StageContext) -> SeparateConfig {
+        Self::from_table(ctx.config, machine_f64(ctx.run, "probes.sigma_mm", 1e-4))
+    }
+    /// From a checked section; `sigma_mm` is the default reading noise.
+    pub fn from_table(config: &toml::Table, sigma_mm: f64) -> SeparateConfig {
+        let s = |k: &str, d: &'static str| -> String {
+            config
+                .get(k)
+                .and_then(|v| v.as_str())
+                .unwrap_or(d)
+                .to_string()
+        };
         SeparateConfig {
-            method: Method::parse(ctx.cfg_str("method", "lsq")).unwrap_or(Method::Lsq),
-            reference: Reference::parse(ctx.cfg_str("reference", "line"))
-                .unwrap_or(Reference::Line),
+            method: Method::parse(&s("method", "lsq")).unwrap_or(Method::Lsq),
+            reference: Reference::parse(&s("reference", "line")).unwrap_or(Reference::Line),
             input: InputOptions {
-                interpolate: ctx.cfg_bool("interpolate", false),
-                stuck_samples: int(ctx.config, "stuck_samples", 8),
+                interpolate: config
+                    .get("interpolate")
+                    .and_then(|v| v.as_bool())
+                    .unwrap_or(false),
+                stuck_samples: int(config, "stuck_samples", 8),
             },
-            probe_sigma_mm: ctx.cfg_f64(
-                "probe_sigma_mm",
-                machine_f64(ctx.run, "probes.sigma_mm", 1e-4),
-            ),
+            probe_sigma_mm: sparkout_pipeline::cfg_f64(config, "probe_sigma_mm")
+                .unwrap_or(sigma_mm),
         }
     }
 }
@@ -139,6 +150,25 @@ pub const COMPENSATION_KEYS: &[(&str, Check)] = &[
 ];
 
 pub const OBSERVE_KEYS: &[(&str, Check)] = &[("sim", Check::OneOf(&["straightness", "model"]))];
+
+/// Run-less stage flags (`--p-max 20`) as a config table (`p_max = 20`):
+/// dashes read as underscores, values as TOML (numbers, booleans), else
+/// text; the flags in `inputs` are the stage's own and are left out.
+pub fn flags_to_table(args: &sparkout_pipeline::StageArgs, inputs: &[&str]) -> toml::Table {
+    let mut t = toml::Table::new();
+    for (k, v) in args {
+        if inputs.contains(&k.as_str()) {
+            continue;
+        }
+        let value = format!("v = {v}")
+            .parse::<toml::Table>()
+            .ok()
+            .and_then(|mut x| x.remove("v"))
+            .unwrap_or_else(|| toml::Value::String(v.clone()));
+        t.insert(k.replace('-', "_"), value);
+    }
+    t
+}
 
 /// A positive number from the machine config, with a default.
 pub fn machine_f64(run: &Run, dotted: &str, default: f64) -> f64 {

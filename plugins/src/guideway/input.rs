@@ -212,6 +212,18 @@ fn opt_finite(table: &Table, name: &str) -> Result<Option<Vec<f64>>> {
 pub fn load(run: &Run, opt: &InputOptions) -> Result<Readings> {
     let table = run.require(&GUIDEWAY)?;
     let g = geometry(run)?;
+    prepare(table.path(), raw_from_table(&table)?, &g, opt)
+}
+
+/// A guideway.parquet file outside a run (`sparkout stage separate
+/// --guideway FILE`), read and validated against the contract.
+pub fn load_file(path: &Path, g: &Geometry, opt: &InputOptions) -> Result<Readings> {
+    let table = Table::read(path, &GUIDEWAY)?;
+    prepare(path, raw_from_table(&table)?, g, opt)
+}
+
+/// The contract columns of a validated guideway table.
+pub fn raw_from_table(table: &Table) -> Result<RawReadings> {
     let dir = if table.has("dir") {
         let col = table.batch().column_by_name("dir").expect("has");
         if let Some(i) = (0..col.len()).find(|&i| col.is_null(i)) {
@@ -221,7 +233,7 @@ pub fn load(run: &Run, opt: &InputOptions) -> Result<Readings> {
     } else {
         None
     };
-    let raw = RawReadings {
+    Ok(RawReadings {
         n: table.i64("n")?.to_vec(),
         x_mm: table.f64("x_mm")?.to_vec(),
         z_mm: [
@@ -230,11 +242,10 @@ pub fn load(run: &Run, opt: &InputOptions) -> Result<Readings> {
             table.f64(PROBES[2])?.to_vec(),
         ],
         dir,
-        t_s: opt_finite(&table, "t_s")?,
-        temp_c: opt_finite(&table, "temp_c")?,
-        infeed_count: int_column(&table, "infeed_count")?,
-    };
-    prepare(table.path(), raw, &g, opt)
+        t_s: opt_finite(table, "t_s")?,
+        temp_c: opt_finite(table, "temp_c")?,
+        infeed_count: int_column(table, "infeed_count")?,
+    })
 }
 
 /// Check and prepare raw readings (see the module doc for what is an error).

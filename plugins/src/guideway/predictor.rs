@@ -10,14 +10,16 @@
 //! (p, fpe_mm2, sigma2_mm2, selected), `forecast` (step, n, dz_mm,
 //! dz_sigma_mm).
 
+use anyhow::anyhow;
+use arrow::array::{Array, Float64Array};
 use arrow::record_batch::RecordBatch;
 use serde_json::{json, Value};
 use sparkout_pipeline::contracts::schema::GUIDEWAY;
-use sparkout_pipeline::contracts::BatchBuilder;
-use sparkout_pipeline::{InputError, Result, Stage, StageContext, StageOutput};
+use sparkout_pipeline::contracts::{read_parquet, BatchBuilder};
+use sparkout_pipeline::{InputError, Result, Stage, StageArgs, StageContext, StageOutput};
 
 use super::ar_fpe::{self, FpeSearch};
-use super::config::PredictorConfig;
+use super::config::{flags_to_table, PredictorConfig};
 use super::kalman::Kalman;
 use super::rls::Rls;
 use super::separate::SepData;
@@ -232,6 +234,50 @@ impl Stage for PredictorStage {
             .with("ar_fpe", fpe)
             .with("forecast", fc))
     }
+    fn run_standalone(&self, args: &StageArgs) -> Option<Result<Value>> {
+        Some(standalone(args))
+    }
+}
+
+/// `sparkout stage predictor --series FILE.parquet [--column dz_mm]
+/// [--p-max 20] [--d 2] --json`: the predictor on any float64 column.
+fn standalone(args: &StageArgs) -> Result<Value> {
+    let path = args.get("series").ok_or_else(|| {
+        anyhow!("stage predictor: give --run DIR, or --series FILE.parquet [--column dz_mm]")
+    })?;
+    let path = std::path::Path::new(path);
+    let column = args.get("column").map(|s| s.as_str()).unwrap_or("dz_mm");
+    let t = flags_to_table(args, &["series", "column"]);
+    PredictorConfig::validate(&t).map_err(|e| anyhow!("stage predictor: flag {e}"))?;
+    let cfg = PredictorConfig::from_table(&t, None);
+    let b = read_parquet(path)?;
+    let a = b
+        .column_by_name(column)
+        .and_then(|c| c.as_any().downcast_ref::<Float64Array>())
+        .ok_or_else(|| InputError::new(path, "no float64 column of that name").column(column))?;
+    if let Some(i) = (0..a.len()).find(|&i| a.is_null(i) || !a.value(i).is_finite()) {
+        return Err(InputError::new(path, "null, NaN or infinite value")
+            .column(column)
+            .row(i)
+            .into());
+    }
+    let v = a.values();
+    let need = min_samples(&cfg);
+    if v.len() < need {
+        return Err(InputError::new(
+            path,
+            format!(
+                "series of {} values is too short for p_max = {} with d = {} (need at least {need})",
+                v.len(),
+                cfg.p_max,
+                cfg.d
+            ),
+        )
+        .column(column)
+        .into());
+    }
+    let p = predict(v, &cfg)?;
+    Ok(summary(&p, &cfg, v.len()))
 }
 
 #[cfg(test)]

@@ -9,15 +9,15 @@
 //! recorded). The only stage that reads guideway.parquet: later stages work
 //! on this artifact, so a resampled run stays consistent downstream.
 
-use anyhow::Context;
+use anyhow::{anyhow, Context};
 use arrow::array::{Array, Float64Array, Int32Array, Int64Array, Int8Array};
 use arrow::record_batch::RecordBatch;
 use serde_json::{json, Value};
 use sparkout_pipeline::contracts::{batch_f64, batch_i32, BatchBuilder};
-use sparkout_pipeline::{Result, Stage, StageContext, StageOutput};
+use sparkout_pipeline::{Result, Stage, StageArgs, StageContext, StageOutput};
 
-use super::config::SeparateConfig;
-use super::input::{self, Readings};
+use super::config::{flags_to_table, SeparateConfig};
+use super::input::{self, Geometry, Readings};
 use super::three_probe::{self, straightness_rms, Method, Separation};
 
 pub struct SeparateStage;
@@ -218,4 +218,47 @@ impl Stage for SeparateStage {
         let other = three_probe::separate(&r, other_method, cfg.reference, cfg.probe_sigma_mm).ok();
         Ok(StageOutput::new(summary(&r, &s, other.as_ref())).with("separation", batch(&r, &s)))
     }
+    fn run_standalone(&self, args: &StageArgs) -> Option<Result<Value>> {
+        Some(standalone(args))
+    }
+}
+
+/// The stage's own flags of the run-less form; the others are config keys.
+const INPUTS: &[&str] = &["guideway", "spacing-mm", "step-mm", "speed-mm-s"];
+
+/// `sparkout stage separate --guideway FILE --spacing-mm L --step-mm ΔL
+/// [--method recursion] [--reference ends] [--interpolate true] --json`.
+fn standalone(args: &StageArgs) -> Result<Value> {
+    let path = args.get("guideway").ok_or_else(|| {
+        anyhow!("stage separate: give --run DIR, or --guideway FILE.parquet --spacing-mm L --step-mm ΔL")
+    })?;
+    let num = |k: &str| -> Result<Option<f64>> {
+        match args.get(k) {
+            None => Ok(None),
+            Some(v) => v
+                .parse::<f64>()
+                .ok()
+                .filter(|x| x.is_finite() && *x > 0.0)
+                .map(Some)
+                .ok_or_else(|| anyhow!("stage separate: --{k} must be a number > 0, got `{v}`")),
+        }
+    };
+    let need = |k: &str| -> Result<f64> {
+        num(k)?.ok_or_else(|| anyhow!("stage separate: --{k} is required with --guideway"))
+    };
+    let g = Geometry {
+        spacing_mm: need("spacing-mm")?,
+        step_mm: need("step-mm")?,
+        speed_mm_s: num("speed-mm-s")?.unwrap_or(20_000.0 / 60.0),
+    };
+    let t = flags_to_table(args, INPUTS);
+    SeparateConfig::validate(&t).map_err(|e| anyhow!("stage separate: flag {e}"))?;
+    let cfg = SeparateConfig::from_table(&t, 1e-4);
+    let r = input::load_file(std::path::Path::new(path), &g, &cfg.input)?;
+    let s = three_probe::separate(&r, cfg.method, cfg.reference, cfg.probe_sigma_mm)?;
+    let other = match cfg.method {
+        Method::Lsq => three_probe::separate_recursion(&r).ok(),
+        Method::Recursion => three_probe::separate_lsq(&r, cfg.reference, cfg.probe_sigma_mm).ok(),
+    };
+    Ok(summary(&r, &s, other.as_ref()))
 }

@@ -242,6 +242,10 @@ pub fn separate_recursion(r: &Readings) -> Result<Separation> {
     })
 }
 
+/// Largest workpiece grid the LS solve takes: its covariance needs the
+/// dense m×m inverse (3000² doubles = 72 MB per matrix).
+pub const MAX_LSQ_POINTS: usize = 3000;
+
 /// One least-squares solve over the whole travel (see the module doc).
 /// `sigma_cfg_mm`: reading noise to use when the residuals have too few
 /// degrees of freedom to estimate it.
@@ -250,6 +254,16 @@ pub fn separate_lsq(r: &Readings, reference: Reference, sigma_cfg_mm: f64) -> Re
     let k = r.k;
     if m < 2 * k + 1 {
         bail!("travel too short for the probe spacing");
+    }
+    if m > MAX_LSQ_POINTS {
+        return Err(InputError::new(
+            &r.path,
+            format!(
+                "{m} workpiece points: the least-squares separation with full covariance handles up to {MAX_LSQ_POINTS} (dense m×m normal equations); use [guideway.separate] method = \"recursion\" or a coarser sample step"
+            ),
+        )
+        .column("x_mm")
+        .into());
     }
     // Banded normal matrix Σ s sᵀ and right-hand side Σ s·D.
     let mut nm = DMatrix::<f64>::zeros(m, m);
