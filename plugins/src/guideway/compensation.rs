@@ -1,7 +1,9 @@
 //! `compensation`: the headstock command for the next sample (MODELS.md
 //! §3.4)
 //!
-//!     F(n+1) = f(n+1) + g(n+1) + δ̂z(n+1) (+ the reversal constant C)
+//! ```text
+//! F(n+1) = f(n+1) + g(n+1) + δ̂z(n+1) (+ the reversal constant C)
+//! ```
 //!
 //! - f: the nominal headstock path, down one infeed per pass:
 //!   f = −infeed_mm·(infeed_count − 1).

@@ -2,7 +2,9 @@
 //! measurement (MODELS.md §3.3): process variance q = the prediction-error
 //! variance, measurement variance r = table repeatability²:
 //!
-//!     P⁻ = P + q;  K = P⁻/(P⁻ + r);  P = (1 − K)P⁻;  δ̂ ← δ̂⁻ + K(Z − δ̂⁻)
+//! ```text
+//! P⁻ = P + q;  K = P⁻/(P⁻ + r);  P = (1 − K)P⁻;  δ̂ ← δ̂⁻ + K(Z − δ̂⁻)
+//! ```
 //!
 //! with the prior δ̂⁻ the predictor's δ̂z(n).
 

@@ -1,8 +1,10 @@
 //! Recursive least squares for the AR parameters (MODELS.md §3.3):
 //!
-//!     Â(n) = Â(n−1) + P(n)X(n)[y(n) − X(n)ᵀÂ(n−1)]
-//!     P(n) = [P(n−1) − P(n−1)X XᵀP(n−1) / (λ + XᵀP(n−1)X)] / λ
-//!     Â(0) = 0, P(0) = 100·I
+//! ```text
+//! Â(n) = Â(n−1) + P(n)X(n)[y(n) − X(n)ᵀÂ(n−1)]
+//! P(n) = [P(n−1) − P(n−1)X XᵀP(n−1) / (λ + XᵀP(n−1)X)] / λ
+//! Â(0) = 0, P(0) = 100·I
+//! ```
 //!
 //! (λ = 1 is the source's form; λ < 1 forgets old samples.) P(0) = 100·I
 //! is a prior of scale 10 on the coefficients *relative to the data's

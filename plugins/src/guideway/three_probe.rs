@@ -2,9 +2,11 @@
 //! straightness motion error δz and pitch β from probes A, B, C spaced
 //! L = k·ΔL apart along the travel:
 //!
-//!     Z_A(n) = h(j)      + δz(n)
-//!     Z_B(n) = h(j + k)  + δz(n) +  L·β(n)
-//!     Z_C(n) = h(j + 2k) + δz(n) + 2L·β(n)
+//! ```text
+//! Z_A(n) = h(j)      + δz(n)
+//! Z_B(n) = h(j + k)  + δz(n) +  L·β(n)
+//! Z_C(n) = h(j + 2k) + δz(n) + 2L·β(n)
+//! ```
 //!
 //! with j the grid index of the workpiece point under A at sample n (for a
 //! single forward traverse j = n and k = 1, the source's form).
