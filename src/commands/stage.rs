@@ -54,7 +54,31 @@ pub fn stage(
     if let Some(s) = args.remove("set") {
         config.set.push(s);
     }
-    let engine = registry::engine(&config)?;
+    // With --run, leftover flags are that stage's config keys:
+    // `--r-max-mm 175` → `--set <plugin>.<stage>.r_max_mm=175` (the run's
+    // plugin from its run.toml); the engine then checks them with the
+    // stage's validate_config like any other key.
+    let mapped: Vec<String> = match &run {
+        Some(dir) if !args.is_empty() => {
+            let plugin = sparkout_pipeline::contracts::RunSpec::load(dir)?.plugin;
+            std::mem::take(&mut args)
+                .into_iter()
+                .map(|(k, v)| format!("{plugin}.{name}.{}={v}", k.replace('-', "_")))
+                .collect()
+        }
+        _ => Vec::new(),
+    };
+    config.set.extend(mapped.iter().cloned());
+    let engine = if mapped.is_empty() {
+        registry::engine(&config)?
+    } else {
+        registry::engine(&config).with_context(|| {
+            format!(
+                "stage flags with --run are config keys of the stage: {}",
+                mapped.join(" ")
+            )
+        })?
+    };
     match run {
         None => {
             let stage = engine

@@ -110,10 +110,10 @@ pub fn compute(p: &Profile, r_kn: f64, radii: &[f64], file: &std::path::Path, de
         .f64("x_mm", rep(&path.x_mm))
         .f64("delta_mm", delta)
         .build();
-    // A point counts as straight when its radius of curvature exceeds 10⁴
+    // A point counts as straight when its radius of curvature exceeds 100
     // times the profile's mean radius.
     let mean_r = p.r_mm.iter().sum::<f64>() / n as f64;
-    let flat = p.kappa_per_mm.iter().filter(|k| k.abs() * mean_r < 1e-4).count();
+    let flat = p.kappa_per_mm.iter().filter(|k| k.abs() * mean_r < 1e-2).count();
     let summary = json!({
         "nominal_mm": r_kn,
         "points": n,
