@@ -12,13 +12,28 @@ fn diagnose_fleet(dir: &Path, seed: u64, effect: Option<&str>) -> serde_json::Va
     let root = dir.join("runs");
     let out = dir.join("out");
     let seed = seed.to_string();
-    let mut args = vec!["generate", "form", "--runs", "9", "--seed", &seed, "--out", root.to_str().unwrap()];
+    let mut args = vec![
+        "generate",
+        "form",
+        "--runs",
+        "9",
+        "--seed",
+        &seed,
+        "--out",
+        root.to_str().unwrap(),
+    ];
     if let Some(e) = effect {
         args.extend(["--effect", e]);
     }
     let g = sparkout(&args);
     assert!(g.status.success(), "{}", String::from_utf8_lossy(&g.stderr));
-    let r = sparkout(&["run", "--input", root.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+    let r = sparkout(&[
+        "run",
+        "--input",
+        root.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
     assert!(
         r.status.success(),
         "{}\n{}",
@@ -58,12 +73,19 @@ fn wheel_wear_between_dressings_is_named_first() {
     let d = tempfile::tempdir().unwrap();
     let diag = diagnose_fleet(d.path(), 41, Some("wheel_wear"));
     let first = first_selected(&diag);
-    assert_eq!(first, "wheel_wear:removed_mm3", "selected {}", diag["selected"]);
+    assert_eq!(
+        first, "wheel_wear:removed_mm3",
+        "selected {}",
+        diag["selected"]
+    );
     let shrink = shrink_of(&diag, &first);
     assert!(shrink > 0.5, "held-out shrink {shrink}: {diag:#}");
     // The whole selection's held-out gap is near the measurement noise.
     let un = diag["unexplained"]["rms_mm"].as_f64().unwrap();
-    assert!(un < 0.3 * diag["gap"]["rms_mm"].as_f64().unwrap(), "{diag:#}");
+    assert!(
+        un < 0.3 * diag["gap"]["rms_mm"].as_f64().unwrap(),
+        "{diag:#}"
+    );
 }
 
 /// Work-spindle run-out (periodic in φ) is named as periodic in phi_rad.

@@ -97,7 +97,11 @@ impl FormFleetConfig {
                 self.runs, self.parts_per_dressing, self.dressing_mm, self.range.range_mm
             );
         }
-        if !(self.noise_mm >= 0.0 && self.stock_mm > 0.0 && self.width_mm > 0.0 && self.feed_mm_s > 0.0) {
+        if !(self.noise_mm >= 0.0
+            && self.stock_mm > 0.0
+            && self.width_mm > 0.0
+            && self.feed_mm_s > 0.0)
+        {
             bail!("noise_mm must be ≥ 0 and stock_mm, width_mm, feed_mm_s > 0");
         }
         Ok(())
@@ -146,7 +150,7 @@ fn resolve(effects: &[EffectSpec]) -> Result<Effects> {
             }
             ("wheel_runout", None) => {
                 let p = e.param_or("period_s", 10.0);
-                if !(p > 0.0) {
+                if p.is_nan() || p <= 0.0 {
                     bail!("--effect wheel_runout: period_s must be > 0");
                 }
                 fx.wheel_runout = Some((e.param_or("amplitude_mm", 0.004), p, e.param_or("phase_rad", 0.0)))
@@ -198,15 +202,36 @@ fn run_rng(seed: u64, run: usize) -> ChaCha8Rng {
 
 /// The part's design profile: (shape name, parameters, z, φ, R).
 #[allow(clippy::type_complexity)]
-fn design(cfg: &FormFleetConfig, index: usize, rng: &mut ChaCha8Rng) -> Result<(String, std::collections::BTreeMap<String, f64>, f64, Vec<f64>, Vec<f64>)> {
+fn design(
+    cfg: &FormFleetConfig,
+    index: usize,
+    rng: &mut ChaCha8Rng,
+) -> Result<(
+    String,
+    std::collections::BTreeMap<String, f64>,
+    f64,
+    Vec<f64>,
+    Vec<f64>,
+)> {
     let z = 10.0 * index as f64;
-    if index % 2 == 0 {
+    if index.is_multiple_of(2) {
         // An elliptical section of a cylinder of radius b cut at angle α.
         let b = 40.0;
         let alpha = (30.0 + 15.0 * rng.random::<f64>()).to_radians();
         let a = b / alpha.cos();
         let (phi, r) = sample(cfg.points, |p| ellipse_r(p, a, b));
-        Ok(("ellipse".into(), [("a_mm".to_string(), a), ("b_mm".to_string(), b), ("alpha_rad".to_string(), alpha)].into(), z, phi, r))
+        Ok((
+            "ellipse".into(),
+            [
+                ("a_mm".to_string(), a),
+                ("b_mm".to_string(), b),
+                ("alpha_rad".to_string(), alpha),
+            ]
+            .into(),
+            z,
+            phi,
+            r,
+        ))
     } else {
         let cam = TangentCam {
             base: 40.0,
@@ -217,7 +242,12 @@ fn design(cfg: &FormFleetConfig, index: usize, rng: &mut ChaCha8Rng) -> Result<(
         let (phi, r) = sample(cfg.points, |p| cam.r(p));
         Ok((
             "tangent_cam".into(),
-            [("base_mm".to_string(), cam.base), ("nose_mm".to_string(), cam.nose), ("lift_centre_mm".to_string(), cam.lift_centre)].into(),
+            [
+                ("base_mm".to_string(), cam.base),
+                ("nose_mm".to_string(), cam.nose),
+                ("lift_centre_mm".to_string(), cam.lift_centre),
+            ]
+            .into(),
             z,
             phi,
             r,
@@ -226,7 +256,11 @@ fn design(cfg: &FormFleetConfig, index: usize, rng: &mut ChaCha8Rng) -> Result<(
 }
 
 /// Generate the fleet under `root/<machine>/rNNNN/`.
-pub fn generate_fleet(root: &Path, cfg: &FormFleetConfig, effects: &[EffectSpec]) -> Result<Vec<PathBuf>> {
+pub fn generate_fleet(
+    root: &Path,
+    cfg: &FormFleetConfig,
+    effects: &[EffectSpec],
+) -> Result<Vec<PathBuf>> {
     cfg.validate()?;
     let fx = resolve(effects)?;
     let machine_dir = root.join(&cfg.machine);
@@ -234,13 +268,20 @@ pub fn generate_fleet(root: &Path, cfg: &FormFleetConfig, effects: &[EffectSpec]
         .into_par_iter()
         .map(|i| {
             let dir = machine_dir.join(format!("r{i:04}"));
-            generate_run(&dir, cfg, &fx, effects, i).with_context(|| format!("generating form run {}", dir.display()))?;
+            generate_run(&dir, cfg, &fx, effects, i)
+                .with_context(|| format!("generating form run {}", dir.display()))?;
             Ok(dir)
         })
         .collect()
 }
 
-fn generate_run(dir: &Path, cfg: &FormFleetConfig, fx: &Effects, specs: &[EffectSpec], index: usize) -> Result<()> {
+fn generate_run(
+    dir: &Path,
+    cfg: &FormFleetConfig,
+    fx: &Effects,
+    specs: &[EffectSpec],
+    index: usize,
+) -> Result<()> {
     let mut rng = run_rng(cfg.seed, index);
     let run_id = format!("r{index:04}");
     let (shape, params, z, phi, r) = design(cfg, index, &mut rng)?;
@@ -252,9 +293,11 @@ fn generate_run(dir: &Path, cfg: &FormFleetConfig, fx: &Effects, specs: &[Effect
     let seg = (((cfg.range.r_max_mm - rk) / width).floor() as usize).min(cfg.segments - 1);
     let r_kn = cfg.range.r_max_mm - (seg as f64 + 0.5) * width;
 
-    let p = Profile::new(&phi, &r, &CurvatureConfig::default()).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let p =
+        Profile::new(&phi, &r, &CurvatureConfig::default()).map_err(|e| anyhow::anyhow!("{e}"))?;
     let path = centre_path(&p, r_kn);
-    let delta = profile_error(&p, &path, rk).map_err(|i| anyhow::anyhow!("wheel cannot follow the profile at point {i}"))?;
+    let delta = profile_error(&p, &path, rk)
+        .map_err(|i| anyhow::anyhow!("wheel cannot follow the profile at point {i}"))?;
     let arc = p.arc_length_mm();
     let perimeter = arc[arc.len() - 1] + {
         let (a, b) = (p.point(p.len() - 1), p.point(0));
@@ -263,7 +306,10 @@ fn generate_run(dir: &Path, cfg: &FormFleetConfig, fx: &Effects, specs: &[Effect
     let per_part = cfg.stock_mm * cfg.width_mm * perimeter;
     let removed_before = part as f64 * per_part;
     let n = phi.len();
-    let removed: Vec<f64> = arc.iter().map(|s| removed_before + cfg.stock_mm * cfg.width_mm * s).collect();
+    let removed: Vec<f64> = arc
+        .iter()
+        .map(|s| removed_before + cfg.stock_mm * cfg.width_mm * s)
+        .collect();
     let t_s: Vec<f64> = arc.iter().map(|s| s / cfg.feed_mm_s).collect();
     let wheel = vec![rk; n];
 
@@ -379,7 +425,12 @@ mod tests {
     #[test]
     fn fleet_is_deterministic_and_dresses_the_wheel() {
         let d = tempfile::tempdir().unwrap();
-        let cfg = FormFleetConfig { runs: 7, seed: 5, points: 64, ..Default::default() };
+        let cfg = FormFleetConfig {
+            runs: 7,
+            seed: 5,
+            points: 64,
+            ..Default::default()
+        };
         let fx: Vec<EffectSpec> = vec!["wheel_wear".parse().unwrap()];
         generate_fleet(&d.path().join("a"), &cfg, &fx).unwrap();
         generate_fleet(&d.path().join("b"), &cfg, &fx).unwrap();
@@ -390,7 +441,10 @@ mod tests {
                 assert_eq!(a, b, "{r}/{f}");
             }
         }
-        let t: serde_json::Value = serde_json::from_slice(&std::fs::read(d.path().join("a/form-grinder/r0006/truth.json")).unwrap()).unwrap();
+        let t: serde_json::Value = serde_json::from_slice(
+            &std::fs::read(d.path().join("a/form-grinder/r0006/truth.json")).unwrap(),
+        )
+        .unwrap();
         assert_eq!(t["dressing"], 2);
         assert_eq!(t["dressed_radius_mm"], 172.0);
         assert_eq!(t["nominal_radius_mm"], 170.0);
@@ -399,10 +453,16 @@ mod tests {
 
     #[test]
     fn bad_settings_are_rejected() {
-        let cfg = FormFleetConfig { runs: 200, ..Default::default() };
+        let cfg = FormFleetConfig {
+            runs: 200,
+            ..Default::default()
+        };
         assert!(cfg.validate().is_err());
         assert!(resolve(&["nonsense".parse().unwrap()]).is_err());
         assert!(resolve(&["scale:x_mm=k=1".parse().unwrap()]).is_err());
-        assert!(resolve(&["periodic:phi_rad=amplitude_mm=0.01,lambda=2".parse().unwrap()]).is_ok());
+        assert!(resolve(&["periodic:phi_rad=amplitude_mm=0.01,lambda=2"
+            .parse()
+            .unwrap()])
+        .is_ok());
     }
 }

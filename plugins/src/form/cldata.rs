@@ -39,10 +39,21 @@ pub fn programs(toolpath: &RecordBatch) -> Result<BTreeMap<i32, String>> {
     for i in 0..seg.len() {
         let text = out.entry(seg[i]).or_insert_with(|| {
             let mut h = String::new();
-            let _ = writeln!(h, "PARTNO / SPARKOUT FORM SEGMENT {} NOMINAL {:.4} MM", seg[i], nom[i]);
+            let _ = writeln!(
+                h,
+                "PARTNO / SPARKOUT FORM SEGMENT {} NOMINAL {:.4} MM",
+                seg[i], nom[i]
+            );
             let _ = writeln!(h, "UNITS / MM");
-            let _ = writeln!(h, "$$ wheel-centre path for a wheel of radius {:.4} mm (MODELS.md §4)", nom[i]);
-            let _ = writeln!(h, "$$ GOTO / X (mm, centre distance from the work axis), Z (mm), A (rad), C (rad)");
+            let _ = writeln!(
+                h,
+                "$$ wheel-centre path for a wheel of radius {:.4} mm (MODELS.md §4)",
+                nom[i]
+            );
+            let _ = writeln!(
+                h,
+                "$$ GOTO / X (mm, centre distance from the work axis), Z (mm), A (rad), C (rad)"
+            );
             let _ = writeln!(h, "CUTTER / {:.4}", 2.0 * nom[i]);
             let _ = writeln!(h, "MULTAX / ON");
             h
@@ -69,7 +80,11 @@ pub fn cldata_batch(programs: &BTreeMap<i32, String>) -> RecordBatch {
             text.push(l.to_string());
         }
     }
-    BatchBuilder::new().i32("segment", seg).i32("line", line).str("text", &text).build()
+    BatchBuilder::new()
+        .i32("segment", seg)
+        .i32("line", line)
+        .str("text", &text)
+        .build()
 }
 
 pub struct CldataStage;
@@ -128,7 +143,11 @@ fn standalone(args: &StageArgs) -> Result<Value> {
         if !FLAGS.contains(&k.as_str()) {
             bail!(
                 "stage form_cldata: unknown option --{k} (known: {})",
-                FLAGS.iter().map(|f| format!("--{f}")).collect::<Vec<_>>().join(", ")
+                FLAGS
+                    .iter()
+                    .map(|f| format!("--{f}"))
+                    .collect::<Vec<_>>()
+                    .join(", ")
             );
         }
     }
@@ -148,9 +167,9 @@ fn standalone(args: &StageArgs) -> Result<Value> {
         ("window-points", "window_points"),
     ] {
         if let Some(v) = args.get(flag) {
-            let x: f64 = v
-                .parse()
-                .map_err(|_| anyhow!("stage form_cldata: --{flag} must be a number, found `{v}`"))?;
+            let x: f64 = v.parse().map_err(|_| {
+                anyhow!("stage form_cldata: --{flag} must be a number, found `{v}`")
+            })?;
             cfg.insert(key.into(), toml::Value::Float(x));
         }
     }
@@ -196,10 +215,21 @@ mod tests {
 
     #[test]
     fn one_program_per_segment_with_a_goto_per_point() {
-        let phi: Vec<f64> = (0..100).map(|i| std::f64::consts::TAU * i as f64 / 100.0).collect();
+        let phi: Vec<f64> = (0..100)
+            .map(|i| std::f64::consts::TAU * i as f64 / 100.0)
+            .collect();
         let r: Vec<f64> = phi.iter().map(|f| 40.0 + 3.0 * f.cos()).collect();
         let p = Profile::new(&phi, &r, &CurvatureConfig::default()).unwrap();
-        let segs = segment(&p, &WheelRange { r_max_mm: 175.0, range_mm: 50.0 }, 2, 3).unwrap();
+        let segs = segment(
+            &p,
+            &WheelRange {
+                r_max_mm: 175.0,
+                range_mm: 50.0,
+            },
+            2,
+            3,
+        )
+        .unwrap();
         let progs = programs(&toolpath_batch(&p, &segs, 5.0)).unwrap();
         assert_eq!(progs.len(), 2);
         for t in progs.values() {
@@ -208,6 +238,9 @@ mod tests {
         }
         assert!(progs[&1].contains("NOMINAL 162.5000 MM"));
         let b = cldata_batch(&progs);
-        assert_eq!(b.num_rows(), progs.values().map(|t| t.lines().count()).sum::<usize>());
+        assert_eq!(
+            b.num_rows(),
+            progs.values().map(|t| t.lines().count()).sum::<usize>()
+        );
     }
 }

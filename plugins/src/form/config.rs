@@ -23,7 +23,7 @@ pub fn curvature(cfg: &toml::Table) -> CurvatureConfig {
 /// Extra checks of `window_points` beyond "a number ≥ 1".
 pub fn check_window(cfg: &toml::Table) -> Result<()> {
     if let Some(w) = cfg_f64(cfg, "window_points") {
-        if w.fract() != 0.0 || w < 5.0 || (w as usize) % 2 == 0 {
+        if w.fract() != 0.0 || w < 5.0 || (w as usize).is_multiple_of(2) {
             anyhow::bail!("key `window_points` must be an odd whole number ≥ 5 (points per local cubic fit), found {w}");
         }
     }

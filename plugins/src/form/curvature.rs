@@ -28,9 +28,19 @@ impl Default for CurvatureConfig {
 #[derive(Debug, Clone, PartialEq)]
 pub enum ProfileProblem {
     /// Row (index into the given points) where φ does not increase.
-    NotIncreasing { row: usize, prev: f64, this: f64 },
-    TooFewPoints { n: usize, need: usize },
-    NonPositiveRadius { row: usize, r: f64 },
+    NotIncreasing {
+        row: usize,
+        prev: f64,
+        this: f64,
+    },
+    TooFewPoints {
+        n: usize,
+        need: usize,
+    },
+    NonPositiveRadius {
+        row: usize,
+        r: f64,
+    },
 }
 
 impl std::fmt::Display for ProfileProblem {
@@ -55,9 +65,8 @@ impl ProfileProblem {
     /// The offending row, when there is one.
     pub fn row(&self) -> Option<usize> {
         match self {
-            ProfileProblem::NotIncreasing { row, .. } | ProfileProblem::NonPositiveRadius { row, .. } => {
-                Some(*row)
-            }
+            ProfileProblem::NotIncreasing { row, .. }
+            | ProfileProblem::NonPositiveRadius { row, .. } => Some(*row),
             ProfileProblem::TooFewPoints { .. } => None,
         }
     }
@@ -276,11 +285,17 @@ fn local_cubic(pts: &[(f64, f64)]) -> [f64; 4] {
         ata += wgt * row * row.transpose();
         atb += wgt * y * row;
     }
-    let c = ata
-        .cholesky()
-        .map(|ch| ch.solve(&atb))
-        .unwrap_or_else(|| ata.pseudo_inverse(1e-14).map(|p| p * atb).unwrap_or_default());
-    [c[0], c[1] / scale, c[2] / (scale * scale), c[3] / (scale * scale * scale)]
+    let c = ata.cholesky().map(|ch| ch.solve(&atb)).unwrap_or_else(|| {
+        ata.pseudo_inverse(1e-14)
+            .map(|p| p * atb)
+            .unwrap_or_default()
+    });
+    [
+        c[0],
+        c[1] / scale,
+        c[2] / (scale * scale),
+        c[3] / (scale * scale * scale),
+    ]
 }
 
 #[cfg(test)]
@@ -330,14 +345,22 @@ mod tests {
             .map(|i| 50.0 + 1e-4 * ((i * 7919 % 13) as f64 / 6.0 - 1.0))
             .collect();
         let q = Profile::new(&phi, &r, &CurvatureConfig { window_points: 25 }).unwrap();
-        let worst = q.kappa_per_mm.iter().fold(0.0_f64, |m, k| m.max((k * 50.0 - 1.0).abs()));
+        let worst = q
+            .kappa_per_mm
+            .iter()
+            .fold(0.0_f64, |m, k| m.max((k * 50.0 - 1.0).abs()));
         assert!(worst < 0.5, "relative κ error {worst}");
     }
 
     #[test]
     fn bad_profiles_are_rejected() {
         let cfg = CurvatureConfig::default();
-        let e = Profile::new(&[0.0, 0.1, 0.1, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8], &[10.0; 9], &cfg).unwrap_err();
+        let e = Profile::new(
+            &[0.0, 0.1, 0.1, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8],
+            &[10.0; 9],
+            &cfg,
+        )
+        .unwrap_err();
         assert_eq!(e.row(), Some(2));
         assert_eq!(e.column(), "phi_rad");
         let e = Profile::new(&[0.0, 0.1, 0.2], &[10.0; 3], &cfg).unwrap_err();

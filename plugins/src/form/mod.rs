@@ -60,7 +60,10 @@ impl MachinePlugin for FormPlugin {
     /// the profile is left proud by k·removed_mm3 along the normal
     /// (DESIGN.md "Sim-to-real gap diagnosis", point 2).
     fn effects(&self) -> Vec<Box<dyn Effect>> {
-        vec![composite("wheel_wear", catalogue_effect(Kind::Wear, &["removed_mm3"]))]
+        vec![composite(
+            "wheel_wear",
+            catalogue_effect(Kind::Wear, &["removed_mm3"]),
+        )]
     }
     fn report_sections(&self, run: &Run, artifacts: &ArtifactStore) -> Vec<ReportSection> {
         report::sections(run, artifacts)

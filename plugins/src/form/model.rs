@@ -121,7 +121,10 @@ impl WheelRange {
             m.f64(k).ok_or_else(|| {
                 InputError::new(
                     &m.source,
-                    format!("machine `{}` needs {k} (a number, mm) for the form plugin", m.id),
+                    format!(
+                        "machine `{}` needs {k} (a number, mm) for the form plugin",
+                        m.id
+                    ),
                 )
                 .column(k.to_string())
             })
@@ -130,12 +133,16 @@ impl WheelRange {
             r_max_mm: get("wheel.radius_max_mm")?,
             range_mm: get("wheel.usable_range_mm")?,
         };
-        w.check().map_err(|m2| InputError::new(&m.source, m2).column("wheel"))?;
+        w.check()
+            .map_err(|m2| InputError::new(&m.source, m2).column("wheel"))?;
         Ok(w)
     }
     pub fn check(&self) -> std::result::Result<(), String> {
         if !(self.r_max_mm > 0.0 && self.r_max_mm.is_finite()) {
-            return Err(format!("the largest wheel radius must be > 0 mm, found {}", self.r_max_mm));
+            return Err(format!(
+                "the largest wheel radius must be > 0 mm, found {}",
+                self.r_max_mm
+            ));
         }
         if !(self.range_mm > 0.0 && self.range_mm < self.r_max_mm) {
             return Err(format!(
@@ -166,7 +173,11 @@ pub struct ProfileRows {
 fn opt_f64_col(t: &Table, name: &str) -> Option<Vec<Option<f64>>> {
     let c = t.batch().column_by_name(name)?;
     let a = c.as_any().downcast_ref::<Float64Array>()?;
-    Some((0..a.len()).map(|i| (!a.is_null(i)).then(|| a.value(i))).collect())
+    Some(
+        (0..a.len())
+            .map(|i| (!a.is_null(i)).then(|| a.value(i)))
+            .collect(),
+    )
 }
 
 impl ProfileRows {
@@ -199,9 +210,12 @@ impl ProfileRows {
         for (i, w) in wheel.iter().enumerate() {
             if let Some(w) = w {
                 if !(w.is_finite() && *w > 0.0) {
-                    return Err(InputError::new(t.path(), format!("wheel radius must be a finite number > 0, found {w}"))
-                        .column("wheel_radius_mm")
-                        .row(i));
+                    return Err(InputError::new(
+                        t.path(),
+                        format!("wheel radius must be a finite number > 0, found {w}"),
+                    )
+                    .column("wheel_radius_mm")
+                    .row(i));
                 }
             }
         }
@@ -241,7 +255,12 @@ pub fn profile_rows(run: &Run) -> Result<(std::sync::Arc<Table>, ProfileRows)> {
 /// machine's largest radius (a program for the new wheel).
 pub fn nominal_radius(run: &Run, cfg: &toml::Table, range: &WheelRange) -> Result<f64> {
     let r = sparkout_pipeline::cfg_f64(cfg, "nominal_mm")
-        .or_else(|| run.spec.process.get("nominal_wheel_radius_mm").and_then(|v| v.as_float().or(v.as_integer().map(|i| i as f64))))
+        .or_else(|| {
+            run.spec
+                .process
+                .get("nominal_wheel_radius_mm")
+                .and_then(|v| v.as_float().or(v.as_integer().map(|i| i as f64)))
+        })
         .unwrap_or(range.r_max_mm);
     if !range.contains(r) {
         return Err(InputError::new(
@@ -259,7 +278,12 @@ pub fn nominal_radius(run: &Run, cfg: &toml::Table, range: &WheelRange) -> Resul
 }
 
 /// Check a measured wheel radius against the usable range, naming the row.
-pub fn check_wheel_radius(path: &Path, row: usize, r: f64, range: &WheelRange) -> Result<(), InputError> {
+pub fn check_wheel_radius(
+    path: &Path,
+    row: usize,
+    r: f64,
+    range: &WheelRange,
+) -> Result<(), InputError> {
     if range.contains(r) {
         Ok(())
     } else {
@@ -294,11 +318,17 @@ mod tests {
     fn no_error_at_the_nominal_radius_and_on_a_circle() {
         let p = ellipse(720, 60.0, 40.0);
         let path = centre_path(&p, 150.0);
-        assert!(profile_error(&p, &path, 150.0).unwrap().iter().all(|d| d.abs() < 1e-12));
+        assert!(profile_error(&p, &path, 150.0)
+            .unwrap()
+            .iter()
+            .all(|d| d.abs() < 1e-12));
         let phi: Vec<f64> = (0..360).map(|i| TAU * i as f64 / 360.0).collect();
         let c = Profile::new(&phi, &vec![40.0; 360], &CurvatureConfig::default()).unwrap();
         let cp = centre_path(&c, 150.0);
-        assert!(profile_error(&c, &cp, 140.0).unwrap().iter().all(|d| d.abs() < 1e-9));
+        assert!(profile_error(&c, &cp, 140.0)
+            .unwrap()
+            .iter()
+            .all(|d| d.abs() < 1e-9));
     }
 
     /// The centre path's radius is the law-of-cosines R_e and γ matches
@@ -309,11 +339,18 @@ mod tests {
         let rkn = 150.0;
         let path = centre_path(&p, rkn);
         for i in (5..1995).step_by(97) {
-            let re = (p.r_mm[i].powi(2) + rkn * rkn + 2.0 * p.r_mm[i] * rkn * p.gamma0_rad[i].cos()).sqrt();
+            let re =
+                (p.r_mm[i].powi(2) + rkn * rkn + 2.0 * p.r_mm[i] * rkn * p.gamma0_rad[i].cos())
+                    .sqrt();
             assert!((re - path.x_mm[i]).abs() < 1e-9);
-            let dre = (path.x_mm[i + 1] - path.x_mm[i - 1]) / (path.c_rad[i + 1] - path.c_rad[i - 1]);
+            let dre =
+                (path.x_mm[i + 1] - path.x_mm[i - 1]) / (path.c_rad[i + 1] - path.c_rad[i - 1]);
             let g = (dre / path.x_mm[i]).atan();
-            assert!((g + path.gamma_rad[i]).abs() < 1e-4 || (g - path.gamma_rad[i]).abs() < 1e-4, "{g} vs {}", path.gamma_rad[i]);
+            assert!(
+                (g + path.gamma_rad[i]).abs() < 1e-4 || (g - path.gamma_rad[i]).abs() < 1e-4,
+                "{g} vs {}",
+                path.gamma_rad[i]
+            );
         }
     }
 
@@ -328,11 +365,14 @@ mod tests {
         let m1 = d1.iter().cloned().fold(0.0, f64::max);
         let m2 = d2.iter().cloned().fold(0.0, f64::max);
         assert!(m1 > 0.0 && (m2 / m1 - 2.0).abs() < 0.05, "{m1} {m2}");
-        for i in 0..p.len() {
-            let first = 5.0 * (1.0 - path.gamma_rad[i].cos());
-            assert!((d1[i] - first).abs() < 0.05 * first.abs() + 1e-9);
+        for (d, g) in d1.iter().zip(&path.gamma_rad) {
+            let first = 5.0 * (1.0 - g.cos());
+            assert!((d - first).abs() < 0.05 * first.abs() + 1e-9);
         }
-        assert_eq!(delta_mm(0.0, 0.3, 170.0, 160.0), Some(10.0 * (1.0 - 0.3f64.cos())));
+        assert_eq!(
+            delta_mm(0.0, 0.3, 170.0, 160.0),
+            Some(10.0 * (1.0 - 0.3f64.cos()))
+        );
         assert_eq!(delta_mm(-1.0 / 100.0, 0.3, 170.0, 160.0), None);
     }
 }

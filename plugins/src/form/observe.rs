@@ -24,7 +24,9 @@ use sparkout_pipeline::contracts::BatchBuilder;
 use sparkout_pipeline::{cfg_f64, InputError, Result, Stage, StageContext, StageOutput};
 
 use super::config::{check_config, check_window, curvature, Check, WINDOW_KEY};
-use super::model::{centre_path, check_wheel_radius, nominal_radius, profile_error, profile_rows, WheelRange};
+use super::model::{
+    centre_path, check_wheel_radius, nominal_radius, profile_error, profile_rows, WheelRange,
+};
 
 pub const KEYS: &[(&str, Check)] = &[("nominal_mm", Check::Positive), WINDOW_KEY];
 
@@ -73,23 +75,39 @@ impl Stage for ObserveStage {
             .or_else(|| ctx.run.machine.f64("process.feed_mm_s"))
             .unwrap_or(10.0);
         if !(feed > 0.0) {
-            return Err(InputError::new(ctx.run.spec.run_toml_path(), format!("feed_mm_s must be > 0, found {feed}"))
-                .column("process.feed_mm_s")
-                .into());
+            return Err(InputError::new(
+                ctx.run.spec.run_toml_path(),
+                format!("feed_mm_s must be > 0, found {feed}"),
+            )
+            .column("process.feed_mm_s")
+            .into());
         }
         let width = process_f64(ctx, "width_mm").or_else(|| ctx.run.machine.f64("wheel.width_mm"));
-        let usage = match (process_f64(ctx, "removed_before_mm3"), process_f64(ctx, "stock_mm"), width) {
+        let usage = match (
+            process_f64(ctx, "removed_before_mm3"),
+            process_f64(ctx, "stock_mm"),
+            width,
+        ) {
             (Some(v0), Some(stock), Some(w)) => Some((v0, stock * w)),
             _ => None,
         };
         let process_radius = process_f64(ctx, "wheel_radius_mm");
         if rows.measured_rows.is_empty() {
-            bail!("{}: no `measured` rows: nothing to compare the model with", file.display());
+            bail!(
+                "{}: no `measured` rows: nothing to compare the model with",
+                file.display()
+            );
         }
         // δ on the design grid per distinct radius (a run usually has one).
         let mut deltas: BTreeMap<u64, Vec<f64>> = BTreeMap::new();
-        let (mut sim, mut real, mut phi, mut wr, mut ts, mut rem) =
-            (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        let (mut sim, mut real, mut phi, mut wr, mut ts, mut rem) = (
+            Vec::new(),
+            Vec::new(),
+            Vec::new(),
+            Vec::new(),
+            Vec::new(),
+            Vec::new(),
+        );
         for &i in &rows.measured_rows {
             let f = rows.phi[i];
             let rk = match rows.wheel[i].or(process_radius) {
@@ -116,12 +134,19 @@ impl Stage for ObserveStage {
                     deltas.entry(rk.to_bits()).or_insert(d)
                 }
             };
-            let (Some(r_design), Some(g0), Some(s), Some(dl)) =
-                (p.r_at(f), p.value_at(f, &p.gamma0_rad), p.value_at(f, &arc), p.value_at(f, d))
-            else {
+            let (Some(r_design), Some(g0), Some(s), Some(dl)) = (
+                p.r_at(f),
+                p.value_at(f, &p.gamma0_rad),
+                p.value_at(f, &arc),
+                p.value_at(f, d),
+            ) else {
                 return Err(InputError::new(
                     file,
-                    format!("measured φ = {f} rad lies outside the design profile's φ range [{}, {}]", p.phi_rad[0], p.phi_rad[p.len() - 1]),
+                    format!(
+                        "measured φ = {f} rad lies outside the design profile's φ range [{}, {}]",
+                        p.phi_rad[0],
+                        p.phi_rad[p.len() - 1]
+                    ),
                 )
                 .column("phi_rad")
                 .row(i)

@@ -13,7 +13,10 @@ use sparkout_pipeline::{cfg_f64, InputError, Result, Stage, StageContext, StageO
 
 use super::config::{check_config, check_window, curvature, Check, WINDOW_KEY};
 use super::curvature::Profile;
-use super::model::{centre_path, check_wheel_radius, nominal_radius, profile_error, profile_rows, ProfileRows, WheelRange};
+use super::model::{
+    centre_path, check_wheel_radius, nominal_radius, profile_error, profile_rows, ProfileRows,
+    WheelRange,
+};
 
 pub const KEYS: &[(&str, Check)] = &[
     ("nominal_mm", Check::Positive),
@@ -48,11 +51,21 @@ pub fn actual_radii(
         }
     }
     if set.is_empty() {
-        if let Some(r) = ctx.run.spec.process.get("wheel_radius_mm").and_then(|v| v.as_float().or(v.as_integer().map(|i| i as f64))) {
+        if let Some(r) = ctx
+            .run
+            .spec
+            .process
+            .get("wheel_radius_mm")
+            .and_then(|v| v.as_float().or(v.as_integer().map(|i| i as f64)))
+        {
             if !range.contains(r) {
                 return Err(InputError::new(
                     ctx.run.spec.run_toml_path(),
-                    format!("wheel radius {r} mm is outside the machine's usable range [{}, {}] mm", range.r_min_mm(), range.r_max_mm),
+                    format!(
+                        "wheel radius {r} mm is outside the machine's usable range [{}, {}] mm",
+                        range.r_min_mm(),
+                        range.r_max_mm
+                    ),
                 )
                 .column("process.wheel_radius_mm")
                 .into());
@@ -72,7 +85,13 @@ pub fn actual_radii(
 }
 
 /// The `profile_error` artifact and summary for a profile, nominal and radii.
-pub fn compute(p: &Profile, r_kn: f64, radii: &[f64], file: &std::path::Path, design_rows: &[usize]) -> Result<(RecordBatch, Value)> {
+pub fn compute(
+    p: &Profile,
+    r_kn: f64,
+    radii: &[f64],
+    file: &std::path::Path,
+    design_rows: &[usize],
+) -> Result<(RecordBatch, Value)> {
     let path = centre_path(p, r_kn);
     let n = p.len();
     let mut b_rk = Vec::new();
@@ -113,7 +132,11 @@ pub fn compute(p: &Profile, r_kn: f64, radii: &[f64], file: &std::path::Path, de
     // A point counts as straight when its radius of curvature exceeds 100
     // times the profile's mean radius.
     let mean_r = p.r_mm.iter().sum::<f64>() / n as f64;
-    let flat = p.kappa_per_mm.iter().filter(|k| k.abs() * mean_r < 1e-2).count();
+    let flat = p
+        .kappa_per_mm
+        .iter()
+        .filter(|k| k.abs() * mean_r < 1e-2)
+        .count();
     let summary = json!({
         "nominal_mm": r_kn,
         "points": n,

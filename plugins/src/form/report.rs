@@ -34,7 +34,13 @@ fn segments(s: &Value, a: &ArtifactStore) -> Option<ReportSection> {
                     g["r_max_mm"].as_f64().unwrap_or(f64::NAN)
                 ),
                 um(g["max_error_mm"].as_f64()),
-                format!("{:.1}", g["phi_at_max_rad"].as_f64().unwrap_or(f64::NAN).to_degrees()),
+                format!(
+                    "{:.1}",
+                    g["phi_at_max_rad"]
+                        .as_f64()
+                        .unwrap_or(f64::NAN)
+                        .to_degrees()
+                ),
             ]
         })
         .collect();
@@ -46,7 +52,13 @@ fn segments(s: &Value, a: &ArtifactStore) -> Option<ReportSection> {
         um(s["max_error_mm"].as_f64())
     );
     html.push_str(&table(
-        &["segment", "nominal (mm)", "radius range (mm)", "max |δ| (µm)", "at φ (°)"],
+        &[
+            "segment",
+            "nominal (mm)",
+            "radius range (mm)",
+            "max |δ| (µm)",
+            "at φ (°)",
+        ],
         &rows,
     ));
     if let Ok(Some(b)) = a.get("segment_error") {
@@ -94,7 +106,11 @@ fn segments(s: &Value, a: &ArtifactStore) -> Option<ReportSection> {
                 )
             })
             .collect();
-        html.push_str(&bar_chart("Largest profile error against the number of segments", "max |δ| (µm)", &bars));
+        html.push_str(&bar_chart(
+            "Largest profile error against the number of segments",
+            "max |δ| (µm)",
+            &bars,
+        ));
     }
     Some(ReportSection {
         title: "Wheel-radius segmentation".into(),
@@ -120,7 +136,10 @@ fn run_error(s: &Value, a: &ArtifactStore) -> Option<ReportSection> {
         s["points"],
         s["straight_points"]
     );
-    html.push_str(&table(&["wheel radius (mm)", "max |δ| (µm)", "RMS δ (µm)"], &rows));
+    html.push_str(&table(
+        &["wheel radius (mm)", "max |δ| (µm)", "RMS δ (µm)"],
+        &rows,
+    ));
     if let Ok(Some(b)) = a.get("profile_error") {
         if let (Ok(rk), Ok(phi), Ok(d)) = (
             batch_f64(&b, "wheel_radius_mm"),
@@ -147,7 +166,12 @@ fn run_error(s: &Value, a: &ArtifactStore) -> Option<ReportSection> {
                     mark: Mark::Line,
                 })
                 .collect();
-            html.push_str(&xy_chart("Model profile error δ(φ) of this run", "φ (°)", "δ (µm)", &series));
+            html.push_str(&xy_chart(
+                "Model profile error δ(φ) of this run",
+                "φ (°)",
+                "δ (µm)",
+                &series,
+            ));
         }
     }
     Some(ReportSection {
@@ -163,8 +187,20 @@ fn measured(a: &ArtifactStore) -> Option<ReportSection> {
         batch_f64(&b, "sim").ok()?,
         batch_f64(&b, "real").ok()?,
     );
-    let m: Vec<(f64, f64)> = thin(phi.iter().zip(real).map(|(p, r)| (p.to_degrees(), r * 1e3)).collect(), 720);
-    let s: Vec<(f64, f64)> = thin(phi.iter().zip(sim).map(|(p, v)| (p.to_degrees(), v * 1e3)).collect(), 720);
+    let m: Vec<(f64, f64)> = thin(
+        phi.iter()
+            .zip(real)
+            .map(|(p, r)| (p.to_degrees(), r * 1e3))
+            .collect(),
+        720,
+    );
+    let s: Vec<(f64, f64)> = thin(
+        phi.iter()
+            .zip(sim)
+            .map(|(p, v)| (p.to_degrees(), v * 1e3))
+            .collect(),
+        720,
+    );
     let html = xy_chart(
         "Profile error: measured vs model",
         "φ (°)",

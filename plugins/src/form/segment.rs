@@ -54,7 +54,12 @@ pub fn validate(config: &toml::Table) -> Result<()> {
         }
     }
     if let (Some(r), Some(w)) = (cfg_f64(config, "r_max_mm"), cfg_f64(config, "range_mm")) {
-        WheelRange { r_max_mm: r, range_mm: w }.check().map_err(|m| anyhow!(m))?;
+        WheelRange {
+            r_max_mm: r,
+            range_mm: w,
+        }
+        .check()
+        .map_err(|m| anyhow!(m))?;
     }
     Ok(())
 }
@@ -80,7 +85,12 @@ pub struct Segment {
 
 /// The segments of the range, each with its error and tool path. Errors
 /// with the profile point where the wheel cannot follow the profile.
-pub fn segment(p: &Profile, range: &WheelRange, n: usize, samples: usize) -> Result<Vec<Segment>, (usize, f64)> {
+pub fn segment(
+    p: &Profile,
+    range: &WheelRange,
+    n: usize,
+    samples: usize,
+) -> Result<Vec<Segment>, (usize, f64)> {
     let width = range.range_mm / n as f64;
     let samples = samples.max(2);
     (0..n)
@@ -96,7 +106,8 @@ pub fn segment(p: &Profile, range: &WheelRange, n: usize, samples: usize) -> Res
                 let rk = lo + (hi - lo) * s as f64 / (samples - 1) as f64;
                 let mut col = Vec::with_capacity(p.len());
                 for i in 0..p.len() {
-                    let d = delta_mm(p.kappa_per_mm[i], path.gamma_rad[i], nominal, rk).ok_or((i, rk))?;
+                    let d = delta_mm(p.kappa_per_mm[i], path.gamma_rad[i], nominal, rk)
+                        .ok_or((i, rk))?;
                     if d.abs() > best.0 {
                         best = (d.abs(), p.phi_rad[i], rk);
                     }
@@ -130,8 +141,15 @@ pub fn overall(segs: &[Segment]) -> f64 {
 }
 
 /// The largest error for N = 1..=max segments.
-pub fn sweep(p: &Profile, range: &WheelRange, max: usize, samples: usize) -> Result<Vec<(usize, f64)>, (usize, f64)> {
-    (1..=max).map(|n| Ok((n, overall(&segment(p, range, n, samples)?)))).collect()
+pub fn sweep(
+    p: &Profile,
+    range: &WheelRange,
+    max: usize,
+    samples: usize,
+) -> Result<Vec<(usize, f64)>, (usize, f64)> {
+    (1..=max)
+        .map(|n| Ok((n, overall(&segment(p, range, n, samples)?))))
+        .collect()
 }
 
 pub fn segments_json(segs: &[Segment]) -> Value {
@@ -149,7 +167,12 @@ pub fn segments_json(segs: &[Segment]) -> Value {
         .collect::<Vec<_>>())
 }
 
-pub fn summary(segs: &[Segment], sweep: &[(usize, f64)], range: &WheelRange, points: usize) -> Value {
+pub fn summary(
+    segs: &[Segment],
+    sweep: &[(usize, f64)],
+    range: &WheelRange,
+    points: usize,
+) -> Value {
     json!({
         "r_max_mm": range.r_max_mm,
         "range_mm": range.range_mm,
@@ -167,9 +190,18 @@ pub fn segments_batch(segs: &[Segment]) -> RecordBatch {
         .f64("nominal_mm", segs.iter().map(|s| s.nominal_mm).collect())
         .f64("r_min_mm", segs.iter().map(|s| s.r_min_mm).collect())
         .f64("r_max_mm", segs.iter().map(|s| s.r_max_mm).collect())
-        .f64("max_error_mm", segs.iter().map(|s| s.max_error_mm).collect())
-        .f64("phi_at_max_rad", segs.iter().map(|s| s.phi_at_max_rad).collect())
-        .f64("radius_at_max_mm", segs.iter().map(|s| s.radius_at_max_mm).collect())
+        .f64(
+            "max_error_mm",
+            segs.iter().map(|s| s.max_error_mm).collect(),
+        )
+        .f64(
+            "phi_at_max_rad",
+            segs.iter().map(|s| s.phi_at_max_rad).collect(),
+        )
+        .f64(
+            "radius_at_max_mm",
+            segs.iter().map(|s| s.radius_at_max_mm).collect(),
+        )
         .build()
 }
 
@@ -204,7 +236,11 @@ pub fn toolpath_batch(p: &Profile, segs: &[Segment], z_mm: f64) -> RecordBatch {
         Vec::with_capacity(n),
         Vec::with_capacity(n),
     );
-    let (mut x, mut a, mut c) = (Vec::with_capacity(n), Vec::with_capacity(n), Vec::with_capacity(n));
+    let (mut x, mut a, mut c) = (
+        Vec::with_capacity(n),
+        Vec::with_capacity(n),
+        Vec::with_capacity(n),
+    );
     for s in segs {
         for i in 0..p.len() {
             seg.push(s.index as i32);
@@ -240,7 +276,9 @@ pub fn config_for(cfg: &toml::Table, machine: Option<WheelRange>) -> Result<Segm
     Ok(SegmentConfig {
         range,
         segments: cfg_f64(cfg, "segments").map(|v| v as usize).unwrap_or(5),
-        radius_samples: cfg_f64(cfg, "radius_samples").map(|v| v as usize).unwrap_or(11),
+        radius_samples: cfg_f64(cfg, "radius_samples")
+            .map(|v| v as usize)
+            .unwrap_or(11),
         sweep_max: cfg_f64(cfg, "sweep_max").map(|v| v as usize).unwrap_or(10),
         z_mm: cfg_f64(cfg, "z_mm").unwrap_or(0.0),
     })
@@ -255,7 +293,12 @@ pub struct SegmentResult {
 
 /// Run the segmentation on a differentiated profile; `file` names the
 /// profile in errors.
-pub fn compute(p: &Profile, sc: &SegmentConfig, file: &std::path::Path, rows: &[usize]) -> Result<SegmentResult> {
+pub fn compute(
+    p: &Profile,
+    sc: &SegmentConfig,
+    file: &std::path::Path,
+    rows: &[usize],
+) -> Result<SegmentResult> {
     let fail = |(i, rk): (usize, f64)| -> anyhow::Error {
         InputError::new(
             file,
@@ -319,11 +362,20 @@ impl Stage for SegmentStage {
             None => ctx.run.spec.process_f64("z_mm", 0.0),
         };
         // Segment count: stage config, else the machine's `[wheel] segments`.
-        let segments = match (cfg_f64(ctx.config, "segments"), ctx.run.machine.f64("wheel.segments")) {
-            (None, Some(m)) if m >= 1.0 && m.fract() == 0.0 && m <= MAX_SEGMENTS as f64 => m as usize,
+        let segments = match (
+            cfg_f64(ctx.config, "segments"),
+            ctx.run.machine.f64("wheel.segments"),
+        ) {
+            (None, Some(m)) if m >= 1.0 && m.fract() == 0.0 && m <= MAX_SEGMENTS as f64 => {
+                m as usize
+            }
             _ => sc.segments,
         };
-        let sc = SegmentConfig { z_mm: z, segments, ..sc };
+        let sc = SegmentConfig {
+            z_mm: z,
+            segments,
+            ..sc
+        };
         Ok(compute(&p, &sc, t.path(), &rows.design_rows)?.output)
     }
 }
@@ -346,7 +398,10 @@ mod tests {
     #[test]
     fn segments_tile_the_range_and_errors_shrink_with_n() {
         let p = ellipse(720, 60.0, 40.0);
-        let range = WheelRange { r_max_mm: 175.0, range_mm: 50.0 };
+        let range = WheelRange {
+            r_max_mm: 175.0,
+            range_mm: 50.0,
+        };
         let s5 = segment(&p, &range, 5, 11).unwrap();
         let noms: Vec<f64> = s5.iter().map(|s| s.nominal_mm).collect();
         assert_eq!(noms, vec![170.0, 160.0, 150.0, 140.0, 130.0]);
@@ -364,7 +419,11 @@ mod tests {
         assert!(sw[9].1 < 0.15 * one && sw[9].1 > 0.075 * one, "{sw:?}");
         // Each segment's max is at one of its ends (δ ≈ linear).
         for s in &s5 {
-            let end = s.error_at_r_min_mm.iter().chain(&s.error_at_r_max_mm).fold(0.0_f64, |a, b| a.max(b.abs()));
+            let end = s
+                .error_at_r_min_mm
+                .iter()
+                .chain(&s.error_at_r_max_mm)
+                .fold(0.0_f64, |a, b| a.max(b.abs()));
             assert!((end - s.max_error_mm).abs() < 1e-3 * s.max_error_mm);
         }
     }
@@ -372,7 +431,10 @@ mod tests {
     #[test]
     fn toolpath_has_every_point_of_every_segment() {
         let p = ellipse(360, 60.0, 40.0);
-        let range = WheelRange { r_max_mm: 175.0, range_mm: 50.0 };
+        let range = WheelRange {
+            r_max_mm: 175.0,
+            range_mm: 50.0,
+        };
         let segs = segment(&p, &range, 3, 5).unwrap();
         let b = toolpath_batch(&p, &segs, 12.5);
         assert_eq!(b.num_rows(), 3 * 360);
@@ -391,7 +453,9 @@ mod tests {
         assert!(validate(&t).is_err());
         let t: toml::Table = "bogus = 1".parse().unwrap();
         assert!(validate(&t).is_err());
-        let t: toml::Table = "segments = 4\nr_max_mm = 175\nrange_mm = 50\nwindow_points = 7".parse().unwrap();
+        let t: toml::Table = "segments = 4\nr_max_mm = 175\nrange_mm = 50\nwindow_points = 7"
+            .parse()
+            .unwrap();
         assert!(validate(&t).is_ok());
     }
 }

@@ -25,7 +25,11 @@ pub struct TangentCam {
 impl TangentCam {
     /// Validity: nose smaller than the base and sticking out of it.
     pub fn check(&self) -> Result<(), String> {
-        if !(self.nose > 0.0 && self.nose < self.base && self.lift_centre + self.nose > self.base && self.lift_centre > self.base - self.nose) {
+        if !(self.nose > 0.0
+            && self.nose < self.base
+            && self.lift_centre + self.nose > self.base
+            && self.lift_centre > self.base - self.nose)
+        {
             return Err(format!("invalid tangent cam {self:?}: need 0 < nose < base and the nose circle outside the base"));
         }
         Ok(())
@@ -89,7 +93,11 @@ mod tests {
     use crate::form::curvature::{CurvatureConfig, Profile};
 
     fn cam() -> TangentCam {
-        TangentCam { base: 40.0, nose: 15.0, lift_centre: 35.0 }
+        TangentCam {
+            base: 40.0,
+            nose: 15.0,
+            lift_centre: 35.0,
+        }
     }
 
     #[test]
@@ -98,7 +106,7 @@ mod tests {
         c.check().unwrap();
         assert!((c.r(0.0) - 50.0).abs() < 1e-12); // nose tip
         assert!((c.r(std::f64::consts::PI) - 40.0).abs() < 1e-12); // base
-        // On a flank the point lies on the tangent line p·n(θt) = base.
+                                                                   // On a flank the point lies on the tangent line p·n(θt) = base.
         let th = ((40.0f64 - 15.0) / 35.0).acos();
         let phi = 0.5 * th + 0.3; // between the nose and the base contact
         let r = c.r(phi);
@@ -121,8 +129,15 @@ mod tests {
         let mut flat = 0;
         for (i, &f) in phi.iter().enumerate() {
             let k = p.kappa_per_mm[i];
-            assert!(k.is_finite() && k > -1e-3 && k < 1.2 / c.nose, "κ({f}) = {k}");
-            let a = if f > std::f64::consts::PI { std::f64::consts::TAU - f } else { f };
+            assert!(
+                k.is_finite() && k > -1e-3 && k < 1.2 / c.nose,
+                "κ({f}) = {k}"
+            );
+            let a = if f > std::f64::consts::PI {
+                std::f64::consts::TAU - f
+            } else {
+                f
+            };
             if a > t2 + 0.05 && a < t1 - 0.05 {
                 assert!(k.abs() < 1e-5, "flank κ({f}) = {k}");
                 flat += 1;
