@@ -80,6 +80,15 @@ fn wheel_wear_between_dressings_is_named_first() {
     );
     let shrink = shrink_of(&diag, &first);
     assert!(shrink > 0.5, "held-out shrink {shrink}: {diag:#}");
+    // The wear rate is recovered: the generator's default 1.5e-5 mm/mm³.
+    let k = diag["effects"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|e| e["name"] == "wheel_wear")
+        .and_then(|e| e["params"]["k"].as_f64())
+        .unwrap();
+    assert!((k / 1.5e-5 - 1.0).abs() < 0.1, "k = {k}");
     // The whole selection's held-out gap is near the measurement noise.
     let un = diag["unexplained"]["rms_mm"].as_f64().unwrap();
     assert!(
