@@ -6,7 +6,7 @@
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use sparkout_plugins::form::curvature::{CurvatureConfig, Profile};
-use sparkout_plugins::form::model::WheelRange;
+use sparkout_plugins::form::model::{DeltaModel, WheelRange};
 use sparkout_plugins::form::segment::sweep;
 use sparkout_plugins::form::shapes::{sample, TangentCam};
 use std::hint::black_box;
@@ -30,7 +30,7 @@ fn bench(c: &mut Criterion) {
     });
     let p = Profile::new(&phi, &r, &CurvatureConfig::default()).unwrap();
     g.bench_function("sweep_1_to_10_segments_2000_points", |b| {
-        b.iter(|| sweep(black_box(&p), &range, 10, 11).unwrap())
+        b.iter(|| sweep(black_box(&p), &range, 10, 11, DeltaModel::Published).unwrap())
     });
     g.finish();
 }

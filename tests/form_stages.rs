@@ -290,6 +290,11 @@ fn bad_inputs_name_file_column_row() {
     }
     assert!(!text.contains("\"good\""), "{text}");
     assert!(out.join("form-grinder/good/observations.parquet").is_file());
+    let html = std::fs::read_to_string(out.join("form-grinder/good/report.html")).unwrap();
+    assert!(
+        html.contains("Profile error against φ per segment") && html.contains("<svg"),
+        "report lacks the per-segment profile error chart"
+    );
     assert!(!out
         .join("form-grinder/dup_phi/observations.parquet")
         .exists());

@@ -228,6 +228,7 @@ mod tests {
             },
             2,
             3,
+            crate::form::model::DeltaModel::Published,
         )
         .unwrap();
         let progs = programs(&toolpath_batch(&p, &segs, 5.0)).unwrap();

@@ -32,6 +32,56 @@ pub struct CentrePath {
     /// equals atan((dR_e/dφ_e)/R_e) exactly (the offset curve shares the
     /// profile's normals), without a second numerical derivative.
     pub gamma_rad: Vec<f64>,
+    /// Which δ formula the errors of this path use.
+    pub model: DeltaModel,
+}
+
+/// Which δ(φ) formula to use.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum DeltaModel {
+    /// MODELS.md §4 as published ([`delta_mm`]).
+    #[default]
+    Published,
+    /// The wheel against the profile's osculating circle, without the
+    /// published small-angle shortcuts ([`delta_osculating_mm`]); closer
+    /// to the exact envelope of the wheel (see the tests).
+    Osculating,
+}
+
+impl DeltaModel {
+    pub const NAMES: &'static [&'static str] = &["published", "osculating"];
+    pub fn parse(s: &str) -> Option<DeltaModel> {
+        match s {
+            "published" => Some(DeltaModel::Published),
+            "osculating" => Some(DeltaModel::Osculating),
+            _ => None,
+        }
+    }
+    /// From a stage config's `delta_model` (checked by validate_config).
+    pub fn from_config(cfg: &toml::Table) -> DeltaModel {
+        cfg.get("delta_model")
+            .and_then(|v| v.as_str())
+            .and_then(DeltaModel::parse)
+            .unwrap_or_default()
+    }
+    pub fn delta(self, kappa: f64, gamma: f64, r_kn: f64, r_k: f64) -> Option<f64> {
+        match self {
+            DeltaModel::Published => delta_mm(kappa, gamma, r_kn, r_k),
+            DeltaModel::Osculating => delta_osculating_mm(kappa, gamma, r_kn, r_k),
+        }
+    }
+}
+
+impl CentrePath {
+    pub fn with_model(mut self, model: DeltaModel) -> CentrePath {
+        self.model = model;
+        self
+    }
+    /// δ at point `i` of `p` for actual radius `r_k`.
+    pub fn delta(&self, p: &Profile, i: usize, r_k: f64) -> Option<f64> {
+        self.model
+            .delta(p.kappa_per_mm[i], self.gamma_rad[i], self.nominal_mm, r_k)
+    }
 }
 
 /// The equidistant for nominal radius `r_kn`.
@@ -64,6 +114,7 @@ pub fn centre_path(p: &Profile, r_kn: f64) -> CentrePath {
         x_mm: x,
         c_rad: c,
         gamma_rad: g,
+        model: DeltaModel::Published,
     }
 }
 
@@ -95,11 +146,35 @@ pub fn delta_mm(kappa: f64, gamma: f64, r_kn: f64, r_k: f64) -> Option<f64> {
     Some(d * (1.0 - gamma.cos()) - second)
 }
 
+/// δ from the osculating circle (centre O = P − ρ·n, radius ρ): the
+/// programmed wheel centre is at ρ + R_kn from O, the controller moves it
+/// radially in by Δ = R_kn − R_k (at angle γ to the normal), so the actual
+/// centre is L = sqrt((ρ+R_kn)² − 2Δ(ρ+R_kn)·cos γ + Δ²) from O and the
+/// wheel stands L − ρ − R_k off the profile. Written in κ to stay finite on
+/// a straight part (κ = 0 gives Δ·(1 − cos γ)):
+///   δ = [2Δ(1 − cos γ) + κΔ(R_kn + R_k − 2R_kn·cos γ + Δ)] / (κL + 1 + κR_k),
+///   κL = sqrt((1 + κR_kn)² − 2Δκ(1 + κR_kn)·cos γ + (Δκ)²).
+pub fn delta_osculating_mm(kappa: f64, gamma: f64, r_kn: f64, r_k: f64) -> Option<f64> {
+    let d = r_kn - r_k;
+    if !(1.0 + r_k * kappa > 0.0) {
+        return None;
+    }
+    let c = gamma.cos();
+    let a = 1.0 + kappa * r_kn;
+    let kl2 = a * a - 2.0 * d * kappa * a * c + (d * kappa).powi(2);
+    if !(kl2 >= 0.0) {
+        return None;
+    }
+    let num = 2.0 * d * (1.0 - c) + kappa * d * (r_kn + r_k - 2.0 * r_kn * c + d);
+    let den = kl2.sqrt() + 1.0 + kappa * r_k;
+    (den > 0.0).then(|| num / den)
+}
+
 /// δ along the whole profile for a centre path and an actual radius; on
 /// failure the first point (index) where the wheel cannot follow.
 pub fn profile_error(p: &Profile, path: &CentrePath, r_k: f64) -> Result<Vec<f64>, usize> {
     (0..p.len())
-        .map(|i| delta_mm(p.kappa_per_mm[i], path.gamma_rad[i], path.nominal_mm, r_k).ok_or(i))
+        .map(|i| path.delta(p, i, r_k).ok_or(i))
         .collect()
 }
 
@@ -374,5 +449,61 @@ mod tests {
             Some(10.0 * (1.0 - 0.3f64.cos()))
         );
         assert_eq!(delta_mm(-1.0 / 100.0, 0.3, 170.0, 160.0), None);
+    }
+
+    /// Against the exact envelope of the real wheel: circles of radius R_k
+    /// at the controller's centres (programmed centre moved radially in by
+    /// R_kn − R_k); the ground surface along each design normal is the
+    /// nearest entry into any circle. The published δ stays within a few
+    /// per cent of it; the osculating-circle δ within one per cent.
+    #[test]
+    fn delta_matches_the_exact_wheel_envelope() {
+        let p = ellipse(4000, 60.0, 40.0);
+        let (rkn, rk) = (150.0, 140.0);
+        let path = centre_path(&p, rkn);
+        let centres: Vec<[f64; 2]> = (0..p.len())
+            .map(|j| {
+                let pt = p.point(j);
+                let c = [pt[0] + rkn * p.normal[j][0], pt[1] + rkn * p.normal[j][1]];
+                let re = c[0].hypot(c[1]);
+                [c[0] - (rkn - rk) * c[0] / re, c[1] - (rkn - rk) * c[1] / re]
+            })
+            .collect();
+        let (mut worst_pub, mut worst_osc, mut biggest) = (0.0_f64, 0.0_f64, 0.0_f64);
+        for i in (0..p.len()).step_by(100) {
+            let (pt, n) = (p.point(i), p.normal[i]);
+            let mut surface = f64::INFINITY;
+            for c in &centres {
+                let (dx, dy) = (pt[0] - c[0], pt[1] - c[1]);
+                let b = n[0] * dx + n[1] * dy;
+                let disc = b * b - (dx * dx + dy * dy - rk * rk);
+                // Only wheels ahead along the normal (the line also meets
+                // wheels on the far side of the work, behind the profile).
+                if disc >= 0.0 && b < 0.0 {
+                    surface = surface.min(-b - disc.sqrt());
+                }
+            }
+            let (k, g) = (p.kappa_per_mm[i], path.gamma_rad[i]);
+            let published = delta_mm(k, g, rkn, rk).unwrap();
+            let osculating = delta_osculating_mm(k, g, rkn, rk).unwrap();
+            worst_pub = worst_pub.max((published - surface).abs());
+            worst_osc = worst_osc.max((osculating - surface).abs());
+            biggest = biggest.max(surface.abs());
+        }
+        assert!(biggest > 0.04, "{biggest}");
+        assert!(
+            worst_pub < 0.05 * biggest,
+            "published off by {worst_pub} of {biggest}"
+        );
+        assert!(
+            worst_osc < 0.015 * biggest,
+            "osculating off by {worst_osc} of {biggest}"
+        );
+        assert!(worst_osc < worst_pub);
+        // Both reduce to Δ(1 − cos γ) on a straight part.
+        assert_eq!(
+            delta_osculating_mm(0.0, 0.3, 170.0, 160.0),
+            delta_mm(0.0, 0.3, 170.0, 160.0)
+        );
     }
 }

@@ -25,10 +25,15 @@ use sparkout_pipeline::{cfg_f64, InputError, Result, Stage, StageContext, StageO
 
 use super::config::{check_config, check_window, curvature, Check, WINDOW_KEY};
 use super::model::{
-    centre_path, check_wheel_radius, nominal_radius, profile_error, profile_rows, WheelRange,
+    centre_path, check_wheel_radius, nominal_radius, profile_error, profile_rows, DeltaModel,
+    WheelRange,
 };
 
-pub const KEYS: &[(&str, Check)] = &[("nominal_mm", Check::Positive), WINDOW_KEY];
+pub const KEYS: &[(&str, Check)] = &[
+    ("nominal_mm", Check::Positive),
+    ("delta_model", Check::OneOf(DeltaModel::NAMES)),
+    WINDOW_KEY,
+];
 
 fn process_f64(ctx: &StageContext, key: &str) -> Option<f64> {
     match ctx.run.spec.process.get(key)? {
@@ -69,7 +74,7 @@ impl Stage for ObserveStage {
         let file = t.path();
         let p = rows.design(file, &curvature(ctx.config))?;
         let r_kn = nominal_radius(ctx.run, ctx.config, &range)?;
-        let path = centre_path(&p, r_kn);
+        let path = centre_path(&p, r_kn).with_model(DeltaModel::from_config(ctx.config));
         let arc = p.arc_length_mm();
         let feed = process_f64(ctx, "feed_mm_s")
             .or_else(|| ctx.run.machine.f64("process.feed_mm_s"))

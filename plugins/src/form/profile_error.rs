@@ -14,13 +14,14 @@ use sparkout_pipeline::{cfg_f64, InputError, Result, Stage, StageContext, StageO
 use super::config::{check_config, check_window, curvature, Check, WINDOW_KEY};
 use super::curvature::Profile;
 use super::model::{
-    centre_path, check_wheel_radius, nominal_radius, profile_error, profile_rows, ProfileRows,
-    WheelRange,
+    centre_path, check_wheel_radius, nominal_radius, profile_error, profile_rows, DeltaModel,
+    ProfileRows, WheelRange,
 };
 
 pub const KEYS: &[(&str, Check)] = &[
     ("nominal_mm", Check::Positive),
     ("wheel_radius_mm", Check::Positive),
+    ("delta_model", Check::OneOf(DeltaModel::NAMES)),
     WINDOW_KEY,
 ];
 
@@ -91,8 +92,9 @@ pub fn compute(
     radii: &[f64],
     file: &std::path::Path,
     design_rows: &[usize],
+    model: DeltaModel,
 ) -> Result<(RecordBatch, Value)> {
-    let path = centre_path(p, r_kn);
+    let path = centre_path(p, r_kn).with_model(model);
     let n = p.len();
     let mut b_rk = Vec::new();
     let mut delta = Vec::new();
@@ -139,6 +141,7 @@ pub fn compute(
         .count();
     let summary = json!({
         "nominal_mm": r_kn,
+        "delta_model": format!("{model:?}").to_lowercase(),
         "points": n,
         "closed": p.closed,
         "straight_points": flat,
@@ -181,7 +184,14 @@ impl Stage for ProfileErrorStage {
         let p = rows.design(t.path(), &curvature(ctx.config))?;
         let r_kn = nominal_radius(ctx.run, ctx.config, &range)?;
         let radii = actual_radii(ctx, &rows, t.path(), &range)?;
-        let (batch, summary) = compute(&p, r_kn, &radii, t.path(), &rows.design_rows)?;
+        let (batch, summary) = compute(
+            &p,
+            r_kn,
+            &radii,
+            t.path(),
+            &rows.design_rows,
+            DeltaModel::from_config(ctx.config),
+        )?;
         Ok(StageOutput::new(summary).with("profile_error", batch))
     }
 }

@@ -13,7 +13,7 @@ use sparkout_pipeline::{cfg_f64, InputError, Result, Stage, StageContext, StageO
 
 use super::config::{check_config, check_count, check_window, curvature, Check, WINDOW_KEY};
 use super::curvature::Profile;
-use super::model::{centre_path, delta_mm, profile_rows, CentrePath, WheelRange};
+use super::model::{centre_path, profile_rows, CentrePath, DeltaModel, WheelRange};
 
 /// Segmentation settings (`[form.segment]`; the range defaults to the
 /// machine's `[wheel]`).
@@ -28,6 +28,7 @@ pub struct SegmentConfig {
     pub sweep_max: usize,
     /// Axial position of the section (Z of the tool path).
     pub z_mm: f64,
+    pub model: DeltaModel,
 }
 
 pub const MAX_SEGMENTS: usize = 1000;
@@ -39,6 +40,7 @@ pub const KEYS: &[(&str, Check)] = &[
     ("radius_samples", Check::AtLeastOne),
     ("sweep_max", Check::AtLeastOne),
     ("z_mm", Check::NonNegative),
+    ("delta_model", Check::OneOf(DeltaModel::NAMES)),
     WINDOW_KEY,
 ];
 
@@ -90,6 +92,7 @@ pub fn segment(
     range: &WheelRange,
     n: usize,
     samples: usize,
+    model: DeltaModel,
 ) -> Result<Vec<Segment>, (usize, f64)> {
     let width = range.range_mm / n as f64;
     let samples = samples.max(2);
@@ -99,15 +102,14 @@ pub fn segment(
             let hi = range.r_max_mm - k as f64 * width;
             let lo = hi - width;
             let nominal = 0.5 * (lo + hi);
-            let path = centre_path(p, nominal);
+            let path = centre_path(p, nominal).with_model(model);
             let mut best = (0.0_f64, p.phi_rad[0], nominal);
             let mut ends = (Vec::new(), Vec::new());
             for s in 0..samples {
                 let rk = lo + (hi - lo) * s as f64 / (samples - 1) as f64;
                 let mut col = Vec::with_capacity(p.len());
                 for i in 0..p.len() {
-                    let d = delta_mm(p.kappa_per_mm[i], path.gamma_rad[i], nominal, rk)
-                        .ok_or((i, rk))?;
+                    let d = path.delta(p, i, rk).ok_or((i, rk))?;
                     if d.abs() > best.0 {
                         best = (d.abs(), p.phi_rad[i], rk);
                     }
@@ -146,9 +148,10 @@ pub fn sweep(
     range: &WheelRange,
     max: usize,
     samples: usize,
+    model: DeltaModel,
 ) -> Result<Vec<(usize, f64)>, (usize, f64)> {
     (1..=max)
-        .map(|n| Ok((n, overall(&segment(p, range, n, samples)?))))
+        .map(|n| Ok((n, overall(&segment(p, range, n, samples, model)?))))
         .collect()
 }
 
@@ -281,6 +284,7 @@ pub fn config_for(cfg: &toml::Table, machine: Option<WheelRange>) -> Result<Segm
             .unwrap_or(11),
         sweep_max: cfg_f64(cfg, "sweep_max").map(|v| v as usize).unwrap_or(10),
         z_mm: cfg_f64(cfg, "z_mm").unwrap_or(0.0),
+        model: DeltaModel::from_config(cfg),
     })
 }
 
@@ -310,8 +314,8 @@ pub fn compute(
         .row(rows.get(i).copied().unwrap_or(i))
         .into()
     };
-    let segs = segment(p, &sc.range, sc.segments, sc.radius_samples).map_err(fail)?;
-    let sw = sweep(p, &sc.range, sc.sweep_max, sc.radius_samples).map_err(fail)?;
+    let segs = segment(p, &sc.range, sc.segments, sc.radius_samples, sc.model).map_err(fail)?;
+    let sw = sweep(p, &sc.range, sc.sweep_max, sc.radius_samples, sc.model).map_err(fail)?;
     let sweep_batch = BatchBuilder::new()
         .i32("segments", sw.iter().map(|s| s.0 as i32).collect())
         .f64("max_error_mm", sw.iter().map(|s| s.1).collect())
@@ -384,6 +388,7 @@ impl Stage for SegmentStage {
 mod tests {
     use super::*;
     use crate::form::curvature::CurvatureConfig;
+    use crate::form::model::DeltaModel;
     use std::f64::consts::TAU;
 
     pub fn ellipse(n: usize, a: f64, b: f64) -> Profile {
@@ -402,12 +407,12 @@ mod tests {
             r_max_mm: 175.0,
             range_mm: 50.0,
         };
-        let s5 = segment(&p, &range, 5, 11).unwrap();
+        let s5 = segment(&p, &range, 5, 11, DeltaModel::Published).unwrap();
         let noms: Vec<f64> = s5.iter().map(|s| s.nominal_mm).collect();
         assert_eq!(noms, vec![170.0, 160.0, 150.0, 140.0, 130.0]);
         assert_eq!(s5[0].r_max_mm, 175.0);
         assert!((s5[4].r_min_mm - 125.0).abs() < 1e-12);
-        let sw = sweep(&p, &range, 10, 11).unwrap();
+        let sw = sweep(&p, &range, 10, 11, DeltaModel::Published).unwrap();
         for w in sw.windows(2) {
             assert!(w[1].1 < w[0].1, "max error must fall with N: {sw:?}");
         }
@@ -435,7 +440,7 @@ mod tests {
             r_max_mm: 175.0,
             range_mm: 50.0,
         };
-        let segs = segment(&p, &range, 3, 5).unwrap();
+        let segs = segment(&p, &range, 3, 5, DeltaModel::Published).unwrap();
         let b = toolpath_batch(&p, &segs, 12.5);
         assert_eq!(b.num_rows(), 3 * 360);
         let x = sparkout_pipeline::contracts::batch_f64(&b, "x_mm").unwrap();
