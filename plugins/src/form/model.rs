@@ -329,27 +329,35 @@ pub fn profile_rows(run: &Run) -> Result<(std::sync::Arc<Table>, ProfileRows)> {
 /// `nominal_mm`, else run.toml `[process] nominal_wheel_radius_mm`, else the
 /// machine's largest radius (a program for the new wheel).
 pub fn nominal_radius(run: &Run, cfg: &toml::Table, range: &WheelRange) -> Result<f64> {
-    let r = sparkout_pipeline::cfg_f64(cfg, "nominal_mm")
-        .or_else(|| {
-            run.spec
-                .process
-                .get("nominal_wheel_radius_mm")
-                .and_then(|v| v.as_float().or(v.as_integer().map(|i| i as f64)))
-        })
-        .unwrap_or(range.r_max_mm);
-    if !range.contains(r) {
-        return Err(InputError::new(
+    let outside = |r: f64| {
+        format!(
+            "nominal wheel radius {r} mm is outside the machine's usable range [{}, {}] mm",
+            range.r_min_mm(),
+            range.r_max_mm
+        )
+    };
+    if let Some(r) = sparkout_pipeline::cfg_f64(cfg, "nominal_mm") {
+        if !range.contains(r) {
+            anyhow::bail!("stage config nominal_mm: {}", outside(r));
+        }
+        return Ok(r);
+    }
+    let r = match run.spec.process.get("nominal_wheel_radius_mm") {
+        None => return Ok(range.r_max_mm),
+        Some(v) => v.as_float().or(v.as_integer().map(|i| i as f64)),
+    };
+    match r {
+        Some(r) if range.contains(r) => Ok(r),
+        Some(r) => Err(InputError::new(run.spec.run_toml_path(), outside(r))
+            .column("process.nominal_wheel_radius_mm")
+            .into()),
+        None => Err(InputError::new(
             run.spec.run_toml_path(),
-            format!(
-                "nominal wheel radius {r} mm is outside the machine's usable range [{}, {}] mm",
-                range.r_min_mm(),
-                range.r_max_mm
-            ),
+            "[process] nominal_wheel_radius_mm must be a number (mm)",
         )
         .column("process.nominal_wheel_radius_mm")
-        .into());
+        .into()),
     }
-    Ok(r)
 }
 
 /// Check a measured wheel radius against the usable range, naming the row.
