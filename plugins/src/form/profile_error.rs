@@ -169,7 +169,7 @@ impl Stage for ProfileErrorStage {
         &[]
     }
     fn writes(&self) -> &'static [&'static str] {
-        &["profile_error"]
+        &["profile_error", "compensation"]
     }
     fn about(&self) -> &'static str {
         "profile error δ(φ) of the design profile for the actual wheel radius vs the programmed nominal, with curvature κ(φ) (MODELS.md §4)"
@@ -192,6 +192,85 @@ impl Stage for ProfileErrorStage {
             &rows.design_rows,
             DeltaModel::from_config(ctx.config),
         )?;
-        Ok(StageOutput::new(summary).with("profile_error", batch))
+        let feed = ctx
+            .run
+            .spec
+            .process
+            .get("feed_mm_s")
+            .and_then(|v| v.as_float().or(v.as_integer().map(|i| i as f64)))
+            .or_else(|| ctx.run.machine.f64("process.feed_mm_s"))
+            .unwrap_or(10.0);
+        if !(feed > 0.0) {
+            return Err(InputError::new(
+                ctx.run.spec.run_toml_path(),
+                format!("feed_mm_s must be > 0, found {feed}"),
+            )
+            .column("process.feed_mm_s")
+            .into());
+        }
+        // The largest actual radius (the first) gets the compensation.
+        let comp = compensation(&p, r_kn, radii[0], feed);
+        Ok(StageOutput::new(summary)
+            .with("profile_error", batch)
+            .with("compensation", comp))
+    }
+}
+
+/// The wheel-centre correction that removes δ for the actual radius
+/// `r_k`: the exact centre P + R_k·n minus the one the controller uses
+/// (the programmed P + R_kn·n moved radially in by R_kn − R_k), in the
+/// work's plane, per profile point at t_s = arc length / feed (strictly
+/// increasing). The shape CAN replay reads: t_s, dx_mm, dy_mm.
+pub fn compensation(p: &Profile, r_kn: f64, r_k: f64, feed_mm_s: f64) -> RecordBatch {
+    let arc = p.arc_length_mm();
+    let d = r_kn - r_k;
+    let (mut dx, mut dy) = (Vec::with_capacity(p.len()), Vec::with_capacity(p.len()));
+    for i in 0..p.len() {
+        let pt = p.point(i);
+        let n = p.normal[i];
+        let cn = [pt[0] + r_kn * n[0], pt[1] + r_kn * n[1]];
+        let re = cn[0].hypot(cn[1]);
+        let ctrl = [cn[0] - d * cn[0] / re, cn[1] - d * cn[1] / re];
+        dx.push(pt[0] + r_k * n[0] - ctrl[0]);
+        dy.push(pt[1] + r_k * n[1] - ctrl[1]);
+    }
+    BatchBuilder::new()
+        .f64("t_s", arc.iter().map(|s| s / feed_mm_s).collect())
+        .f64("phi_rad", p.phi_rad.clone())
+        .f64("dx_mm", dx)
+        .f64("dy_mm", dy)
+        .build()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::form::curvature::CurvatureConfig;
+    use crate::form::shapes::{ellipse_r, sample};
+    use sparkout_pipeline::contracts::batch_f64;
+
+    /// The correction's component along the normal is δ to first order
+    /// (moving the centre by it removes the error); t_s increases strictly.
+    #[test]
+    fn compensation_removes_the_error_along_the_normal() {
+        let (phi, r) = sample(720, |f| ellipse_r(f, 60.0, 40.0));
+        let p = Profile::new(&phi, &r, &CurvatureConfig::default()).unwrap();
+        let b = compensation(&p, 170.0, 160.0, 5.0);
+        let (t, dx, dy) = (
+            batch_f64(&b, "t_s").unwrap(),
+            batch_f64(&b, "dx_mm").unwrap(),
+            batch_f64(&b, "dy_mm").unwrap(),
+        );
+        assert!(t.windows(2).all(|w| w[1] > w[0]));
+        let path = centre_path(&p, 170.0);
+        let delta = profile_error(&p, &path, 160.0).unwrap();
+        for i in 0..p.len() {
+            let along = -(dx[i] * p.normal[i][0] + dy[i] * p.normal[i][1]);
+            assert!(
+                (along - delta[i]).abs() < 0.05 * delta[i].abs() + 1e-6,
+                "{i}: {along} vs {}",
+                delta[i]
+            );
+        }
     }
 }
