@@ -109,6 +109,13 @@ const ACT_NOISE_MM: f64 = 0.0003;
 /// MODELS.md §1.1: 25 µm at 5 mm/s, 85 µm at 10 mm/s.
 const AE_RANGE_5_MM: f64 = 0.025;
 const AE_RANGE_10_MM: f64 = 0.085;
+/// Thesis repeatability of the comparison methods (MODELS.md §1.1): 700 µm
+/// for the mechanical dial gauge at 100 mm/s, 163 µm for the electrical
+/// contact circuit at 10 mm/s (ranges; σ = range/d2(12)). Scaled linearly
+/// with speed around those points: a method probed at another speed
+/// overshoots proportionally more or less before it registers.
+const MECHANICAL_RANGE_MM: (f64, f64) = (0.700, 100.0);
+const ELECTRICAL_RANGE_MM: (f64, f64) = (0.163, 10.0);
 /// d2 (expected range / σ of a normal sample) for N = 12, the middle of the
 /// thesis's 10–15 repeats: converts a range into a standard deviation.
 const D2_N12: f64 = 3.258;
@@ -178,6 +185,41 @@ impl FromStr for ProbeMode {
     }
 }
 
+/// A comparison probing method (MODELS.md §1.1): its touches are registered
+/// by the controller (probe.parquet) from the method's own signal, probed in
+/// a second program after the AE program. They are not in plan.parquet (the
+/// AE program) and the AE recorder is not armed for them.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ProbeMethod {
+    /// `mechanical` or `electrical` (CONTRACTS.md probe.method).
+    pub name: String,
+    pub speed_mm_s: f64,
+}
+
+impl ProbeMethod {
+    pub fn new(name: &str, speed_mm_s: f64) -> Self {
+        ProbeMethod {
+            name: name.to_string(),
+            speed_mm_s,
+        }
+    }
+    /// The method's name as a static label (validated: one of the two).
+    fn label(&self) -> &'static str {
+        if self.name == "mechanical" {
+            "mechanical"
+        } else {
+            "electrical"
+        }
+    }
+    /// The thesis's two comparison methods at their published speeds.
+    pub fn thesis() -> Vec<ProbeMethod> {
+        vec![
+            ProbeMethod::new("electrical", ELECTRICAL_RANGE_MM.1),
+            ProbeMethod::new("mechanical", MECHANICAL_RANGE_MM.1),
+        ]
+    }
+}
+
 /// Settings of a generated robot fleet.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct RobotFleetConfig {
@@ -192,6 +234,10 @@ pub struct RobotFleetConfig {
     /// Approach speeds, mm/s (the thesis used 100, 10 and 5 mm/s).
     pub speeds_mm_s: Vec<f64>,
     pub with_probe: ProbeMode,
+    /// Comparison methods probed after the AE program (every nominal point,
+    /// `trials` times each), registered in probe.parquet only. Runs without
+    /// probe.parquet (AE-only runs) skip them.
+    pub other_methods: Vec<ProbeMethod>,
     /// Controller log rate, Hz.
     pub motion_rate_hz: f64,
     /// Approach start distance outside the nominal surface, mm.
@@ -239,6 +285,7 @@ impl Default for RobotFleetConfig {
             trials: 3,
             speeds_mm_s: vec![5.0, 10.0],
             with_probe: ProbeMode::Alternate,
+            other_methods: ProbeMethod::thesis(),
             motion_rate_hz: 1000.0,
             standoff_mm: 1.5,
             ae_noise_v: 0.005,
@@ -312,6 +359,22 @@ impl RobotFleetConfig {
             pos("every approach speed (mm/s)", v)?;
             if v > 200.0 {
                 bail!("robot generator: approach speed {v} mm/s is beyond a probing approach (≤ 200 mm/s)");
+            }
+        }
+        for m in &self.other_methods {
+            if !matches!(m.name.as_str(), "mechanical" | "electrical") {
+                bail!(
+                    "robot generator: other method `{}` is not a comparison method (known: mechanical, electrical; `ae` is the main program)",
+                    m.name
+                );
+            }
+            pos("every other method's approach speed (mm/s)", m.speed_mm_s)?;
+            if m.speed_mm_s > 200.0 {
+                bail!(
+                    "robot generator: {} approach speed {} mm/s is beyond a probing approach (≤ 200 mm/s)",
+                    m.name,
+                    m.speed_mm_s
+                );
             }
         }
         pos("motion_rate_hz", self.motion_rate_hz)?;
@@ -720,7 +783,10 @@ impl Face {
 
 #[derive(Debug, Clone)]
 struct PlanRow {
+    /// Plan order = motion segment; −1 for the comparison methods' program
+    /// (not in plan.parquet).
     seq: i32,
+    method: &'static str,
     face: Face,
     point: i32,
     trial: i32,
@@ -743,6 +809,7 @@ fn build_plan(cfg: &RobotFleetConfig) -> Vec<PlanRow> {
                 for p in 0..12 {
                     plan.push(PlanRow {
                         seq: plan.len() as i32,
+                        method: "ae",
                         face,
                         point: p as i32,
                         trial: trial as i32,
@@ -755,6 +822,42 @@ fn build_plan(cfg: &RobotFleetConfig) -> Vec<PlanRow> {
         }
     }
     plan
+}
+
+/// The comparison methods' program: every nominal point `trials` times per
+/// method, sweeping the pattern like the AE plan; segment −1 (not a plan row).
+fn build_other_program(cfg: &RobotFleetConfig) -> Vec<PlanRow> {
+    let datum = V3::from(DATUM_NOM_MM);
+    let mut rows = Vec::new();
+    for m in &cfg.other_methods {
+        let method = m.label();
+        for trial in 0..cfg.trials {
+            for face in Face::ALL {
+                for p in 0..12 {
+                    rows.push(PlanRow {
+                        seq: -1,
+                        method,
+                        face,
+                        point: p as i32,
+                        trial: trial as i32,
+                        speed_mm_s: m.speed_mm_s,
+                        nom: datum + face.point(p),
+                        dir: -face.normal(),
+                    });
+                }
+            }
+        }
+    }
+    rows
+}
+
+/// σ of a method's registered touches at an approach speed.
+fn touch_sigma_mm(method: &str, v_mm_s: f64) -> f64 {
+    match method {
+        "mechanical" => MECHANICAL_RANGE_MM.0 / D2_N12 * v_mm_s / MECHANICAL_RANGE_MM.1,
+        "electrical" => ELECTRICAL_RANGE_MM.0 / D2_N12 * v_mm_s / ELECTRICAL_RANGE_MM.1,
+        _ => ae_touch_sigma_mm(v_mm_s),
+    }
 }
 
 /// σ of the AE method's registered touches at an approach speed: the
@@ -886,8 +989,10 @@ struct RunTruth {
     block_offset_mm: [f64; 3],
     faces: BTreeMap<&'static str, FaceTruth>,
     trigger_latency_s: BTreeMap<&'static str, f64>,
-    /// σ of the registered touches' normal coordinate per approach speed.
+    /// σ of the registered AE touches' normal coordinate per approach speed.
     touch_sigma_mm: BTreeMap<String, f64>,
+    /// σ of the comparison methods' registered touches, per method.
+    other_method_sigma_mm: BTreeMap<String, f64>,
     ae_clock_offset_s: f64,
     ae_sample_rate_hz: f64,
     ae_carrier_hz: f64,
@@ -1018,12 +1123,13 @@ pub fn generate_fleet(
         }
     };
     let fx = resolve_effects(effects, &bow_range)?;
+    let other = build_other_program(cfg);
     let machine_dir = root.join(&cfg.machine);
     (0..cfg.runs)
         .into_par_iter()
         .map(|i| {
             let dir = machine_dir.join(format!("r{i:04}"));
-            generate_run(&dir, cfg, &plan, &fx, effects, i)
+            generate_run(&dir, cfg, &plan, &other, &fx, effects, i)
                 .with_context(|| format!("generating robot run {}", dir.display()))?;
             Ok(dir)
         })
@@ -1044,6 +1150,7 @@ fn generate_run(
     dir: &Path,
     cfg: &RobotFleetConfig,
     plan: &[PlanRow],
+    other: &[PlanRow],
     fx: &Effects,
     specs: &[EffectSpec],
     index: usize,
@@ -1083,8 +1190,23 @@ fn generate_run(
         pos: home,
     };
     path.dwell(1.0);
-    let mut touches = Vec::with_capacity(plan.len());
-    for (ri, row) in plan.iter().enumerate() {
+    // The AE program, then (runs with probe.parquet only) the comparison
+    // methods' program; `Touch::row` indexes `program`. The second program
+    // draws from its own RNG stream, so the AE program's draws (and the AE
+    // signal after them) do not depend on it.
+    let program: Vec<PlanRow> = if has_probe {
+        plan.iter().chain(other).cloned().collect()
+    } else {
+        plan.to_vec()
+    };
+    let mut rng_other = run_rng(cfg.seed, index, 4);
+    let mut touches = Vec::with_capacity(program.len());
+    for (ri, row) in program.iter().enumerate() {
+        let rng = if row.method == "ae" {
+            &mut rng
+        } else {
+            &mut rng_other
+        };
         let n = row.face.normal();
         let start = row.nom + n * cfg.standoff_mm;
         let dir_b: i32 = if rng.random::<bool>() { 1 } else { -1 };
@@ -1114,7 +1236,7 @@ fn generate_run(
         let v = row.speed_mm_s;
         let t_a = path.t;
         let (n_true, d_true) = plane(row.face);
-        let e_c = CONTACT_SCATTER_MM * normal(&mut rng);
+        let e_c = CONTACT_SCATTER_MM * normal(rng);
         let mut t_c = t_a;
         let mut o = V3::zeros();
         for _ in 0..4 {
@@ -1145,11 +1267,11 @@ fn generate_run(
         let t_r = t_c + fx.latency_s;
         let act_c = start + row.dir * (v * tau);
         let surface = act_c - o;
-        let sigma = ae_touch_sigma_mm(v);
+        let sigma = touch_sigma_mm(row.method, v);
         let reg_noise = (sigma * sigma - CONTACT_SCATTER_MM * CONTACT_SCATTER_MM)
             .max(0.0)
             .sqrt()
-            * normal(&mut rng);
+            * normal(rng);
         let registered = act_c + row.dir * (v * fx.latency_s + reg_noise);
         // Approach piece until registration, then the stop.
         let p_r = start + row.dir * (v * (t_r - t_a));
@@ -1219,7 +1341,7 @@ fn generate_run(
     let carrier = cfg.ae_carrier_hz.min(AE_CARRIER_MAX_FRAC * fs);
     let mut windows: Vec<AeWindow> = Vec::with_capacity(touches.len());
     let mut contacts = Vec::with_capacity(touches.len());
-    for tc in &touches {
+    for tc in touches.iter().filter(|t| program[t.row].method == "ae") {
         let onset = tc.t_c - clock_offset_s;
         let n0 = ((onset - cfg.ae_pre_s) * fs).ceil().max(0.0) as u64;
         let n1 = ((onset + cfg.ae_post_s) * fs).floor() as u64 + 1;
@@ -1233,7 +1355,7 @@ fn generate_run(
             carrier_hz: carrier * (0.95 + 0.1 * rng.random::<f64>()),
             phase: 2.0 * PI * rng.random::<f64>(),
         });
-        let row = &plan[tc.row];
+        let row = &program[tc.row];
         contacts.push(ContactTruth {
             seq: row.seq,
             t_s: tc.t_c,
@@ -1257,7 +1379,7 @@ fn generate_run(
     write_parquet_atomic(&dir.join("passes.parquet"), &passes_batch)?;
     let probe_path = dir.join("probe.parquet");
     if has_probe {
-        write_parquet_atomic(&probe_path, &probe_batch(plan, &touches))?;
+        write_parquet_atomic(&probe_path, &probe_batch(&program, &touches))?;
     } else if probe_path.exists() {
         // A stale probe table from an earlier generation would change the run.
         std::fs::remove_file(&probe_path)
@@ -1300,12 +1422,29 @@ fn generate_run(
         block_rotation_rad: angles,
         block_offset_mm: [offset.x, offset.y, offset.z],
         faces,
-        trigger_latency_s: BTreeMap::from([("ae", fx.latency_s)]),
+        // A trigger latency is the controller's: every registered method has it.
+        trigger_latency_s: std::iter::once("ae")
+            .chain(cfg.other_methods.iter().map(ProbeMethod::label))
+            .map(|m| (m, fx.latency_s))
+            .collect(),
         touch_sigma_mm: cfg
             .speeds_mm_s
             .iter()
             .map(|&v| (format!("{v}"), ae_touch_sigma_mm(v)))
             .collect(),
+        other_method_sigma_mm: if has_probe {
+            cfg.other_methods
+                .iter()
+                .map(|m| {
+                    (
+                        format!("{}@{}", m.name, m.speed_mm_s),
+                        touch_sigma_mm(&m.name, m.speed_mm_s),
+                    )
+                })
+                .collect()
+        } else {
+            BTreeMap::new()
+        },
         ae_clock_offset_s: clock_offset_s,
         ae_sample_rate_hz: fs,
         ae_carrier_hz: carrier,
@@ -1421,7 +1560,7 @@ fn plan_batch(plan: &[PlanRow]) -> RecordBatch {
 fn probe_batch(plan: &[PlanRow], touches: &[Touch]) -> RecordBatch {
     let rows: Vec<&PlanRow> = touches.iter().map(|t| &plan[t.row]).collect();
     let faces: Vec<&str> = rows.iter().map(|r| r.face.label()).collect();
-    let methods = vec!["ae"; rows.len()];
+    let methods: Vec<&str> = rows.iter().map(|r| r.method).collect();
     BatchBuilder::new()
         .f64("t_s", touches.iter().map(|t| t.t_r).collect())
         .str("face", &faces)

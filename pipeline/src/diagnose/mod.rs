@@ -259,6 +259,11 @@ pub fn diagnose(
     let mut residual_all = vec![0.0; n_all];
     let mut contrib_cols: BTreeMap<String, Vec<f64>> = BTreeMap::new();
     let mut selected_keys: Vec<String> = Vec::new();
+    // Held-out SSE each selected effect removed, in units of its
+    // observable's noise variance, summed over observables: the fleet's
+    // `selected` list is ordered by it (the effect that explains the most
+    // signal first), not by the order observables happen to be named in.
+    let mut explained_var: BTreeMap<String, f64> = BTreeMap::new();
     let mut effects: Vec<EffectEntry> = Vec::new();
     let mut summaries = Vec::new();
     let mut all_cells: Vec<(String, f64, f64, cells::Cell)> = Vec::new(); // (obs, σ, df, cell)
@@ -532,6 +537,11 @@ pub fn diagnose(
             if !selected_keys.contains(&key) {
                 selected_keys.push(key.clone());
             }
+            if let Some(r) = sel.records.iter().find(|r| r.idx == ci && r.selected) {
+                let var = nf.sigma_mm.powi(2).max(f64::MIN_POSITIVE);
+                *explained_var.entry(key.clone()).or_insert(0.0) +=
+                    ((r.sse_before - r.sse_after) / var).max(0.0);
+            }
             obs_selected.push(key.clone());
             let col = contrib_cols
                 .entry(key.clone())
@@ -663,6 +673,11 @@ pub fn diagnose(
     };
     where_.sort_by(order);
     where_after.sort_by(order);
+    // Stable: ties keep the order of first selection.
+    selected_keys.sort_by(|a, b| {
+        let w = |k: &String| explained_var.get(k).copied().unwrap_or(0.0);
+        w(b).total_cmp(&w(a))
+    });
     let diagnosis = Diagnosis {
         version: 1,
         observables: table.obs_names.clone(),

@@ -251,3 +251,69 @@ fn product_composite_fits() {
     let tau = f.params()["b.tau_s"];
     assert!((tau - 700.0).abs() < 1.0, "tau {tau}");
 }
+
+/// The fleet's `selected` list is ordered by the signal each effect
+/// explains (in noise-variance units, summed over observables), not by the
+/// observables' names: a small effect on `a_small` comes after a large one
+/// on `b_large`.
+#[test]
+fn selected_effects_are_ordered_by_explained_signal() {
+    use crate::contracts::BatchBuilder;
+    let runs = 8;
+    let per = 60;
+    let mut rng = 12345u64;
+    let mut normal = move || {
+        let mut u = || {
+            rng = rng
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            ((rng >> 11) as f64 + 0.5) / ((1u64 << 53) as f64)
+        };
+        let (a, b) = (u(), u());
+        (-2.0 * a.ln()).sqrt() * (2.0 * std::f64::consts::PI * b).cos()
+    };
+    let (mut run, mut obs, mut sim, mut real, mut x, mut removed, mut t) =
+        (vec![], vec![], vec![], vec![], vec![], vec![], vec![]);
+    for r in 0..runs {
+        for i in 0..per {
+            let xi = (i as f64 / per as f64) * 100.0;
+            // a_small: scale on x_mm, 4 µm across the range vs 1 µm noise.
+            run.push(format!("r{r}"));
+            obs.push("a_small".to_string());
+            sim.push(0.0);
+            real.push(4e-5 * xi + 1e-3 * normal());
+            x.push(Some(xi));
+            removed.push(None);
+            t.push(Some(i as f64));
+            // b_large: wear on removed_mm3, 50 µm vs 1 µm noise.
+            let vol = (i as f64) * 100.0;
+            run.push(format!("r{r}"));
+            obs.push("b_large".to_string());
+            sim.push(0.0);
+            real.push(-5e-2 * vol / (per as f64 * 100.0) + 1e-3 * normal());
+            x.push(None);
+            removed.push(Some(vol));
+            t.push(Some(i as f64));
+        }
+    }
+    let batch = BatchBuilder::new()
+        .str("run", &run.iter().map(|s| s.as_str()).collect::<Vec<_>>())
+        .str(
+            "observable",
+            &obs.iter().map(|s| s.as_str()).collect::<Vec<_>>(),
+        )
+        .f64("sim", sim)
+        .f64("real", real)
+        .opt_f64("x_mm", x)
+        .opt_f64("removed_mm3", removed)
+        .opt_f64("t_s", t)
+        .build();
+    let out = super::diagnose(&batch, &super::DiagnoseConfig::default(), &[]).unwrap();
+    let sel = &out.diagnosis.selected;
+    assert!(sel.len() >= 2, "{sel:?}");
+    assert!(
+        sel[0].starts_with("wear") || sel[0].starts_with("scale:removed"),
+        "{sel:?}"
+    );
+    assert!(sel.iter().any(|k| k.ends_with("x_mm")), "{sel:?}");
+}

@@ -26,7 +26,7 @@ use cache::{hash_bytes, hash_file, read_run_cache, record_valid, KeyBuilder, Sta
 pub use config::PipelineConfig;
 
 /// Version of the fleet `diagnose` step (bump when its output changes).
-pub const DIAGNOSE_STAGE_VERSION: u32 = 2;
+pub const DIAGNOSE_STAGE_VERSION: u32 = 3;
 
 /// Version of the manifest/failures layout.
 pub const MANIFEST_VERSION: u32 = 1;
@@ -849,7 +849,7 @@ pub fn parquet_bytes(batch: &RecordBatch) -> Result<Vec<u8>> {
     let mut w = parquet::arrow::ArrowWriter::try_new(
         &mut buf,
         batch.schema(),
-        Some(crate::contracts::write::writer_properties()),
+        Some(crate::contracts::write::writer_properties(&batch.schema())),
     )?;
     w.write(batch)?;
     w.close()?;

@@ -62,7 +62,49 @@ const KEYS: &[(&str, Check)] = &[
     ("collinear_ratio", Check::Probability),
     ("confidence", Check::Probability),
     ("correct_latency", Check::Bool),
+    (
+        "method",
+        Check::OneOf(&["auto", "all", "ae", "electrical", "mechanical"]),
+    ),
 ];
+
+/// Precision order of the probing methods (MODELS.md §1.1: AE 25–85 µm,
+/// electrical 163 µm, mechanical 700 µm range): `method = "auto"` fits the
+/// datum with the most precise method a run has.
+const METHOD_PRECISION_ORDER: [&str; 3] = ["ae", "electrical", "mechanical"];
+
+/// The touches the datum is fitted from (`[robot.datum] method`): `all`
+/// pools every method, `auto` takes the most precise method present, a
+/// method name takes that method. Pooling methods whose scatter differs by
+/// 10× lets the worst one set the planes.
+pub fn select_method(
+    all: &[Touch],
+    method: &str,
+    file: &std::path::Path,
+) -> Result<(Vec<Touch>, String)> {
+    let present: std::collections::BTreeSet<&str> = all.iter().map(|t| t.method.as_str()).collect();
+    let chosen = match method {
+        "all" => return Ok((all.to_vec(), "all".into())),
+        "auto" => match METHOD_PRECISION_ORDER.iter().find(|m| present.contains(*m)) {
+            Some(m) => *m,
+            None => return Ok((all.to_vec(), "all".into())),
+        },
+        m => m,
+    };
+    let picked: Vec<Touch> = all.iter().filter(|t| t.method == chosen).cloned().collect();
+    if picked.is_empty() {
+        return Err(InputError::new(
+            file,
+            format!(
+                "no touches of method `{chosen}` (methods present: {}); set [robot.datum] method = \"auto\" or one of those",
+                present.iter().copied().collect::<Vec<_>>().join(", ")
+            ),
+        )
+        .column("method")
+        .into());
+    }
+    Ok((picked, chosen.to_string()))
+}
 
 impl DatumConfig {
     pub fn from_ctx(ctx: &StageContext) -> DatumConfig {
@@ -657,7 +699,7 @@ impl Stage for DatumStage {
         "datum"
     }
     fn version(&self) -> u32 {
-        1
+        2
     }
     fn reads_tables(&self) -> &'static [&'static str] {
         &[]
@@ -676,10 +718,12 @@ impl Stage for DatumStage {
     }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
         let cfg = DatumConfig::from_ctx(ctx);
-        let all = touches::require(ctx)?;
-        let file = source_file(ctx, &all);
+        let every = touches::require(ctx)?;
+        let file = source_file(ctx, &every);
+        let (all, method) = select_method(&every, ctx.cfg_str("method", "auto"), &file)?;
         let a = analyse(&all, &cfg, &file)?;
-        let s = summary(&all, &a, &cfg);
+        let mut s = summary(&all, &a, &cfg);
+        s["touch_method"] = json!(method);
         Ok(StageOutput::new(s)
             .with("planes", planes_batch(&a, cfg.use_tls))
             .with("datum", datum_batch(&a, cfg.use_tls)))

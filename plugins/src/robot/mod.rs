@@ -18,7 +18,7 @@
 
 use std::sync::Arc;
 
-use sparkout_pipeline::diagnose::{catalogue_effect, composite, Effect, Kind};
+use sparkout_pipeline::diagnose::{catalogue_effect, composite, product, Effect, Kind};
 use sparkout_pipeline::{ArtifactStore, MachinePlugin, ReportSection, Run, Stage};
 
 pub mod ae;
@@ -62,13 +62,57 @@ impl MachinePlugin for RobotPlugin {
     /// "Sim-to-real gap diagnosis", point 2): a touch registered L seconds
     /// after contact overshoots by v·L along the approach direction, so the
     /// `touch_normal` gap is L·approach_normal_mm_s (k = L, in s).
+    ///
+    /// `thermal_drift` = drift(t_s)·normal_axis_z: the column's thermal
+    /// growth lifts the TCP, which the motor encoders cannot see; only
+    /// touches whose normal coordinate is z (face `xy`) move, by the drift
+    /// A·(1 − e^(−t/τ)).
+    ///
+    /// `depth_compliance` = compliance(nominal_doc_mm)·nominal_doc_mm: a
+    /// compliance α that grows with the depth of cut (MODELS.md §1.4 takes α
+    /// constant) loses a cut ∝ δ′², which neither the constant-α model nor
+    /// the catalogue's linear `compliance` has.
     fn effects(&self) -> Vec<Box<dyn Effect>> {
-        vec![composite(
+        let mut out = vec![composite(
             "trigger_latency",
             catalogue_effect(Kind::Lag, &["approach_normal_mm_s"]),
-        )]
+        )];
+        let products = [
+            product(
+                "thermal_drift",
+                catalogue_effect(Kind::Drift, &["t_s"]),
+                catalogue_effect(Kind::Scale, &["normal_axis_z"]),
+            ),
+            product(
+                "depth_compliance",
+                catalogue_effect(Kind::Compliance, &["nominal_doc_mm"]),
+                catalogue_effect(Kind::Scale, &["nominal_doc_mm"]),
+            ),
+        ];
+        // Both factors are linear forms by construction: an error here is a
+        // programming error, caught by the unit test below.
+        out.extend(products.into_iter().filter_map(|p| p.ok()));
+        out
     }
     fn report_sections(&self, run: &Run, artifacts: &ArtifactStore) -> Vec<ReportSection> {
         report::sections(run, artifacts)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_composite_effect_builds() {
+        let names: Vec<String> = RobotPlugin
+            .effects()
+            .iter()
+            .map(|e| e.name().to_string())
+            .collect();
+        assert_eq!(
+            names,
+            ["trigger_latency", "thermal_drift", "depth_compliance"]
+        );
     }
 }
