@@ -325,6 +325,32 @@ pub fn profile_rows(run: &Run) -> Result<(std::sync::Arc<Table>, ProfileRows)> {
     Ok((t, rows))
 }
 
+/// A number from run.toml `[process]` (integers accepted).
+pub fn process_f64(run: &Run, key: &str) -> Option<f64> {
+    match run.spec.process.get(key)? {
+        toml::Value::Float(f) => Some(*f),
+        toml::Value::Integer(i) => Some(*i as f64),
+        _ => None,
+    }
+}
+
+/// Path speed along the profile: run.toml `[process] feed_mm_s`, else the
+/// machine's `[process] feed_mm_s`, else 10 mm/s; must be > 0.
+pub fn feed_mm_s(run: &Run) -> Result<f64> {
+    let feed = process_f64(run, "feed_mm_s")
+        .or_else(|| run.machine.f64("process.feed_mm_s"))
+        .unwrap_or(10.0);
+    if !(feed > 0.0 && feed.is_finite()) {
+        return Err(InputError::new(
+            run.spec.run_toml_path(),
+            format!("feed_mm_s must be a finite number > 0, found {feed}"),
+        )
+        .column("process.feed_mm_s")
+        .into());
+    }
+    Ok(feed)
+}
+
 /// The nominal radius the run's program was made for: stage config
 /// `nominal_mm`, else run.toml `[process] nominal_wheel_radius_mm`, else the
 /// machine's largest radius (a program for the new wheel).
@@ -344,7 +370,7 @@ pub fn nominal_radius(run: &Run, cfg: &toml::Table, range: &WheelRange) -> Resul
     }
     let r = match run.spec.process.get("nominal_wheel_radius_mm") {
         None => return Ok(range.r_max_mm),
-        Some(v) => v.as_float().or(v.as_integer().map(|i| i as f64)),
+        Some(_) => process_f64(run, "nominal_wheel_radius_mm"),
     };
     match r {
         Some(r) if range.contains(r) => Ok(r),

@@ -25,8 +25,8 @@ use sparkout_pipeline::{cfg_f64, InputError, Result, Stage, StageContext, StageO
 
 use super::config::{check_config, check_window, curvature, Check, WINDOW_KEY};
 use super::model::{
-    centre_path, check_wheel_radius, nominal_radius, profile_error, profile_rows, DeltaModel,
-    WheelRange,
+    centre_path, check_wheel_radius, feed_mm_s, nominal_radius, process_f64, profile_error,
+    profile_rows, DeltaModel, WheelRange,
 };
 
 pub const KEYS: &[(&str, Check)] = &[
@@ -34,14 +34,6 @@ pub const KEYS: &[(&str, Check)] = &[
     ("delta_model", Check::OneOf(DeltaModel::NAMES)),
     WINDOW_KEY,
 ];
-
-fn process_f64(ctx: &StageContext, key: &str) -> Option<f64> {
-    match ctx.run.spec.process.get(key)? {
-        toml::Value::Float(f) => Some(*f),
-        toml::Value::Integer(i) => Some(*i as f64),
-        _ => None,
-    }
-}
 
 pub struct ObserveStage;
 
@@ -76,27 +68,18 @@ impl Stage for ObserveStage {
         let r_kn = nominal_radius(ctx.run, ctx.config, &range)?;
         let path = centre_path(&p, r_kn).with_model(DeltaModel::from_config(ctx.config));
         let arc = p.arc_length_mm();
-        let feed = process_f64(ctx, "feed_mm_s")
-            .or_else(|| ctx.run.machine.f64("process.feed_mm_s"))
-            .unwrap_or(10.0);
-        if !(feed > 0.0) {
-            return Err(InputError::new(
-                ctx.run.spec.run_toml_path(),
-                format!("feed_mm_s must be > 0, found {feed}"),
-            )
-            .column("process.feed_mm_s")
-            .into());
-        }
-        let width = process_f64(ctx, "width_mm").or_else(|| ctx.run.machine.f64("wheel.width_mm"));
+        let feed = feed_mm_s(ctx.run)?;
+        let width =
+            process_f64(ctx.run, "width_mm").or_else(|| ctx.run.machine.f64("wheel.width_mm"));
         let usage = match (
-            process_f64(ctx, "removed_before_mm3"),
-            process_f64(ctx, "stock_mm"),
+            process_f64(ctx.run, "removed_before_mm3"),
+            process_f64(ctx.run, "stock_mm"),
             width,
         ) {
             (Some(v0), Some(stock), Some(w)) => Some((v0, stock * w)),
             _ => None,
         };
-        let process_radius = process_f64(ctx, "wheel_radius_mm");
+        let process_radius = process_f64(ctx.run, "wheel_radius_mm");
         if rows.measured_rows.is_empty() {
             bail!(
                 "{}: no `measured` rows: nothing to compare the model with",

@@ -14,8 +14,8 @@ use sparkout_pipeline::{cfg_f64, InputError, Result, Stage, StageContext, StageO
 use super::config::{check_config, check_window, curvature, Check, WINDOW_KEY};
 use super::curvature::Profile;
 use super::model::{
-    centre_path, check_wheel_radius, nominal_radius, profile_error, profile_rows, DeltaModel,
-    ProfileRows, WheelRange,
+    centre_path, check_wheel_radius, feed_mm_s, nominal_radius, process_f64, profile_error,
+    profile_rows, DeltaModel, ProfileRows, WheelRange,
 };
 
 pub const KEYS: &[(&str, Check)] = &[
@@ -52,13 +52,7 @@ pub fn actual_radii(
         }
     }
     if set.is_empty() {
-        if let Some(r) = ctx
-            .run
-            .spec
-            .process
-            .get("wheel_radius_mm")
-            .and_then(|v| v.as_float().or(v.as_integer().map(|i| i as f64)))
-        {
+        if let Some(r) = process_f64(ctx.run, "wheel_radius_mm") {
             if !range.contains(r) {
                 return Err(InputError::new(
                     ctx.run.spec.run_toml_path(),
@@ -192,22 +186,7 @@ impl Stage for ProfileErrorStage {
             &rows.design_rows,
             DeltaModel::from_config(ctx.config),
         )?;
-        let feed = ctx
-            .run
-            .spec
-            .process
-            .get("feed_mm_s")
-            .and_then(|v| v.as_float().or(v.as_integer().map(|i| i as f64)))
-            .or_else(|| ctx.run.machine.f64("process.feed_mm_s"))
-            .unwrap_or(10.0);
-        if !(feed > 0.0) {
-            return Err(InputError::new(
-                ctx.run.spec.run_toml_path(),
-                format!("feed_mm_s must be > 0, found {feed}"),
-            )
-            .column("process.feed_mm_s")
-            .into());
-        }
+        let feed = feed_mm_s(ctx.run)?;
         // The largest actual radius (the first) gets the compensation.
         let comp = compensation(&p, r_kn, radii[0], feed);
         Ok(StageOutput::new(summary)
