@@ -5,6 +5,7 @@ use std::sync::Arc;
 
 use sparkout_pipeline::MachinePlugin;
 
+pub mod form;
 pub mod guideway;
 pub mod mill;
 pub mod robot;
@@ -15,5 +16,6 @@ pub fn all_plugins() -> Vec<Arc<dyn MachinePlugin>> {
         Arc::new(robot::RobotPlugin),
         Arc::new(guideway::GuidewayPlugin),
         Arc::new(mill::MillPlugin),
+        Arc::new(form::FormPlugin),
     ]
 }

@@ -90,6 +90,24 @@ pub fn generate(
             println!("generated {} mill runs under {}", dirs.len(), out.display());
             Ok(0)
         }
+        "form" => {
+            if list_effects {
+                for (name, about) in sparkout_datasets::form::known_effects() {
+                    println!("{name:24} {about}");
+                }
+                return Ok(0);
+            }
+            let out = out.context("--out <fleet root> is required")?;
+            let cfg = sparkout_datasets::form::FormFleetConfig {
+                runs,
+                seed,
+                ..Default::default()
+            };
+            cfg.validate()?;
+            let dirs = sparkout_datasets::form::generate_fleet(&out, &cfg, &effects)?;
+            println!("generated {} form runs under {}", dirs.len(), out.display());
+            Ok(0)
+        }
         "observations" => {
             if list_effects {
                 println!("any catalogue effect (CONTRACTS.md): offset, scale, drift, lag, inertia, backlash, wear, compliance, bow, periodic, edge, squareness, thermal — as NAME:COVARIATE=KEY=VALUE,...");
@@ -116,7 +134,7 @@ pub fn generate(
                 .map(|p| p.name())
                 .collect();
             bail!(
-                "no generator for `{other}` (plugins registered: {}; generators: robot, guideway, mill, observations)",
+                "no generator for `{other}` (plugins registered: {}; generators: robot, guideway, mill, form, observations)",
                 plugins.join(", ")
             )
         }

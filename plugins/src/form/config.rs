@@ -1,0 +1,41 @@
+//! Checking `[form.<stage>]` config sections. The checker itself is the
+//! crate's one (shared with the robot plugin, not copied); this file holds
+//! the form plugin's keys.
+
+pub use crate::robot::config::{check_config, Check};
+
+use sparkout_pipeline::{cfg_f64, Result};
+
+use super::curvature::CurvatureConfig;
+
+/// `window_points` shared by every stage that differentiates the profile.
+pub const WINDOW_KEY: (&str, Check) = ("window_points", Check::AtLeastOne);
+
+/// The curvature settings of a stage section (checked: odd, ≥ 5).
+pub fn curvature(cfg: &toml::Table) -> CurvatureConfig {
+    CurvatureConfig {
+        window_points: cfg_f64(cfg, "window_points")
+            .map(|w| w as usize)
+            .unwrap_or(CurvatureConfig::default().window_points),
+    }
+}
+
+/// Extra checks of `window_points` beyond "a number ≥ 1".
+pub fn check_window(cfg: &toml::Table) -> Result<()> {
+    if let Some(w) = cfg_f64(cfg, "window_points") {
+        if w.fract() != 0.0 || w < 5.0 || (w as usize).is_multiple_of(2) {
+            anyhow::bail!("key `window_points` must be an odd whole number ≥ 5 (points per local cubic fit), found {w}");
+        }
+    }
+    Ok(())
+}
+
+/// A whole number ≥ 1 (segment counts).
+pub fn check_count(cfg: &toml::Table, key: &str, max: usize) -> Result<()> {
+    if let Some(v) = cfg_f64(cfg, key) {
+        if v.fract() != 0.0 || v < 1.0 || v > max as f64 {
+            anyhow::bail!("key `{key}` must be a whole number in 1..={max}, found {v}");
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,178 @@
+//! `observe`: paired observations (CONTRACTS.md §2) for the gap diagnosis.
+//!
+//! `profile_error`, one row per measured profile point: real = the measured
+//! deviation from the design profile along the profile normal,
+//! (r_measured − R_design(φ))·cos γ0(φ); sim = the model's δ(φ) for the
+//! wheel radius that point was ground with (its `wheel_radius_mm`) against
+//! the programmed nominal (MODELS.md §4). What is left is what the model
+//! lacks: wheel wear since the last dressing, run-out, thermal growth …
+//!
+//! Covariates: phi_rad, wheel_radius_mm, t_s (the profile's own `t_s`
+//! column when it has one, else the arc length from the first design point
+//! over the run's `[process] feed_mm_s`), and removed_mm3 — the volume the
+//! wheel has removed since its last dressing when the point was ground:
+//! `[process] removed_before_mm3` + stock_mm × wheel width × arc length
+//! (only when run.toml gives removed_before_mm3 and stock_mm). Wear of the
+//! wheel grows with removed volume (grinding ratio), so a wheel that wears
+//! between dressings shows up as `wear:removed_mm3`.
+
+use std::collections::BTreeMap;
+
+use anyhow::bail;
+use serde_json::json;
+use sparkout_pipeline::contracts::BatchBuilder;
+use sparkout_pipeline::{cfg_f64, InputError, Result, Stage, StageContext, StageOutput};
+
+use super::config::{check_config, check_window, curvature, Check, WINDOW_KEY};
+use super::model::{
+    centre_path, check_wheel_radius, feed_mm_s, nominal_radius, process_f64, profile_error,
+    profile_rows, DeltaModel, WheelRange,
+};
+
+pub const KEYS: &[(&str, Check)] = &[
+    ("nominal_mm", Check::Positive),
+    ("delta_model", Check::OneOf(DeltaModel::NAMES)),
+    WINDOW_KEY,
+];
+
+pub struct ObserveStage;
+
+impl Stage for ObserveStage {
+    fn name(&self) -> &'static str {
+        "observe"
+    }
+    fn version(&self) -> u32 {
+        1
+    }
+    fn reads_tables(&self) -> &'static [&'static str] {
+        &["profile"]
+    }
+    fn reads_artifacts(&self) -> &'static [&'static str] {
+        &[]
+    }
+    fn writes(&self) -> &'static [&'static str] {
+        &["observations"]
+    }
+    fn about(&self) -> &'static str {
+        "paired observations profile_error (measured vs δ(φ) of the model; covariates phi_rad, wheel_radius_mm, t_s, removed_mm3)"
+    }
+    fn validate_config(&self, config: &toml::Table) -> Result<()> {
+        check_config(config, KEYS)?;
+        check_window(config)
+    }
+    fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
+        let range = WheelRange::from_machine(&ctx.run.machine)?;
+        let (t, rows) = profile_rows(ctx.run)?;
+        let file = t.path();
+        let p = rows.design(file, &curvature(ctx.config))?;
+        let r_kn = nominal_radius(ctx.run, ctx.config, &range)?;
+        let path = centre_path(&p, r_kn).with_model(DeltaModel::from_config(ctx.config));
+        let arc = p.arc_length_mm();
+        let feed = feed_mm_s(ctx.run)?;
+        let width =
+            process_f64(ctx.run, "width_mm").or_else(|| ctx.run.machine.f64("wheel.width_mm"));
+        let usage = match (
+            process_f64(ctx.run, "removed_before_mm3"),
+            process_f64(ctx.run, "stock_mm"),
+            width,
+        ) {
+            (Some(v0), Some(stock), Some(w)) => Some((v0, stock * w)),
+            _ => None,
+        };
+        let process_radius = process_f64(ctx.run, "wheel_radius_mm");
+        if rows.measured_rows.is_empty() {
+            bail!(
+                "{}: no `measured` rows: nothing to compare the model with",
+                file.display()
+            );
+        }
+        // δ on the design grid per distinct radius (a run usually has one).
+        let mut deltas: BTreeMap<u64, Vec<f64>> = BTreeMap::new();
+        let (mut sim, mut real, mut phi, mut wr, mut ts, mut rem) = (
+            Vec::new(),
+            Vec::new(),
+            Vec::new(),
+            Vec::new(),
+            Vec::new(),
+            Vec::new(),
+        );
+        for &i in &rows.measured_rows {
+            let f = rows.phi[i];
+            let rk = match rows.wheel[i].or(process_radius) {
+                Some(r) => r,
+                None => {
+                    return Err(InputError::new(
+                        file,
+                        "measured row without wheel_radius_mm (and no [process] wheel_radius_mm in run.toml): the model needs the radius the point was ground with",
+                    )
+                    .column("wheel_radius_mm")
+                    .row(i)
+                    .into())
+                }
+            };
+            check_wheel_radius(file, i, rk, &range)?;
+            let d = match deltas.get(&rk.to_bits()) {
+                Some(d) => d,
+                None => {
+                    let d = profile_error(&p, &path, rk).map_err(|k| {
+                        InputError::new(file, format!("a wheel of radius {rk} mm cannot follow the design profile here (concave radius smaller than the wheel)"))
+                            .column("r_mm")
+                            .row(rows.design_rows[k])
+                    })?;
+                    deltas.entry(rk.to_bits()).or_insert(d)
+                }
+            };
+            let (Some(r_design), Some(g0), Some(s), Some(dl)) = (
+                p.r_at(f),
+                p.value_at(f, &p.gamma0_rad),
+                p.value_at(f, &arc),
+                p.value_at(f, d),
+            ) else {
+                return Err(InputError::new(
+                    file,
+                    format!(
+                        "measured φ = {f} rad lies outside the design profile's φ range [{}, {}]",
+                        p.phi_rad[0],
+                        p.phi_rad[p.len() - 1]
+                    ),
+                )
+                .column("phi_rad")
+                .row(i)
+                .into());
+            };
+            sim.push(dl);
+            real.push((rows.r[i] - r_design) * g0.cos());
+            phi.push(f);
+            wr.push(rk);
+            ts.push(rows.t_s.as_ref().and_then(|t| t[i]).unwrap_or(s / feed));
+            if let Some((v0, area)) = usage {
+                rem.push(v0 + area * s);
+            }
+        }
+        let n = sim.len();
+        let gap: Vec<f64> = real.iter().zip(&sim).map(|(r, s)| r - s).collect();
+        let rms = (gap.iter().map(|g| g * g).sum::<f64>() / n as f64).sqrt();
+        let mut b = BatchBuilder::new()
+            .str("run", &vec![ctx.run.spec.id.as_str(); n])
+            .str("observable", &vec!["profile_error"; n])
+            .f64("sim", sim)
+            .f64("real", real)
+            .f64("phi_rad", phi)
+            .f64("wheel_radius_mm", wr)
+            .f64("t_s", ts);
+        if usage.is_some() {
+            b = b.f64("removed_mm3", rem);
+        }
+        let summary = json!({
+            "observable": "profile_error",
+            "rows": n,
+            "nominal_mm": r_kn,
+            "wheel_radii_mm": deltas.keys().map(|k| f64::from_bits(*k)).collect::<Vec<_>>(),
+            "gap_rms_mm": rms,
+            "gap_mean_mm": gap.iter().sum::<f64>() / n as f64,
+            "covariates": if usage.is_some() { json!(["phi_rad", "wheel_radius_mm", "t_s", "removed_mm3"]) } else { json!(["phi_rad", "wheel_radius_mm", "t_s"]) },
+            "nominal_source": if cfg_f64(ctx.config, "nominal_mm").is_some() { "config" } else { "run" },
+        });
+        Ok(StageOutput::new(summary).with("observations", b.build()))
+    }
+}

@@ -1,0 +1,237 @@
+//! Report sections of a form-grinding run: profile error against φ per
+//! segment (the segmentation of MODELS.md §4), the run's own δ(φ) for the
+//! radius it was ground with, and measured against predicted error.
+
+use serde_json::Value;
+use sparkout_pipeline::contracts::{batch_f64, batch_i32};
+use sparkout_pipeline::report::svg::{bar_chart, xy_chart, Mark, Series};
+use sparkout_pipeline::report::{esc, table};
+use sparkout_pipeline::{ArtifactStore, ReportSection, Run};
+
+fn um(x: Option<f64>) -> String {
+    x.filter(|v| v.is_finite())
+        .map(|v| format!("{:.2}", v * 1e3))
+        .unwrap_or_else(|| "—".into())
+}
+
+/// Every k-th point so a chart has at most `max` points per series.
+fn thin(points: Vec<(f64, f64)>, max: usize) -> Vec<(f64, f64)> {
+    let step = points.len().div_ceil(max.max(1)).max(1);
+    points.into_iter().step_by(step).collect()
+}
+
+fn segments(s: &Value, a: &ArtifactStore) -> Option<ReportSection> {
+    let segs = s.get("segments")?.as_array()?;
+    let rows: Vec<Vec<String>> = segs
+        .iter()
+        .map(|g| {
+            vec![
+                g["segment"].to_string(),
+                format!("{:.3}", g["nominal_mm"].as_f64().unwrap_or(f64::NAN)),
+                format!(
+                    "{:.3} – {:.3}",
+                    g["r_min_mm"].as_f64().unwrap_or(f64::NAN),
+                    g["r_max_mm"].as_f64().unwrap_or(f64::NAN)
+                ),
+                um(g["max_error_mm"].as_f64()),
+                format!(
+                    "{:.1}",
+                    g["phi_at_max_rad"]
+                        .as_f64()
+                        .unwrap_or(f64::NAN)
+                        .to_degrees()
+                ),
+            ]
+        })
+        .collect();
+    let mut html = format!(
+        "<p>Usable wheel radius {:.1} – {:.1} mm in {} segments, one program per segment for its mean radius; largest profile error left: <b>{} µm</b>.</p>",
+        s["r_max_mm"].as_f64().unwrap_or(f64::NAN) - s["range_mm"].as_f64().unwrap_or(f64::NAN),
+        s["r_max_mm"].as_f64().unwrap_or(f64::NAN),
+        segs.len(),
+        um(s["max_error_mm"].as_f64())
+    );
+    html.push_str(&table(
+        &[
+            "segment",
+            "nominal (mm)",
+            "radius range (mm)",
+            "max |δ| (µm)",
+            "at φ (°)",
+        ],
+        &rows,
+    ));
+    if let Ok(Some(b)) = a.get("segment_error") {
+        if let (Ok(seg), Ok(phi), Ok(lo), Ok(hi)) = (
+            batch_i32(&b, "segment"),
+            batch_f64(&b, "phi_rad"),
+            batch_f64(&b, "error_at_r_min_mm"),
+            batch_f64(&b, "error_at_r_max_mm"),
+        ) {
+            let mut ids: Vec<i32> = seg.to_vec();
+            ids.dedup();
+            let mut data: Vec<(String, Vec<(f64, f64)>)> = Vec::new();
+            for id in &ids {
+                for (end, v) in [("smallest", lo), ("largest", hi)] {
+                    let pts: Vec<(f64, f64)> = (0..seg.len())
+                        .filter(|&i| seg[i] == *id)
+                        .map(|i| (phi[i].to_degrees(), v[i] * 1e3))
+                        .collect();
+                    data.push((format!("segment {id}, {end} radius"), thin(pts, 360)));
+                }
+            }
+            let series: Vec<Series> = data
+                .iter()
+                .map(|(n, p)| Series {
+                    name: n,
+                    points: p,
+                    mark: Mark::Line,
+                })
+                .collect();
+            html.push_str(&xy_chart(
+                "Profile error against φ per segment (wheel at each end of its segment)",
+                "φ (°)",
+                "δ (µm)",
+                &series,
+            ));
+        }
+    }
+    if let Some(sw) = s.get("sweep").and_then(|v| v.as_array()) {
+        let bars: Vec<(String, f64)> = sw
+            .iter()
+            .map(|e| {
+                (
+                    format!("N={}", e["segments"]),
+                    e["max_error_mm"].as_f64().unwrap_or(f64::NAN) * 1e3,
+                )
+            })
+            .collect();
+        html.push_str(&bar_chart(
+            "Largest profile error against the number of segments",
+            "max |δ| (µm)",
+            &bars,
+        ));
+    }
+    Some(ReportSection {
+        title: "Wheel-radius segmentation".into(),
+        html,
+    })
+}
+
+fn run_error(s: &Value, a: &ArtifactStore) -> Option<ReportSection> {
+    let radii = s.get("radii")?.as_array()?;
+    let rows: Vec<Vec<String>> = radii
+        .iter()
+        .map(|r| {
+            vec![
+                format!("{:.3}", r["wheel_radius_mm"].as_f64().unwrap_or(f64::NAN)),
+                um(r["max_error_mm"].as_f64()),
+                um(r["rms_error_mm"].as_f64()),
+            ]
+        })
+        .collect();
+    let mut html = format!(
+        "<p>Program nominal {:.3} mm; {} design points, {} of them straight (curvature ≈ 0).</p>",
+        s["nominal_mm"].as_f64().unwrap_or(f64::NAN),
+        s["points"],
+        s["straight_points"]
+    );
+    html.push_str(&table(
+        &["wheel radius (mm)", "max |δ| (µm)", "RMS δ (µm)"],
+        &rows,
+    ));
+    if let Ok(Some(b)) = a.get("profile_error") {
+        if let (Ok(rk), Ok(phi), Ok(d)) = (
+            batch_f64(&b, "wheel_radius_mm"),
+            batch_f64(&b, "phi_rad"),
+            batch_f64(&b, "delta_mm"),
+        ) {
+            let mut radii: Vec<f64> = rk.to_vec();
+            radii.dedup();
+            let data: Vec<(String, Vec<(f64, f64)>)> = radii
+                .iter()
+                .map(|r| {
+                    let pts = (0..rk.len())
+                        .filter(|&i| rk[i] == *r)
+                        .map(|i| (phi[i].to_degrees(), d[i] * 1e3))
+                        .collect();
+                    (format!("R_k = {r:.3} mm"), thin(pts, 360))
+                })
+                .collect();
+            let series: Vec<Series> = data
+                .iter()
+                .map(|(n, p)| Series {
+                    name: n,
+                    points: p,
+                    mark: Mark::Line,
+                })
+                .collect();
+            html.push_str(&xy_chart(
+                "Model profile error δ(φ) of this run",
+                "φ (°)",
+                "δ (µm)",
+                &series,
+            ));
+        }
+    }
+    Some(ReportSection {
+        title: "Profile error of this run (model)".into(),
+        html,
+    })
+}
+
+fn measured(a: &ArtifactStore) -> Option<ReportSection> {
+    let b = a.get("observations").ok()??;
+    let (phi, sim, real) = (
+        batch_f64(&b, "phi_rad").ok()?,
+        batch_f64(&b, "sim").ok()?,
+        batch_f64(&b, "real").ok()?,
+    );
+    let m: Vec<(f64, f64)> = thin(
+        phi.iter()
+            .zip(real)
+            .map(|(p, r)| (p.to_degrees(), r * 1e3))
+            .collect(),
+        720,
+    );
+    let s: Vec<(f64, f64)> = thin(
+        phi.iter()
+            .zip(sim)
+            .map(|(p, v)| (p.to_degrees(), v * 1e3))
+            .collect(),
+        720,
+    );
+    let html = xy_chart(
+        "Profile error: measured vs model",
+        "φ (°)",
+        "error along the normal (µm)",
+        &[
+            Series {
+                name: "measured",
+                points: &m,
+                mark: Mark::Points,
+            },
+            Series {
+                name: "model δ(φ)",
+                points: &s,
+                mark: Mark::Line,
+            },
+        ],
+    );
+    Some(ReportSection {
+        title: esc("Measured vs predicted profile error"),
+        html,
+    })
+}
+
+pub fn sections(_run: &Run, a: &ArtifactStore) -> Vec<ReportSection> {
+    let mut out = Vec::new();
+    if let Some(s) = a.summary("segment") {
+        out.extend(segments(&s, a));
+    }
+    if let Some(s) = a.summary("profile_error") {
+        out.extend(run_error(&s, a));
+    }
+    out.extend(measured(a));
+    out
+}
