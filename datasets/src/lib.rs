@@ -2,6 +2,7 @@
 //! injected effects from the DESIGN.md catalogue + noise), seeded and
 //! deterministic, and the `sparkout validate` harness.
 
+pub mod gantry;
 pub mod observations;
 pub mod robot;
 pub mod validate;

@@ -5,9 +5,10 @@ use std::sync::Arc;
 
 use sparkout_pipeline::MachinePlugin;
 
+pub mod gantry;
 pub mod robot;
 
 /// Every plugin this build knows, in a fixed order.
 pub fn all_plugins() -> Vec<Arc<dyn MachinePlugin>> {
-    vec![Arc::new(robot::RobotPlugin)]
+    vec![Arc::new(robot::RobotPlugin), Arc::new(gantry::GantryPlugin)]
 }

@@ -54,6 +54,19 @@ pub fn stage(
     if let Some(s) = args.remove("set") {
         config.set.push(s);
     }
+    // With --run, stage flags are config keys of the run's own plugin and
+    // stage: `--state X` = `--set <plugin>.<stage>.state=X` (the stage's
+    // config check rejects keys it does not know, naming the known ones).
+    if let Some(dir) = &run {
+        if !args.is_empty() {
+            let spec = sparkout_pipeline::contracts::RunSpec::load(dir)?;
+            for (k, v) in std::mem::take(&mut args) {
+                config
+                    .set
+                    .push(format!("{}.{name}.{}={v}", spec.plugin, k.replace('-', "_")));
+            }
+        }
+    }
     let engine = registry::engine(&config)?;
     match run {
         None => {
