@@ -230,10 +230,11 @@ impl<'a> Planner<'a> {
         z.iter().zip(&removal).map(|(a, b)| a - b).collect()
     }
 
-    /// Ratio selective/raster against the zone's area fraction, sweeping the
-    /// tolerance so that a fraction f of the points is out; the breakeven is
-    /// where the ratio first reaches 1 (linear interpolation between steps).
-    pub fn sweep(&self, dz: &[f64]) -> (Vec<(f64, f64)>, Option<f64>) {
+    /// Ratio selective/raster against the zone's area fraction: the zone is
+    /// the highest fraction f of the points (by `dz`), each needing the same
+    /// removal `depth_mm`, so only the area changes; the breakeven is where
+    /// the ratio first reaches 1 (linear interpolation between steps).
+    pub fn sweep(&self, dz: &[f64], depth_mm: f64) -> (Vec<(f64, f64)>, Option<f64>) {
         let mut sorted = dz.to_vec();
         sorted.sort_by(|a, b| b.total_cmp(a));
         let n = sorted.len();
@@ -241,8 +242,8 @@ impl<'a> Planner<'a> {
         for s in 1..=self.cfg.sweep_steps {
             let f = s as f64 / self.cfg.sweep_steps as f64;
             let m = ((f * n as f64).round() as usize).clamp(1, n);
-            let thr = if m < n { sorted[m] } else { sorted[n - 1] - 1e-12 };
-            let need: Vec<f64> = dz.iter().map(|v| (v - thr).max(0.0)).collect();
+            let thr = if m < n { sorted[m] } else { f64::NEG_INFINITY };
+            let need: Vec<f64> = dz.iter().map(|v| if *v > thr { depth_mm } else { 0.0 }).collect();
             let p = self.plan(&need);
             if p.raster_s > 0.0 {
                 pts.push((m as f64 / n as f64, p.selective_s / p.raster_s));
@@ -280,7 +281,9 @@ pub fn analyse(g: &Gantry, s: &Surface, cfg: PlanConfig) -> Result<(Value, arrow
     let plan = planner.plan(&need);
     let after = planner.after(&dz, &plan);
     let still_out = after.iter().filter(|v| **v > cfg.tolerance_mm + 1e-9).count();
-    let (sweep, breakeven) = planner.sweep(&dz);
+    // Sweep at the depth this surface needs (at least 1 µm when in tolerance).
+    let depth = need.iter().cloned().fold(0.0, f64::max).max(0.001);
+    let (sweep, breakeven) = planner.sweep(&dz, depth);
     let ratio = if plan.raster_s > 0.0 { plan.selective_s / plan.raster_s } else { f64::NAN };
     let num = |v: f64| if v.is_finite() { json!(v) } else { Value::Null };
     let summary = json!({
@@ -430,7 +433,7 @@ mod tests {
         }
         assert!(plan.selective_s < plan.raster_s, "{} vs {}", plan.selective_s, plan.raster_s);
         // The sweep: selective pays for small zones, not for the whole piece.
-        let (pts, be) = p.sweep(&dz);
+        let (pts, be) = p.sweep(&dz, 0.02);
         assert!(pts.first().unwrap().1 < 1.0);
         assert!(pts.last().unwrap().1 > 1.0, "{pts:?}");
         let be = be.expect("a breakeven");
