@@ -12,13 +12,28 @@ fn diagnose_fleet(dir: &Path, seed: u64, effect: Option<&str>) -> serde_json::Va
     let root = dir.join("runs");
     let out = dir.join("out");
     let seed = seed.to_string();
-    let mut args = vec!["generate", "gantry", "--runs", "6", "--seed", &seed, "--out", root.to_str().unwrap()];
+    let mut args = vec![
+        "generate",
+        "gantry",
+        "--runs",
+        "6",
+        "--seed",
+        &seed,
+        "--out",
+        root.to_str().unwrap(),
+    ];
     if let Some(e) = effect {
         args.extend(["--effect", e]);
     }
     let g = sparkout(&args);
     assert!(g.status.success(), "{}", String::from_utf8_lossy(&g.stderr));
-    let r = sparkout(&["run", "--input", root.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+    let r = sparkout(&[
+        "run",
+        "--input",
+        root.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
     assert!(
         r.status.success(),
         "{}\n{}",
@@ -56,7 +71,11 @@ fn thermal_bow_is_named_first() {
     let d = tempfile::tempdir().unwrap();
     let diag = diagnose_fleet(d.path(), 51, Some("thermal_bow"));
     let first = first_selected(&diag);
-    assert!(first.starts_with("thermal_bow:"), "expected thermal_bow first, got {first:?}; selected {}", diag["selected"]);
+    assert!(
+        first.starts_with("thermal_bow:"),
+        "expected thermal_bow first, got {first:?}; selected {}",
+        diag["selected"]
+    );
     assert!(shrink_of(&diag, &first) > 0.2, "{diag:#}");
 }
 
@@ -65,7 +84,11 @@ fn raster_end_pressure_is_named_first() {
     let d = tempfile::tempdir().unwrap();
     let diag = diagnose_fleet(d.path(), 52, Some("raster_end_pressure"));
     let first = first_selected(&diag);
-    assert!(first.starts_with("raster_end_pressure:"), "expected raster_end_pressure first, got {first:?}; selected {}", diag["selected"]);
+    assert!(
+        first.starts_with("raster_end_pressure:"),
+        "expected raster_end_pressure first, got {first:?}; selected {}",
+        diag["selected"]
+    );
     assert!(shrink_of(&diag, &first) > 0.2, "{diag:#}");
 }
 

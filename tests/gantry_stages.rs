@@ -14,7 +14,16 @@ use arrow::datatypes::{DataType, Field, Schema};
 use arrow::record_batch::RecordBatch;
 
 fn generate(root: &Path, runs: &str, seed: &str) -> PathBuf {
-    let g = sparkout(&["generate", "gantry", "--runs", runs, "--seed", seed, "--out", root.to_str().unwrap()]);
+    let g = sparkout(&[
+        "generate",
+        "gantry",
+        "--runs",
+        runs,
+        "--seed",
+        seed,
+        "--out",
+        root.to_str().unwrap(),
+    ]);
     assert!(g.status.success(), "{}", String::from_utf8_lossy(&g.stderr));
     root.join("aplm-gantry")
 }
@@ -30,11 +39,21 @@ fn read_batch(p: &Path) -> RecordBatch {
 }
 
 fn col<'a>(b: &'a RecordBatch, n: &str) -> &'a [f64] {
-    b.column_by_name(n).unwrap().as_any().downcast_ref::<Float64Array>().unwrap().values()
+    b.column_by_name(n)
+        .unwrap()
+        .as_any()
+        .downcast_ref::<Float64Array>()
+        .unwrap()
+        .values()
 }
 
 fn json_of(out: &std::process::Output) -> serde_json::Value {
-    assert!(out.status.success(), "{}\n{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}\n{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
     serde_json::from_slice(&out.stdout).unwrap()
 }
 
@@ -48,10 +67,21 @@ fn stages_on_a_generated_run() {
     // flatness: default = last state; --state maps to gantry.flatness.state.
     let f = json_of(&sparkout(&["stage", "flatness", "--run", run_s, "--json"]));
     assert_eq!(f["state"], "after_polish");
-    let (ls, mz) = (f["least_squares_mm"].as_f64().unwrap(), f["min_zone_mm"].as_f64().unwrap());
+    let (ls, mz) = (
+        f["least_squares_mm"].as_f64().unwrap(),
+        f["min_zone_mm"].as_f64().unwrap(),
+    );
     assert!(mz > 0.0 && mz <= ls + 1e-12, "{f}");
     assert_eq!(f["plane"].as_array().unwrap().len(), 3);
-    let f2 = json_of(&sparkout(&["stage", "flatness", "--run", run_s, "--state", "after_grind", "--json"]));
+    let f2 = json_of(&sparkout(&[
+        "stage",
+        "flatness",
+        "--run",
+        run_s,
+        "--state",
+        "after_grind",
+        "--json",
+    ]));
     assert_eq!(f2["state"], "after_grind");
     let bad = sparkout(&["stage", "flatness", "--run", run_s, "--colour", "red"]);
     assert!(!bad.status.success());
@@ -59,10 +89,32 @@ fn stages_on_a_generated_run() {
 
     // Run-less forms.
     let topo = run.join("topography.parquet");
-    let f3 = json_of(&sparkout(&["stage", "flatness", "--topography", topo.to_str().unwrap(), "--state", "pattern", "--json"]));
+    let f3 = json_of(&sparkout(&[
+        "stage",
+        "flatness",
+        "--topography",
+        topo.to_str().unwrap(),
+        "--state",
+        "pattern",
+        "--json",
+    ]));
     assert_eq!(f3["state"], "pattern");
-    let p = json_of(&sparkout(&["stage", "polish_plan", "--topography", topo.to_str().unwrap(), "--tolerance-mm", "0.005", "--json"]));
-    for k in ["placements", "selective_s", "raster_s", "ratio", "breakeven_area_fraction"] {
+    let p = json_of(&sparkout(&[
+        "stage",
+        "polish_plan",
+        "--topography",
+        topo.to_str().unwrap(),
+        "--tolerance-mm",
+        "0.005",
+        "--json",
+    ]));
+    for k in [
+        "placements",
+        "selective_s",
+        "raster_s",
+        "ratio",
+        "breakeven_area_fraction",
+    ] {
         assert!(!p[k].is_null(), "{k} missing: {p}");
     }
     assert!(p["placements"].as_u64().unwrap() >= 1);
@@ -72,14 +124,26 @@ fn stages_on_a_generated_run() {
 
     // matrices with --out: Γ grids, controller table, compensation path.
     let out = d.path().join("m");
-    let m = sparkout(&["stage", "matrices", "--run", run_s, "--out", out.to_str().unwrap(), "--json"]);
+    let m = sparkout(&[
+        "stage",
+        "matrices",
+        "--run",
+        run_s,
+        "--out",
+        out.to_str().unwrap(),
+        "--json",
+    ]);
     let s = json_of(&m);
     assert!(s["gamma_static_max_mm"].as_f64().unwrap() > 0.01, "{s}");
     let st = read_batch(&out.join("static_matrix.parquet"));
     let dy = read_batch(&out.join("dynamic_matrix.parquet"));
     for b in [&st, &dy] {
         let (v, t, p0) = (col(b, "value_mm"), col(b, "tau_mm"), col(b, "pattern_mm"));
-        let (s1, s2, br) = (col(b, "stringer1_mm"), col(b, "stringer2_mm"), col(b, "bridge_mm"));
+        let (s1, s2, br) = (
+            col(b, "stringer1_mm"),
+            col(b, "stringer2_mm"),
+            col(b, "bridge_mm"),
+        );
         for k in 0..v.len() {
             assert!((v[k] - (t[k] - p0[k])).abs() < 1e-12);
             assert!((t[k] - (s1[k] + s2[k] + br[k])).abs() < 1e-12);
@@ -89,7 +153,9 @@ fn stages_on_a_generated_run() {
     let cp = read_batch(&out.join("compensation_path.parquet"));
     let t = col(&cp, "t_s");
     assert!(t.windows(2).all(|w| w[1] > w[0]));
-    assert!(col(&cp, "dz_mm").iter().all(|v| v.is_finite() && v.abs() < 1.0));
+    assert!(col(&cp, "dz_mm")
+        .iter()
+        .all(|v| v.is_finite() && v.abs() < 1.0));
 }
 
 fn write_topo(path: &Path, rows: &[(&str, f64, f64, f64)]) {
@@ -102,10 +168,18 @@ fn write_topo(path: &Path, rows: &[(&str, f64, f64, f64)]) {
     let b = RecordBatch::try_new(
         schema.clone(),
         vec![
-            Arc::new(StringArray::from(rows.iter().map(|r| r.0).collect::<Vec<_>>())),
-            Arc::new(Float64Array::from(rows.iter().map(|r| r.1).collect::<Vec<_>>())),
-            Arc::new(Float64Array::from(rows.iter().map(|r| r.2).collect::<Vec<_>>())),
-            Arc::new(Float64Array::from(rows.iter().map(|r| r.3).collect::<Vec<_>>())),
+            Arc::new(StringArray::from(
+                rows.iter().map(|r| r.0).collect::<Vec<_>>(),
+            )),
+            Arc::new(Float64Array::from(
+                rows.iter().map(|r| r.1).collect::<Vec<_>>(),
+            )),
+            Arc::new(Float64Array::from(
+                rows.iter().map(|r| r.2).collect::<Vec<_>>(),
+            )),
+            Arc::new(Float64Array::from(
+                rows.iter().map(|r| r.3).collect::<Vec<_>>(),
+            )),
         ],
     )
     .unwrap();
@@ -122,10 +196,19 @@ fn copy_run(from: &Path, to: &Path, id: &str) {
         std::fs::copy(&p, to.join(p.file_name().unwrap())).unwrap();
     }
     let t = std::fs::read_to_string(to.join("run.toml")).unwrap();
-    std::fs::write(to.join("run.toml"), t.replace("id = \"r0000\"", &format!("id = \"{id}\""))).unwrap();
+    std::fs::write(
+        to.join("run.toml"),
+        t.replace("id = \"r0000\"", &format!("id = \"{id}\"")),
+    )
+    .unwrap();
 }
 
-fn grid_rows(states: &[&'static str], skip: Option<usize>, dup: bool, irregular: bool) -> Vec<(&'static str, f64, f64, f64)> {
+fn grid_rows(
+    states: &[&'static str],
+    skip: Option<usize>,
+    dup: bool,
+    irregular: bool,
+) -> Vec<(&'static str, f64, f64, f64)> {
     let mut v = Vec::new();
     for s in states {
         let mut k = 0;
@@ -157,12 +240,25 @@ fn bad_inputs_are_rejected_and_the_batch_goes_on() {
         p
     };
     let all = ["pattern", "after_grind", "after_polish"];
-    write_topo(&mk("nopattern").join("topography.parquet"), &grid_rows(&["after_grind", "after_polish"], None, false, false));
-    write_topo(&mk("dup").join("topography.parquet"), &grid_rows(&all, None, true, false));
-    write_topo(&mk("irregular").join("topography.parquet"), &grid_rows(&all, None, false, true));
+    write_topo(
+        &mk("nopattern").join("topography.parquet"),
+        &grid_rows(&["after_grind", "after_polish"], None, false, false),
+    );
+    write_topo(
+        &mk("dup").join("topography.parquet"),
+        &grid_rows(&all, None, true, false),
+    );
+    write_topo(
+        &mk("irregular").join("topography.parquet"),
+        &grid_rows(&all, None, false, true),
+    );
     let big = mk("bigtool");
     let t = std::fs::read_to_string(big.join("run.toml")).unwrap();
-    std::fs::write(big.join("run.toml"), t.replace("tool_radius_mm = 100.0", "tool_radius_mm = 5000.0")).unwrap();
+    std::fs::write(
+        big.join("run.toml"),
+        t.replace("tool_radius_mm = 100.0", "tool_radius_mm = 5000.0"),
+    )
+    .unwrap();
     let neg = mk("negpressure");
     let t = std::fs::read_to_string(neg.join("run.toml")).unwrap();
     std::fs::write(neg.join("run.toml"), format!("{t}pressure_pa = -389.93\n")).unwrap();
@@ -171,28 +267,70 @@ fn bad_inputs_are_rejected_and_the_batch_goes_on() {
     std::fs::write(kp.join("run.toml"), format!("{t}k_p_per_pa = -1e-8\n")).unwrap();
 
     let out = d.path().join("out");
-    let r = sparkout(&["run", "--input", d.path().join("runs").to_str().unwrap(), "--out", out.to_str().unwrap()]);
+    let r = sparkout(&[
+        "run",
+        "--input",
+        d.path().join("runs").to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
     assert!(!r.status.success(), "some runs failed: exit code says so");
-    let f: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("failures.json")).unwrap()).unwrap();
+    let f: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("failures.json")).unwrap()).unwrap();
     let find = |id: &str| -> serde_json::Value {
-        f.as_array().unwrap().iter().find(|e| e["run"] == id).cloned().unwrap_or_else(|| panic!("{id} not rejected: {f:#}"))
+        f.as_array()
+            .unwrap()
+            .iter()
+            .find(|e| e["run"] == id)
+            .cloned()
+            .unwrap_or_else(|| panic!("{id} not rejected: {f:#}"))
     };
     let e = find("nopattern");
-    assert!(e["error"].as_str().unwrap().contains("no `pattern` state"), "{e}");
+    assert!(
+        e["error"].as_str().unwrap().contains("no `pattern` state"),
+        "{e}"
+    );
     assert_eq!(e["column"], "state");
     let e = find("dup");
-    assert!(e["error"].as_str().unwrap().contains("duplicated grid point (x = 840, y = 640)"), "{e}");
+    assert!(
+        e["error"]
+            .as_str()
+            .unwrap()
+            .contains("duplicated grid point (x = 840, y = 640)"),
+        "{e}"
+    );
     assert_eq!(e["row"], 80);
     let e = find("irregular");
-    assert!(e["error"].as_str().unwrap().contains("irregular grid"), "{e}");
+    assert!(
+        e["error"].as_str().unwrap().contains("irregular grid"),
+        "{e}"
+    );
     assert_eq!(e["column"], "x_mm");
     let e = find("bigtool");
-    assert!(e["error"].as_str().unwrap().contains("larger than the surface"), "{e}");
+    assert!(
+        e["error"]
+            .as_str()
+            .unwrap()
+            .contains("larger than the surface"),
+        "{e}"
+    );
     let e = find("negpressure");
-    assert!(e["error"].as_str().unwrap().contains("pressure_pa must be a positive number"), "{e}");
+    assert!(
+        e["error"]
+            .as_str()
+            .unwrap()
+            .contains("pressure_pa must be a positive number"),
+        "{e}"
+    );
     assert_eq!(e["column"], "process.pressure_pa");
     let e = find("negkp");
-    assert!(e["error"].as_str().unwrap().contains("k_p_per_pa must be a positive number"), "{e}");
+    assert!(
+        e["error"]
+            .as_str()
+            .unwrap()
+            .contains("k_p_per_pa must be a positive number"),
+        "{e}"
+    );
     // The good run went through.
     assert!(out.join("aplm-gantry/r0000/observations.parquet").is_file());
     assert_eq!(f.as_array().unwrap().len(), 6, "{f:#}");
@@ -200,11 +338,25 @@ fn bad_inputs_are_rejected_and_the_batch_goes_on() {
     // A machine config missing a body.
     let machines = d.path().join("machines");
     std::fs::create_dir_all(&machines).unwrap();
-    let toml = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/machines/aplm-gantry.toml")).unwrap();
+    let toml = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/machines/aplm-gantry.toml"),
+    )
+    .unwrap();
     let start = toml.find("[bridge]").unwrap();
     let end = start + toml[start..].find("[spindle]").unwrap();
-    std::fs::write(machines.join("aplm-gantry.toml"), format!("{}{}", &toml[..start], &toml[end..])).unwrap();
-    let r = sparkout(&["stage", "matrices", "--run", good.to_str().unwrap(), "--machines", machines.to_str().unwrap()]);
+    std::fs::write(
+        machines.join("aplm-gantry.toml"),
+        format!("{}{}", &toml[..start], &toml[end..]),
+    )
+    .unwrap();
+    let r = sparkout(&[
+        "stage",
+        "matrices",
+        "--run",
+        good.to_str().unwrap(),
+        "--machines",
+        machines.to_str().unwrap(),
+    ]);
     assert!(!r.status.success());
     let err = String::from_utf8_lossy(&r.stderr);
     assert!(err.contains("no [bridge] table"), "{err}");

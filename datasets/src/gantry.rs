@@ -110,7 +110,14 @@ impl GantryFleetConfig {
         Ok(())
     }
     pub fn grid(&self) -> Grid {
-        Grid::new(self.x0_mm, self.step_mm, self.nx, self.y0_mm, self.step_mm, self.ny)
+        Grid::new(
+            self.x0_mm,
+            self.step_mm,
+            self.nx,
+            self.y0_mm,
+            self.step_mm,
+            self.ny,
+        )
     }
 }
 
@@ -136,13 +143,22 @@ fn resolve(specs: &[EffectSpec]) -> Result<Effects> {
     let mut e = Effects::default();
     for s in specs {
         match s.name.as_str() {
-            "thermal_bow" => e.bow = Some((s.param_or("amplitude_mm", 0.05), s.param_or("tau_s", 150.0))),
-            "raster_end_pressure" => e.end = Some((s.param_or("k", 0.3), s.param_or("lambda_mm", 60.0))),
+            "thermal_bow" => {
+                e.bow = Some((s.param_or("amplitude_mm", 0.05), s.param_or("tau_s", 150.0)))
+            }
+            "raster_end_pressure" => {
+                e.end = Some((s.param_or("k", 0.3), s.param_or("lambda_mm", 60.0)))
+            }
             "tool_wear" => e.wear = Some(s.param_or("k_per_mm3", 2e-6)),
-            "spindle_drift" => e.drift = Some((s.param_or("amplitude_mm", 0.03), s.param_or("tau_s", 120.0))),
+            "spindle_drift" => {
+                e.drift = Some((s.param_or("amplitude_mm", 0.03), s.param_or("tau_s", 120.0)))
+            }
             other => {
                 let names: Vec<&str> = known_effects().iter().map(|k| k.0).collect();
-                bail!("gantry generator: unknown effect `{other}` (known: {})", names.join(", "))
+                bail!(
+                    "gantry generator: unknown effect `{other}` (known: {})",
+                    names.join(", ")
+                )
             }
         }
     }
@@ -185,14 +201,20 @@ fn smooth(rng: &mut ChaCha8Rng, grid: &Grid, amp: f64) -> Vec<f64> {
             let (x, y) = grid.xy(k);
             waves
                 .iter()
-                .map(|(a, kx, ky, ph)| a * (kx * (x - grid.x0) + ph).sin() * (ky * (y - grid.y0) + 0.5 * ph).cos())
+                .map(|(a, kx, ky, ph)| {
+                    a * (kx * (x - grid.x0) + ph).sin() * (ky * (y - grid.y0) + 0.5 * ph).cos()
+                })
                 .sum()
         })
         .collect()
 }
 
 /// Generate the fleet under `<root>/<machine>/r0000 …`.
-pub fn generate_fleet(root: &Path, cfg: &GantryFleetConfig, effects: &[EffectSpec]) -> Result<Vec<PathBuf>> {
+pub fn generate_fleet(
+    root: &Path,
+    cfg: &GantryFleetConfig,
+    effects: &[EffectSpec],
+) -> Result<Vec<PathBuf>> {
     cfg.validate()?;
     let fx = resolve(effects)?;
     let dir = root.join(&cfg.machine);
@@ -200,7 +222,8 @@ pub fn generate_fleet(root: &Path, cfg: &GantryFleetConfig, effects: &[EffectSpe
         .into_par_iter()
         .map(|i| {
             let d = dir.join(format!("r{i:04}"));
-            generate_run(&d, cfg, &fx, effects, i).with_context(|| format!("generating gantry run {}", d.display()))?;
+            generate_run(&d, cfg, &fx, effects, i)
+                .with_context(|| format!("generating gantry run {}", d.display()))?;
             Ok(d)
         })
         .collect()
@@ -228,7 +251,13 @@ feed_mm_s = {feed:?}
     )
 }
 
-fn generate_run(dir: &Path, cfg: &GantryFleetConfig, fx: &Effects, specs: &[EffectSpec], index: usize) -> Result<()> {
+fn generate_run(
+    dir: &Path,
+    cfg: &GantryFleetConfig,
+    fx: &Effects,
+    specs: &[EffectSpec],
+    index: usize,
+) -> Result<()> {
     let mut rng = run_rng(cfg.seed, index);
     let id = format!("r{index:04}");
     let feed = rng.random_range(cfg.feed_mm_s.0..=cfg.feed_mm_s.1);
@@ -336,7 +365,12 @@ mod tests {
     #[test]
     fn same_seed_same_bytes_and_effects_change_the_polished_state() {
         let d = tempfile::tempdir().unwrap();
-        let cfg = GantryFleetConfig { runs: 1, nx: 15, ny: 11, ..Default::default() };
+        let cfg = GantryFleetConfig {
+            runs: 1,
+            nx: 15,
+            ny: 11,
+            ..Default::default()
+        };
         let a = generate_fleet(&d.path().join("a"), &cfg, &[]).unwrap();
         let b = generate_fleet(&d.path().join("b"), &cfg, &[]).unwrap();
         let read = |p: &Path| std::fs::read(p.join("topography.parquet")).unwrap();

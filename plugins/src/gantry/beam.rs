@@ -103,7 +103,9 @@ mod tests {
     #[test]
     fn sin_series3_matches_its_series() {
         for th in [0.3, 1.0, 2.5, 4.0, 6.0, -1.2] {
-            let s: f64 = (1..200000).map(|n| (n as f64 * th).sin() / (n as f64).powi(3)).sum();
+            let s: f64 = (1..200000)
+                .map(|n| (n as f64 * th).sin() / (n as f64).powi(3))
+                .sum();
             assert!((s - sin_series3(th)).abs() < 1e-9, "{th}");
         }
     }

@@ -73,7 +73,10 @@ mod tests {
 
     #[test]
     fn rejects_unknown_keys_and_bad_values() {
-        let keys = [("tol_mm", Check::Positive), ("state", Check::OneOf(&STATES))];
+        let keys = [
+            ("tol_mm", Check::Positive),
+            ("state", Check::OneOf(&STATES)),
+        ];
         let ok: toml::Table = "tol_mm = 0.01\nstate = \"before\"".parse().unwrap();
         assert!(check_config(&ok, &keys).is_ok());
         let bad: toml::Table = "tol = 0.01".parse().unwrap();
@@ -84,6 +87,9 @@ mod tests {
         let neg: toml::Table = "tol_mm = -1".parse().unwrap();
         assert!(check_config(&neg, &keys).is_err());
         let st: toml::Table = "state = \"polished\"".parse().unwrap();
-        assert!(check_config(&st, &keys).unwrap_err().to_string().contains("one of"));
+        assert!(check_config(&st, &keys)
+            .unwrap_err()
+            .to_string()
+            .contains("one of"));
     }
 }

@@ -79,8 +79,16 @@ pub fn min_zone(x: &[f64], y: &[f64], z: &[f64]) -> Result<PlaneFit> {
         y.iter().sum::<f64>() / n,
         z.iter().sum::<f64>() / n,
     );
-    let sx = x.iter().map(|v| (v - mx).abs()).fold(0.0, f64::max).max(1e-12);
-    let sy = y.iter().map(|v| (v - my).abs()).fold(0.0, f64::max).max(1e-12);
+    let sx = x
+        .iter()
+        .map(|v| (v - mx).abs())
+        .fold(0.0, f64::max)
+        .max(1e-12);
+    let sy = y
+        .iter()
+        .map(|v| (v - my).abs())
+        .fold(0.0, f64::max)
+        .max(1e-12);
     let mut p = Problem::new(OptimizationDirection::Minimize);
     let free = (f64::NEG_INFINITY, f64::INFINITY);
     let a = p.add_var(0.0, free);
@@ -92,7 +100,9 @@ pub fn min_zone(x: &[f64], y: &[f64], z: &[f64]) -> Result<PlaneFit> {
         p.add_constraint([(a, u), (b, v), (hi, 1.0)], ComparisonOp::Ge, w);
         p.add_constraint([(a, u), (b, v), (lo, 1.0)], ComparisonOp::Le, w);
     }
-    let sol = p.solve().map_err(|e| anyhow!("minimum-zone LP failed: {e}"))?;
+    let sol = p
+        .solve()
+        .map_err(|e| anyhow!("minimum-zone LP failed: {e}"))?;
     let (aa, bb) = (sol[a] / sx, sol[b] / sy);
     let (rlo, rhi) = width(x, y, z, aa, bb);
     Ok(PlaneFit {
@@ -144,12 +154,18 @@ pub fn analyse(t: &Table, state: Option<&str>) -> Result<(Vec<(String, Flatness)
     let states = grid::states(t)?;
     let chosen = match state {
         Some(s) => s.to_string(),
-        None => states.last().cloned().ok_or_else(|| anyhow!("topography has no rows"))?,
+        None => states
+            .last()
+            .cloned()
+            .ok_or_else(|| anyhow!("topography has no rows"))?,
     };
     if !states.contains(&chosen) {
         return Err(sparkout_pipeline::InputError::new(
             t.path(),
-            format!("no rows with state `{chosen}` (states present: {})", states.join(", ")),
+            format!(
+                "no rows with state `{chosen}` (states present: {})",
+                states.join(", ")
+            ),
         )
         .column("state")
         .into());
@@ -157,9 +173,16 @@ pub fn analyse(t: &Table, state: Option<&str>) -> Result<(Vec<(String, Flatness)
     let mut all = Vec::new();
     for s in &states {
         let (x, y, z) = state_points(t, s)?;
-        all.push((s.clone(), flatness(&x, &y, &z).with_context(|| format!("state `{s}`"))?));
+        all.push((
+            s.clone(),
+            flatness(&x, &y, &z).with_context(|| format!("state `{s}`"))?,
+        ));
     }
-    let f = all.iter().find(|(s, _)| *s == chosen).expect("chosen state").1;
+    let f = all
+        .iter()
+        .find(|(s, _)| *s == chosen)
+        .expect("chosen state")
+        .1;
     let per_state: Vec<Value> = all
         .iter()
         .map(|(s, f)| json!({"state": s, "least_squares_mm": f.least_squares.width_mm, "min_zone_mm": f.min_zone.width_mm}))
@@ -224,12 +247,30 @@ impl Stage for FlatnessStage {
 
 fn batch(all: &[(String, Flatness)]) -> arrow::record_batch::RecordBatch {
     BatchBuilder::new()
-        .str("state", &all.iter().map(|a| a.0.as_str()).collect::<Vec<_>>())
-        .f64("least_squares_mm", all.iter().map(|a| a.1.least_squares.width_mm).collect())
-        .f64("min_zone_mm", all.iter().map(|a| a.1.min_zone.width_mm).collect())
-        .f64("plane_a", all.iter().map(|a| a.1.min_zone.plane[0]).collect())
-        .f64("plane_b", all.iter().map(|a| a.1.min_zone.plane[1]).collect())
-        .f64("plane_c_mm", all.iter().map(|a| a.1.min_zone.plane[2]).collect())
+        .str(
+            "state",
+            &all.iter().map(|a| a.0.as_str()).collect::<Vec<_>>(),
+        )
+        .f64(
+            "least_squares_mm",
+            all.iter().map(|a| a.1.least_squares.width_mm).collect(),
+        )
+        .f64(
+            "min_zone_mm",
+            all.iter().map(|a| a.1.min_zone.width_mm).collect(),
+        )
+        .f64(
+            "plane_a",
+            all.iter().map(|a| a.1.min_zone.plane[0]).collect(),
+        )
+        .f64(
+            "plane_b",
+            all.iter().map(|a| a.1.min_zone.plane[1]).collect(),
+        )
+        .f64(
+            "plane_c_mm",
+            all.iter().map(|a| a.1.min_zone.plane[2]).collect(),
+        )
         .build()
 }
 
@@ -286,7 +327,11 @@ mod tests {
     fn least_squares_recovers_a_plane() {
         let x = [0.0, 1.0, 0.0, 1.0, 0.5];
         let y = [0.0, 0.0, 1.0, 1.0, 0.5];
-        let z: Vec<f64> = x.iter().zip(&y).map(|(u, v)| 0.2 * u - 0.3 * v + 1.0).collect();
+        let z: Vec<f64> = x
+            .iter()
+            .zip(&y)
+            .map(|(u, v)| 0.2 * u - 0.3 * v + 1.0)
+            .collect();
         let f = least_squares(&x, &y, &z).unwrap();
         assert!((f.plane[0] - 0.2).abs() < 1e-12 && (f.plane[2] - 1.0).abs() < 1e-12);
         assert!(f.width_mm < 1e-12);

@@ -22,7 +22,14 @@ pub struct Grid {
 
 impl Grid {
     pub fn new(x0: f64, dx: f64, nx: usize, y0: f64, dy: f64, ny: usize) -> Grid {
-        Grid { x0, dx, y0, dy, nx, ny }
+        Grid {
+            x0,
+            dx,
+            y0,
+            dy,
+            nx,
+            ny,
+        }
     }
     pub fn nx(&self) -> usize {
         self.nx
@@ -125,13 +132,19 @@ pub fn surface(table: &Table, state: &str) -> Result<Surface, InputError> {
         let have = states(table)?;
         return Err(InputError::new(
             path,
-            format!("no rows with state `{state}` (states present: {})", have.join(", ")),
+            format!(
+                "no rows with state `{state}` (states present: {})",
+                have.join(", ")
+            ),
         )
         .column("state"));
     }
     let x: Vec<f64> = rows.iter().map(|&r| xs[r]).collect();
     let y: Vec<f64> = rows.iter().map(|&r| ys[r]).collect();
-    let span = |v: &[f64]| v.iter().cloned().fold(f64::NEG_INFINITY, f64::max) - v.iter().cloned().fold(f64::INFINITY, f64::min);
+    let span = |v: &[f64]| {
+        v.iter().cloned().fold(f64::NEG_INFINITY, f64::max)
+            - v.iter().cloned().fold(f64::INFINITY, f64::min)
+    };
     let tol = 1e-6 * span(&x).max(span(&y)).max(1.0);
     let ux = distinct(&x, tol);
     let uy = distinct(&y, tol);
@@ -282,7 +295,11 @@ pub(crate) mod tests {
         Table::from_batch(std::path::Path::new("topography.parquet"), &TOPOGRAPHY, b).unwrap()
     }
 
-    fn grid_rows(state: &'static str, xs: &[f64], ys: &[f64]) -> Vec<(&'static str, f64, f64, f64)> {
+    fn grid_rows(
+        state: &'static str,
+        xs: &[f64],
+        ys: &[f64],
+    ) -> Vec<(&'static str, f64, f64, f64)> {
         let mut v = Vec::new();
         for &y in ys {
             for &x in xs {
@@ -300,7 +317,7 @@ pub(crate) mod tests {
         let t = table(&rows);
         let s = pattern(&t).unwrap();
         assert_eq!((s.grid.nx(), s.grid.ny()), (3, 2));
-        assert!((s.z[1 * 3 + 2] - (0.02 - 0.03)).abs() < 1e-15);
+        assert!((s.z[3 + 2] - (0.02 - 0.03)).abs() < 1e-15);
         assert_eq!(states(&t).unwrap(), vec!["pattern", "after_grind"]);
         assert!(same_grid(&t, "after_grind", &s.grid).is_ok());
     }
@@ -316,7 +333,11 @@ pub(crate) mod tests {
         let mut rows = grid_rows("pattern", &[0.0, 1.0], &[0.0, 1.0]);
         rows.push(("pattern", 0.0, 0.0, 0.0));
         let e = pattern(&table(&rows)).unwrap_err();
-        assert!(e.message.contains("duplicated grid point (x = 0, y = 0) in rows 0 and 4"), "{e}");
+        assert!(
+            e.message
+                .contains("duplicated grid point (x = 0, y = 0) in rows 0 and 4"),
+            "{e}"
+        );
         assert_eq!(e.row, Some(4));
         // Irregular spacing in x.
         let rows = grid_rows("pattern", &[0.0, 10.0, 25.0], &[0.0, 1.0]);
@@ -328,6 +349,9 @@ pub(crate) mod tests {
         let mut rows = grid_rows("pattern", &[0.0, 1.0, 2.0], &[0.0, 1.0]);
         rows.remove(4);
         let e = pattern(&table(&rows)).unwrap_err();
-        assert!(e.message.contains("grid point (x = 1, y = 1) is missing"), "{e}");
+        assert!(
+            e.message.contains("grid point (x = 1, y = 1) is missing"),
+            "{e}"
+        );
     }
 }

@@ -121,7 +121,10 @@ impl Reader<'_> {
         }
         let dotted = format!("{section}.{key}");
         let v = self.table(section)?.get(key).ok_or_else(|| {
-            self.err(&dotted, format!("required key [{section}].{key} is missing"))
+            self.err(
+                &dotted,
+                format!("required key [{section}].{key} is missing"),
+            )
         })?;
         match num(v) {
             Some(x) if x.is_finite() && x > 0.0 => Ok(x),
@@ -143,13 +146,19 @@ impl Reader<'_> {
             )
         })?;
         let a = v.as_array().ok_or_else(|| {
-            self.err(&dotted, format!("[{section}].{key} must be an array of numbers"))
+            self.err(
+                &dotted,
+                format!("[{section}].{key} must be an array of numbers"),
+            )
         })?;
         a.iter()
             .enumerate()
             .map(|(i, x)| {
                 num(x).ok_or_else(|| {
-                    self.err(&dotted, format!("[{section}].{key}[{i}] is not a number: {x}"))
+                    self.err(
+                        &dotted,
+                        format!("[{section}].{key}[{i}] is not a number: {x}"),
+                    )
                 })
             })
             .collect()
@@ -160,7 +169,10 @@ impl Reader<'_> {
         let pos = self.list(name, "straightness_pos_mm")?;
         let z = self.list(name, "straightness_z_mm")?;
         let straightness = Straightness::new(pos, z).map_err(|m| {
-            self.err(&format!("{name}.straightness_pos_mm"), format!("[{name}] straightness: {m}"))
+            self.err(
+                &format!("{name}.straightness_pos_mm"),
+                format!("[{name}] straightness: {m}"),
+            )
         })?;
         Ok(Body {
             name,

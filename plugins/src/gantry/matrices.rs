@@ -107,16 +107,16 @@ pub fn topography(g: &Gantry, grid: &Grid, dynamic: bool) -> Result<Topography> 
     let mut shares = [vec![0.0; n], vec![0.0; n], vec![0.0; n]];
     let half_bridge = 0.5 * g.bridge.weight_n;
     let carried = g.spindle_weight_n + f_cut;
-    for j in 0..grid.ny() {
+    for (j, &zb) in row.iter().enumerate() {
         let s = g.share2(grid.y(j));
-        for i in 0..grid.nx() {
+        for (i, c) in col.iter().enumerate() {
             let k = j * grid.nx() + i;
-            let [(b1, f1, m1), (b2, f2, m2)] = col[i];
+            let [(b1, f1, m1), (b2, f2, m2)] = *c;
             let z1 = b1 + (half_bridge + (1.0 - s) * carried) * f1 + (1.0 - s) * m_str * m1;
             let z2 = b2 + (half_bridge + s * carried) * f2 + s * m_str * m2;
             shares[0][k] = (1.0 - s) * z1;
             shares[1][k] = s * z2;
-            shares[2][k] = row[j];
+            shares[2][k] = zb;
             tau[k] = shares[0][k] + shares[1][k] + shares[2][k];
         }
     }
@@ -172,7 +172,11 @@ pub fn compute(g: &Gantry, pattern: &Surface) -> Result<Matrices> {
 
 impl Matrices {
     pub fn gamma(&self, t: &Topography) -> Vec<f64> {
-        t.tau.iter().zip(&self.pattern).map(|(a, b)| a - b).collect()
+        t.tau
+            .iter()
+            .zip(&self.pattern)
+            .map(|(a, b)| a - b)
+            .collect()
     }
     fn matrix_batch(&self, t: &Topography) -> arrow::record_batch::RecordBatch {
         let n = self.grid.len();
@@ -276,7 +280,10 @@ impl Stage for MatricesStage {
             path_rows = t_out.len();
             out = out.with(
                 "compensation_path",
-                BatchBuilder::new().f64("t_s", t_out).f64("dz_mm", dz).build(),
+                BatchBuilder::new()
+                    .f64("t_s", t_out)
+                    .f64("dz_mm", dz)
+                    .build(),
             );
         }
         out.summary = json!({

@@ -172,11 +172,20 @@ mod tests {
         let b = stringer();
         let f = 3735.0;
         let scale = f * b.span_mm.powi(3) / (48.0 * b.ei_n_mm2);
-        for (x, a) in [(1200.0, 1200.0), (300.0, 1700.0), (2000.0, 650.0), (50.0, 60.0)] {
+        for (x, a) in [
+            (1200.0, 1200.0),
+            (300.0, 1700.0),
+            (2000.0, 650.0),
+            (50.0, 60.0),
+        ] {
             let stat = -f * b.point(x, a);
             let d = series_direct(&b, x, a, 1e-9, f, 0.0, 1e-12 * scale).unwrap();
             let rel = (d.w_mm - stat).abs() / stat.abs();
-            assert!(rel < 1e-9, "x={x} a={a}: {} vs {stat} (rel {rel:e})", d.w_mm);
+            assert!(
+                rel < 1e-9,
+                "x={x} a={a}: {} vs {stat} (rel {rel:e})",
+                d.w_mm
+            );
             assert!(d.terms > 100, "the direct series needs many terms");
         }
     }
@@ -222,7 +231,16 @@ mod tests {
     #[test]
     fn critical_speed_is_an_error() {
         let b = stringer();
-        let e = series(&b, 1.0, 1.0, 1.01 * b.critical_speed_mm_s(), 1.0, 0.0, 1e-12).unwrap_err();
+        let e = series(
+            &b,
+            1.0,
+            1.0,
+            1.01 * b.critical_speed_mm_s(),
+            1.0,
+            0.0,
+            1e-12,
+        )
+        .unwrap_err();
         assert!(matches!(e, SeriesError::Critical { .. }));
         assert!(e.to_string().contains("critical speed"));
     }

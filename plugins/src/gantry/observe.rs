@@ -28,13 +28,20 @@ pub const OBSERVABLE: &str = "surface_z";
 
 pub struct ObserveStage;
 
-const KEYS: &[(&str, Check)] = &[("state", Check::OneOf(&STATES)), ("path", Check::OneOf(&["motion", "raster"]))];
+const KEYS: &[(&str, Check)] = &[
+    ("state", Check::OneOf(&STATES)),
+    ("path", Check::OneOf(&["motion", "raster"])),
+];
 
 /// Index of the on-pass sample nearest to each node (all samples when the
 /// path has no passes).
 pub fn nearest_samples(grid: &Grid, path: &[PathSample]) -> Vec<usize> {
     let on: Vec<usize> = (0..path.len()).filter(|&k| path[k].segment >= 0).collect();
-    let cand: Vec<usize> = if on.is_empty() { (0..path.len()).collect() } else { on };
+    let cand: Vec<usize> = if on.is_empty() {
+        (0..path.len()).collect()
+    } else {
+        on
+    };
     (0..grid.len())
         .map(|k| {
             let (x, y) = grid.xy(k);
@@ -88,7 +95,12 @@ impl Stage for ObserveStage {
             ));
         }
         let grid = real.grid;
-        let (path, _) = polishing_path(ctx.run, &g, &grid, ctx.cfg_str("path", "motion") == "motion")?;
+        let (path, _) = polishing_path(
+            ctx.run,
+            &g,
+            &grid,
+            ctx.cfg_str("path", "motion") == "motion",
+        )?;
         if path.is_empty() {
             return Err(anyhow!("the polishing path has no samples"));
         }
@@ -101,8 +113,16 @@ impl Stage for ObserveStage {
         let vol = g.polish.volume_rate_mm3_s();
         let n = grid.len();
         let (xs, ys): (Vec<f64>, Vec<f64>) = (0..n).map(|k| grid.xy(k)).unzip();
-        let pick = |f: &dyn Fn(&PathSample) -> f64| near.iter().map(|&s| f(&path[s])).collect::<Vec<f64>>();
-        let path_end = pick(&|p| if p.path_end_mm.is_finite() { p.path_end_mm } else { 0.0 });
+        let pick = |f: &dyn Fn(&PathSample) -> f64| {
+            near.iter().map(|&s| f(&path[s])).collect::<Vec<f64>>()
+        };
+        let path_end = pick(&|p| {
+            if p.path_end_mm.is_finite() {
+                p.path_end_mm
+            } else {
+                0.0
+            }
+        });
         let gap: Vec<f64> = (0..n).map(|k| real.z[k] - sim[k]).collect();
         let rms = (gap.iter().map(|v| v * v).sum::<f64>() / n as f64).sqrt();
         let batch = BatchBuilder::new()
@@ -118,7 +138,10 @@ impl Stage for ObserveStage {
             .f64("dir", pick(&|p| p.dir))
             .f64("path_end_mm", path_end)
             .f64("a_mm_s2", pick(&|p| p.a_mm_s2))
-            .f64("tool_removed_mm3", near.iter().map(|&s| cum[s] * vol).collect())
+            .f64(
+                "tool_removed_mm3",
+                near.iter().map(|&s| cum[s] * vol).collect(),
+            )
             .build();
         let summary = json!({
             "rows": n,

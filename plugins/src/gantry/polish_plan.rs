@@ -66,7 +66,9 @@ impl PlanConfig {
             spiral_fraction: f("spiral_fraction").unwrap_or(d.spiral_fraction),
             spiral_pitch_mm: f("spiral_pitch_mm"),
             rapid_mm_s: f("rapid_mm_s").unwrap_or(d.rapid_mm_s),
-            sweep_steps: f("sweep_steps").map(|v| v as usize).unwrap_or(d.sweep_steps),
+            sweep_steps: f("sweep_steps")
+                .map(|v| v as usize)
+                .unwrap_or(d.sweep_steps),
         }
     }
 }
@@ -134,7 +136,12 @@ impl<'a> Planner<'a> {
         let r: f64 = self
             .spiral
             .iter()
-            .map(|s| s.dt_s * self.tool.rate_mm_s((x - cx - s.x_mm).hypot(y - cy - s.y_mm)))
+            .map(|s| {
+                s.dt_s
+                    * self
+                        .tool
+                        .rate_mm_s((x - cx - s.x_mm).hypot(y - cy - s.y_mm))
+            })
             .sum();
         r / self.spiral_s
     }
@@ -152,7 +159,11 @@ impl<'a> Planner<'a> {
                 .max_by(|&&a, &&b| need[a].total_cmp(&need[b]).then(b.cmp(&a)))
                 .expect("non-empty");
             let ps = self.grid.xy(seed);
-            let near: Vec<usize> = out.iter().copied().filter(|&k| d2(self.grid.xy(k), ps) <= r2).collect();
+            let near: Vec<usize> = out
+                .iter()
+                .copied()
+                .filter(|&k| d2(self.grid.xy(k), ps) <= r2)
+                .collect();
             let c = near.iter().fold((0.0, 0.0), |a, &k| {
                 let p = self.grid.xy(k);
                 (a.0 + p.0, a.1 + p.1)
@@ -187,12 +198,22 @@ impl<'a> Planner<'a> {
                 .iter()
                 .enumerate()
                 .min_by(|a, b| {
-                    let da = d2((placements[cur].x_mm, placements[cur].y_mm), (placements[*a.1].x_mm, placements[*a.1].y_mm));
-                    let db = d2((placements[cur].x_mm, placements[cur].y_mm), (placements[*b.1].x_mm, placements[*b.1].y_mm));
+                    let da = d2(
+                        (placements[cur].x_mm, placements[cur].y_mm),
+                        (placements[*a.1].x_mm, placements[*a.1].y_mm),
+                    );
+                    let db = d2(
+                        (placements[cur].x_mm, placements[cur].y_mm),
+                        (placements[*b.1].x_mm, placements[*b.1].y_mm),
+                    );
                     da.total_cmp(&db)
                 })
                 .expect("non-empty");
-            travel_mm += d2((placements[cur].x_mm, placements[cur].y_mm), (placements[next].x_mm, placements[next].y_mm)).sqrt();
+            travel_mm += d2(
+                (placements[cur].x_mm, placements[cur].y_mm),
+                (placements[next].x_mm, placements[next].y_mm),
+            )
+            .sqrt();
             cur = next;
             left.remove(pos);
         }
@@ -243,7 +264,10 @@ impl<'a> Planner<'a> {
             let f = s as f64 / self.cfg.sweep_steps as f64;
             let m = ((f * n as f64).round() as usize).clamp(1, n);
             let thr = if m < n { sorted[m] } else { f64::NEG_INFINITY };
-            let need: Vec<f64> = dz.iter().map(|v| if *v > thr { depth_mm } else { 0.0 }).collect();
+            let need: Vec<f64> = dz
+                .iter()
+                .map(|v| if *v > thr { depth_mm } else { 0.0 })
+                .collect();
             let p = self.plan(&need);
             if p.raster_s > 0.0 {
                 pts.push((m as f64 / n as f64, p.selective_s / p.raster_s));
@@ -270,21 +294,34 @@ pub fn above_plane(s: &Surface) -> Result<Vec<f64>> {
     let n = s.grid.len();
     let (x, y): (Vec<f64>, Vec<f64>) = (0..n).map(|k| s.grid.xy(k)).unzip();
     let f = least_squares(&x, &y, &s.z)?;
-    Ok((0..n).map(|k| s.z[k] - f.plane[0] * x[k] - f.plane[1] * y[k] - f.plane[2]).collect())
+    Ok((0..n)
+        .map(|k| s.z[k] - f.plane[0] * x[k] - f.plane[1] * y[k] - f.plane[2])
+        .collect())
 }
 
 /// The whole analysis: plan, verification, sweep, JSON and the artifact.
-pub fn analyse(g: &Gantry, s: &Surface, cfg: PlanConfig) -> Result<(Value, arrow::record_batch::RecordBatch, Vec<f64>)> {
+pub fn analyse(
+    g: &Gantry,
+    s: &Surface,
+    cfg: PlanConfig,
+) -> Result<(Value, arrow::record_batch::RecordBatch, Vec<f64>)> {
     let planner = Planner::new(&s.grid, &g.polish, cfg, g.pass_axis == PassAxis::X);
     let dz = above_plane(s)?;
     let need: Vec<f64> = dz.iter().map(|v| (v - cfg.tolerance_mm).max(0.0)).collect();
     let plan = planner.plan(&need);
     let after = planner.after(&dz, &plan);
-    let still_out = after.iter().filter(|v| **v > cfg.tolerance_mm + 1e-9).count();
+    let still_out = after
+        .iter()
+        .filter(|v| **v > cfg.tolerance_mm + 1e-9)
+        .count();
     // Sweep at the depth this surface needs (at least 1 µm when in tolerance).
     let depth = need.iter().cloned().fold(0.0, f64::max).max(0.001);
     let (sweep, breakeven) = planner.sweep(&dz, depth);
-    let ratio = if plan.raster_s > 0.0 { plan.selective_s / plan.raster_s } else { f64::NAN };
+    let ratio = if plan.raster_s > 0.0 {
+        plan.selective_s / plan.raster_s
+    } else {
+        f64::NAN
+    };
     let num = |v: f64| if v.is_finite() { json!(v) } else { Value::Null };
     let summary = json!({
         "state": s.state,
@@ -376,7 +413,13 @@ impl Stage for PolishPlanStage {
             let m = super::builtin_machine()?;
             let g = Gantry::read(&m, &toml::Table::new(), std::path::PathBuf::from(file))?;
             let t = Table::read(std::path::Path::new(file), &TOPOGRAPHY)?;
-            let s = load(&t, args.get("state").map(|s| s.as_str()).unwrap_or("after_grind"), &g)?;
+            let s = load(
+                &t,
+                args.get("state")
+                    .map(|s| s.as_str())
+                    .unwrap_or("after_grind"),
+                &g,
+            )?;
             Ok(analyse(&g, &s, PlanConfig::from_table(&cfg))?.0)
         })())
     }
@@ -431,7 +474,12 @@ mod tests {
         for (k, v) in after.iter().enumerate() {
             assert!(*v <= tol + 1e-9, "node {k} still {v}");
         }
-        assert!(plan.selective_s < plan.raster_s, "{} vs {}", plan.selective_s, plan.raster_s);
+        assert!(
+            plan.selective_s < plan.raster_s,
+            "{} vs {}",
+            plan.selective_s,
+            plan.raster_s
+        );
         // The sweep: selective pays for small zones, not for the whole piece.
         let (pts, be) = p.sweep(&dz, 0.02);
         assert!(pts.first().unwrap().1 < 1.0);

@@ -12,7 +12,9 @@ use sparkout_pipeline::{InputError, Result, Run, Stage, StageContext, StageOutpu
 use super::config::{check_config, Check, STATES};
 use super::grid::{self, Grid, Surface};
 use super::machine::{Gantry, PassAxis};
-use super::tool_influence::{complete_path, dwell_map, raster_path, removal_of_dwell, PathSample, PolishTool};
+use super::tool_influence::{
+    complete_path, dwell_map, raster_path, removal_of_dwell, PathSample, PolishTool,
+};
 
 /// Controller rate of planned paths, Hz.
 pub const PLAN_RATE_HZ: f64 = 50.0;
@@ -36,7 +38,12 @@ pub fn check_tool_fits(g: &Gantry, grid: &Grid, topo: &std::path::Path) -> Resul
 
 /// The polishing path: the run's motion log when it has one, else a raster
 /// over the grid planned from the tool's feed, step-over and acceleration.
-pub fn polishing_path(run: &Run, g: &Gantry, grid: &Grid, prefer_motion: bool) -> Result<(Vec<PathSample>, &'static str)> {
+pub fn polishing_path(
+    run: &Run,
+    g: &Gantry,
+    grid: &Grid,
+    prefer_motion: bool,
+) -> Result<(Vec<PathSample>, &'static str)> {
     let axis_x = g.pass_axis == PassAxis::X;
     if prefer_motion {
         if let Some(m) = run.table(&MOTION)? {
@@ -52,7 +59,14 @@ pub fn polishing_path(run: &Run, g: &Gantry, grid: &Grid, prefer_motion: bool) -
 }
 
 pub fn plan_raster(grid: &Grid, tool: &PolishTool, axis_x: bool) -> Vec<PathSample> {
-    raster_path(grid, tool.feed_mm_s, tool.step_over_mm, tool.accel_mm_s2, PLAN_RATE_HZ, axis_x)
+    raster_path(
+        grid,
+        tool.feed_mm_s,
+        tool.step_over_mm,
+        tool.accel_mm_s2,
+        PLAN_RATE_HZ,
+        axis_x,
+    )
 }
 
 /// Passes when a log has no segment column: runs of constant cross
@@ -139,13 +153,19 @@ impl Stage for RemovalStage {
         let from = ctx.cfg_str("from_state", "after_grind");
         let start = grid::same_grid(&t, from, &pattern.grid)?;
         check_tool_fits(&g, &start.grid, t.path())?;
-        let r = predict(ctx.run, &g, start, ctx.cfg_str("path", "motion") == "motion")
-            .context("removal")?;
+        let r = predict(
+            ctx.run,
+            &g,
+            start,
+            ctx.cfg_str("path", "motion") == "motion",
+        )
+        .context("removal")?;
         let grid = r.start.grid;
         let n = grid.len();
         let (xs, ys): (Vec<f64>, Vec<f64>) = (0..n).map(|k| grid.xy(k)).unzip();
         let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
-        let duration = r.path.last().map(|p| p.t_s).unwrap_or(0.0) - r.path.first().map(|p| p.t_s).unwrap_or(0.0);
+        let duration = r.path.last().map(|p| p.t_s).unwrap_or(0.0)
+            - r.path.first().map(|p| p.t_s).unwrap_or(0.0);
         let summary = json!({
             "from_state": from,
             "path": r.path_source,

@@ -19,7 +19,11 @@ fn um(v: f64) -> String {
 }
 
 fn cells(b: &arrow::record_batch::RecordBatch, col: &str) -> Option<Vec<(f64, f64, f64)>> {
-    let (x, y, v) = (batch_f64(b, "x_mm").ok()?, batch_f64(b, "y_mm").ok()?, batch_f64(b, col).ok()?);
+    let (x, y, v) = (
+        batch_f64(b, "x_mm").ok()?,
+        batch_f64(b, "y_mm").ok()?,
+        batch_f64(b, col).ok()?,
+    );
     Some((0..x.len()).map(|k| (x[k], y[k], v[k] * 1e3)).collect())
 }
 
@@ -48,12 +52,31 @@ fn matrices(a: &ArtifactStore, s: Option<&Value>) -> Option<ReportSection> {
                 ]
             })
             .collect();
-        html.push_str(&table(&["body", "max |static share| (µm)", "max |dynamic share| (µm)"], &rows));
+        html.push_str(&table(
+            &[
+                "body",
+                "max |static share| (µm)",
+                "max |dynamic share| (µm)",
+            ],
+            &rows,
+        ));
     }
-    html.push_str(&heatmap("Γ_static = τ_static − τ_pattern", &cells(&st, "value_mm")?, "µm"));
-    html.push_str(&heatmap("Γ_dynamic = τ_dynamic − τ_pattern", &cells(&dy, "value_mm")?, "µm"));
+    html.push_str(&heatmap(
+        "Γ_static = τ_static − τ_pattern",
+        &cells(&st, "value_mm")?,
+        "µm",
+    ));
+    html.push_str(&heatmap(
+        "Γ_dynamic = τ_dynamic − τ_pattern",
+        &cells(&dy, "value_mm")?,
+        "µm",
+    ));
     for b in BODIES {
-        html.push_str(&heatmap(&format!("{b}'s share of τ_dynamic"), &cells(&dy, &format!("{b}_mm"))?, "µm"));
+        html.push_str(&heatmap(
+            &format!("{b}'s share of τ_dynamic"),
+            &cells(&dy, &format!("{b}_mm"))?,
+            "µm",
+        ));
     }
     Some(ReportSection {
         title: "Compensation matrices".into(),
@@ -69,8 +92,13 @@ fn flatness(a: &ArtifactStore) -> Option<ReportSection> {
     let rows: Vec<Vec<String>> = (0..st.len())
         .map(|k| vec![esc(&st[k]), um(ls[k]), um(mz[k])])
         .collect();
-    let mut html = table(&["state", "least squares PV (µm)", "minimum zone (µm)"], &rows);
-    let bars: Vec<(String, f64)> = (0..st.len()).map(|k| (st[k].clone(), mz[k] * 1e3)).collect();
+    let mut html = table(
+        &["state", "least squares PV (µm)", "minimum zone (µm)"],
+        &rows,
+    );
+    let bars: Vec<(String, f64)> = (0..st.len())
+        .map(|k| (st[k].clone(), mz[k] * 1e3))
+        .collect();
     html.push_str(&bar_chart("Minimum-zone flatness by state", "µm", &bars));
     Some(ReportSection {
         title: "Flatness before and after".into(),
@@ -81,7 +109,11 @@ fn flatness(a: &ArtifactStore) -> Option<ReportSection> {
 fn polish(a: &ArtifactStore, s: Option<&Value>) -> Option<ReportSection> {
     let p = a.get("polish_plan").ok()??;
     let s = s?;
-    let (x, y, r) = (batch_f64(&p, "x_mm").ok()?, batch_f64(&p, "y_mm").ok()?, batch_f64(&p, "radius_mm").ok()?);
+    let (x, y, r) = (
+        batch_f64(&p, "x_mm").ok()?,
+        batch_f64(&p, "y_mm").ok()?,
+        batch_f64(&p, "radius_mm").ok()?,
+    );
     let mut html = format!(
         "<p>{} placements cover every point more than {} µm above the least-squares plane ({} points, {:.1} % of the area). Selective {:.1} s against raster {:.1} s (ratio {:.2}); selective polishing stops paying off at a zone of {} of the area (by sweeping the tolerance).</p>",
         s["placements"],
@@ -113,8 +145,16 @@ fn polish(a: &ArtifactStore, s: Option<&Value>) -> Option<ReportSection> {
         "x_mm",
         "y_mm",
         &[
-            Series { name: "tool footprint", points: &ring, mark: Mark::Points },
-            Series { name: "placement centre", points: &centres, mark: Mark::Points },
+            Series {
+                name: "tool footprint",
+                points: &ring,
+                mark: Mark::Points,
+            },
+            Series {
+                name: "placement centre",
+                points: &centres,
+                mark: Mark::Points,
+            },
         ],
     ));
     html.push_str(&bar_chart(
@@ -127,7 +167,11 @@ fn polish(a: &ArtifactStore, s: Option<&Value>) -> Option<ReportSection> {
     ));
     let sweep: Vec<(f64, f64)> = s["sweep"]
         .as_array()
-        .map(|a| a.iter().filter_map(|p| Some((p["area_fraction"].as_f64()?, p["ratio"].as_f64()?))).collect())
+        .map(|a| {
+            a.iter()
+                .filter_map(|p| Some((p["area_fraction"].as_f64()?, p["ratio"].as_f64()?)))
+                .collect()
+        })
         .unwrap_or_default();
     let one: Vec<(f64, f64)> = vec![(0.0, 1.0), (1.0, 1.0)];
     html.push_str(&xy_chart(
@@ -135,8 +179,16 @@ fn polish(a: &ArtifactStore, s: Option<&Value>) -> Option<ReportSection> {
         "area fraction",
         "ratio",
         &[
-            Series { name: "selective / raster", points: &sweep, mark: Mark::Line },
-            Series { name: "breakeven", points: &one, mark: Mark::Line },
+            Series {
+                name: "selective / raster",
+                points: &sweep,
+                mark: Mark::Line,
+            },
+            Series {
+                name: "breakeven",
+                points: &one,
+                mark: Mark::Line,
+            },
         ],
     ));
     Some(ReportSection {

@@ -57,7 +57,11 @@ impl PolishTool {
     ) -> Result<PolishTool, InputError> {
         let get = |key: &str, default: Option<f64>| -> Result<f64, InputError> {
             let (v, file, col) = match process.get(key) {
-                Some(v) => (Some(v), run_toml.display().to_string(), format!("process.{key}")),
+                Some(v) => (
+                    Some(v),
+                    run_toml.display().to_string(),
+                    format!("process.{key}"),
+                ),
                 None => (t.get(key), source.to_string(), format!("polishing.{key}")),
             };
             match (v, default) {
@@ -153,7 +157,7 @@ pub fn fast_len(n: usize) -> usize {
     loop {
         let mut r = m;
         for p in [2, 3, 5, 7] {
-            while r % p == 0 {
+            while r.is_multiple_of(p) {
                 r /= p;
             }
         }
@@ -166,7 +170,14 @@ pub fn fast_len(n: usize) -> usize {
 
 /// Linear 2-D convolution of an image (nx × ny, row-major) with an odd
 /// kernel (kx × ky, centred), cropped to the image ("same"), by FFT.
-pub fn fft_convolve_same(img: &[f64], nx: usize, ny: usize, ker: &[f64], kx: usize, ky: usize) -> Vec<f64> {
+pub fn fft_convolve_same(
+    img: &[f64],
+    nx: usize,
+    ny: usize,
+    ker: &[f64],
+    kx: usize,
+    ky: usize,
+) -> Vec<f64> {
     assert_eq!(img.len(), nx * ny);
     assert_eq!(ker.len(), kx * ky);
     let px = fast_len(nx + kx - 1);
@@ -216,7 +227,7 @@ pub fn fft_convolve_same(img: &[f64], nx: usize, ny: usize, ker: &[f64], kx: usi
         }
         // Imaginary parts of DC/Nyquist are rounding noise for a real result.
         spec_row[0].im = 0.0;
-        if px % 2 == 0 {
+        if px.is_multiple_of(2) {
             spec_row[cx - 1].im = 0.0;
         }
         c2r.process_with_scratch(&mut spec_row, &mut row, &mut scratch)
@@ -234,7 +245,14 @@ fn process_columns(fft: &Arc<dyn rustfft::Fft<f64>>, data: &mut [Complex<f64>], 
 }
 
 /// The same convolution done directly (tests; tiny grids).
-pub fn direct_convolve_same(img: &[f64], nx: usize, ny: usize, ker: &[f64], kx: usize, ky: usize) -> Vec<f64> {
+pub fn direct_convolve_same(
+    img: &[f64],
+    nx: usize,
+    ny: usize,
+    ker: &[f64],
+    kx: usize,
+    ky: usize,
+) -> Vec<f64> {
     let (ox, oy) = ((kx / 2) as isize, (ky / 2) as isize);
     let mut out = vec![0.0; nx * ny];
     for j in 0..ny as isize {
@@ -244,7 +262,8 @@ pub fn direct_convolve_same(img: &[f64], nx: usize, ny: usize, ker: &[f64], kx: 
                 for p in 0..kx as isize {
                     let (si, sj) = (i + ox - p, j + oy - q);
                     if si >= 0 && sj >= 0 && (si as usize) < nx && (sj as usize) < ny {
-                        s += img[sj as usize * nx + si as usize] * ker[(q * kx as isize + p) as usize];
+                        s += img[sj as usize * nx + si as usize]
+                            * ker[(q * kx as isize + p) as usize];
                     }
                 }
             }
@@ -305,7 +324,14 @@ pub fn removal_of_dwell(grid: &Grid, tool: &PolishTool, dwell: &[f64]) -> Vec<f6
 
 /// Fill in dt, feed, |a|, dir and path-end distance from positions, times
 /// and segment ids (what a motion log gives).
-pub fn complete_path(t: &[f64], x: &[f64], y: &[f64], seg: &[i32], axis_x: bool) -> Vec<PathSample> {
+#[allow(clippy::needless_range_loop)] // neighbours k−1, k+1 of each sample
+pub fn complete_path(
+    t: &[f64],
+    x: &[f64],
+    y: &[f64],
+    seg: &[i32],
+    axis_x: bool,
+) -> Vec<PathSample> {
     let n = t.len();
     let mut out: Vec<PathSample> = (0..n)
         .map(|k| PathSample {
@@ -331,7 +357,13 @@ pub fn complete_path(t: &[f64], x: &[f64], y: &[f64], seg: &[i32], axis_x: bool)
         let dt = t[hi] - t[lo];
         out[k].feed_mm_s = if dt > 0.0 { dist(lo, hi) / dt } else { 0.0 };
         let d = if axis_x { x[hi] - x[lo] } else { y[hi] - y[lo] };
-        out[k].dir = if d > 1e-9 { 1.0 } else if d < -1e-9 { -1.0 } else { 0.0 };
+        out[k].dir = if d > 1e-9 {
+            1.0
+        } else if d < -1e-9 {
+            -1.0
+        } else {
+            0.0
+        };
     }
     for k in 0..n {
         let lo = k.saturating_sub(1);
@@ -456,7 +488,14 @@ pub fn trapezoid(len: f64, feed: f64, accel: f64) -> (f64, impl Fn(f64) -> f64) 
 /// An Archimedean spiral r = b·θ of the tool centre around (cx, cy) out to
 /// `radius`, pitch 2πb = `pitch`, at constant path speed; samples carry
 /// equal arc length so their dwell sums to the spiral's duration.
-pub fn spiral_path(cx: f64, cy: f64, radius: f64, pitch: f64, speed: f64, ds: f64) -> Vec<PathSample> {
+pub fn spiral_path(
+    cx: f64,
+    cy: f64,
+    radius: f64,
+    pitch: f64,
+    speed: f64,
+    ds: f64,
+) -> Vec<PathSample> {
     let b = pitch / (2.0 * PI);
     let theta_max = radius / b;
     // Arc length s(θ) = (b/2)[θ√(1+θ²) + asinh θ]; step θ by ds/|dr/dθ…|.
@@ -490,7 +529,9 @@ mod tests {
     #[test]
     fn fft_equals_direct_convolution() {
         let (nx, ny) = (23, 17);
-        let img: Vec<f64> = (0..nx * ny).map(|k| ((k * 7919) % 101) as f64 / 100.0).collect();
+        let img: Vec<f64> = (0..nx * ny)
+            .map(|k| ((k * 7919) % 101) as f64 / 100.0)
+            .collect();
         let (kx, ky) = (7, 5);
         let ker: Vec<f64> = (0..kx * ky).map(|k| 1.0 + (k % 3) as f64).collect();
         let a = fft_convolve_same(&img, nx, ny, &ker, kx, ky);
