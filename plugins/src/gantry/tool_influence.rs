@@ -7,6 +7,7 @@ use std::f64::consts::PI;
 use std::path::Path;
 use std::sync::Arc;
 
+use rayon::prelude::*;
 use realfft::num_complex::Complex;
 use realfft::RealFftPlanner;
 use rustfft::FftPlanner;
@@ -169,7 +170,9 @@ pub fn fast_len(n: usize) -> usize {
 }
 
 /// Linear 2-D convolution of an image (nx × ny, row-major) with an odd
-/// kernel (kx × ky, centred), cropped to the image ("same"), by FFT.
+/// kernel (kx × ky, centred), cropped to the image ("same"), by FFT: real
+/// FFTs along rows (realfft), complex FFTs along columns (rustfft), rows and
+/// columns in parallel (rayon), blocked transposes between the two.
 pub fn fft_convolve_same(
     img: &[f64],
     nx: usize,
@@ -189,59 +192,80 @@ pub fn fft_convolve_same(
     let mut cp = FftPlanner::<f64>::new();
     let fwd = cp.plan_fft_forward(py);
     let inv = cp.plan_fft_inverse(py);
+    let zero = Complex::new(0.0, 0.0);
 
-    // Row FFTs into a column-major spectrum (cx columns of py), so the
-    // column FFTs run on contiguous memory.
+    // Spectrum, column-major (cx columns of py) so column FFTs are contiguous.
     let spectrum = |src: &[f64], w: usize, h: usize| -> Vec<Complex<f64>> {
-        let mut spec = vec![Complex::new(0.0, 0.0); cx * py];
-        let mut row = r2c.make_input_vec();
-        let mut out = r2c.make_output_vec();
-        let mut scratch = r2c.make_scratch_vec();
-        for j in 0..h {
-            row.iter_mut().for_each(|v| *v = 0.0);
-            row[..w].copy_from_slice(&src[j * w..(j + 1) * w]);
-            r2c.process_with_scratch(&mut row, &mut out, &mut scratch)
-                .expect("fft sizes");
-            for (i, v) in out.iter().enumerate() {
-                spec[i * py + j] = *v;
-            }
-        }
+        let mut rows = vec![zero; h * cx];
+        rows.par_chunks_mut(cx).enumerate().for_each_init(
+            || (r2c.make_input_vec(), r2c.make_scratch_vec()),
+            |(buf, scratch), (j, out)| {
+                buf.iter_mut().for_each(|v| *v = 0.0);
+                buf[..w].copy_from_slice(&src[j * w..(j + 1) * w]);
+                r2c.process_with_scratch(buf, out, scratch)
+                    .expect("fft sizes");
+            },
+        );
+        let mut spec = vec![zero; cx * py];
+        transpose(&rows, h, cx, &mut spec, py);
         process_columns(&fwd, &mut spec, py);
         spec
     };
     let mut a = spectrum(img, nx, ny);
     let b = spectrum(ker, kx, ky);
     let norm = 1.0 / (px * py) as f64;
-    for (u, v) in a.iter_mut().zip(&b) {
-        *u *= *v * norm;
-    }
+    a.par_iter_mut()
+        .zip(b.par_iter())
+        .for_each(|(u, v)| *u *= *v * norm);
     process_columns(&inv, &mut a, py);
+    // Back to rows: only the ny rows the crop keeps (offset oy).
     let (ox, oy) = (kx / 2, ky / 2);
-    let mut out = vec![0.0; nx * ny];
-    let mut spec_row = c2r.make_input_vec();
-    let mut row = c2r.make_output_vec();
-    let mut scratch = c2r.make_scratch_vec();
-    for j in 0..ny {
-        for (i, v) in spec_row.iter_mut().enumerate() {
-            *v = a[i * py + j + oy];
+    let mut rows = vec![zero; ny * cx];
+    for i in 0..cx {
+        let col = &a[i * py + oy..i * py + oy + ny];
+        for (j, v) in col.iter().enumerate() {
+            rows[j * cx + i] = *v;
         }
-        // Imaginary parts of DC/Nyquist are rounding noise for a real result.
-        spec_row[0].im = 0.0;
-        if px.is_multiple_of(2) {
-            spec_row[cx - 1].im = 0.0;
-        }
-        c2r.process_with_scratch(&mut spec_row, &mut row, &mut scratch)
-            .expect("fft sizes");
-        out[j * nx..(j + 1) * nx].copy_from_slice(&row[ox..ox + nx]);
     }
+    let mut out = vec![0.0; nx * ny];
+    out.par_chunks_mut(nx)
+        .zip(rows.par_chunks_mut(cx))
+        .for_each_init(
+            || (c2r.make_output_vec(), c2r.make_scratch_vec()),
+            |(buf, scratch), (o, spec_row)| {
+                // Imaginary parts of DC/Nyquist are rounding noise for a real result.
+                spec_row[0].im = 0.0;
+                if px.is_multiple_of(2) {
+                    spec_row[cx - 1].im = 0.0;
+                }
+                c2r.process_with_scratch(spec_row, buf, scratch)
+                    .expect("fft sizes");
+                o.copy_from_slice(&buf[ox..ox + nx]);
+            },
+        );
     out
 }
 
-fn process_columns(fft: &Arc<dyn rustfft::Fft<f64>>, data: &mut [Complex<f64>], len: usize) {
-    let mut scratch = vec![Complex::new(0.0, 0.0); fft.get_inplace_scratch_len()];
-    for col in data.chunks_mut(len) {
-        fft.process_with_scratch(col, &mut scratch);
+/// Row-major (h × w) → column-major with column length `ld` (rows ≥ h stay
+/// zero), in cache-sized blocks.
+fn transpose(src: &[Complex<f64>], h: usize, w: usize, dst: &mut [Complex<f64>], ld: usize) {
+    const B: usize = 32;
+    for j0 in (0..h).step_by(B) {
+        for i0 in (0..w).step_by(B) {
+            for j in j0..(j0 + B).min(h) {
+                for i in i0..(i0 + B).min(w) {
+                    dst[i * ld + j] = src[j * w + i];
+                }
+            }
+        }
     }
+}
+
+fn process_columns(fft: &Arc<dyn rustfft::Fft<f64>>, data: &mut [Complex<f64>], len: usize) {
+    data.par_chunks_mut(len).for_each_init(
+        || vec![Complex::new(0.0, 0.0); fft.get_inplace_scratch_len()],
+        |scratch, col| fft.process_with_scratch(col, scratch),
+    );
 }
 
 /// The same convolution done directly (tests; tiny grids).
