@@ -122,6 +122,16 @@ fn stages_on_a_generated_run() {
     let be = p["breakeven_area_fraction"].as_f64().unwrap();
     assert!(be > 0.0 && be <= 1.0, "{p}");
 
+    let mr = json_of(&sparkout(&[
+        "stage",
+        "matrices",
+        "--topography",
+        topo.to_str().unwrap(),
+        "--json",
+    ]));
+    assert!(mr["gamma_static_max_mm"].as_f64().unwrap() > 0.01, "{mr}");
+    assert!(mr["cut_force_n"].as_f64().unwrap() > 0.0, "{mr}");
+
     // matrices with --out: Γ grids, controller table, compensation path.
     let out = d.path().join("m");
     let m = sparkout(&[

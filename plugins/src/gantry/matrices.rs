@@ -215,6 +215,37 @@ fn max_abs(v: &[f64]) -> f64 {
     v.iter().map(|x| x.abs()).fold(0.0, f64::max)
 }
 
+/// The stage summary (also the run-less JSON).
+pub fn summary(g: &Gantry, m: &Matrices, path_rows: usize) -> serde_json::Value {
+    let gs = m.gamma(&m.stat);
+    let gd = m.gamma(&m.dynamic);
+    let shares = |t: &Topography| {
+        let mut o = serde_json::Map::new();
+        for (name, s) in BODIES.iter().zip(&t.shares) {
+            o.insert(name.to_string(), json!(max_abs(s)));
+        }
+        o
+    };
+    json!({
+        "grid": {"nx": m.grid.nx(), "ny": m.grid.ny(), "dx_mm": m.grid.dx, "dy_mm": m.grid.dy},
+        "cut_force_n": m.cut_force_n,
+        "moment_n_mm": m.moment_n_mm,
+        "path_velocity_mm_s": g.path_velocity_mm_s,
+        "critical_speed_mm_s": {
+            "stringer1": g.stringer1.beam.critical_speed_mm_s(),
+            "stringer2": g.stringer2.beam.critical_speed_mm_s(),
+            "bridge": g.bridge.beam.critical_speed_mm_s(),
+        },
+        "series_terms_max": m.dynamic.max_terms,
+        "gamma_static_max_mm": max_abs(&gs),
+        "gamma_dynamic_max_mm": max_abs(&gd),
+        "dynamic_minus_static_max_mm": max_abs(&gd.iter().zip(&gs).map(|(a, b)| a - b).collect::<Vec<_>>()),
+        "static_share_max_mm": shares(&m.stat),
+        "dynamic_share_max_mm": shares(&m.dynamic),
+        "compensation_path_rows": path_rows,
+    })
+}
+
 pub struct MatricesStage;
 
 const KEYS: &[(&str, Check)] = &[];
@@ -246,21 +277,33 @@ impl Stage for MatricesStage {
     fn validate_config(&self, config: &toml::Table) -> Result<()> {
         check_config(config, KEYS)
     }
+    /// `sparkout stage matrices --topography FILE --json`, with the built-in
+    /// aplm-gantry machine.
+    fn run_standalone(
+        &self,
+        args: &sparkout_pipeline::StageArgs,
+    ) -> Option<Result<serde_json::Value>> {
+        let file = args.get("topography")?;
+        Some((|| {
+            if let Some(k) = args.keys().find(|k| *k != "topography") {
+                anyhow::bail!("unknown flag --{k} for `matrices` (known: --topography FILE)");
+            }
+            let mc = super::builtin_machine()?;
+            let g = Gantry::read(&mc, &toml::Table::new(), std::path::PathBuf::from(file))?;
+            let t =
+                sparkout_pipeline::contracts::Table::read(std::path::Path::new(file), &TOPOGRAPHY)?;
+            let pattern = grid::pattern(&t)?;
+            check_travel(&g, &pattern.grid, t.path())?;
+            let m = compute(&g, &pattern)?;
+            Ok(summary(&g, &m, 0))
+        })())
+    }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
         let g = Gantry::from_run(&ctx.run.machine, &ctx.run.spec)?;
         let t = ctx.run.require(&TOPOGRAPHY)?;
         let pattern = grid::pattern(&t)?;
         check_travel(&g, &pattern.grid, t.path())?;
         let m = compute(&g, &pattern)?;
-        let gs = m.gamma(&m.stat);
-        let gd = m.gamma(&m.dynamic);
-        let shares = |t: &Topography| {
-            let mut o = serde_json::Map::new();
-            for (name, s) in BODIES.iter().zip(&t.shares) {
-                o.insert(name.to_string(), json!(max_abs(s)));
-            }
-            o
-        };
         let mut out = StageOutput::new(serde_json::Value::Null)
             .with("static_matrix", m.matrix_batch(&m.stat))
             .with("dynamic_matrix", m.matrix_batch(&m.dynamic))
@@ -268,6 +311,7 @@ impl Stage for MatricesStage {
         let mut path_rows = 0;
         if let Some(mo) = ctx.run.table(&MOTION)? {
             let (ts, xs, ys) = (mo.f64("t_s")?, mo.f64("cmd_x_mm")?, mo.f64("cmd_y_mm")?);
+            let gd = m.gamma(&m.dynamic);
             let (mut t_out, mut dz) = (Vec::new(), Vec::new());
             for k in 0..ts.len() {
                 // Replay needs strictly increasing t_s: keep the first of equal stamps.
@@ -286,24 +330,7 @@ impl Stage for MatricesStage {
                     .build(),
             );
         }
-        out.summary = json!({
-            "grid": {"nx": m.grid.nx(), "ny": m.grid.ny(), "dx_mm": m.grid.dx, "dy_mm": m.grid.dy},
-            "cut_force_n": m.cut_force_n,
-            "moment_n_mm": m.moment_n_mm,
-            "path_velocity_mm_s": g.path_velocity_mm_s,
-            "critical_speed_mm_s": {
-                "stringer1": g.stringer1.beam.critical_speed_mm_s(),
-                "stringer2": g.stringer2.beam.critical_speed_mm_s(),
-                "bridge": g.bridge.beam.critical_speed_mm_s(),
-            },
-            "series_terms_max": m.dynamic.max_terms,
-            "gamma_static_max_mm": max_abs(&gs),
-            "gamma_dynamic_max_mm": max_abs(&gd),
-            "dynamic_minus_static_max_mm": max_abs(&gd.iter().zip(&gs).map(|(a, b)| a - b).collect::<Vec<_>>()),
-            "static_share_max_mm": shares(&m.stat),
-            "dynamic_share_max_mm": shares(&m.dynamic),
-            "compensation_path_rows": path_rows,
-        });
+        out.summary = summary(&g, &m, path_rows);
         Ok(out)
     }
 }
