@@ -334,3 +334,51 @@ impl Stage for MatricesStage {
         Ok(out)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use sparkout_pipeline::contracts::RunSpec;
+
+    fn gantry() -> Gantry {
+        let m = crate::gantry::builtin_machine().unwrap();
+        let spec = RunSpec::parse(
+            std::path::Path::new("."),
+            "[run]\nid = \"t\"\nmachine = \"aplm-gantry\"\nplugin = \"gantry\"\n",
+        )
+        .unwrap();
+        Gantry::from_run(&m, &spec).unwrap()
+    }
+
+    #[test]
+    fn tau_on_stringer1_at_mid_span_is_its_straightness_minus_textbook_sag() {
+        let g = gantry();
+        // Spindle over stringer 1 (y = y₁): s = 0, the bridge adds nothing
+        // (its ends do not deflect, its straightness is 0 there).
+        let grid = Grid::new(1200.0, 10.0, 2, 0.0, 10.0, 2);
+        let t = topography(&g, &grid, false).unwrap();
+        let b = &g.stringer1.beam;
+        let (l, ei) = (b.span_mm, b.ei_n_mm2);
+        let p = 0.5 * g.bridge.weight_n + g.spindle_weight_n + g.cut_force_n();
+        let sag =
+            5.0 * g.stringer1.w_n_mm() * l.powi(4) / (384.0 * ei) + p * l.powi(3) / (48.0 * ei);
+        let want = 0.021 - sag;
+        assert!((t.tau[0] - want).abs() < 1e-9, "{} vs {want}", t.tau[0]);
+        assert!((t.shares[0][0] - want).abs() < 1e-9 && t.shares[1][0] == 0.0);
+        // The source's magnitude: ~0.15 mm of static sag on a stringer.
+        assert!(sag > 0.1 && sag < 0.2, "{sag}");
+        // Dynamic differs from static only through the moving load, and
+        // at 9 m/min (far below the critical speed) by well under 1 µm.
+        let d = topography(&g, &grid, true).unwrap();
+        assert!((d.tau[0] - t.tau[0]).abs() < 1e-3);
+    }
+
+    #[test]
+    fn qin_cutting_force() {
+        let g = gantry();
+        // F = K_r·a_d·v_a/v_r·b with v_r = π·177·350/60.
+        let vr = std::f64::consts::PI * 177.0 * 350.0 / 60.0;
+        let f = 2255.53 * 0.1 * 150.0 / vr * 20.0;
+        assert!((g.cut_force_n() - f).abs() < 1e-9);
+    }
+}
