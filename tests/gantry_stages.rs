@@ -343,6 +343,13 @@ fn bad_inputs_are_rejected_and_the_batch_goes_on() {
     );
     // The good run went through.
     assert!(out.join("aplm-gantry/r0000/observations.parquet").is_file());
+    let ps = read_batch(&out.join("aplm-gantry/r0000/polish_surface.parquet"));
+    let (need, after) = (col(&ps, "need_mm"), col(&ps, "after_mm"));
+    assert!(need.iter().any(|v| *v > 0.0));
+    assert!(
+        after.iter().all(|v| *v <= 0.01 + 1e-9),
+        "selective plan brings every point into the band"
+    );
     assert_eq!(f.as_array().unwrap().len(), 6, "{f:#}");
 
     // A machine config missing a body.

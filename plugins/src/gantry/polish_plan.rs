@@ -304,7 +304,11 @@ pub fn analyse(
     g: &Gantry,
     s: &Surface,
     cfg: PlanConfig,
-) -> Result<(Value, arrow::record_batch::RecordBatch, Vec<f64>)> {
+) -> Result<(
+    Value,
+    arrow::record_batch::RecordBatch,
+    arrow::record_batch::RecordBatch,
+)> {
     let planner = Planner::new(&s.grid, &g.polish, cfg, g.pass_axis == PassAxis::X);
     let dz = above_plane(s)?;
     let need: Vec<f64> = dz.iter().map(|v| (v - cfg.tolerance_mm).max(0.0)).collect();
@@ -352,7 +356,16 @@ pub fn analyse(
         .f64("need_max_mm", p.iter().map(|q| q.need_max_mm).collect())
         .f64("radius_mm", vec![g.polish.radius_mm; p.len()])
         .build();
-    Ok((summary, batch, dz))
+    let n = s.grid.len();
+    let (xs, ys): (Vec<f64>, Vec<f64>) = (0..n).map(|k| s.grid.xy(k)).unzip();
+    let surface = BatchBuilder::new()
+        .f64("x_mm", xs)
+        .f64("y_mm", ys)
+        .f64("above_plane_mm", dz)
+        .f64("need_mm", need)
+        .f64("after_mm", after)
+        .build();
+    Ok((summary, batch, surface))
 }
 
 pub struct PolishPlanStage;
@@ -377,7 +390,7 @@ impl Stage for PolishPlanStage {
         &[]
     }
     fn writes(&self) -> &'static [&'static str] {
-        &["polish_plan"]
+        &["polish_plan", "polish_surface"]
     }
     fn about(&self) -> &'static str {
         "selective polishing: placements covering every point above tolerance, dwell, time vs raster, breakeven area (MODELS.md §2.6)"
@@ -390,8 +403,10 @@ impl Stage for PolishPlanStage {
         let t = ctx.run.require(&TOPOGRAPHY)?;
         grid::pattern(&t)?;
         let s = load(&t, ctx.cfg_str("state", "after_grind"), &g)?;
-        let (summary, batch, _) = analyse(&g, &s, PlanConfig::from_table(ctx.config))?;
-        Ok(StageOutput::new(summary).with("polish_plan", batch))
+        let (summary, batch, surface) = analyse(&g, &s, PlanConfig::from_table(ctx.config))?;
+        Ok(StageOutput::new(summary)
+            .with("polish_plan", batch)
+            .with("polish_surface", surface))
     }
     /// `sparkout stage polish_plan --topography FILE [--state S]
     /// [--tolerance-mm T] --json`, with the built-in aplm-gantry machine.

@@ -127,9 +127,20 @@ fn polish(a: &ArtifactStore, s: Option<&Value>) -> Option<ReportSection> {
     );
     // The plan over the surface: tool footprints and centres on the
     // ground surface's height map.
-    if let Some(rem) = a.get("removal").ok().flatten() {
-        if let Some(c) = cells(&rem, "start_mm") {
-            html.push_str(&heatmap("Ground surface (the plan's input)", &c, "µm"));
+    if let Some(surf) = a.get("polish_surface").ok().flatten() {
+        if let Some(c) = cells(&surf, "above_plane_mm") {
+            html.push_str(&heatmap(
+                "Height above the least-squares plane (the plan's input)",
+                &c,
+                "µm",
+            ));
+        }
+        if let Some(c) = cells(&surf, "after_mm") {
+            html.push_str(&heatmap(
+                "Predicted after selective polishing (spiral dwell ⊛ tool influence)",
+                &c,
+                "µm",
+            ));
         }
     }
     let mut ring = Vec::new();
