@@ -3,6 +3,7 @@
 //! deterministic, and the `sparkout validate` harness.
 
 pub mod form;
+pub mod gantry;
 pub mod guideway;
 pub mod mill;
 pub mod observations;

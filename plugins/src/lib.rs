@@ -6,6 +6,7 @@ use std::sync::Arc;
 use sparkout_pipeline::MachinePlugin;
 
 pub mod form;
+pub mod gantry;
 pub mod guideway;
 pub mod mill;
 pub mod robot;
@@ -17,5 +18,6 @@ pub fn all_plugins() -> Vec<Arc<dyn MachinePlugin>> {
         Arc::new(guideway::GuidewayPlugin),
         Arc::new(mill::MillPlugin),
         Arc::new(form::FormPlugin),
+        Arc::new(gantry::GantryPlugin),
     ]
 }

@@ -108,6 +108,27 @@ pub fn generate(
             println!("generated {} form runs under {}", dirs.len(), out.display());
             Ok(0)
         }
+        "gantry" => {
+            if list_effects {
+                for (name, about) in sparkout_datasets::gantry::known_effects() {
+                    println!("{name:20} {about}");
+                }
+                return Ok(0);
+            }
+            let out = out.context("--out <fleet root> is required")?;
+            let cfg = sparkout_datasets::gantry::GantryFleetConfig {
+                runs,
+                seed,
+                ..Default::default()
+            };
+            let dirs = sparkout_datasets::gantry::generate_fleet(&out, &cfg, &effects)?;
+            println!(
+                "generated {} gantry runs under {}",
+                dirs.len(),
+                out.display()
+            );
+            Ok(0)
+        }
         "observations" => {
             if list_effects {
                 println!("any catalogue effect (CONTRACTS.md): offset, scale, drift, lag, inertia, backlash, wear, compliance, bow, periodic, edge, squareness, thermal — as NAME:COVARIATE=KEY=VALUE,...");
@@ -134,7 +155,7 @@ pub fn generate(
                 .map(|p| p.name())
                 .collect();
             bail!(
-                "no generator for `{other}` (plugins registered: {}; generators: robot, guideway, mill, form, observations)",
+                "no generator for `{other}` (plugins registered: {}; generators: robot, guideway, mill, form, gantry, observations)",
                 plugins.join(", ")
             )
         }

@@ -1,0 +1,155 @@
+//! `observe`: paired observations `surface_z` (CONTRACTS.md §2), one row per
+//! grid node: real = the measured polished state (default `after_polish`),
+//! sim = the `removal` stage's predicted final topography (the measured
+//! ground surface minus the Preston removal of the path that was run).
+//!
+//! Covariates from the polishing path sample nearest to the node (the moment
+//! the tool centre passed over it): x_mm, y_mm, t_s, feed_mm_s, dir (pass
+//! direction), path_end_mm (distance along the pass to its nearer end),
+//! a_mm_s2 (|tangential acceleration|), tool_removed_mm3 (volume the tool
+//! had removed before then: contact time × the disc's volume rate), and
+//! bridge_y_mm (the spindle's position along the bridge — y in this
+//! machine's frame — named for the gantry's `thermal_bow` composite so that
+//! composite applies only to machines with a bridge).
+
+use anyhow::anyhow;
+use serde_json::json;
+use sparkout_pipeline::contracts::schema::TOPOGRAPHY;
+use sparkout_pipeline::contracts::{batch_f64, BatchBuilder};
+use sparkout_pipeline::{Result, Stage, StageContext, StageOutput};
+
+use super::config::{check_config, Check, STATES};
+use super::grid::{self, Grid};
+use super::machine::Gantry;
+use super::removal::polishing_path;
+use super::tool_influence::PathSample;
+
+pub const OBSERVABLE: &str = "surface_z";
+
+pub struct ObserveStage;
+
+const KEYS: &[(&str, Check)] = &[
+    ("state", Check::OneOf(&STATES)),
+    ("path", Check::OneOf(&["motion", "raster"])),
+];
+
+/// Index of the on-pass sample nearest to each node (all samples when the
+/// path has no passes).
+pub fn nearest_samples(grid: &Grid, path: &[PathSample]) -> Vec<usize> {
+    let on: Vec<usize> = (0..path.len()).filter(|&k| path[k].segment >= 0).collect();
+    let cand: Vec<usize> = if on.is_empty() {
+        (0..path.len()).collect()
+    } else {
+        on
+    };
+    (0..grid.len())
+        .map(|k| {
+            let (x, y) = grid.xy(k);
+            let mut best = (f64::INFINITY, 0);
+            for &s in &cand {
+                let d = (path[s].x_mm - x).powi(2) + (path[s].y_mm - y).powi(2);
+                if d < best.0 {
+                    best = (d, s);
+                }
+            }
+            best.1
+        })
+        .collect()
+}
+
+impl Stage for ObserveStage {
+    fn name(&self) -> &'static str {
+        "observe"
+    }
+    fn version(&self) -> u32 {
+        1
+    }
+    fn reads_tables(&self) -> &'static [&'static str] {
+        &["topography", "motion"]
+    }
+    fn reads_artifacts(&self) -> &'static [&'static str] {
+        &["removal"]
+    }
+    fn writes(&self) -> &'static [&'static str] {
+        &["observations"]
+    }
+    fn about(&self) -> &'static str {
+        "paired observations surface_z (measured polished vs predicted) for the gap diagnosis (CONTRACTS.md §2)"
+    }
+    fn validate_config(&self, config: &toml::Table) -> Result<()> {
+        check_config(config, KEYS)
+    }
+    fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
+        let g = Gantry::from_run(&ctx.run.machine, &ctx.run.spec)?;
+        let t = ctx.run.require(&TOPOGRAPHY)?;
+        let pattern = grid::pattern(&t)?;
+        let state = ctx.cfg_str("state", "after_polish");
+        let real = grid::same_grid(&t, state, &pattern.grid)?;
+        let rem = ctx.artifacts.require("removal")?;
+        let sim = batch_f64(&rem, "final_mm")?;
+        if sim.len() != real.z.len() {
+            return Err(anyhow!(
+                "removal artifact has {} nodes, the `{state}` state {}",
+                sim.len(),
+                real.z.len()
+            ));
+        }
+        let grid = real.grid;
+        let (path, _) = polishing_path(
+            ctx.run,
+            &g,
+            &grid,
+            ctx.cfg_str("path", "motion") == "motion",
+        )?;
+        if path.is_empty() {
+            return Err(anyhow!("the polishing path has no samples"));
+        }
+        let near = nearest_samples(&grid, &path);
+        // Cumulative contact time before each sample.
+        let mut cum = vec![0.0; path.len()];
+        for k in 1..path.len() {
+            cum[k] = cum[k - 1] + path[k - 1].dt_s;
+        }
+        let vol = g.polish.volume_rate_mm3_s();
+        let n = grid.len();
+        let (xs, ys): (Vec<f64>, Vec<f64>) = (0..n).map(|k| grid.xy(k)).unzip();
+        let pick = |f: &dyn Fn(&PathSample) -> f64| {
+            near.iter().map(|&s| f(&path[s])).collect::<Vec<f64>>()
+        };
+        let path_end = pick(&|p| {
+            if p.path_end_mm.is_finite() {
+                p.path_end_mm
+            } else {
+                0.0
+            }
+        });
+        let gap: Vec<f64> = (0..n).map(|k| real.z[k] - sim[k]).collect();
+        let rms = (gap.iter().map(|v| v * v).sum::<f64>() / n as f64).sqrt();
+        let batch = BatchBuilder::new()
+            .str("run", &vec![ctx.run.spec.id.as_str(); n])
+            .str("observable", &vec![OBSERVABLE; n])
+            .f64("sim", sim.to_vec())
+            .f64("real", real.z.clone())
+            .f64("x_mm", xs)
+            .f64("y_mm", ys.clone())
+            .f64("bridge_y_mm", ys)
+            .f64("t_s", pick(&|p| p.t_s))
+            .f64("feed_mm_s", pick(&|p| p.feed_mm_s))
+            .f64("dir", pick(&|p| p.dir))
+            .f64("path_end_mm", path_end)
+            .f64("a_mm_s2", pick(&|p| p.a_mm_s2))
+            .f64(
+                "tool_removed_mm3",
+                near.iter().map(|&s| cum[s] * vol).collect(),
+            )
+            .build();
+        let summary = json!({
+            "rows": n,
+            "observable": OBSERVABLE,
+            "state": state,
+            "rms_gap_mm": rms,
+            "max_abs_gap_mm": gap.iter().map(|v| v.abs()).fold(0.0, f64::max),
+        });
+        Ok(StageOutput::new(summary).with("observations", batch))
+    }
+}

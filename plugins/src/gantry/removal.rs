@@ -1,0 +1,191 @@
+//! `removal`: Preston removal of the polishing path actually run (motion.parquet,
+//! or a planned raster when the run has none) from the ground surface: the
+//! dwell-time map of the path convolved by FFT with the disc tool's
+//! influence function, and the predicted final topography (MODELS.md §2.5).
+
+use anyhow::Context;
+use serde_json::json;
+use sparkout_pipeline::contracts::schema::{MOTION, TOPOGRAPHY};
+use sparkout_pipeline::contracts::BatchBuilder;
+use sparkout_pipeline::{InputError, Result, Run, Stage, StageContext, StageOutput};
+
+use super::config::{check_config, Check, STATES};
+use super::grid::{self, Grid, Surface};
+use super::machine::{Gantry, PassAxis};
+use super::tool_influence::{
+    complete_path, dwell_map, raster_path, removal_of_dwell, PathSample, PolishTool,
+};
+
+/// Controller rate of planned paths, Hz.
+pub const PLAN_RATE_HZ: f64 = 50.0;
+
+/// A tool larger than the surface cannot polish it selectively or by raster.
+pub fn check_tool_fits(g: &Gantry, grid: &Grid, topo: &std::path::Path) -> Result<(), InputError> {
+    let d = 2.0 * g.polish.radius_mm;
+    let (lx, ly) = (grid.x_max() - grid.x0, grid.y_max() - grid.y0);
+    if d > lx.min(ly) {
+        return Err(InputError::new(
+            topo,
+            format!(
+                "polishing tool diameter {d:.1} mm is larger than the surface ({lx:.1} × {ly:.1} mm); use a smaller tool ([polishing].tool_radius_mm / tool_area_mm2 in {}, or [process].tool_radius_mm)",
+                g.source
+            ),
+        )
+        .column("x_mm"));
+    }
+    Ok(())
+}
+
+/// The polishing path: the run's motion log when it has one, else a raster
+/// over the grid planned from the tool's feed, step-over and acceleration.
+pub fn polishing_path(
+    run: &Run,
+    g: &Gantry,
+    grid: &Grid,
+    prefer_motion: bool,
+) -> Result<(Vec<PathSample>, &'static str)> {
+    let axis_x = g.pass_axis == PassAxis::X;
+    if prefer_motion {
+        if let Some(m) = run.table(&MOTION)? {
+            let (t, x, y) = (m.f64("t_s")?, m.f64("cmd_x_mm")?, m.f64("cmd_y_mm")?);
+            let seg: Vec<i32> = match m.opt_i32("segment") {
+                Some(s) => s.to_vec(),
+                None => passes_from_positions(x, y, axis_x),
+            };
+            return Ok((complete_path(t, x, y, &seg, axis_x), "motion"));
+        }
+    }
+    Ok((plan_raster(grid, &g.polish, axis_x), "raster"))
+}
+
+pub fn plan_raster(grid: &Grid, tool: &PolishTool, axis_x: bool) -> Vec<PathSample> {
+    raster_path(
+        grid,
+        tool.feed_mm_s,
+        tool.step_over_mm,
+        tool.accel_mm_s2,
+        PLAN_RATE_HZ,
+        axis_x,
+    )
+}
+
+/// Passes when a log has no segment column: runs of constant cross
+/// coordinate (y for passes along x).
+fn passes_from_positions(x: &[f64], y: &[f64], axis_x: bool) -> Vec<i32> {
+    let c = if axis_x { y } else { x };
+    let mut out = vec![-1; c.len()];
+    let mut id = 0;
+    let mut k = 0;
+    while k < c.len() {
+        let mut e = k;
+        while e + 1 < c.len() && (c[e + 1] - c[k]).abs() < 1e-6 {
+            e += 1;
+        }
+        if e > k {
+            for o in out.iter_mut().take(e + 1).skip(k) {
+                *o = id;
+            }
+            id += 1;
+        }
+        k = e + 1;
+    }
+    out
+}
+
+/// The removal prediction of one run.
+pub struct Removal {
+    pub start: Surface,
+    pub dwell_s: Vec<f64>,
+    pub removal_mm: Vec<f64>,
+    pub final_mm: Vec<f64>,
+    pub path: Vec<PathSample>,
+    pub path_source: &'static str,
+}
+
+pub fn predict(run: &Run, g: &Gantry, start: Surface, prefer_motion: bool) -> Result<Removal> {
+    let (path, src) = polishing_path(run, g, &start.grid, prefer_motion)?;
+    let dwell = dwell_map(&start.grid, &path, |_| 1.0);
+    let removal = removal_of_dwell(&start.grid, &g.polish, &dwell);
+    let final_mm = start.z.iter().zip(&removal).map(|(z, r)| z - r).collect();
+    Ok(Removal {
+        start,
+        dwell_s: dwell,
+        removal_mm: removal,
+        final_mm,
+        path,
+        path_source: src,
+    })
+}
+
+pub struct RemovalStage;
+
+const KEYS: &[(&str, Check)] = &[
+    ("from_state", Check::OneOf(&STATES)),
+    ("path", Check::OneOf(&["motion", "raster"])),
+];
+
+impl Stage for RemovalStage {
+    fn name(&self) -> &'static str {
+        "removal"
+    }
+    fn version(&self) -> u32 {
+        1
+    }
+    fn reads_tables(&self) -> &'static [&'static str] {
+        &["topography", "motion"]
+    }
+    fn reads_artifacts(&self) -> &'static [&'static str] {
+        &[]
+    }
+    fn writes(&self) -> &'static [&'static str] {
+        &["removal"]
+    }
+    fn about(&self) -> &'static str {
+        "Preston removal of the polishing path (dwell ⊛ tool influence, FFT) and the predicted final topography (MODELS.md §2.5)"
+    }
+    fn validate_config(&self, config: &toml::Table) -> Result<()> {
+        check_config(config, KEYS)
+    }
+    fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
+        let g = Gantry::from_run(&ctx.run.machine, &ctx.run.spec)?;
+        let t = ctx.run.require(&TOPOGRAPHY)?;
+        let pattern = grid::pattern(&t)?;
+        let from = ctx.cfg_str("from_state", "after_grind");
+        let start = grid::same_grid(&t, from, &pattern.grid)?;
+        check_tool_fits(&g, &start.grid, t.path())?;
+        let r = predict(
+            ctx.run,
+            &g,
+            start,
+            ctx.cfg_str("path", "motion") == "motion",
+        )
+        .context("removal")?;
+        let grid = r.start.grid;
+        let n = grid.len();
+        let (xs, ys): (Vec<f64>, Vec<f64>) = (0..n).map(|k| grid.xy(k)).unzip();
+        let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+        let duration = r.path.last().map(|p| p.t_s).unwrap_or(0.0)
+            - r.path.first().map(|p| p.t_s).unwrap_or(0.0);
+        let summary = json!({
+            "from_state": from,
+            "path": r.path_source,
+            "path_samples": r.path.len(),
+            "duration_s": duration,
+            "tool_radius_mm": g.polish.radius_mm,
+            "pressure_pa": g.polish.pressure_pa,
+            "k_p_per_pa": g.polish.k_p_per_pa,
+            "removal_mean_mm": mean(&r.removal_mm),
+            "removal_max_mm": r.removal_mm.iter().cloned().fold(0.0, f64::max),
+            "removal_min_mm": r.removal_mm.iter().cloned().fold(f64::INFINITY, f64::min),
+        });
+        let batch = BatchBuilder::new()
+            .f64("x_mm", xs)
+            .f64("y_mm", ys)
+            .f64("start_mm", r.start.z.clone())
+            .f64("dwell_s", r.dwell_s.clone())
+            .f64("removal_mm", r.removal_mm.clone())
+            .f64("final_mm", r.final_mm.clone())
+            .build();
+        Ok(StageOutput::new(summary).with("removal", batch))
+    }
+}

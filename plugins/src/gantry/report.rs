@@ -1,0 +1,221 @@
+//! Report sections of a gantry run (issue 5 item 9): heat maps of Γ_static,
+//! Γ_dynamic and each body's share; flatness before and after; the polish
+//! plan drawn over the surface; selective against raster time.
+
+use serde_json::Value;
+use sparkout_pipeline::contracts::{batch_f64, batch_str};
+use sparkout_pipeline::report::svg::{bar_chart, heatmap, xy_chart, Mark, Series};
+use sparkout_pipeline::report::{esc, table};
+use sparkout_pipeline::{ArtifactStore, ReportSection, Run};
+
+use super::machine::BODIES;
+
+fn um(v: f64) -> String {
+    if v.is_finite() {
+        format!("{:.1}", v * 1e3)
+    } else {
+        "—".into()
+    }
+}
+
+fn cells(b: &arrow::record_batch::RecordBatch, col: &str) -> Option<Vec<(f64, f64, f64)>> {
+    let (x, y, v) = (
+        batch_f64(b, "x_mm").ok()?,
+        batch_f64(b, "y_mm").ok()?,
+        batch_f64(b, col).ok()?,
+    );
+    Some((0..x.len()).map(|k| (x[k], y[k], v[k] * 1e3)).collect())
+}
+
+fn matrices(a: &ArtifactStore, s: Option<&Value>) -> Option<ReportSection> {
+    let st = a.get("static_matrix").ok()??;
+    let dy = a.get("dynamic_matrix").ok()??;
+    let mut html = String::new();
+    if let Some(s) = s {
+        html.push_str(&format!(
+            "<p>Cutting force (Qin) {:.1} N, travelling moment {:.0} N·mm, path velocity {:.0} mm/s; max |Γ_static| {} µm, max |Γ_dynamic| {} µm, dynamic − static up to {} µm ({} series terms at most).</p>",
+            s["cut_force_n"].as_f64().unwrap_or(f64::NAN),
+            s["moment_n_mm"].as_f64().unwrap_or(f64::NAN),
+            s["path_velocity_mm_s"].as_f64().unwrap_or(f64::NAN),
+            um(s["gamma_static_max_mm"].as_f64().unwrap_or(f64::NAN)),
+            um(s["gamma_dynamic_max_mm"].as_f64().unwrap_or(f64::NAN)),
+            um(s["dynamic_minus_static_max_mm"].as_f64().unwrap_or(f64::NAN)),
+            s["series_terms_max"],
+        ));
+        let rows: Vec<Vec<String>> = BODIES
+            .iter()
+            .map(|b| {
+                vec![
+                    b.to_string(),
+                    um(s["static_share_max_mm"][b].as_f64().unwrap_or(f64::NAN)),
+                    um(s["dynamic_share_max_mm"][b].as_f64().unwrap_or(f64::NAN)),
+                ]
+            })
+            .collect();
+        html.push_str(&table(
+            &[
+                "body",
+                "max |static share| (µm)",
+                "max |dynamic share| (µm)",
+            ],
+            &rows,
+        ));
+    }
+    html.push_str(&heatmap(
+        "Γ_static = τ_static − τ_pattern",
+        &cells(&st, "value_mm")?,
+        "µm",
+    ));
+    html.push_str(&heatmap(
+        "Γ_dynamic = τ_dynamic − τ_pattern",
+        &cells(&dy, "value_mm")?,
+        "µm",
+    ));
+    for b in BODIES {
+        html.push_str(&heatmap(
+            &format!("{b}'s share of τ_dynamic"),
+            &cells(&dy, &format!("{b}_mm"))?,
+            "µm",
+        ));
+    }
+    Some(ReportSection {
+        title: "Compensation matrices".into(),
+        html,
+    })
+}
+
+fn flatness(a: &ArtifactStore) -> Option<ReportSection> {
+    let f = a.get("flatness").ok()??;
+    let st = batch_str(&f, "state").ok()?;
+    let ls = batch_f64(&f, "least_squares_mm").ok()?;
+    let mz = batch_f64(&f, "min_zone_mm").ok()?;
+    let rows: Vec<Vec<String>> = (0..st.len())
+        .map(|k| vec![esc(&st[k]), um(ls[k]), um(mz[k])])
+        .collect();
+    let mut html = table(
+        &["state", "least squares PV (µm)", "minimum zone (µm)"],
+        &rows,
+    );
+    let bars: Vec<(String, f64)> = (0..st.len())
+        .map(|k| (st[k].clone(), mz[k] * 1e3))
+        .collect();
+    html.push_str(&bar_chart("Minimum-zone flatness by state", "µm", &bars));
+    Some(ReportSection {
+        title: "Flatness before and after".into(),
+        html,
+    })
+}
+
+fn polish(a: &ArtifactStore, s: Option<&Value>) -> Option<ReportSection> {
+    let p = a.get("polish_plan").ok()??;
+    let s = s?;
+    let (x, y, r) = (
+        batch_f64(&p, "x_mm").ok()?,
+        batch_f64(&p, "y_mm").ok()?,
+        batch_f64(&p, "radius_mm").ok()?,
+    );
+    let mut html = format!(
+        "<p>{} placements cover every point more than {} µm above the least-squares plane ({} points, {:.1} % of the area). Selective {:.1} s against raster {:.1} s (ratio {:.2}); selective polishing stops paying off at a zone of {} of the area (by sweeping the tolerance).</p>",
+        s["placements"],
+        um(s["tolerance_mm"].as_f64().unwrap_or(f64::NAN)),
+        s["zone_points"],
+        100.0 * s["zone_area_fraction"].as_f64().unwrap_or(f64::NAN),
+        s["selective_s"].as_f64().unwrap_or(f64::NAN),
+        s["raster_s"].as_f64().unwrap_or(f64::NAN),
+        s["ratio"].as_f64().unwrap_or(f64::NAN),
+        s["breakeven_area_fraction"].as_f64().map(|v| format!("{:.0} %", 100.0 * v)).unwrap_or_else(|| "— (never within the sweep)".into()),
+    );
+    // The plan over the surface: tool footprints and centres on the
+    // ground surface's height map.
+    if let Some(surf) = a.get("polish_surface").ok().flatten() {
+        if let Some(c) = cells(&surf, "above_plane_mm") {
+            html.push_str(&heatmap(
+                "Height above the least-squares plane (the plan's input)",
+                &c,
+                "µm",
+            ));
+        }
+        if let Some(c) = cells(&surf, "after_mm") {
+            html.push_str(&heatmap(
+                "Predicted after selective polishing (spiral dwell ⊛ tool influence)",
+                &c,
+                "µm",
+            ));
+        }
+    }
+    let mut ring = Vec::new();
+    for k in 0..x.len() {
+        for q in 0..48 {
+            let th = q as f64 * std::f64::consts::TAU / 48.0;
+            ring.push((x[k] + r[k] * th.cos(), y[k] + r[k] * th.sin()));
+        }
+    }
+    let centres: Vec<(f64, f64)> = (0..x.len()).map(|k| (x[k], y[k])).collect();
+    html.push_str(&xy_chart(
+        "Selective polishing placements (tool footprints)",
+        "x_mm",
+        "y_mm",
+        &[
+            Series {
+                name: "tool footprint",
+                points: &ring,
+                mark: Mark::Points,
+            },
+            Series {
+                name: "placement centre",
+                points: &centres,
+                mark: Mark::Points,
+            },
+        ],
+    ));
+    html.push_str(&bar_chart(
+        "Selective vs raster polishing time",
+        "s",
+        &[
+            ("selective".into(), s["selective_s"].as_f64().unwrap_or(0.0)),
+            ("raster".into(), s["raster_s"].as_f64().unwrap_or(0.0)),
+        ],
+    ));
+    let sweep: Vec<(f64, f64)> = s["sweep"]
+        .as_array()
+        .map(|a| {
+            a.iter()
+                .filter_map(|p| Some((p["area_fraction"].as_f64()?, p["ratio"].as_f64()?)))
+                .collect()
+        })
+        .unwrap_or_default();
+    let one: Vec<(f64, f64)> = vec![(0.0, 1.0), (1.0, 1.0)];
+    html.push_str(&xy_chart(
+        "Selective / raster time against the zone's area fraction",
+        "area fraction",
+        "ratio",
+        &[
+            Series {
+                name: "selective / raster",
+                points: &sweep,
+                mark: Mark::Line,
+            },
+            Series {
+                name: "breakeven",
+                points: &one,
+                mark: Mark::Line,
+            },
+        ],
+    ));
+    Some(ReportSection {
+        title: "Selective polishing plan".into(),
+        html,
+    })
+}
+
+pub fn sections(_run: &Run, a: &ArtifactStore) -> Vec<ReportSection> {
+    let summaries = a.summaries();
+    [
+        matrices(a, summaries.get("matrices")),
+        flatness(a),
+        polish(a, summaries.get("polish_plan")),
+    ]
+    .into_iter()
+    .flatten()
+    .collect()
+}
