@@ -66,7 +66,11 @@ fn flags_as_config(
                 args.remove(&flag);
                 sets.push(set);
             }
-            Err(e) if e.to_string().contains("unknown key") => {}
+            Err(e) if e.to_string().contains("unknown key") => bail!(
+                "stage flag --{flag}: {e} in [{}.{name}]; with --run, stage flags are that section's config keys (see configs/nightly.toml), or use --set {}.{name}.<key>=<value>",
+                plugin.name(),
+                plugin.name()
+            ),
             Err(e) => bail!("--{flag} {value}: {e}"),
         }
     }
@@ -118,8 +122,12 @@ pub fn stage(
         Some(run_dir) => {
             if !args.is_empty() {
                 let keys: Vec<&String> = args.keys().collect();
+                let section = engine
+                    .open_run(&run_dir)
+                    .map(|(_, p)| format!("{}.{name}", p.name()))
+                    .unwrap_or_else(|_| format!("<plugin>.{name}"));
                 bail!(
-                    "stage flags {keys:?} are not config keys of stage `{name}`; with --run, flags map to its config keys (see configs/nightly.toml), or use --set <plugin>.<stage>.<key>=<value>"
+                    "stage flags {keys:?} are not config keys of [{section}]; with --run, flags map to that section's keys (see configs/nightly.toml), or use --set {section}.<key>=<value>"
                 );
             }
             let (stage, output) = engine.run_single_stage(&run_dir, name)?;
