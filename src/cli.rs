@@ -155,6 +155,17 @@ pub enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Stream a run's (compensated) commanded path to CiA 402 drives over CANopen,
+    /// inside a safety envelope; record what the drives did as a new run.
+    #[command(
+        after_help = "Examples:\n  sparkout replay --run runs/kr16-lab/r0000 --bus sim --record /tmp/replayed\n  \
+                      sparkout replay --run runs/kr16-lab/r0000 --compensation comp.parquet --bus log:/tmp/replay.log\n  \
+                      sparkout replay --run runs/kr16-lab/r0000 --bus socketcan:can0 --dry-run\n  \
+                      sparkout replay --run runs/kr16-lab/r0000 --bus sim --sim-fault heartbeat@1.5s:2\n\
+                      A compensation is a Parquet with t_s and any of dx_mm, dy_mm, dz_mm. Exit codes: 0 replay completed, \
+                      2 ended by a quick stop (the reason is printed), 1 usage/config/input error (nothing sent)."
+    )]
+    Replay(ReplayArgs),
     /// Check the diagnosis on generated fleets whose effect is known (withheld from sim).
     #[command(after_help = "Example: sparkout validate --quick --out validation/")]
     Validate {
@@ -169,6 +180,69 @@ pub enum Command {
         #[arg(long)]
         json: bool,
     },
+}
+
+/// `sparkout replay` flags.
+#[derive(Args, Debug, Clone)]
+pub struct ReplayArgs {
+    /// The recorded run whose commanded path (motion.parquet cmd_*) is replayed.
+    #[arg(long, value_name = "DIR")]
+    pub run: PathBuf,
+    /// Offsets added to the path: Parquet with t_s and any of dx_mm, dy_mm, dz_mm.
+    #[arg(long, value_name = "FILE")]
+    pub compensation: Option<PathBuf>,
+    /// sim | log:FILE (candump -l log, simulated drives) | socketcan:IFACE (Linux hardware).
+    #[arg(long, value_name = "BUS")]
+    pub bus: String,
+    /// SYNC / setpoint cycle in ms (at least 1).
+    #[arg(long, default_value_t = 4.0, value_name = "MS")]
+    pub cycle_ms: f64,
+    /// Open no hardware and send nothing: simulated drives answer, and the
+    /// frames that would be sent are printed (all of them with --bus log:FILE).
+    #[arg(long)]
+    pub dry_run: bool,
+    /// Envelope: largest |compensation| per axis (mm).
+    #[arg(long, default_value_t = 0.5, value_name = "MM")]
+    pub max_comp_mm: f64,
+    /// Envelope: largest setpoint step per cycle per axis (mm).
+    #[arg(long, default_value_t = 1.0, value_name = "MM")]
+    pub max_step_mm: f64,
+    /// Envelope: largest change of that step between cycles (mm).
+    #[arg(long, default_value_t = 0.5, value_name = "MM")]
+    pub max_step_change_mm: f64,
+    /// Envelope: largest following error |target − actual| from the feedback (mm).
+    #[arg(long, default_value_t = 0.5, value_name = "MM")]
+    pub max_following_mm: f64,
+    /// Write the drives' feedback as a new recorded run in this directory.
+    #[arg(long, value_name = "OUT")]
+    pub record: Option<PathBuf>,
+    /// Drive increments per mm.
+    #[arg(long, default_value_t = 10000.0, value_name = "N")]
+    pub counts_per_mm: f64,
+    /// CANopen node ids of the x, y, z drives.
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "1,2,3",
+        value_name = "X,Y,Z"
+    )]
+    pub nodes: Vec<u8>,
+    /// Producer heartbeat time written to every drive (ms); timeout = 3 periods.
+    #[arg(long, default_value_t = 20, value_name = "MS")]
+    pub heartbeat_ms: u16,
+    /// Simulated drives: position-loop time constant (s).
+    #[arg(long, default_value_t = 0.002, value_name = "S")]
+    pub sim_lag_s: f64,
+    /// Simulated drives: speed limit (mm/s).
+    #[arg(long, default_value_t = 500.0, value_name = "MM_S")]
+    pub sim_max_speed_mm_s: f64,
+    /// Inject a fault into the simulated drives (repeatable): heartbeat@T[:NODE],
+    /// emcy@T[:NODE], busoff@T, following@T[:NODE], refuse[:NODE], sigint@T (T like 1.5s or 200ms).
+    #[arg(long = "sim-fault", value_name = "SPEC")]
+    pub sim_faults: Vec<String>,
+    /// Print the replay report as JSON to stdout.
+    #[arg(long)]
+    pub json: bool,
 }
 
 /// Parse argv; help/version print and exit 0, usage errors exit 1.

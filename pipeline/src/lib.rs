@@ -7,6 +7,7 @@ pub mod diagnose;
 pub mod effect_spec;
 pub mod engine;
 pub mod error;
+pub mod replay;
 pub mod report;
 pub mod traits;
 

@@ -3,6 +3,7 @@
 mod demo;
 mod diagnose;
 mod generate;
+mod replay;
 mod run;
 mod stage;
 mod validate;
@@ -57,5 +58,6 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<u8> {
             seed,
             json,
         } => validate::validate(quick, out, seed, json),
+        Command::Replay(args) => replay::replay(&args),
     }
 }

@@ -1,0 +1,363 @@
+//! `sparkout replay`: stream a run's (compensated) commanded path to the
+//! drives over CANopen / CiA 402, inside a safety envelope, and record what
+//! the drives did as a new run (DESIGN.md "Replay over CAN").
+//!
+//! Pieces: [`bus`] (the `CanBus` trait), backends [`sim`], [`log_bus`] and
+//! `socketcan_bus` (Linux, feature `socketcan`), the master in [`canopen`],
+//! the limits in [`envelope`], the path in [`source`], the record in [`record`].
+
+pub mod bus;
+pub mod canopen;
+pub mod envelope;
+pub mod log_bus;
+pub mod record;
+pub mod sim;
+#[cfg(all(target_os = "linux", feature = "socketcan"))]
+pub mod socketcan_bus;
+pub mod source;
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
+use std::sync::Arc;
+
+use anyhow::{bail, Result};
+
+pub use bus::{CanBus, CanFrame, Dir};
+pub use canopen::{MasterConfig, Outcome, StopKind};
+pub use envelope::Envelope;
+pub use sim::{SimBus, SimConfig, SimFault};
+pub use source::Plan;
+
+/// Which bus to drive.
+#[derive(Debug, Clone, PartialEq)]
+pub enum BusSpec {
+    Sim,
+    Log(PathBuf),
+    SocketCan(String),
+}
+
+impl BusSpec {
+    pub fn parse(s: &str) -> Result<BusSpec> {
+        if s == "sim" {
+            return Ok(BusSpec::Sim);
+        }
+        if let Some(f) = s.strip_prefix("log:") {
+            if f.is_empty() {
+                bail!("--bus log:FILE needs a file name");
+            }
+            return Ok(BusSpec::Log(PathBuf::from(f)));
+        }
+        if let Some(i) = s.strip_prefix("socketcan:") {
+            if i.is_empty() {
+                bail!("--bus socketcan:IFACE needs an interface name, e.g. socketcan:can0");
+            }
+            return Ok(BusSpec::SocketCan(i.to_string()));
+        }
+        bail!("--bus `{s}`: use sim, log:FILE or socketcan:IFACE")
+    }
+}
+
+/// Everything a replay needs; checked by [`ReplayOptions::validate`] before
+/// any file is read or any frame sent.
+#[derive(Debug, Clone)]
+pub struct ReplayOptions {
+    pub run_dir: PathBuf,
+    pub compensation: Option<PathBuf>,
+    pub bus: BusSpec,
+    pub cycle_ms: f64,
+    pub dry_run: bool,
+    pub envelope: Envelope,
+    pub record: Option<PathBuf>,
+    /// Drive increments per mm (the DBC's factor 0.0001 mm assumes 10000).
+    pub counts_per_mm: f64,
+    pub nodes: [u8; 3],
+    pub heartbeat_ms: u16,
+    /// Heartbeat consumer timeout, in producer periods.
+    pub heartbeat_timeout_periods: f64,
+    /// Simulated drives: position-loop time constant and speed limit.
+    pub sim_lag_s: f64,
+    pub sim_max_speed_mm_s: f64,
+    pub sim_faults: Vec<SimFault>,
+    /// Keep every frame in the outcome (tests; the dry-run printout).
+    pub keep_traffic: bool,
+    /// Check the whole plan against the envelope before anything is sent.
+    pub preflight: bool,
+}
+
+impl ReplayOptions {
+    pub fn new(run_dir: &Path, bus: BusSpec) -> ReplayOptions {
+        ReplayOptions {
+            run_dir: run_dir.to_path_buf(),
+            compensation: None,
+            bus,
+            cycle_ms: 4.0,
+            dry_run: false,
+            envelope: Envelope {
+                max_comp_mm: 0.5,
+                max_step_mm: 1.0,
+                max_step_change_mm: 0.5,
+                max_following_mm: 0.5,
+            },
+            record: None,
+            counts_per_mm: 10_000.0,
+            nodes: [1, 2, 3],
+            heartbeat_ms: 20,
+            heartbeat_timeout_periods: 3.0,
+            sim_lag_s: 0.002,
+            sim_max_speed_mm_s: 500.0,
+            sim_faults: Vec::new(),
+            keep_traffic: false,
+            preflight: true,
+        }
+    }
+
+    pub fn cycle_us(&self) -> u64 {
+        (self.cycle_ms * 1000.0).round() as u64
+    }
+
+    pub fn validate(&self) -> Result<()> {
+        if !(self.cycle_ms.is_finite() && self.cycle_ms >= 1.0) {
+            bail!(
+                "--cycle-ms {}: the cycle must be at least 1 ms (CANopen drives sync at 1–10 ms; default 4)",
+                self.cycle_ms
+            );
+        }
+        self.envelope.validate()?;
+        if !(self.counts_per_mm.is_finite() && self.counts_per_mm > 0.0) {
+            bail!("--counts-per-mm {} must be > 0", self.counts_per_mm);
+        }
+        let n = self.nodes;
+        if n.iter().any(|&x| !(1..=127).contains(&x))
+            || n[0] == n[1]
+            || n[1] == n[2]
+            || n[0] == n[2]
+        {
+            bail!("--nodes {n:?}: three distinct CANopen node ids 1–127 (x, y, z)");
+        }
+        if self.heartbeat_ms == 0 || !(self.heartbeat_timeout_periods >= 1.0) {
+            bail!("heartbeat period must be > 0 ms and its timeout ≥ 1 period");
+        }
+        if !(self.sim_lag_s >= 0.0 && self.sim_max_speed_mm_s > 0.0) {
+            bail!("--sim-lag-s must be ≥ 0 and --sim-max-speed-mm-s > 0");
+        }
+        if self.dry_run && self.record.is_some() {
+            bail!(
+                "--dry-run drives no real axis, so there is nothing to --record; drop one of them"
+            );
+        }
+        if let Some(r) = &self.record {
+            if r.join("run.toml").exists() {
+                bail!(
+                    "--record {}: already holds a run (run.toml); choose a new directory",
+                    r.display()
+                );
+            }
+        }
+        Ok(())
+    }
+
+    fn master_config(&self) -> MasterConfig {
+        MasterConfig {
+            cycle_us: self.cycle_us(),
+            nodes: self.nodes,
+            counts_per_mm: self.counts_per_mm,
+            heartbeat_ms: self.heartbeat_ms,
+            heartbeat_timeout_us: (self.heartbeat_ms as f64
+                * 1000.0
+                * self.heartbeat_timeout_periods)
+                .round() as u64,
+            sdo_timeout_us: 100_000,
+            transition_timeout_cycles: 25,
+            stop_hold_cycles: 3,
+            keep_traffic: self.keep_traffic || self.dry_run,
+        }
+    }
+
+    fn sim_config(&self, plan: &Plan) -> SimConfig {
+        let start = |a: usize| {
+            plan.cmd_mm
+                .first()
+                .map(|c| ((c[a] + plan.comp_mm[0][a]) * self.counts_per_mm).round())
+                .filter(|v| v.is_finite() && v.abs() <= i32::MAX as f64)
+                .unwrap_or(0.0) as i32
+        };
+        SimConfig {
+            nodes: self.nodes,
+            start_counts: [start(0), start(1), start(2)],
+            lag_s: self.sim_lag_s,
+            max_speed_mm_s: self.sim_max_speed_mm_s,
+            counts_per_mm: self.counts_per_mm,
+            quick_stop_decel_mm_s2: 5000.0,
+            faults: self.sim_faults.clone(),
+        }
+    }
+}
+
+/// What happened, for the CLI (printed and as JSON).
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct ReplayReport {
+    pub bus: String,
+    pub dry_run: bool,
+    pub cycle_ms: f64,
+    pub cycles_planned: usize,
+    pub cycles_streamed: usize,
+    pub sync_frames: u64,
+    pub frames_tx: u64,
+    pub frames_rx: u64,
+    pub reached_operation_enabled: bool,
+    pub completed: bool,
+    pub stop_kind: Option<StopKind>,
+    pub reason: Option<String>,
+    pub detected_s: Option<f64>,
+    pub quick_stop_s: Option<f64>,
+    pub max_following_mm: f64,
+    pub envelope: Envelope,
+    pub log: Option<PathBuf>,
+    pub recorded: Option<PathBuf>,
+    pub recorded_rows: usize,
+}
+
+/// Load, check and resample the source; check the plan against the envelope.
+pub fn prepare(opts: &ReplayOptions) -> Result<(crate::contracts::RunSpec, Plan)> {
+    opts.validate()?;
+    let (spec, plan) = source::load_plan(
+        &opts.run_dir,
+        opts.compensation.as_deref(),
+        opts.cycle_us() as f64 * 1e-6,
+    )?;
+    if opts.preflight {
+        preflight(&plan, &opts.envelope, opts.counts_per_mm, opts.cycle_us())?;
+    }
+    Ok((spec, plan))
+}
+
+/// Every setpoint of the plan checked against the envelope before the first
+/// frame: a path that would be stopped half-way is refused up front.
+pub fn preflight(plan: &Plan, env: &Envelope, cpm: f64, cycle_us: u64) -> Result<()> {
+    let mut prev: Option<[i32; 3]> = None;
+    let mut prev_step = [0i32; 3];
+    for (k, (c, d)) in plan.cmd_mm.iter().zip(&plan.comp_mm).enumerate() {
+        let p = prev.unwrap_or_else(|| {
+            // The first setpoint is checked against itself (the sim and a
+            // positioned machine stand there); the master re-checks it
+            // against the drives' actual position.
+            let mut s = [0i32; 3];
+            for a in 0..3 {
+                s[a] = ((c[a] + d[a]) * cpm)
+                    .round()
+                    .clamp(i32::MIN as f64, i32::MAX as f64) as i32;
+            }
+            s
+        });
+        match env.check(c, d, &p, &prev_step, cpm) {
+            Ok(t) => {
+                for a in 0..3 {
+                    prev_step[a] = t[a] - p[a];
+                }
+                prev = Some(t);
+            }
+            Err(v) => bail!(
+                "the replay would leave the safety envelope at setpoint {k} (t = {:.6} s): {}; nothing was sent. \
+                 Check the compensation or widen the limit (--max-comp-mm, --max-step-mm, --max-step-change-mm)",
+                plan.t0_s + k as f64 * cycle_us as f64 * 1e-6,
+                v.0
+            ),
+        }
+    }
+    Ok(())
+}
+
+/// Run a prepared replay on the chosen bus. `interrupt` is the SIGINT flag.
+pub fn run(
+    opts: &ReplayOptions,
+    spec: &crate::contracts::RunSpec,
+    plan: &Plan,
+    interrupt: Arc<AtomicBool>,
+) -> Result<(ReplayReport, Outcome)> {
+    let master = canopen::Master::new(opts.master_config())?;
+    let sim = || SimBus::new(opts.sim_config(plan)).with_interrupt(interrupt.clone());
+    let mut log_path = None;
+    let mut bus: Box<dyn CanBus> = match (&opts.bus, opts.dry_run) {
+        (BusSpec::Log(p), _) => {
+            log_path = Some(p.clone());
+            Box::new(log_bus::LogBus::new(sim(), p)?)
+        }
+        // A dry run opens no hardware: simulated drives answer in its place.
+        (BusSpec::Sim, _) | (BusSpec::SocketCan(_), true) => Box::new(sim()),
+        #[cfg(all(target_os = "linux", feature = "socketcan"))]
+        (BusSpec::SocketCan(iface), false) => Box::new(socketcan_bus::SocketCanBus::open(iface)?),
+        #[cfg(not(all(target_os = "linux", feature = "socketcan")))]
+        (BusSpec::SocketCan(_), false) => {
+            bail!("this build has no SocketCAN support (Linux with the `socketcan` feature)")
+        }
+    };
+    let describe = if opts.dry_run {
+        format!(
+            "dry run ({} not opened; simulated drives answer)",
+            match &opts.bus {
+                BusSpec::Sim => "sim".to_string(),
+                BusSpec::Log(p) => format!("log:{}", p.display()),
+                BusSpec::SocketCan(i) => format!("socketcan:{i}"),
+            }
+        )
+    } else {
+        bus.describe()
+    };
+    tracing::info!(
+        "replay: {} setpoints every {} ms on {describe}",
+        plan.cmd_mm.len(),
+        opts.cycle_ms
+    );
+    let outcome = master.run(bus.as_mut(), plan, &opts.envelope, &interrupt)?;
+    let completed = outcome.stop.is_none() && outcome.cycles_streamed == plan.cmd_mm.len();
+    let outcome_text = match &outcome.stop {
+        None => "completed".to_string(),
+        Some((_, why)) => format!("quick stop: {why}"),
+    };
+    let mut recorded = None;
+    let mut recorded_rows = 0;
+    if let Some(out) = &opts.record {
+        let info = record::RecordInfo {
+            bus: describe.clone(),
+            cycle_s: opts.cycle_us() as f64 * 1e-6,
+            counts_per_mm: opts.counts_per_mm,
+            compensation: opts.compensation.clone(),
+            outcome: outcome_text.clone(),
+        };
+        match record::write_recorded_run(out, spec, plan, &outcome, &info) {
+            Ok(rows) => {
+                recorded = Some(out.clone());
+                recorded_rows = rows;
+            }
+            Err(e) if outcome.stop.is_some() => {
+                tracing::warn!("replay: no record written: {e:#}");
+            }
+            Err(e) => return Err(e),
+        }
+    }
+    let report = ReplayReport {
+        bus: describe,
+        dry_run: opts.dry_run,
+        cycle_ms: opts.cycle_us() as f64 * 1e-3,
+        cycles_planned: plan.cmd_mm.len(),
+        cycles_streamed: outcome.cycles_streamed,
+        sync_frames: outcome.sync_frames,
+        frames_tx: outcome.frames_tx,
+        frames_rx: outcome.frames_rx,
+        reached_operation_enabled: outcome.reached_operation_enabled,
+        completed,
+        stop_kind: outcome.stop.as_ref().map(|s| s.0),
+        reason: outcome.stop.as_ref().map(|s| s.1.clone()),
+        detected_s: outcome.detected_us.map(|t| t as f64 * 1e-6),
+        quick_stop_s: outcome.quick_stop_us.map(|t| t as f64 * 1e-6),
+        max_following_mm: outcome.max_following_mm,
+        envelope: opts.envelope,
+        log: log_path,
+        recorded,
+        recorded_rows,
+    };
+    Ok((report, outcome))
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,134 @@
+//! Record-back: what the drives reported becomes a recorded run (CONTRACTS.md
+//! §1) — motion.parquet with cmd_* (the setpoints sent) and act_* (the TPDO
+//! actual positions), and a run.toml — that `sparkout run` and
+//! `validate-input` take like any run.
+//!
+//! The recorded run keeps the source's machine, plugin and [process], and a
+//! copy of its other small tables (probe, plan, passes, topography …: what
+//! the plugin needs besides motion), so it can be diagnosed like the source.
+//! ae.parquet is not copied (its timing belongs to the original run; it is
+//! large) and [ae] is dropped with it. A `[replay]` table says where the run
+//! came from and how the replay ended.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result};
+
+use super::canopen::Outcome;
+use super::source::Plan;
+use crate::contracts::{write_atomic, write_parquet_atomic, BatchBuilder, RunSpec, ALL_TABLES};
+
+/// What goes into `[replay]` of the recorded run.toml.
+#[derive(Debug, Clone)]
+pub struct RecordInfo {
+    pub bus: String,
+    pub cycle_s: f64,
+    pub counts_per_mm: f64,
+    pub compensation: Option<PathBuf>,
+    pub outcome: String,
+}
+
+/// Write the recorded run into `out` (created); returns the rows written.
+pub fn write_recorded_run(
+    out: &Path,
+    source: &RunSpec,
+    plan: &Plan,
+    outcome: &Outcome,
+    info: &RecordInfo,
+) -> Result<usize> {
+    let cpm = info.counts_per_mm;
+    let mut t = Vec::new();
+    let mut cmd = [Vec::new(), Vec::new(), Vec::new()];
+    let mut act = [Vec::new(), Vec::new(), Vec::new()];
+    let mut feed = Vec::new();
+    let mut seg = Vec::new();
+    for (k, s) in outcome.samples.iter().enumerate() {
+        // Only cycles whose feedback came back from every drive.
+        let Some(a) = s.act.iter().copied().collect::<Option<Vec<i32>>>() else {
+            continue;
+        };
+        t.push(plan.t0_s + k as f64 * info.cycle_s);
+        for ax in 0..3 {
+            cmd[ax].push(s.cmd[ax] as f64 / cpm);
+            act[ax].push(a[ax] as f64 / cpm);
+        }
+        if let Some(f) = &plan.feed_mm_s {
+            feed.push(f[k]);
+        }
+        if let Some(g) = &plan.segment {
+            seg.push(g[k]);
+        }
+    }
+    if t.is_empty() {
+        anyhow::bail!(
+            "nothing to record: no cycle was streamed with feedback from every drive ({})",
+            info.outcome
+        );
+    }
+    let rows = t.len();
+    let [cx, cy, cz] = cmd;
+    let [ax, ay, az] = act;
+    let mut b = BatchBuilder::new()
+        .f64("t_s", t)
+        .f64("cmd_x_mm", cx)
+        .f64("cmd_y_mm", cy)
+        .f64("cmd_z_mm", cz)
+        .f64("act_x_mm", ax)
+        .f64("act_y_mm", ay)
+        .f64("act_z_mm", az);
+    if plan.feed_mm_s.is_some() {
+        b = b.f64("feed_mm_s", feed);
+    }
+    if plan.segment.is_some() {
+        b = b.i32("segment", seg);
+    }
+    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+    write_parquet_atomic(&out.join("motion.parquet"), &b.build())?;
+
+    // The other tables the plugin may need, byte for byte.
+    let mut copied = Vec::new();
+    for schema in ALL_TABLES {
+        if matches!(schema.name, "motion" | "ae") {
+            continue;
+        }
+        let src = source.dir.join(schema.file_name());
+        if src.is_file() {
+            let bytes =
+                std::fs::read(&src).with_context(|| format!("cannot read {}", src.display()))?;
+            write_atomic(&out.join(schema.file_name()), &bytes)?;
+            copied.push(schema.name.to_string());
+        }
+    }
+
+    let mut doc: toml::Table = source.text.parse().context("source run.toml")?;
+    doc.remove("ae");
+    if let Some(run) = doc.get_mut("run").and_then(|v| v.as_table_mut()) {
+        run.insert("id".into(), format!("{}-replay", source.id).into());
+    }
+    let mut replay = toml::Table::new();
+    replay.insert("source_run".into(), source.dir.display().to_string().into());
+    if let Some(c) = &info.compensation {
+        replay.insert("compensation".into(), c.display().to_string().into());
+    }
+    replay.insert("bus".into(), info.bus.clone().into());
+    replay.insert("cycle_s".into(), info.cycle_s.into());
+    replay.insert("counts_per_mm".into(), info.counts_per_mm.into());
+    replay.insert(
+        "cycles_streamed".into(),
+        (outcome.cycles_streamed as i64).into(),
+    );
+    replay.insert("rows_recorded".into(), (rows as i64).into());
+    replay.insert("outcome".into(), info.outcome.clone().into());
+    replay.insert(
+        "copied_tables".into(),
+        toml::Value::Array(copied.into_iter().map(Into::into).collect()),
+    );
+    doc.insert("replay".into(), replay.into());
+    let text = format!(
+        "# Recorded by `sparkout replay` from {}: cmd_* = setpoints sent, act_* = drive feedback.\n{}",
+        source.dir.display(),
+        toml::to_string(&doc)?
+    );
+    write_atomic(&out.join(RunSpec::FILE), text.as_bytes())?;
+    Ok(rows)
+}

@@ -1,0 +1,113 @@
+//! `sparkout replay`: wiring only — flags → `ReplayOptions`, SIGINT → the
+//! master's interrupt flag, the report → stdout. The replay itself lives in
+//! sparkout_pipeline::replay.
+
+use std::sync::atomic::AtomicBool;
+use std::sync::Arc;
+
+use anyhow::{bail, Context};
+use sparkout_pipeline::replay::{self, log_bus, BusSpec, Dir, Envelope, ReplayOptions, SimFault};
+
+use crate::cli::ReplayArgs;
+
+/// Frames printed by a dry run without a log file.
+const DRY_RUN_PRINT: usize = 24;
+
+pub fn replay(args: &ReplayArgs) -> anyhow::Result<u8> {
+    let bus = BusSpec::parse(&args.bus)?;
+    if args.nodes.len() != 3 {
+        bail!("--nodes takes three node ids (x, y, z), e.g. --nodes 1,2,3");
+    }
+    let nodes = [args.nodes[0], args.nodes[1], args.nodes[2]];
+    let mut opts = ReplayOptions::new(&args.run, bus);
+    opts.compensation = args.compensation.clone();
+    opts.cycle_ms = args.cycle_ms;
+    opts.dry_run = args.dry_run;
+    opts.envelope = Envelope {
+        max_comp_mm: args.max_comp_mm,
+        max_step_mm: args.max_step_mm,
+        max_step_change_mm: args.max_step_change_mm,
+        max_following_mm: args.max_following_mm,
+    };
+    opts.record = args.record.clone();
+    opts.counts_per_mm = args.counts_per_mm;
+    opts.nodes = nodes;
+    opts.heartbeat_ms = args.heartbeat_ms;
+    opts.sim_lag_s = args.sim_lag_s;
+    opts.sim_max_speed_mm_s = args.sim_max_speed_mm_s;
+    opts.sim_faults = args
+        .sim_faults
+        .iter()
+        .map(|s| SimFault::parse(s, nodes[0]))
+        .collect::<anyhow::Result<_>>()?;
+    if !opts.sim_faults.is_empty() && matches!(opts.bus, BusSpec::SocketCan(_)) && !opts.dry_run {
+        bail!("--sim-fault injects faults into simulated drives: use --bus sim or log:FILE (or --dry-run)");
+    }
+
+    // Every check before anything is sent (bad input → exit 1, nothing sent).
+    let (spec, plan) = replay::prepare(&opts)?;
+
+    // Ctrl-C sets the flag; the master quick-stops every drive at its next cycle.
+    let interrupt = Arc::new(AtomicBool::new(false));
+    signal_hook::flag::register(signal_hook::consts::SIGINT, interrupt.clone())
+        .context("cannot install the SIGINT handler")?;
+
+    let (report, outcome) = replay::run(&opts, &spec, &plan, interrupt)?;
+
+    if opts.dry_run && report.log.is_none() {
+        let tx: Vec<_> = outcome
+            .traffic
+            .iter()
+            .filter(|(d, _)| *d == Dir::Tx)
+            .collect();
+        println!(
+            "dry run: {} frames would be sent (first {} below; --bus log:FILE keeps all of them)",
+            tx.len(),
+            DRY_RUN_PRINT.min(tx.len())
+        );
+        for (_, f) in tx.iter().take(DRY_RUN_PRINT) {
+            println!("  {}", log_bus::format_line(f, log_bus::LOG_IFACE));
+        }
+    }
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    } else {
+        println!(
+            "replay on {}: {} of {} setpoints streamed every {} ms ({} SYNC, {} frames sent, {} received); Operation enabled: {}; max following error {:.4} mm",
+            report.bus,
+            report.cycles_streamed,
+            report.cycles_planned,
+            report.cycle_ms,
+            report.sync_frames,
+            report.frames_tx,
+            report.frames_rx,
+            if report.reached_operation_enabled { "yes" } else { "no" },
+            report.max_following_mm
+        );
+        if let Some(p) = &report.log {
+            println!("candump log: {}", p.display());
+        }
+        if let Some(p) = &report.recorded {
+            println!(
+                "recorded run: {} ({} rows)",
+                p.display(),
+                report.recorded_rows
+            );
+        }
+    }
+    match &report.reason {
+        None => {
+            if !args.json {
+                println!("replay completed");
+            }
+            Ok(super::ALL_GOOD)
+        }
+        Some(why) => {
+            eprintln!(
+                "replay ended by a quick stop at t = {:.6} s: {why}",
+                report.quick_stop_s.unwrap_or_default()
+            );
+            Ok(super::SOME_RUNS_FAILED)
+        }
+    }
+}
