@@ -130,7 +130,9 @@ mod tests {
     fn every_limit_and_nan_is_refused() {
         let e = env();
         let p = [0, 0, 0];
-        let cases: [([f64; 3], [f64; 3], [i32; 3], &str); 6] = [
+        // (cmd, comp, previous step, expected message part)
+        type Case<'a> = ([f64; 3], [f64; 3], [i32; 3], &'a str);
+        let cases: [Case; 6] = [
             (
                 [f64::NAN, 0.0, 0.0],
                 [0.0; 3],

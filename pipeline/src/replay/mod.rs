@@ -6,6 +6,9 @@
 //! `socketcan_bus` (Linux, feature `socketcan`), the master in [`canopen`],
 //! the limits in [`envelope`], the path in [`source`], the record in [`record`].
 
+// `!(x <= limit)` is deliberate throughout: it rejects NaN as well.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
 pub mod bus;
 pub mod canopen;
 pub mod envelope;

@@ -320,10 +320,12 @@ impl SimBus {
             // The earliest pending event at or before t.
             let mut next: Option<(u64, usize, bool)> = None; // (time, index, is_fault)
             for (i, d) in self.drives.iter().enumerate() {
-                if d.hb_period_us > 0 && !d.hb_dead && d.next_hb_us <= t {
-                    if next.is_none_or(|(nt, _, _)| d.next_hb_us < nt) {
-                        next = Some((d.next_hb_us, i, false));
-                    }
+                if d.hb_period_us > 0
+                    && !d.hb_dead
+                    && d.next_hb_us <= t
+                    && next.is_none_or(|(nt, _, _)| d.next_hb_us < nt)
+                {
+                    next = Some((d.next_hb_us, i, false));
                 }
             }
             for (i, f) in self.cfg.faults.iter().enumerate() {

@@ -71,8 +71,12 @@ fn grid(t_first: f64, t_last: f64, cycle_s: f64) -> Vec<f64> {
     (0..n).map(|k| t_first + k as f64 * cycle_s).collect()
 }
 
-/// Read and check a compensation Parquet; (t_s, per-axis offsets or None).
-pub fn read_compensation(path: &Path) -> anyhow::Result<(Vec<f64>, [Option<Vec<f64>>; 3])> {
+/// A compensation's offsets per axis (x, y, z), `None` where the file has
+/// no such column.
+pub type AxisOffsets = [Option<Vec<f64>>; 3];
+
+/// Read and check a compensation Parquet; (t_s, per-axis offsets).
+pub fn read_compensation(path: &Path) -> anyhow::Result<(Vec<f64>, AxisOffsets)> {
     let batch = read_parquet(path)?;
     let names: Vec<String> = batch
         .schema()
