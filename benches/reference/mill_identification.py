@@ -9,7 +9,7 @@ write) plus the covariance from J'J. Prints the median wall time of the
 identification and the recovery check.
 
     pip install numpy scipy
-    python3 benches/mill_identification.py
+    python3 benches/reference/mill_identification.py
 """
 
 import time

@@ -2,7 +2,7 @@
 2000-point tangent cam, curvature by a local cubic (Savitzky-Golay, wrap)
 and the segment sweep N = 1..10 with 11 radii per segment (MODELS.md §4).
 Prints the timings and the sweep's maximum errors for comparison with
-`sparkout stage segment`. Run: python3 benches/python/form_segment.py"""
+`sparkout stage segment`. Run: python3 benches/reference/form_segment.py"""
 import time
 import numpy as np
 from scipy.signal import savgol_filter
