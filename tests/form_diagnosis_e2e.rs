@@ -4,70 +4,16 @@
 //! an effect-free fleet gets no effect named.
 
 mod common;
-use common::sparkout;
+use common::{diagnose_generated_fleet, first_selected, shrink_of};
 
 use std::path::Path;
 
-fn diagnose_fleet(dir: &Path, seed: u64, effect: Option<&str>) -> serde_json::Value {
-    let root = dir.join("runs");
-    let out = dir.join("out");
-    let seed = seed.to_string();
-    let mut args = vec![
-        "generate",
-        "form",
-        "--runs",
-        "9",
-        "--seed",
-        &seed,
-        "--out",
-        root.to_str().unwrap(),
-    ];
-    if let Some(e) = effect {
-        args.extend(["--effect", e]);
-    }
-    let g = sparkout(&args);
-    assert!(g.status.success(), "{}", String::from_utf8_lossy(&g.stderr));
-    let r = sparkout(&[
-        "run",
-        "--input",
-        root.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-    ]);
-    assert!(
-        r.status.success(),
-        "{}\n{}",
-        String::from_utf8_lossy(&r.stdout),
-        String::from_utf8_lossy(&r.stderr)
-    );
-    serde_json::from_slice(&std::fs::read(out.join("fleet/diagnosis.json")).unwrap()).unwrap()
-}
-
-fn first_selected(d: &serde_json::Value) -> String {
-    d["selected"]
-        .as_array()
-        .and_then(|a| a.first())
-        .and_then(|s| s.as_str())
-        .unwrap_or("")
-        .to_string()
-}
-
-fn shrink_of(d: &serde_json::Value, key: &str) -> f64 {
-    d["effects"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .filter(|e| e["selected"].as_bool() == Some(true))
-        .find(|e| match e["covariate"].as_str() {
-            Some(c) => format!("{}:{c}", e["name"].as_str().unwrap()) == key,
-            None => e["name"].as_str() == Some(key),
-        })
-        .and_then(|e| e["shrink"].as_f64())
-        .unwrap_or(f64::NAN)
-}
-
 /// Wheel wear between dressings: the plugin's physically named composite
 /// (wear on the volume removed since the last dressing) comes first.
+fn diagnose_fleet(dir: &Path, seed: u64, effect: Option<&str>) -> serde_json::Value {
+    diagnose_generated_fleet(dir, "form", 9, seed, effect, &[])
+}
+
 #[test]
 fn wheel_wear_between_dressings_is_named_first() {
     let d = tempfile::tempdir().unwrap();

@@ -4,69 +4,12 @@
 //! diagnosis.json with a held-out shrink; an effect-free fleet gets none.
 
 mod common;
-use common::sparkout;
+use common::{diagnose_generated_fleet, first_selected, selected_entry};
 
 use std::path::Path;
 
 fn diagnose_fleet(dir: &Path, seed: u64, effect: Option<&str>) -> serde_json::Value {
-    let root = dir.join("runs");
-    let out = dir.join("out");
-    let seed = seed.to_string();
-    let mut args = vec![
-        "generate",
-        "mill",
-        "--runs",
-        "6",
-        "--seed",
-        &seed,
-        "--out",
-        root.to_str().unwrap(),
-    ];
-    if let Some(e) = effect {
-        args.extend(["--effect", e]);
-    }
-    let g = sparkout(&args);
-    assert!(g.status.success(), "{}", String::from_utf8_lossy(&g.stderr));
-    let r = sparkout(&[
-        "run",
-        "--input",
-        root.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-    ]);
-    assert!(
-        r.status.success(),
-        "{}\n{}",
-        String::from_utf8_lossy(&r.stdout),
-        String::from_utf8_lossy(&r.stderr)
-    );
-    serde_json::from_slice(&std::fs::read(out.join("fleet/diagnosis.json")).unwrap()).unwrap()
-}
-
-fn first_selected(d: &serde_json::Value) -> String {
-    d["selected"]
-        .as_array()
-        .and_then(|a| a.first())
-        .and_then(|s| s.as_str())
-        .unwrap_or("")
-        .to_string()
-}
-
-/// The selected entry of `key` (its shrink and parameters).
-fn selected_entry<'a>(d: &'a serde_json::Value, key: &str) -> &'a serde_json::Value {
-    d["effects"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .filter(|e| e["selected"].as_bool() == Some(true))
-        .find(|e| {
-            let k = match e["covariate"].as_str() {
-                Some(c) => format!("{}:{c}", e["name"].as_str().unwrap()),
-                None => e["name"].as_str().unwrap().to_string(),
-            };
-            k == key
-        })
-        .unwrap_or_else(|| panic!("no selected entry {key}: {d:#}"))
+    diagnose_generated_fleet(dir, "mill", 6, seed, effect, &[])
 }
 
 #[test]
@@ -82,7 +25,8 @@ fn thermal_growth_is_named_first() {
         "expected thermal growth first, got {first:?}; selected {}",
         diag["selected"]
     );
-    let e = selected_entry(&diag, &first);
+    let e = selected_entry(&diag, &first)
+        .unwrap_or_else(|| panic!("no selected entry {first}: {diag:#}"));
     assert_eq!(e["observable"], "tracker_dz", "{e:#}");
     assert!(e["shrink"].as_f64().unwrap() > 0.3, "{e:#}");
     if first == "drift:t_s" {
@@ -106,7 +50,7 @@ fn waviness_beyond_the_polynomial_degree_is_named_periodic_in_x() {
         "{}",
         diag["selected"]
     );
-    let e = selected_entry(&diag, "periodic:x_mm");
+    let e = selected_entry(&diag, "periodic:x_mm").expect("periodic:x_mm selected");
     let lambda = e["params"]["lambda"].as_f64().unwrap();
     assert!((lambda - 75.0).abs() < 5.0, "λ {lambda} (true 75 mm)");
     assert!(e["shrink"].as_f64().unwrap() > 0.2, "{e:#}");
