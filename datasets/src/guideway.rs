@@ -190,19 +190,7 @@ pub struct Effects {
 }
 
 fn check_keys(spec: &EffectSpec, known: &[&str]) -> Result<()> {
-    for (k, v) in &spec.params {
-        if !known.contains(&k.as_str()) {
-            bail!(
-                "effect `{}`: unknown parameter `{k}` (known: {})",
-                spec.key(),
-                known.join(", ")
-            );
-        }
-        if !v.is_finite() {
-            bail!("effect `{}`: `{k}` must be finite", spec.key());
-        }
-    }
-    Ok(())
+    spec.check_params(known).map_err(anyhow::Error::msg)
 }
 
 /// Check the `--effect` specs and fill defaults.

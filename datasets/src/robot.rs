@@ -522,23 +522,7 @@ impl Effects {
 }
 
 fn check_keys(spec: &EffectSpec, known: &[&str]) -> Result<()> {
-    for (k, v) in &spec.params {
-        if !known.contains(&k.as_str()) {
-            bail!(
-                "effect `{}`: unknown parameter `{k}` (known: {})",
-                spec.key(),
-                if known.is_empty() {
-                    "none".to_string()
-                } else {
-                    known.join(", ")
-                }
-            );
-        }
-        if !v.is_finite() {
-            bail!("effect `{}`: parameter `{k}` must be finite", spec.key());
-        }
-    }
-    Ok(())
+    spec.check_params(known).map_err(anyhow::Error::msg)
 }
 
 fn check_cov(spec: &EffectSpec, allowed: &[&str]) -> Result<()> {

@@ -28,6 +28,30 @@ impl EffectSpec {
     pub fn param_or(&self, key: &str, default: f64) -> f64 {
         self.param(key).unwrap_or(default)
     }
+    /// Every parameter is one of `known` and finite; the error names the
+    /// effect, the parameter and the known ones (generators' `--effect`).
+    pub fn check_params(&self, known: &[&str]) -> Result<(), String> {
+        for (k, v) in &self.params {
+            if !known.contains(&k.as_str()) {
+                return Err(format!(
+                    "effect `{}`: unknown parameter `{k}` (known: {})",
+                    self.key(),
+                    if known.is_empty() {
+                        "none".to_string()
+                    } else {
+                        known.join(", ")
+                    }
+                ));
+            }
+            if !v.is_finite() {
+                return Err(format!(
+                    "effect `{}`: parameter `{k}` must be finite",
+                    self.key()
+                ));
+            }
+        }
+        Ok(())
+    }
 }
 
 impl FromStr for EffectSpec {
