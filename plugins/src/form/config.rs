@@ -1,8 +1,8 @@
 //! Checking `[form.<stage>]` config sections. The checker itself is the
-//! crate's one (shared with the robot plugin, not copied); this file holds
+//! pipeline's shared one (`config_check`, not copied); this file holds
 //! the form plugin's keys.
 
-pub use crate::robot::config::{check_config, Check};
+pub use sparkout_pipeline::config_check::{check_config, Check};
 
 use sparkout_pipeline::{cfg_f64, Result};
 

@@ -2,66 +2,7 @@
 //! of the right type and range, with an error that names the key and says
 //! what to write instead.
 
-use anyhow::bail;
-use sparkout_pipeline::Result;
-
-/// What a key's value must be.
-#[derive(Debug, Clone, Copy)]
-pub enum Check {
-    /// A number > 0.
-    Positive,
-    /// A number ≥ 0.
-    NonNegative,
-    /// A number in (0, 1).
-    Probability,
-    /// A number ≥ 1.
-    AtLeastOne,
-    /// One of these strings.
-    OneOf(&'static [&'static str]),
-}
-
-fn number(v: &toml::Value) -> Option<f64> {
-    match v {
-        toml::Value::Float(f) => Some(*f),
-        toml::Value::Integer(i) => Some(*i as f64),
-        _ => None,
-    }
-}
-
-/// Check a stage's section against its known keys.
-pub fn check_config(config: &toml::Table, keys: &[(&str, Check)]) -> Result<()> {
-    for (k, v) in config {
-        let Some((_, check)) = keys.iter().find(|(name, _)| name == k) else {
-            let known: Vec<&str> = keys.iter().map(|(n, _)| *n).collect();
-            bail!(
-                "unknown key `{k}` (known: {})",
-                if known.is_empty() {
-                    "none".to_string()
-                } else {
-                    known.join(", ")
-                }
-            );
-        };
-        let ok = match check {
-            Check::Positive => number(v).is_some_and(|x| x.is_finite() && x > 0.0),
-            Check::NonNegative => number(v).is_some_and(|x| x.is_finite() && x >= 0.0),
-            Check::Probability => number(v).is_some_and(|x| x > 0.0 && x < 1.0),
-            Check::AtLeastOne => number(v).is_some_and(|x| x.is_finite() && x >= 1.0),
-            Check::OneOf(opts) => v.as_str().is_some_and(|s| opts.contains(&s)),
-        };
-        if !ok {
-            let want = match check {
-                Check::Positive => "a number > 0".to_string(),
-                Check::NonNegative => "a number ≥ 0".to_string(),
-                Check::Probability => "a number in (0, 1)".to_string(),
-                Check::AtLeastOne => "a number ≥ 1".to_string(),
-                Check::OneOf(opts) => format!("one of {}", opts.join(", ")),
-            };
-            bail!("key `{k}` must be {want}, found {v}");
-        }
-    }
-    Ok(())
-}
+pub use sparkout_pipeline::config_check::{check_config, Check};
 
 /// Topography states in the order a workpiece goes through them
 /// (CONTRACTS.md §1, topography.parquet).

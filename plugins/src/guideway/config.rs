@@ -1,12 +1,12 @@
 //! `[guideway.<stage>]` config sections: known keys and their checks (the
-//! key checker is the plugins' shared one, `robot::config::check_config`,
+//! key checker is the pipeline's shared one, `config_check::check_config`,
 //! which holds no robot logic), integer keys, and the settings each stage
 //! reads, with defaults from the machine config where MODELS.md gives one.
 
 use anyhow::bail;
 use sparkout_pipeline::{Result, Run, StageContext};
 
-pub use crate::robot::config::{check_config, Check};
+pub use sparkout_pipeline::config_check::{check_config, Check};
 
 use super::input::InputOptions;
 use super::three_probe::{Method, Reference};
