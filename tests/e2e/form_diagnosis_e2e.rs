@@ -3,7 +3,7 @@
 //! named first in out/fleet/diagnosis.json with a positive held-out shrink;
 //! an effect-free fleet gets no effect named.
 
-mod common;
+use crate::common;
 use common::{diagnose_generated_fleet, first_selected, shrink_of};
 
 use std::path::Path;

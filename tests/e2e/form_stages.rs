@@ -3,7 +3,7 @@
 //! CLDATA programs, and bad inputs that name file, column and row while the
 //! rest of a batch goes on.
 
-mod common;
+use crate::common;
 use common::sparkout;
 
 use std::path::{Path, PathBuf};

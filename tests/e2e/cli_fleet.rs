@@ -1,7 +1,7 @@
 //! End to end through the `sparkout` binary: cache, config-key invalidation,
 //! determinism, isolation, atomicity, validate-input, exit codes.
 
-mod common;
+use crate::common;
 use common::sparkout;
 
 use std::collections::BTreeMap;

@@ -2,7 +2,7 @@
 //! stages through the binary (items 1–4), and bad inputs (each a clear
 //! error naming file, column and row; the batch goes on).
 
-mod common;
+use crate::common;
 use common::sparkout;
 
 use std::path::Path;

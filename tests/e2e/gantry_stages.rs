@@ -3,7 +3,7 @@
 //! input named in the issue rejected with a clear error while the batch goes
 //! on.
 
-mod common;
+use crate::common;
 use common::sparkout;
 
 use std::path::{Path, PathBuf};

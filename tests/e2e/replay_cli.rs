@@ -3,7 +3,7 @@
 //! python-can and decoded by cantools, faults ending non-zero with the
 //! reason, and bad input refused before anything is sent.
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 use std::process::Command;

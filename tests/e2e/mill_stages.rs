@@ -3,7 +3,7 @@
 //! held-out residual at the noise; unidentifiable configurations and bad
 //! tracker points are errors that say what is wrong and where.
 
-mod common;
+use crate::common;
 use common::sparkout;
 
 use std::collections::BTreeMap;

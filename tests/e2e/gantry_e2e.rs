@@ -3,7 +3,7 @@
 //! that effect named first in the fleet's diagnosis.json with a held-out
 //! shrink; an effect-free fleet gets no effect named.
 
-mod common;
+use crate::common;
 use common::{diagnose_generated_fleet, first_selected, shrink_of};
 
 use std::path::Path;

@@ -3,7 +3,7 @@
 //! `sparkout run`, gets that effect named first in the fleet's
 //! diagnosis.json with a held-out shrink; an effect-free fleet gets none.
 
-mod common;
+use crate::common;
 use common::{diagnose_generated_fleet, first_selected, selected_entry};
 
 use std::path::Path;

@@ -4,7 +4,7 @@
 //! that effect named first in the fleet's diagnosis.json, with a held-out
 //! shrink.
 
-mod common;
+use crate::common;
 use common::{diagnose_generated_fleet, first_selected, shrink_of};
 
 use std::path::Path;

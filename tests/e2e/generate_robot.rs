@@ -3,7 +3,7 @@
 //! is deterministic, the AE bursts, motion log and truth agree, and injected
 //! effects show where the spec says they do.
 
-mod common;
+use crate::common;
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};

@@ -1,7 +1,7 @@
 //! The ad hoc paths through the binary: `stage` (with a run and run-less),
 //! `generate observations` → `diagnose`, `validate --quick`.
 
-mod common;
+use crate::common;
 use common::sparkout;
 
 use std::process::Output;

@@ -1,0 +1,22 @@
+//! All end-to-end tests of the CLI in one test binary: each file under
+//! tests/e2e/ is a module (one binary links polars once, instead of once per
+//! file: ~8 GB of test executables and most of the link time saved).
+//! Run one group with `cargo test --test e2e gantry_stages::`.
+
+mod cli_fleet;
+mod cli_stage_diagnose;
+mod common;
+mod contracts_bad_input;
+mod diagnose_validate;
+mod form_diagnosis_e2e;
+mod form_stages;
+mod gantry_e2e;
+mod gantry_stages;
+mod generate_robot;
+mod guideway_diagnosis_e2e;
+mod guideway_stages;
+mod mill_diagnosis_e2e;
+mod mill_stages;
+mod replay_cli;
+mod robot_diagnosis_e2e;
+mod robot_stages;
