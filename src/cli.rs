@@ -44,6 +44,7 @@ pub enum Command {
                       diagnosis.json,report.html}; <out>/failures.json; <out>/manifest.json (last).\n\
                       Unchanged stages are skipped (content-hash cache)."
     )]
+    #[command(allow_negative_numbers = true)]
     Run {
         #[command(flatten)]
         config: ConfigArgs,
@@ -66,6 +67,7 @@ pub enum Command {
                       --doc-finish 0.1 --first-cut 0.2 --json\n\
                       Stage-specific flags (--planes, --weld-mm, ...) are passed to the stage."
     )]
+    #[command(allow_negative_numbers = true)]
     Stage {
         /// Stage name (e.g. ingest, repeatability, datum, cycle, observe).
         name: String,
@@ -104,6 +106,7 @@ pub enum Command {
                       --effect drift:t_s=amplitude_mm=0.02,tau_s=600\n\
                       Effects: NAME[:COVARIATE]=KEY=VALUE,... (repeatable). `sparkout generate robot --list-effects` lists them."
     )]
+    #[command(allow_negative_numbers = true)]
     Generate {
         /// What to generate: a plugin name (robot, guideway) or `observations`.
         what: String,
@@ -138,6 +141,7 @@ pub enum Command {
         after_help = "Example: sparkout diagnose out/fleet/observations.parquet --out diag/ --folds 5 --json\n\
                       Writes diagnosis.json (v1), diagnosis.parquet, augmented_model.json, report.html."
     )]
+    #[command(allow_negative_numbers = true)]
     Diagnose {
         /// observations.parquet (CONTRACTS.md §2).
         observations: PathBuf,
@@ -165,9 +169,11 @@ pub enum Command {
                       A compensation is a Parquet with t_s and any of dx_mm, dy_mm, dz_mm. Exit codes: 0 replay completed, \
                       2 ended by a quick stop (the reason is printed), 1 usage/config/input error (nothing sent)."
     )]
+    #[command(allow_negative_numbers = true)]
     Replay(ReplayArgs),
     /// Check the diagnosis on generated fleets whose effect is known (withheld from sim).
     #[command(after_help = "Example: sparkout validate --quick --out validation/")]
+    #[command(allow_negative_numbers = true)]
     Validate {
         /// A smaller grid of fleets (under 30 s in release).
         #[arg(long)]

@@ -232,7 +232,7 @@ pub fn resolve_effects(specs: &[EffectSpec]) -> Result<Effects> {
                 }
                 if !sparkout_pipeline::diagnose::effect::kinds_for(cov).contains(&kind) {
                     bail!(
-                        "effect `{}`: `{name}` does not apply to `{cov}` (CONTRACTS.md catalogue)",
+                        "effect `{}`: `{name}` does not apply to `{cov}` (docs/formats.md, effect catalogue)",
                         spec.key()
                     );
                 }

@@ -679,7 +679,7 @@ fn resolve_effects(
                     && !sparkout_pipeline::diagnose::effect::kinds_for(&c1).contains(&kind)
                 {
                     bail!(
-                        "effect `{}`: `{name}` does not apply to covariate `{c1}` (CONTRACTS.md catalogue)",
+                        "effect `{}`: `{name}` does not apply to covariate `{c1}` (docs/formats.md, effect catalogue)",
                         spec.key()
                     );
                 }

@@ -70,3 +70,22 @@ pub fn check_config(config: &toml::Table, keys: &[(&str, Check)]) -> Result<()> 
     }
     Ok(())
 }
+
+/// Run-less stage flags (`--p-max 20`) as a config table (`p_max = 20`):
+/// dashes read as underscores, values as TOML (numbers, booleans), else
+/// text; the flags in `inputs` are the stage's own and are left out.
+pub fn flags_to_table(args: &crate::StageArgs, inputs: &[&str]) -> toml::Table {
+    let mut t = toml::Table::new();
+    for (k, v) in args {
+        if inputs.contains(&k.as_str()) {
+            continue;
+        }
+        let value = format!("v = {v}")
+            .parse::<toml::Table>()
+            .ok()
+            .and_then(|mut x| x.remove("v"))
+            .unwrap_or_else(|| toml::Value::String(v.clone()));
+        t.insert(k.replace('-', "_"), value);
+    }
+    t
+}

@@ -45,7 +45,11 @@ impl Run {
         if let Some(t) = self.tables.lock().expect("table cache").get(schema.name) {
             return Ok(Some(t.clone()));
         }
-        let t = Arc::new(Table::read(&self.table_path(schema), schema)?);
+        let t = Arc::new(Table::read_at(
+            &self.table_path(schema),
+            schema,
+            &self.spec.time_origin(),
+        )?);
         self.tables
             .lock()
             .expect("table cache")

@@ -131,7 +131,7 @@ pub fn generate(
         }
         "observations" => {
             if list_effects {
-                println!("any catalogue effect (CONTRACTS.md): offset, scale, drift, lag, inertia, backlash, wear, compliance, bow, periodic, edge, squareness, thermal — as NAME:COVARIATE=KEY=VALUE,...");
+                println!("any catalogue effect (docs/formats.md): offset, scale, drift, lag, inertia, backlash, wear, compliance, bow, periodic, edge, squareness, thermal — as NAME:COVARIATE=KEY=VALUE,...");
                 return Ok(0);
             }
             let out = out.context("--out <file.parquet> is required")?;

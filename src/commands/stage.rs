@@ -33,9 +33,21 @@ fn parse_stage_flags(extra: &[String]) -> anyhow::Result<StageArgs> {
     Ok(args)
 }
 
-/// A flag, not a negative number.
+/// A flag (`--name`, `-x`), not a value that begins with `-`: engineers
+/// type negative numbers and lists of them (`--planes "-0.0076,-1,0,12;..."`,
+/// `--x -0.5`, `--offset -.5`), so anything whose first character after the
+/// dash is not a letter is a value.
 fn is_flag(s: &str) -> bool {
-    s.starts_with("--") || (s.starts_with('-') && s.parse::<f64>().is_err() && s.len() > 1)
+    if s.parse::<f64>().is_ok() {
+        return false;
+    }
+    match s.strip_prefix("--") {
+        Some(rest) => rest.chars().next().is_some_and(|c| c.is_alphabetic()),
+        None => {
+            let mut c = s.chars();
+            c.next() == Some('-') && c.next().is_some_and(|c| c.is_alphabetic())
+        }
+    }
 }
 
 /// `stage NAME --run DIR --key value`: each leftover `--key value` becomes
@@ -167,6 +179,12 @@ mod tests {
             "--planes=1,2,3,4",
             "--x",
             "-0.5",
+            "--planes2",
+            "-0.0076,-0.0018,-1,12.44463;1,0,0,-20",
+            "--offset",
+            "-.5",
+            "--scale",
+            "-1e-3",
         ]
         .iter()
         .map(|s| s.to_string())
@@ -176,6 +194,10 @@ mod tests {
         assert_eq!(a["json"], "true");
         assert_eq!(a["planes"], "1,2,3,4");
         assert_eq!(a["x"], "-0.5");
+        assert_eq!(a["planes2"], "-0.0076,-0.0018,-1,12.44463;1,0,0,-20");
+        assert_eq!(a["offset"], "-.5");
+        assert_eq!(a["scale"], "-1e-3");
+        assert!(is_flag("--json") && is_flag("-v") && !is_flag("-") && !is_flag("-1,2"));
         assert!(parse_stage_flags(&["oops".to_string()]).is_err());
     }
 }

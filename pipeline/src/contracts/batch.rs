@@ -88,15 +88,9 @@ pub fn batch_str(batch: &RecordBatch, name: &str) -> anyhow::Result<Vec<String>>
     Ok((0..a.len()).map(|i| a.value(i).to_string()).collect())
 }
 
-/// Read a whole Parquet file sparkout wrote (artifacts are small).
+/// Read a whole Parquet file (artifacts sparkout wrote, or any small table),
+/// with the same truthful errors as the contract readers.
 pub fn read_parquet(path: &std::path::Path) -> anyhow::Result<RecordBatch> {
-    use anyhow::Context;
-    let builder = super::table::open_parquet(path)?;
-    let schema = builder.schema().clone();
-    let batches: Vec<RecordBatch> = builder
-        .build()
-        .with_context(|| format!("cannot decode {}", path.display()))?
-        .collect::<Result<_, _>>()
-        .with_context(|| format!("cannot decode {}", path.display()))?;
-    Ok(arrow::compute::concat_batches(&schema, &batches)?)
+    let builder = super::parquet_file::open_parquet(path)?;
+    Ok(super::parquet_file::read_all(path, builder)?)
 }

@@ -74,7 +74,7 @@ impl RunSpec {
             InputError::new(
                 &path,
                 format!(
-                    "cannot read run.toml ({e}); every run directory needs one (CONTRACTS.md §1)"
+                    "cannot read run.toml ({e}); every run directory needs one (docs/formats.md)"
                 ),
             )
         })?;
@@ -151,6 +151,19 @@ impl RunSpec {
 
     pub fn run_toml_path(&self) -> PathBuf {
         self.dir.join(Self::FILE)
+    }
+
+    /// What timestamps in this run's tables count from: `[run].started`
+    /// (CONTRACTS.md: `t_s` is seconds since the run's start).
+    pub fn time_origin(&self) -> super::TimeOrigin {
+        match self
+            .started
+            .as_deref()
+            .and_then(super::convert::parse_datetime_unix_s)
+        {
+            Some(t0) => super::TimeOrigin::UnixS(t0),
+            None => super::TimeOrigin::Missing,
+        }
     }
 
     /// A number from `[process]`, with a default.

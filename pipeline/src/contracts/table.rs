@@ -3,18 +3,19 @@
 //! have been checked and normalised to their v1 types; extra columns are kept
 //! untouched (CONTRACTS.md: "extra columns are kept and passed through").
 
-use std::fs::File;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use arrow::array::{
     Array, ArrayRef, Float32Array, Float64Array, Int32Array, Int64Array, Int8Array, StringArray,
 };
-use arrow::compute::{cast, concat_batches};
 use arrow::datatypes::{DataType, Field, Schema};
 use arrow::record_batch::RecordBatch;
-use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
 
+pub(crate) use super::convert::type_accepted;
+use super::convert::{earliest_unix_s, is_time_column, normalise, TimeOrigin};
+pub(crate) use super::parquet_file::open_parquet;
+use super::parquet_file::read_all;
 use super::schema::{ColumnKind, TableSchema};
 use crate::error::InputError;
 
@@ -35,32 +36,6 @@ pub(crate) fn arrow_type(kind: ColumnKind) -> DataType {
     }
 }
 
-/// Whether a physical type is acceptable for a logical kind (CONTRACTS.md
-/// "Conventions": readers may accept more than they write).
-pub(crate) fn type_accepted(kind: ColumnKind, dt: &DataType) -> bool {
-    use DataType::*;
-    match kind {
-        ColumnKind::F64 | ColumnKind::F32 => matches!(dt, Float64 | Float32 | Float16),
-        ColumnKind::I32 | ColumnKind::I64 | ColumnKind::I8 => {
-            matches!(dt, Int8 | Int16 | Int32 | Int64 | UInt8 | UInt16 | UInt32)
-        }
-        ColumnKind::Utf8 => matches!(dt, Utf8 | LargeUtf8 | Utf8View),
-    }
-}
-
-/// Open a Parquet file for reading, with errors that say what to do.
-pub(crate) fn open_parquet(
-    path: &Path,
-) -> Result<ParquetRecordBatchReaderBuilder<File>, InputError> {
-    let file = File::open(path).map_err(|e| InputError::new(path, format!("cannot open: {e}")))?;
-    ParquetRecordBatchReaderBuilder::try_new(file).map_err(|e| {
-        InputError::new(
-            path,
-            format!("not a readable Parquet file (truncated or corrupt?): {e}"),
-        )
-    })
-}
-
 /// Check the file's schema against the contract: required columns present,
 /// known columns of an accepted type.
 pub(crate) fn check_schema(
@@ -71,11 +46,11 @@ pub(crate) fn check_schema(
     for spec in schema.columns {
         match file_schema.field_with_name(spec.name) {
             Ok(field) => {
-                if !type_accepted(spec.kind, field.data_type()) {
+                if !type_accepted(spec.kind, spec.name, field.data_type()) {
                     return Err(InputError::new(
                         path,
                         format!(
-                            "wrong type {} (the contract says {})",
+                            "wrong type {} (the contract says {}; see docs/formats.md)",
                             field.data_type(),
                             spec.kind.label()
                         ),
@@ -136,26 +111,22 @@ pub(crate) fn first_decrease(t: &[f64]) -> Option<usize> {
 
 impl Table {
     /// Read and validate a whole table (not for AE logs: use `AeStream`).
+    /// Timestamps in time columns count from the table's earliest one; a
+    /// run's tables use [`Table::read_at`] with the run's start.
     pub fn read(path: &Path, schema: &TableSchema) -> Result<Table, InputError> {
+        Self::read_at(path, schema, &TimeOrigin::TableStart)
+    }
+
+    /// Read and validate a whole table, timestamps measured from `origin`.
+    pub fn read_at(
+        path: &Path,
+        schema: &TableSchema,
+        origin: &TimeOrigin,
+    ) -> Result<Table, InputError> {
         let builder = open_parquet(path)?;
         check_schema(path, schema, builder.schema())?;
-        let file_schema = builder.schema().clone();
-        let reader = builder
-            .build()
-            .map_err(|e| InputError::new(path, format!("cannot decode Parquet: {e}")))?;
-        let mut batches = Vec::new();
-        for b in reader {
-            let b = b.map_err(|e| {
-                InputError::new(
-                    path,
-                    format!("cannot decode a row group (truncated or corrupt file?): {e}"),
-                )
-            })?;
-            batches.push(b);
-        }
-        let batch = concat_batches(&file_schema, &batches)
-            .map_err(|e| InputError::new(path, format!("cannot assemble table: {e}")))?;
-        Self::from_batch(path, schema, batch)
+        let batch = read_all(path, builder)?;
+        Self::from_batch_at(path, schema, batch, origin)
     }
 
     /// Validate and normalise an in-memory batch against a schema.
@@ -164,7 +135,31 @@ impl Table {
         schema: &TableSchema,
         batch: RecordBatch,
     ) -> Result<Table, InputError> {
+        Self::from_batch_at(path, schema, batch, &TimeOrigin::TableStart)
+    }
+
+    /// [`Table::from_batch`] with timestamps measured from `origin`.
+    pub fn from_batch_at(
+        path: &Path,
+        schema: &TableSchema,
+        batch: RecordBatch,
+        origin: &TimeOrigin,
+    ) -> Result<Table, InputError> {
         check_schema(path, schema, &batch.schema())?;
+        // One origin for every time column of the table, so t_start_s and
+        // t_end_s stay comparable.
+        let origin = match origin {
+            TimeOrigin::TableStart => batch
+                .schema()
+                .fields()
+                .iter()
+                .zip(batch.columns())
+                .filter(|(f, _)| is_time_column(f.name()) && schema.column(f.name()).is_some())
+                .filter_map(|(_, c)| earliest_unix_s(c.as_ref()))
+                .reduce(f64::min)
+                .map_or(TimeOrigin::TableStart, TimeOrigin::UnixS),
+            o => o.clone(),
+        };
         if batch.num_rows() == 0 {
             return Err(InputError::new(
                 path,
@@ -187,14 +182,7 @@ impl Table {
                         ColumnKind::F32 => DataType::Float64,
                         k => arrow_type(k),
                     };
-                    let col = if col.data_type() == &target {
-                        col.clone()
-                    } else {
-                        cast(col, &target).map_err(|e| {
-                            InputError::new(path, format!("cannot convert to {target}: {e}"))
-                                .column(spec.name)
-                        })?
-                    };
+                    let col = normalise(path, spec.name, col, &target, &origin)?;
                     if spec.required {
                         if let Some((row, what)) = first_non_finite(col.as_ref()) {
                             return Err(InputError::new(

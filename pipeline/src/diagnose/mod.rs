@@ -713,7 +713,7 @@ pub fn diagnose(
     let augmented_model = serde_json::json!({
         "version": 1,
         "kind": "sparkout.augmented_model",
-        "applies_as": "real ≈ sim + Σ over effects of (offset_mm + form(covariates; params)), per observable; forms as in CONTRACTS.md catalogue",
+        "applies_as": "real ≈ sim + Σ over effects of (offset_mm + form(covariates; params)), per observable; forms as in docs/formats.md, effect catalogue",
         "effects": augmented,
     });
     let report_html = report::section(&diagnosis);

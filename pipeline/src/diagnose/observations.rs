@@ -1,15 +1,12 @@
 //! observations.parquet (CONTRACTS.md §2): validated reading, and the
 //! column-major table the diagnosis works on.
 
-use std::fs::File;
 use std::path::Path;
 use std::sync::Arc;
 
-use anyhow::Context;
 use arrow::array::{Array, ArrayRef, AsArray, Float64Array, RecordBatch};
-use arrow::compute::{cast, concat_batches};
+use arrow::compute::cast;
 use arrow::datatypes::{DataType, Field, Schema};
-use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
 
 use crate::{InputError, Result};
 
@@ -21,20 +18,36 @@ pub const RESERVED: [&str; 6] = ["run", "observable", "sim", "real", "trial", "p
 /// (float32 accepted and widened), no NaN/±inf in sim/real (the first bad row
 /// is named), not empty. Extra columns are kept.
 pub fn read_observations(path: &Path) -> Result<RecordBatch> {
-    let file = File::open(path).with_context(|| format!("opening {}", path.display()))?;
-    let builder = ParquetRecordBatchReaderBuilder::try_new(file)
-        .map_err(|e| InputError::new(path, format!("not a readable Parquet file: {e}")))?;
-    let schema = builder.schema().clone();
-    let reader = builder
-        .with_batch_size(65_536)
-        .build()
-        .map_err(|e| InputError::new(path, format!("cannot read: {e}")))?;
-    let mut batches = Vec::new();
-    for b in reader {
-        batches.push(b.map_err(|e| InputError::new(path, format!("cannot decode: {e}")))?);
+    use crate::contracts::parquet_file::{open_parquet, read_all};
+    let batch = read_all(path, open_parquet(path)?.with_batch_size(65_536))?;
+    validate_observations(&normalise_types(batch, path)?, path)
+}
+
+/// Text written as large_utf8 / utf8-view / dictionary (pandas, polars) →
+/// utf8, and sim/real written as integers or decimals → float64, with the
+/// same checked conversion as every contract table (docs/formats.md).
+fn normalise_types(batch: RecordBatch, path: &Path) -> Result<RecordBatch> {
+    use crate::contracts::convert::{normalise, type_accepted, TimeOrigin};
+    use crate::contracts::ColumnKind;
+    let schema = batch.schema();
+    let mut fields: Vec<Arc<Field>> = schema.fields().iter().cloned().collect();
+    let mut cols: Vec<ArrayRef> = batch.columns().to_vec();
+    for (i, f) in schema.fields().iter().enumerate() {
+        let (kind, target) = match f.name().as_str() {
+            "run" | "observable" | "machine" => (ColumnKind::Utf8, DataType::Utf8),
+            "sim" | "real" => (ColumnKind::F64, DataType::Float64),
+            _ => continue,
+        };
+        if f.data_type() == &target || !type_accepted(kind, f.name(), f.data_type()) {
+            continue; // left to validate_observations (and its message)
+        }
+        cols[i] = normalise(path, f.name(), &cols[i], &target, &TimeOrigin::TableStart)?;
+        fields[i] = Arc::new(Field::new(f.name(), target, f.is_nullable()));
     }
-    let batch = concat_batches(&schema, &batches)?;
-    validate_observations(&batch, path)
+    Ok(RecordBatch::try_new(
+        Arc::new(Schema::new_with_metadata(fields, schema.metadata().clone())),
+        cols,
+    )?)
 }
 
 /// Validation shared by the reader and `diagnose` (a batch built in memory

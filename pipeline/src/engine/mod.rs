@@ -280,7 +280,7 @@ impl Engine {
             return Err(InputError::new(
                 run.dir(),
                 format!(
-                    "plugin `{}` needs {} (CONTRACTS.md §3); none of these sets is complete",
+                    "plugin `{}` needs {} (docs/formats.md); none of these sets is complete",
                     plugin.name(),
                     alts.join(", or ")
                 ),
@@ -822,15 +822,19 @@ impl Engine {
                 push(format!("{e:#}"));
             }
             // Validate every table that is present, whatever else is wrong.
+            let origin = RunSpec::load(dir)
+                .map(|s| s.time_origin())
+                .unwrap_or(crate::contracts::TimeOrigin::TableStart);
             for schema in crate::contracts::ALL_TABLES {
                 let path = dir.join(schema.file_name());
                 if !path.is_file() {
                     continue;
                 }
                 let r: std::result::Result<(), InputError> = if schema.name == "ae" {
-                    AeStream::open(&path).and_then(|mut s| s.try_for_each(|c| c.map(|_| ())))
+                    AeStream::open_at(&path, &origin, AeStream::DEFAULT_BATCH_ROWS)
+                        .and_then(|mut s| s.try_for_each(|c| c.map(|_| ())))
                 } else {
-                    Table::read(&path, schema).map(|_| ())
+                    Table::read_at(&path, schema, &origin).map(|_| ())
                 };
                 if let Err(e) = r {
                     push(e.to_string());

@@ -267,7 +267,9 @@ impl ProfileRows {
                 other => {
                     return Err(InputError::new(
                         t.path(),
-                        format!("unknown state `{other}` (CONTRACTS.md: `design` or `measured`)"),
+                        format!(
+                            "unknown state `{other}` (docs/formats.md: `design` or `measured`)"
+                        ),
                     )
                     .column("state")
                     .row(i))

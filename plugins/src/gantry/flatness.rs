@@ -21,6 +21,7 @@ use sparkout_pipeline::{Result, Stage, StageArgs, StageContext, StageOutput};
 
 use super::config::{check_config, Check, STATES};
 use super::grid;
+use super::surface::{read_surface, SurfaceSpec};
 
 /// z = a·x + b·y + c.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -71,31 +72,82 @@ pub fn least_squares(x: &[f64], y: &[f64], z: &[f64]) -> Result<PlaneFit> {
 
 /// Exact minimum-zone flatness by linear programming. The plane returned is
 /// the zone's mid-plane; its width is re-evaluated from the points.
+///
+/// Large maps (an interferometer gives 10⁵–10⁶ points) are solved by
+/// constraint generation: the LP over a subset gives a zone no wider than
+/// the true one; its plane applied to every point gives one no narrower.
+/// When the two agree the subset's answer is exact; otherwise the points
+/// furthest outside are added and the LP solved again. Only points on the
+/// hull of the surface matter, so a few rounds of a few hundred points do.
 pub fn min_zone(x: &[f64], y: &[f64], z: &[f64]) -> Result<PlaneFit> {
+    const DIRECT: usize = 600;
+    const ADD: usize = 100;
+    if z.len() <= DIRECT {
+        let all: Vec<usize> = (0..z.len()).collect();
+        return min_zone_of(x, y, z, &all);
+    }
+    // Start from the extremes of the least-squares residuals.
+    let ls = least_squares(x, y, z)?;
+    let (a, b) = (ls.plane[0], ls.plane[1]);
+    let mut order: Vec<usize> = (0..z.len()).collect();
+    order.sort_by(|&i, &j| {
+        let (ri, rj) = (z[i] - a * x[i] - b * y[i], z[j] - a * x[j] - b * y[j]);
+        ri.total_cmp(&rj).then(i.cmp(&j))
+    });
+    let mut subset: Vec<usize> = order[..ADD].to_vec();
+    subset.extend_from_slice(&order[order.len() - ADD..]);
+    loop {
+        let fit = min_zone_of(x, y, z, &subset)?;
+        let (a, b) = (fit.plane[0], fit.plane[1]);
+        let (lo_s, hi_s) = width_of(x, y, z, a, b, &subset);
+        let (lo, hi) = width(x, y, z, a, b);
+        let tol = 1e-12 * (1.0 + (hi_s - lo_s).abs());
+        if hi - lo <= (hi_s - lo_s) + tol || subset.len() == z.len() {
+            return Ok(PlaneFit {
+                plane: [a, b, 0.5 * (lo + hi)],
+                width_mm: hi - lo,
+            });
+        }
+        let r = |i: usize| z[i] - a * x[i] - b * y[i];
+        let mut above: Vec<usize> = (0..z.len()).filter(|&i| r(i) > hi_s + tol).collect();
+        let mut below: Vec<usize> = (0..z.len()).filter(|&i| r(i) < lo_s - tol).collect();
+        above.sort_by(|&i, &j| r(j).total_cmp(&r(i)).then(i.cmp(&j)));
+        below.sort_by(|&i, &j| r(i).total_cmp(&r(j)).then(i.cmp(&j)));
+        subset.extend(above.into_iter().take(ADD));
+        subset.extend(below.into_iter().take(ADD));
+        subset.sort_unstable();
+        subset.dedup();
+    }
+}
+
+fn width_of(x: &[f64], y: &[f64], z: &[f64], a: f64, b: f64, idx: &[usize]) -> (f64, f64) {
+    idx.iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &i| {
+            let r = z[i] - a * x[i] - b * y[i];
+            (lo.min(r), hi.max(r))
+        })
+}
+
+/// The minimum-zone LP over the points `idx`.
+fn min_zone_of(x: &[f64], y: &[f64], z: &[f64], idx: &[usize]) -> Result<PlaneFit> {
     // Centre and scale the coordinates so the LP is well conditioned.
-    let n = z.len() as f64;
-    let (mx, my, mz) = (
-        x.iter().sum::<f64>() / n,
-        y.iter().sum::<f64>() / n,
-        z.iter().sum::<f64>() / n,
-    );
-    let sx = x
-        .iter()
-        .map(|v| (v - mx).abs())
-        .fold(0.0, f64::max)
-        .max(1e-12);
-    let sy = y
-        .iter()
-        .map(|v| (v - my).abs())
-        .fold(0.0, f64::max)
-        .max(1e-12);
+    let n = idx.len() as f64;
+    let mean = |v: &[f64]| idx.iter().map(|&i| v[i]).sum::<f64>() / n;
+    let (mx, my, mz) = (mean(x), mean(y), mean(z));
+    let spread = |v: &[f64], m: f64| {
+        idx.iter()
+            .map(|&i| (v[i] - m).abs())
+            .fold(0.0, f64::max)
+            .max(1e-12)
+    };
+    let (sx, sy) = (spread(x, mx), spread(y, my));
     let mut p = Problem::new(OptimizationDirection::Minimize);
     let free = (f64::NEG_INFINITY, f64::INFINITY);
     let a = p.add_var(0.0, free);
     let b = p.add_var(0.0, free);
     let lo = p.add_var(-1.0, free);
     let hi = p.add_var(1.0, free);
-    for i in 0..z.len() {
+    for &i in idx {
         let (u, v, w) = ((x[i] - mx) / sx, (y[i] - my) / sy, z[i] - mz);
         p.add_constraint([(a, u), (b, v), (hi, 1.0)], ComparisonOp::Ge, w);
         p.add_constraint([(a, u), (b, v), (lo, 1.0)], ComparisonOp::Le, w);
@@ -104,7 +156,7 @@ pub fn min_zone(x: &[f64], y: &[f64], z: &[f64]) -> Result<PlaneFit> {
         .solve()
         .map_err(|e| anyhow!("minimum-zone LP failed: {e}"))?;
     let (aa, bb) = (sol[a] / sx, sol[b] / sy);
-    let (rlo, rhi) = width(x, y, z, aa, bb);
+    let (rlo, rhi) = width_of(x, y, z, aa, bb, idx);
     Ok(PlaneFit {
         plane: [aa, bb, 0.5 * (rlo + rhi)],
         width_mm: rhi - rlo,
@@ -230,19 +282,52 @@ impl Stage for FlatnessStage {
         let (all, summary) = analyse(&t, state)?;
         Ok(StageOutput::new(summary).with("flatness", batch(&all)))
     }
-    /// `sparkout stage flatness --topography FILE [--state NAME] --json`.
+    /// `sparkout stage flatness --topography FILE [--state NAME] --json`
+    /// (a topography table), or `--surface FILE [--x COL --y COL --z COL]
+    /// [--unit-scale F] --json` (any x/y/z table or gridded map).
     fn run_standalone(&self, args: &StageArgs) -> Option<Result<Value>> {
+        if args.contains_key("surface") {
+            return Some(surface_flatness(args));
+        }
         let file = args.get("topography")?;
         Some((|| {
             for k in args.keys() {
                 if k != "topography" && k != "state" {
-                    anyhow::bail!("unknown flag --{k} for `flatness` (known: --topography FILE, --state NAME)");
+                    anyhow::bail!("unknown flag --{k} for `flatness` (known: --topography FILE, --state NAME; or --surface FILE, --x/--y/--z COL, --unit-scale F)");
                 }
             }
             let t = Table::read(std::path::Path::new(file), &TOPOGRAPHY)?;
             Ok(analyse(&t, args.get("state").map(|s| s.as_str()))?.1)
         })())
     }
+}
+
+/// `{"least_squares_mm", "min_zone_mm", "n"}` of any surface file.
+fn surface_flatness(args: &StageArgs) -> Result<Value> {
+    const KNOWN: [&str; 5] = ["surface", "x", "y", "z", "unit-scale"];
+    if let Some(k) = args.keys().find(|k| !KNOWN.contains(&k.as_str())) {
+        anyhow::bail!("unknown flag --{k} for `flatness --surface` (known: --surface FILE, --x COL, --y COL, --z COL, --unit-scale F)");
+    }
+    let unit_scale = match args.get("unit-scale") {
+        Some(s) => s
+            .parse::<f64>()
+            .map_err(|_| anyhow!("--unit-scale `{s}` is not a number"))?,
+        None => 1.0,
+    };
+    let spec = SurfaceSpec {
+        x: args.get("x").map(|s| s.as_str()),
+        y: args.get("y").map(|s| s.as_str()),
+        z: args.get("z").map(|s| s.as_str()),
+        unit_scale,
+    };
+    let path = std::path::Path::new(&args["surface"]);
+    let p = read_surface(path, &spec)?;
+    let f = flatness(&p.x_mm, &p.y_mm, &p.z_mm).with_context(|| path.display().to_string())?;
+    Ok(json!({
+        "least_squares_mm": f.least_squares.width_mm,
+        "min_zone_mm": f.min_zone.width_mm,
+        "n": p.z_mm.len(),
+    }))
 }
 
 fn batch(all: &[(String, Flatness)]) -> arrow::record_batch::RecordBatch {
@@ -321,6 +406,35 @@ mod tests {
         // Least squares on the same points is no better.
         let ls = least_squares(&x, &y, &z).unwrap();
         assert!(ls.width_mm >= f.width_mm - 1e-12);
+    }
+
+    #[test]
+    fn constraint_generation_matches_the_full_lp() {
+        // A map above the direct-LP size: the subset loop must give the
+        // zone of the LP over every point.
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(21);
+        let n = 1500;
+        let x: Vec<f64> = (0..n).map(|_| rng.random_range(0.0..500.0)).collect();
+        let y: Vec<f64> = (0..n).map(|_| rng.random_range(0.0..300.0)).collect();
+        let z: Vec<f64> = (0..n)
+            .map(|i| {
+                2e-5 * x[i]
+                    + 1e-3 * (x[i] / 60.0).sin() * (y[i] / 45.0).cos()
+                    + rng.random_range(-2e-4..2e-4)
+            })
+            .collect();
+        let fast = min_zone(&x, &y, &z).unwrap();
+        let all: Vec<usize> = (0..n).collect();
+        let full = min_zone_of(&x, &y, &z, &all).unwrap();
+        assert!(
+            (fast.width_mm - full.width_mm).abs() < 1e-12,
+            "{} vs {}",
+            fast.width_mm,
+            full.width_mm
+        );
+        // And the width reported is the width over every point.
+        let (lo, hi) = width(&x, &y, &z, fast.plane[0], fast.plane[1]);
+        assert!((hi - lo - fast.width_mm).abs() < 1e-15);
     }
 
     #[test]

@@ -32,6 +32,7 @@ pub mod polish_plan;
 pub mod removal;
 pub mod report;
 pub mod straightness;
+pub mod surface;
 pub mod tool_influence;
 
 /// The APLM gantry, built into the binary (CONTRACTS.md §1).

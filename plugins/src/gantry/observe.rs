@@ -74,7 +74,7 @@ impl Stage for ObserveStage {
         &["observations"]
     }
     fn about(&self) -> &'static str {
-        "paired observations surface_z (measured polished vs predicted) for the gap diagnosis (CONTRACTS.md §2)"
+        "paired observations surface_z (measured polished vs predicted) for the gap diagnosis (docs/formats.md)"
     }
     fn validate_config(&self, config: &toml::Table) -> Result<()> {
         check_config(config, KEYS)

@@ -151,24 +151,7 @@ pub const COMPENSATION_KEYS: &[(&str, Check)] = &[
 
 pub const OBSERVE_KEYS: &[(&str, Check)] = &[("sim", Check::OneOf(&["straightness", "model"]))];
 
-/// Run-less stage flags (`--p-max 20`) as a config table (`p_max = 20`):
-/// dashes read as underscores, values as TOML (numbers, booleans), else
-/// text; the flags in `inputs` are the stage's own and are left out.
-pub fn flags_to_table(args: &sparkout_pipeline::StageArgs, inputs: &[&str]) -> toml::Table {
-    let mut t = toml::Table::new();
-    for (k, v) in args {
-        if inputs.contains(&k.as_str()) {
-            continue;
-        }
-        let value = format!("v = {v}")
-            .parse::<toml::Table>()
-            .ok()
-            .and_then(|mut x| x.remove("v"))
-            .unwrap_or_else(|| toml::Value::String(v.clone()));
-        t.insert(k.replace('-', "_"), value);
-    }
-    t
-}
+pub use sparkout_pipeline::config_check::flags_to_table;
 
 /// A positive number from the machine config, with a default.
 pub fn machine_f64(run: &Run, dotted: &str, default: f64) -> f64 {

@@ -149,7 +149,7 @@ pub fn geometry(run: &Run) -> Result<Geometry> {
                     &format!("process.{process_key}"),
                     None,
                     format!(
-                        "[process].{process_key} is missing and machine `{}` has no [{}] (CONTRACTS.md §1: guideway runs give probe_spacing_mm and sample_step_mm)",
+                        "[process].{process_key} is missing and machine `{}` has no [{}] (docs/formats.md: guideway runs give probe_spacing_mm and sample_step_mm)",
                         run.machine.id,
                         machine_key.replace('.', "] ")
                     ),

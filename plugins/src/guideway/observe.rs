@@ -75,7 +75,7 @@ impl Stage for ObserveStage {
         &["observations"]
     }
     fn about(&self) -> &'static str {
-        "paired observations motion_error (measured δz vs the straightness model from the other passes) for the gap diagnosis (CONTRACTS.md §2)"
+        "paired observations motion_error (measured δz vs the straightness model from the other passes) for the gap diagnosis (docs/formats.md)"
     }
     fn validate_config(&self, config: &toml::Table) -> Result<()> {
         check_config(config, OBSERVE_KEYS)

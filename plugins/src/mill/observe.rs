@@ -95,7 +95,7 @@ impl Stage for ObserveStage {
         &["observations"]
     }
     fn about(&self) -> &'static str {
-        "paired observations tracker_dx/dy/dz (measured vs identified model) for the gap diagnosis (CONTRACTS.md §2)"
+        "paired observations tracker_dx/dy/dz (measured vs identified model) for the gap diagnosis (docs/formats.md)"
     }
     fn validate_config(&self, config: &toml::Table) -> Result<()> {
         ObserveConfig::parse(config).map(|_| ())

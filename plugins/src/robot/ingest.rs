@@ -14,9 +14,10 @@ use std::path::Path;
 use anyhow::Context;
 use nalgebra::Vector3;
 use serde_json::{json, Value};
+use sparkout_pipeline::config_check::flags_to_table;
 use sparkout_pipeline::contracts::schema::{AE, MOTION, PLAN, PROBE};
-use sparkout_pipeline::contracts::{AeKind, AeStream, BatchBuilder, Table};
-use sparkout_pipeline::{InputError, Result, Stage, StageContext, StageOutput};
+use sparkout_pipeline::contracts::{AeKind, AeStream, BatchBuilder, Table, TimeOrigin};
+use sparkout_pipeline::{cfg_f64, InputError, Result, Stage, StageArgs, StageContext, StageOutput};
 
 use super::ae::{gaps, AeDetector, AeEvent, AeParams};
 use super::config::{check_config, Check};
@@ -49,13 +50,17 @@ pub struct IngestConfig {
 
 impl IngestConfig {
     pub fn from_ctx(ctx: &StageContext) -> IngestConfig {
+        Self::from_table(ctx.config)
+    }
+    pub fn from_table(t: &toml::Table) -> IngestConfig {
+        let f = |k: &str, default: f64| cfg_f64(t, k).unwrap_or(default);
         IngestConfig {
-            window_s: ctx.cfg_f64("window_s", 0.001),
-            k_sigma: ctx.cfg_f64("k_sigma", 8.0),
-            min_dwell_s: ctx.cfg_f64("min_dwell_s", 0.0005),
-            hysteresis: ctx.cfg_f64("hysteresis", 0.5),
-            noise_window_s: ctx.cfg_f64("noise_window_s", 0.005),
-            segment_tolerance_s: ctx.cfg_f64("segment_tolerance_s", 0.005),
+            window_s: f("window_s", 0.001),
+            k_sigma: f("k_sigma", 8.0),
+            min_dwell_s: f("min_dwell_s", 0.0005),
+            hysteresis: f("hysteresis", 0.5),
+            noise_window_s: f("noise_window_s", 0.005),
+            segment_tolerance_s: f("segment_tolerance_s", 0.005),
         }
     }
 }
@@ -301,11 +306,50 @@ pub struct AeResult {
     pub clock_offset_s: f64,
 }
 
-/// Stream ae.parquet through the detector with bounded memory.
+/// Stream a run's ae.parquet through the detector with bounded memory; a
+/// run without any contact is an error that says what the detector saw.
 pub fn detect_file(
     path: &Path,
     fs_hz: f64,
     kind: AeKind,
+    cfg: &IngestConfig,
+    clock_offset_s: f64,
+    origin: &TimeOrigin,
+) -> Result<AeResult> {
+    // An RMS log (kind = "rms") goes through the same envelope: the RMS of
+    // an RMS signal over a short window is a smoothed RMS.
+    let _ = kind;
+    let stream = AeStream::open_at(path, origin, AeStream::DEFAULT_BATCH_ROWS)?;
+    let r = detect_stream(stream, fs_hz, cfg, clock_offset_s)?;
+    if r.events.is_empty() {
+        let p = r.detector.params();
+        let (samples, blocks) = (r.samples, r.blocks);
+        let msg = match r.detector.floors().first() {
+            None => format!(
+                "no contact found: no recording block was long enough to estimate the noise floor ({} samples of window + {} samples of noise window at {fs_hz} Hz; {samples} samples in {blocks} block(s))",
+                p.window, p.noise_window
+            ),
+            Some(f) => format!(
+                "no contact found in {samples} samples ({blocks} recording block(s)): noise floor (RMS envelope over {:.3} ms) mean {:.6e} V, σ {:.6e} V; threshold {:.6e} V (mean + {}·σ) held for {:.3} ms; the largest envelope seen was {:.6e} V",
+                cfg.window_s * 1e3,
+                f.mean_v,
+                f.sigma_v,
+                f.threshold_v,
+                cfg.k_sigma,
+                cfg.min_dwell_s * 1e3,
+                r.detector.max_envelope_armed_v()
+            ),
+        };
+        return Err(InputError::new(path, msg).column("ae_v").into());
+    }
+    Ok(r)
+}
+
+/// The detector over any validated signal stream (a gap in the time stamps
+/// starts a new recording block with its own noise floor).
+pub fn detect_stream(
+    stream: AeStream,
+    fs_hz: f64,
     cfg: &IngestConfig,
     clock_offset_s: f64,
 ) -> Result<AeResult> {
@@ -317,15 +361,12 @@ pub fn detect_file(
         cfg.hysteresis,
         cfg.noise_window_s,
     );
-    // An RMS log (kind = "rms") goes through the same envelope: the RMS of
-    // an RMS signal over a short window is a smoothed RMS.
-    let _ = kind;
     let max_step = 1.5 / fs_hz;
     let mut det = AeDetector::new(p);
     let mut events = Vec::new();
     let mut prev_t: Option<f64> = None;
     let mut blocks = 1usize;
-    for chunk in AeStream::open(path)? {
+    for chunk in stream {
         let chunk = chunk?;
         let mut lo = 0;
         for g in gaps(&chunk.t_s, prev_t, max_step) {
@@ -339,25 +380,6 @@ pub fn detect_file(
     }
     det.finish(&mut events);
     let samples = det.samples_seen();
-    if events.is_empty() {
-        let msg = match det.floors().first() {
-            None => format!(
-                "no contact found: no recording block was long enough to estimate the noise floor ({} samples of window + {} samples of noise window at {fs_hz} Hz; {samples} samples in {blocks} block(s))",
-                p.window, p.noise_window
-            ),
-            Some(f) => format!(
-                "no contact found in {samples} samples ({blocks} recording block(s)): noise floor (RMS envelope over {:.3} ms) mean {:.6e} V, σ {:.6e} V; threshold {:.6e} V (mean + {}·σ) held for {:.3} ms; the largest envelope seen was {:.6e} V",
-                cfg.window_s * 1e3,
-                f.mean_v,
-                f.sigma_v,
-                f.threshold_v,
-                cfg.k_sigma,
-                cfg.min_dwell_s * 1e3,
-                det.max_envelope_armed_v()
-            ),
-        };
-        return Err(InputError::new(path, msg).column("ae_v").into());
-    }
     Ok(AeResult {
         events,
         detector: det,
@@ -365,6 +387,53 @@ pub fn detect_file(
         blocks,
         clock_offset_s,
     })
+}
+
+/// `sparkout stage ingest --ae FILE --sample-rate-hz F [--column C]
+/// [--window-s S --k-sigma K --min-dwell-s S --hysteresis H
+/// --noise-window-s S] --json`: contact events of any signal column
+/// (default `ae_v`) of any Parquet file, time from its `t_s` column or
+/// from the sample rate. No contact is an empty list, not an error.
+fn standalone(args: &StageArgs) -> Result<Value> {
+    const INPUTS: [&str; 3] = ["ae", "sample-rate-hz", "column"];
+    let path = Path::new(args.get("ae").ok_or_else(|| {
+        anyhow::anyhow!(
+            "stage ingest: give --run DIR, or --ae FILE.parquet --sample-rate-hz F [--column ae_v]"
+        )
+    })?);
+    let fs_hz = args
+        .get("sample-rate-hz")
+        .ok_or_else(|| anyhow::anyhow!("stage ingest --ae: --sample-rate-hz F is required"))?
+        .parse::<f64>()
+        .ok()
+        .filter(|f| f.is_finite() && *f > 0.0)
+        .ok_or_else(|| anyhow::anyhow!("stage ingest: --sample-rate-hz must be a number > 0"))?;
+    let column = args.get("column").map(|s| s.as_str()).unwrap_or("ae_v");
+    let t = flags_to_table(args, &INPUTS);
+    let detector_keys: Vec<(&str, Check)> = KEYS
+        .iter()
+        .copied()
+        .filter(|(k, _)| *k != "segment_tolerance_s")
+        .collect();
+    check_config(&t, &detector_keys).map_err(|e| {
+        anyhow::anyhow!("stage ingest: flag {e} (flags: --ae, --sample-rate-hz, --column and the detector keys with dashes)")
+    })?;
+    let cfg = IngestConfig::from_table(&t);
+    let r = detect_stream(
+        AeStream::open_series(path, column, fs_hz)?,
+        fs_hz,
+        &cfg,
+        0.0,
+    )?;
+    let contacts: Vec<Value> = r
+        .events
+        .iter()
+        .map(|e| json!({"start_s": e.onset_t_s, "end_s": e.end_t_s, "peak": e.peak_v}))
+        .collect();
+    Ok(json!({
+        "contacts": contacts,
+        "threshold": r.detector.floors().first().map(|f| f.threshold_v),
+    }))
 }
 
 /// Role of each AE event.
@@ -652,6 +721,9 @@ impl Stage for IngestStage {
     fn validate_config(&self, config: &toml::Table) -> Result<()> {
         check_config(config, KEYS)
     }
+    fn run_standalone(&self, args: &StageArgs) -> Option<Result<Value>> {
+        Some(standalone(args))
+    }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
         let run = ctx.run;
         let cfg = IngestConfig::from_ctx(ctx);
@@ -675,7 +747,7 @@ impl Stage for IngestStage {
             let spec = run.spec.ae.as_ref().ok_or_else(|| {
                 InputError::new(
                     run.spec.run_toml_path(),
-                    "ae.parquet is present but run.toml has no [ae] table with sample_rate_hz (CONTRACTS.md §1)",
+                    "ae.parquet is present but run.toml has no [ae] table with sample_rate_hz (docs/formats.md)",
                 )
                 .column("ae.sample_rate_hz")
             })?;
@@ -693,6 +765,7 @@ impl Stage for IngestStage {
                 spec.kind,
                 &cfg,
                 spec.clock_offset_s,
+                &run.spec.time_origin(),
             )
             .context("AE contact detection")?;
             let (touches, roles, missed) =
@@ -729,7 +802,7 @@ impl Stage for IngestStage {
             (None, None) => {
                 return Err(InputError::new(
                     run.dir(),
-                    "the robot plugin needs probe.parquet, or ae.parquet + motion.parquet + plan.parquet (CONTRACTS.md §3)",
+                    "the robot plugin needs probe.parquet, or ae.parquet + motion.parquet + plan.parquet (docs/formats.md)",
                 )
                 .into())
             }

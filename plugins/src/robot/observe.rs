@@ -174,7 +174,7 @@ impl Stage for ObserveStage {
         &["observations"]
     }
     fn about(&self) -> &'static str {
-        "paired observations touch_normal and cut_depth for the gap diagnosis (CONTRACTS.md §2)"
+        "paired observations touch_normal and cut_depth for the gap diagnosis (docs/formats.md)"
     }
     fn validate_config(&self, config: &toml::Table) -> Result<()> {
         check_config(config, KEYS)
