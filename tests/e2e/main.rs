@@ -18,6 +18,7 @@ mod guideway_stages;
 mod mill_diagnosis_e2e;
 mod mill_stages;
 mod negative_values;
+mod pandas_fleet;
 mod parquet_readers;
 mod replay_cli;
 mod robot_diagnosis_e2e;

@@ -4,6 +4,7 @@
 pub mod ae_stream;
 pub mod batch;
 pub mod convert;
+pub mod motion;
 pub mod parquet_file;
 pub mod run;
 pub mod schema;
@@ -13,6 +14,7 @@ pub mod write;
 pub use ae_stream::{AeChunk, AeStream};
 pub use batch::{batch_f64, batch_i32, batch_str, read_parquet, BatchBuilder};
 pub use convert::TimeOrigin;
+pub use motion::MotionColumns;
 pub use parquet_file::open_parquet;
 pub use run::{discover_runs, AeKind, AeSpec, MachineConfig, MachineResolver, RunSpec};
 pub use schema::{table_schema, ColumnKind, ColumnSpec, TableSchema, ALL_TABLES};
