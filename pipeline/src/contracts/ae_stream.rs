@@ -2,23 +2,36 @@
 //! row group by row group with bounded memory). Each chunk is validated as it
 //! arrives: NaN/inf and non-monotonic `t_s` are reported with their global row.
 //!
+//! Decoding, not detection, is the slow part of AE ingest (the detector runs
+//! at hundreds of M samples/s, one decoder thread at tens), so row groups are
+//! decoded by a few dedicated threads ahead of the consumer: worker `w` of `K`
+//! decodes row groups `w, w+K, …` in order into a channel of depth one, and
+//! the consumer takes group `g` from worker `g mod K`. Chunks therefore arrive
+//! in file order (identical results whatever K), and memory stays bounded at
+//! about two batches per worker. The workers are plain threads, not rayon
+//! tasks: the engine runs stages on rayon's pool, and a pool thread blocked
+//! on a channel fed by tasks of the same pool could deadlock.
+//!
 //! The same reader streams any single signal column of any Parquet file
 //! (`sparkout stage ingest --ae FILE --column C`), with or without a time
-//! column: without one, sample `i` is at `i / sample_rate_hz`.
+//! column: without one, sample `i` is at `i / sample_rate_hz`. Time columns
+//! may hold timestamps (docs/formats.md §2), measured from a [`TimeOrigin`].
 
+use std::fs::File;
 use std::path::{Path, PathBuf};
+use std::sync::mpsc::{sync_channel, Receiver, SyncSender};
 
 use arrow::array::{Array, Float32Array, Float64Array};
 use arrow::compute::cast;
 use arrow::datatypes::DataType;
-use parquet::arrow::arrow_reader::ParquetRecordBatchReader;
+use arrow::record_batch::RecordBatch;
+use parquet::arrow::arrow_reader::{ArrowReaderMetadata, ParquetRecordBatchReaderBuilder};
 use parquet::arrow::ProjectionMask;
-use parquet::file::metadata::ParquetMetaData;
 
 use super::convert::{normalise, TimeOrigin};
 use super::parquet_file::corrupt_page;
 use super::schema::{ColumnKind, AE};
-use super::table::{check_schema, first_non_finite, open_parquet, type_accepted};
+use super::table::{check_schema, first_decrease, first_non_finite, open_parquet, type_accepted};
 use crate::error::InputError;
 
 /// One decoded slice of the AE log.
@@ -39,15 +52,20 @@ enum Clock {
     Rate(f64),
 }
 
-/// Iterator over validated AE chunks. Memory is one batch (plus the decoder's
-/// one row group), whatever the file size.
+/// What a decoder thread sends: a validated chunk, or the end of a row group.
+enum Decoded {
+    Chunk(Result<AeChunk, InputError>),
+    GroupEnd,
+}
+
+/// Iterator over validated AE chunks. Memory is about two batches per decoder
+/// thread, whatever the file size.
 pub struct AeStream {
     path: PathBuf,
-    meta: std::sync::Arc<ParquetMetaData>,
-    reader: ParquetRecordBatchReader,
-    value: String,
-    clock: Clock,
-    next_row: usize,
+    /// One receiver per decoder thread; row group `g` comes from `g % K`.
+    workers: Vec<Receiver<Decoded>>,
+    row_groups: usize,
+    current_group: usize,
     last_t_s: f64,
     total_rows: usize,
     failed: bool,
@@ -62,7 +80,16 @@ impl AeStream {
     }
 
     pub fn open_with_batch(path: &Path, batch_rows: usize) -> Result<AeStream, InputError> {
-        Self::open_at(path, &TimeOrigin::TableStart, batch_rows)
+        Self::open_with(path, batch_rows, default_decode_threads())
+    }
+
+    /// `decode_threads` row groups are decoded ahead in parallel (≥ 1).
+    pub fn open_with(
+        path: &Path,
+        batch_rows: usize,
+        decode_threads: usize,
+    ) -> Result<AeStream, InputError> {
+        Self::open_at_with(path, &TimeOrigin::TableStart, batch_rows, decode_threads)
     }
 
     /// ae.parquet of a run: timestamps in `t_s` measured from `origin`.
@@ -71,15 +98,19 @@ impl AeStream {
         origin: &TimeOrigin,
         batch_rows: usize,
     ) -> Result<AeStream, InputError> {
+        Self::open_at_with(path, origin, batch_rows, default_decode_threads())
+    }
+
+    fn open_at_with(
+        path: &Path,
+        origin: &TimeOrigin,
+        batch_rows: usize,
+        decode_threads: usize,
+    ) -> Result<AeStream, InputError> {
         let builder = open_parquet(path)?;
         check_schema(path, &AE, builder.schema())?;
-        Self::build(
-            path,
-            builder,
-            "ae_v",
-            Clock::Column("t_s".into(), origin.clone()),
-            batch_rows,
-        )
+        let clock = Clock::Column("t_s".into(), origin.clone());
+        Self::start(path, builder, "ae_v", clock, batch_rows, decode_threads)
     }
 
     /// Any numeric column of any Parquet file as a signal. Time from the
@@ -112,48 +143,100 @@ impl AeStream {
             }
             _ => Clock::Rate(sample_rate_hz),
         };
-        Self::build(path, builder, column, clock, Self::DEFAULT_BATCH_ROWS)
+        let threads = default_decode_threads();
+        Self::start(path, builder, column, clock, Self::DEFAULT_BATCH_ROWS, threads)
     }
 
-    fn build(
+    fn start(
         path: &Path,
-        builder: parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder<std::fs::File>,
+        builder: ParquetRecordBatchReaderBuilder<File>,
         value: &str,
         clock: Clock,
         batch_rows: usize,
+        decode_threads: usize,
     ) -> Result<AeStream, InputError> {
         let total_rows = builder.metadata().file_metadata().num_rows().max(0) as usize;
         if total_rows == 0 {
             return Err(InputError::new(
                 path,
-                "the signal table is empty (a required table needs rows)",
+                format!("table `{}` is empty (a required table needs rows)", {
+                    if value == "ae_v" {
+                        "ae"
+                    } else {
+                        value
+                    }
+                }),
             ));
         }
-        let mut idx = vec![builder.schema().index_of(value).expect("checked")];
+        let mut names = vec![value.to_string()];
+        if let Clock::Column(t, _) = &clock {
+            names.push(t.clone());
+        }
+        let idx: Vec<usize> = names
+            .iter()
+            .map(|n| builder.schema().index_of(n).expect("checked above"))
+            .collect();
+        let mask = ProjectionMask::roots(builder.parquet_schema(), idx);
+        // Timestamps counted from the file's start: its first stamp (t_s is
+        // non-decreasing), read before the workers split the row groups.
         let clock = match clock {
-            // Time as the origin of the whole file: the earliest timestamp is
-            // not known before streaming, so the first one is used (t_s is
-            // non-decreasing, so it is the earliest of a valid file).
-            Clock::Column(t, o) => {
-                idx.push(builder.schema().index_of(&t).expect("checked"));
-                Clock::Column(t, o)
+            Clock::Column(t, TimeOrigin::TableStart)
+                if matches!(
+                    builder.schema().field_with_name(&t).map(|f| f.data_type().clone()),
+                    Ok(DataType::Timestamp(..))
+                ) =>
+            {
+                let t0 = first_timestamp(path, &t)?;
+                Clock::Column(t, t0.map_or(TimeOrigin::TableStart, TimeOrigin::UnixS))
             }
             c => c,
         };
-        let meta = builder.metadata().clone();
-        let mask = ProjectionMask::roots(builder.parquet_schema(), idx);
-        let reader = builder
-            .with_projection(mask)
-            .with_batch_size(batch_rows.max(1))
-            .build()
-            .map_err(|e| corrupt_page(path, &meta, 0, e))?;
+        // The footer is parsed once; every decoder thread reuses it.
+        let metadata = ArrowReaderMetadata::try_new(builder.metadata().clone(), Default::default())
+            .map_err(|e| corrupt_page(path, builder.metadata(), 0, e))?;
+        let group_rows: Vec<usize> = builder
+            .metadata()
+            .row_groups()
+            .iter()
+            .map(|g| g.num_rows().max(0) as usize)
+            .collect();
+        let row_groups = group_rows.len();
+        let first_rows: Vec<usize> = group_rows
+            .iter()
+            .scan(0usize, |acc, &n| {
+                let first = *acc;
+                *acc += n;
+                Some(first)
+            })
+            .collect();
+        let k = decode_threads.clamp(1, row_groups.max(1));
+        let workers = (0..k)
+            .map(|w| {
+                let (tx, rx) = sync_channel(1);
+                let job = DecodeJob {
+                    path: path.to_path_buf(),
+                    metadata: metadata.clone(),
+                    mask: mask.clone(),
+                    batch_rows: batch_rows.max(1),
+                    groups: (w..row_groups).step_by(k).collect(),
+                    first_rows: first_rows.clone(),
+                    value: value.to_string(),
+                    clock: clock.clone(),
+                };
+                std::thread::Builder::new()
+                    .name(format!("ae-decode-{w}"))
+                    .spawn(move || job.run(&tx))
+                    .map_err(|e| {
+                        InputError::new(path, format!("cannot start a decoder thread: {e}"))
+                    })?;
+                Ok(rx)
+            })
+            .collect::<Result<Vec<_>, InputError>>()?;
         Ok(AeStream {
             path: path.to_path_buf(),
-            meta,
-            reader,
-            value: value.to_string(),
-            clock,
-            next_row: 0,
+            workers,
+            row_groups,
+            current_group: 0,
             last_t_s: f64::NEG_INFINITY,
             total_rows,
             failed: false,
@@ -164,91 +247,191 @@ impl AeStream {
     pub fn total_rows(&self) -> usize {
         self.total_rows
     }
+}
 
-    fn decode(&mut self, batch: arrow::record_batch::RecordBatch) -> Result<AeChunk, InputError> {
-        let first_row = self.next_row;
-        let v = batch.column_by_name(&self.value).expect("projected");
-        let bad = |name: &str, col: &dyn Array| {
-            first_non_finite(col).map(|(row, what)| {
-                InputError::new(&self.path, format!("{what} in a required column"))
-                    .column(name)
-                    .row(first_row + row)
-            })
-        };
-        let v = cast(v, &DataType::Float32)
-            .map_err(|e| InputError::new(&self.path, e.to_string()).column(&self.value))?;
-        if let Some(e) = bad(&self.value, v.as_ref()) {
-            return Err(e);
-        }
-        let ae_v = v
-            .as_any()
-            .downcast_ref::<Float32Array>()
-            .expect("cast")
-            .values()
-            .to_vec();
-        let t_s: Vec<f64> = match &mut self.clock {
-            Clock::Rate(hz) => (0..ae_v.len())
-                .map(|i| (first_row + i) as f64 / *hz)
-                .collect(),
-            Clock::Column(name, origin) => {
-                let t = batch.column_by_name(name).expect("projected");
-                if let (TimeOrigin::TableStart, DataType::Timestamp(..)) = (&*origin, t.data_type())
-                {
-                    // Fix the origin at the first timestamp, for every chunk.
-                    if let Some(t0) = super::convert::earliest_unix_s(t.as_ref()) {
-                        *origin = TimeOrigin::UnixS(t0);
-                    }
-                }
-                let t =
-                    normalise(&self.path, name, t, &DataType::Float64, origin).map_err(|e| {
-                        let row = first_row + e.row.unwrap_or(0);
-                        e.row(row)
-                    })?;
-                if let Some(e) = bad(name, t.as_ref()) {
-                    return Err(e);
-                }
-                t.as_any()
-                    .downcast_ref::<Float64Array>()
-                    .expect("normalised")
-                    .values()
-                    .to_vec()
-            }
-        };
-        let mut prev = self.last_t_s;
-        for (i, &ti) in t_s.iter().enumerate() {
-            if ti < prev {
-                return Err(InputError::new(
-                    &self.path,
-                    format!("t_s decreases ({ti} after {prev}); timestamps must be non-decreasing"),
-                )
-                .column("t_s")
-                .row(first_row + i));
-            }
-            prev = ti;
-        }
-        self.last_t_s = prev;
-        self.next_row += t_s.len();
-        Ok(AeChunk {
-            first_row,
-            t_s,
-            ae_v,
-        })
+/// Two threads per stream are enough to keep one consumer fed on the 2-core
+/// machines this runs on; more only costs memory.
+fn default_decode_threads() -> usize {
+    std::thread::available_parallelism()
+        .map_or(1, |n| n.get())
+        .min(4)
+}
+
+/// The row groups one decoder thread owns.
+struct DecodeJob {
+    path: PathBuf,
+    metadata: ArrowReaderMetadata,
+    mask: ProjectionMask,
+    batch_rows: usize,
+    groups: Vec<usize>,
+    first_rows: Vec<usize>,
+    value: String,
+    clock: Clock,
+}
+
+/// The first value of a timestamp column, seconds since the epoch.
+fn first_timestamp(path: &Path, column: &str) -> Result<Option<f64>, InputError> {
+    let builder = open_parquet(path)?;
+    let idx = builder.schema().index_of(column).expect("checked");
+    let mask = ProjectionMask::roots(builder.parquet_schema(), [idx]);
+    let meta = builder.metadata().clone();
+    let mut reader = builder
+        .with_projection(mask)
+        .with_batch_size(1)
+        .build()
+        .map_err(|e| corrupt_page(path, &meta, 0, e))?;
+    match reader.next() {
+        Some(Ok(b)) => Ok(super::convert::earliest_unix_s(b.column(0).as_ref())),
+        Some(Err(e)) => Err(corrupt_page(path, &meta, 0, e)),
+        None => Ok(None),
     }
+}
+
+impl DecodeJob {
+    /// Decode and validate each owned row group in order. Stops at the first
+    /// error (after sending it) or when the consumer has gone (send fails).
+    fn run(self, tx: &SyncSender<Decoded>) {
+        for &g in &self.groups {
+            let mut row = self.first_rows[g];
+            let reader = File::open(&self.path)
+                .map_err(|e| InputError::new(&self.path, format!("cannot open: {e}")))
+                .and_then(|file| {
+                    ParquetRecordBatchReaderBuilder::new_with_metadata(file, self.metadata.clone())
+                        .with_projection(self.mask.clone())
+                        .with_row_groups(vec![g])
+                        .with_batch_size(self.batch_rows)
+                        .build()
+                        .map_err(|e| corrupt_page(&self.path, self.metadata.metadata(), row, e))
+                });
+            let reader = match reader {
+                Ok(r) => r,
+                Err(e) => {
+                    let _ = tx.send(Decoded::Chunk(Err(e)));
+                    return;
+                }
+            };
+            for batch in reader {
+                let chunk = batch
+                    .map_err(|e| corrupt_page(&self.path, self.metadata.metadata(), row, e))
+                    .and_then(|b| to_chunk(&self.path, &b, row, &self.value, &self.clock));
+                let failed = chunk.is_err();
+                if let Ok(c) = &chunk {
+                    row += c.t_s.len();
+                }
+                if tx.send(Decoded::Chunk(chunk)).is_err() || failed {
+                    return;
+                }
+            }
+            if tx.send(Decoded::GroupEnd).is_err() {
+                return;
+            }
+        }
+    }
+}
+
+/// Validate one batch (finite values, time non-decreasing inside it) and
+/// convert it to the chunk's native types.
+fn to_chunk(
+    path: &Path,
+    batch: &RecordBatch,
+    first_row: usize,
+    value: &str,
+    clock: &Clock,
+) -> Result<AeChunk, InputError> {
+    let bad = |name: &str, col: &dyn Array| {
+        first_non_finite(col).map(|(row, what)| {
+            InputError::new(path, format!("{what} in a required column"))
+                .column(name)
+                .row(first_row + row)
+        })
+    };
+    let v = batch.column_by_name(value).expect("projected");
+    if let Some(e) = bad(value, v.as_ref()) {
+        return Err(e);
+    }
+    let v = cast(v, &DataType::Float32)
+        .map_err(|e| InputError::new(path, e.to_string()).column(value))?;
+    if let Some(e) = bad(value, v.as_ref()) {
+        return Err(e); // a float64 beyond float32's range
+    }
+    let ae_v = v
+        .as_any()
+        .downcast_ref::<Float32Array>()
+        .expect("cast")
+        .values()
+        .to_vec();
+    let t_s: Vec<f64> = match clock {
+        Clock::Rate(hz) => (0..ae_v.len())
+            .map(|i| (first_row + i) as f64 / hz)
+            .collect(),
+        Clock::Column(name, origin) => {
+            let t = batch.column_by_name(name).expect("projected");
+            let t = normalise(path, name, t, &DataType::Float64, origin).map_err(|e| {
+                let row = first_row + e.row.unwrap_or(0);
+                e.row(row)
+            })?;
+            if let Some(e) = bad(name, t.as_ref()) {
+                return Err(e);
+            }
+            t.as_any()
+                .downcast_ref::<Float64Array>()
+                .expect("normalised")
+                .values()
+                .to_vec()
+        }
+    };
+    if let Some(i) = first_decrease(&t_s) {
+        return Err(decrease_error(path, first_row + i, t_s[i], t_s[i - 1]));
+    }
+    Ok(AeChunk {
+        first_row,
+        t_s,
+        ae_v,
+    })
+}
+
+fn decrease_error(path: &Path, row: usize, t: f64, prev: f64) -> InputError {
+    InputError::new(
+        path,
+        format!("t_s decreases ({t} after {prev}); timestamps must be non-decreasing"),
+    )
+    .column("t_s")
+    .row(row)
 }
 
 impl Iterator for AeStream {
     type Item = Result<AeChunk, InputError>;
     fn next(&mut self) -> Option<Self::Item> {
-        if self.failed {
-            return None;
+        while !self.failed && self.current_group < self.row_groups {
+            let worker = &self.workers[self.current_group % self.workers.len()];
+            let item = match worker.recv() {
+                Ok(Decoded::GroupEnd) => {
+                    self.current_group += 1;
+                    continue;
+                }
+                Ok(Decoded::Chunk(Ok(c))) => match c.t_s.first() {
+                    // Within a chunk the worker checked order; across chunks
+                    // (and row groups) only the consumer can.
+                    Some(&t0) if t0 < self.last_t_s => {
+                        Err(decrease_error(&self.path, c.first_row, t0, self.last_t_s))
+                    }
+                    _ => {
+                        self.last_t_s = c.t_s.last().copied().unwrap_or(self.last_t_s);
+                        Ok(c)
+                    }
+                },
+                Ok(Decoded::Chunk(Err(e))) => Err(e),
+                Err(_) => Err(InputError::new(
+                    &self.path,
+                    format!(
+                        "the decoder of row group {} stopped without a result (out of memory?)",
+                        self.current_group
+                    ),
+                )),
+            };
+            self.failed = item.is_err();
+            return Some(item);
         }
-        let item = match self.reader.next()? {
-            Ok(batch) => self.decode(batch),
-            Err(e) => Err(corrupt_page(&self.path, &self.meta, self.next_row, e)),
-        };
-        if item.is_err() {
-            self.failed = true;
-        }
-        Some(item)
+        None
     }
 }
