@@ -29,7 +29,10 @@
 use serde_json::{json, Value};
 use sparkout_pipeline::contracts::schema::TOPOGRAPHY;
 use sparkout_pipeline::contracts::{BatchBuilder, Table};
-use sparkout_pipeline::{InputError, Result, Stage, StageArgs, StageContext, StageOutput};
+use sparkout_pipeline::json_f64;
+use sparkout_pipeline::{
+    InputError, Result, Stage, StageArgs, StageContext, StageOutput, StageSpec,
+};
 
 use super::config::{check_config, Check, STATES};
 use super::dwell::{DwellLimits, DwellOperator, Target};
@@ -386,7 +389,6 @@ pub fn analyse(
     } else {
         f64::NAN
     };
-    let num = |v: f64| if v.is_finite() { json!(v) } else { Value::Null };
     let summary = json!({
         "state": s.state,
         "method": "dwell_optimisation",
@@ -394,7 +396,7 @@ pub fn analyse(
         "selective_s": plan.selective_s,
         "raster_s": plan.raster_s,
         "raster_sweeps": plan.raster_sweeps,
-        "ratio": num(ratio),
+        "ratio": json_f64(ratio),
         "breakeven_area_fraction": breakeven,
         "tolerance_mm": cfg.tolerance_mm,
         "zone_points": zone_points,
@@ -406,7 +408,7 @@ pub fn analyse(
             "selective": flat_json(&sel),
             "raster": flat_json(&ras),
         },
-        "min_zone_ratio": num(mz1 / mz0),
+        "min_zone_ratio": json_f64(mz1 / mz0),
         "verdict": verdict,
         "warning": warning,
         "points_above_tolerance_after": still_out,
@@ -449,24 +451,18 @@ fn load(t: &Table, state: &str, g: &Gantry) -> Result<Surface, InputError> {
     Ok(s)
 }
 
+const SPEC: StageSpec = StageSpec {
+    name: "polish_plan",
+    version: 1,
+    reads: &[&TOPOGRAPHY],
+    reads_artifacts: &[],
+    writes: &["polish_plan", "polish_surface"],
+    about: "selective polishing by dwell-time optimisation: flattest surface about the best plane within feed limits, flatness and time vs raster, breakeven area (MODELS.md §2.5–2.6)",
+};
+
 impl Stage for PolishPlanStage {
-    fn name(&self) -> &'static str {
-        "polish_plan"
-    }
-    fn version(&self) -> u32 {
-        1
-    }
-    fn reads_tables(&self) -> &'static [&'static str] {
-        &["topography"]
-    }
-    fn reads_artifacts(&self) -> &'static [&'static str] {
-        &[]
-    }
-    fn writes(&self) -> &'static [&'static str] {
-        &["polish_plan", "polish_surface"]
-    }
-    fn about(&self) -> &'static str {
-        "selective polishing by dwell-time optimisation: flattest surface about the best plane within feed limits, flatness and time vs raster, breakeven area (MODELS.md §2.5–2.6)"
+    fn spec(&self) -> &'static StageSpec {
+        &SPEC
     }
     fn validate_config(&self, config: &toml::Table) -> Result<()> {
         check_config(config, KEYS)
