@@ -114,38 +114,10 @@ pub(super) fn generate_run(
 ) -> Result<()> {
     let mut rng = run_rng(cfg.seed, index, 0);
     let run_id = format!("r{index:04}");
-
-    // True block pose: offset + small rotation about the nominal datum.
-    let datum_nom = V3::from(DATUM_NOM_MM);
-    let offset = V3::new(
-        symmetric(&mut rng, cfg.pose_offset_mm),
-        symmetric(&mut rng, cfg.pose_offset_mm),
-        symmetric(&mut rng, cfg.pose_offset_mm),
-    );
-    let angles = [
-        symmetric(&mut rng, cfg.pose_rotation_rad),
-        symmetric(&mut rng, cfg.pose_rotation_rad),
-        symmetric(&mut rng, cfg.pose_rotation_rad),
-    ];
-    let rot = Rotation3::from_euler_angles(angles[0], angles[1], angles[2]);
-    let datum_true = datum_nom + offset;
-    let plane = |f: Face| -> (V3, f64) {
-        let n = rot * f.normal();
-        (n, n.dot(&datum_true))
-    };
+    let pose = Pose::draw(cfg, &mut rng);
     let alpha = uniform(&mut rng, cfg.alpha_min, cfg.alpha_max);
     let clock_offset_s = uniform(&mut rng, CLOCK_OFFSET_RANGE_S.0, CLOCK_OFFSET_RANGE_S.1);
     let has_probe = cfg.with_probe.has_probe(index);
-
-    // ---- probing: commanded path, contacts, registrations
-    let safe_z = datum_nom.z + SAFE_CLEARANCE_MM;
-    let home = datum_nom + V3::new(BLOCK_X_MM / 2.0, BLOCK_Y_MM / 2.0, SAFE_CLEARANCE_MM + 30.0);
-    let mut path = CmdPath {
-        pieces: Vec::new(),
-        t: 0.0,
-        pos: home,
-    };
-    path.dwell(1.0);
     // The AE program, then (runs with probe.parquet only) the comparison
     // methods' program; `Touch::row` indexes `program`. The second program
     // draws from its own RNG stream, so the AE program's draws (and the AE
@@ -156,120 +128,7 @@ pub(super) fn generate_run(
         plan.to_vec()
     };
     let mut rng_other = run_rng(cfg.seed, index, 4);
-    let mut touches = Vec::with_capacity(program.len());
-    for (ri, row) in program.iter().enumerate() {
-        let rng = if row.method == "ae" {
-            &mut rng
-        } else {
-            &mut rng_other
-        };
-        let n = row.face.normal();
-        let start = row.nom + n * cfg.standoff_mm;
-        let dir_b: i32 = if rng.random::<bool>() { 1 } else { -1 };
-        let leg_start = if dir_b < 0 {
-            start + n * LEG_OUT_MM
-        } else {
-            start - n * OVERTRAVEL_MM
-        };
-        // Safe transit: up, across, down, then the short leg along the normal.
-        let p = path.pos;
-        path.line(V3::new(p.x, p.y, safe_z.max(p.z)), TRANSIT_MM_S, -1);
-        path.line(V3::new(leg_start.x, leg_start.y, safe_z), TRANSIT_MM_S, -1);
-        path.line(leg_start, TRANSIT_MM_S, -1);
-        path.line(start, LEG_MM_S, -1);
-        path.pieces.push(Piece {
-            t0: path.t,
-            t1: path.t + SETTLE_S,
-            p0: start,
-            v0: V3::zeros(),
-            a: V3::zeros(),
-            segment: row.seq,
-        });
-        path.t += SETTLE_S;
-
-        // Approach along dir at v: solve for the contact of the physical
-        // wheel (cmd − o(t)) with the true plane (+ contact scatter).
-        let v = row.speed_mm_s;
-        let t_a = path.t;
-        let (n_true, d_true) = plane(row.face);
-        let e_c = CONTACT_SCATTER_MM * normal(rng);
-        let mut t_c = t_a;
-        let mut o = V3::zeros();
-        for _ in 0..4 {
-            o = frame_offset(fx, row, dir_b, t_c);
-            let denom = v * n_true.dot(&row.dir);
-            let tau = (d_true + e_c - n_true.dot(&(start - o))) / denom;
-            t_c = t_a + tau;
-        }
-        let tau = t_c - t_a;
-        let max_travel = cfg.standoff_mm + 1.0;
-        if !(tau > 0.0 && tau * v < max_travel) {
-            bail!(
-                "seq {}: the wheel would meet the {} face {:.3} mm into the approach (allowed (0, {max_travel}] mm): pose spread or injected offsets exceed the standoff",
-                row.seq,
-                row.face.label(),
-                tau * v
-            );
-        }
-        // The leg start must be clear of the surface too (reversal legs come closer).
-        let leg_clear = n_true.dot(&(leg_start - frame_offset(fx, row, dir_b, t_a))) - d_true;
-        if leg_clear <= 0.0 {
-            bail!(
-                "seq {}: the leg before the approach would enter the {} face: pose spread or injected offsets exceed the standoff",
-                row.seq,
-                row.face.label()
-            );
-        }
-        let t_r = t_c + fx.latency_s;
-        let act_c = start + row.dir * (v * tau);
-        let surface = act_c - o;
-        let sigma = touch_sigma_mm(row.method, v);
-        let reg_noise = (sigma * sigma - CONTACT_SCATTER_MM * CONTACT_SCATTER_MM)
-            .max(0.0)
-            .sqrt()
-            * normal(rng);
-        let registered = act_c + row.dir * (v * fx.latency_s + reg_noise);
-        // Approach piece until registration, then the stop.
-        let p_r = start + row.dir * (v * (t_r - t_a));
-        path.pieces.push(Piece {
-            t0: t_a,
-            t1: t_r,
-            p0: start,
-            v0: row.dir * v,
-            a: V3::zeros(),
-            segment: row.seq,
-        });
-        let t_stop = v / STOP_DECEL_MM_S2;
-        path.pieces.push(Piece {
-            t0: t_r,
-            t1: t_r + t_stop,
-            p0: p_r,
-            v0: row.dir * v,
-            a: -row.dir * STOP_DECEL_MM_S2,
-            segment: row.seq,
-        });
-        path.t = t_r + t_stop;
-        path.pos = p_r + row.dir * (0.5 * v * t_stop);
-        path.dwell(DWELL_S);
-        path.line(start + n * LEG_OUT_MM, LEG_MM_S, -1);
-        touches.push(Touch {
-            row: ri,
-            t_c,
-            t_r,
-            act_c,
-            surface,
-            registered,
-            dir_b,
-        });
-    }
-    let last = path.pos;
-    path.line(
-        V3::new(last.x, last.y, safe_z.max(last.z)),
-        TRANSIT_MM_S,
-        -1,
-    );
-    path.line(home, TRANSIT_MM_S, -1);
-    path.dwell(0.5);
+    let (path, touches) = probe(cfg, &program, fx, &pose, &mut rng, &mut rng_other)?;
     let t_probe_end = path.t;
 
     // ---- motion.parquet at the controller rate
@@ -295,38 +154,8 @@ pub(super) fn generate_run(
     // ---- AE windows (their own RNG stream: AE size does not shift the rest)
     let fs = cfg.ae_sample_rate_hz;
     let carrier = cfg.ae_carrier_hz.min(AE_CARRIER_MAX_FRAC * fs);
-    let mut windows: Vec<AeWindow> = Vec::with_capacity(touches.len());
-    let mut contacts = Vec::with_capacity(touches.len());
-    for tc in touches.iter().filter(|t| program[t.row].method == "ae") {
-        let onset = tc.t_c - clock_offset_s;
-        let n0 = ((onset - cfg.ae_pre_s) * fs).ceil().max(0.0) as u64;
-        let n1 = ((onset + cfg.ae_post_s) * fs).floor() as u64 + 1;
-        let n0 = n0.max(windows.last().map(|w: &AeWindow| w.n1).unwrap_or(0));
-        let amp = cfg.ae_noise_v * cfg.ae_burst_sigmas * (0.8 + 0.45 * rng.random::<f64>());
-        windows.push(AeWindow {
-            n0,
-            n1: n1.max(n0),
-            onset_s: onset,
-            amp_v: amp,
-            carrier_hz: carrier * (0.95 + 0.1 * rng.random::<f64>()),
-            phase: 2.0 * PI * rng.random::<f64>(),
-        });
-        let row = &program[tc.row];
-        contacts.push(ContactTruth {
-            seq: row.seq,
-            t_s: tc.t_c,
-            ae_t_s: onset,
-            registered_t_s: tc.t_r,
-            x_mm: tc.act_c.x,
-            y_mm: tc.act_c.y,
-            z_mm: tc.act_c.z,
-            surface_x_mm: tc.surface.x,
-            surface_y_mm: tc.surface.y,
-            surface_z_mm: tc.surface.z,
-            dir: tc.dir_b * row.face.normal()[row.face.axis()] as i32,
-            ae_amplitude_v: amp,
-        });
-    }
+    let (windows, contacts) =
+        ae_windows(cfg, &program, &touches, clock_offset_s, carrier, &mut rng);
 
     // ---- write
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
@@ -359,24 +188,21 @@ pub(super) fn generate_run(
         },
     )?;
 
-    let mut faces = BTreeMap::new();
-    for f in Face::ALL {
-        let (n, d) = plane(f);
-        faces.insert(
-            f.label(),
-            FaceTruth {
-                normal: [n.x, n.y, n.z],
-                d,
-            },
-        );
-    }
+    let faces = Face::ALL
+        .iter()
+        .map(|&f| {
+            let (n, d) = pose.plane(f);
+            let normal = [n.x, n.y, n.z];
+            (f.label(), FaceTruth { normal, d })
+        })
+        .collect();
     let truth = RunTruth {
         run: run_id.clone(),
         run_index: index,
         seed: cfg.seed,
-        block_origin_mm: [datum_true.x, datum_true.y, datum_true.z],
-        block_rotation_rad: angles,
-        block_offset_mm: [offset.x, offset.y, offset.z],
+        block_origin_mm: [pose.datum_true.x, pose.datum_true.y, pose.datum_true.z],
+        block_rotation_rad: pose.angles,
+        block_offset_mm: [pose.offset.x, pose.offset.y, pose.offset.z],
         faces,
         // A trigger latency is the controller's: every registered method has it.
         trigger_latency_s: std::iter::once("ae")
@@ -417,6 +243,243 @@ pub(super) fn generate_run(
         run_toml(cfg, &run_id, index, clock_offset_s).as_bytes(),
     )?;
     Ok(())
+}
+
+/// The block's true pose in a run: the nominal datum moved by a random
+/// offset and turned by small random angles about it (the first six draws
+/// of the run's main stream).
+struct Pose {
+    offset: V3,
+    angles: [f64; 3],
+    rot: Rotation3<f64>,
+    datum_true: V3,
+}
+
+impl Pose {
+    fn draw(cfg: &RobotFleetConfig, rng: &mut ChaCha8Rng) -> Pose {
+        let offset = V3::new(
+            symmetric(rng, cfg.pose_offset_mm),
+            symmetric(rng, cfg.pose_offset_mm),
+            symmetric(rng, cfg.pose_offset_mm),
+        );
+        let angles = [
+            symmetric(rng, cfg.pose_rotation_rad),
+            symmetric(rng, cfg.pose_rotation_rad),
+            symmetric(rng, cfg.pose_rotation_rad),
+        ];
+        Pose {
+            offset,
+            angles,
+            rot: Rotation3::from_euler_angles(angles[0], angles[1], angles[2]),
+            datum_true: V3::from(DATUM_NOM_MM) + offset,
+        }
+    }
+    /// A face's true plane: unit normal n and offset d (n·x = d).
+    fn plane(&self, f: Face) -> (V3, f64) {
+        let n = self.rot * f.normal();
+        (n, n.dot(&self.datum_true))
+    }
+}
+
+/// The probing program of a run: the commanded path from home through every
+/// approach and back, and each touch (contact, registration). AE rows draw
+/// from `rng`, the comparison methods' rows from `rng_other`.
+fn probe(
+    cfg: &RobotFleetConfig,
+    program: &[PlanRow],
+    fx: &Effects,
+    pose: &Pose,
+    rng: &mut ChaCha8Rng,
+    rng_other: &mut ChaCha8Rng,
+) -> Result<(CmdPath, Vec<Touch>)> {
+    let datum_nom = V3::from(DATUM_NOM_MM);
+    let safe_z = datum_nom.z + SAFE_CLEARANCE_MM;
+    let home = datum_nom + V3::new(BLOCK_X_MM / 2.0, BLOCK_Y_MM / 2.0, SAFE_CLEARANCE_MM + 30.0);
+    let mut path = CmdPath {
+        pieces: Vec::new(),
+        t: 0.0,
+        pos: home,
+    };
+    path.dwell(1.0);
+    let mut touches = Vec::with_capacity(program.len());
+
+    for (ri, row) in program.iter().enumerate() {
+        let rng = if row.method == "ae" {
+            &mut *rng
+        } else {
+            &mut *rng_other
+        };
+        touches.push(approach(&mut path, cfg, fx, pose, ri, row, rng)?);
+    }
+    let last = path.pos;
+    path.line(
+        V3::new(last.x, last.y, safe_z.max(last.z)),
+        TRANSIT_MM_S,
+        -1,
+    );
+    path.line(home, TRANSIT_MM_S, -1);
+    path.dwell(0.5);
+    Ok((path, touches))
+}
+
+/// One approach of the program (row `ri`): safe transit to the leg start,
+/// the leg, settle, the approach along the row's direction until the
+/// physical wheel meets the true plane, registration after the trigger
+/// latency, stop, dwell and retract — appended to `path`.
+fn approach(
+    path: &mut CmdPath,
+    cfg: &RobotFleetConfig,
+    fx: &Effects,
+    pose: &Pose,
+    ri: usize,
+    row: &PlanRow,
+    rng: &mut ChaCha8Rng,
+) -> Result<Touch> {
+    let safe_z = DATUM_NOM_MM[2] + SAFE_CLEARANCE_MM;
+    let n = row.face.normal();
+    let start = row.nom + n * cfg.standoff_mm;
+    let dir_b: i32 = if rng.random::<bool>() { 1 } else { -1 };
+    let leg_start = if dir_b < 0 {
+        start + n * LEG_OUT_MM
+    } else {
+        start - n * OVERTRAVEL_MM
+    };
+    // Safe transit: up, across, down, then the short leg along the normal.
+    let p = path.pos;
+    path.line(V3::new(p.x, p.y, safe_z.max(p.z)), TRANSIT_MM_S, -1);
+    path.line(V3::new(leg_start.x, leg_start.y, safe_z), TRANSIT_MM_S, -1);
+    path.line(leg_start, TRANSIT_MM_S, -1);
+    path.line(start, LEG_MM_S, -1);
+    path.pieces.push(Piece {
+        t0: path.t,
+        t1: path.t + SETTLE_S,
+        p0: start,
+        v0: V3::zeros(),
+        a: V3::zeros(),
+        segment: row.seq,
+    });
+    path.t += SETTLE_S;
+
+    // Approach along dir at v: solve for the contact of the physical
+    // wheel (cmd − o(t)) with the true plane (+ contact scatter).
+    let v = row.speed_mm_s;
+    let t_a = path.t;
+    let (n_true, d_true) = pose.plane(row.face);
+    let e_c = CONTACT_SCATTER_MM * normal(rng);
+    let mut t_c = t_a;
+    let mut o = V3::zeros();
+    for _ in 0..4 {
+        o = frame_offset(fx, row, dir_b, t_c);
+        let denom = v * n_true.dot(&row.dir);
+        let tau = (d_true + e_c - n_true.dot(&(start - o))) / denom;
+        t_c = t_a + tau;
+    }
+    let tau = t_c - t_a;
+    let max_travel = cfg.standoff_mm + 1.0;
+    if !(tau > 0.0 && tau * v < max_travel) {
+        bail!(
+            "seq {}: the wheel would meet the {} face {:.3} mm into the approach (allowed (0, {max_travel}] mm): pose spread or injected offsets exceed the standoff",
+            row.seq,
+            row.face.label(),
+            tau * v
+        );
+    }
+    // The leg start must be clear of the surface too (reversal legs come closer).
+    let leg_clear = n_true.dot(&(leg_start - frame_offset(fx, row, dir_b, t_a))) - d_true;
+    if leg_clear <= 0.0 {
+        bail!(
+            "seq {}: the leg before the approach would enter the {} face: pose spread or injected offsets exceed the standoff",
+            row.seq,
+            row.face.label()
+        );
+    }
+    let t_r = t_c + fx.latency_s;
+    let act_c = start + row.dir * (v * tau);
+    let surface = act_c - o;
+    let sigma = touch_sigma_mm(row.method, v);
+    let reg_noise = (sigma * sigma - CONTACT_SCATTER_MM * CONTACT_SCATTER_MM)
+        .max(0.0)
+        .sqrt()
+        * normal(rng);
+    let registered = act_c + row.dir * (v * fx.latency_s + reg_noise);
+    // Approach piece until registration, then the stop.
+    let p_r = start + row.dir * (v * (t_r - t_a));
+    path.pieces.push(Piece {
+        t0: t_a,
+        t1: t_r,
+        p0: start,
+        v0: row.dir * v,
+        a: V3::zeros(),
+        segment: row.seq,
+    });
+    let t_stop = v / STOP_DECEL_MM_S2;
+    path.pieces.push(Piece {
+        t0: t_r,
+        t1: t_r + t_stop,
+        p0: p_r,
+        v0: row.dir * v,
+        a: -row.dir * STOP_DECEL_MM_S2,
+        segment: row.seq,
+    });
+    path.t = t_r + t_stop;
+    path.pos = p_r + row.dir * (0.5 * v * t_stop);
+    path.dwell(DWELL_S);
+    path.line(start + n * LEG_OUT_MM, LEG_MM_S, -1);
+    Ok(Touch {
+        row: ri,
+        t_c,
+        t_r,
+        act_c,
+        surface,
+        registered,
+        dir_b,
+    })
+}
+
+/// The AE burst window of every AE touch (on the recorder clock) and its
+/// truth record.
+fn ae_windows(
+    cfg: &RobotFleetConfig,
+    program: &[PlanRow],
+    touches: &[Touch],
+    clock_offset_s: f64,
+    carrier: f64,
+    rng: &mut ChaCha8Rng,
+) -> (Vec<AeWindow>, Vec<ContactTruth>) {
+    let fs = cfg.ae_sample_rate_hz;
+    let mut windows: Vec<AeWindow> = Vec::with_capacity(touches.len());
+    let mut contacts = Vec::with_capacity(touches.len());
+    for tc in touches.iter().filter(|t| program[t.row].method == "ae") {
+        let onset = tc.t_c - clock_offset_s;
+        let n0 = ((onset - cfg.ae_pre_s) * fs).ceil().max(0.0) as u64;
+        let n1 = ((onset + cfg.ae_post_s) * fs).floor() as u64 + 1;
+        let n0 = n0.max(windows.last().map(|w: &AeWindow| w.n1).unwrap_or(0));
+        let amp = cfg.ae_noise_v * cfg.ae_burst_sigmas * (0.8 + 0.45 * rng.random::<f64>());
+        windows.push(AeWindow {
+            n0,
+            n1: n1.max(n0),
+            onset_s: onset,
+            amp_v: amp,
+            carrier_hz: carrier * (0.95 + 0.1 * rng.random::<f64>()),
+            phase: 2.0 * PI * rng.random::<f64>(),
+        });
+        let row = &program[tc.row];
+        contacts.push(ContactTruth {
+            seq: row.seq,
+            t_s: tc.t_c,
+            ae_t_s: onset,
+            registered_t_s: tc.t_r,
+            x_mm: tc.act_c.x,
+            y_mm: tc.act_c.y,
+            z_mm: tc.act_c.z,
+            surface_x_mm: tc.surface.x,
+            surface_y_mm: tc.surface.y,
+            surface_z_mm: tc.surface.z,
+            dir: tc.dir_b * row.face.normal()[row.face.axis()] as i32,
+            ae_amplitude_v: amp,
+        });
+    }
+    (windows, contacts)
 }
 
 /// act − physical at a touch: what the encoders cannot see (thermal drift of
