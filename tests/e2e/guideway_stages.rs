@@ -456,3 +456,110 @@ fn bad_inputs_are_named_and_the_batch_goes_on() {
     let s = json(&o);
     assert_eq!(s["resampled"], true);
 }
+
+/// Issue 17 item 2: the default (least-squares) separation and the
+/// predictor on a 30 000-sample trace (10 000 grid points, 3 passes).
+#[test]
+fn predictor_runs_on_a_30000_sample_trace_with_the_default_method() {
+    let d = tempfile::tempdir().unwrap();
+    let cfg = GuidewayFleetConfig {
+        runs: 1,
+        seed: 17,
+        points: 10_002,
+        passes: 3,
+        ..Default::default()
+    };
+    generate_fleet(d.path(), &cfg, &[]).unwrap();
+    let run = d.path().join("guideway-grinder/r0000");
+    let run = run.to_str().unwrap();
+    let s = json(&sparkout(&["stage", "separate", "--run", run, "--json"]));
+    assert_eq!(s["method"], "lsq");
+    assert_eq!(s["n"], 30_000);
+    assert!(s["h_sigma_max_mm"].as_f64().unwrap() > 0.0);
+    assert_eq!(s["sigma_source"], "residuals");
+    let p = json(&sparkout(&["stage", "predictor", "--run", run, "--json"]));
+    assert_eq!(p["n"], 30_000);
+    assert_eq!(p["criterion"], "fpe");
+    let order = p["order"].as_u64().unwrap();
+    assert_eq!(p["orders"]["fpe"].as_u64().unwrap(), order);
+    for c in ["fpe", "bic", "hq"] {
+        assert_eq!(p[c].as_array().unwrap().len(), 10, "{c}");
+        let o = p["orders"][c].as_u64().unwrap();
+        assert!((1..=10).contains(&o), "{c}: {o}");
+    }
+    // The consistent criteria penalise each extra lag more than FPE does.
+    assert!(p["orders"]["bic"].as_u64() <= p["orders"]["hq"].as_u64());
+    let b = json(&sparkout(&[
+        "stage",
+        "predictor",
+        "--run",
+        run,
+        "--criterion",
+        "bic",
+        "--json",
+    ]));
+    assert_eq!(b["criterion"], "bic");
+    assert_eq!(b["order"], p["orders"]["bic"]);
+    assert!(
+        !sparkout(&["stage", "predictor", "--run", run, "--criterion", "aic"])
+            .status
+            .success()
+    );
+}
+
+/// Issue 17 item 3: how often FPE, BIC and HQ pick the true order of
+/// Φ(B)(1 − B)²δz = ε on 3 000-sample traces, 60 seeds per model (the
+/// README's table: `cargo test --workspace --test e2e order_selection --
+/// --nocapture`).
+#[test]
+fn order_selection_hit_rates_of_fpe_bic_and_hq() {
+    use rand::SeedableRng;
+    use sparkout_plugins::guideway::ar_fpe::{fpe_search, Criterion};
+    let models: [&[f64]; 4] = [
+        &[0.6],
+        &[0.5, -0.3],
+        &[0.5, -0.3, 0.1],
+        &[0.5, -0.3, 0.25, -0.3],
+    ];
+    let seeds = 60u64;
+    let p_max = PredictorConfig::from_table(&toml::Table::new(), None).p_max;
+    println!("| true model | criterion | true order | under | over |");
+    println!("|---|---|---|---|---|");
+    let mut bic_hits_ar4 = 0;
+    for coef in models {
+        let p_true = coef.len();
+        let mut tally = [[0usize; 3]; 3];
+        for seed in 0..seeds {
+            let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1000 * p_true as u64 + seed);
+            let dz: Vec<f64> = trending_ar(coef, 1.0, 3000, 1.0, &mut rng)
+                .iter()
+                .map(|v| v * 1e-3)
+                .collect();
+            let s = fpe_search(&difference(&dz, 2), p_max).unwrap();
+            let (ob, oh) = (s.order_by(Criterion::Bic), s.order_by(Criterion::Hq));
+            assert!(ob <= oh, "seed {seed}: BIC {ob} > HQ {oh}");
+            for (c, t) in Criterion::ALL.iter().zip(tally.iter_mut()) {
+                let o = s.order_by(*c);
+                t[(o != p_true) as usize + (o > p_true) as usize] += 1;
+            }
+            if p_true == 4 && ob == 4 {
+                bic_hits_ar4 += 1;
+            }
+        }
+        for (c, t) in Criterion::ALL.iter().zip(tally) {
+            println!(
+                "| AR({p_true}) {coef:?} | {} | {}/{seeds} | {} | {} |",
+                c.as_str().to_uppercase(),
+                t[0],
+                t[1],
+                t[2]
+            );
+        }
+    }
+    // BIC is consistent: with 3 000 samples it should rarely miss an AR(4)
+    // whose coefficients are all well away from zero.
+    assert!(
+        bic_hits_ar4 * 10 >= seeds as usize * 8,
+        "BIC picked 4 in {bic_hits_ar4} of {seeds}"
+    );
+}

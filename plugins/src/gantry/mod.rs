@@ -22,6 +22,7 @@ use sparkout_pipeline::{ArtifactStore, MachinePlugin, ReportSection, Run, Stage}
 
 pub mod beam;
 pub mod config;
+pub mod dwell;
 pub mod flatness;
 pub mod grid;
 pub mod machine;

@@ -1,6 +1,7 @@
 //! Report sections of a gantry run (issue 5 item 9): heat maps of Γ_static,
 //! Γ_dynamic and each body's share; flatness before and after; the polish
-//! plan drawn over the surface; selective against raster time.
+//! plan (dwell map, predicted flatness, loud warning when it would make the
+//! surface worse); selective against raster time.
 
 use serde_json::Value;
 use sparkout_pipeline::contracts::{batch_f64, batch_str};
@@ -105,24 +106,54 @@ fn flatness(a: &ArtifactStore) -> Option<ReportSection> {
 fn polish(a: &ArtifactStore, s: Option<&Value>) -> Option<ReportSection> {
     let p = a.get("polish_plan").ok()??;
     let s = s?;
-    let (x, y, r) = (
+    let (x, y, d) = (
         batch_f64(&p, "x_mm").ok()?,
         batch_f64(&p, "y_mm").ok()?,
-        batch_f64(&p, "radius_mm").ok()?,
+        batch_f64(&p, "dwell_s").ok()?,
     );
-    let mut html = format!(
-        "<p>{} placements cover every point more than {} µm above the least-squares plane ({} points, {:.1} % of the area). Selective {:.1} s against raster {:.1} s (ratio {:.2}); selective polishing stops paying off at a zone of {} of the area (by sweeping the tolerance).</p>",
+    let fl = |state: &str, key: &str| um(s["flatness"][state][key].as_f64().unwrap_or(f64::NAN));
+    let mut html = String::new();
+    if let Some(w) = s["warning"].as_str() {
+        html.push_str(&format!(
+            "<p style=\"color:#b00;font-weight:bold;border:2px solid #b00;padding:0.5em\">WARNING: {}</p>",
+            esc(w)
+        ));
+    }
+    html.push_str(&format!(
+        "<p>Dwell-time optimisation (verdict: <b>{}</b>): {} dwell positions, {:.1} s dwell + {:.1} s lifted travel = <b>{:.1} s</b>, against <b>{:.1} s</b> for a raster of the same removal ({:.2} sweeps; ratio {:.2}). {} points ({:.1} % of the area) stood more than {} µm above the least-squares plane. Selective polishing stops paying off at a zone of {} of the area (by sweeping the zone).</p>",
+        esc(s["verdict"].as_str().unwrap_or("—")),
         s["placements"],
-        um(s["tolerance_mm"].as_f64().unwrap_or(f64::NAN)),
-        s["zone_points"],
-        100.0 * s["zone_area_fraction"].as_f64().unwrap_or(f64::NAN),
+        s["dwell_s"].as_f64().unwrap_or(f64::NAN),
+        s["travel_s"].as_f64().unwrap_or(f64::NAN),
         s["selective_s"].as_f64().unwrap_or(f64::NAN),
         s["raster_s"].as_f64().unwrap_or(f64::NAN),
+        s["raster_sweeps"].as_f64().unwrap_or(f64::NAN),
         s["ratio"].as_f64().unwrap_or(f64::NAN),
+        s["zone_points"],
+        100.0 * s["zone_area_fraction"].as_f64().unwrap_or(f64::NAN),
+        um(s["tolerance_mm"].as_f64().unwrap_or(f64::NAN)),
         s["breakeven_area_fraction"].as_f64().map(|v| format!("{:.0} %", 100.0 * v)).unwrap_or_else(|| "— (never within the sweep)".into()),
-    );
-    // The plan over the surface: tool footprints and centres on the
-    // ground surface's height map.
+    ));
+    html.push_str(&table(
+        &["surface", "least squares (µm)", "minimum zone (µm)"],
+        &[
+            vec![
+                "after grinding (plan input)".into(),
+                fl("before", "least_squares_mm"),
+                fl("before", "min_zone_mm"),
+            ],
+            vec![
+                "after selective polishing (predicted)".into(),
+                fl("selective", "least_squares_mm"),
+                fl("selective", "min_zone_mm"),
+            ],
+            vec![
+                "after raster of the same removal (predicted)".into(),
+                fl("raster", "least_squares_mm"),
+                fl("raster", "min_zone_mm"),
+            ],
+        ],
+    ));
     if let Some(surf) = a.get("polish_surface").ok().flatten() {
         if let Some(c) = cells(&surf, "above_plane_mm") {
             html.push_str(&heatmap(
@@ -133,37 +164,16 @@ fn polish(a: &ArtifactStore, s: Option<&Value>) -> Option<ReportSection> {
         }
         if let Some(c) = cells(&surf, "after_mm") {
             html.push_str(&heatmap(
-                "Predicted after selective polishing (spiral dwell ⊛ tool influence)",
+                "Predicted after selective polishing (dwell ⊛ tool influence)",
                 &c,
                 "µm",
             ));
         }
     }
-    let mut ring = Vec::new();
-    for k in 0..x.len() {
-        for q in 0..48 {
-            let th = q as f64 * std::f64::consts::TAU / 48.0;
-            ring.push((x[k] + r[k] * th.cos(), y[k] + r[k] * th.sin()));
-        }
+    if !x.is_empty() {
+        let c: Vec<(f64, f64, f64)> = (0..x.len()).map(|k| (x[k], y[k], d[k])).collect();
+        html.push_str(&heatmap("Dwell per tool-centre position", &c, "s"));
     }
-    let centres: Vec<(f64, f64)> = (0..x.len()).map(|k| (x[k], y[k])).collect();
-    html.push_str(&xy_chart(
-        "Selective polishing placements (tool footprints)",
-        "x_mm",
-        "y_mm",
-        &[
-            Series {
-                name: "tool footprint",
-                points: &ring,
-                mark: Mark::Points,
-            },
-            Series {
-                name: "placement centre",
-                points: &centres,
-                mark: Mark::Points,
-            },
-        ],
-    ));
     html.push_str(&bar_chart(
         "Selective vs raster polishing time",
         "s",

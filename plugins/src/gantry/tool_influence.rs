@@ -174,21 +174,59 @@ pub fn fft_convolve_same(
     kx: usize,
     ky: usize,
 ) -> Vec<f64> {
-    assert_eq!(img.len(), nx * ny);
-    assert_eq!(ker.len(), kx * ky);
-    let px = fast_len(nx + kx - 1);
-    let py = fast_len(ny + ky - 1);
-    let cx = px / 2 + 1;
-    let mut rp = RealFftPlanner::<f64>::new();
-    let r2c = rp.plan_fft_forward(px);
-    let c2r = rp.plan_fft_inverse(px);
-    let mut cp = FftPlanner::<f64>::new();
-    let fwd = cp.plan_fft_forward(py);
-    let inv = cp.plan_fft_inverse(py);
-    let zero = Complex::new(0.0, 0.0);
+    Convolver::new(nx, ny, ker, kx, ky).apply(img)
+}
 
-    // Spectrum, column-major (cx columns of py) so column FFTs are contiguous.
-    let spectrum = |src: &[f64], w: usize, h: usize| -> Vec<Complex<f64>> {
+/// [`fft_convolve_same`] with its plans and the kernel's spectrum kept, for
+/// iterative solvers that convolve the same-sized image many times (the
+/// dwell-time optimisation: two convolutions per iteration).
+pub struct Convolver {
+    nx: usize,
+    ny: usize,
+    kx: usize,
+    ky: usize,
+    px: usize,
+    py: usize,
+    r2c: Arc<dyn realfft::RealToComplex<f64>>,
+    c2r: Arc<dyn realfft::ComplexToReal<f64>>,
+    fwd: Arc<dyn rustfft::Fft<f64>>,
+    inv: Arc<dyn rustfft::Fft<f64>>,
+    /// Kernel spectrum, column-major, already scaled by 1/(px·py).
+    kernel: Vec<Complex<f64>>,
+}
+
+impl Convolver {
+    pub fn new(nx: usize, ny: usize, ker: &[f64], kx: usize, ky: usize) -> Convolver {
+        assert_eq!(ker.len(), kx * ky);
+        let px = fast_len(nx + kx - 1);
+        let py = fast_len(ny + ky - 1);
+        let mut rp = RealFftPlanner::<f64>::new();
+        let mut cp = FftPlanner::<f64>::new();
+        let mut c = Convolver {
+            nx,
+            ny,
+            kx,
+            ky,
+            px,
+            py,
+            r2c: rp.plan_fft_forward(px),
+            c2r: rp.plan_fft_inverse(px),
+            fwd: cp.plan_fft_forward(py),
+            inv: cp.plan_fft_inverse(py),
+            kernel: Vec::new(),
+        };
+        let norm = 1.0 / (px * py) as f64;
+        let mut k = c.spectrum(ker, kx, ky);
+        k.iter_mut().for_each(|v| *v *= norm);
+        c.kernel = k;
+        c
+    }
+
+    /// Spectrum, column-major (cx columns of py) so column FFTs are contiguous.
+    fn spectrum(&self, src: &[f64], w: usize, h: usize) -> Vec<Complex<f64>> {
+        let cx = self.px / 2 + 1;
+        let zero = Complex::new(0.0, 0.0);
+        let r2c = &self.r2c;
         let mut rows = vec![zero; h * cx];
         rows.par_chunks_mut(cx).enumerate().for_each_init(
             || (r2c.make_input_vec(), r2c.make_scratch_vec()),
@@ -199,44 +237,51 @@ pub fn fft_convolve_same(
                     .expect("fft sizes");
             },
         );
-        let mut spec = vec![zero; cx * py];
-        transpose(&rows, h, cx, &mut spec, py);
-        process_columns(&fwd, &mut spec, py);
+        let mut spec = vec![zero; cx * self.py];
+        transpose(&rows, h, cx, &mut spec, self.py);
+        process_columns(&self.fwd, &mut spec, self.py);
         spec
-    };
-    let mut a = spectrum(img, nx, ny);
-    let b = spectrum(ker, kx, ky);
-    let norm = 1.0 / (px * py) as f64;
-    a.par_iter_mut()
-        .zip(b.par_iter())
-        .for_each(|(u, v)| *u *= *v * norm);
-    process_columns(&inv, &mut a, py);
-    // Back to rows: only the ny rows the crop keeps (offset oy).
-    let (ox, oy) = (kx / 2, ky / 2);
-    let mut rows = vec![zero; ny * cx];
-    for i in 0..cx {
-        let col = &a[i * py + oy..i * py + oy + ny];
-        for (j, v) in col.iter().enumerate() {
-            rows[j * cx + i] = *v;
-        }
     }
-    let mut out = vec![0.0; nx * ny];
-    out.par_chunks_mut(nx)
-        .zip(rows.par_chunks_mut(cx))
-        .for_each_init(
-            || (c2r.make_output_vec(), c2r.make_scratch_vec()),
-            |(buf, scratch), (o, spec_row)| {
-                // Imaginary parts of DC/Nyquist are rounding noise for a real result.
-                spec_row[0].im = 0.0;
-                if px.is_multiple_of(2) {
-                    spec_row[cx - 1].im = 0.0;
-                }
-                c2r.process_with_scratch(spec_row, buf, scratch)
-                    .expect("fft sizes");
-                o.copy_from_slice(&buf[ox..ox + nx]);
-            },
-        );
-    out
+
+    /// The image (nx × ny, row-major) convolved with the kernel, "same".
+    pub fn apply(&self, img: &[f64]) -> Vec<f64> {
+        let (nx, ny, px, py) = (self.nx, self.ny, self.px, self.py);
+        assert_eq!(img.len(), nx * ny);
+        let cx = px / 2 + 1;
+        let zero = Complex::new(0.0, 0.0);
+        let mut a = self.spectrum(img, nx, ny);
+        a.par_iter_mut()
+            .zip(self.kernel.par_iter())
+            .for_each(|(u, v)| *u *= *v);
+        process_columns(&self.inv, &mut a, py);
+        // Back to rows: only the ny rows the crop keeps (offset oy).
+        let (ox, oy) = (self.kx / 2, self.ky / 2);
+        let mut rows = vec![zero; ny * cx];
+        for i in 0..cx {
+            let col = &a[i * py + oy..i * py + oy + ny];
+            for (j, v) in col.iter().enumerate() {
+                rows[j * cx + i] = *v;
+            }
+        }
+        let c2r = &self.c2r;
+        let mut out = vec![0.0; nx * ny];
+        out.par_chunks_mut(nx)
+            .zip(rows.par_chunks_mut(cx))
+            .for_each_init(
+                || (c2r.make_output_vec(), c2r.make_scratch_vec()),
+                |(buf, scratch), (o, spec_row)| {
+                    // Imaginary parts of DC/Nyquist are rounding noise for a real result.
+                    spec_row[0].im = 0.0;
+                    if px.is_multiple_of(2) {
+                        spec_row[cx - 1].im = 0.0;
+                    }
+                    c2r.process_with_scratch(spec_row, buf, scratch)
+                        .expect("fft sizes");
+                    o.copy_from_slice(&buf[ox..ox + nx]);
+                },
+            );
+        out
+    }
 }
 
 /// Row-major (h × w) → column-major with column length `ld` (rows ≥ h stay

@@ -1,6 +1,14 @@
 //! The time-series model of δz (MODELS.md §3.2): difference d times, fit
 //! AR(p) for p = 1..p_max by least squares, choose p by the Final
-//! Prediction Error FPE(p) = σ̂²_p·(N + p + 1)/(N − p − 1).
+//! Prediction Error FPE(p) = σ̂²_p·(N + p + 1)/(N − p − 1) (the default,
+//! as published), or by one of the consistent criteria (issue 17 item 3):
+//! BIC(p) = N·ln σ̂²_p + p·ln N (Schwarz) and HQ(p) = N·ln σ̂²_p +
+//! 2p·ln ln N (Hannan–Quinn). FPE is asymptotically AIC and keeps a
+//! positive probability of overfitting however long the series; BIC and
+//! HQ pick the true order with probability → 1 (BIC at the price of
+//! missing small last coefficients on short series). All three are
+//! computed every time and reported; `[guideway.predictor] criterion`
+//! chooses which one sets the order.
 //!
 //! Every order is fitted on the same N = len − p_max samples (the first
 //! p_max differenced values only serve as lags), so the FPEs compare like
@@ -46,20 +54,74 @@ pub fn undifference(y: f64, prev: &[f64], c: &[f64]) -> f64 {
     y - c[1..].iter().zip(prev).map(|(ci, x)| ci * x).sum::<f64>()
 }
 
+/// Order-selection criterion.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Criterion {
+    Fpe,
+    Bic,
+    Hq,
+}
+
+impl Criterion {
+    pub const ALL: [Criterion; 3] = [Criterion::Fpe, Criterion::Bic, Criterion::Hq];
+    pub const NAMES: &'static [&'static str] = &["fpe", "bic", "hq"];
+    pub fn parse(s: &str) -> Option<Criterion> {
+        Self::ALL.into_iter().find(|c| c.as_str() == s)
+    }
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Criterion::Fpe => "fpe",
+            Criterion::Bic => "bic",
+            Criterion::Hq => "hq",
+        }
+    }
+}
+
 /// The order search.
 #[derive(Debug, Clone)]
 pub struct FpeSearch {
     /// Samples every order is fitted on.
     pub n_eff: usize,
-    /// Per order p = 1..=p_max: FPE, σ̂², coefficients a_1..a_p.
+    /// Per order p = 1..=p_max: FPE, BIC, HQ, σ̂², coefficients a_1..a_p.
     pub fpe: Vec<f64>,
+    pub bic: Vec<f64>,
+    pub hq: Vec<f64>,
     pub sigma2: Vec<f64>,
     pub coefficients: Vec<Vec<f64>>,
-    /// The order with the smallest FPE.
+    /// The criterion that chose `order`.
+    pub criterion: Criterion,
+    /// The order with the smallest value of `criterion`.
     pub order: usize,
 }
 
+/// 1 + the index of the smallest value.
+fn argmin1(v: &[f64]) -> usize {
+    1 + v
+        .iter()
+        .enumerate()
+        .min_by(|a, b| a.1.total_cmp(b.1))
+        .map(|(i, _)| i)
+        .unwrap_or(0)
+}
+
 impl FpeSearch {
+    pub fn values(&self, c: Criterion) -> &[f64] {
+        match c {
+            Criterion::Fpe => &self.fpe,
+            Criterion::Bic => &self.bic,
+            Criterion::Hq => &self.hq,
+        }
+    }
+    /// The order each criterion would choose.
+    pub fn order_by(&self, c: Criterion) -> usize {
+        argmin1(self.values(c))
+    }
+    /// The same fits with the order chosen by `c`.
+    pub fn with_criterion(mut self, c: Criterion) -> FpeSearch {
+        self.criterion = c;
+        self.order = self.order_by(c);
+        self
+    }
     pub fn chosen(&self) -> &[f64] {
         &self.coefficients[self.order - 1]
     }
@@ -98,7 +160,8 @@ fn cross_products(y: &[f64], p_max: usize) -> DMatrix<f64> {
     g
 }
 
-/// Fit AR(1..=p_max) to `y` (already differenced) and choose by FPE.
+/// Fit AR(1..=p_max) to `y` (already differenced) and choose by FPE
+/// (see [`FpeSearch::with_criterion`] for the others).
 pub fn fpe_search(y: &[f64], p_max: usize) -> Result<FpeSearch> {
     if p_max == 0 {
         bail!("p_max must be at least 1");
@@ -119,6 +182,7 @@ pub fn fpe_search(y: &[f64], p_max: usize) -> Result<FpeSearch> {
     let n_eff = y.len() - p_max;
     let nf = n_eff as f64;
     let (mut fpe, mut sigma2, mut coefficients) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut bic, mut hq) = (Vec::new(), Vec::new());
     for p in 1..=p_max {
         let a = g.view((1, 1), (p, p)).into_owned();
         let b = DVector::from_iterator(p, (1..=p).map(|i| g[(i, 0)]));
@@ -134,19 +198,21 @@ pub fn fpe_search(y: &[f64], p_max: usize) -> Result<FpeSearch> {
         let s2 = rss / nf / (scale * scale);
         sigma2.push(s2);
         fpe.push(s2 * (nf + p as f64 + 1.0) / (nf - p as f64 - 1.0));
+        // σ̂² in the series' unit (mm²); a perfect fit stays finite.
+        let ln_s2 = s2.max(f64::MIN_POSITIVE).ln();
+        bic.push(nf * ln_s2 + p as f64 * nf.ln());
+        hq.push(nf * ln_s2 + 2.0 * p as f64 * nf.ln().max(1.0).ln());
         coefficients.push(coef.iter().copied().collect());
     }
-    let order = 1 + fpe
-        .iter()
-        .enumerate()
-        .min_by(|a, b| a.1.total_cmp(b.1))
-        .map(|(i, _)| i)
-        .unwrap_or(0);
+    let order = argmin1(&fpe);
     Ok(FpeSearch {
         n_eff,
         fpe,
+        bic,
+        hq,
         sigma2,
         coefficients,
+        criterion: Criterion::Fpe,
         order,
     })
 }

@@ -7,6 +7,7 @@ use sparkout_pipeline::{Result, Run, StageContext};
 
 pub use sparkout_pipeline::config_check::{check_config, Check};
 
+use super::ar_fpe::Criterion;
 use super::input::InputOptions;
 use super::three_probe::{Method, Reference};
 
@@ -81,6 +82,7 @@ pub const PREDICTOR_KEYS: &[(&str, Check)] = &[
     ("horizon", Check::AtLeastOne),
     ("repeatability_mm", Check::Positive),
     ("warmup", Check::NonNegative),
+    ("criterion", Check::OneOf(Criterion::NAMES)),
 ];
 
 /// `[guideway.predictor]` (MODELS.md §3.2–3.3).
@@ -89,6 +91,8 @@ pub struct PredictorConfig {
     /// Difference order (source: 2).
     pub d: usize,
     pub p_max: usize,
+    /// AR order criterion (MODELS.md §3.2: FPE; BIC, HQ: issue 17).
+    pub criterion: Criterion,
     /// RLS P(0) = p0·I with δz in µm (source: 100).
     pub p0: f64,
     pub forgetting: f64,
@@ -114,6 +118,11 @@ impl PredictorConfig {
         PredictorConfig {
             d: int(config, "d", 2),
             p_max: int(config, "p_max", 10),
+            criterion: config
+                .get("criterion")
+                .and_then(|v| v.as_str())
+                .and_then(Criterion::parse)
+                .unwrap_or(Criterion::Fpe),
             p0: f("p0", 100.0),
             forgetting: f("forgetting", 1.0),
             horizon: int(config, "horizon", 20),
@@ -163,5 +172,14 @@ mod tests {
         assert!(PredictorConfig::validate(&t).is_err());
         let c = PredictorConfig::from_table(&toml::Table::new(), None);
         assert_eq!((c.d, c.p_max, c.p0), (2, 10, 100.0));
+        assert_eq!(c.criterion, Criterion::Fpe);
+        let t: toml::Table = "criterion = \"bic\"".parse().unwrap();
+        assert!(PredictorConfig::validate(&t).is_ok());
+        assert_eq!(
+            PredictorConfig::from_table(&t, None).criterion,
+            Criterion::Bic
+        );
+        let t: toml::Table = "criterion = \"aic\"".parse().unwrap();
+        assert!(PredictorConfig::validate(&t).is_err());
     }
 }

@@ -1,13 +1,14 @@
 //! `predictor` — the DAG's "train predictor" stage for the guide-way
 //! grinder (MODELS.md §3.2–3.3): difference δz d times (default 2), choose
-//! the AR order by FPE over p = 1..p_max, identify the chosen model online
+//! the AR order over p = 1..p_max by FPE (default) or BIC / HQ
+//! (`criterion`, issue 17; all three reported), identify the chosen model online
 //! by RLS (Â(0) = 0, P(0) = 100·I, δz in µm as in the source), predict one
 //! step ahead, undo the differencing, fuse with the measurement by a scalar
 //! Kalman filter, and forecast past the last sample.
 //!
 //! Artifacts: `predictor` (per sample: dz_mm, dz_pred_mm, innovation_mm,
 //! dz_kalman_mm, kalman_gain; null before the first prediction), `ar_fpe`
-//! (p, fpe_mm2, sigma2_mm2, selected), `forecast` (step, n, dz_mm,
+//! (p, fpe_mm2, bic, hq, sigma2_mm2, selected — by the chosen criterion), `forecast` (step, n, dz_mm,
 //! dz_sigma_mm).
 
 use anyhow::anyhow;
@@ -21,7 +22,7 @@ use sparkout_pipeline::{
     InputError, Result, Stage, StageArgs, StageContext, StageOutput, StageSpec,
 };
 
-use super::ar_fpe::{self, FpeSearch};
+use super::ar_fpe::{self, Criterion, FpeSearch};
 use super::config::{flags_to_table, PredictorConfig};
 use super::kalman::Kalman;
 use super::rls::Rls;
@@ -62,7 +63,7 @@ pub fn min_samples(cfg: &PredictorConfig) -> usize {
 pub fn predict(dz: &[f64], cfg: &PredictorConfig) -> Result<Prediction> {
     let d = cfg.d;
     let y = ar_fpe::difference(dz, d);
-    let search = ar_fpe::fpe_search(&y, cfg.p_max)?;
+    let search = ar_fpe::fpe_search(&y, cfg.p_max)?.with_criterion(cfg.criterion);
     let p = search.order;
     let c = ar_fpe::difference_poly(d);
     let len = dz.len();
@@ -128,7 +129,14 @@ pub fn summary(p: &Prediction, cfg: &PredictorConfig, n: usize) -> Value {
         "d": p.d,
         "p_max": cfg.p_max,
         "fpe": p.search.fpe.iter().map(|v| json_f64(*v)).collect::<Vec<_>>(),
+        "bic": p.search.bic.iter().map(|v| json_f64(*v)).collect::<Vec<_>>(),
+        "hq": p.search.hq.iter().map(|v| json_f64(*v)).collect::<Vec<_>>(),
+        "criterion": p.search.criterion.as_str(),
         "order": p.search.order,
+        "orders": Criterion::ALL
+            .iter()
+            .map(|c| (c.as_str().to_string(), json!(p.search.order_by(*c))))
+            .collect::<serde_json::Map<_, _>>(),
         "coefficients": p.search.chosen(),
         "sigma2_mm2": json_f64(p.search.sigma2_chosen()),
         "rls_coefficients": p.rls_coefficients,
@@ -161,6 +169,8 @@ fn batches(s: &SepData, p: &Prediction) -> (RecordBatch, RecordBatch, RecordBatc
     let fpe = BatchBuilder::new()
         .i32("p", (1..=orders as i32).collect())
         .f64("fpe_mm2", p.search.fpe.clone())
+        .f64("bic", p.search.bic.clone())
+        .f64("hq", p.search.hq.clone())
         .f64("sigma2_mm2", p.search.sigma2.clone())
         .i32(
             "selected",
@@ -188,7 +198,7 @@ const SPEC: StageSpec = StageSpec {
     reads: &[],
     reads_artifacts: &["separation"],
     writes: &["predictor", "ar_fpe", "forecast"],
-    about: "AR order of the d-times differenced δz by FPE, online RLS, one-step prediction, scalar Kalman fusion, forecasts (MODELS.md §3.2–3.3)",
+    about: "AR order of the d-times differenced δz by FPE (or BIC / HQ), online RLS, one-step prediction, scalar Kalman fusion, forecasts (MODELS.md §3.2–3.3)",
 };
 
 impl Stage for PredictorStage {

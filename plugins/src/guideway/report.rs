@@ -181,9 +181,13 @@ fn fpe(s: &Value) -> Option<ReportSection> {
         })
         .unwrap_or_default();
     let mut html = format!(
-        "<p>δz differenced d = {} times; AR order by FPE: <b>p = {}</b>. Batch coefficients ({}), online RLS after the last sample ({}). One-step prediction-error variance {} µm² (source: below 1 µm).</p>",
+        "<p>δz differenced d = {} times; AR order by {}: <b>p = {}</b> (FPE would choose {}, BIC {}, HQ {}). Batch coefficients ({}), online RLS after the last sample ({}). One-step prediction-error variance {} µm² (source: below 1 µm).</p>",
         s["d"],
+        s["criterion"].as_str().unwrap_or("fpe").to_uppercase(),
         s["order"],
+        s["orders"]["fpe"],
+        s["orders"]["bic"],
+        s["orders"]["hq"],
         esc(&coef.join(", ")),
         esc(&rls.join(", ")),
         s["prediction_error_var_mm2"]
