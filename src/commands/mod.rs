@@ -31,9 +31,7 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<u8> {
             config,
             extra,
         } => stage::stage(&name, run, out, json, config, &extra),
-        Command::ValidateInput { root, machines } => {
-            validate_input::validate_input(&root, machines)
-        }
+        Command::ValidateInput { root, config } => validate_input::validate_input(&root, &config),
         Command::Generate {
             what,
             runs,
@@ -42,7 +40,17 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<u8> {
             effects,
             ae_rate_hz,
             list_effects,
-        } => generate::generate(&what, runs, seed, out, &effects, ae_rate_hz, list_effects),
+            force,
+        } => generate::generate(
+            &what,
+            runs,
+            seed,
+            out,
+            &effects,
+            ae_rate_hz,
+            list_effects,
+            force,
+        ),
         Command::Demo { out } => demo::demo(&out),
         Command::Diagnose {
             observations,

@@ -3,6 +3,7 @@
 //! file: ~8 GB of test executables and most of the link time saved).
 //! Run one group with `cargo test --test e2e gantry_stages::`.
 
+mod bad_input_matrix;
 mod cli_fleet;
 mod cli_stage_diagnose;
 mod common;
@@ -17,6 +18,8 @@ mod guideway_diagnosis_e2e;
 mod guideway_stages;
 mod mill_diagnosis_e2e;
 mod mill_stages;
+mod proptest_parsers;
+mod reliability;
 mod replay_cli;
 mod robot_diagnosis_e2e;
 mod robot_stages;

@@ -90,6 +90,7 @@ impl AeStream {
                         .row(first_row + row),
                 );
             }
+            super::plausible::check_column(&self.path, "ae", name, col.as_ref(), first_row)?;
         }
         let t = cast(t, &DataType::Float64)
             .map_err(|e| InputError::new(&self.path, e.to_string()).column("t_s"))?;

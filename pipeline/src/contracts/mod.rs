@@ -3,6 +3,8 @@
 
 pub mod ae_stream;
 pub mod batch;
+pub mod config_keys;
+pub mod plausible;
 pub mod run;
 pub mod schema;
 pub mod table;
@@ -10,9 +12,12 @@ pub mod write;
 
 pub use ae_stream::{AeChunk, AeStream};
 pub use batch::{batch_f64, batch_i32, batch_str, read_parquet, BatchBuilder};
-pub use run::{discover_runs, AeKind, AeSpec, MachineConfig, MachineResolver, RunSpec};
+pub use run::{
+    discover, discover_runs, AeKind, AeSpec, Discovery, MachineConfig, MachineResolver, RunSpec,
+};
 pub use schema::{table_schema, ColumnKind, ColumnSpec, TableSchema, ALL_TABLES};
 pub use table::Table;
 pub use write::{
-    write_atomic, write_json_atomic, write_parquet_atomic, write_parquet_batches_atomic,
+    remove_orphaned_temps, write_atomic, write_json_atomic, write_parquet_atomic,
+    write_parquet_batches_atomic,
 };
