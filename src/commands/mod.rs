@@ -41,16 +41,14 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<u8> {
             ae_rate_hz,
             list_effects,
             force,
-        } => generate::generate(
-            &what,
-            runs,
-            seed,
-            out,
-            &effects,
-            ae_rate_hz,
-            list_effects,
-            force,
-        ),
+        } => {
+            let opts = sparkout_datasets::GenerateOptions {
+                runs,
+                seed,
+                ae_rate_hz,
+            };
+            generate::generate(&what, &opts, out, &effects, list_effects, force)
+        }
         Command::Demo { out } => demo::demo(&out),
         Command::Diagnose {
             observations,

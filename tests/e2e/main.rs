@@ -7,6 +7,7 @@ mod bad_input_matrix;
 mod cli_fleet;
 mod cli_stage_diagnose;
 mod common;
+mod config_defaults;
 mod contracts_bad_input;
 mod diagnose_validate;
 mod form_diagnosis_e2e;

@@ -308,3 +308,89 @@ fn killed_batch_resumes_per_stage_and_leaves_no_temp_files() {
         .filter(|s| s["stage"] != "separate")
         .all(|s| s["cached"] == false));
 }
+
+/// The README's replay example works on generated robot runs (their motion
+/// stays inside the default envelope), impossible fault specs are refused,
+/// and the default binary says how to get SocketCAN.
+#[test]
+fn replay_as_documented() {
+    let d = tempfile::tempdir().unwrap();
+    let root = d.path().join("runs");
+    let g = sparkout(&[
+        "generate",
+        "robot",
+        "--runs",
+        "2",
+        "--seed",
+        "1",
+        "--ae-rate-hz",
+        "200000",
+        "--out",
+        root.to_str().unwrap(),
+    ]);
+    assert!(g.status.success(), "{}", text(&g));
+    for run in run_dirs(&root) {
+        let o = sparkout(&["replay", "--run", run.to_str().unwrap(), "--bus", "sim"]);
+        assert_eq!(o.status.code(), Some(0), "{}: {}", run.display(), text(&o));
+    }
+    let run = run_dirs(&root)[0].clone();
+    let run_s = run.to_str().unwrap();
+    for (fault, needle) in [
+        ("emcy@1s:9", "not one of the drives"),
+        ("heartbeat@1s:4", "not one of the drives"),
+        ("emcy@99999s", "after the end"),
+        ("sigint@99999s", "after the end"),
+    ] {
+        let o = sparkout(&[
+            "replay",
+            "--run",
+            run_s,
+            "--bus",
+            "sim",
+            "--sim-fault",
+            fault,
+        ]);
+        assert_eq!(o.status.code(), Some(1), "{fault}: {}", text(&o));
+        assert!(
+            String::from_utf8_lossy(&o.stderr).contains(needle),
+            "{fault}: {}",
+            text(&o)
+        );
+    }
+    if !cfg!(feature = "socketcan") {
+        let o = sparkout(&["replay", "--run", run_s, "--bus", "socketcan:can0"]);
+        assert_eq!(o.status.code(), Some(1), "{}", text(&o));
+        assert!(
+            String::from_utf8_lossy(&o.stderr).contains("--features socketcan"),
+            "{}",
+            text(&o)
+        );
+    }
+}
+
+/// Config typos are errors naming the key and what is known (item 3).
+#[test]
+fn config_typos_are_never_silent() {
+    let d = tempfile::tempdir().unwrap();
+    let root = fleet(d.path(), 1);
+    let out = d.path().join("out");
+    for (set, needle) in [
+        ("guidewy.separate.method=lsq", "unknown section `guidewy`"),
+        ("robotx.ingest.k_sigma=8", "unknown section `robotx`"),
+        ("report.titel=x", "unknown key [report].titel"),
+        ("pipeline.stagez=[\"x\"]", "unknown key [pipeline].stagez"),
+    ] {
+        let o = run(&root, &out, &["--set", set]);
+        assert_eq!(o.status.code(), Some(1), "{set}: {}", text(&o));
+        assert!(
+            String::from_utf8_lossy(&o.stderr).contains(needle),
+            "{set}: {}",
+            text(&o)
+        );
+    }
+    let cfg = d.path().join("nightly.toml");
+    std::fs::write(&cfg, "[robotx.ingest]\nk_sigma = 8\n").unwrap();
+    let o = run(&root, &out, &["--config", cfg.to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(1), "{}", text(&o));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("robotx"));
+}

@@ -49,12 +49,13 @@ fn kind(v: &toml::Value) -> &'static str {
 /// Keys that describe the machine rather than parametrise a model.
 const DESCRIPTIVE: [&str; 3] = ["machine.id", "machine.plugin", "machine.description"];
 
-/// Positions and offsets may be negative; other scalars the built-in
+/// Positions and offsets may be negative (latencies are 0 in the
+/// built-in machines, so unconstrained); other scalars the built-in
 /// machines give as positive (radii, speeds, weights, σ, …) may not.
 fn may_be_negative(key: &str) -> bool {
     let leaf = key.rsplit('.').next().unwrap_or(key);
     ["x_mm", "y_mm", "z_mm"].contains(&leaf)
-        || ["_x_mm", "_y_mm", "_z_mm", "_pos_mm", "_s"]
+        || ["_x_mm", "_y_mm", "_z_mm", "_pos_mm"]
             .iter()
             .any(|s| leaf.ends_with(s))
         || leaf.contains("offset")

@@ -4,6 +4,7 @@
 pub mod ae_stream;
 pub mod batch;
 pub mod config_keys;
+pub mod motion;
 pub mod plausible;
 pub mod run;
 pub mod schema;
@@ -12,6 +13,7 @@ pub mod write;
 
 pub use ae_stream::{AeChunk, AeStream};
 pub use batch::{batch_f64, batch_i32, batch_str, read_parquet, BatchBuilder};
+pub use motion::MotionColumns;
 pub use run::{
     discover, discover_runs, AeKind, AeSpec, Discovery, MachineConfig, MachineResolver, RunSpec,
 };
