@@ -96,8 +96,9 @@ pub enum Command {
     )]
     ValidateInput {
         root: PathBuf,
-        #[arg(long, value_name = "DIR")]
-        machines: Option<PathBuf>,
+        /// The same --config/--set/--machines as `run`: the checks are the same.
+        #[command(flatten)]
+        config: ConfigArgs,
     },
     /// Generate a synthetic fleet (or an observations table) with injected effects.
     #[command(
@@ -128,6 +129,9 @@ pub enum Command {
         /// List the injectable effects and exit.
         #[arg(long)]
         list_effects: bool,
+        /// Overwrite runs (or an observations file) that already exist at --out.
+        #[arg(long)]
+        force: bool,
     },
     /// Generate a small fleet, run everything, print where the report is.
     #[command(after_help = "Example: sparkout demo --out /tmp/sparkout-demo")]

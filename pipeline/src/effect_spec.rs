@@ -54,6 +54,36 @@ impl EffectSpec {
     }
 }
 
+/// Largest |value| an injected effect parameter may have: far above any
+/// length (mm), gain or time constant of a machine, far below where the
+/// injected values would overflow into infinity.
+pub const MAX_EFFECT_PARAM: f64 = 1e6;
+
+/// One parameter of `--effect`: finite, of a plausible size, and positive
+/// where it is a scale that divides (τ, λ, radius, width): a zero or
+/// negative one would write NaN or inf into every generated value.
+fn check_param(spec: &str, key: &str, v: f64) -> Result<(), String> {
+    if !v.is_finite() {
+        return Err(format!(
+            "--effect `{spec}`: `{key}` = {v} is not a finite number"
+        ));
+    }
+    if v.abs() > MAX_EFFECT_PARAM {
+        return Err(format!(
+            "--effect `{spec}`: `{key}` = {v} is out of range (|value| ≤ {MAX_EFFECT_PARAM:e})"
+        ));
+    }
+    let divisor = ["tau", "lambda", "radius", "width", "sigma", "period"]
+        .iter()
+        .any(|p| key.starts_with(p));
+    if divisor && v <= 0.0 {
+        return Err(format!(
+            "--effect `{spec}`: `{key}` = {v} must be > 0 (it is a time constant or length the effect divides by)"
+        ));
+    }
+    Ok(())
+}
+
 impl FromStr for EffectSpec {
     type Err = String;
     /// Parses `drift:t_s=amplitude_mm=0.02,tau_s=600`, `wear=k=1e-6`,
@@ -86,6 +116,7 @@ impl FromStr for EffectSpec {
                         k.trim()
                     )
                 })?;
+                check_param(s, k.trim(), v)?;
                 params.insert(k.trim().to_string(), v);
             }
         }
@@ -130,5 +161,25 @@ mod tests {
         assert!("wear=k".parse::<EffectSpec>().is_err());
         assert!("wear=k=abc".parse::<EffectSpec>().is_err());
         assert!(":x=k=1".parse::<EffectSpec>().is_err());
+    }
+
+    #[test]
+    fn rejects_non_finite_and_out_of_range_parameters() {
+        for bad in [
+            "drift:t_s=amplitude_mm=nan",
+            "drift:t_s=amplitude_mm=inf",
+            "drift:t_s=amplitude_mm=-inf",
+            "drift:t_s=amplitude_mm=1e300",
+            "drift:t_s=tau_s=0",
+            "drift:t_s=tau_s=-5",
+            "periodic:x_mm=lambda=0",
+            "edge:path_end_mm=lambda_mm=-1",
+        ] {
+            let e = bad.parse::<EffectSpec>().unwrap_err();
+            assert!(e.contains(bad), "{bad}: {e}");
+        }
+        assert!("drift:t_s=amplitude_mm=-0.02,tau_s=600"
+            .parse::<EffectSpec>()
+            .is_ok());
     }
 }

@@ -358,6 +358,11 @@ pub trait MachinePlugin: Send + Sync {
     /// The plugin's stages, in any order (the engine sorts them by edges).
     fn stages(&self) -> Vec<Arc<dyn Stage>>;
     /// Machine configs built into the binary: (machine id, TOML text).
+    /// The keys this plugin reads from run.toml `[process]`; any other key
+    /// there is a typo and rejects the run. `None` leaves them unchecked.
+    fn process_keys(&self) -> Option<&'static [&'static str]> {
+        None
+    }
     fn builtin_machines(&self) -> Vec<(&'static str, &'static str)> {
         Vec::new()
     }

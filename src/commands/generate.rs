@@ -1,10 +1,11 @@
 //! `sparkout generate`: synthetic fleets with injected effects, from the
 //! generator registry (`sparkout_datasets::all_generators`).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context};
 use sparkout_datasets::GenerateOptions;
+use sparkout_pipeline::contracts::{discover_runs, RunSpec};
 use sparkout_pipeline::EffectSpec;
 
 pub fn parse_effects(effects: &[String]) -> anyhow::Result<Vec<EffectSpec>> {
@@ -14,12 +15,48 @@ pub fn parse_effects(effects: &[String]) -> anyhow::Result<Vec<EffectSpec>> {
         .collect()
 }
 
+/// `generate` never overwrites silently: runs of the same plugin already
+/// under the fleet root (their ids would be reused: r0000, r0001, ...) or an
+/// existing observations file need `--force`. Other plugins' runs under the
+/// same root are fine (a mixed fleet is generated one plugin at a time).
+fn refuse_overwrite(what: &str, out: &Path) -> anyhow::Result<()> {
+    if what == "observations" {
+        if out.exists() {
+            bail!(
+                "{} already exists; pass --force to overwrite it",
+                out.display()
+            );
+        }
+        return Ok(());
+    }
+    if !out.is_dir() {
+        return Ok(());
+    }
+    let existing: Vec<String> = discover_runs(out)
+        .unwrap_or_default()
+        .into_iter()
+        .filter(|d| RunSpec::load(d).is_ok_and(|s| s.plugin == what))
+        .map(|d| d.display().to_string())
+        .collect();
+    if !existing.is_empty() {
+        bail!(
+            "{} already holds {} {what} run(s) ({}{}); generating would overwrite them. Pass --force to overwrite, or choose another --out",
+            out.display(),
+            existing.len(),
+            existing[..existing.len().min(3)].join(", "),
+            if existing.len() > 3 { ", ..." } else { "" }
+        );
+    }
+    Ok(())
+}
+
 pub fn generate(
     what: &str,
     opts: &GenerateOptions,
     out: Option<PathBuf>,
     effects: &[String],
     list_effects: bool,
+    force: bool,
 ) -> anyhow::Result<u8> {
     let effects = parse_effects(effects)?;
     let Some(g) = sparkout_datasets::generator(what) else {
@@ -42,6 +79,9 @@ pub fn generate(
         return Ok(0);
     }
     let out = out.context("--out is required (a fleet root; a .parquet file for observations)")?;
+    if !force {
+        refuse_overwrite(what, &out)?;
+    }
     println!("{}", g.generate(&out, opts, &effects)?.summary);
     Ok(0)
 }

@@ -31,9 +31,7 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<u8> {
             config,
             extra,
         } => stage::stage(&name, run, out, json, config, &extra),
-        Command::ValidateInput { root, machines } => {
-            validate_input::validate_input(&root, machines)
-        }
+        Command::ValidateInput { root, config } => validate_input::validate_input(&root, &config),
         Command::Generate {
             what,
             runs,
@@ -42,13 +40,14 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<u8> {
             effects,
             ae_rate_hz,
             list_effects,
+            force,
         } => {
             let opts = sparkout_datasets::GenerateOptions {
                 runs,
                 seed,
                 ae_rate_hz,
             };
-            generate::generate(&what, &opts, out, &effects, list_effects)
+            generate::generate(&what, &opts, out, &effects, list_effects, force)
         }
         Command::Demo { out } => demo::demo(&out),
         Command::Diagnose {

@@ -1,16 +1,12 @@
 //! `sparkout validate-input`: every problem of every run; writes nothing.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use crate::cli::ConfigArgs;
 use crate::registry;
 
-pub fn validate_input(root: &Path, machines: Option<PathBuf>) -> anyhow::Result<u8> {
-    let engine = registry::engine(&ConfigArgs {
-        config: None,
-        set: Vec::new(),
-        machines,
-    })?;
+pub fn validate_input(root: &Path, config: &ConfigArgs) -> anyhow::Result<u8> {
+    let engine = registry::engine(config)?;
     let (runs, problems) = engine.validate_input(root)?;
     for p in &problems {
         println!("{}: {}", p.run_dir, p.message);

@@ -3,6 +3,7 @@
 //! file: ~8 GB of test executables and most of the link time saved).
 //! Run one group with `cargo test --test e2e gantry_stages::`.
 
+mod bad_input_matrix;
 mod cli_fleet;
 mod cli_stage_diagnose;
 mod common;
@@ -23,6 +24,8 @@ mod mill_stages;
 mod negative_values;
 mod pandas_fleet;
 mod parquet_readers;
+mod proptest_parsers;
+mod reliability;
 mod replay_cli;
 mod robot_diagnosis_e2e;
 mod robot_stages;

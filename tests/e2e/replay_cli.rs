@@ -38,20 +38,39 @@ fn tiny_run(root: &Path, with_motion: bool) -> PathBuf {
             .i32("segment", (0..n as i32).map(|i| i / 500).collect());
         write_parquet_atomic(&dir.join("motion.parquet"), &b.build()).unwrap();
     }
-    let m = 3;
+    // Three points on each of the three faces, not collinear: a run whose
+    // datum fits, so `sparkout run` (and so validate-input) accepts it.
+    let faces = ["xy", "xy", "xy", "yz", "yz", "yz", "zx", "zx", "zx"];
+    let (u, v) = ([0.0, 10.0, 0.0], [0.0, 0.0, 10.0]);
+    let mut pts: Vec<[f64; 3]> = Vec::new();
+    for k in 0..3 {
+        pts.push([5.0 + u[k], 5.0 + v[k], 0.001]); // xy: z = 0
+    }
+    for k in 0..3 {
+        pts.push([0.002, 5.0 + u[k], -5.0 - v[k]]); // yz: x = 0
+    }
+    for k in 0..3 {
+        pts.push([5.0 + u[k], -0.001, -5.0 - v[k]]); // zx: y = 0
+    }
+    let m = pts.len();
+    let col = |a: usize, noisy: bool| -> Vec<f64> {
+        pts.iter()
+            .map(|p| if noisy { p[a] } else { p[a].round() })
+            .collect()
+    };
     let b = BatchBuilder::new()
-        .f64("t_s", vec![0.5, 1.0, 1.5])
-        .str("face", &["xy", "xy", "xy"])
-        .i32("point", vec![0, 1, 2])
+        .f64("t_s", (0..m).map(|i| 0.2 * (i + 1) as f64).collect())
+        .str("face", &faces)
+        .i32("point", (0..m as i32).map(|i| i % 3).collect())
         .i32("trial", vec![0; m])
-        .str("method", &["mechanical"; 3])
+        .str("method", &vec!["mechanical"; m])
         .f64("approach_mm_s", vec![10.0; m])
-        .f64("nom_x_mm", vec![0.0, 10.0, 20.0])
-        .f64("nom_y_mm", vec![0.0; m])
-        .f64("nom_z_mm", vec![0.0; m])
-        .f64("x_mm", vec![0.0, 10.0, 20.0])
-        .f64("y_mm", vec![0.0; m])
-        .f64("z_mm", vec![0.001; m]);
+        .f64("nom_x_mm", col(0, false))
+        .f64("nom_y_mm", col(1, false))
+        .f64("nom_z_mm", col(2, false))
+        .f64("x_mm", col(0, true))
+        .f64("y_mm", col(1, true))
+        .f64("z_mm", col(2, true));
     write_parquet_atomic(&dir.join("probe.parquet"), &b.build()).unwrap();
     dir
 }

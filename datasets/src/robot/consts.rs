@@ -17,6 +17,9 @@ pub(super) const BLOCK_H_MM: f64 = 60.0;
 pub(super) const SQUARE_HALF_MM: [f64; 3] = [24.0, 16.0, 8.0];
 /// Transit speed between probe points, mm/s.
 pub(super) const TRANSIT_MM_S: f64 = 100.0;
+/// Exact stop at a corner between two straight moves, s (two 4 ms replay
+/// cycles: the velocity goes to zero before it turns).
+pub(super) const CORNER_STOP_S: f64 = 0.008;
 /// Speed of the short normal leg before an approach and of the retract, mm/s.
 pub(super) const LEG_MM_S: f64 = 20.0;
 /// Length of the normal leg when it arrives from outside (inward move), mm.

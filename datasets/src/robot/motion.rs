@@ -37,12 +37,24 @@ impl CmdPath {
         if len < 1e-12 {
             return;
         }
+        let v0 = d * (speed / len);
+        // A corner between two straight moves is an exact stop, as a robot
+        // program without blending does: without it the commanded velocity
+        // jumps (up then straight down at transit speed is 0.8 mm per 4 ms
+        // cycle), beyond the replay's default envelope (0.5 mm change of
+        // step per cycle, README "replay over CAN").
+        if let Some(last) = self.pieces.last() {
+            let moving = last.a == V3::zeros() && last.v0 != V3::zeros();
+            if moving && (last.v0 - v0).norm() > 1e-9 {
+                self.dwell(CORNER_STOP_S);
+            }
+        }
         let dt = len / speed;
         self.pieces.push(Piece {
             t0: self.t,
             t1: self.t + dt,
             p0: self.pos,
-            v0: d * (speed / len),
+            v0,
             a: V3::zeros(),
             segment,
         });

@@ -349,6 +349,9 @@ fn to_chunk(
     if let Some(e) = bad(value, v.as_ref()) {
         return Err(e);
     }
+    if value == "ae_v" {
+        super::plausible::check_column(path, "ae", value, v.as_ref(), first_row)?;
+    }
     let v = cast(v, &DataType::Float32)
         .map_err(|e| InputError::new(path, e.to_string()).column(value))?;
     if let Some(e) = bad(value, v.as_ref()) {

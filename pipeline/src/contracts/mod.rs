@@ -3,9 +3,11 @@
 
 pub mod ae_stream;
 pub mod batch;
+pub mod config_keys;
 pub mod convert;
 pub mod motion;
 pub mod parquet_file;
+pub mod plausible;
 pub mod run;
 pub mod schema;
 pub mod table;
@@ -16,9 +18,12 @@ pub use batch::{batch_f64, batch_i32, batch_str, read_parquet, BatchBuilder};
 pub use convert::TimeOrigin;
 pub use motion::MotionColumns;
 pub use parquet_file::open_parquet;
-pub use run::{discover_runs, AeKind, AeSpec, MachineConfig, MachineResolver, RunSpec};
+pub use run::{
+    discover, discover_runs, AeKind, AeSpec, Discovery, MachineConfig, MachineResolver, RunSpec,
+};
 pub use schema::{table_schema, ColumnKind, ColumnSpec, TableSchema, ALL_TABLES};
 pub use table::Table;
 pub use write::{
-    write_atomic, write_json_atomic, write_parquet_atomic, write_parquet_batches_atomic,
+    remove_orphaned_temps, write_atomic, write_json_atomic, write_parquet_atomic,
+    write_parquet_batches_atomic,
 };

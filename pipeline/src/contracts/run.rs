@@ -57,6 +57,37 @@ fn req_str(path: &Path, run: &toml::Table, key: &str) -> Result<String, InputErr
     }
 }
 
+/// `[run].started`: a TOML date-time (`2026-11-20T08:00:00Z`) or a string
+/// holding one (RFC 3339). A date alone is accepted; "yesterday" is not —
+/// the report and the provenance would carry it as if it were a time.
+fn parse_started(path: &Path, v: &toml::Value) -> Result<String, InputError> {
+    let bad = |found: String| {
+        InputError::new(
+            path,
+            format!(
+                "[run].started must be a date-time like 2026-11-20T08:00:00Z (RFC 3339), found {found}"
+            ),
+        )
+        .column("run.started")
+    };
+    let dt = match v {
+        toml::Value::Datetime(d) => *d,
+        toml::Value::String(s) => s
+            .trim()
+            .parse::<toml::value::Datetime>()
+            .map_err(|_| bad(format!("\"{s}\"")))?,
+        other => return Err(bad(format!("a {}", other.type_str()))),
+    };
+    if dt.date.is_none() {
+        return Err(bad(format!("\"{dt}\" (no date)")));
+    }
+    Ok(dt.to_string())
+}
+
+/// The sections of run.toml (CONTRACTS.md §1).
+/// `[replay]` is the provenance `sparkout replay --record` writes.
+pub const RUN_TOML_SECTIONS: [&str; 5] = ["run", "process", "ae", "machine", "replay"];
+
 impl RunSpec {
     pub const FILE: &'static str = "run.toml";
 
@@ -79,6 +110,24 @@ impl RunSpec {
         let doc: toml::Table = text
             .parse()
             .map_err(|e| InputError::new(&path, format!("not valid TOML: {e}")))?;
+        // A typo'd section (`[proces]`) would silently drop its keys.
+        for (k, v) in &doc {
+            if !RUN_TOML_SECTIONS.contains(&k.as_str()) {
+                return Err(InputError::new(
+                    &path,
+                    format!(
+                        "unknown {} `{k}` (run.toml has the sections {})",
+                        if v.is_table() {
+                            "section"
+                        } else {
+                            "top-level key"
+                        },
+                        RUN_TOML_SECTIONS.map(|s| format!("[{s}]")).join(", ")
+                    ),
+                )
+                .column(k.clone()));
+            }
+        }
         let run = doc
             .get("run")
             .and_then(|v| v.as_table())
@@ -86,10 +135,10 @@ impl RunSpec {
         let id = req_str(&path, run, "id")?;
         let machine = req_str(&path, run, "machine")?;
         let plugin = req_str(&path, run, "plugin")?;
-        let started = run.get("started").map(|v| match v {
-            toml::Value::String(s) => s.clone(),
-            other => other.to_string(),
-        });
+        let started = match run.get("started") {
+            None => None,
+            Some(v) => Some(parse_started(&path, v)?),
+        };
         let process = doc
             .get("process")
             .and_then(|v| v.as_table())
@@ -124,7 +173,25 @@ impl RunSpec {
                         .column("ae.kind"))
                     }
                 };
-                let clock_offset_s = t.get("clock_offset_s").and_then(toml_f64).unwrap_or(0.0);
+                if let Some(k) = t
+                    .keys()
+                    .find(|k| !["sample_rate_hz", "kind", "clock_offset_s"].contains(&k.as_str()))
+                {
+                    return Err(InputError::new(
+                        &path,
+                        format!(
+                            "unknown key [ae].{k} (known: sample_rate_hz, kind, clock_offset_s)"
+                        ),
+                    )
+                    .column(format!("ae.{k}")));
+                }
+                let clock_offset_s = match t.get("clock_offset_s") {
+                    None => 0.0,
+                    Some(v) => toml_f64(v).filter(|x| x.is_finite()).ok_or_else(|| {
+                        InputError::new(&path, "[ae].clock_offset_s must be a finite number (s)")
+                            .column("ae.clock_offset_s")
+                    })?,
+                };
                 Some(AeSpec {
                     sample_rate_hz,
                     kind,
@@ -261,23 +328,59 @@ impl MachineResolver {
     }
 }
 
+/// What a walk of an input root found: run directories, and directories
+/// that look like runs (they hold Parquet tables) but cannot be read as one
+/// — listed, never dropped silently (every run accounted for).
+#[derive(Debug, Clone, Default)]
+pub struct Discovery {
+    pub runs: Vec<PathBuf>,
+    /// (directory, why it was skipped)
+    pub skipped: Vec<(PathBuf, String)>,
+}
+
+/// Whether `dir` is something sparkout wrote (a run's output or an output
+/// root): an `--out` inside `--input` is not a run that lacks its run.toml.
+fn is_sparkout_output(dir: &Path) -> bool {
+    dir.join(crate::engine::cache::RUN_CACHE_FILE).is_file()
+        || dir.join("manifest.json").is_file()
+        || dir.join(crate::engine::lock::LOCK_FILE).is_file()
+}
+
 /// Every run directory under `root` (`<root>/<machine>/<run>/run.toml`; a
-/// root that is itself a run, or holds runs directly, works too), sorted.
-pub fn discover_runs(root: &Path) -> std::io::Result<Vec<PathBuf>> {
-    fn walk(dir: &Path, depth: usize, out: &mut Vec<PathBuf>) -> std::io::Result<()> {
+/// root that is itself a run, or holds runs directly, works too), sorted;
+/// and the directories with tables but no run.toml.
+pub fn discover(root: &Path) -> std::io::Result<Discovery> {
+    fn walk(dir: &Path, depth: usize, out: &mut Discovery) -> std::io::Result<()> {
         if dir.join(RunSpec::FILE).is_file() {
-            out.push(dir.to_path_buf());
+            out.runs.push(dir.to_path_buf());
+            return Ok(());
+        }
+        if is_sparkout_output(dir) {
+            return Ok(());
+        }
+        let mut entries: Vec<PathBuf> = std::fs::read_dir(dir)?
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .collect();
+        entries.sort();
+        let tables: Vec<String> = entries
+            .iter()
+            .filter(|p| p.extension().is_some_and(|e| e == "parquet"))
+            .filter_map(|p| p.file_name().map(|n| n.to_string_lossy().into_owned()))
+            .collect();
+        if !tables.is_empty() {
+            out.skipped.push((
+                dir.to_path_buf(),
+                format!(
+                    "skipped: holds {} but no run.toml, so it cannot be processed (CONTRACTS.md §1: every run directory needs a run.toml with [run] id, machine, plugin)",
+                    tables.join(", ")
+                ),
+            ));
             return Ok(());
         }
         if depth == 0 {
             return Ok(());
         }
-        let mut entries: Vec<PathBuf> = std::fs::read_dir(dir)?
-            .filter_map(|e| e.ok().map(|e| e.path()))
-            .filter(|p| p.is_dir())
-            .collect();
-        entries.sort();
-        for e in entries {
+        for e in entries.into_iter().filter(|p| p.is_dir()) {
             walk(&e, depth - 1, out)?;
         }
         Ok(())
@@ -288,7 +391,12 @@ pub fn discover_runs(root: &Path) -> std::io::Result<Vec<PathBuf>> {
             format!("input root {} is not a directory", root.display()),
         ));
     }
-    let mut out = Vec::new();
+    let mut out = Discovery::default();
     walk(root, 3, &mut out)?;
     Ok(out)
+}
+
+/// The run directories of [`discover`] only.
+pub fn discover_runs(root: &Path) -> std::io::Result<Vec<PathBuf>> {
+    discover(root).map(|d| d.runs)
 }

@@ -204,6 +204,7 @@ impl Table {
         }
         let batch = RecordBatch::try_new(Arc::new(Schema::new(fields)), columns)
             .map_err(|e| InputError::new(path, format!("cannot assemble table: {e}")))?;
+        super::plausible::check_batch(path, schema, &batch)?;
         let table = Table {
             path: path.to_path_buf(),
             batch,

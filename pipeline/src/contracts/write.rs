@@ -110,3 +110,58 @@ pub fn write_parquet_batches_atomic(
     }
     result.with_context(|| format!("cannot write {}", path.display()))
 }
+
+/// Whether a file name is one of [`temp_path`]'s: `.<name>.<pid>.tmp`.
+fn is_temp_name(name: &str) -> bool {
+    let Some(inner) = name.strip_prefix('.').and_then(|n| n.strip_suffix(".tmp")) else {
+        return false;
+    };
+    match inner.rsplit_once('.') {
+        Some((stem, pid)) => {
+            !stem.is_empty() && !pid.is_empty() && pid.bytes().all(|b| b.is_ascii_digit())
+        }
+        None => false,
+    }
+}
+
+/// Remove the temporary files a killed writer left under `dir` (at most
+/// `depth` levels down). Only call this while holding the directory's batch
+/// lock: a live writer's temp file looks the same. Returns what was removed.
+pub fn remove_orphaned_temps(dir: &Path, depth: usize) -> Vec<PathBuf> {
+    let mut removed = Vec::new();
+    let Ok(entries) = fs::read_dir(dir) else {
+        return removed;
+    };
+    let mut entries: Vec<_> = entries.filter_map(|e| e.ok()).collect();
+    entries.sort_by_key(|e| e.file_name());
+    for e in entries {
+        let path = e.path();
+        let Ok(ft) = e.file_type() else { continue };
+        if ft.is_dir() {
+            if depth > 0 {
+                removed.extend(remove_orphaned_temps(&path, depth - 1));
+            }
+        } else if ft.is_file()
+            && is_temp_name(&e.file_name().to_string_lossy())
+            && fs::remove_file(&path).is_ok()
+        {
+            removed.push(path);
+        }
+    }
+    removed
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn temp_names_are_recognised() {
+        let t = temp_path(Path::new("/x/ingest.parquet"));
+        assert!(is_temp_name(&t.file_name().unwrap().to_string_lossy()));
+        assert!(!is_temp_name("ingest.parquet"));
+        assert!(!is_temp_name(".sparkout-cache.json"));
+        assert!(!is_temp_name(".notes.tmp"));
+        assert!(!is_temp_name(".a.12x.tmp"));
+    }
+}

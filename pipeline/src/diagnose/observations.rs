@@ -10,6 +10,10 @@ use arrow::datatypes::{DataType, Field, Schema};
 
 use crate::{InputError, Result};
 
+/// Largest plausible |sim| or |real|: 10 m. Beyond it the table is in the
+/// wrong unit (µm, nm) or corrupt — and a 1e300 would make the gap RMS inf.
+pub const MAX_OBSERVED_MM: f64 = 1e4;
+
 /// Columns that are never covariates (CONTRACTS.md §2, last paragraph;
 /// `machine` from issue 12: a run is identified by machine and run).
 pub const RESERVED: [&str; 7] = [
@@ -127,9 +131,47 @@ pub fn validate_observations(batch: &RecordBatch, path: &Path) -> Result<RecordB
                     .row(i)
                     .into());
             }
+            if x.abs() > MAX_OBSERVED_MM {
+                return Err(InputError::new(
+                    path,
+                    format!(
+                        "implausible value {x} (plausible for `{name}`: ±{MAX_OBSERVED_MM} mm); values look like µm or nm — the contract's observations are in mm"
+                    ),
+                )
+                .column(name)
+                .row(i)
+                .into());
+            }
         }
         fields[idx] = Arc::new(Field::new(name, DataType::Float64, f.is_nullable()));
         cols[idx] = a;
+    }
+    // A covariate may be null ("not measured"), never NaN or ±inf: it would
+    // poison every fit that uses it.
+    for (f, col) in schema.fields().iter().zip(batch.columns()) {
+        if !is_covariate(f.name(), f.data_type()) {
+            continue;
+        }
+        if let Ok(c) = cast(col, &DataType::Float64) {
+            let c = c.as_primitive::<arrow::datatypes::Float64Type>();
+            if let Some(i) = (0..c.len()).find(|&i| !c.is_null(i) && !c.value(i).is_finite()) {
+                let what = if c.value(i).is_nan() {
+                    "NaN"
+                } else {
+                    "infinite value"
+                };
+                return Err(InputError::new(
+                    path,
+                    format!(
+                        "{what} in covariate `{}` (use null for \"not measured\")",
+                        f.name()
+                    ),
+                )
+                .column(f.name())
+                .row(i)
+                .into());
+            }
+        }
     }
     Ok(RecordBatch::try_new(
         Arc::new(Schema::new_with_metadata(fields, schema.metadata().clone())),

@@ -5,6 +5,7 @@
 pub mod cache;
 pub mod config;
 pub mod dag;
+pub mod lock;
 mod run;
 
 use std::collections::{BTreeMap, BTreeSet};
@@ -16,8 +17,8 @@ use arrow::record_batch::RecordBatch;
 use serde::Serialize;
 
 use crate::contracts::{
-    discover_runs, table_schema, write_atomic, write_json_atomic, AeStream, MachineResolver,
-    RunSpec, Table,
+    config_keys, discover, remove_orphaned_temps, table_schema, write_atomic, write_json_atomic,
+    AeStream, MachineResolver, RunSpec, Table,
 };
 use crate::diagnose::{self, DiagnoseConfig, Effect};
 use crate::error::{InputError, Result};
@@ -187,6 +188,32 @@ impl Engine {
 
     fn validate_config(&self) -> Result<()> {
         let src = &self.config.source;
+        // A typo'd plugin (`--set guidewy.separate.method=...`, `[robotx.ingest]`)
+        // would otherwise configure nothing, silently.
+        let mut sections: Vec<&str> = vec!["pipeline", "diagnose", "report"];
+        sections.extend(self.plugin_names());
+        for (key, value) in &self.config.table {
+            if !sections.contains(&key.as_str()) {
+                bail!(
+                    "config {src} (with any --set): unknown {} `{key}`; the known sections are {} (a plugin's stages go under [PLUGIN.STAGE])",
+                    if value.is_table() { "section" } else { "top-level key" },
+                    sections.iter().map(|s| format!("[{s}]")).collect::<Vec<_>>().join(", ")
+                );
+            }
+        }
+        for (section, known) in [
+            ("pipeline", &["plugins", "stages"][..]),
+            ("report", &["title"][..]),
+        ] {
+            for key in self.config.section(section).keys() {
+                if !known.contains(&key.as_str()) {
+                    bail!(
+                        "config {src} (with any --set): unknown key [{section}].{key} (known: {})",
+                        known.join(", ")
+                    );
+                }
+            }
+        }
         if let Some(list) = self.config.pipeline_list("plugins")? {
             for p in &list {
                 if self.plugin(p).is_none() {
@@ -267,8 +294,37 @@ impl Engine {
             )
             .column("run.plugin")
         })?;
+        // A contract table's name that is not a regular file (a directory,
+        // e.g. a Hive-partitioned export) would otherwise read as "absent".
+        for schema in crate::contracts::ALL_TABLES {
+            let p = dir.join(schema.file_name());
+            if p.exists() && !p.is_file() {
+                return Err(InputError::new(
+                    &p,
+                    format!(
+                        "`{}` is a directory (or not a regular file), not a Parquet file; write the table as one file (e.g. pandas `df.to_parquet(\"{}\")`)",
+                        schema.file_name(),
+                        schema.file_name()
+                    ),
+                )
+                .into());
+            }
+        }
         let machine = self.resolver.resolve(&spec)?;
+        let builtins: Vec<&str> = plugin.builtin_machines().iter().map(|(_, t)| *t).collect();
+        config_keys::check_machine(&machine, plugin.name(), &builtins)?;
+        config_keys::check_process(&spec, plugin.name(), plugin.process_keys())?;
         let run = Run::new(spec, machine);
+        // Every present table is checked against the contract up front, the
+        // ones no stage reads too: a broken table is bad input whether or
+        // not this DAG needs it. (Tables are cached in the Run, so stages do
+        // not read them twice; the AE log streams and is checked as it is
+        // read.)
+        for schema in crate::contracts::ALL_TABLES {
+            if schema.name != "ae" && run.has_table(schema) {
+                run.table(schema)?;
+            }
+        }
         let alternatives = plugin.required_tables();
         let satisfied = alternatives.is_empty()
             || alternatives.iter().any(|set| {
@@ -330,16 +386,34 @@ impl Engine {
         jobs: Option<usize>,
         progress: &dyn Progress,
     ) -> Result<FleetOutcome> {
-        let run_dirs = discover_runs(input_root)
+        let found = discover(input_root)
             .with_context(|| format!("cannot list runs under {}", input_root.display()))?;
-        if run_dirs.is_empty() {
+        if found.runs.is_empty() && found.skipped.is_empty() {
             bail!(
                 "no runs under {} (expected <root>/<machine>/<run>/run.toml); generate some with `sparkout generate robot --runs 4 --seed 1 --out {}`",
                 input_root.display(),
                 input_root.display()
             );
         }
-        std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+        let jobs = clamp_jobs(jobs);
+        // One batch per output directory, held until the manifest is written.
+        let _lock = lock::BatchLock::acquire(out)?;
+        let orphans = remove_orphaned_temps(out, 3);
+        if !orphans.is_empty() {
+            tracing::warn!(
+                "removed {} temporary file(s) a killed batch left under {}",
+                orphans.len(),
+                out.display()
+            );
+        }
+        let (run_dirs, mut early_failures) = self.account_for_runs(&found);
+        for f in &early_failures {
+            if let (Some(m), Some(r)) = (&f.machine, &f.run) {
+                // CONTRACTS.md: nothing of a rejected run stays in the output.
+                let _ = std::fs::remove_dir_all(out.join(m).join(r));
+            }
+            tracing::warn!("{}: {}", f.run_dir, f.error);
+        }
         progress.start(run_dirs.len());
         let enabled = self.plugins_enabled()?;
         let work = |dir: &PathBuf| -> Option<std::result::Result<RunResult, Failure>> {
@@ -359,7 +433,7 @@ impl Engine {
         let results: Vec<Option<std::result::Result<RunResult, Failure>>> = {
             use rayon::prelude::*;
             let pool = rayon::ThreadPoolBuilder::new()
-                .num_threads(jobs.unwrap_or(0))
+                .num_threads(jobs)
                 .build()
                 .context("cannot start worker threads")?;
             pool.install(|| run_dirs.par_iter().map(work).collect())
@@ -372,6 +446,8 @@ impl Engine {
                 Err(f) => failures.push(f),
             }
         }
+        failures.append(&mut early_failures);
+        failures.sort_by(|a, b| a.run_dir.cmp(&b.run_dir));
         let mut outcome = FleetOutcome {
             out_dir: out.to_path_buf(),
             runs,
@@ -384,6 +460,67 @@ impl Engine {
         write_json_atomic(&out.join("failures.json"), &outcome.failures)?;
         self.write_manifest(input_root, out, &outcome)?;
         Ok(outcome)
+    }
+
+    /// Every directory found is either processed or listed: directories
+    /// with tables but no run.toml, and runs whose (machine, run) id another
+    /// directory also claims (one would silently overwrite the other's
+    /// outputs), become failures naming every directory involved.
+    fn account_for_runs(
+        &self,
+        found: &crate::contracts::Discovery,
+    ) -> (Vec<PathBuf>, Vec<Failure>) {
+        let mut failures: Vec<Failure> = found
+            .skipped
+            .iter()
+            .map(|(dir, why)| Failure {
+                run_dir: dir.display().to_string(),
+                machine: None,
+                run: None,
+                stage: Some("discover".into()),
+                file: Some(dir.join(RunSpec::FILE).display().to_string()),
+                column: None,
+                row: None,
+                error: why.clone(),
+            })
+            .collect();
+        let mut by_id: BTreeMap<(String, String), Vec<(&PathBuf, RunSpec)>> = BTreeMap::new();
+        let mut runs = Vec::new();
+        for dir in &found.runs {
+            match RunSpec::load(dir) {
+                Ok(spec) => by_id
+                    .entry((spec.machine.clone(), spec.id.clone()))
+                    .or_default()
+                    .push((dir, spec)),
+                // process_run reports it with the same error.
+                Err(_) => runs.push(dir.clone()),
+            }
+        }
+        for ((machine, id), dirs) in by_id {
+            if dirs.len() == 1 {
+                runs.push(dirs[0].0.clone());
+                continue;
+            }
+            let all: Vec<String> = dirs.iter().map(|(d, _)| d.display().to_string()).collect();
+            for (dir, spec) in &dirs {
+                failures.push(Failure {
+                    run_dir: dir.display().to_string(),
+                    machine: Some(machine.clone()),
+                    run: Some(id.clone()),
+                    stage: Some("discover".into()),
+                    file: Some(spec.run_toml_path().display().to_string()),
+                    column: Some("run.id".into()),
+                    row: None,
+                    error: format!(
+                        "duplicate run id: machine `{machine}` run `{id}` is claimed by {} directories ({}); run ids must be unique within a machine (CONTRACTS.md §1), so none of them is processed — rename [run].id in all but one",
+                        all.len(),
+                        all.join(" and ")
+                    ),
+                });
+            }
+        }
+        runs.sort();
+        (runs, failures)
     }
 
     /// Fleet steps: join observations, diagnose, fleet report.
@@ -595,21 +732,32 @@ impl Engine {
             .find(|s| s.name() == name)
     }
 
-    /// `sparkout validate-input`: every problem of every run; writes nothing.
+    /// `sparkout validate-input`: the checks `sparkout run` makes, with the
+    /// same code — discovery (directories without run.toml, duplicate ids),
+    /// run.toml, machine, every stage computed in memory — writing nothing.
+    /// For a rejected run, every other present table that breaks the
+    /// contract is listed too, so one pass shows all there is to fix.
     pub fn validate_input(&self, root: &Path) -> Result<(usize, Vec<Problem>)> {
-        let dirs = discover_runs(root)?;
-        let mut problems = Vec::new();
+        let found = discover(root)?;
+        let (dirs, early) = self.account_for_runs(&found);
+        let mut problems: Vec<Problem> = early
+            .into_iter()
+            .map(|f| Problem {
+                run_dir: f.run_dir,
+                message: f.error,
+            })
+            .collect();
+        let enabled = self.plugins_enabled()?;
         for dir in &dirs {
             let d = dir.display().to_string();
-            let mut push = |m: String| {
-                problems.push(Problem {
-                    run_dir: d.clone(),
-                    message: m,
-                })
+            let Some(Err(f)) = self.check_run(dir, enabled.as_ref()) else {
+                continue;
             };
-            if let Err(e) = self.open_run(dir) {
-                push(format!("{e:#}"));
-            }
+            let first = f.error.clone();
+            problems.push(Problem {
+                run_dir: d.clone(),
+                message: first.clone(),
+            });
             // Validate every table that is present, whatever else is wrong.
             let origin = RunSpec::load(dir)
                 .map(|s| s.time_origin())
@@ -626,11 +774,101 @@ impl Engine {
                     Table::read_at(&path, schema, &origin).map(|_| ())
                 };
                 if let Err(e) = r {
-                    push(e.to_string());
+                    let m = e.to_string();
+                    if !first.contains(&m) {
+                        problems.push(Problem {
+                            run_dir: d.clone(),
+                            message: m,
+                        });
+                    }
                 }
             }
         }
-        Ok((dirs.len(), problems))
+        problems.sort_by(|a, b| a.run_dir.cmp(&b.run_dir));
+        // Directories checked: the runs, the duplicates and the skipped.
+        let checked: BTreeSet<String> = dirs
+            .iter()
+            .map(|d| d.display().to_string())
+            .chain(problems.iter().map(|p| p.run_dir.clone()))
+            .collect();
+        Ok((checked.len(), problems))
+    }
+
+    /// One run through `run`'s per-run path, in memory: `None` when its
+    /// plugin is not enabled, else accepted or the failure `run` would list.
+    pub fn check_run(
+        &self,
+        dir: &Path,
+        enabled: Option<&BTreeSet<String>>,
+    ) -> Option<std::result::Result<RunResult, Failure>> {
+        self.process_run_at(dir, None, enabled)
+    }
+}
+
+/// A non-finite number never reaches an artifact (issue 15): NaN or inf out
+/// of a stage means an input the checks let through or a bug, and either way
+/// the run is rejected rather than written (null is how an artifact says
+/// "not applicable").
+pub fn check_finite(stage: &str, artifact: &str, batch: &RecordBatch) -> Result<()> {
+    use arrow::array::{Array, Float32Array, Float64Array};
+    for (f, col) in batch.schema().fields().iter().zip(batch.columns()) {
+        let bad = if let Some(a) = col.as_any().downcast_ref::<Float64Array>() {
+            (0..a.len())
+                .find(|&i| !a.is_null(i) && !a.value(i).is_finite())
+                .map(|i| (i, a.value(i)))
+        } else if let Some(a) = col.as_any().downcast_ref::<Float32Array>() {
+            (0..a.len())
+                .find(|&i| !a.is_null(i) && !a.value(i).is_finite())
+                .map(|i| (i, a.value(i) as f64))
+        } else {
+            None
+        };
+        if let Some((row, v)) = bad {
+            bail!(
+                "stage `{stage}` computed {v} in artifact `{artifact}`, column `{}`, row {row}: a non-finite number is never written (an input outside the checks, or a bug to report)",
+                f.name()
+            );
+        }
+    }
+    Ok(())
+}
+
+/// A stage's files, then the run's cache file listing every stage done so
+/// far (written last, so it never lists a file that is not complete).
+fn write_stage_files(
+    run_out: &Path,
+    files: &[(String, Vec<u8>)],
+    records: &[StageRecord],
+) -> Result<()> {
+    for (name, bytes) in files {
+        write_atomic(&run_out.join(name), bytes)?;
+    }
+    write_json_atomic(&run_out.join(cache::RUN_CACHE_FILE), &records)
+}
+
+/// Fault injection for the resume tests: `SPARKOUT_FAULT_ABORT_AFTER_STAGE=
+/// <stage>` aborts the process (like a kill -9) right after that stage was
+/// recorded. Unset in normal use.
+fn abort_if_fault_injected(stage: &str) {
+    if std::env::var("SPARKOUT_FAULT_ABORT_AFTER_STAGE").is_ok_and(|s| s == stage) {
+        std::process::abort();
+    }
+}
+
+/// `--jobs`: absent or 0 means every core. More threads than cores gains
+/// nothing for this CPU-bound work and, at --jobs 100000, exhausts the
+/// kernel's threads, so it is clamped with a warning.
+pub fn clamp_jobs(jobs: Option<usize>) -> usize {
+    let cores = std::thread::available_parallelism()
+        .map(|n| n.get())
+        .unwrap_or(1);
+    match jobs {
+        None | Some(0) => cores,
+        Some(j) if j > cores => {
+            tracing::warn!("--jobs {j} is more than the {cores} cores available; using {cores}");
+            cores
+        }
+        Some(j) => j,
     }
 }
 

@@ -13,6 +13,16 @@ impl Engine {
         out: &Path,
         enabled: Option<&BTreeSet<String>>,
     ) -> Option<std::result::Result<RunResult, Failure>> {
+        self.process_run_at(dir, Some(out), enabled)
+    }
+
+    /// [`Self::process_run`] writing under `out`, or in memory only.
+    pub(super) fn process_run_at(
+        &self,
+        dir: &Path,
+        out: Option<&Path>,
+        enabled: Option<&BTreeSet<String>>,
+    ) -> Option<std::result::Result<RunResult, Failure>> {
         let spec = match RunSpec::load(dir) {
             Ok(s) => s,
             Err(e) => return Some(Err(Failure::from_error(dir, None, None, &e.into()))),
@@ -22,12 +32,12 @@ impl Engine {
                 return None;
             }
         }
-        let run_out = out.join(&spec.machine).join(&spec.id);
+        let run_out = out.map(|o| o.join(&spec.machine).join(&spec.id));
         let mut failed_stage: Option<String> = None;
         // A panic in a stage is a bug, but it must not take the batch down:
         // the run is rejected like any other failure.
         let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-            self.process_run_inner(dir, &run_out, &mut failed_stage)
+            self.process_run_inner(dir, run_out.as_deref(), &mut failed_stage)
         }))
         .unwrap_or_else(|panic| {
             let msg = panic
@@ -41,27 +51,31 @@ impl Engine {
         });
         Some(result.map_err(|e| {
             // CONTRACTS.md: nothing of a rejected run is written — drop any
-            // artifacts an earlier batch left for it too.
-            let _ = std::fs::remove_dir_all(&run_out);
-            tracing::warn!("run {} rejected: {e:#}", dir.display());
+            // artifacts an earlier batch (or its earlier stages) left too.
+            if let Some(run_out) = &run_out {
+                let _ = std::fs::remove_dir_all(run_out);
+                tracing::warn!("run {} rejected: {e:#}", dir.display());
+            }
             Failure::from_error(dir, Some(&spec), failed_stage.as_deref(), &e)
         }))
     }
 
+    /// Every stage of one run. With `run_out` the artifacts are written and
+    /// the cache consulted; without, everything is computed in memory and
+    /// nothing written (`validate-input` runs exactly the checks `run` runs).
     pub(super) fn process_run_inner(
         &self,
         dir: &Path,
-        run_out: &Path,
+        run_out: Option<&Path>,
         failed_stage: &mut Option<String>,
     ) -> Result<RunResult> {
         let (run, plugin) = self.open_run(dir)?;
         let stages = self.plan(plugin.as_ref())?;
-        let previous = read_run_cache(run_out);
+        let previous = run_out.map(read_run_cache).unwrap_or_default();
         let store = ArtifactStore::default();
         let mut table_hashes: BTreeMap<String, String> = BTreeMap::new();
         let mut producer_key: BTreeMap<String, String> = BTreeMap::new();
         let mut records: Vec<StageRecord> = Vec::new();
-        let mut pending: Vec<(PathBuf, Pending)> = Vec::new();
 
         for stage in &stages {
             *failed_stage = Some(stage.name().to_string());
@@ -98,7 +112,7 @@ impl Engine {
                 producer_key.insert(w.to_string(), key.clone());
             }
             let summary_file = format!("{}.json", stage.name());
-            if let Some(prev) = previous.get(stage.name()) {
+            if let (Some(run_out), Some(prev)) = (run_out, previous.get(stage.name())) {
                 if record_valid(run_out, prev, &key) {
                     for w in stage.writes() {
                         let f = format!("{w}.parquet");
@@ -124,15 +138,17 @@ impl Engine {
             };
             let output = run_checked(stage.as_ref(), &ctx)?;
             let mut files = BTreeMap::new();
+            let mut pending: Vec<(String, Vec<u8>)> = Vec::new();
             for (name, batch) in &output.artifacts {
+                check_finite(stage.name(), name, batch)?;
                 let bytes = parquet_bytes(batch)?;
                 files.insert(format!("{name}.parquet"), hash_bytes(&bytes));
-                pending.push((run_out.join(format!("{name}.parquet")), Pending(bytes)));
+                pending.push((format!("{name}.parquet"), bytes));
                 store.insert(name, batch.clone());
             }
             let summary_bytes = json_bytes(&output.summary)?;
             files.insert(summary_file.clone(), hash_bytes(&summary_bytes));
-            pending.push((run_out.join(&summary_file), Pending(summary_bytes)));
+            pending.push((summary_file, summary_bytes));
             store.set_summary(stage.name(), output.summary);
             records.push(StageRecord {
                 stage: stage.name().to_string(),
@@ -141,6 +157,13 @@ impl Engine {
                 files,
                 cached: false,
             });
+            if let Some(run_out) = run_out {
+                // Recorded as soon as it completes: a batch killed in a later
+                // stage resumes here instead of recomputing this one. If a
+                // later stage rejects the run, process_run removes it all.
+                write_stage_files(run_out, &pending, &records)?;
+                abort_if_fault_injected(stage.name());
+            }
         }
         *failed_stage = Some("report".into());
         // The run's report: a step of its own, cached on every stage's key.
@@ -151,10 +174,10 @@ impl Engine {
             rkey.part(&r.stage, &r.key);
         }
         let rkey = rkey.finish();
-        let report_cached = previous
-            .get("report")
-            .map(|p| record_valid(run_out, p, &rkey))
-            .unwrap_or(false);
+        let report_cached = match (run_out, previous.get("report")) {
+            (Some(run_out), Some(p)) => record_valid(run_out, p, &rkey),
+            _ => false,
+        };
         if report_cached {
             let mut rec = previous["report"].clone();
             rec.cached = true;
@@ -170,7 +193,6 @@ impl Engine {
             let bytes = html.into_bytes();
             let mut files = BTreeMap::new();
             files.insert("report.html".to_string(), hash_bytes(&bytes));
-            pending.push((run_out.join("report.html"), Pending(bytes)));
             records.push(StageRecord {
                 stage: "report".into(),
                 version: report::REPORT_VERSION,
@@ -178,24 +200,21 @@ impl Engine {
                 files,
                 cached: false,
             });
+            if let Some(run_out) = run_out {
+                write_stage_files(run_out, &[("report.html".into(), bytes)], &records)?;
+            }
         }
         *failed_stage = None;
-        // Everything computed: now (and only now) write, cache file last.
-        for (path, Pending(bytes)) in &pending {
-            write_atomic(path, bytes)?;
-        }
-        let cache: Vec<&StageRecord> = records.iter().collect();
-        write_json_atomic(&run_out.join(cache::RUN_CACHE_FILE), &cache)?;
-        let observations = run_out.join("observations.parquet");
+        let observations = run_out.map(|d| d.join("observations.parquet"));
         Ok(RunResult {
             machine: run.spec.machine.clone(),
             run: run.spec.id.clone(),
             plugin: plugin.name().to_string(),
             run_dir: dir.display().to_string(),
-            out_dir: run_out.display().to_string(),
+            out_dir: run_out.map(|d| d.display().to_string()).unwrap_or_default(),
             inputs: table_hashes,
             stages: records,
-            observations: observations.is_file().then_some(observations),
+            observations: observations.filter(|o| o.is_file()),
         })
     }
 
@@ -243,8 +262,6 @@ impl Engine {
         Ok((target, last.expect("chain includes the target")))
     }
 }
-
-pub(super) struct Pending(pub(super) Vec<u8>);
 
 /// Run one stage and hold it to its [`StageSpec`]: it may read only the
 /// tables and artifacts it declares and write only the artifacts it declares

@@ -63,10 +63,20 @@ pub fn parse_line(line: &str) -> std::result::Result<Option<CanFrame>, String> {
     let usec: u64 = usec
         .parse()
         .map_err(|_| format!("bad microseconds `{usec}`"))?;
-    let t_us = sec * 1_000_000 + usec;
+    let t_us = sec
+        .checked_mul(1_000_000)
+        .and_then(|s| s.checked_add(usec))
+        .ok_or_else(|| format!("timestamp `{stamp}` is out of range"))?;
     let (id, data) = body.split_once('#').ok_or("frame must look like ID#DATA")?;
     if data.starts_with('R') || data.starts_with('#') {
         return Err("remote and CAN FD frames are not used by the replay".into());
+    }
+    // Hex digits only (a multi-byte character would split the pairs below).
+    if !data.bytes().all(|b| b.is_ascii_hexdigit()) {
+        return Err(format!("data `{data}` is not hex"));
+    }
+    if !id.bytes().all(|b| b.is_ascii_hexdigit()) {
+        return Err(format!("id `{id}` is not hex"));
     }
     if data.len() % 2 != 0 || data.len() > 16 {
         return Err(format!("data `{data}` must be 0–8 bytes of hex pairs"));

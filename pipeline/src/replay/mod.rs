@@ -159,6 +159,38 @@ impl ReplayOptions {
         Ok(())
     }
 
+    /// A `--sim-fault` that could never fire is an error, not a replay that
+    /// silently ends well: its node must be one of `--nodes`, its time
+    /// within the streamed path (the virtual clock also counts the start-up
+    /// before streaming, so a time inside the path always fires).
+    pub fn validate_faults(&self, plan: &Plan) -> Result<()> {
+        let streamed_us = plan.cmd_mm.len() as u64 * self.cycle_us();
+        for f in &self.sim_faults {
+            if let Some(node) = f.node() {
+                if !self.nodes.contains(&node) {
+                    bail!(
+                        "--sim-fault {f:?}: node {node} is not one of the drives (--nodes {},{},{})",
+                        self.nodes[0],
+                        self.nodes[1],
+                        self.nodes[2]
+                    );
+                }
+            }
+            if let Some(at) = f.at_us() {
+                if at >= streamed_us {
+                    bail!(
+                        "--sim-fault {f:?}: at {} s, after the end of the path ({} cycles of {} ms = {} s); it would never fire",
+                        at as f64 * 1e-6,
+                        plan.cmd_mm.len(),
+                        self.cycle_ms,
+                        streamed_us as f64 * 1e-6
+                    );
+                }
+            }
+        }
+        Ok(())
+    }
+
     fn master_config(&self) -> MasterConfig {
         MasterConfig {
             cycle_us: self.cycle_us(),
@@ -228,6 +260,7 @@ pub fn prepare(opts: &ReplayOptions) -> Result<(crate::contracts::RunSpec, Plan)
         opts.compensation.as_deref(),
         opts.cycle_us() as f64 * 1e-6,
     )?;
+    opts.validate_faults(&plan)?;
     if opts.preflight {
         preflight(&plan, &opts.envelope, opts.counts_per_mm, opts.cycle_us())?;
     }
@@ -291,7 +324,7 @@ pub fn run(
         (BusSpec::SocketCan(iface), false) => Box::new(socketcan_bus::SocketCanBus::open(iface)?),
         #[cfg(not(all(target_os = "linux", feature = "socketcan")))]
         (BusSpec::SocketCan(_), false) => {
-            bail!("this build has no SocketCAN support (Linux with the `socketcan` feature)")
+            bail!("this sparkout binary has no SocketCAN support: the backend is the cargo feature `socketcan`, off by default — rebuild with `cargo build --release --features socketcan` (Linux), or use --bus sim / --dry-run")
         }
     };
     let describe = if opts.dry_run {

@@ -33,6 +33,27 @@ pub enum SimFault {
 }
 
 impl SimFault {
+    /// The drive it targets, if any.
+    pub fn node(&self) -> Option<u8> {
+        match self {
+            SimFault::HeartbeatStops { node, .. }
+            | SimFault::Emcy { node, .. }
+            | SimFault::FollowingError { node, .. }
+            | SimFault::RefuseEnable { node } => Some(*node),
+            SimFault::BusOff { .. } | SimFault::Interrupt { .. } => None,
+        }
+    }
+    /// When it fires (µs on the virtual clock), if timed.
+    pub fn at_us(&self) -> Option<u64> {
+        match self {
+            SimFault::HeartbeatStops { at_us, .. }
+            | SimFault::Emcy { at_us, .. }
+            | SimFault::BusOff { at_us }
+            | SimFault::FollowingError { at_us, .. }
+            | SimFault::Interrupt { at_us } => Some(*at_us),
+            SimFault::RefuseEnable { .. } => None,
+        }
+    }
     /// Parse `KIND[@TIME][:NODE]`, e.g. `heartbeat@1.5s:2`, `emcy@0.8s`,
     /// `busoff@1s`, `following@0.5s:1`, `refuse:3`, `sigint@2s`. TIME takes
     /// `s` or `ms`; NODE defaults to the first axis' node.

@@ -51,6 +51,22 @@ impl MachinePlugin for FormPlugin {
             Arc::new(observe::ObserveStage),
         ]
     }
+    /// What the stages read from run.toml `[process]` (and what the
+    /// generator writes there, for provenance).
+    fn process_keys(&self) -> Option<&'static [&'static str]> {
+        Some(&[
+            "shape",
+            "z_mm",
+            "dressing",
+            "part_in_dressing",
+            "wheel_radius_mm",
+            "nominal_wheel_radius_mm",
+            "removed_before_mm3",
+            "stock_mm",
+            "feed_mm_s",
+            "width_mm",
+        ])
+    }
     fn builtin_machines(&self) -> Vec<(&'static str, &'static str)> {
         vec![("form-grinder", FORM_GRINDER_TOML)]
     }

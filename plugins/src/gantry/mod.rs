@@ -68,6 +68,27 @@ impl MachinePlugin for GantryPlugin {
             Arc::new(observe::ObserveStage),
         ]
     }
+    /// What the stages read from run.toml `[process]` (and what the
+    /// generator writes there, for provenance).
+    fn process_keys(&self) -> Option<&'static [&'static str]> {
+        Some(&[
+            // grinding (the machine's [grinding] otherwise)
+            "grind_feed_mm_s",
+            "depth_of_cut_mm",
+            // polishing: any key of the machine's [polishing] table
+            "k_p_per_pa",
+            "pressure_pa",
+            "tool_radius_mm",
+            "tool_area_mm2",
+            "spring_compression_mm",
+            "spring_rate_n_mm",
+            "rev_per_s",
+            "linear_speed_mm_s",
+            "feed_mm_s",
+            "accel_mm_s2",
+            "step_over_mm",
+        ])
+    }
     fn builtin_machines(&self) -> Vec<(&'static str, &'static str)> {
         vec![("aplm-gantry", APLM_GANTRY_TOML)]
     }

@@ -53,6 +53,11 @@ impl MachinePlugin for GuidewayPlugin {
             Arc::new(observe::ObserveStage),
         ]
     }
+    /// What the stages read from run.toml `[process]` (and what the
+    /// generator writes there, for provenance).
+    fn process_keys(&self) -> Option<&'static [&'static str]> {
+        Some(&["probe_spacing_mm", "sample_step_mm", "infeed_mm", "passes"])
+    }
     fn builtin_machines(&self) -> Vec<(&'static str, &'static str)> {
         vec![("guideway-grinder", GUIDEWAY_GRINDER_TOML)]
     }

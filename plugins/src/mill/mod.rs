@@ -46,6 +46,11 @@ impl MachinePlugin for MillPlugin {
             Arc::new(observe::ObserveStage),
         ]
     }
+    /// What the stages read from run.toml `[process]` (and what the
+    /// generator writes there, for provenance).
+    fn process_keys(&self) -> Option<&'static [&'static str]> {
+        Some(&["points", "point_period_s", "axes"])
+    }
     fn builtin_machines(&self) -> Vec<(&'static str, &'static str)> {
         vec![("xfyz-mill", XFYZ_MILL_TOML)]
     }

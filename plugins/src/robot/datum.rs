@@ -624,8 +624,15 @@ fn planes_batch(a: &DatumAnalysis, use_tls: bool) -> arrow::record_batch::Record
             "residual_max_mm",
             rows.iter().map(|r| max_abs(resid(r))).collect(),
         );
+    // A face of exactly 3 points fits its plane with no residual degree of
+    // freedom: the covariance is undefined, written as null (never NaN).
     for (i, j, name) in COV_NAMES {
-        b = b.f64(name, rows.iter().map(|r| plane(r).cov[(i, j)]).collect());
+        b = b.opt_f64(
+            name,
+            rows.iter()
+                .map(|r| Some(plane(r).cov[(i, j)]).filter(|v| v.is_finite()))
+                .collect(),
+        );
     }
     b.build()
 }
@@ -643,9 +650,16 @@ fn datum_batch(a: &DatumAnalysis, use_tls: bool) -> arrow::record_batch::RecordB
             rows.push((SQUARES[*sq], primary, d));
         }
     }
+    // Undefined (no residual degree of freedom, e.g. 3 points per face):
+    // null, never NaN.
     let c = |i: usize, j: usize| {
         rows.iter()
-            .map(|r| r.2.datum.cov[(i, j)])
+            .map(|r| Some(r.2.datum.cov[(i, j)]).filter(|v| v.is_finite()))
+            .collect::<Vec<_>>()
+    };
+    let ell = |k: usize| {
+        rows.iter()
+            .map(|r| Some(r.2.ellipsoid_mm[k]).filter(|v| v.is_finite()))
             .collect::<Vec<_>>()
     };
     BatchBuilder::new()
@@ -654,24 +668,15 @@ fn datum_batch(a: &DatumAnalysis, use_tls: bool) -> arrow::record_batch::RecordB
         .f64("x_mm", rows.iter().map(|r| r.2.datum.p[0]).collect())
         .f64("y_mm", rows.iter().map(|r| r.2.datum.p[1]).collect())
         .f64("z_mm", rows.iter().map(|r| r.2.datum.p[2]).collect())
-        .f64("cov_xx_mm2", c(0, 0))
-        .f64("cov_xy_mm2", c(0, 1))
-        .f64("cov_xz_mm2", c(0, 2))
-        .f64("cov_yy_mm2", c(1, 1))
-        .f64("cov_yz_mm2", c(1, 2))
-        .f64("cov_zz_mm2", c(2, 2))
-        .f64(
-            "ellipsoid_a_mm",
-            rows.iter().map(|r| r.2.ellipsoid_mm[0]).collect(),
-        )
-        .f64(
-            "ellipsoid_b_mm",
-            rows.iter().map(|r| r.2.ellipsoid_mm[1]).collect(),
-        )
-        .f64(
-            "ellipsoid_c_mm",
-            rows.iter().map(|r| r.2.ellipsoid_mm[2]).collect(),
-        )
+        .opt_f64("cov_xx_mm2", c(0, 0))
+        .opt_f64("cov_xy_mm2", c(0, 1))
+        .opt_f64("cov_xz_mm2", c(0, 2))
+        .opt_f64("cov_yy_mm2", c(1, 1))
+        .opt_f64("cov_yz_mm2", c(1, 2))
+        .opt_f64("cov_zz_mm2", c(2, 2))
+        .opt_f64("ellipsoid_a_mm", ell(0))
+        .opt_f64("ellipsoid_b_mm", ell(1))
+        .opt_f64("ellipsoid_c_mm", ell(2))
         .f64(
             "condition",
             rows.iter().map(|r| r.2.datum.condition).collect(),

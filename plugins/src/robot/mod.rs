@@ -55,6 +55,24 @@ impl MachinePlugin for RobotPlugin {
             Arc::new(observe::ObserveStage),
         ]
     }
+    /// What the stages read from run.toml `[process]` (and what the
+    /// generator writes there, for provenance).
+    fn process_keys(&self) -> Option<&'static [&'static str]> {
+        Some(&[
+            "weld_mm",
+            "contact_area_mm2",
+            "doc_rough_mm",
+            "doc_finish_mm",
+            "rough_passes",
+            "finish_passes",
+            "spark_passes",
+            "feed_mm_s",
+            "pass_length_mm",
+            "standoff_mm",
+            "motion_rate_hz",
+            "block_size_mm",
+        ])
+    }
     fn builtin_machines(&self) -> Vec<(&'static str, &'static str)> {
         vec![("kr16-lab", KR16_LAB_TOML)]
     }

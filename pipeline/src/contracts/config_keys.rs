@@ -1,0 +1,232 @@
+//! Config typos are never silent: a machine config's sections and keys are
+//! checked against the plugin's built-in machines (they are the reference
+//! of what a machine of that type has), and run.toml `[process]` against the
+//! keys the plugin reads. Without this, `[whel] radius_mm = 40` or
+//! `repeatability_mm = "0.5 um"` fell back to the built-in default, exit 0.
+
+use std::collections::BTreeMap;
+
+use super::run::{MachineConfig, RunSpec};
+use crate::error::InputError;
+
+/// Dotted leaf keys of a TOML table with their values.
+fn leaves<'a>(t: &'a toml::Table, prefix: &str, out: &mut BTreeMap<String, &'a toml::Value>) {
+    for (k, v) in t {
+        let key = if prefix.is_empty() {
+            k.clone()
+        } else {
+            format!("{prefix}.{k}")
+        };
+        match v {
+            toml::Value::Table(inner) => leaves(inner, &key, out),
+            _ => {
+                out.insert(key, v);
+            }
+        }
+    }
+}
+
+/// Every number in a value (arrays included) is finite.
+fn all_finite(v: &toml::Value) -> bool {
+    match v {
+        toml::Value::Float(f) => f.is_finite(),
+        toml::Value::Array(a) => a.iter().all(all_finite),
+        _ => true,
+    }
+}
+
+fn kind(v: &toml::Value) -> &'static str {
+    match v {
+        toml::Value::Integer(_) | toml::Value::Float(_) => "a number",
+        toml::Value::String(_) => "a string",
+        toml::Value::Boolean(_) => "a boolean",
+        toml::Value::Array(_) => "an array",
+        toml::Value::Datetime(_) => "a date-time",
+        toml::Value::Table(_) => "a table",
+    }
+}
+
+/// Keys that describe the machine rather than parametrise a model.
+const DESCRIPTIVE: [&str; 3] = ["machine.id", "machine.plugin", "machine.description"];
+
+/// Positions and offsets may be negative (latencies are 0 in the
+/// built-in machines, so unconstrained); other scalars the built-in
+/// machines give as positive (radii, speeds, weights, σ, …) may not.
+fn may_be_negative(key: &str) -> bool {
+    let leaf = key.rsplit('.').next().unwrap_or(key);
+    ["x_mm", "y_mm", "z_mm"].contains(&leaf)
+        || ["_x_mm", "_y_mm", "_z_mm", "_pos_mm"]
+            .iter()
+            .any(|s| leaf.ends_with(s))
+        || leaf.contains("offset")
+}
+
+/// Check a resolved machine config against the built-in machines of the
+/// run's plugin (`builtins`: their TOML texts). Built-in machines pass.
+pub fn check_machine(m: &MachineConfig, plugin: &str, builtins: &[&str]) -> Result<(), InputError> {
+    let err = |key: &str, msg: String| InputError::new(&m.source, msg).column(key.to_string());
+    if m.table.is_empty() {
+        return Err(InputError::new(
+            &m.source,
+            format!(
+                "machine config `{}` is empty; copy a built-in machine of plugin `{plugin}` (configs/machines/) and edit it",
+                m.id
+            ),
+        ));
+    }
+    if let Some(p) = m.table.get("machine").and_then(|t| t.get("plugin")) {
+        if p.as_str() != Some(plugin) {
+            return Err(err(
+                "machine.plugin",
+                format!(
+                    "machine `{}` is for plugin {p}, but the run is a `{plugin}` run",
+                    m.id
+                ),
+            ));
+        }
+    }
+    let mut known: BTreeMap<String, &toml::Value> = BTreeMap::new();
+    let parsed: Vec<toml::Table> = builtins
+        .iter()
+        .filter_map(|t| t.parse::<toml::Table>().ok())
+        .collect();
+    for t in &parsed {
+        leaves(t, "", &mut known);
+    }
+    if known.is_empty() {
+        return Ok(()); // nothing to compare against
+    }
+    let mut mine = BTreeMap::new();
+    leaves(&m.table, "", &mut mine);
+    for (key, v) in &mine {
+        if !all_finite(v) {
+            return Err(err(key, format!("`{key}` must be finite, found {v}")));
+        }
+        if DESCRIPTIVE.contains(&key.as_str()) {
+            continue;
+        }
+        let Some(reference) = known.get(key) else {
+            let section = key.rsplit_once('.').map(|(s, _)| s).unwrap_or("");
+            let in_section: Vec<&str> = known
+                .keys()
+                .filter(|k| k.rsplit_once('.').map(|(s, _)| s).unwrap_or("") == section)
+                .map(|k| k.rsplit('.').next().unwrap_or(k))
+                .collect();
+            let msg = if in_section.is_empty() {
+                let mut sections: Vec<&str> = known
+                    .keys()
+                    .map(|k| k.rsplit_once('.').map(|(s, _)| s).unwrap_or(""))
+                    .filter(|s| !s.is_empty())
+                    .collect();
+                sections.dedup();
+                format!(
+                    "unknown section [{section}] (key `{key}`); a `{plugin}` machine has the sections {}",
+                    sections
+                        .iter()
+                        .map(|s| format!("[{s}]"))
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                )
+            } else {
+                format!(
+                    "unknown key `{key}`; [{section}] of a `{plugin}` machine has: {}",
+                    in_section.join(", ")
+                )
+            };
+            return Err(err(key, msg));
+        };
+        if kind(reference) != kind(v) {
+            return Err(err(
+                key,
+                format!(
+                    "`{key}` must be {} (like {reference} in the built-in machine), found {v}",
+                    kind(reference)
+                ),
+            ));
+        }
+        let as_f = |v: &toml::Value| v.as_float().or_else(|| v.as_integer().map(|i| i as f64));
+        if let (Some(r), Some(x)) = (as_f(reference), as_f(v)) {
+            if r > 0.0 && x < 0.0 && !may_be_negative(key) {
+                return Err(err(key, format!("`{key}` must not be negative, found {x}")));
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Check run.toml `[process]` against the keys the plugin reads (`None`:
+/// the plugin declares none, unchecked). Numbers must be finite.
+pub fn check_process(
+    spec: &RunSpec,
+    plugin: &str,
+    known: Option<&[&str]>,
+) -> Result<(), InputError> {
+    for (k, v) in &spec.process {
+        if !all_finite(v) {
+            return Err(InputError::new(
+                spec.run_toml_path(),
+                format!("[process].{k} must be finite, found {v}"),
+            )
+            .column(format!("process.{k}")));
+        }
+        if let Some(known) = known {
+            if !known.contains(&k.as_str()) {
+                return Err(InputError::new(
+                    spec.run_toml_path(),
+                    format!(
+                        "unknown key [process].{k} for a `{plugin}` run (known: {})",
+                        known.join(", ")
+                    ),
+                )
+                .column(format!("process.{k}")));
+            }
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const BUILTIN: &str = "[machine]\nid = \"g\"\nplugin = \"guideway\"\n[table]\nrepeatability_mm = 0.0005\nspeed_mm_s = 333.0\n[probes]\nspacing_mm = 30.0\n";
+
+    fn machine(text: &str) -> MachineConfig {
+        MachineConfig {
+            id: "g".into(),
+            source: "g.toml".into(),
+            table: text.parse().unwrap(),
+            text: text.into(),
+        }
+    }
+
+    #[test]
+    fn builtin_passes_typos_do_not() {
+        check_machine(&machine(BUILTIN), "guideway", &[BUILTIN]).unwrap();
+        for (bad, needle) in [
+            (
+                "[tabel]\nrepeatability_mm = 0.5\n",
+                "unknown section [tabel]",
+            ),
+            (
+                "[table]\nrepeatability = 0.5\n",
+                "unknown key `table.repeatability`",
+            ),
+            (
+                "[table]\nrepeatability_mm = \"0.5 um\"\n",
+                "must be a number",
+            ),
+            ("[table]\nrepeatability_mm = -0.5\n", "must not be negative"),
+            ("[table]\nspeed_mm_s = -1\n", "must not be negative"),
+            ("[table]\nrepeatability_mm = nan\n", "must be finite"),
+            ("", "is empty"),
+            ("[machine]\nplugin = \"robot\"\n", "for plugin"),
+        ] {
+            let e = check_machine(&machine(bad), "guideway", &[BUILTIN])
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains(needle), "{bad:?}: {e}");
+            assert!(e.contains("g.toml"), "{e}");
+        }
+    }
+}
