@@ -8,4 +8,5 @@ pub mod guideway;
 pub mod mill;
 pub mod observations;
 pub mod robot;
+pub mod servo;
 pub mod validate;

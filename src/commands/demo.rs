@@ -19,7 +19,7 @@ struct DemoFleet {
 
 /// Sized to generate and run in a few seconds in release; each effect is
 /// one the plugin's end-to-end test names first at this fleet size.
-const FLEETS: [DemoFleet; 5] = [
+const FLEETS: [DemoFleet; 6] = [
     DemoFleet {
         plugin: "robot",
         runs: 4,
@@ -44,6 +44,11 @@ const FLEETS: [DemoFleet; 5] = [
         plugin: "form",
         runs: 9,
         effect: "wheel_wear",
+    },
+    DemoFleet {
+        plugin: "servo",
+        runs: 4,
+        effect: "servo_lag",
     },
 ];
 
@@ -82,6 +87,15 @@ fn generate(f: &DemoFleet, root: &Path, effects: &[EffectSpec]) -> anyhow::Resul
         "form" => d::form::generate_fleet(
             root,
             &d::form::FormFleetConfig {
+                runs: f.runs,
+                seed,
+                ..Default::default()
+            },
+            effects,
+        )?,
+        "servo" => d::servo::generate_fleet(
+            root,
+            &d::servo::ServoFleetConfig {
                 runs: f.runs,
                 seed,
                 ..Default::default()

@@ -129,6 +129,27 @@ pub fn generate(
             );
             Ok(0)
         }
+        "servo" => {
+            if list_effects {
+                for (name, about) in sparkout_datasets::servo::known_effects() {
+                    println!("{name:18} {about}");
+                }
+                return Ok(0);
+            }
+            let out = out.context("--out <fleet root> is required")?;
+            let cfg = sparkout_datasets::servo::ServoFleetConfig {
+                runs,
+                seed,
+                ..Default::default()
+            };
+            let dirs = sparkout_datasets::servo::generate_fleet(&out, &cfg, &effects)?;
+            println!(
+                "generated {} servo runs under {}",
+                dirs.len(),
+                out.display()
+            );
+            Ok(0)
+        }
         "observations" => {
             if list_effects {
                 println!("any catalogue effect (CONTRACTS.md): offset, scale, drift, lag, inertia, backlash, wear, compliance, bow, periodic, edge, squareness, thermal — as NAME:COVARIATE=KEY=VALUE,...");
@@ -155,7 +176,7 @@ pub fn generate(
                 .map(|p| p.name())
                 .collect();
             bail!(
-                "no generator for `{other}` (plugins registered: {}; generators: robot, guideway, mill, form, gantry, observations)",
+                "no generator for `{other}` (plugins registered: {}; generators: robot, guideway, mill, form, gantry, servo, observations)",
                 plugins.join(", ")
             )
         }

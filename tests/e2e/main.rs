@@ -20,3 +20,4 @@ mod mill_stages;
 mod replay_cli;
 mod robot_diagnosis_e2e;
 mod robot_stages;
+mod servo_e2e;

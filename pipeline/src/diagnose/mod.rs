@@ -380,7 +380,32 @@ pub fn diagnose(
                     .collect();
                 noise::replicate_floor(&gap, &key, &tr)
             });
-            rep.unwrap_or_else(|| noise::point_to_point_floor(&gap, &run_ranges))
+            let nf = rep.unwrap_or_else(|| noise::point_to_point_floor(&gap, &run_ranges));
+            // A measurement cannot be compared finer than its own stated
+            // uncertainty (e.g. positions logged in 1 mm steps): the floor
+            // is never below the RMS of `real_u` where the table states it.
+            let stated = table.real_u.as_ref().and_then(|u| {
+                let v: Vec<f64> = rows
+                    .iter()
+                    .map(|&i| u[i])
+                    .filter(|x| x.is_finite())
+                    .collect();
+                (!v.is_empty())
+                    .then(|| (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt())
+            });
+            match stated {
+                Some(s) if s > nf.sigma_mm => {
+                    note(
+                        format!(
+                            "{oname}: noise floor {s:.3e} from the stated uncertainty real_u (the data's own scatter gave {:.3e})",
+                            nf.sigma_mm
+                        ),
+                        &mut notes,
+                    );
+                    NoiseFloor { sigma_mm: s, ..nf }
+                }
+                _ => nf,
+            }
         };
         // Folds: by run when there are ≥ 2 runs, else blocks of the one run.
         let (fold_groups, k): (Vec<std::ops::Range<usize>>, usize) = if run_ranges.len() >= 2 {

@@ -13,8 +13,17 @@ use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
 
 use crate::{InputError, Result};
 
-/// Columns that are never covariates (CONTRACTS.md §2, last paragraph).
-pub const RESERVED: [&str; 6] = ["run", "observable", "sim", "real", "trial", "point"];
+/// Columns that are never covariates (CONTRACTS.md §2, last paragraph;
+/// `real_u` is the optional standard uncertainty of `real`, v1.1).
+pub const RESERVED: [&str; 7] = [
+    "run",
+    "observable",
+    "sim",
+    "real",
+    "trial",
+    "point",
+    "real_u",
+];
 
 /// Reads observations.parquet (all row groups, concatenated) and validates it
 /// per CONTRACTS.md §2: `run`/`observable` text, `sim`/`real` float64
@@ -128,6 +137,9 @@ pub struct Table {
     pub dropped: Vec<String>,
     pub trial: Option<Vec<i64>>,
     pub point: Option<Vec<i64>>,
+    /// `real_u`: each row's stated standard uncertainty of `real` (e.g. a
+    /// logging resolution step/√12); NaN where not stated.
+    pub real_u: Option<Vec<f64>>,
 }
 
 /// Sorted distinct strings of a text column and each row's index into
@@ -216,6 +228,12 @@ impl Table {
             dropped,
             trial: int("trial")?,
             point: int("point")?,
+            real_u: match b.column_by_name("real_u") {
+                Some(a) if a.data_type().is_floating() || a.data_type().is_integer() => {
+                    Some(f64s(a)?)
+                }
+                _ => None,
+            },
         })
     }
 
