@@ -10,6 +10,8 @@ use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use sparkout_plugins::robot::ae::{AeDetector, AeParams};
 use std::hint::black_box;
 
+mod common;
+
 const N: usize = 8 << 20;
 const FS: f64 = 1e6;
 const CHUNK: usize = 1 << 18; // AeStream::DEFAULT_BATCH_ROWS
@@ -41,6 +43,7 @@ fn signal() -> (Vec<f64>, Vec<f32>) {
 }
 
 fn bench(c: &mut Criterion) {
+    common::register_references(c, "ae_kernel");
     let (t, v) = signal();
     let p = AeParams::from_seconds(FS, 1e-3, 8.0, 0.5e-3, 0.5, 5e-3);
     let mut g = c.benchmark_group("ae_kernel");

@@ -12,7 +12,10 @@ use sparkout_pipeline::diagnose::{diagnose, DiagnoseConfig};
 use sparkout_pipeline::EffectSpec;
 use std::time::Duration;
 
+mod common;
+
 fn bench_diagnose(c: &mut Criterion) {
+    common::register_references(c, "diagnose");
     let cfg = ObsFleetConfig {
         runs: 20,
         seed: 7,

@@ -8,9 +8,12 @@ use criterion::{criterion_group, criterion_main, Criterion};
 use sparkout_plugins::gantry::tool_influence::{fft_convolve_same, PolishTool};
 use std::hint::black_box;
 
+mod common;
+
 const N: usize = 2048;
 
 fn bench(c: &mut Criterion) {
+    common::register_references(c, "fft_removal");
     let tool = PolishTool {
         k_p_per_pa: 1.7097e-8,
         pressure_pa: 389.93,

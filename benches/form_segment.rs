@@ -11,7 +11,10 @@ use sparkout_plugins::form::segment::sweep;
 use sparkout_plugins::form::shapes::{sample, TangentCam};
 use std::hint::black_box;
 
+mod common;
+
 fn bench(c: &mut Criterion) {
+    common::register_references(c, "form_segment");
     let cam = TangentCam {
         base: 40.0,
         nose: 14.0,

@@ -11,7 +11,10 @@ use sparkout_plugins::gantry::machine::Gantry;
 use sparkout_plugins::gantry::matrices::topography;
 use std::hint::black_box;
 
+mod common;
+
 fn bench(c: &mut Criterion) {
+    common::register_references(c, "gantry_matrices");
     let m = sparkout_plugins::gantry::builtin_machine().unwrap();
     let spec = RunSpec::parse(
         std::path::Path::new("."),

@@ -13,6 +13,8 @@ use sparkout_plugins::guideway::config::PredictorConfig;
 use sparkout_plugins::guideway::predictor::predict;
 use std::hint::black_box;
 
+mod common;
+
 const N: usize = 1_000_000;
 const AR: [f64; 4] = [0.5, -0.3, 0.25, -0.3];
 
@@ -47,6 +49,7 @@ pub fn series() -> Vec<f64> {
 }
 
 fn bench(c: &mut Criterion) {
+    common::register_references(c, "guideway_predictor");
     let dz = series();
     let mut table = toml::Table::new();
     table.insert("p_max".into(), toml::Value::Integer(20));

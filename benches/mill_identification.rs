@@ -11,6 +11,8 @@ use sparkout_plugins::mill::chain::{Point, V3 as Vector3};
 use sparkout_plugins::mill::identify::{identify, IdentOptions, Obs};
 use std::hint::black_box;
 
+mod common;
+
 const N: usize = 2000;
 
 fn points() -> (sparkout_plugins::mill::chain::Layout, Vec<Obs>) {
@@ -50,6 +52,7 @@ fn points() -> (sparkout_plugins::mill::chain::Layout, Vec<Obs>) {
 }
 
 fn bench(c: &mut Criterion) {
+    common::register_references(c, "mill_identification");
     let (layout, obs) = points();
     let mut g = c.benchmark_group("mill_identification");
     g.sample_size(10);

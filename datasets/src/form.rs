@@ -16,13 +16,14 @@
 
 use std::path::{Path, PathBuf};
 
+use crate::generator::{DemoFleet, FleetGenerator};
+use crate::rng::{normal, stream_rng};
 use anyhow::{bail, Context, Result};
 use arrow::array::{ArrayRef, Float64Array, StringArray};
 use arrow::datatypes::{DataType, Field, Schema};
 use arrow::record_batch::RecordBatch;
-use rand::{Rng, SeedableRng};
+use rand::Rng;
 use rand_chacha::ChaCha8Rng;
-use rand_distr::StandardNormal;
 use rayon::prelude::*;
 use serde::Serialize;
 use sparkout_pipeline::contracts::{write_atomic, write_json_atomic, write_parquet_atomic};
@@ -194,12 +195,6 @@ struct RunTruth {
     effects: Vec<EffectSpec>,
 }
 
-fn run_rng(seed: u64, run: usize) -> ChaCha8Rng {
-    let mut r = ChaCha8Rng::seed_from_u64(seed);
-    r.set_stream(run as u64 + 1);
-    r
-}
-
 /// The part's design profile: (shape name, parameters, z, φ, R).
 #[allow(clippy::type_complexity)]
 fn design(
@@ -255,6 +250,23 @@ fn design(
     }
 }
 
+/// `sparkout generate form` and the form fleet of `sparkout demo`.
+pub const GENERATOR: FleetGenerator<FormFleetConfig> = FleetGenerator {
+    name: "form",
+    known_effects,
+    config: |runs, seed| FormFleetConfig {
+        runs,
+        seed,
+        ..FormFleetConfig::default()
+    },
+    generate_fleet,
+    demo: Some(DemoFleet {
+        runs: 9,
+        seed: 1,
+        effect: "wheel_wear",
+    }),
+};
+
 /// Generate the fleet under `root/<machine>/rNNNN/`.
 pub fn generate_fleet(
     root: &Path,
@@ -282,7 +294,7 @@ fn generate_run(
     specs: &[EffectSpec],
     index: usize,
 ) -> Result<()> {
-    let mut rng = run_rng(cfg.seed, index);
+    let mut rng = stream_rng(cfg.seed, index as u64 + 1);
     let run_id = format!("r{index:04}");
     let (shape, params, z, phi, r) = design(cfg, index, &mut rng)?;
     let dressing = index / cfg.parts_per_dressing;
@@ -336,7 +348,7 @@ fn generate_run(
     }
     let measured: Vec<f64> = (0..n)
         .map(|i| {
-            let noise: f64 = cfg.noise_mm * rng.sample::<f64, _>(StandardNormal);
+            let noise: f64 = cfg.noise_mm * normal(&mut rng);
             r[i] + (delta[i] + e[i] + noise) / p.gamma0_rad[i].cos()
         })
         .collect();

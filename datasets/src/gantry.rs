@@ -21,14 +21,16 @@
 
 use std::path::{Path, PathBuf};
 
+use crate::generator::{DemoFleet, FleetGenerator};
+use crate::rng::{normal, stream_rng};
 use anyhow::{bail, Context, Result};
-use rand::{Rng, SeedableRng};
+use rand::Rng;
 use rand_chacha::ChaCha8Rng;
-use rand_distr::StandardNormal;
 use rayon::prelude::*;
 use serde::Serialize;
 use sparkout_pipeline::contracts::{
     write_atomic, write_json_atomic, write_parquet_atomic, BatchBuilder, MachineConfig,
+    MotionColumns,
 };
 use sparkout_pipeline::EffectSpec;
 use sparkout_plugins::gantry::grid::Grid;
@@ -177,12 +179,6 @@ struct RunTruth {
     effects: Vec<EffectSpec>,
 }
 
-fn run_rng(seed: u64, index: usize) -> ChaCha8Rng {
-    let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    rng.set_stream(index as u64 * 4 + 1);
-    rng
-}
-
 /// A smooth random surface: a few low-order waves of total amplitude ≈ amp.
 fn smooth(rng: &mut ChaCha8Rng, grid: &Grid, amp: f64) -> Vec<f64> {
     let (lx, ly) = (grid.x_max() - grid.x0, grid.y_max() - grid.y0);
@@ -208,6 +204,23 @@ fn smooth(rng: &mut ChaCha8Rng, grid: &Grid, amp: f64) -> Vec<f64> {
         })
         .collect()
 }
+
+/// `sparkout generate gantry` and the gantry fleet of `sparkout demo`.
+pub const GENERATOR: FleetGenerator<GantryFleetConfig> = FleetGenerator {
+    name: "gantry",
+    known_effects,
+    config: |runs, seed| GantryFleetConfig {
+        runs,
+        seed,
+        ..GantryFleetConfig::default()
+    },
+    generate_fleet,
+    demo: Some(DemoFleet {
+        runs: 6,
+        seed: 1,
+        effect: "thermal_bow",
+    }),
+};
 
 /// Generate the fleet under `<root>/<machine>/r0000 …`.
 pub fn generate_fleet(
@@ -258,7 +271,7 @@ fn generate_run(
     specs: &[EffectSpec],
     index: usize,
 ) -> Result<()> {
-    let mut rng = run_rng(cfg.seed, index);
+    let mut rng = stream_rng(cfg.seed, index as u64 * 4 + 1);
     let id = format!("r{index:04}");
     let feed = rng.random_range(cfg.feed_mm_s.0..=cfg.feed_mm_s.1);
     let text = run_toml(cfg, &id, index, feed);
@@ -275,7 +288,7 @@ fn generate_run(
     };
     let g = Gantry::from_run(&m, &spec)?;
     let grid = cfg.grid();
-    let noise = |rng: &mut ChaCha8Rng| cfg.noise_mm * rng.sample::<f64, _>(StandardNormal);
+    let noise = |rng: &mut ChaCha8Rng| cfg.noise_mm * normal(rng);
 
     let pattern_true = smooth(&mut rng, &grid, cfg.pattern_mm);
     let tau = topography(&g, &grid, true)?.tau;
@@ -334,15 +347,18 @@ fn generate_run(
         .f64("z_mm", rows.3)
         .build();
     write_parquet_atomic(&dir.join("topography.parquet"), &topo)?;
-    let motion = BatchBuilder::new()
-        .f64("t_s", path.iter().map(|p| p.t_s).collect())
-        .f64("cmd_x_mm", path.iter().map(|p| p.x_mm).collect())
-        .f64("cmd_y_mm", path.iter().map(|p| p.y_mm).collect())
-        .f64("cmd_z_mm", vec![0.0; path.len()])
-        .f64("feed_mm_s", vec![feed; path.len()])
-        .i32("segment", path.iter().map(|p| p.segment).collect())
-        .build();
-    write_parquet_atomic(&dir.join("motion.parquet"), &motion)?;
+    let motion = MotionColumns {
+        t_s: path.iter().map(|p| p.t_s).collect(),
+        cmd_mm: [
+            path.iter().map(|p| p.x_mm).collect(),
+            path.iter().map(|p| p.y_mm).collect(),
+            vec![0.0; path.len()],
+        ],
+        act_mm: None,
+        feed_mm_s: Some(vec![feed; path.len()]),
+        segment: Some(path.iter().map(|p| p.segment).collect()),
+    };
+    write_parquet_atomic(&dir.join("motion.parquet"), &motion.into_batch())?;
     let truth = RunTruth {
         run: id.clone(),
         run_index: index,

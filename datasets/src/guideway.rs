@@ -32,11 +32,11 @@ use std::collections::BTreeMap;
 use std::f64::consts::PI;
 use std::path::{Path, PathBuf};
 
+use crate::generator::{DemoFleet, FleetGenerator};
+use crate::rng::{normal, stream_rng, uniform};
 use anyhow::{bail, Context, Result};
 use arrow::record_batch::RecordBatch;
-use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use rand_distr::StandardNormal;
 use rayon::prelude::*;
 use serde::Serialize;
 use sparkout_pipeline::contracts::{
@@ -267,20 +267,6 @@ pub fn resolve_effects(specs: &[EffectSpec]) -> Result<Effects> {
     Ok(fx)
 }
 
-fn rng_for(seed: u64, stream: u64) -> ChaCha8Rng {
-    let mut r = ChaCha8Rng::seed_from_u64(seed);
-    r.set_stream(stream);
-    r
-}
-
-fn normal(r: &mut ChaCha8Rng) -> f64 {
-    r.sample(StandardNormal)
-}
-
-fn uniform(r: &mut ChaCha8Rng, lo: f64, hi: f64) -> f64 {
-    lo + (hi - lo) * r.random::<f64>()
-}
-
 /// One generated run: the guideway table's columns and the truth.
 #[derive(Debug, Clone, Serialize)]
 pub struct GuidewayRun {
@@ -352,8 +338,8 @@ pub fn simulate(
     specs: &[EffectSpec],
     index: usize,
 ) -> GuidewayRun {
-    let mut r = rng_for(cfg.seed, index as u64 * 4 + 1);
-    let mut machine = rng_for(cfg.seed, u64::MAX / 2);
+    let mut r = stream_rng(cfg.seed, index as u64 * 4 + 1);
+    let mut machine = stream_rng(cfg.seed, u64::MAX / 2);
     let step = cfg.step_mm;
     let l = cfg.k as f64 * step;
     let length = (cfg.points - 1) as f64 * step;
@@ -537,6 +523,23 @@ passes = {passes}
         passes = cfg.passes,
     )
 }
+
+/// `sparkout generate guideway` and the guideway fleet of `sparkout demo`.
+pub const GENERATOR: FleetGenerator<GuidewayFleetConfig> = FleetGenerator {
+    name: "guideway",
+    known_effects,
+    config: |runs, seed| GuidewayFleetConfig {
+        runs,
+        seed,
+        ..GuidewayFleetConfig::default()
+    },
+    generate_fleet,
+    demo: Some(DemoFleet {
+        runs: 6,
+        seed: 1,
+        effect: "thermal_infeed",
+    }),
+};
 
 /// Generate the fleet under `<root>/<machine>/r0000 …`.
 pub fn generate_fleet(

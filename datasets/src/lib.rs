@@ -4,9 +4,15 @@
 
 pub mod form;
 pub mod gantry;
+pub mod generator;
 pub mod guideway;
 pub mod mill;
 pub mod observations;
+pub mod rng;
 pub mod robot;
 pub mod servo;
 pub mod validate;
+
+pub use generator::{
+    all_generators, generator, DemoFleet, FleetGenerator, GenerateOptions, Generated, Generator,
+};

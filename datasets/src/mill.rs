@@ -31,11 +31,11 @@
 use std::f64::consts::PI;
 use std::path::{Path, PathBuf};
 
+use crate::generator::{DemoFleet, FleetGenerator};
+use crate::rng::{normal, stream_rng, uniform};
 use anyhow::{bail, Context, Result};
 use nalgebra::Vector3;
-use rand::{Rng, SeedableRng};
-use rand_chacha::ChaCha8Rng;
-use rand_distr::StandardNormal;
+use rand::Rng;
 use rayon::prelude::*;
 use serde::Serialize;
 use sparkout_pipeline::contracts::{
@@ -206,17 +206,12 @@ pub fn machine() -> Result<MillMachine> {
     Ok(MillMachine::from_config(&cfg)?)
 }
 
-fn normal(rng: &mut ChaCha8Rng) -> f64 {
-    rng.sample(StandardNormal)
-}
-
 /// The fleet's machine: error coefficients and squareness of realistic size
 /// (positioning ~10 µm, straightness ~6 µm, rotations ~25 µrad per Legendre
 /// order, falling as 1/order; squareness ~30 µrad). The tracker frame is
 /// left at zero (it is per run).
 pub fn true_machine(m: &MillMachine, seed: u64) -> Model {
-    let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    rng.set_stream(u64::MAX);
+    let mut rng = stream_rng(seed, u64::MAX);
     let layout = sparkout_plugins::mill::chain::Layout::new(m.degree, m.travels, &[]);
     let mut model = Model::zeros(layout);
     for i in 0..model.layout.coef.len() {
@@ -263,6 +258,23 @@ struct RunTruth {
     effects: Vec<EffectSpec>,
 }
 
+/// `sparkout generate mill` and the mill fleet of `sparkout demo`.
+pub const GENERATOR: FleetGenerator<MillFleetConfig> = FleetGenerator {
+    name: "mill",
+    known_effects,
+    config: |runs, seed| MillFleetConfig {
+        runs,
+        seed,
+        ..MillFleetConfig::default()
+    },
+    generate_fleet,
+    demo: Some(DemoFleet {
+        runs: 6,
+        seed: 1,
+        effect: "thermal_growth",
+    }),
+};
+
 /// Generate `<root>/xfyz-mill/r0000 …`; returns the run dirs in order.
 pub fn generate_fleet(
     root: &Path,
@@ -304,8 +316,7 @@ fn generate_run(
     specs: &[EffectSpec],
     index: usize,
 ) -> Result<()> {
-    let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed);
-    rng.set_stream(index as u64);
+    let mut rng = stream_rng(cfg.seed, index as u64);
     let run_id = format!("r{index:04}");
     let noise = cfg.noise_mm.unwrap_or(m.tracker_sigma_mm);
     // Tracker placed anew: a random axis and angle, a few metres away.
@@ -326,7 +337,7 @@ fn generate_run(
     for i in 0..n {
         let q = [0, 1, 2].map(|a| {
             let (lo, hi) = m.travels[a];
-            lo + (hi - lo) * rng.random::<f64>()
+            uniform(&mut rng, lo, hi)
         });
         let tool = i % m.tools.len();
         let pt = Point {

@@ -24,6 +24,7 @@ use std::fs::File;
 use std::path::Path;
 use std::sync::Arc;
 
+use crate::generator::{no_ae_rate, GenerateOptions, Generated, Generator};
 use anyhow::{anyhow, bail, Context};
 use arrow::array::{ArrayRef, Float64Array, Int32Array, RecordBatch, StringArray};
 use arrow::datatypes::{DataType, Field, Schema};
@@ -33,6 +34,7 @@ use parquet::file::properties::WriterProperties;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
+use sparkout_pipeline::contracts::write_parquet_atomic;
 use sparkout_pipeline::diagnose::{shape_value, Kind};
 use sparkout_pipeline::{EffectSpec, Result};
 
@@ -489,6 +491,48 @@ pub fn noise(cfg: &ObsFleetConfig, n: usize) -> Vec<f64> {
     match Normal::new(0.0, cfg.noise_mm) {
         Ok(d) => (0..n).map(|_| d.sample(&mut rng)).collect(),
         Err(_) => vec![0.0; n],
+    }
+}
+
+/// `sparkout generate observations`: a paired-observations table (no
+/// machine; every catalogue effect applies) for `sparkout diagnose`.
+pub struct ObservationsGenerator;
+
+impl Generator for ObservationsGenerator {
+    fn name(&self) -> &'static str {
+        "observations"
+    }
+    fn known_effects(&self) -> Vec<(&'static str, &'static str)> {
+        Kind::all()
+            .into_iter()
+            .map(|k| (k.name(), "catalogue effect (CONTRACTS.md)"))
+            .collect()
+    }
+    fn effects_listing(&self) -> String {
+        let names: Vec<&str> = Kind::all().into_iter().map(Kind::name).collect();
+        format!(
+            "any catalogue effect (CONTRACTS.md): {} — as NAME:COVARIATE=KEY=VALUE,...\n",
+            names.join(", ")
+        )
+    }
+    fn generate(&self, out: &Path, opts: &GenerateOptions, fx: &[EffectSpec]) -> Result<Generated> {
+        no_ae_rate(self.name(), opts)?;
+        let cfg = ObsFleetConfig {
+            runs: opts.runs,
+            seed: opts.seed,
+            ..Default::default()
+        };
+        let batch = generate(&cfg, fx)?;
+        write_parquet_atomic(out, &batch)?;
+        Ok(Generated {
+            runs: opts.runs,
+            summary: format!(
+                "generated {} observations over {} runs in {}",
+                batch.num_rows(),
+                opts.runs,
+                out.display()
+            ),
+        })
     }
 }
 

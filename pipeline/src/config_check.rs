@@ -2,8 +2,11 @@
 //! known, every value of the right type and range, with an error that names
 //! the key. Shared by every plugin (a plugin knows no other plugin).
 
-use crate::Result;
-use anyhow::bail;
+use serde::de::{DeserializeOwned, Visitor};
+use std::cell::Cell;
+
+use crate::error::ConfigError;
+use crate::values::toml_f64;
 
 /// What a key's value must be.
 #[derive(Debug, Clone, Copy)]
@@ -24,34 +27,23 @@ pub enum Check {
     AtLeastOne,
 }
 
-fn number(v: &toml::Value) -> Option<f64> {
-    match v {
-        toml::Value::Float(f) => Some(*f),
-        toml::Value::Integer(i) => Some(*i as f64),
-        _ => None,
-    }
-}
-
-/// Check a stage's section against its known keys.
-pub fn check_config(config: &toml::Table, keys: &[(&str, Check)]) -> Result<()> {
+/// Check a stage's section against its known keys. The error is a
+/// [`ConfigError`] (downcast to tell an unknown key from a bad value).
+pub fn check_config(config: &toml::Table, keys: &[(&str, Check)]) -> crate::Result<()> {
     for (k, v) in config {
         let Some((_, check)) = keys.iter().find(|(name, _)| name == k) else {
-            let known: Vec<&str> = keys.iter().map(|(n, _)| *n).collect();
-            bail!(
-                "unknown key `{k}` (known: {})",
-                if known.is_empty() {
-                    "none".to_string()
-                } else {
-                    known.join(", ")
-                }
-            );
+            return Err(ConfigError::UnknownKey {
+                key: k.clone(),
+                known: keys.iter().map(|(n, _)| n.to_string()).collect(),
+            }
+            .into());
         };
         let ok = match check {
-            Check::Positive => number(v).is_some_and(|x| x.is_finite() && x > 0.0),
-            Check::NonNegative => number(v).is_some_and(|x| x.is_finite() && x >= 0.0),
-            Check::Fraction => number(v).is_some_and(|x| x > 0.0 && x <= 1.0),
-            Check::Probability => number(v).is_some_and(|x| x > 0.0 && x < 1.0),
-            Check::AtLeastOne => number(v).is_some_and(|x| x.is_finite() && x >= 1.0),
+            Check::Positive => toml_f64(v).is_some_and(|x| x.is_finite() && x > 0.0),
+            Check::NonNegative => toml_f64(v).is_some_and(|x| x.is_finite() && x >= 0.0),
+            Check::Fraction => toml_f64(v).is_some_and(|x| x > 0.0 && x <= 1.0),
+            Check::Probability => toml_f64(v).is_some_and(|x| x > 0.0 && x < 1.0),
+            Check::AtLeastOne => toml_f64(v).is_some_and(|x| x.is_finite() && x >= 1.0),
             Check::Bool => v.is_bool(),
             Check::OneOf(opts) => v.as_str().is_some_and(|s| opts.contains(&s)),
         };
@@ -65,8 +57,101 @@ pub fn check_config(config: &toml::Table, keys: &[(&str, Check)]) -> Result<()> 
                 Check::Bool => "true or false".to_string(),
                 Check::OneOf(opts) => format!("one of {}", opts.join(", ")),
             };
-            bail!("key `{k}` must be {want}, found {v}");
+            return Err(ConfigError::bad_value(k, want, v).into());
         }
     }
     Ok(())
+}
+
+/// Read a config section into its serde struct: a key the struct does not
+/// have is [`ConfigError::UnknownKey`] (listing the struct's fields), a
+/// value of the wrong type [`ConfigError::Invalid`]. The struct's own range
+/// checks run after this (its `validate()`).
+pub fn parse_section<T: DeserializeOwned>(config: &toml::Table) -> Result<T, ConfigError> {
+    let fields = struct_fields::<T>();
+    if let Some(k) = config.keys().find(|k| !fields.contains(&k.as_str())) {
+        return Err(ConfigError::UnknownKey {
+            key: k.clone(),
+            known: fields.iter().map(|f| f.to_string()).collect(),
+        });
+    }
+    toml::Value::Table(config.clone())
+        .try_into()
+        .map_err(|e: toml::de::Error| ConfigError::Invalid(e.to_string().trim().to_string()))
+}
+
+/// The field names serde knows for struct `T` (what `deny_unknown_fields`
+/// accepts), found by asking `T` to deserialize from a probe that records
+/// the names serde passes to `deserialize_struct` and stops there.
+pub fn struct_fields<T: DeserializeOwned>() -> &'static [&'static str] {
+    let seen = Cell::new(&[][..]);
+    let _ = T::deserialize(FieldProbe(&seen));
+    seen.get()
+}
+
+struct FieldProbe<'a>(&'a Cell<&'static [&'static str]>);
+
+#[derive(Debug)]
+struct ProbeStop;
+
+impl std::fmt::Display for ProbeStop {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("field probe")
+    }
+}
+impl std::error::Error for ProbeStop {}
+impl serde::de::Error for ProbeStop {
+    fn custom<M: std::fmt::Display>(_: M) -> Self {
+        ProbeStop
+    }
+}
+
+impl<'de> serde::Deserializer<'de> for FieldProbe<'_> {
+    type Error = ProbeStop;
+    fn deserialize_any<V: Visitor<'de>>(self, _: V) -> Result<V::Value, ProbeStop> {
+        Err(ProbeStop)
+    }
+    fn deserialize_struct<V: Visitor<'de>>(
+        self,
+        _name: &'static str,
+        fields: &'static [&'static str],
+        _visitor: V,
+    ) -> Result<V::Value, ProbeStop> {
+        self.0.set(fields);
+        Err(ProbeStop)
+    }
+    serde::forward_to_deserialize_any! {
+        bool i8 i16 i32 i64 i128 u8 u16 u32 u64 u128 f32 f64 char str string
+        bytes byte_buf option unit unit_struct newtype_struct seq tuple
+        tuple_struct map enum identifier ignored_any
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[derive(Debug, serde::Deserialize, PartialEq)]
+    #[serde(deny_unknown_fields)]
+    struct Section {
+        tol_mm: Option<f64>,
+        #[serde(default)]
+        passes: u32,
+    }
+
+    #[test]
+    fn sections_parse_and_unknown_keys_are_typed() {
+        assert_eq!(struct_fields::<Section>(), &["tol_mm", "passes"]);
+        let t = |s: &str| s.parse::<toml::Table>().unwrap();
+        let ok: Section = parse_section(&t("tol_mm = 0.5\npasses = 3")).unwrap();
+        assert_eq!((ok.tol_mm, ok.passes), (Some(0.5), 3));
+        let e = parse_section::<Section>(&t("tol = 0.5")).unwrap_err();
+        assert_eq!(e.to_string(), "unknown key `tol` (known: tol_mm, passes)");
+        assert!(ConfigError::is_unknown_key(&anyhow::Error::from(e)));
+        let e = parse_section::<Section>(&t("passes = \"many\"")).unwrap_err();
+        assert!(matches!(e, ConfigError::Invalid(_)), "{e}");
+        let e = check_config(&t("tol_mm = -1"), &[("tol_mm", Check::Positive)]).unwrap_err();
+        assert_eq!(e.to_string(), "key `tol_mm` must be a number > 0, found -1");
+        assert!(!ConfigError::is_unknown_key(&e));
+    }
 }

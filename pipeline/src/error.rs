@@ -47,6 +47,51 @@ impl fmt::Display for InputError {
 
 impl std::error::Error for InputError {}
 
+/// A bad config section (`[<plugin>.<stage>]`, `[diagnose]`): typed so a
+/// caller can tell an unknown key from a bad value without reading the
+/// message (`sparkout stage --flag` turns the first into "not a config key
+/// of this stage", the second into "bad value for this flag").
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ConfigError {
+    #[error("unknown key `{key}` (known: {})", known_list(.known))]
+    UnknownKey { key: String, known: Vec<String> },
+    #[error("key `{key}` must be {want}, found {found}")]
+    BadValue {
+        key: String,
+        want: String,
+        found: String,
+    },
+    /// A value serde could not read (wrong type, wrong shape); the message
+    /// names the key.
+    #[error("{0}")]
+    Invalid(String),
+}
+
+impl ConfigError {
+    pub fn bad_value(key: &str, want: impl Into<String>, found: impl fmt::Display) -> Self {
+        ConfigError::BadValue {
+            key: key.to_string(),
+            want: want.into(),
+            found: found.to_string(),
+        }
+    }
+    /// Whether an error of any kind is an unknown config key.
+    pub fn is_unknown_key(e: &anyhow::Error) -> bool {
+        matches!(
+            e.downcast_ref::<ConfigError>(),
+            Some(ConfigError::UnknownKey { .. })
+        )
+    }
+}
+
+fn known_list(known: &[String]) -> String {
+    if known.is_empty() {
+        "none".to_string()
+    } else {
+        known.join(", ")
+    }
+}
+
 /// Shorthand used across the pipeline: errors carry context via anyhow, bad
 /// input is an [`InputError`] inside it (downcast to tell the two apart).
 pub type Result<T, E = anyhow::Error> = std::result::Result<T, E>;

@@ -12,10 +12,12 @@ pub mod import;
 pub mod replay;
 pub mod report;
 pub mod traits;
+pub mod values;
 
 pub use effect_spec::EffectSpec;
-pub use error::{InputError, Result};
+pub use error::{ConfigError, InputError, Result};
 pub use traits::{
     cfg_f64, ArtifactStore, MachinePlugin, ReportSection, Run, Stage, StageArgs, StageContext,
-    StageOutput,
+    StageOutput, StageSpec,
 };
+pub use values::{json_f64, json_opt_f64, toml_f64};

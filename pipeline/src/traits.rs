@@ -1,7 +1,7 @@
 //! The traits everything plugs in by (DESIGN.md "Traits"). The engine knows
 //! no concrete machine; a plugin knows no other plugin.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 
@@ -17,6 +17,9 @@ pub struct Run {
     pub spec: RunSpec,
     pub machine: MachineConfig,
     tables: Mutex<BTreeMap<&'static str, Arc<Table>>>,
+    /// Tables looked at since the last [`Run::take_reads`]: the engine
+    /// checks them against the running stage's [`StageSpec::reads`].
+    reads: Mutex<BTreeSet<&'static str>>,
 }
 
 impl Run {
@@ -25,7 +28,12 @@ impl Run {
             spec,
             machine,
             tables: Mutex::new(BTreeMap::new()),
+            reads: Mutex::new(BTreeSet::new()),
         }
+    }
+    /// The tables looked at since the last call.
+    pub fn take_reads(&self) -> BTreeSet<&'static str> {
+        std::mem::take(&mut *self.reads.lock().expect("read log"))
     }
     pub fn dir(&self) -> &Path {
         &self.spec.dir
@@ -35,6 +43,7 @@ impl Run {
     }
     /// Whether the run has this table's file.
     pub fn has_table(&self, schema: &TableSchema) -> bool {
+        self.reads.lock().expect("read log").insert(schema.name);
         self.table_path(schema).is_file()
     }
     /// The table, validated; `Ok(None)` when the run has no such file.
@@ -72,6 +81,8 @@ impl Run {
 pub struct ArtifactStore {
     tables: Mutex<BTreeMap<String, ArtifactSlot>>,
     summaries: Mutex<BTreeMap<String, serde_json::Value>>,
+    /// Artifacts looked up since the last [`ArtifactStore::take_reads`].
+    reads: Mutex<BTreeSet<String>>,
 }
 
 enum ArtifactSlot {
@@ -104,7 +115,15 @@ impl ArtifactStore {
     pub fn summaries(&self) -> BTreeMap<String, serde_json::Value> {
         self.summaries.lock().expect("store").clone()
     }
+    /// The artifacts looked up since the last call.
+    pub fn take_reads(&self) -> BTreeSet<String> {
+        std::mem::take(&mut *self.reads.lock().expect("read log"))
+    }
     pub fn has(&self, name: &str) -> bool {
+        self.reads
+            .lock()
+            .expect("read log")
+            .insert(name.to_string());
         self.tables.lock().expect("store").contains_key(name)
     }
     pub fn names(&self) -> Vec<String> {
@@ -112,6 +131,10 @@ impl ArtifactStore {
     }
     /// An artifact by name; `None` if no stage produced it.
     pub fn get(&self, name: &str) -> Result<Option<Arc<RecordBatch>>> {
+        self.reads
+            .lock()
+            .expect("read log")
+            .insert(name.to_string());
         let path = {
             let guard = self.tables.lock().expect("store");
             match guard.get(name) {
@@ -164,11 +187,7 @@ impl StageContext<'_> {
 
 /// A number in a TOML table (integers accepted).
 pub fn cfg_f64(t: &toml::Table, key: &str) -> Option<f64> {
-    match t.get(key)? {
-        toml::Value::Float(f) => Some(*f),
-        toml::Value::Integer(i) => Some(*i as f64),
-        _ => None,
-    }
+    t.get(key).and_then(crate::values::toml_f64)
 }
 
 /// What a stage produced for one run.
@@ -198,23 +217,96 @@ impl StageOutput {
 /// Options of `sparkout stage <name> --flag value ...` without a run.
 pub type StageArgs = BTreeMap<String, String>;
 
-/// A step of the DAG. Edges come from what stages declare they read and
-/// write, not from a hard-coded order.
-pub trait Stage: Send + Sync {
-    fn name(&self) -> &'static str;
+/// What a stage is, as data (issue 14 item 1): the engine takes the DAG's
+/// edges, the cache key and `--help` listings from it and checks it when a
+/// plugin is registered ([`StageSpec::check`]) and while the stage runs (a
+/// table or artifact read that the spec does not declare is an error, so the
+/// cache key cannot miss an input).
+#[derive(Debug, Clone, Copy)]
+pub struct StageSpec {
+    pub name: &'static str,
     /// Bump when the stage's output changes for the same input (cache key).
-    fn version(&self) -> u32;
+    pub version: u32,
     /// Raw tables of the run this stage reads (their file hashes enter its
     /// cache key).
-    fn reads_tables(&self) -> &'static [&'static str];
+    pub reads: &'static [&'static TableSchema],
     /// Artifacts of upstream stages this stage reads (edges of the DAG).
-    fn reads_artifacts(&self) -> &'static [&'static str];
+    pub reads_artifacts: &'static [&'static str],
     /// Artifacts this stage writes.
-    fn writes(&self) -> &'static [&'static str];
+    pub writes: &'static [&'static str],
     /// One-line description for `--help` listings.
-    fn about(&self) -> &'static str {
-        ""
+    pub about: &'static str,
+}
+
+impl StageSpec {
+    /// The spec on its own: a name, no input declared twice, artifact names
+    /// that are file stems, a stage that does not read what it writes.
+    pub fn check(&self) -> Result<()> {
+        let name = self.name;
+        let stem = |s: &str| {
+            !s.is_empty()
+                && s.chars()
+                    .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-')
+        };
+        if !stem(name) {
+            anyhow::bail!("stage name `{name}` must be letters, digits, `_` or `-`");
+        }
+        let mut seen = std::collections::BTreeSet::new();
+        for t in self.reads {
+            if !seen.insert(t.name) {
+                anyhow::bail!("stage `{name}` declares table `{}` twice", t.name);
+            }
+        }
+        for list in [self.reads_artifacts, self.writes] {
+            let mut seen = std::collections::BTreeSet::new();
+            for a in list {
+                if !stem(a) || !seen.insert(*a) {
+                    anyhow::bail!(
+                        "stage `{name}`: artifact `{a}` is declared twice or is not a file stem"
+                    );
+                }
+            }
+        }
+        if let Some(a) = self
+            .reads_artifacts
+            .iter()
+            .find(|a| self.writes.contains(a))
+        {
+            anyhow::bail!("stage `{name}` reads its own output `{a}`");
+        }
+        Ok(())
     }
+    pub fn reads_table(&self, table: &str) -> bool {
+        self.reads.iter().any(|t| t.name == table)
+    }
+    /// What the stage looked at while it ran ([`Run::take_reads`],
+    /// [`ArtifactStore::take_reads`]) against what it declares: an
+    /// undeclared input would be missing from its cache key.
+    pub fn check_reads(&self, tables: &BTreeSet<&str>, artifacts: &BTreeSet<String>) -> Result<()> {
+        if let Some(t) = tables.iter().find(|t| !self.reads_table(t)) {
+            anyhow::bail!(
+                "stage `{}` read table `{t}`, which its StageSpec.reads does not declare (a bug in the plugin: the cache key would miss it)",
+                self.name
+            );
+        }
+        if let Some(a) = artifacts
+            .iter()
+            .find(|a| !self.reads_artifacts.contains(&a.as_str()))
+        {
+            anyhow::bail!(
+                "stage `{}` read artifact `{a}`, which its StageSpec.reads_artifacts does not declare (a bug in the plugin: the DAG edge and cache key would miss it)",
+                self.name
+            );
+        }
+        Ok(())
+    }
+}
+
+/// A step of the DAG. Edges come from what stages declare ([`StageSpec`]),
+/// not from a hard-coded order.
+pub trait Stage: Send + Sync {
+    /// What the stage reads and writes; a `const` in the stage's file.
+    fn spec(&self) -> &'static StageSpec;
     /// Check the config section before anything runs.
     fn validate_config(&self, _config: &toml::Table) -> Result<()> {
         Ok(())
@@ -224,6 +316,25 @@ pub trait Stage: Send + Sync {
     /// supports it, e.g. `sparkout stage datum --planes ...`.
     fn run_standalone(&self, _args: &StageArgs) -> Option<Result<serde_json::Value>> {
         None
+    }
+}
+
+/// Shorthands for the spec's fields (callers hold `Arc<dyn Stage>`).
+impl dyn Stage {
+    pub fn name(&self) -> &'static str {
+        self.spec().name
+    }
+    pub fn version(&self) -> u32 {
+        self.spec().version
+    }
+    pub fn reads_artifacts(&self) -> &'static [&'static str] {
+        self.spec().reads_artifacts
+    }
+    pub fn writes(&self) -> &'static [&'static str] {
+        self.spec().writes
+    }
+    pub fn about(&self) -> &'static str {
+        self.spec().about
     }
 }
 

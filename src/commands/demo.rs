@@ -10,114 +10,24 @@ use crate::cli::ConfigArgs;
 use crate::progress::BatchProgress;
 use crate::registry;
 
-/// One demo fleet: plugin, runs, the effect its "real" machine has.
-struct DemoFleet {
-    plugin: &'static str,
-    runs: usize,
-    effect: &'static str,
-}
-
-/// Sized to generate and run in a few seconds in release; each effect is
-/// one the plugin's end-to-end test names first at this fleet size.
-const FLEETS: [DemoFleet; 6] = [
-    DemoFleet {
-        plugin: "robot",
-        runs: 4,
-        effect: "wheel_wear",
-    },
-    DemoFleet {
-        plugin: "gantry",
-        runs: 6,
-        effect: "thermal_bow",
-    },
-    DemoFleet {
-        plugin: "guideway",
-        runs: 6,
-        effect: "thermal_infeed",
-    },
-    DemoFleet {
-        plugin: "mill",
-        runs: 6,
-        effect: "thermal_growth",
-    },
-    DemoFleet {
-        plugin: "form",
-        runs: 9,
-        effect: "wheel_wear",
-    },
-    DemoFleet {
-        plugin: "servo",
-        runs: 4,
-        effect: "servo_lag",
-    },
-];
-
-fn generate(f: &DemoFleet, root: &Path, effects: &[EffectSpec]) -> anyhow::Result<usize> {
-    use sparkout_datasets as d;
-    let seed = 1;
-    let dirs = match f.plugin {
-        "robot" => d::robot::generate_fleet(root, &d::robot::RobotFleetConfig::demo(), effects)?,
-        "gantry" => d::gantry::generate_fleet(
-            root,
-            &d::gantry::GantryFleetConfig {
-                runs: f.runs,
-                seed,
-                ..Default::default()
-            },
-            effects,
-        )?,
-        "guideway" => d::guideway::generate_fleet(
-            root,
-            &d::guideway::GuidewayFleetConfig {
-                runs: f.runs,
-                seed,
-                ..Default::default()
-            },
-            effects,
-        )?,
-        "mill" => d::mill::generate_fleet(
-            root,
-            &d::mill::MillFleetConfig {
-                runs: f.runs,
-                seed,
-                ..Default::default()
-            },
-            effects,
-        )?,
-        "form" => d::form::generate_fleet(
-            root,
-            &d::form::FormFleetConfig {
-                runs: f.runs,
-                seed,
-                ..Default::default()
-            },
-            effects,
-        )?,
-        "servo" => d::servo::generate_fleet(
-            root,
-            &d::servo::ServoFleetConfig {
-                runs: f.runs,
-                seed,
-                ..Default::default()
-            },
-            effects,
-        )?,
-        other => anyhow::bail!("demo: no generator for `{other}`"),
-    };
-    Ok(dirs.len())
-}
-
 pub fn demo(out: &Path) -> anyhow::Result<u8> {
     let runs_dir = out.join("runs");
     let results = out.join("out");
-    for f in &FLEETS {
-        let effects: Vec<EffectSpec> =
-            vec![f.effect.parse().map_err(|e: String| anyhow::anyhow!(e))?];
-        let n = generate(f, &runs_dir, &effects)?;
+    // Every registered generator with a demo fleet, in registry order.
+    let mut injected = Vec::new();
+    for g in sparkout_datasets::all_generators() {
+        let Some(fleet) = g.demo() else { continue };
+        let effects: Vec<EffectSpec> = vec![fleet
+            .effect
+            .parse()
+            .map_err(|e: String| anyhow::anyhow!(e))?];
+        let n = g.generate_demo(&runs_dir, &effects)?.runs;
         eprintln!(
             "sparkout demo: generated {n} {} runs whose machine has an unmodelled effect: {}",
-            f.plugin, f.effect
+            g.name(),
+            fleet.effect
         );
+        injected.push(format!("{} → {}", g.name(), fleet.effect));
     }
     let engine = registry::engine(&ConfigArgs {
         config: None,
@@ -131,11 +41,7 @@ pub fn demo(out: &Path) -> anyhow::Result<u8> {
     super::run::print_outcome(&outcome);
     println!(
         "injected (withheld from the model): {}",
-        FLEETS
-            .iter()
-            .map(|f| format!("{} → {}", f.plugin, f.effect))
-            .collect::<Vec<_>>()
-            .join(", ")
+        injected.join(", ")
     );
     println!(
         "next: open {} in a browser, or try `sparkout stage datum --run {} --json`",

@@ -43,7 +43,14 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<u8> {
             effects,
             ae_rate_hz,
             list_effects,
-        } => generate::generate(&what, runs, seed, out, &effects, ae_rate_hz, list_effects),
+        } => {
+            let opts = sparkout_datasets::GenerateOptions {
+                runs,
+                seed,
+                ae_rate_hz,
+            };
+            generate::generate(&what, &opts, out, &effects, list_effects)
+        }
         Command::Import {
             files,
             out,

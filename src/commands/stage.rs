@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Context};
 use sparkout_pipeline::contracts::{write_json_atomic, write_parquet_atomic};
-use sparkout_pipeline::StageArgs;
+use sparkout_pipeline::{ConfigError, StageArgs};
 
 use crate::cli::ConfigArgs;
 use crate::registry;
@@ -66,7 +66,7 @@ fn flags_as_config(
                 args.remove(&flag);
                 sets.push(set);
             }
-            Err(e) if e.to_string().contains("unknown key") => bail!(
+            Err(e) if ConfigError::is_unknown_key(&e) => bail!(
                 "stage flag --{flag}: {e} in [{}.{name}]; with --run, stage flags are that section's config keys (see configs/nightly.toml), or use --set {}.{name}.<key>=<value>",
                 plugin.name(),
                 plugin.name()

@@ -177,3 +177,67 @@ fn unknown_machine_says_where_it_looked() {
     let m = r.resolve(&spec).unwrap();
     assert_eq!(m.f64("wheel_radius_mm"), Some(50.0));
 }
+
+/// Writes an AE log with `groups` row groups of `per_group` rows each.
+fn ae_with_row_groups(p: &std::path::Path, t: Vec<f64>, per_group: usize) {
+    use parquet::arrow::ArrowWriter;
+    use parquet::file::properties::WriterProperties;
+    let n = t.len();
+    let b = BatchBuilder::new()
+        .f64("t_s", t)
+        .f32("ae_v", (0..n).map(|i| (i % 17) as f32 * 1e-3).collect())
+        .build();
+    let props = WriterProperties::builder()
+        .set_max_row_group_row_count(Some(per_group))
+        .build();
+    let mut w =
+        ArrowWriter::try_new(std::fs::File::create(p).unwrap(), b.schema(), Some(props)).unwrap();
+    w.write(&b).unwrap();
+    w.close().unwrap();
+}
+
+#[test]
+fn ae_stream_parallel_decode_keeps_file_order() {
+    let d = tempfile::tempdir().unwrap();
+    let p = d.path().join("ae.parquet");
+    let n = 23_456;
+    ae_with_row_groups(&p, (0..n).map(|i| i as f64 * 1e-6).collect(), 1_000);
+    let read = |threads| -> (Vec<usize>, Vec<f64>, Vec<f32>) {
+        let mut firsts = vec![];
+        let (mut t, mut v) = (vec![], vec![]);
+        for c in AeStream::open_with(&p, 700, threads).unwrap() {
+            let c = c.unwrap();
+            firsts.push(c.first_row);
+            t.extend(c.t_s);
+            v.extend(c.ae_v);
+        }
+        (firsts, t, v)
+    };
+    let one = read(1);
+    assert_eq!(one.1.len(), n);
+    assert!(one.1.windows(2).all(|w| w[0] < w[1]));
+    for threads in [2, 3, 8] {
+        assert_eq!(read(threads), one, "{threads} decoder threads");
+    }
+}
+
+#[test]
+fn ae_stream_parallel_decode_reports_the_first_bad_row() {
+    let d = tempfile::tempdir().unwrap();
+    let p = d.path().join("ae.parquet");
+    let n = 12_000;
+    let mut t: Vec<f64> = (0..n).map(|i| i as f64 * 1e-6).collect();
+    // Back in time exactly at a row-group boundary (group 5 of 1 000 rows),
+    // where only the consumer can see it, and later a NaN inside a group.
+    t[5_000] = 1e-6;
+    t[9_123] = f64::NAN;
+    ae_with_row_groups(&p, t, 1_000);
+    for threads in [1, 4] {
+        let err = AeStream::open_with(&p, 10_000, threads)
+            .unwrap()
+            .find_map(|c| c.err())
+            .expect("an error");
+        assert_eq!(err.column.as_deref(), Some("t_s"));
+        assert_eq!(err.row, Some(5_000), "{threads} threads: {err}");
+    }
+}

@@ -6,6 +6,7 @@
 mod cli_fleet;
 mod cli_stage_diagnose;
 mod common;
+mod config_defaults;
 mod contracts_bad_input;
 mod diagnose_validate;
 mod form_diagnosis_e2e;
@@ -21,3 +22,4 @@ mod replay_cli;
 mod robot_diagnosis_e2e;
 mod robot_stages;
 mod servo_e2e;
+mod umich_cnc;

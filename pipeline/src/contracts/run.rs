@@ -1,5 +1,6 @@
 //! run.toml (CONTRACTS.md §1) and machine configs.
 
+use crate::values::toml_f64;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
@@ -56,14 +57,6 @@ fn req_str(path: &Path, run: &toml::Table, key: &str) -> Result<String, InputErr
     }
 }
 
-fn num(v: &toml::Value) -> Option<f64> {
-    match v {
-        toml::Value::Float(f) => Some(*f),
-        toml::Value::Integer(i) => Some(*i as f64),
-        _ => None,
-    }
-}
-
 impl RunSpec {
     pub const FILE: &'static str = "run.toml";
 
@@ -108,10 +101,14 @@ impl RunSpec {
                 let t = v
                     .as_table()
                     .ok_or_else(|| InputError::new(&path, "[ae] must be a table").column("ae"))?;
-                let sample_rate_hz = t.get("sample_rate_hz").and_then(num).ok_or_else(|| {
-                    InputError::new(&path, "[ae].sample_rate_hz (a positive number) is required")
+                let sample_rate_hz =
+                    t.get("sample_rate_hz").and_then(toml_f64).ok_or_else(|| {
+                        InputError::new(
+                            &path,
+                            "[ae].sample_rate_hz (a positive number) is required",
+                        )
                         .column("ae.sample_rate_hz")
-                })?;
+                    })?;
                 if !(sample_rate_hz.is_finite() && sample_rate_hz > 0.0) {
                     return Err(InputError::new(&path, "[ae].sample_rate_hz must be > 0")
                         .column("ae.sample_rate_hz"));
@@ -127,7 +124,7 @@ impl RunSpec {
                         .column("ae.kind"))
                     }
                 };
-                let clock_offset_s = t.get("clock_offset_s").and_then(num).unwrap_or(0.0);
+                let clock_offset_s = t.get("clock_offset_s").and_then(toml_f64).unwrap_or(0.0);
                 Some(AeSpec {
                     sample_rate_hz,
                     kind,
@@ -155,7 +152,7 @@ impl RunSpec {
 
     /// A number from `[process]`, with a default.
     pub fn process_f64(&self, key: &str, default: f64) -> f64 {
-        self.process.get(key).and_then(num).unwrap_or(default)
+        self.process.get(key).and_then(toml_f64).unwrap_or(default)
     }
 }
 
@@ -180,7 +177,7 @@ impl MachineConfig {
     }
     /// A number at a dotted path.
     pub fn f64(&self, dotted: &str) -> Option<f64> {
-        self.get(dotted).and_then(num)
+        self.get(dotted).and_then(toml_f64)
     }
 }
 

@@ -4,13 +4,7 @@
 use std::fmt::Write;
 
 use super::Diagnosis;
-
-fn esc(s: &str) -> String {
-    s.replace('&', "&amp;")
-        .replace('<', "&lt;")
-        .replace('>', "&gt;")
-        .replace('"', "&quot;")
-}
+use crate::report::esc;
 
 /// Millimetres at micrometre resolution (what an engineer reads), with
 /// scientific notation only for values below that.

@@ -156,6 +156,9 @@ impl Engine {
         resolver: MachineResolver,
         config: PipelineConfig,
     ) -> Result<Self> {
+        for p in &plugins {
+            check_plugin(p.as_ref())?;
+        }
         let engine = Engine {
             plugins,
             resolver,
@@ -446,20 +449,19 @@ impl Engine {
                 .part("config", &config_text(&cfg))
                 .part("run.toml", &run.spec.text)
                 .part("machine", &run.machine.text);
-            for t in stage.reads_tables() {
-                let schema = table_schema(t)
-                    .ok_or_else(|| anyhow!("stage `{}` reads unknown table `{t}`", stage.name()))?;
+            for schema in stage.spec().reads {
+                let t = schema.name;
                 if !run.has_table(schema) {
                     key.part(t, "absent");
                     continue;
                 }
-                if !table_hashes.contains_key(*t) {
+                if !table_hashes.contains_key(t) {
                     let h = hash_file(&run.table_path(schema)).with_context(|| {
                         format!("cannot hash {}", run.table_path(schema).display())
                     })?;
                     table_hashes.insert(t.to_string(), h);
                 }
-                key.part(t, &table_hashes[*t]);
+                key.part(t, &table_hashes[t]);
             }
             for a in stage.reads_artifacts() {
                 key.part(
@@ -496,17 +498,9 @@ impl Engine {
                 config: &cfg,
                 artifacts: &store,
             };
-            let output = stage
-                .run(&ctx)
-                .with_context(|| format!("stage `{}` of run `{}`", stage.name(), run.spec.id))?;
+            let output = run_checked(stage.as_ref(), &ctx)?;
             let mut files = BTreeMap::new();
             for (name, batch) in &output.artifacts {
-                if !stage.writes().contains(&name.as_str()) {
-                    bail!(
-                        "stage `{}` produced undeclared artifact `{name}`",
-                        stage.name()
-                    );
-                }
                 let bytes = parquet_bytes(batch)?;
                 files.insert(format!("{name}.parquet"), hash_bytes(&bytes));
                 pending.push((run_out.join(format!("{name}.parquet")), Pending(bytes)));
@@ -786,9 +780,7 @@ impl Engine {
                 config: &cfg,
                 artifacts: &store,
             };
-            let output = stage
-                .run(&ctx)
-                .with_context(|| format!("stage `{}` of run `{}`", stage.name(), run.spec.id))?;
+            let output = run_checked(stage.as_ref(), &ctx)?;
             for (name, batch) in &output.artifacts {
                 store.insert(name, batch.clone());
             }
@@ -842,6 +834,58 @@ impl Engine {
 }
 
 struct Pending(Vec<u8>);
+
+/// Run one stage and hold it to its [`StageSpec`]: it may read only the
+/// tables and artifacts it declares and write only the artifacts it declares
+/// (what the cache key and the DAG are built from).
+fn run_checked(stage: &dyn Stage, ctx: &StageContext) -> Result<StageOutput> {
+    let spec = stage.spec();
+    ctx.run.take_reads();
+    ctx.artifacts.take_reads();
+    let output = stage
+        .run(ctx)
+        .with_context(|| format!("stage `{}` of run `{}`", spec.name, ctx.run.spec.id))?;
+    spec.check_reads(&ctx.run.take_reads(), &ctx.artifacts.take_reads())?;
+    if let Some((name, _)) = output
+        .artifacts
+        .iter()
+        .find(|(name, _)| !spec.writes.contains(&name.as_str()))
+    {
+        bail!(
+            "stage `{}` produced undeclared artifact `{name}`",
+            spec.name
+        );
+    }
+    Ok(output)
+}
+
+/// What a plugin declares, checked when the engine is built: every stage's
+/// spec on its own, stage names unique within the plugin, and the DAG its
+/// stages form (each artifact read is written by exactly one stage, no
+/// cycle).
+fn check_plugin(plugin: &dyn MachinePlugin) -> Result<()> {
+    let stages = plugin.stages();
+    let mut names = BTreeSet::new();
+    for s in &stages {
+        s.spec()
+            .check()
+            .with_context(|| format!("plugin `{}`", plugin.name()))?;
+        if !names.insert(s.name()) {
+            bail!(
+                "plugin `{}` has two stages named `{}`",
+                plugin.name(),
+                s.name()
+            );
+        }
+    }
+    dag::topological_order(&stages).with_context(|| format!("plugin `{}`", plugin.name()))?;
+    for set in plugin.required_tables() {
+        if let Some(t) = set.iter().find(|t| table_schema(t).is_none()) {
+            bail!("plugin `{}` requires unknown table `{t}`", plugin.name());
+        }
+    }
+    Ok(())
+}
 
 /// Parquet bytes of a batch (zstd), so the hash is known before writing.
 pub fn parquet_bytes(batch: &RecordBatch) -> Result<Vec<u8>> {

@@ -155,7 +155,10 @@ mod tests {
 
     #[test]
     fn plain_quoted_crlf_and_multiline() {
-        let recs = all("a,b,c\r\n1,\"x, y\",3\n\"he said \"\"hi\"\"\",\"two\nlines\",\n4,5,6", b',');
+        let recs = all(
+            "a,b,c\r\n1,\"x, y\",3\n\"he said \"\"hi\"\"\",\"two\nlines\",\n4,5,6",
+            b',',
+        );
         assert_eq!(recs[0], (1, vec!["a".into(), "b".into(), "c".into()]));
         assert_eq!(recs[1].1, ["1", "x, y", "3"]);
         assert_eq!(recs[2].1, ["he said \"hi\"", "two\nlines", ""]);

@@ -96,7 +96,11 @@ impl SourceTable {
             .into_iter()
             .enumerate()
             .map(|(i, h)| {
-                let h = if i == 0 { h.trim_start_matches('\u{feff}').to_string() } else { h };
+                let h = if i == 0 {
+                    h.trim_start_matches('\u{feff}').to_string()
+                } else {
+                    h
+                };
                 h.trim().to_string()
             })
             .collect();

@@ -16,7 +16,7 @@ use anyhow::{Context, Result};
 
 use super::canopen::Outcome;
 use super::source::Plan;
-use crate::contracts::{write_atomic, write_parquet_atomic, BatchBuilder, RunSpec, ALL_TABLES};
+use crate::contracts::{write_atomic, write_parquet_atomic, MotionColumns, RunSpec, ALL_TABLES};
 
 /// What goes into `[replay]` of the recorded run.toml.
 #[derive(Debug, Clone)]
@@ -66,24 +66,15 @@ pub fn write_recorded_run(
         );
     }
     let rows = t.len();
-    let [cx, cy, cz] = cmd;
-    let [ax, ay, az] = act;
-    let mut b = BatchBuilder::new()
-        .f64("t_s", t)
-        .f64("cmd_x_mm", cx)
-        .f64("cmd_y_mm", cy)
-        .f64("cmd_z_mm", cz)
-        .f64("act_x_mm", ax)
-        .f64("act_y_mm", ay)
-        .f64("act_z_mm", az);
-    if plan.feed_mm_s.is_some() {
-        b = b.f64("feed_mm_s", feed);
-    }
-    if plan.segment.is_some() {
-        b = b.i32("segment", seg);
-    }
+    let motion = MotionColumns {
+        t_s: t,
+        cmd_mm: cmd,
+        act_mm: Some(act),
+        feed_mm_s: plan.feed_mm_s.is_some().then_some(feed),
+        segment: plan.segment.is_some().then_some(seg),
+    };
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
-    write_parquet_atomic(&out.join("motion.parquet"), &b.build())?;
+    write_parquet_atomic(&out.join("motion.parquet"), &motion.into_batch())?;
 
     // The other tables the plugin may need, byte for byte.
     let mut copied = Vec::new();

@@ -31,6 +31,20 @@ pub fn fmt_mm(v: f64) -> String {
     }
 }
 
+/// A number with `digits` decimals; absent, NaN or ±∞ as "—" (a report
+/// cell says "not computable" rather than printing NaN).
+pub fn fmt_fixed(x: Option<f64>, digits: usize) -> String {
+    x.filter(|v| v.is_finite())
+        .map(|v| format!("{v:.digits$}"))
+        .unwrap_or_else(|| "—".into())
+}
+
+/// Millimetres shown in micrometres with `digits` decimals (what an
+/// engineer reads off a report; artifacts stay in mm).
+pub fn fmt_um(mm: Option<f64>, digits: usize) -> String {
+    fmt_fixed(mm.map(|v| v * 1e3), digits)
+}
+
 /// A simple table: header and rows of already-formatted cells.
 pub fn table(header: &[&str], rows: &[Vec<String>]) -> String {
     let mut s = String::from("<table><thead><tr>");

@@ -17,7 +17,7 @@ use arrow::record_batch::RecordBatch;
 use serde_json::Value;
 use sparkout_pipeline::contracts::schema::PROFILE;
 use sparkout_pipeline::contracts::{batch_f64, batch_i32, write_atomic, BatchBuilder, Table};
-use sparkout_pipeline::{Result, Stage, StageArgs, StageContext, StageOutput};
+use sparkout_pipeline::{Result, Stage, StageArgs, StageContext, StageOutput, StageSpec};
 
 use super::config::{check_config, Check};
 use super::curvature::CurvatureConfig;
@@ -91,24 +91,18 @@ pub struct CldataStage;
 
 const KEYS: &[(&str, Check)] = &[];
 
+const SPEC: StageSpec = StageSpec {
+    name: "form_cldata",
+    version: 1,
+    reads: &[],
+    reads_artifacts: &["toolpath"],
+    writes: &["cldata"],
+    about: "CLDATA-like text programs (GOTO / X, Z, A, C) per segment; run-less: --profile FILE --r-max-mm --range-mm --segments --cldata-dir DIR",
+};
+
 impl Stage for CldataStage {
-    fn name(&self) -> &'static str {
-        "form_cldata"
-    }
-    fn version(&self) -> u32 {
-        1
-    }
-    fn reads_tables(&self) -> &'static [&'static str] {
-        &[]
-    }
-    fn reads_artifacts(&self) -> &'static [&'static str] {
-        &["toolpath"]
-    }
-    fn writes(&self) -> &'static [&'static str] {
-        &["cldata"]
-    }
-    fn about(&self) -> &'static str {
-        "CLDATA-like text programs (GOTO / X, Z, A, C) per segment; run-less: --profile FILE --r-max-mm --range-mm --segments --cldata-dir DIR"
+    fn spec(&self) -> &'static StageSpec {
+        &SPEC
     }
     fn validate_config(&self, config: &toml::Table) -> Result<()> {
         check_config(config, KEYS)

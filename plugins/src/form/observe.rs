@@ -20,8 +20,9 @@ use std::collections::BTreeMap;
 
 use anyhow::bail;
 use serde_json::json;
+use sparkout_pipeline::contracts::schema::PROFILE;
 use sparkout_pipeline::contracts::BatchBuilder;
-use sparkout_pipeline::{cfg_f64, InputError, Result, Stage, StageContext, StageOutput};
+use sparkout_pipeline::{cfg_f64, InputError, Result, Stage, StageContext, StageOutput, StageSpec};
 
 use super::config::{check_config, check_window, curvature, Check, WINDOW_KEY};
 use super::model::{
@@ -37,24 +38,18 @@ pub const KEYS: &[(&str, Check)] = &[
 
 pub struct ObserveStage;
 
+const SPEC: StageSpec = StageSpec {
+    name: "observe",
+    version: 1,
+    reads: &[&PROFILE],
+    reads_artifacts: &[],
+    writes: &["observations"],
+    about: "paired observations profile_error (measured vs δ(φ) of the model; covariates phi_rad, wheel_radius_mm, t_s, removed_mm3)",
+};
+
 impl Stage for ObserveStage {
-    fn name(&self) -> &'static str {
-        "observe"
-    }
-    fn version(&self) -> u32 {
-        1
-    }
-    fn reads_tables(&self) -> &'static [&'static str] {
-        &["profile"]
-    }
-    fn reads_artifacts(&self) -> &'static [&'static str] {
-        &[]
-    }
-    fn writes(&self) -> &'static [&'static str] {
-        &["observations"]
-    }
-    fn about(&self) -> &'static str {
-        "paired observations profile_error (measured vs δ(φ) of the model; covariates phi_rad, wheel_radius_mm, t_s, removed_mm3)"
+    fn spec(&self) -> &'static StageSpec {
+        &SPEC
     }
     fn validate_config(&self, config: &toml::Table) -> Result<()> {
         check_config(config, KEYS)?;

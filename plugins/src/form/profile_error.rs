@@ -8,8 +8,9 @@ use std::collections::BTreeSet;
 use anyhow::bail;
 use arrow::record_batch::RecordBatch;
 use serde_json::{json, Value};
+use sparkout_pipeline::contracts::schema::PROFILE;
 use sparkout_pipeline::contracts::BatchBuilder;
-use sparkout_pipeline::{cfg_f64, InputError, Result, Stage, StageContext, StageOutput};
+use sparkout_pipeline::{cfg_f64, InputError, Result, Stage, StageContext, StageOutput, StageSpec};
 
 use super::config::{check_config, check_window, curvature, Check, WINDOW_KEY};
 use super::curvature::Profile;
@@ -149,24 +150,18 @@ pub fn compute(
 
 pub struct ProfileErrorStage;
 
+const SPEC: StageSpec = StageSpec {
+    name: "profile_error",
+    version: 1,
+    reads: &[&PROFILE],
+    reads_artifacts: &[],
+    writes: &["profile_error", "compensation"],
+    about: "profile error δ(φ) of the design profile for the actual wheel radius vs the programmed nominal, with curvature κ(φ) (MODELS.md §4)",
+};
+
 impl Stage for ProfileErrorStage {
-    fn name(&self) -> &'static str {
-        "profile_error"
-    }
-    fn version(&self) -> u32 {
-        1
-    }
-    fn reads_tables(&self) -> &'static [&'static str] {
-        &["profile"]
-    }
-    fn reads_artifacts(&self) -> &'static [&'static str] {
-        &[]
-    }
-    fn writes(&self) -> &'static [&'static str] {
-        &["profile_error", "compensation"]
-    }
-    fn about(&self) -> &'static str {
-        "profile error δ(φ) of the design profile for the actual wheel radius vs the programmed nominal, with curvature κ(φ) (MODELS.md §4)"
+    fn spec(&self) -> &'static StageSpec {
+        &SPEC
     }
     fn validate_config(&self, config: &toml::Table) -> Result<()> {
         check_config(config, KEYS)?;

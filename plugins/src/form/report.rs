@@ -5,13 +5,11 @@
 use serde_json::Value;
 use sparkout_pipeline::contracts::{batch_f64, batch_i32};
 use sparkout_pipeline::report::svg::{bar_chart, xy_chart, Mark, Series};
-use sparkout_pipeline::report::{esc, table};
+use sparkout_pipeline::report::{esc, fmt_um, table};
 use sparkout_pipeline::{ArtifactStore, ReportSection, Run};
 
 fn um(x: Option<f64>) -> String {
-    x.filter(|v| v.is_finite())
-        .map(|v| format!("{:.2}", v * 1e3))
-        .unwrap_or_else(|| "—".into())
+    fmt_um(x, 2)
 }
 
 /// Every k-th point so a chart has at most `max` points per series.

@@ -8,8 +8,9 @@
 use anyhow::{anyhow, bail};
 use arrow::record_batch::RecordBatch;
 use serde_json::{json, Value};
+use sparkout_pipeline::contracts::schema::PROFILE;
 use sparkout_pipeline::contracts::BatchBuilder;
-use sparkout_pipeline::{cfg_f64, InputError, Result, Stage, StageContext, StageOutput};
+use sparkout_pipeline::{cfg_f64, InputError, Result, Stage, StageContext, StageOutput, StageSpec};
 
 use super::config::{check_config, check_count, check_window, curvature, Check, WINDOW_KEY};
 use super::curvature::Profile;
@@ -334,24 +335,18 @@ pub fn compute(
 
 pub struct SegmentStage;
 
+const SPEC: StageSpec = StageSpec {
+    name: "segment",
+    version: 1,
+    reads: &[&PROFILE],
+    reads_artifacts: &[],
+    writes: &["segments", "segment_error", "segment_sweep", "toolpath"],
+    about: "split the usable wheel-radius range into N segments: nominal, range and max profile error per segment, tool paths (X, Z, A, C), sweep over N (MODELS.md §4)",
+};
+
 impl Stage for SegmentStage {
-    fn name(&self) -> &'static str {
-        "segment"
-    }
-    fn version(&self) -> u32 {
-        1
-    }
-    fn reads_tables(&self) -> &'static [&'static str] {
-        &["profile"]
-    }
-    fn reads_artifacts(&self) -> &'static [&'static str] {
-        &[]
-    }
-    fn writes(&self) -> &'static [&'static str] {
-        &["segments", "segment_error", "segment_sweep", "toolpath"]
-    }
-    fn about(&self) -> &'static str {
-        "split the usable wheel-radius range into N segments: nominal, range and max profile error per segment, tool paths (X, Z, A, C), sweep over N (MODELS.md §4)"
+    fn spec(&self) -> &'static StageSpec {
+        &SPEC
     }
     fn validate_config(&self, config: &toml::Table) -> Result<()> {
         validate(config)

@@ -17,7 +17,7 @@ use nalgebra::{Matrix3, Vector3};
 use serde_json::{json, Value};
 use sparkout_pipeline::contracts::schema::TOPOGRAPHY;
 use sparkout_pipeline::contracts::{BatchBuilder, Table};
-use sparkout_pipeline::{Result, Stage, StageArgs, StageContext, StageOutput};
+use sparkout_pipeline::{Result, Stage, StageArgs, StageContext, StageOutput, StageSpec};
 
 use super::config::{check_config, Check, STATES};
 use super::grid;
@@ -202,24 +202,18 @@ pub struct FlatnessStage;
 
 const KEYS: &[(&str, Check)] = &[("state", Check::OneOf(&STATES))];
 
+const SPEC: StageSpec = StageSpec {
+    name: "flatness",
+    version: 1,
+    reads: &[&TOPOGRAPHY],
+    reads_artifacts: &[],
+    writes: &["flatness"],
+    about: "least-squares and exact minimum-zone flatness of a topography state (MODELS.md §2.4)",
+};
+
 impl Stage for FlatnessStage {
-    fn name(&self) -> &'static str {
-        "flatness"
-    }
-    fn version(&self) -> u32 {
-        1
-    }
-    fn reads_tables(&self) -> &'static [&'static str] {
-        &["topography"]
-    }
-    fn reads_artifacts(&self) -> &'static [&'static str] {
-        &[]
-    }
-    fn writes(&self) -> &'static [&'static str] {
-        &["flatness"]
-    }
-    fn about(&self) -> &'static str {
-        "least-squares and exact minimum-zone flatness of a topography state (MODELS.md §2.4)"
+    fn spec(&self) -> &'static StageSpec {
+        &SPEC
     }
     fn validate_config(&self, config: &toml::Table) -> Result<()> {
         check_config(config, KEYS)

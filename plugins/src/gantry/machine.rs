@@ -8,6 +8,7 @@
 //! y along the bridge; stringer k runs at y = `stringerk.y_mm`, so the
 //! bridge's span is the distance between the stringers.
 
+use sparkout_pipeline::toml_f64;
 use std::f64::consts::PI;
 
 use sparkout_pipeline::contracts::MachineConfig;
@@ -80,14 +81,6 @@ struct Reader<'a> {
     run_toml: std::path::PathBuf,
 }
 
-fn num(v: &toml::Value) -> Option<f64> {
-    match v {
-        toml::Value::Float(f) => Some(*f),
-        toml::Value::Integer(i) => Some(*i as f64),
-        _ => None,
-    }
-}
-
 impl Reader<'_> {
     fn err(&self, key: &str, msg: String) -> InputError {
         InputError::new(&self.m.source, msg).column(key)
@@ -109,7 +102,7 @@ impl Reader<'_> {
     fn pos(&self, section: &str, key: &str, process_key: Option<&str>) -> Result<f64, InputError> {
         if let Some(pk) = process_key {
             if let Some(v) = self.process.get(pk) {
-                return match num(v) {
+                return match toml_f64(v) {
                     Some(x) if x.is_finite() && x > 0.0 => Ok(x),
                     _ => Err(InputError::new(
                         &self.run_toml,
@@ -126,7 +119,7 @@ impl Reader<'_> {
                 format!("required key [{section}].{key} is missing"),
             )
         })?;
-        match num(v) {
+        match toml_f64(v) {
             Some(x) if x.is_finite() && x > 0.0 => Ok(x),
             _ => Err(self.err(
                 &dotted,
@@ -135,7 +128,7 @@ impl Reader<'_> {
         }
     }
     fn opt_num(&self, section: &str, key: &str) -> Option<f64> {
-        self.m.table.get(section)?.get(key).and_then(num)
+        self.m.table.get(section)?.get(key).and_then(toml_f64)
     }
     fn list(&self, section: &str, key: &str) -> Result<Vec<f64>, InputError> {
         let dotted = format!("{section}.{key}");
@@ -154,7 +147,7 @@ impl Reader<'_> {
         a.iter()
             .enumerate()
             .map(|(i, x)| {
-                num(x).ok_or_else(|| {
+                toml_f64(x).ok_or_else(|| {
                     self.err(
                         &dotted,
                         format!("[{section}].{key}[{i}] is not a number: {x}"),

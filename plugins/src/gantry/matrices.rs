@@ -21,7 +21,7 @@ use anyhow::anyhow;
 use serde_json::json;
 use sparkout_pipeline::contracts::schema::{MOTION, TOPOGRAPHY};
 use sparkout_pipeline::contracts::BatchBuilder;
-use sparkout_pipeline::{InputError, Result, Stage, StageContext, StageOutput};
+use sparkout_pipeline::{InputError, Result, Stage, StageContext, StageOutput, StageSpec};
 
 use super::config::{check_config, Check};
 use super::grid::{self, Grid, Surface};
@@ -250,29 +250,23 @@ pub struct MatricesStage;
 
 const KEYS: &[(&str, Check)] = &[];
 
-impl Stage for MatricesStage {
-    fn name(&self) -> &'static str {
-        "matrices"
-    }
-    fn version(&self) -> u32 {
-        1
-    }
-    fn reads_tables(&self) -> &'static [&'static str] {
-        &["topography", "motion"]
-    }
-    fn reads_artifacts(&self) -> &'static [&'static str] {
-        &[]
-    }
-    fn writes(&self) -> &'static [&'static str] {
-        &[
+const SPEC: StageSpec = StageSpec {
+    name: "matrices",
+    version: 1,
+    reads: &[&TOPOGRAPHY, &MOTION],
+    reads_artifacts: &[],
+    writes: &[
             "static_matrix",
             "dynamic_matrix",
             "compensation_table",
             "compensation_path",
-        ]
-    }
-    fn about(&self) -> &'static str {
-        "static and dynamic compensation matrices Γ = τ − τ_pattern with each body's share (MODELS.md §2.1–2.3)"
+        ],
+    about: "static and dynamic compensation matrices Γ = τ − τ_pattern with each body's share (MODELS.md §2.1–2.3)",
+};
+
+impl Stage for MatricesStage {
+    fn spec(&self) -> &'static StageSpec {
+        &SPEC
     }
     fn validate_config(&self, config: &toml::Table) -> Result<()> {
         check_config(config, KEYS)

@@ -14,9 +14,9 @@
 
 use anyhow::anyhow;
 use serde_json::json;
-use sparkout_pipeline::contracts::schema::TOPOGRAPHY;
+use sparkout_pipeline::contracts::schema::{MOTION, TOPOGRAPHY};
 use sparkout_pipeline::contracts::{batch_f64, BatchBuilder};
-use sparkout_pipeline::{Result, Stage, StageContext, StageOutput};
+use sparkout_pipeline::{Result, Stage, StageContext, StageOutput, StageSpec};
 
 use super::config::{check_config, Check, STATES};
 use super::grid::{self, Grid};
@@ -57,24 +57,18 @@ pub fn nearest_samples(grid: &Grid, path: &[PathSample]) -> Vec<usize> {
         .collect()
 }
 
+const SPEC: StageSpec = StageSpec {
+    name: "observe",
+    version: 1,
+    reads: &[&TOPOGRAPHY, &MOTION],
+    reads_artifacts: &["removal"],
+    writes: &["observations"],
+    about: "paired observations surface_z (measured polished vs predicted) for the gap diagnosis (CONTRACTS.md §2)",
+};
+
 impl Stage for ObserveStage {
-    fn name(&self) -> &'static str {
-        "observe"
-    }
-    fn version(&self) -> u32 {
-        1
-    }
-    fn reads_tables(&self) -> &'static [&'static str] {
-        &["topography", "motion"]
-    }
-    fn reads_artifacts(&self) -> &'static [&'static str] {
-        &["removal"]
-    }
-    fn writes(&self) -> &'static [&'static str] {
-        &["observations"]
-    }
-    fn about(&self) -> &'static str {
-        "paired observations surface_z (measured polished vs predicted) for the gap diagnosis (CONTRACTS.md §2)"
+    fn spec(&self) -> &'static StageSpec {
+        &SPEC
     }
     fn validate_config(&self, config: &toml::Table) -> Result<()> {
         check_config(config, KEYS)

@@ -16,7 +16,9 @@
 use serde_json::{json, Value};
 use sparkout_pipeline::contracts::schema::TOPOGRAPHY;
 use sparkout_pipeline::contracts::{BatchBuilder, Table};
-use sparkout_pipeline::{InputError, Result, Stage, StageArgs, StageContext, StageOutput};
+use sparkout_pipeline::{
+    InputError, Result, Stage, StageArgs, StageContext, StageOutput, StageSpec,
+};
 
 use super::config::{check_config, Check, STATES};
 use super::flatness::least_squares;
@@ -376,24 +378,18 @@ fn load(t: &Table, state: &str, g: &Gantry) -> Result<Surface, InputError> {
     Ok(s)
 }
 
+const SPEC: StageSpec = StageSpec {
+    name: "polish_plan",
+    version: 1,
+    reads: &[&TOPOGRAPHY],
+    reads_artifacts: &[],
+    writes: &["polish_plan", "polish_surface"],
+    about: "selective polishing: placements covering every point above tolerance, dwell, time vs raster, breakeven area (MODELS.md §2.6)",
+};
+
 impl Stage for PolishPlanStage {
-    fn name(&self) -> &'static str {
-        "polish_plan"
-    }
-    fn version(&self) -> u32 {
-        1
-    }
-    fn reads_tables(&self) -> &'static [&'static str] {
-        &["topography"]
-    }
-    fn reads_artifacts(&self) -> &'static [&'static str] {
-        &[]
-    }
-    fn writes(&self) -> &'static [&'static str] {
-        &["polish_plan", "polish_surface"]
-    }
-    fn about(&self) -> &'static str {
-        "selective polishing: placements covering every point above tolerance, dwell, time vs raster, breakeven area (MODELS.md §2.6)"
+    fn spec(&self) -> &'static StageSpec {
+        &SPEC
     }
     fn validate_config(&self, config: &toml::Table) -> Result<()> {
         check_config(config, KEYS)

@@ -7,7 +7,7 @@ use anyhow::Context;
 use serde_json::json;
 use sparkout_pipeline::contracts::schema::{MOTION, TOPOGRAPHY};
 use sparkout_pipeline::contracts::BatchBuilder;
-use sparkout_pipeline::{InputError, Result, Run, Stage, StageContext, StageOutput};
+use sparkout_pipeline::{InputError, Result, Run, Stage, StageContext, StageOutput, StageSpec};
 
 use super::config::{check_config, Check, STATES};
 use super::grid::{self, Grid, Surface};
@@ -124,24 +124,18 @@ const KEYS: &[(&str, Check)] = &[
     ("path", Check::OneOf(&["motion", "raster"])),
 ];
 
+const SPEC: StageSpec = StageSpec {
+    name: "removal",
+    version: 1,
+    reads: &[&TOPOGRAPHY, &MOTION],
+    reads_artifacts: &[],
+    writes: &["removal"],
+    about: "Preston removal of the polishing path (dwell ⊛ tool influence, FFT) and the predicted final topography (MODELS.md §2.5)",
+};
+
 impl Stage for RemovalStage {
-    fn name(&self) -> &'static str {
-        "removal"
-    }
-    fn version(&self) -> u32 {
-        1
-    }
-    fn reads_tables(&self) -> &'static [&'static str] {
-        &["topography", "motion"]
-    }
-    fn reads_artifacts(&self) -> &'static [&'static str] {
-        &[]
-    }
-    fn writes(&self) -> &'static [&'static str] {
-        &["removal"]
-    }
-    fn about(&self) -> &'static str {
-        "Preston removal of the polishing path (dwell ⊛ tool influence, FFT) and the predicted final topography (MODELS.md §2.5)"
+    fn spec(&self) -> &'static StageSpec {
+        &SPEC
     }
     fn validate_config(&self, config: &toml::Table) -> Result<()> {
         check_config(config, KEYS)

@@ -5,17 +5,13 @@
 use serde_json::Value;
 use sparkout_pipeline::contracts::{batch_f64, batch_str};
 use sparkout_pipeline::report::svg::{bar_chart, heatmap, xy_chart, Mark, Series};
-use sparkout_pipeline::report::{esc, table};
+use sparkout_pipeline::report::{esc, fmt_um, table};
 use sparkout_pipeline::{ArtifactStore, ReportSection, Run};
 
 use super::machine::BODIES;
 
 fn um(v: f64) -> String {
-    if v.is_finite() {
-        format!("{:.1}", v * 1e3)
-    } else {
-        "—".into()
-    }
+    fmt_um(Some(v), 1)
 }
 
 fn cells(b: &arrow::record_batch::RecordBatch, col: &str) -> Option<Vec<(f64, f64, f64)>> {

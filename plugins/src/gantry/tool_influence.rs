@@ -3,6 +3,7 @@
 //! dwell-time maps of tool paths (raster, Archimedean spiral), and their
 //! convolution by FFT (realfft along rows, rustfft along columns).
 
+use sparkout_pipeline::toml_f64;
 use std::f64::consts::PI;
 use std::path::Path;
 use std::sync::Arc;
@@ -39,14 +40,6 @@ pub struct PolishTool {
     pub accel_mm_s2: f64,
 }
 
-fn num(v: &toml::Value) -> Option<f64> {
-    match v {
-        toml::Value::Float(f) => Some(*f),
-        toml::Value::Integer(i) => Some(*i as f64),
-        _ => None,
-    }
-}
-
 impl PolishTool {
     /// From the machine's `[polishing]` table; a run's `[process]` key of
     /// the same name wins. Negative or zero pressure and k_p are errors.
@@ -72,7 +65,7 @@ impl PolishTool {
                     format!("required key [polishing].{key} is missing"),
                 )
                 .column(col)),
-                (Some(v), _) => match num(v) {
+                (Some(v), _) => match toml_f64(v) {
                     Some(x) if x.is_finite() && x > 0.0 => Ok(x),
                     _ => Err(InputError::new(
                         file,

@@ -33,7 +33,7 @@ use nalgebra::{DMatrix, DVector};
 use serde_json::{json, Value};
 use sparkout_pipeline::contracts::schema::GUIDEWAY;
 use sparkout_pipeline::contracts::BatchBuilder;
-use sparkout_pipeline::{InputError, Result, Stage, StageContext, StageOutput};
+use sparkout_pipeline::{InputError, Result, Stage, StageContext, StageOutput, StageSpec};
 
 use super::ar_fpe;
 use super::config::{check_config, machine_f64, COMPENSATION_KEYS};
@@ -255,24 +255,18 @@ pub fn curve(
 
 pub struct CompensationStage;
 
+const SPEC: StageSpec = StageSpec {
+    name: "compensation",
+    version: 2,
+    reads: &[],
+    reads_artifacts: &["separation", "predictor"],
+    writes: &["compensation"],
+    about: "headstock path F(n+1) = f + g + δ̂z + reversal, thermal g fitted from infeed count/temperature (MODELS.md §3.4); dz_mm offsets with t_s for CAN replay",
+};
+
 impl Stage for CompensationStage {
-    fn name(&self) -> &'static str {
-        "compensation"
-    }
-    fn version(&self) -> u32 {
-        2
-    }
-    fn reads_tables(&self) -> &'static [&'static str] {
-        &[]
-    }
-    fn reads_artifacts(&self) -> &'static [&'static str] {
-        &["separation", "predictor"]
-    }
-    fn writes(&self) -> &'static [&'static str] {
-        &["compensation"]
-    }
-    fn about(&self) -> &'static str {
-        "headstock path F(n+1) = f + g + δ̂z + reversal, thermal g fitted from infeed count/temperature (MODELS.md §3.4); dz_mm offsets with t_s for CAN replay"
+    fn spec(&self) -> &'static StageSpec {
+        &SPEC
     }
     fn validate_config(&self, config: &toml::Table) -> Result<()> {
         check_config(config, COMPENSATION_KEYS)

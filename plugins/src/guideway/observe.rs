@@ -20,7 +20,7 @@ use std::collections::BTreeMap;
 
 use serde_json::json;
 use sparkout_pipeline::contracts::BatchBuilder;
-use sparkout_pipeline::{Result, Stage, StageContext, StageOutput};
+use sparkout_pipeline::{Result, Stage, StageContext, StageOutput, StageSpec};
 
 use super::compensation::ThermalReversal;
 use super::config::{check_config, OBSERVE_KEYS};
@@ -58,24 +58,18 @@ pub fn leave_pass_out_sim(s: &SepData, model: Option<&ThermalReversal>) -> Vec<O
 
 pub struct ObserveStage;
 
+const SPEC: StageSpec = StageSpec {
+    name: "observe",
+    version: 1,
+    reads: &[],
+    reads_artifacts: &["separation", "compensation"],
+    writes: &["observations"],
+    about: "paired observations motion_error (measured δz vs the straightness model from the other passes) for the gap diagnosis (CONTRACTS.md §2)",
+};
+
 impl Stage for ObserveStage {
-    fn name(&self) -> &'static str {
-        "observe"
-    }
-    fn version(&self) -> u32 {
-        1
-    }
-    fn reads_tables(&self) -> &'static [&'static str] {
-        &[]
-    }
-    fn reads_artifacts(&self) -> &'static [&'static str] {
-        &["separation", "compensation"]
-    }
-    fn writes(&self) -> &'static [&'static str] {
-        &["observations"]
-    }
-    fn about(&self) -> &'static str {
-        "paired observations motion_error (measured δz vs the straightness model from the other passes) for the gap diagnosis (CONTRACTS.md §2)"
+    fn spec(&self) -> &'static StageSpec {
+        &SPEC
     }
     fn validate_config(&self, config: &toml::Table) -> Result<()> {
         check_config(config, OBSERVE_KEYS)

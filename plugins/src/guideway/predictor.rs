@@ -16,7 +16,10 @@ use arrow::record_batch::RecordBatch;
 use serde_json::{json, Value};
 use sparkout_pipeline::contracts::schema::GUIDEWAY;
 use sparkout_pipeline::contracts::{read_parquet, BatchBuilder};
-use sparkout_pipeline::{InputError, Result, Stage, StageArgs, StageContext, StageOutput};
+use sparkout_pipeline::json_f64;
+use sparkout_pipeline::{
+    InputError, Result, Stage, StageArgs, StageContext, StageOutput, StageSpec,
+};
 
 use super::ar_fpe::{self, FpeSearch};
 use super::config::{flags_to_table, PredictorConfig};
@@ -119,35 +122,27 @@ pub fn predict(dz: &[f64], cfg: &PredictorConfig) -> Result<Prediction> {
     })
 }
 
-fn num(x: f64) -> Value {
-    if x.is_finite() {
-        json!(x)
-    } else {
-        Value::Null
-    }
-}
-
 /// `--json` of the stage (issue 6 item 2 plus the online model and Kalman).
 pub fn summary(p: &Prediction, cfg: &PredictorConfig, n: usize) -> Value {
     json!({
         "d": p.d,
         "p_max": cfg.p_max,
-        "fpe": p.search.fpe.iter().map(|v| num(*v)).collect::<Vec<_>>(),
+        "fpe": p.search.fpe.iter().map(|v| json_f64(*v)).collect::<Vec<_>>(),
         "order": p.search.order,
         "coefficients": p.search.chosen(),
-        "sigma2_mm2": num(p.search.sigma2_chosen()),
+        "sigma2_mm2": json_f64(p.search.sigma2_chosen()),
         "rls_coefficients": p.rls_coefficients,
-        "prediction_error_var_mm2": num(p.prediction_error_var_mm2),
+        "prediction_error_var_mm2": json_f64(p.prediction_error_var_mm2),
         "n": n,
         "n_eff": p.search.n_eff,
         "kalman": {
-            "q_mm2": num(p.q_mm2),
-            "r_mm2": num(p.r_mm2),
-            "gain_final": p.kalman_gain.iter().rev().flatten().next().copied().map(num).unwrap_or(Value::Null),
-            "residual_var_mm2": num(p.kalman_residual_var_mm2),
+            "q_mm2": json_f64(p.q_mm2),
+            "r_mm2": json_f64(p.r_mm2),
+            "gain_final": p.kalman_gain.iter().rev().flatten().next().copied().map_or(Value::Null, json_f64),
+            "residual_var_mm2": json_f64(p.kalman_residual_var_mm2),
         },
-        "forecast_dz_mm": p.forecast.iter().map(|f| num(f.0)).collect::<Vec<_>>(),
-        "forecast_sigma_mm": p.forecast.iter().map(|f| num(f.1)).collect::<Vec<_>>(),
+        "forecast_dz_mm": p.forecast.iter().map(|f| json_f64(f.0)).collect::<Vec<_>>(),
+        "forecast_sigma_mm": p.forecast.iter().map(|f| json_f64(f.1)).collect::<Vec<_>>(),
     })
 }
 
@@ -187,24 +182,18 @@ fn batches(s: &SepData, p: &Prediction) -> (RecordBatch, RecordBatch, RecordBatc
 
 pub struct PredictorStage;
 
+const SPEC: StageSpec = StageSpec {
+    name: "predictor",
+    version: 1,
+    reads: &[],
+    reads_artifacts: &["separation"],
+    writes: &["predictor", "ar_fpe", "forecast"],
+    about: "AR order of the d-times differenced δz by FPE, online RLS, one-step prediction, scalar Kalman fusion, forecasts (MODELS.md §3.2–3.3)",
+};
+
 impl Stage for PredictorStage {
-    fn name(&self) -> &'static str {
-        "predictor"
-    }
-    fn version(&self) -> u32 {
-        1
-    }
-    fn reads_tables(&self) -> &'static [&'static str] {
-        &[]
-    }
-    fn reads_artifacts(&self) -> &'static [&'static str] {
-        &["separation"]
-    }
-    fn writes(&self) -> &'static [&'static str] {
-        &["predictor", "ar_fpe", "forecast"]
-    }
-    fn about(&self) -> &'static str {
-        "AR order of the d-times differenced δz by FPE, online RLS, one-step prediction, scalar Kalman fusion, forecasts (MODELS.md §3.2–3.3)"
+    fn spec(&self) -> &'static StageSpec {
+        &SPEC
     }
     fn validate_config(&self, config: &toml::Table) -> Result<()> {
         PredictorConfig::validate(config)

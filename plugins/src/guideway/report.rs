@@ -7,7 +7,7 @@ use arrow::record_batch::RecordBatch;
 use serde_json::Value;
 use sparkout_pipeline::contracts::{batch_f64, batch_i32};
 use sparkout_pipeline::report::svg::{bar_chart, xy_chart, Mark, Series};
-use sparkout_pipeline::report::{esc, table};
+use sparkout_pipeline::report::{esc, fmt_um, table};
 use sparkout_pipeline::{ArtifactStore, ReportSection, Run};
 
 /// At most this many points per drawn series (inline SVG stays small).
@@ -18,10 +18,7 @@ fn stride(n: usize) -> usize {
 }
 
 fn um(v: &Value) -> String {
-    v.as_f64()
-        .filter(|x| x.is_finite())
-        .map(|x| format!("{:.3}", x * 1e3))
-        .unwrap_or_else(|| "—".into())
+    fmt_um(v.as_f64(), 3)
 }
 
 fn col(b: &RecordBatch, name: &str) -> Option<Vec<f64>> {

@@ -13,8 +13,10 @@ use anyhow::{anyhow, Context};
 use arrow::array::{Array, Float64Array, Int32Array, Int64Array, Int8Array};
 use arrow::record_batch::RecordBatch;
 use serde_json::{json, Value};
+use sparkout_pipeline::contracts::schema::GUIDEWAY;
 use sparkout_pipeline::contracts::{batch_f64, batch_i32, BatchBuilder};
-use sparkout_pipeline::{Result, Stage, StageArgs, StageContext, StageOutput};
+use sparkout_pipeline::json_f64 as num;
+use sparkout_pipeline::{Result, Stage, StageArgs, StageContext, StageOutput, StageSpec};
 
 use super::config::{flags_to_table, SeparateConfig};
 use super::input::{self, Geometry, Readings};
@@ -27,14 +29,6 @@ fn rms(v: &[f64]) -> f64 {
         return 0.0;
     }
     (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt()
-}
-
-fn num(x: f64) -> Value {
-    if x.is_finite() {
-        json!(x)
-    } else {
-        Value::Null
-    }
 }
 
 /// The `separation` artifact.
@@ -185,24 +179,18 @@ pub fn summary(r: &Readings, s: &Separation, other: Option<&Separation>) -> Valu
     })
 }
 
+const SPEC: StageSpec = StageSpec {
+    name: "separate",
+    version: 1,
+    reads: &[&GUIDEWAY],
+    reads_artifacts: &[],
+    writes: &["separation"],
+    about: "three-probe error separation: workpiece h, table motion error δz, pitch β — published recursion or one LS solve with uncertainty (MODELS.md §3.1)",
+};
+
 impl Stage for SeparateStage {
-    fn name(&self) -> &'static str {
-        "separate"
-    }
-    fn version(&self) -> u32 {
-        1
-    }
-    fn reads_tables(&self) -> &'static [&'static str] {
-        &["guideway"]
-    }
-    fn reads_artifacts(&self) -> &'static [&'static str] {
-        &[]
-    }
-    fn writes(&self) -> &'static [&'static str] {
-        &["separation"]
-    }
-    fn about(&self) -> &'static str {
-        "three-probe error separation: workpiece h, table motion error δz, pitch β — published recursion or one LS solve with uncertainty (MODELS.md §3.1)"
+    fn spec(&self) -> &'static StageSpec {
+        &SPEC
     }
     fn validate_config(&self, config: &toml::Table) -> Result<()> {
         SeparateConfig::validate(config)

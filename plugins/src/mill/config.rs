@@ -4,8 +4,9 @@
 
 use anyhow::{anyhow, bail};
 use serde::Deserialize;
+use sparkout_pipeline::config_check::parse_section;
 use sparkout_pipeline::contracts::MachineConfig;
-use sparkout_pipeline::{InputError, Result};
+use sparkout_pipeline::{ConfigError, InputError, Result};
 
 use super::chain::{function_index, function_name, Layout, N_FUNCTIONS, V3};
 
@@ -216,26 +217,33 @@ pub struct KinematicsConfig {
 
 impl KinematicsConfig {
     pub fn parse(t: &toml::Table) -> Result<KinematicsConfig> {
-        let k: KinematicsToml = toml::Value::Table(t.clone()).try_into()?;
+        let k: KinematicsToml = parse_section(t)?;
         let rcond = k.rcond.unwrap_or(1e-8);
         if !(rcond > 0.0 && rcond < 1e-2) {
-            bail!("key `rcond` must be in (0, 0.01), found {rcond}");
+            return Err(ConfigError::bad_value("rcond", "in (0, 0.01)", rcond).into());
         }
         let max_evaluations = k.max_evaluations.unwrap_or(200);
         if !(10..=100_000).contains(&max_evaluations) {
-            bail!("key `max_evaluations` must be in 10..=100000, found {max_evaluations}");
+            return Err(ConfigError::bad_value(
+                "max_evaluations",
+                "in 10..=100000",
+                max_evaluations,
+            )
+            .into());
         }
         let map_grid = k.map_grid.unwrap_or(7);
         if !(2..=50).contains(&map_grid) {
-            bail!("key `map_grid` must be in 2..=50 points per axis, found {map_grid}");
+            return Err(
+                ConfigError::bad_value("map_grid", "in 2..=50 points per axis", map_grid).into(),
+            );
         }
         let table_step_mm = k.table_step_mm.unwrap_or(25.0);
         if !(table_step_mm.is_finite() && table_step_mm > 0.0) {
-            bail!("key `table_step_mm` must be > 0, found {table_step_mm}");
+            return Err(ConfigError::bad_value("table_step_mm", "> 0", table_step_mm).into());
         }
         if let Some(s) = k.seed {
             if s < 0 {
-                bail!("key `seed` must be ≥ 0, found {s}");
+                return Err(ConfigError::bad_value("seed", "≥ 0", s).into());
             }
         }
         Ok(KinematicsConfig {
@@ -285,7 +293,7 @@ pub struct ObserveConfig {
 
 impl ObserveConfig {
     pub fn parse(t: &toml::Table) -> Result<ObserveConfig> {
-        let o: ObserveToml = toml::Value::Table(t.clone()).try_into()?;
+        let o: ObserveToml = parse_section(t)?;
         if o.temp_sensor
             .as_deref()
             .is_some_and(|s| s.trim().is_empty())

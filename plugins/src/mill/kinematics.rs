@@ -16,6 +16,7 @@
 //!   the squareness terms, pushed through the same chain). To first order a
 //!   controller commanding q − c(q) leaves d − c.
 
+use sparkout_pipeline::json_opt_f64;
 use std::collections::BTreeMap;
 
 use arrow::array::{Array, Int64Array};
@@ -25,7 +26,7 @@ use arrow::record_batch::RecordBatch;
 use serde_json::{json, Value};
 use sparkout_pipeline::contracts::schema::TRACKER;
 use sparkout_pipeline::contracts::{batch_f64, batch_i32, batch_str, BatchBuilder, Table};
-use sparkout_pipeline::{InputError, Result, Run, Stage, StageContext, StageOutput};
+use sparkout_pipeline::{InputError, Result, Run, Stage, StageContext, StageOutput, StageSpec};
 
 use super::chain::{
     chain_point, function_axis, function_index, function_name, ErrorValues, Layout, Model, Point,
@@ -218,13 +219,6 @@ fn rms3(v: impl Iterator<Item = V3>) -> Option<f64> {
         n += 1;
     }
     (n > 0).then(|| (s / n as f64).sqrt())
-}
-
-fn num(x: Option<f64>) -> Value {
-    match x {
-        Some(v) if v.is_finite() => json!(v),
-        _ => Value::Null,
-    }
 }
 
 /// Everything the stage computes for one run.
@@ -423,10 +417,10 @@ fn summary(
     json!({
         "warnings": warnings,
         "params": layout.n_params(),
-        "fit_rms_mm": num(fit),
-        "holdout_rms_mm": num(hold),
-        "before_rms_mm": num(before),
-        "after_rms_mm": num(after),
+        "fit_rms_mm": json_opt_f64(fit),
+        "holdout_rms_mm": json_opt_f64(hold),
+        "before_rms_mm": json_opt_f64(before),
+        "after_rms_mm": json_opt_f64(after),
         "sigma_mm": id.sigma_mm,
         "points": n_ident + n_hold,
         "points_identification": n_ident,
@@ -616,31 +610,25 @@ fn map_batch(model: &Model, t: &CompTable, machine: &MillMachine, n: usize) -> R
 
 pub struct KinematicsStage;
 
-impl Stage for KinematicsStage {
-    fn name(&self) -> &'static str {
-        "kinematics"
-    }
-    fn version(&self) -> u32 {
-        1
-    }
-    fn reads_tables(&self) -> &'static [&'static str] {
-        &["tracker"]
-    }
-    fn reads_artifacts(&self) -> &'static [&'static str] {
-        &[]
-    }
-    fn writes(&self) -> &'static [&'static str] {
-        &[
+const SPEC: StageSpec = StageSpec {
+    name: "kinematics",
+    version: 1,
+    reads: &[&TRACKER],
+    reads_artifacts: &[],
+    writes: &[
             "kinematic_params",
             "kinematic_covariance",
             "compensation_table",
             "volumetric_map",
             "tracker_residuals",
             "compensation_path",
-        ]
-    }
-    fn about(&self) -> &'static str {
-        "XFYZ 21-error identification from laser-tracker points (Levenberg–Marquardt, covariance), held-out validation, volumetric error before/after, compensation table (MODELS.md §5)"
+        ],
+    about: "XFYZ 21-error identification from laser-tracker points (Levenberg–Marquardt, covariance), held-out validation, volumetric error before/after, compensation table (MODELS.md §5)",
+};
+
+impl Stage for KinematicsStage {
+    fn spec(&self) -> &'static StageSpec {
+        &SPEC
     }
     fn validate_config(&self, config: &toml::Table) -> Result<()> {
         KinematicsConfig::parse(config).map(|_| ())

@@ -20,9 +20,9 @@
 use std::collections::BTreeMap;
 
 use serde_json::json;
-use sparkout_pipeline::contracts::schema::THERMAL;
+use sparkout_pipeline::contracts::schema::{THERMAL, TRACKER};
 use sparkout_pipeline::contracts::{BatchBuilder, Table};
-use sparkout_pipeline::{InputError, Result, Stage, StageContext, StageOutput};
+use sparkout_pipeline::{InputError, Result, Stage, StageContext, StageOutput, StageSpec};
 
 use super::config::{MillMachine, ObserveConfig};
 use super::kinematics::{model_from_params, tracker_points};
@@ -78,24 +78,18 @@ pub fn temperature_at(
 
 pub struct ObserveStage;
 
+const SPEC: StageSpec = StageSpec {
+    name: "observe",
+    version: 1,
+    reads: &[&TRACKER, &THERMAL],
+    reads_artifacts: &["kinematic_params"],
+    writes: &["observations"],
+    about: "paired observations tracker_dx/dy/dz (measured vs identified model) for the gap diagnosis (CONTRACTS.md §2)",
+};
+
 impl Stage for ObserveStage {
-    fn name(&self) -> &'static str {
-        "observe"
-    }
-    fn version(&self) -> u32 {
-        1
-    }
-    fn reads_tables(&self) -> &'static [&'static str] {
-        &["tracker", "thermal"]
-    }
-    fn reads_artifacts(&self) -> &'static [&'static str] {
-        &["kinematic_params"]
-    }
-    fn writes(&self) -> &'static [&'static str] {
-        &["observations"]
-    }
-    fn about(&self) -> &'static str {
-        "paired observations tracker_dx/dy/dz (measured vs identified model) for the gap diagnosis (CONTRACTS.md §2)"
+    fn spec(&self) -> &'static StageSpec {
+        &SPEC
     }
     fn validate_config(&self, config: &toml::Table) -> Result<()> {
         ObserveConfig::parse(config).map(|_| ())

@@ -5,23 +5,17 @@
 use serde_json::Value;
 use sparkout_pipeline::contracts::{batch_f64, batch_i32};
 use sparkout_pipeline::report::svg::{heatmap, xy_chart, Mark, Series};
-use sparkout_pipeline::report::table;
+use sparkout_pipeline::report::{fmt_fixed, fmt_um, table};
 use sparkout_pipeline::{ArtifactStore, ReportSection, Run};
 
 use super::chain::{AXES, KINDS};
 
 fn um(v: &Value) -> String {
-    v.as_f64()
-        .filter(|x| x.is_finite())
-        .map(|x| format!("{:.2}", x * 1e3))
-        .unwrap_or_else(|| "—".into())
+    fmt_um(v.as_f64(), 2)
 }
 
 fn urad(v: &Value) -> String {
-    v.as_f64()
-        .filter(|x| x.is_finite())
-        .map(|x| format!("{:.2}", x * 1e6))
-        .unwrap_or_else(|| "—".into())
+    fmt_fixed(v.as_f64().map(|x| x * 1e6), 2)
 }
 
 fn identification(s: &Value) -> ReportSection {

@@ -19,13 +19,16 @@
 //! predicted cut sequence against the measured one). τ per feed speed comes
 //! from the decay of spark-out cuts, A = A0·exp(−t/τ).
 
+use sparkout_pipeline::toml_f64;
 use std::collections::BTreeMap;
 
 use anyhow::{anyhow, bail};
 use serde_json::{json, Value};
 use sparkout_pipeline::contracts::schema::PASSES;
 use sparkout_pipeline::contracts::BatchBuilder;
-use sparkout_pipeline::{InputError, Result, Stage, StageArgs, StageContext, StageOutput};
+use sparkout_pipeline::{
+    InputError, Result, Stage, StageArgs, StageContext, StageOutput, StageSpec,
+};
 
 use super::config::{check_config, Check};
 
@@ -428,21 +431,19 @@ pub fn contact_area_mm2(ctx: &StageContext) -> f64 {
     if let Some(v) = sparkout_pipeline::cfg_f64(ctx.config, "contact_area_mm2") {
         return v;
     }
-    if let Some(v) = ctx.run.spec.process.get("contact_area_mm2").and_then(num) {
+    if let Some(v) = ctx
+        .run
+        .spec
+        .process
+        .get("contact_area_mm2")
+        .and_then(toml_f64)
+    {
         return v;
     }
     ctx.run
         .machine
         .f64("process.contact_area_mm2")
         .unwrap_or(100.0)
-}
-
-fn num(v: &toml::Value) -> Option<f64> {
-    match v {
-        toml::Value::Float(f) => Some(*f),
-        toml::Value::Integer(i) => Some(*i as f64),
-        _ => None,
-    }
 }
 
 pub struct CycleStage;
@@ -452,24 +453,18 @@ const KEYS: &[(&str, Check)] = &[
     ("contact_area_mm2", Check::Positive),
 ];
 
+const SPEC: StageSpec = StageSpec {
+    name: "cycle",
+    version: 1,
+    reads: &[&PASSES],
+    reads_artifacts: &[],
+    writes: &["cycle"],
+    about: "compliance model of the grinding cycle: α, predicted vs measured cut per pass, remaining stock, τ (MODELS.md §1.4)",
+};
+
 impl Stage for CycleStage {
-    fn name(&self) -> &'static str {
-        "cycle"
-    }
-    fn version(&self) -> u32 {
-        1
-    }
-    fn reads_tables(&self) -> &'static [&'static str] {
-        &["passes"]
-    }
-    fn reads_artifacts(&self) -> &'static [&'static str] {
-        &[]
-    }
-    fn writes(&self) -> &'static [&'static str] {
-        &["cycle"]
-    }
-    fn about(&self) -> &'static str {
-        "compliance model of the grinding cycle: α, predicted vs measured cut per pass, remaining stock, τ (MODELS.md §1.4)"
+    fn spec(&self) -> &'static StageSpec {
+        &SPEC
     }
     fn validate_config(&self, config: &toml::Table) -> Result<()> {
         check_config(config, KEYS)
@@ -477,7 +472,7 @@ impl Stage for CycleStage {
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
         let alpha_max = ctx.cfg_f64("alpha_max", 20.0);
         let area = contact_area_mm2(ctx);
-        let weld = ctx.run.spec.process.get("weld_mm").and_then(num);
+        let weld = ctx.run.spec.process.get("weld_mm").and_then(toml_f64);
         let Some(passes) = read_passes(ctx)? else {
             // A probing-only run is legal: an empty, valid artifact.
             return Ok(StageOutput::new(json!({

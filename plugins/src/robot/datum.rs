@@ -10,7 +10,10 @@ use nalgebra::{Matrix3, SymmetricEigen, Vector3};
 use serde_json::{json, Value};
 use sparkout_pipeline::contracts::schema::{AE, PROBE};
 use sparkout_pipeline::contracts::BatchBuilder;
-use sparkout_pipeline::{InputError, Result, Stage, StageArgs, StageContext, StageOutput};
+use sparkout_pipeline::json_f64;
+use sparkout_pipeline::{
+    InputError, Result, Stage, StageArgs, StageContext, StageOutput, StageSpec,
+};
 use statrs::distribution::{ChiSquared, ContinuousCDF};
 
 use super::config::{check_config, Check};
@@ -258,16 +261,8 @@ fn v3(v: &Vector3<f64>) -> Value {
     }
 }
 
-fn num(x: f64) -> Value {
-    if x.is_finite() {
-        json!(x)
-    } else {
-        Value::Null
-    }
-}
-
 fn sq_json(sq: &[f64; 3]) -> Value {
-    json!({"xy_yz": num(sq[0]), "yz_zx": num(sq[1]), "zx_xy": num(sq[2])})
+    json!({"xy_yz": json_f64(sq[0]), "yz_zx": json_f64(sq[1]), "zx_xy": json_f64(sq[2])})
 }
 
 /// Square of a point id in the thesis's pattern (0–3 outer, 4–7 middle,
@@ -416,7 +411,7 @@ fn transition_angles(all: &[Touch], a: &DatumAnalysis) -> Value {
             .map(|f| a.alpha_mm[f.index()])
             .collect();
         let v = match (others[0], others[1]) {
-            (Some(p), Some(q)) if l > 0.0 => num((p / l).atan() + (q / l).atan()),
+            (Some(p), Some(q)) if l > 0.0 => json_f64((p / l).atan() + (q / l).atan()),
             _ => Value::Null,
         };
         m.insert(face.label().into(), v);
@@ -443,13 +438,13 @@ fn plane_json(f: &FaceFit, use_tls: bool, all: &[Touch], idx: &[usize]) -> Value
         "ols": f.ols.b,
         "tls_normal": [f.tls.plane.n[0], f.tls.plane.n[1], f.tls.plane.n[2]],
         "tls_d": f.tls.plane.d,
-        "residual_rms_mm": num(rms(r)),
-        "residual_max_mm": num(max_abs(r)),
-        "ols_residual_rms_mm": num(rms(&f.ols.residuals)),
-        "tls_residual_rms_mm": num(rms(&f.tls.residuals)),
+        "residual_rms_mm": json_f64(rms(r)),
+        "residual_max_mm": json_f64(max_abs(r)),
+        "ols_residual_rms_mm": json_f64(rms(&f.ols.residuals)),
+        "tls_residual_rms_mm": json_f64(rms(&f.tls.residuals)),
         "n": f.kept.len() + f.rejected.len(),
         "n_rejected": f.rejected.len(),
-        "robust_scale_mm": f.robust_scale_mm.map(num).unwrap_or(Value::Null),
+        "robust_scale_mm": f.robust_scale_mm.map_or(Value::Null, json_f64),
         "rejected": rejected,
     })
 }
@@ -459,7 +454,7 @@ fn datum_json(d: &DatumResult) -> Value {
     json!({
         "datum_mm": v3(&d.datum.p),
         "datum_cov_mm2": m3(c),
-        "datum_sigma_mm": [num(c[(0, 0)].sqrt()), num(c[(1, 1)].sqrt()), num(c[(2, 2)].sqrt())],
+        "datum_sigma_mm": [json_f64(c[(0, 0)].sqrt()), json_f64(c[(1, 1)].sqrt()), json_f64(c[(2, 2)].sqrt())],
         "condition": d.datum.condition,
         "squareness_rad": sq_json(&d.squareness),
     })
@@ -491,7 +486,7 @@ pub fn summary(all: &[Touch], a: &DatumAnalysis, cfg: &DatumConfig) -> Value {
                 .map(|f| {
                     (
                         f.face.label().to_string(),
-                        json!({"ols": f.ols.b, "residual_rms_mm": num(rms(if cfg.use_tls { &f.tls.residuals } else { &f.ols.residuals })), "n": f.kept.len()}),
+                        json!({"ols": f.ols.b, "residual_rms_mm": json_f64(rms(if cfg.use_tls { &f.tls.residuals } else { &f.ols.residuals })), "n": f.kept.len()}),
                     )
                 })
                 .collect();
@@ -499,7 +494,7 @@ pub fn summary(all: &[Touch], a: &DatumAnalysis, cfg: &DatumConfig) -> Value {
                 "square": SQUARES[*sq],
                 "planes": res,
                 "datum_mm": d.as_ref().map(|d| v3(&d.datum.p)).unwrap_or(Value::Null),
-                "datum_sigma_mm": d.as_ref().map(|d| json!([num(d.datum.cov[(0,0)].sqrt()), num(d.datum.cov[(1,1)].sqrt()), num(d.datum.cov[(2,2)].sqrt())])).unwrap_or(Value::Null),
+                "datum_sigma_mm": d.as_ref().map(|d| json!([json_f64(d.datum.cov[(0,0)].sqrt()), json_f64(d.datum.cov[(1,1)].sqrt()), json_f64(d.datum.cov[(2,2)].sqrt())])).unwrap_or(Value::Null),
             })
         })
         .collect();
@@ -508,10 +503,10 @@ pub fn summary(all: &[Touch], a: &DatumAnalysis, cfg: &DatumConfig) -> Value {
         "planes": planes,
         "datum_mm": v3(&m.datum.p),
         "datum_cov_mm2": m3(&m.datum.cov),
-        "datum_sigma_mm": [num(m.datum.cov[(0, 0)].sqrt()), num(m.datum.cov[(1, 1)].sqrt()), num(m.datum.cov[(2, 2)].sqrt())],
+        "datum_sigma_mm": [json_f64(m.datum.cov[(0, 0)].sqrt()), json_f64(m.datum.cov[(1, 1)].sqrt()), json_f64(m.datum.cov[(2, 2)].sqrt())],
         "datum_ellipsoid_mm": {
             "confidence": cfg.confidence,
-            "semi_axes_mm": [num(m.ellipsoid_mm[0]), num(m.ellipsoid_mm[1]), num(m.ellipsoid_mm[2])],
+            "semi_axes_mm": [json_f64(m.ellipsoid_mm[0]), json_f64(m.ellipsoid_mm[1]), json_f64(m.ellipsoid_mm[2])],
             "axes": [v3(&m.ellipsoid_axes[0]), v3(&m.ellipsoid_axes[1]), v3(&m.ellipsoid_axes[2])],
         },
         "condition": m.datum.condition,
@@ -694,24 +689,18 @@ fn datum_batch(a: &DatumAnalysis, use_tls: bool) -> arrow::record_batch::RecordB
 
 pub struct DatumStage;
 
+const SPEC: StageSpec = StageSpec {
+    name: "datum",
+    version: 2,
+    reads: &[],
+    reads_artifacts: &["touches"],
+    writes: &["planes", "datum"],
+    about: "face planes (thesis OLS + orthogonal TLS, robust), datum = intersection with covariance, squareness, E = A·α (MODELS.md §1.3)",
+};
+
 impl Stage for DatumStage {
-    fn name(&self) -> &'static str {
-        "datum"
-    }
-    fn version(&self) -> u32 {
-        2
-    }
-    fn reads_tables(&self) -> &'static [&'static str] {
-        &[]
-    }
-    fn reads_artifacts(&self) -> &'static [&'static str] {
-        &["touches"]
-    }
-    fn writes(&self) -> &'static [&'static str] {
-        &["planes", "datum"]
-    }
-    fn about(&self) -> &'static str {
-        "face planes (thesis OLS + orthogonal TLS, robust), datum = intersection with covariance, squareness, E = A·α (MODELS.md §1.3)"
+    fn spec(&self) -> &'static StageSpec {
+        &SPEC
     }
     fn validate_config(&self, config: &toml::Table) -> Result<()> {
         check_config(config, KEYS)
@@ -830,7 +819,7 @@ fn standalone(args: &StageArgs) -> Result<Value> {
     let sq = if distinct {
         sq_json(&d.squareness)
     } else {
-        json!({"p1_p2": num(d.squareness[0]), "p2_p3": num(d.squareness[1]), "p3_p1": num(d.squareness[2])})
+        json!({"p1_p2": json_f64(d.squareness[0]), "p2_p3": json_f64(d.squareness[1]), "p3_p1": json_f64(d.squareness[2])})
     };
     Ok(json!({
         "planes": pj,

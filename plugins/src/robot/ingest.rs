@@ -16,7 +16,7 @@ use nalgebra::Vector3;
 use serde_json::{json, Value};
 use sparkout_pipeline::contracts::schema::{AE, MOTION, PLAN, PROBE};
 use sparkout_pipeline::contracts::{AeKind, AeStream, BatchBuilder, Table};
-use sparkout_pipeline::{InputError, Result, Stage, StageContext, StageOutput};
+use sparkout_pipeline::{InputError, Result, Stage, StageContext, StageOutput, StageSpec};
 
 use super::ae::{gaps, AeDetector, AeEvent, AeParams};
 use super::config::{check_config, Check};
@@ -630,24 +630,18 @@ fn empty_contacts() -> arrow::record_batch::RecordBatch {
     contacts_batch(&r, &[])
 }
 
+const SPEC: StageSpec = StageSpec {
+    name: "ingest",
+    version: 1,
+    reads: &[&PROBE, &AE, &MOTION, &PLAN],
+    reads_artifacts: &[],
+    writes: &["touches", "contacts", "touch_compare"],
+    about: "touches from probe.parquet or from AE contacts mapped through motion + plan (MODELS.md §1.2)",
+};
+
 impl Stage for IngestStage {
-    fn name(&self) -> &'static str {
-        "ingest"
-    }
-    fn version(&self) -> u32 {
-        1
-    }
-    fn reads_tables(&self) -> &'static [&'static str] {
-        &["probe", "ae", "motion", "plan"]
-    }
-    fn reads_artifacts(&self) -> &'static [&'static str] {
-        &[]
-    }
-    fn writes(&self) -> &'static [&'static str] {
-        &["touches", "contacts", "touch_compare"]
-    }
-    fn about(&self) -> &'static str {
-        "touches from probe.parquet or from AE contacts mapped through motion + plan (MODELS.md §1.2)"
+    fn spec(&self) -> &'static StageSpec {
+        &SPEC
     }
     fn validate_config(&self, config: &toml::Table) -> Result<()> {
         check_config(config, KEYS)

@@ -55,7 +55,7 @@ use arrow::datatypes::{DataType, Field};
 use nalgebra::Vector3;
 use serde_json::json;
 use sparkout_pipeline::contracts::{batch_f64, batch_i32, batch_str, BatchBuilder};
-use sparkout_pipeline::{Result, Stage, StageContext, StageOutput};
+use sparkout_pipeline::{Result, Stage, StageContext, StageOutput, StageSpec};
 
 use super::config::{check_config, Check};
 use super::planes::{Face, Plane};
@@ -157,24 +157,18 @@ fn build(run: &str, rows: &[Row]) -> arrow::record_batch::RecordBatch {
         .build()
 }
 
+const SPEC: StageSpec = StageSpec {
+    name: "observe",
+    version: 2,
+    reads: &[],
+    reads_artifacts: &["touches", "planes", "cycle"],
+    writes: &["observations"],
+    about: "paired observations touch_normal and cut_depth for the gap diagnosis (CONTRACTS.md §2)",
+};
+
 impl Stage for ObserveStage {
-    fn name(&self) -> &'static str {
-        "observe"
-    }
-    fn version(&self) -> u32 {
-        2
-    }
-    fn reads_tables(&self) -> &'static [&'static str] {
-        &[]
-    }
-    fn reads_artifacts(&self) -> &'static [&'static str] {
-        &["touches", "planes", "cycle"]
-    }
-    fn writes(&self) -> &'static [&'static str] {
-        &["observations"]
-    }
-    fn about(&self) -> &'static str {
-        "paired observations touch_normal and cut_depth for the gap diagnosis (CONTRACTS.md §2)"
+    fn spec(&self) -> &'static StageSpec {
+        &SPEC
     }
     fn validate_config(&self, config: &toml::Table) -> Result<()> {
         check_config(config, KEYS)

@@ -14,7 +14,7 @@ use std::collections::BTreeMap;
 
 use serde_json::{json, Value};
 use sparkout_pipeline::contracts::BatchBuilder;
-use sparkout_pipeline::{Result, Stage, StageContext, StageOutput};
+use sparkout_pipeline::{Result, Stage, StageContext, StageOutput, StageSpec};
 
 use super::config::{check_config, Check};
 use super::planes::Face;
@@ -287,24 +287,18 @@ const KEYS: &[(&str, Check)] = &[(
     Check::OneOf(&["auto", "ae", "electrical", "mechanical"]),
 )];
 
+const SPEC: StageSpec = StageSpec {
+    name: "repeatability",
+    version: 1,
+    reads: &[],
+    reads_artifacts: &["touches"],
+    writes: &["repeatability"],
+    about: "range and std of the normal coordinate per method × speed × face; bias vs scatter; trigger latency (MODELS.md §1.1)",
+};
+
 impl Stage for RepeatabilityStage {
-    fn name(&self) -> &'static str {
-        "repeatability"
-    }
-    fn version(&self) -> u32 {
-        1
-    }
-    fn reads_tables(&self) -> &'static [&'static str] {
-        &[]
-    }
-    fn reads_artifacts(&self) -> &'static [&'static str] {
-        &["touches"]
-    }
-    fn writes(&self) -> &'static [&'static str] {
-        &["repeatability"]
-    }
-    fn about(&self) -> &'static str {
-        "range and std of the normal coordinate per method × speed × face; bias vs scatter; trigger latency (MODELS.md §1.1)"
+    fn spec(&self) -> &'static StageSpec {
+        &SPEC
     }
     fn validate_config(&self, config: &toml::Table) -> Result<()> {
         check_config(config, KEYS)

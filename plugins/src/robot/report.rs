@@ -5,24 +5,18 @@
 
 use serde_json::Value;
 use sparkout_pipeline::report::svg::{bar_chart, xy_chart, Mark, Series};
-use sparkout_pipeline::report::{esc, table};
+use sparkout_pipeline::report::{esc, fmt_fixed, fmt_um, table};
 use sparkout_pipeline::{ArtifactStore, ReportSection, Run};
 
 use super::planes::Face;
 use super::touches;
 
 fn um(v: &Value) -> String {
-    v.as_f64()
-        .filter(|x| x.is_finite())
-        .map(|x| format!("{:.1}", x * 1e3))
-        .unwrap_or_else(|| "—".into())
+    fmt_um(v.as_f64(), 1)
 }
 
 fn num(v: &Value, digits: usize) -> String {
-    v.as_f64()
-        .filter(|x| x.is_finite())
-        .map(|x| format!("{x:.digits$}"))
-        .unwrap_or_else(|| "—".into())
+    fmt_fixed(v.as_f64(), digits)
 }
 
 fn repeatability(s: &Value) -> Option<ReportSection> {

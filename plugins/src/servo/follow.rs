@@ -10,8 +10,9 @@
 //! cannot show a following error finer than their step.
 
 use serde_json::json;
+use sparkout_pipeline::contracts::schema::MOTION;
 use sparkout_pipeline::contracts::BatchBuilder;
-use sparkout_pipeline::{Result, Stage, StageContext, StageOutput};
+use sparkout_pipeline::{Result, Stage, StageContext, StageOutput, StageSpec};
 
 use super::config::{ServoMachine, AXES};
 use super::model::simulate;
@@ -116,24 +117,18 @@ pub fn effective_lag_s(e: &[f64], v: &[f64], standstill_mm_s: f64) -> Option<f64
 
 pub struct FollowStage;
 
+const SPEC: StageSpec = StageSpec {
+    name: "follow",
+    version: 1,
+    reads: &[&MOTION],
+    reads_artifacts: &[],
+    writes: &["following_error"],
+    about: "commanded path through the servo model: simulated vs measured following and velocity error per axis",
+};
+
 impl Stage for FollowStage {
-    fn name(&self) -> &'static str {
-        "follow"
-    }
-    fn version(&self) -> u32 {
-        1
-    }
-    fn reads_tables(&self) -> &'static [&'static str] {
-        &["motion"]
-    }
-    fn reads_artifacts(&self) -> &'static [&'static str] {
-        &[]
-    }
-    fn writes(&self) -> &'static [&'static str] {
-        &["following_error"]
-    }
-    fn about(&self) -> &'static str {
-        "commanded path through the servo model: simulated vs measured following and velocity error per axis"
+    fn spec(&self) -> &'static StageSpec {
+        &SPEC
     }
     fn validate_config(&self, config: &toml::Table) -> Result<()> {
         sparkout_pipeline::config_check::check_config(config, &[])

@@ -1,7 +1,9 @@
 //! The forward model: the commanded path through a first-order position
 //! loop with velocity feed-forward (docs/servo.md "Model"):
 //!
-//!     ė = −Kv·e − (1 − ff)·v_cmd,   e = actual − commanded position
+//! ```text
+//! ė = −Kv·e − (1 − ff)·v_cmd,   e = actual − commanded position
+//! ```
 //!
 //! In steady motion e = −(1 − ff)·v/Kv: the axis trails the command by the
 //! lag (1 − ff)/Kv seconds. Integrated exactly for a commanded velocity that

@@ -15,8 +15,9 @@
 //! the path feed `feed_mm_s` and the program `segment` (line).
 
 use serde_json::json;
+use sparkout_pipeline::contracts::schema::MOTION;
 use sparkout_pipeline::contracts::{batch_f64, BatchBuilder};
-use sparkout_pipeline::{Result, Stage, StageContext, StageOutput};
+use sparkout_pipeline::{Result, Stage, StageContext, StageOutput, StageSpec};
 
 use super::config::ObserveConfig;
 use super::trace::{direction, Trace};
@@ -31,24 +32,18 @@ pub fn observables(axis: &str) -> [String; 2] {
     ]
 }
 
+const SPEC: StageSpec = StageSpec {
+    name: "observe",
+    version: 1,
+    reads: &[&MOTION],
+    reads_artifacts: &["following_error"],
+    writes: &["observations"],
+    about: "paired observations following_error_<axis> (mm) and velocity_error_<axis> (mm/s) for the gap diagnosis",
+};
+
 impl Stage for ObserveStage {
-    fn name(&self) -> &'static str {
-        "observe"
-    }
-    fn version(&self) -> u32 {
-        1
-    }
-    fn reads_tables(&self) -> &'static [&'static str] {
-        &["motion"]
-    }
-    fn reads_artifacts(&self) -> &'static [&'static str] {
-        &["following_error"]
-    }
-    fn writes(&self) -> &'static [&'static str] {
-        &["observations"]
-    }
-    fn about(&self) -> &'static str {
-        "paired observations following_error_<axis> (mm) and velocity_error_<axis> (mm/s) for the gap diagnosis"
+    fn spec(&self) -> &'static StageSpec {
+        &SPEC
     }
     fn validate_config(&self, config: &toml::Table) -> Result<()> {
         ObserveConfig::parse(config).map(|_| ())

@@ -1,0 +1,52 @@
+//! Reference kernels every gated bench measures in its own process (issue 19,
+//! item 1). The machine's speed drifts (turbo, thermal, a neighbour's build),
+//! so the gate compares `bench / reference` ratios, not absolute times: a
+//! memory-bound reference for kernels that stream, a compute-bound FFT
+//! reference for kernels that calculate. Both are fixed work, independent of
+//! sparkout's code, so a ratio moves only when sparkout's kernel does.
+
+#![allow(dead_code)] // each bench uses the references it needs
+
+use criterion::Criterion;
+use std::hint::black_box;
+
+/// Words in the streamed buffer: 64 MiB of f64, far beyond every cache.
+const STREAM_WORDS: usize = 8 << 20;
+/// Points of the reference complex FFT.
+const FFT_POINTS: usize = 1 << 16;
+
+/// Registers `<group>_reference/stream_sum_64MiB` (memory bandwidth) and
+/// `<group>_reference/fft_64k` (floating-point throughput) beside the bench.
+pub fn register_references(c: &mut Criterion, group: &str) {
+    let mut g = c.benchmark_group(format!("{group}_reference"));
+    g.sample_size(20);
+    let buffer: Vec<f64> = (0..STREAM_WORDS).map(|i| (i % 1024) as f64).collect();
+    g.bench_function("stream_sum_64MiB", |b| {
+        b.iter(|| {
+            // Four accumulators so the adds are not latency-bound: the loop
+            // then runs at memory bandwidth, which is what it stands for.
+            let mut acc = [0.0f64; 4];
+            for chunk in black_box(&buffer).chunks_exact(4) {
+                for k in 0..4 {
+                    acc[k] += chunk[k];
+                }
+            }
+            black_box(acc.iter().sum::<f64>())
+        })
+    });
+    let mut planner = rustfft::FftPlanner::<f64>::new();
+    let fft = planner.plan_fft_forward(FFT_POINTS);
+    let input: Vec<rustfft::num_complex::Complex<f64>> = (0..FFT_POINTS)
+        .map(|i| rustfft::num_complex::Complex::new((i as f64 * 0.001).sin(), 0.0))
+        .collect();
+    let mut scratch = vec![rustfft::num_complex::Complex::default(); fft.get_inplace_scratch_len()];
+    g.bench_function("fft_64k", |b| {
+        let mut data = input.clone();
+        b.iter(|| {
+            data.copy_from_slice(&input);
+            fft.process_with_scratch(black_box(&mut data), &mut scratch);
+            black_box(data[1])
+        })
+    });
+    g.finish();
+}

@@ -1,0 +1,167 @@
+//! The generator registry (issue 14 item 3): every synthetic-data generator
+//! implements [`Generator`] and is listed once in [`all_generators`], so
+//! `sparkout generate` and `sparkout demo` name no machine. Adding a machine
+//! type: its plugin folder, its generator file here, one line in
+//! [`all_generators`] (docs/adding-a-plugin.md).
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use anyhow::{bail, Result};
+use sparkout_pipeline::EffectSpec;
+
+/// What `sparkout generate` passes to every generator.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GenerateOptions {
+    pub runs: usize,
+    pub seed: u64,
+    /// AE sample rate, for generators whose runs carry an AE log.
+    pub ae_rate_hz: Option<f64>,
+}
+
+/// The fleet `sparkout demo` makes of one machine type: small enough to run
+/// in seconds, with one effect the model lacks, which the plugin's
+/// end-to-end test names first at this fleet size.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DemoFleet {
+    pub runs: usize,
+    pub seed: u64,
+    pub effect: &'static str,
+}
+
+/// What a generator wrote.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Generated {
+    /// Runs generated.
+    pub runs: usize,
+    /// The line `sparkout generate` prints.
+    pub summary: String,
+}
+
+/// A synthetic-data generator: a plugin's forward model with injected
+/// effects and noise, seeded and deterministic.
+pub trait Generator: Send + Sync {
+    /// What `sparkout generate NAME` takes: the plugin's name for a machine
+    /// type.
+    fn name(&self) -> &'static str;
+    /// The effects it can inject: (name, what it does).
+    fn known_effects(&self) -> Vec<(&'static str, &'static str)>;
+    /// `--list-effects`: one line per effect.
+    fn effects_listing(&self) -> String {
+        let fx = self.known_effects();
+        let w = fx
+            .iter()
+            .map(|(n, _)| n.len() + 2)
+            .max()
+            .unwrap_or(0)
+            .max(18);
+        fx.iter()
+            .map(|(name, about)| format!("{name:w$} {about}\n"))
+            .collect()
+    }
+    /// Generate into `out` (a fleet root, or a file for non-fleet data).
+    fn generate(
+        &self,
+        out: &Path,
+        opts: &GenerateOptions,
+        effects: &[EffectSpec],
+    ) -> Result<Generated>;
+    /// Its fleet in `sparkout demo`; `None` keeps it out of the demo.
+    fn demo(&self) -> Option<DemoFleet> {
+        None
+    }
+    /// Generate the demo fleet under `root` with `effects`.
+    fn generate_demo(&self, root: &Path, effects: &[EffectSpec]) -> Result<Generated> {
+        let Some(d) = self.demo() else {
+            bail!("`{}` has no demo fleet", self.name());
+        };
+        let opts = GenerateOptions {
+            runs: d.runs,
+            seed: d.seed,
+            ae_rate_hz: None,
+        };
+        self.generate(root, &opts, effects)
+    }
+}
+
+/// A fleet generator described as data: most machine types need no more
+/// than their name, effects list, fleet function and a config sized by
+/// `--runs`/`--seed` (defaults for the rest). `--ae-rate-hz` is refused.
+pub struct FleetGenerator<C: 'static> {
+    pub name: &'static str,
+    pub known_effects: fn() -> Vec<(&'static str, &'static str)>,
+    /// The fleet config for `runs` runs from `seed`.
+    pub config: fn(usize, u64) -> C,
+    pub generate_fleet: fn(&Path, &C, &[EffectSpec]) -> Result<Vec<PathBuf>>,
+    pub demo: Option<DemoFleet>,
+}
+
+impl<C: 'static> Generator for FleetGenerator<C> {
+    fn name(&self) -> &'static str {
+        self.name
+    }
+    fn known_effects(&self) -> Vec<(&'static str, &'static str)> {
+        (self.known_effects)()
+    }
+    fn generate(&self, out: &Path, opts: &GenerateOptions, fx: &[EffectSpec]) -> Result<Generated> {
+        no_ae_rate(self.name, opts)?;
+        let dirs = (self.generate_fleet)(out, &(self.config)(opts.runs, opts.seed), fx)?;
+        Ok(fleet_summary(self.name, dirs.len(), out))
+    }
+    fn demo(&self) -> Option<DemoFleet> {
+        self.demo.clone()
+    }
+}
+
+/// Every generator this build knows, in the demo's order.
+pub fn all_generators() -> Vec<Arc<dyn Generator>> {
+    vec![
+        Arc::new(crate::robot::RobotGenerator),
+        Arc::new(crate::gantry::GENERATOR),
+        Arc::new(crate::guideway::GENERATOR),
+        Arc::new(crate::mill::GENERATOR),
+        Arc::new(crate::form::GENERATOR),
+        Arc::new(crate::servo::GENERATOR),
+        Arc::new(crate::observations::ObservationsGenerator),
+    ]
+}
+
+/// The generator named `name`.
+pub fn generator(name: &str) -> Option<Arc<dyn Generator>> {
+    all_generators().into_iter().find(|g| g.name() == name)
+}
+
+/// Refuse `--ae-rate-hz` for a generator whose runs have no AE log.
+pub fn no_ae_rate(name: &str, opts: &GenerateOptions) -> Result<()> {
+    if opts.ae_rate_hz.is_some() {
+        bail!("--ae-rate-hz applies to runs with an AE log only (a {name} run has none)");
+    }
+    Ok(())
+}
+
+/// The summary line of a fleet generator.
+pub fn fleet_summary(name: &str, dirs: usize, out: &Path) -> Generated {
+    Generated {
+        runs: dirs,
+        summary: format!("generated {dirs} {name} runs under {}", out.display()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn generator_names_are_unique_and_list_effects() {
+        let g = all_generators();
+        let mut names: Vec<&str> = g.iter().map(|g| g.name()).collect();
+        names.sort_unstable();
+        names.dedup();
+        assert_eq!(names.len(), g.len());
+        for g in &g {
+            assert!(!g.effects_listing().is_empty(), "{}", g.name());
+        }
+        assert!(generator("robot").is_some_and(|g| g.demo().is_some()));
+        assert!(generator("nope").is_none());
+    }
+}
