@@ -25,6 +25,29 @@ pub enum Check {
     OneOf(&'static [&'static str]),
     /// A number ≥ 1.
     AtLeastOne,
+    /// A whole number in lo..=hi (a TOML integer, or a float without a
+    /// fractional part as `--set` may write one).
+    WholeIn(i64, i64),
+}
+
+/// A TOML integer, or a float with no fractional part.
+pub fn whole_number(v: &toml::Value) -> Option<i64> {
+    match v {
+        toml::Value::Integer(i) => Some(*i),
+        toml::Value::Float(f) if f.fract() == 0.0 && f.is_finite() => Some(*f as i64),
+        _ => None,
+    }
+}
+
+/// One key, if present, a whole number in lo..=hi.
+pub fn check_whole(config: &toml::Table, key: &str, lo: i64, hi: i64) -> crate::Result<()> {
+    match config.get(key) {
+        Some(v) => check_config(
+            &toml::Table::from_iter([(key.to_string(), v.clone())]),
+            &[(key, Check::WholeIn(lo, hi))],
+        ),
+        None => Ok(()),
+    }
 }
 
 /// Check a stage's section against its known keys. The error is a
@@ -44,6 +67,7 @@ pub fn check_config(config: &toml::Table, keys: &[(&str, Check)]) -> crate::Resu
             Check::Fraction => toml_f64(v).is_some_and(|x| x > 0.0 && x <= 1.0),
             Check::Probability => toml_f64(v).is_some_and(|x| x > 0.0 && x < 1.0),
             Check::AtLeastOne => toml_f64(v).is_some_and(|x| x.is_finite() && x >= 1.0),
+            Check::WholeIn(lo, hi) => whole_number(v).is_some_and(|i| (*lo..=*hi).contains(&i)),
             Check::Bool => v.is_bool(),
             Check::OneOf(opts) => v.as_str().is_some_and(|s| opts.contains(&s)),
         };
@@ -54,6 +78,7 @@ pub fn check_config(config: &toml::Table, keys: &[(&str, Check)]) -> crate::Resu
                 Check::Fraction => "a number in (0, 1]".to_string(),
                 Check::Probability => "a number in (0, 1)".to_string(),
                 Check::AtLeastOne => "a number ≥ 1".to_string(),
+                Check::WholeIn(lo, hi) => format!("a whole number in {lo}..={hi}"),
                 Check::Bool => "true or false".to_string(),
                 Check::OneOf(opts) => format!("one of {}", opts.join(", ")),
             };
@@ -153,5 +178,12 @@ mod tests {
         let e = check_config(&t("tol_mm = -1"), &[("tol_mm", Check::Positive)]).unwrap_err();
         assert_eq!(e.to_string(), "key `tol_mm` must be a number > 0, found -1");
         assert!(!ConfigError::is_unknown_key(&e));
+        assert!(check_whole(&t("n = 3.0"), "n", 1, 5).is_ok());
+        let e = check_whole(&t("n = 3.5"), "n", 1, 5).unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "key `n` must be a whole number in 1..=5, found 3.5"
+        );
+        assert!(check_whole(&t("n = 6"), "n", 1, 5).is_err());
     }
 }

@@ -366,3 +366,65 @@ pub trait MachinePlugin: Send + Sync {
         Vec::new()
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::contracts::schema::{MOTION, TOPOGRAPHY};
+
+    const SPEC: StageSpec = StageSpec {
+        name: "removal",
+        version: 1,
+        reads: &[&TOPOGRAPHY, &MOTION],
+        reads_artifacts: &["plan"],
+        writes: &["removal"],
+        about: "",
+    };
+
+    #[test]
+    fn a_spec_is_checked_on_its_own() {
+        SPEC.check().unwrap();
+        let twice = StageSpec {
+            reads: &[&TOPOGRAPHY, &TOPOGRAPHY],
+            ..SPEC
+        };
+        assert!(twice.check().unwrap_err().to_string().contains("twice"));
+        let own = StageSpec {
+            reads_artifacts: &["removal"],
+            ..SPEC
+        };
+        assert!(own.check().unwrap_err().to_string().contains("own output"));
+        let bad_name = StageSpec {
+            writes: &["a/b"],
+            ..SPEC
+        };
+        assert!(bad_name.check().is_err());
+    }
+
+    #[test]
+    fn reads_outside_the_spec_are_refused() {
+        let tables: BTreeSet<&str> = ["topography"].into();
+        let artifacts: BTreeSet<String> = ["plan".to_string()].into();
+        SPEC.check_reads(&tables, &artifacts).unwrap();
+        let e = SPEC
+            .check_reads(&["probe"].into(), &artifacts)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("read table `probe`"), "{e}");
+        let e = SPEC
+            .check_reads(&tables, &["touches".to_string()].into())
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("read artifact `touches`"), "{e}");
+    }
+
+    #[test]
+    fn the_artifact_store_logs_what_was_looked_up() {
+        let store = ArtifactStore::default();
+        assert!(store.get("plan").unwrap().is_none());
+        assert!(!store.has("removal"));
+        let seen = store.take_reads();
+        assert_eq!(seen.into_iter().collect::<Vec<_>>(), ["plan", "removal"]);
+        assert!(store.take_reads().is_empty());
+    }
+}

@@ -115,6 +115,8 @@ pub(super) fn known_names() -> String {
         .to_string()
 }
 
+// Long on purpose (~150 lines): one match arm per effect, so the whole
+// catalogue of what a spec may say is read in one place.
 pub(super) fn resolve_effects(
     specs: &[EffectSpec],
     bow_range: &dyn Fn(&str) -> (f64, f64),

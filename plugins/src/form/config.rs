@@ -32,10 +32,5 @@ pub fn check_window(cfg: &toml::Table) -> Result<()> {
 
 /// A whole number ≥ 1 (segment counts).
 pub fn check_count(cfg: &toml::Table, key: &str, max: usize) -> Result<()> {
-    if let Some(v) = cfg_f64(cfg, key) {
-        if v.fract() != 0.0 || v < 1.0 || v > max as f64 {
-            anyhow::bail!("key `{key}` must be a whole number in 1..={max}, found {v}");
-        }
-    }
-    Ok(())
+    sparkout_pipeline::config_check::check_whole(cfg, key, 1, max as i64)
 }

@@ -3,7 +3,6 @@
 //! which holds no robot logic), integer keys, and the settings each stage
 //! reads, with defaults from the machine config where MODELS.md gives one.
 
-use anyhow::bail;
 use sparkout_pipeline::{Result, Run, StageContext};
 
 pub use sparkout_pipeline::config_check::{check_config, Check};
@@ -11,22 +10,8 @@ pub use sparkout_pipeline::config_check::{check_config, Check};
 use super::input::InputOptions;
 use super::three_probe::{Method, Reference};
 
-/// An integer key within [lo, hi] (TOML integer, or a float with no
-/// fractional part as `--set` may produce).
-pub fn check_int(config: &toml::Table, key: &str, lo: i64, hi: i64) -> Result<()> {
-    if let Some(v) = config.get(key) {
-        let i = match v {
-            toml::Value::Integer(i) => Some(*i),
-            toml::Value::Float(f) if f.fract() == 0.0 => Some(*f as i64),
-            _ => None,
-        };
-        match i {
-            Some(i) if (lo..=hi).contains(&i) => {}
-            _ => bail!("key `{key}` must be a whole number in {lo}..={hi}, found {v}"),
-        }
-    }
-    Ok(())
-}
+/// An integer key within [lo, hi]: the pipeline's one whole-number check.
+pub use sparkout_pipeline::config_check::check_whole as check_int;
 
 pub fn int(config: &toml::Table, key: &str, default: usize) -> usize {
     match config.get(key) {

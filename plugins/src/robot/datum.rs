@@ -4,6 +4,10 @@
 //! its covariance propagated from the planes', the inter-face squareness,
 //! and the thesis's error vector E = A·α and transition angles
 //! (MODELS.md §1.3).
+//!
+//! Length (over 700 lines with its tests; ~830 of code): the per-face fits,
+//! the datum with its covariance, the run-less `stage datum --planes` form
+//! and the summary share `FaceFit`; planes.rs holds the plane algebra.
 
 use anyhow::{anyhow, bail};
 use nalgebra::{Matrix3, SymmetricEigen, Vector3};

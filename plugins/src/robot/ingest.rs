@@ -7,6 +7,11 @@
 //! Writes `touches` (probe.parquet's columns, plus `seq`, `dir_*`,
 //! `prev_move_dir`, `source`), `contacts` (one row per AE event) and, when
 //! both recorded and AE-derived touches exist, `touch_compare`.
+//!
+//! Length (over 700 lines): both touch sources (probe.parquet, and the AE
+//! chain: plan, motion interpolation, contact detection, the comparison of
+//! the two) map to the same `Touch`; `Motion` and `compare` are the next
+//! candidates for their own files.
 
 use std::collections::BTreeMap;
 use std::path::Path;

@@ -1,0 +1,271 @@
+//! The per-run steps of the engine: one run through its plugin's stages
+//! (cache key, cached or computed, held to each stage's spec), its report,
+//! and `sparkout stage` (one stage with its upstream in memory).
+
+use super::*;
+
+impl Engine {
+    /// One run through its plugin's stages. `None` when its plugin is not
+    /// enabled by `[pipeline].plugins`.
+    pub(super) fn process_run(
+        &self,
+        dir: &Path,
+        out: &Path,
+        enabled: Option<&BTreeSet<String>>,
+    ) -> Option<std::result::Result<RunResult, Failure>> {
+        let spec = match RunSpec::load(dir) {
+            Ok(s) => s,
+            Err(e) => return Some(Err(Failure::from_error(dir, None, None, &e.into()))),
+        };
+        if let Some(en) = enabled {
+            if !en.contains(&spec.plugin) {
+                return None;
+            }
+        }
+        let run_out = out.join(&spec.machine).join(&spec.id);
+        let mut failed_stage: Option<String> = None;
+        // A panic in a stage is a bug, but it must not take the batch down:
+        // the run is rejected like any other failure.
+        let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            self.process_run_inner(dir, &run_out, &mut failed_stage)
+        }))
+        .unwrap_or_else(|panic| {
+            let msg = panic
+                .downcast_ref::<String>()
+                .cloned()
+                .or_else(|| panic.downcast_ref::<&str>().map(|s| s.to_string()))
+                .unwrap_or_else(|| "unknown panic".into());
+            Err(anyhow!(
+                "internal error (a bug in sparkout, please report it): {msg}"
+            ))
+        });
+        Some(result.map_err(|e| {
+            // CONTRACTS.md: nothing of a rejected run is written — drop any
+            // artifacts an earlier batch left for it too.
+            let _ = std::fs::remove_dir_all(&run_out);
+            tracing::warn!("run {} rejected: {e:#}", dir.display());
+            Failure::from_error(dir, Some(&spec), failed_stage.as_deref(), &e)
+        }))
+    }
+
+    pub(super) fn process_run_inner(
+        &self,
+        dir: &Path,
+        run_out: &Path,
+        failed_stage: &mut Option<String>,
+    ) -> Result<RunResult> {
+        let (run, plugin) = self.open_run(dir)?;
+        let stages = self.plan(plugin.as_ref())?;
+        let previous = read_run_cache(run_out);
+        let store = ArtifactStore::default();
+        let mut table_hashes: BTreeMap<String, String> = BTreeMap::new();
+        let mut producer_key: BTreeMap<String, String> = BTreeMap::new();
+        let mut records: Vec<StageRecord> = Vec::new();
+        let mut pending: Vec<(PathBuf, Pending)> = Vec::new();
+
+        for stage in &stages {
+            *failed_stage = Some(stage.name().to_string());
+            let cfg = self.stage_config(plugin.name(), stage.name());
+            let mut key = KeyBuilder::new("stage");
+            key.part("stage", stage.name())
+                .part("version", &stage.version().to_string())
+                .part("plugin", plugin.name())
+                .part("config", &config_text(&cfg))
+                .part("run.toml", &run.spec.text)
+                .part("machine", &run.machine.text);
+            for schema in stage.spec().reads {
+                let t = schema.name;
+                if !run.has_table(schema) {
+                    key.part(t, "absent");
+                    continue;
+                }
+                if !table_hashes.contains_key(t) {
+                    let h = hash_file(&run.table_path(schema)).with_context(|| {
+                        format!("cannot hash {}", run.table_path(schema).display())
+                    })?;
+                    table_hashes.insert(t.to_string(), h);
+                }
+                key.part(t, &table_hashes[t]);
+            }
+            for a in stage.reads_artifacts() {
+                key.part(
+                    a,
+                    producer_key.get(*a).map(|s| s.as_str()).unwrap_or("absent"),
+                );
+            }
+            let key = key.finish();
+            for w in stage.writes() {
+                producer_key.insert(w.to_string(), key.clone());
+            }
+            let summary_file = format!("{}.json", stage.name());
+            if let Some(prev) = previous.get(stage.name()) {
+                if record_valid(run_out, prev, &key) {
+                    for w in stage.writes() {
+                        let f = format!("{w}.parquet");
+                        if prev.files.contains_key(&f) {
+                            store.insert_on_disk(w, run_out.join(&f));
+                        }
+                    }
+                    if let Ok(b) = std::fs::read(run_out.join(&summary_file)) {
+                        if let Ok(v) = serde_json::from_slice(&b) {
+                            store.set_summary(stage.name(), v);
+                        }
+                    }
+                    let mut rec = prev.clone();
+                    rec.cached = true;
+                    records.push(rec);
+                    continue;
+                }
+            }
+            let ctx = StageContext {
+                run: &run,
+                config: &cfg,
+                artifacts: &store,
+            };
+            let output = run_checked(stage.as_ref(), &ctx)?;
+            let mut files = BTreeMap::new();
+            for (name, batch) in &output.artifacts {
+                let bytes = parquet_bytes(batch)?;
+                files.insert(format!("{name}.parquet"), hash_bytes(&bytes));
+                pending.push((run_out.join(format!("{name}.parquet")), Pending(bytes)));
+                store.insert(name, batch.clone());
+            }
+            let summary_bytes = json_bytes(&output.summary)?;
+            files.insert(summary_file.clone(), hash_bytes(&summary_bytes));
+            pending.push((run_out.join(&summary_file), Pending(summary_bytes)));
+            store.set_summary(stage.name(), output.summary);
+            records.push(StageRecord {
+                stage: stage.name().to_string(),
+                version: stage.version(),
+                key,
+                files,
+                cached: false,
+            });
+        }
+        *failed_stage = Some("report".into());
+        // The run's report: a step of its own, cached on every stage's key.
+        let mut rkey = KeyBuilder::new("run-report");
+        rkey.part("version", &report::REPORT_VERSION.to_string())
+            .part("config", &config_text(&self.config.section("report")));
+        for r in &records {
+            rkey.part(&r.stage, &r.key);
+        }
+        let rkey = rkey.finish();
+        let report_cached = previous
+            .get("report")
+            .map(|p| record_valid(run_out, p, &rkey))
+            .unwrap_or(false);
+        if report_cached {
+            let mut rec = previous["report"].clone();
+            rec.cached = true;
+            records.push(rec);
+        } else {
+            let sections = plugin.report_sections(&run, &store);
+            let html = report::run_page(
+                &self.config.section("report"),
+                &run,
+                &store.summaries(),
+                &sections,
+            );
+            let bytes = html.into_bytes();
+            let mut files = BTreeMap::new();
+            files.insert("report.html".to_string(), hash_bytes(&bytes));
+            pending.push((run_out.join("report.html"), Pending(bytes)));
+            records.push(StageRecord {
+                stage: "report".into(),
+                version: report::REPORT_VERSION,
+                key: rkey,
+                files,
+                cached: false,
+            });
+        }
+        *failed_stage = None;
+        // Everything computed: now (and only now) write, cache file last.
+        for (path, Pending(bytes)) in &pending {
+            write_atomic(path, bytes)?;
+        }
+        let cache: Vec<&StageRecord> = records.iter().collect();
+        write_json_atomic(&run_out.join(cache::RUN_CACHE_FILE), &cache)?;
+        let observations = run_out.join("observations.parquet");
+        Ok(RunResult {
+            machine: run.spec.machine.clone(),
+            run: run.spec.id.clone(),
+            plugin: plugin.name().to_string(),
+            run_dir: dir.display().to_string(),
+            out_dir: run_out.display().to_string(),
+            inputs: table_hashes,
+            stages: records,
+            observations: observations.is_file().then_some(observations),
+        })
+    }
+
+    /// `sparkout stage <name> --run <dir>`: that stage of that run, with its
+    /// upstream stages computed in memory.
+    pub fn run_single_stage(
+        &self,
+        run_dir: &Path,
+        stage_name: &str,
+    ) -> Result<(Arc<dyn Stage>, StageOutput)> {
+        let (run, plugin) = self.open_run(run_dir)?;
+        let ordered = dag::topological_order(&plugin.stages())?;
+        let target = ordered
+            .iter()
+            .find(|s| s.name() == stage_name)
+            .cloned()
+            .ok_or_else(|| {
+                anyhow!(
+                    "plugin `{}` has no stage `{stage_name}` (its stages: {})",
+                    plugin.name(),
+                    ordered
+                        .iter()
+                        .map(|s| s.name())
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                )
+            })?;
+        let chain = dag::with_upstream(&ordered, &[stage_name.to_string()].into());
+        let store = ArtifactStore::default();
+        let mut last = None;
+        for stage in &chain {
+            let cfg = self.stage_config(plugin.name(), stage.name());
+            let ctx = StageContext {
+                run: &run,
+                config: &cfg,
+                artifacts: &store,
+            };
+            let output = run_checked(stage.as_ref(), &ctx)?;
+            for (name, batch) in &output.artifacts {
+                store.insert(name, batch.clone());
+            }
+            store.set_summary(stage.name(), output.summary.clone());
+            last = Some(output);
+        }
+        Ok((target, last.expect("chain includes the target")))
+    }
+}
+
+pub(super) struct Pending(pub(super) Vec<u8>);
+
+/// Run one stage and hold it to its [`StageSpec`]: it may read only the
+/// tables and artifacts it declares and write only the artifacts it declares
+/// (what the cache key and the DAG are built from).
+pub(super) fn run_checked(stage: &dyn Stage, ctx: &StageContext) -> Result<StageOutput> {
+    let spec = stage.spec();
+    ctx.run.take_reads();
+    ctx.artifacts.take_reads();
+    let output = stage
+        .run(ctx)
+        .with_context(|| format!("stage `{}` of run `{}`", spec.name, ctx.run.spec.id))?;
+    spec.check_reads(&ctx.run.take_reads(), &ctx.artifacts.take_reads())?;
+    if let Some((name, _)) = output
+        .artifacts
+        .iter()
+        .find(|(name, _)| !spec.writes.contains(&name.as_str()))
+    {
+        bail!(
+            "stage `{}` produced undeclared artifact `{name}`",
+            spec.name
+        );
+    }
+    Ok(output)
+}
