@@ -174,6 +174,10 @@ pub enum Command {
     /// Diagnose the sim-to-real gap of a paired-observations table.
     #[command(
         after_help = "Example: sparkout diagnose out/fleet/observations.parquet --out diag/ --folds 5 --json\n\
+                      Settings: the [diagnose] section of --config (default: the built-in nightly.toml), \
+                      then --set diagnose.KEY=VALUE, then --folds/--seed/--effects.\n\
+                      The catalogue applies to every observable; --plugin NAME adds that plugin's composites \
+                      (to the observables it produces when the table has them, else to all).\n\
                       Writes diagnosis.json (v1), diagnosis.parquet, augmented_model.json, report.html."
     )]
     Diagnose {
@@ -181,7 +185,9 @@ pub enum Command {
         observations: PathBuf,
         #[arg(long, value_name = "DIR")]
         out: PathBuf,
-        /// Cross-validation folds (by run).
+        #[command(flatten)]
+        config: ConfigArgs,
+        /// Cross-validation folds (by machine and run).
         #[arg(long)]
         folds: Option<usize>,
         /// Restrict the catalogue: comma-separated effect names.
@@ -189,6 +195,9 @@ pub enum Command {
         effects: Option<Vec<String>>,
         #[arg(long)]
         seed: Option<u64>,
+        /// Add this plugin's composite effects (repeatable), e.g. --plugin form.
+        #[arg(long = "plugin", value_name = "NAME")]
+        plugins: Vec<String>,
         /// Print diagnosis.json to stdout.
         #[arg(long)]
         json: bool,
@@ -217,6 +226,9 @@ pub enum Command {
         /// Print the report as JSON to stdout.
         #[arg(long)]
         json: bool,
+        // The diagnosis settings: [diagnose] of --config, --set diagnose.KEY=VALUE.
+        #[command(flatten)]
+        config: ConfigArgs,
     },
 }
 

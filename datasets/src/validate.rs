@@ -101,6 +101,10 @@ pub struct FleetResult {
     pub shrink: f64,
     pub oracle_shrink: f64,
     pub unexplained_over_sigma: f64,
+    /// Parameters of the named true effect whose 95 % interval was checked,
+    /// and how many held the true value (issue 13 item 2).
+    pub intervals_checked: usize,
+    pub intervals_covered: usize,
     pub seconds: f64,
 }
 
@@ -139,6 +143,10 @@ pub struct ValidationReport {
     pub ooc_fleets: usize,
     /// Out-of-catalogue: mean share of the effect's energy inside `where`.
     pub ooc_localisation_mean: Option<f64>,
+    /// Share of checked 95 % parameter intervals that hold the true value
+    /// (target 90–99 %), over catalogue fleets whose effect was named.
+    pub interval_coverage: Option<f64>,
+    pub intervals_checked: usize,
     pub results: Vec<FleetResult>,
 }
 
@@ -210,6 +218,45 @@ fn param_error(truth: &EffectSpec, d: &Diagnosis) -> Option<f64> {
     Some(worst)
 }
 
+/// (checked, covered): the truth's parameters against the named effect's
+/// 95 % intervals (phase compared modulo 2π; c0, c1, t0_c are frame
+/// constants, skipped).
+fn interval_hits(truth: &EffectSpec, d: &Diagnosis) -> (usize, usize) {
+    let Some(e) = d.effects.iter().find(|e| e.selected) else {
+        return (0, 0);
+    };
+    let Some(iv) = &e.intervals else {
+        return (0, 0);
+    };
+    let (mut checked, mut covered) = (0, 0);
+    for (k, t) in &truth.params {
+        if matches!(k.as_str(), "c0" | "c1" | "t0_c") {
+            continue;
+        }
+        let (Some(i), Some(v)) = (
+            iv.get(k),
+            if k == "offset_mm" {
+                e.offset_mm
+            } else {
+                e.params.get(k).copied()
+            },
+        ) else {
+            continue;
+        };
+        let diff = if k == "phase_rad" {
+            let tau = 2.0 * std::f64::consts::PI;
+            let d = (t - v).rem_euclid(tau);
+            d.min(tau - d)
+        } else {
+            (t - v).abs()
+        };
+        checked += 1;
+        // Symmetric intervals: value ± half-width.
+        covered += usize::from(diff <= 0.5 * (i.hi - i.lo));
+    }
+    (checked, covered)
+}
+
 struct Job {
     truth: String,
     kind: &'static str,
@@ -271,6 +318,10 @@ fn run_fleet(cfg: &ValidateConfig, job: &Job) -> Result<FleetResult> {
         Some(s) if named == job.truth && job.kind == "catalogue" => param_error(s, d),
         _ => None,
     };
+    let (intervals_checked, intervals_covered) = match &spec {
+        Some(s) if named == job.truth && job.kind == "catalogue" => interval_hits(s, d),
+        _ => (0, 0),
+    };
     Ok(FleetResult {
         truth: job.truth.clone(),
         kind: job.kind.into(),
@@ -283,6 +334,8 @@ fn run_fleet(cfg: &ValidateConfig, job: &Job) -> Result<FleetResult> {
         shrink,
         oracle_shrink: oracle,
         unexplained_over_sigma: d.unexplained.rms_mm / sigma.max(1e-300),
+        intervals_checked,
+        intervals_covered,
         seconds: start.elapsed().as_secs_f64(),
     })
 }
@@ -418,6 +471,8 @@ fn summarise(cfg: &ValidateConfig, results: Vec<FleetResult>, seconds: f64) -> V
         .iter()
         .filter(|r| r.kind == "out_of_catalogue")
         .collect();
+    let checked: usize = cat.iter().map(|r| r.intervals_checked).sum();
+    let covered: usize = cat.iter().map(|r| r.intervals_covered).sum();
     ValidationReport {
         quick: cfg.quick,
         seed: cfg.seed,
@@ -451,6 +506,8 @@ fn summarise(cfg: &ValidateConfig, results: Vec<FleetResult>, seconds: f64) -> V
                 .filter_map(|r| r.localisation)
                 .collect::<Vec<_>>(),
         ),
+        interval_coverage: (checked > 0).then(|| covered as f64 / checked as f64),
+        intervals_checked: checked,
         results,
     }
 }
@@ -555,6 +612,14 @@ pub fn render_text(r: &ValidationReport) -> String {
         r.ooc_localisation_mean
             .map(|v| format!("{v:.2}"))
             .unwrap_or_else(|| "—".into())
+    );
+    let _ = writeln!(
+        s,
+        "95 % parameter intervals holding the true value: {} of {} checked (target 90–99 %)",
+        r.interval_coverage
+            .map(|v| format!("{:.1} %", 100.0 * v))
+            .unwrap_or_else(|| "—".into()),
+        r.intervals_checked
     );
     for f in r.results.iter().filter(|f| f.kind == "out_of_catalogue") {
         let _ = writeln!(

@@ -357,8 +357,16 @@ pub trait MachinePlugin: Send + Sync {
     fn builtin_machines(&self) -> Vec<(&'static str, &'static str)> {
         Vec::new()
     }
-    /// Physically named composite effects for the diagnosis.
+    /// Physically named composite effects for the diagnosis. They apply
+    /// only to the observables this plugin produces (issue 13 item 1).
     fn effects(&self) -> Vec<Box<dyn Effect>> {
+        Vec::new()
+    }
+    /// Names of the observables this plugin's `observe` stage writes; a
+    /// trailing `*` matches by prefix (`touch_normal*`). `sparkout diagnose
+    /// --plugin NAME` scopes the plugin's composites with it; the fleet
+    /// batch scopes them by the runs each plugin actually processed.
+    fn observables(&self) -> Vec<&'static str> {
         Vec::new()
     }
     /// Report sections for one run from its stage summaries and artifacts.

@@ -2,32 +2,84 @@
 
 use std::path::Path;
 
+use anyhow::{bail, Context};
 use sparkout_pipeline::contracts::{write_atomic, write_json_atomic, write_parquet_atomic};
-use sparkout_pipeline::diagnose::{self, DiagnoseConfig};
+use sparkout_pipeline::diagnose::{self, DiagnoseConfig, EffectScope};
 
-pub fn diagnose(
-    observations: &Path,
-    out: &Path,
-    folds: Option<usize>,
-    effects: Option<Vec<String>>,
-    seed: Option<u64>,
-    json: bool,
-) -> anyhow::Result<u8> {
-    let mut cfg = DiagnoseConfig::default();
-    if let Some(k) = folds {
+use crate::cli::ConfigArgs;
+use crate::registry;
+
+/// The command's flags.
+pub struct Flags {
+    pub config: ConfigArgs,
+    pub folds: Option<usize>,
+    pub effects: Option<Vec<String>>,
+    pub seed: Option<u64>,
+    pub plugins: Vec<String>,
+    pub json: bool,
+}
+
+/// `[diagnose]` of the config (built-in, --config, --set), then the flags.
+pub fn config(flags: &Flags) -> anyhow::Result<DiagnoseConfig> {
+    let pc = registry::config(&flags.config)?;
+    let mut cfg = DiagnoseConfig::from_toml(&pc.section("diagnose"))
+        .with_context(|| format!("config {}: [diagnose]", pc.source))?;
+    if let Some(k) = flags.folds {
         cfg.folds = k;
     }
-    if let Some(s) = seed {
+    if let Some(s) = flags.seed {
         cfg.seed = s;
     }
-    cfg.effects = effects;
+    if flags.effects.is_some() {
+        cfg.effects = flags.effects.clone();
+    }
     cfg.validate()?;
+    Ok(cfg)
+}
+
+/// Does `observable` match one of a plugin's declared names (`prefix*`
+/// matches by prefix)?
+fn produced_by(declared: &[&str], observable: &str) -> bool {
+    declared.iter().any(|d| match d.strip_suffix('*') {
+        Some(prefix) => observable.starts_with(prefix),
+        None => *d == observable,
+    })
+}
+
+pub fn diagnose(observations: &Path, out: &Path, flags: &Flags) -> anyhow::Result<u8> {
+    let cfg = config(flags)?;
     let obs = diagnose::read_observations(observations)?;
-    let plugin_effects: Vec<Box<dyn diagnose::Effect>> = sparkout_plugins::all_plugins()
+    let table_observables: Vec<String> = {
+        let t = diagnose::observations::Table::from_batch(&obs)?;
+        t.obs_names
+    };
+    // A foreign table gets the catalogue only; `--plugin NAME` adds that
+    // plugin's composites, scoped to the observables it produces when the
+    // table has any of them (a sparkout fleet table), else to all.
+    let all = registry::plugins();
+    let mut chosen = Vec::new();
+    for name in &flags.plugins {
+        let Some(p) = all.iter().find(|p| p.name() == name) else {
+            let known: Vec<&str> = all.iter().map(|p| p.name()).collect();
+            bail!("unknown plugin `{name}` (known: {})", known.join(", "));
+        };
+        let declared = p.observables();
+        let mine: Vec<String> = table_observables
+            .iter()
+            .filter(|o| produced_by(&declared, o))
+            .cloned()
+            .collect();
+        chosen.push((p.name(), mine, p.effects()));
+    }
+    let scopes: Vec<EffectScope> = chosen
         .iter()
-        .flat_map(|p| p.effects())
+        .map(|(plugin, mine, effects)| EffectScope {
+            plugin,
+            observables: (!mine.is_empty()).then_some(mine.as_slice()),
+            effects,
+        })
         .collect();
-    let d = diagnose::diagnose(&obs, &cfg, &plugin_effects)?;
+    let d = diagnose::diagnose_scoped(&obs, &cfg, &scopes)?;
     write_parquet_atomic(&out.join("diagnosis.parquet"), &d.per_row)?;
     write_json_atomic(&out.join("augmented_model.json"), &d.augmented_model)?;
     let page = format!(
@@ -38,7 +90,7 @@ pub fn diagnose(
     write_atomic(&out.join("report.html"), page.as_bytes())?;
     // diagnosis.json last: its presence means the set is complete.
     write_json_atomic(&out.join("diagnosis.json"), &d.diagnosis)?;
-    if json {
+    if flags.json {
         println!("{}", serde_json::to_string_pretty(&d.diagnosis)?);
     } else {
         let v = serde_json::to_value(&d.diagnosis)?;
@@ -57,6 +109,19 @@ pub fn diagnose(
             },
             v["unexplained"]["rms_mm"].as_f64().unwrap_or(f64::NAN),
         );
+        for e in d.diagnosis.effects.iter().filter(|e| e.selected) {
+            let shrink = match (e.shrink, e.shrink_interval) {
+                (Some(s), Some([lo, hi])) => {
+                    format!("held-out shrink {s:.2} (95 % {lo:.2}–{hi:.2})")
+                }
+                (Some(s), None) => format!("held-out shrink {s:.2}"),
+                _ => String::new(),
+            };
+            println!("  {} on {}: {shrink}", e.key(), e.observable);
+            for p in e.params_text() {
+                println!("    {p}");
+            }
+        }
         println!("wrote {}", out.join("diagnosis.json").display());
     }
     Ok(0)

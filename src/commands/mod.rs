@@ -76,17 +76,31 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<u8> {
         Command::Diagnose {
             observations,
             out,
+            config,
             folds,
             effects,
             seed,
+            plugins,
             json,
-        } => diagnose::diagnose(&observations, &out, folds, effects, seed, json),
+        } => diagnose::diagnose(
+            &observations,
+            &out,
+            &diagnose::Flags {
+                config,
+                folds,
+                effects,
+                seed,
+                plugins,
+                json,
+            },
+        ),
         Command::Validate {
             quick,
             out,
             seed,
             json,
-        } => validate::validate(quick, out, seed, json),
+            config,
+        } => validate::validate(quick, out, seed, json, &config),
         Command::Replay(args) => replay::replay(&args),
     }
 }

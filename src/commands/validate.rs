@@ -2,13 +2,27 @@
 
 use std::path::PathBuf;
 
+use anyhow::Context;
 use sparkout_pipeline::contracts::{write_atomic, write_json_atomic};
+use sparkout_pipeline::diagnose::DiagnoseConfig;
 
-pub fn validate(quick: bool, out: Option<PathBuf>, seed: u64, json: bool) -> anyhow::Result<u8> {
+use crate::cli::ConfigArgs;
+use crate::registry;
+
+pub fn validate(
+    quick: bool,
+    out: Option<PathBuf>,
+    seed: u64,
+    json: bool,
+    config: &ConfigArgs,
+) -> anyhow::Result<u8> {
+    // The same [diagnose] settings as `run` and `diagnose` (issue 13 item 1).
+    let pc = registry::config(config)?;
+    let diagnose = DiagnoseConfig::from_toml(&pc.section("diagnose"))
+        .with_context(|| format!("config {}: [diagnose]", pc.source))?;
     let cfg = sparkout_datasets::validate::ValidateConfig {
-        quick,
-        seed,
-        ..Default::default()
+        diagnose,
+        ..sparkout_datasets::validate::ValidateConfig::new(quick, seed)
     };
     let report = sparkout_datasets::validate::run(&cfg)?;
     let text = sparkout_datasets::validate::render_text(&report);

@@ -18,10 +18,10 @@ fn thermal_growth_is_named_first() {
     let diag = diagnose_fleet(d.path(), 21, Some("thermal_growth"));
     let first = first_selected(&diag);
     // Physically one thing: growth that follows the warm-up in time
-    // (catalogue `drift` on t_s) or, since the spindle sensor warms with
-    // it, the catalogue's expansion with temperature.
+    // (the mill's `thermal_growth` = drift on t_s) or, since the spindle
+    // sensor warms with it, the catalogue's expansion with temperature.
     assert!(
-        first == "drift:t_s" || first == "thermal:temp_c",
+        first == "thermal_growth:t_s" || first == "thermal:temp_c",
         "expected thermal growth first, got {first:?}; selected {}",
         diag["selected"]
     );
@@ -29,7 +29,7 @@ fn thermal_growth_is_named_first() {
         .unwrap_or_else(|| panic!("no selected entry {first}: {diag:#}"));
     assert_eq!(e["observable"], "tracker_dz", "{e:#}");
     assert!(e["shrink"].as_f64().unwrap() > 0.3, "{e:#}");
-    if first == "drift:t_s" {
+    if first == "thermal_growth:t_s" {
         let tau = e["params"]["tau_s"].as_f64().unwrap();
         assert!((300.0..1200.0).contains(&tau), "τ {tau} (true 600 s)");
     } else {

@@ -17,10 +17,10 @@ fn wheel_wear_is_named_first() {
     let d = tempfile::tempdir().unwrap();
     let diag = diagnose_fleet(d.path(), 31, Some("wheel_wear"));
     let first = first_selected(&diag);
-    // `wheel_wear` is the form plugin's composite name for the same
-    // catalogue wear on removed_mm3 (plugin composites apply fleet-wide).
+    // The catalogue's name: the form plugin's `wheel_wear` composite is
+    // scoped to the form grinder's observables (issue 13 item 1).
     assert!(
-        first == "wear:removed_mm3" || first == "wheel_wear:removed_mm3",
+        first == "wear:removed_mm3",
         "expected wear first, got {first:?}; selected {}",
         diag["selected"]
     );
@@ -32,10 +32,10 @@ fn trigger_latency_is_named_first() {
     let d = tempfile::tempdir().unwrap();
     let diag = diagnose_fleet(d.path(), 32, Some("trigger_latency"));
     let first = first_selected(&diag);
-    // Physically one thing: a lag in the approach speed along the normal
-    // (catalogue `lag`, or the robot's composite `trigger_latency`).
+    // The robot's own composite replaces the catalogue `lag` on the
+    // approach speed for the robot's observables.
     assert!(
-        first.starts_with("trigger_latency:") || first.starts_with("lag:approach"),
+        first.starts_with("trigger_latency:"),
         "expected trigger latency first, got {first:?}; selected {}",
         diag["selected"]
     );

@@ -12,11 +12,16 @@
 //! Bonferroni over all cells of all observables (done by the caller).
 //!
 //! Binning and the per-cell sums run in polars (group-by over the cell id).
+//!
+//! `machine` is a where-dimension too (issue 12): with two or more machines
+//! an observable gets one cell per machine, tested the same way, so a gap
+//! present on one machine of a type is localised to that machine.
 
 use polars::prelude as pl;
 use polars::prelude::{col, len, IntoLazy};
 use statrs::distribution::{ContinuousCDF, FisherSnedecor, Normal};
 
+use super::output::WhereCell;
 use crate::Result;
 
 /// Number of quantile bins per covariate and per axis of the x/y tiles.
@@ -34,6 +39,8 @@ pub struct Cell {
     pub n: usize,
     pub sum_g2: f64,
     pub sum_r2: f64,
+    /// A categorical cell (`machine`): its value; `lo`/`hi` are empty.
+    pub label: Option<String>,
 }
 
 /// Upper-tail probability of F(d1, d2) at `stat`; for very large degrees of
@@ -165,10 +172,101 @@ pub fn cells(covs: &[(&str, &[f64], &[f64])], g: &[f64], r: &[f64]) -> Result<Ve
                 n: cnt[k] as usize,
                 sum_g2: sg2[k],
                 sum_r2: sr2[k],
+                label: None,
             });
         }
     }
     Ok(out)
+}
+
+/// One cell per machine of an observable (none with fewer than two).
+pub fn machine_cells(machine: &[u32], names: &[String], g: &[f64], r: &[f64]) -> Vec<Cell> {
+    let mut acc: std::collections::BTreeMap<u32, (usize, f64, f64)> = Default::default();
+    for ((m, g), r) in machine.iter().zip(g).zip(r) {
+        let a = acc.entry(*m).or_insert((0, 0.0, 0.0));
+        a.0 += 1;
+        a.1 += g * g;
+        a.2 += r * r;
+    }
+    if acc.len() < 2 {
+        return Vec::new();
+    }
+    acc.into_iter()
+        .map(|(m, (n, sg2, sr2))| Cell {
+            covariate: "machine".into(),
+            lo: Vec::new(),
+            hi: Vec::new(),
+            n,
+            sum_g2: sg2,
+            sum_r2: sr2,
+            label: Some(names[m as usize].clone()),
+        })
+        .collect()
+}
+
+/// A cell of one observable with its noise floor σ and σ's df.
+pub struct ObsCell {
+    pub observable: String,
+    pub sigma_mm: f64,
+    pub df: f64,
+    pub cell: Cell,
+}
+
+/// `where` (cells whose raw gap is significant) and `unexplained.where`
+/// (cells whose held-out residual still is), Bonferroni over all cells,
+/// largest RMS first. `sum_g2`/`sum_r2`: totals for the shares.
+pub fn where_lists(
+    all: &[ObsCell],
+    sum_g2: f64,
+    sum_r2: f64,
+    alpha: f64,
+) -> (Vec<WhereCell>, Vec<WhereCell>) {
+    let m_cells = all.len().max(1) as f64;
+    let bound = |c: &Cell, v: &[f64]| match &c.label {
+        Some(l) => serde_json::json!(l),
+        None if v.len() == 1 => serde_json::json!(v[0]),
+        None => serde_json::json!(v),
+    };
+    let mk = |o: &str, c: &Cell, ss: f64, total: f64, p: f64| WhereCell {
+        covariate: c.covariate.clone(),
+        lo: bound(c, &c.lo),
+        hi: bound(c, &c.hi),
+        observable: o.to_string(),
+        share: if total > 0.0 { ss / total } else { 0.0 },
+        rms_mm: (ss / c.n.max(1) as f64).sqrt(),
+        p_value: (p * m_cells).min(1.0),
+        n: c.n,
+        rms_before_mm: None,
+        shrink: None,
+    };
+    let mut where_: Vec<WhereCell> = Vec::new();
+    let mut where_after: Vec<WhereCell> = Vec::new();
+    for oc in all {
+        let c = &oc.cell;
+        let p = cell_p(c.sum_g2 / c.n.max(1) as f64, c.n, oc.sigma_mm, oc.df);
+        if p * m_cells < alpha {
+            where_.push(mk(&oc.observable, c, c.sum_g2, sum_g2, p));
+        }
+        let pa = cell_p(c.sum_r2 / c.n.max(1) as f64, c.n, oc.sigma_mm, oc.df);
+        if pa * m_cells < alpha {
+            let mut w = mk(&oc.observable, c, c.sum_r2, sum_r2, pa);
+            let before = (c.sum_g2 / c.n.max(1) as f64).sqrt();
+            w.rms_before_mm = Some(before);
+            let s = 1.0 - w.rms_mm / before;
+            w.shrink = s.is_finite().then_some(s);
+            where_after.push(w);
+        }
+    }
+    let order = |a: &WhereCell, b: &WhereCell| {
+        b.rms_mm
+            .total_cmp(&a.rms_mm)
+            .then(a.observable.cmp(&b.observable))
+            .then(a.covariate.cmp(&b.covariate))
+            .then(a.lo.to_string().cmp(&b.lo.to_string()))
+    };
+    where_.sort_by(order);
+    where_after.sort_by(order);
+    (where_, where_after)
 }
 
 #[cfg(test)]

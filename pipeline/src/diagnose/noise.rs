@@ -5,11 +5,16 @@
 use std::collections::BTreeMap;
 use std::ops::Range;
 
+use super::gather::ObsRows;
+use super::observations::Table;
+
 /// Which estimate the floor came from (diagnosis.json `noise_floor_source`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum NoiseSource {
     Replicates,
     PointToPoint,
+    /// The RMS of the table's `real_u` (a stated resolution), when larger.
+    Stated,
 }
 
 impl NoiseSource {
@@ -17,6 +22,7 @@ impl NoiseSource {
         match self {
             NoiseSource::Replicates => "replicates",
             NoiseSource::PointToPoint => "point_to_point",
+            NoiseSource::Stated => "stated_uncertainty",
         }
     }
 }
@@ -27,6 +33,73 @@ pub struct NoiseFloor {
     /// Degrees of freedom of σ² (for the F-tests of cells against it).
     pub df: f64,
     pub source: NoiseSource,
+}
+
+/// Step 2, noise: the floor of one observable — replicates, else
+/// point-to-point scatter within each run unit.
+pub fn floor_of(table: &Table, o: &ObsRows) -> NoiseFloor {
+    let rep = table.trial.as_ref().and_then(|trial| {
+        let tr: Vec<i64> = o.rows.iter().map(|&i| trial[i]).collect();
+        let has_position = ["x_mm", "y_mm", "z_mm", "phi_rad"]
+            .iter()
+            .any(|p| o.cols.iter().any(|c| c.name == *p));
+        if table.point.is_none() && !has_position {
+            return None;
+        }
+        // Replicates repeat the same measurement: same run unit, point and
+        // every setting (position, speed, direction, load, pass); only the
+        // trial and what runs on with time (t_s, temperature, cumulative
+        // usage) may differ. Keying on the point id alone would pool a
+        // point probed at two speeds, or point 3 of two faces, and count
+        // their real difference as noise.
+        let settings: Vec<&Vec<f64>> = o
+            .cols
+            .iter()
+            .filter(|c| !is_time_like(&c.name))
+            .map(|c| &c.v)
+            .collect();
+        let key: Vec<Vec<i64>> = o
+            .rows
+            .iter()
+            .enumerate()
+            .map(|(j, &i)| {
+                let mut k = vec![table.run[i] as i64];
+                if let Some(p) = &table.point {
+                    k.push(p[i]);
+                }
+                k.extend(settings.iter().map(|c| c[j].to_bits() as i64));
+                k
+            })
+            .collect();
+        replicate_floor(&o.gap, &key, &tr)
+    });
+    let nf = rep.unwrap_or_else(|| point_to_point_floor(&o.gap, &o.run_ranges));
+    // A measurement cannot be compared finer than its own stated
+    // uncertainty (e.g. positions logged in 1 mm steps): the floor is never
+    // below the RMS of `real_u` where the table states it.
+    let stated = table.real_u.as_ref().and_then(|u| {
+        let v: Vec<f64> = o
+            .rows
+            .iter()
+            .map(|&i| u[i])
+            .filter(|x| x.is_finite())
+            .collect();
+        (!v.is_empty()).then(|| (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt())
+    });
+    match stated {
+        Some(s) if s > nf.sigma_mm => NoiseFloor {
+            sigma_mm: s,
+            df: nf.df.max(o.rows.len() as f64),
+            source: NoiseSource::Stated,
+        },
+        _ => nf,
+    }
+}
+
+/// Covariates that change between replicates of one measurement by nature:
+/// time, temperature and cumulative usage.
+fn is_time_like(name: &str) -> bool {
+    name == "t_s" || name == "temp_c" || name == "infeed_count" || name.ends_with("_mm3")
 }
 
 /// Minimum replicate degrees of freedom before the replicate estimate is

@@ -14,8 +14,10 @@ use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
 use crate::{InputError, Result};
 
 /// Columns that are never covariates (CONTRACTS.md §2, last paragraph;
+/// `machine` from issue 12: a run is identified by machine and run;
 /// `real_u` is the optional standard uncertainty of `real`, v1.1).
-pub const RESERVED: [&str; 7] = [
+pub const RESERVED: [&str; 8] = [
+    "machine",
     "run",
     "observable",
     "sim",
@@ -26,7 +28,8 @@ pub const RESERVED: [&str; 7] = [
 ];
 
 /// Reads observations.parquet (all row groups, concatenated) and validates it
-/// per CONTRACTS.md §2: `run`/`observable` text, `sim`/`real` float64
+/// per CONTRACTS.md §2: `run`/`observable` text (and `machine` when
+/// present: optional, so a v1 table without it still diagnoses), `sim`/`real` float64
 /// (float32 accepted and widened), no NaN/±inf in sim/real (the first bad row
 /// is named), not empty. Extra columns are kept.
 pub fn read_observations(path: &Path) -> Result<RecordBatch> {
@@ -54,10 +57,16 @@ pub fn validate_observations(batch: &RecordBatch, path: &Path) -> Result<RecordB
         return Err(InputError::new(path, "no observations (empty table)").into());
     }
     let schema = batch.schema();
-    for name in ["run", "observable"] {
-        let f = schema
-            .field_with_name(name)
-            .map_err(|_| InputError::new(path, "missing required column").column(name))?;
+    for name in ["machine", "run", "observable"] {
+        let f = match schema.field_with_name(name) {
+            Ok(f) => f,
+            Err(_) if name == "machine" => continue,
+            Err(_) => {
+                return Err(InputError::new(path, "missing required column")
+                    .column(name)
+                    .into())
+            }
+        };
         if !matches!(f.data_type(), DataType::Utf8 | DataType::LargeUtf8) {
             return Err(InputError::new(
                 path,
@@ -126,8 +135,17 @@ pub fn is_covariate(name: &str, t: &DataType) -> bool {
 /// covariates widened to f64, sorted names (deterministic order).
 pub struct Table {
     pub n: usize,
+    /// The run *units* (issue 12): one per (machine, run), so `r0000` of two
+    /// machines are two runs. Named `machine/run` when the table has a
+    /// `machine` column, else by the bare run id.
     pub run_names: Vec<String>,
     pub run: Vec<u32>,
+    /// Sorted machine ids ([""] without a `machine` column) and each row's
+    /// index into them.
+    pub machine_names: Vec<String>,
+    pub machine: Vec<u32>,
+    /// Whether the table carried a `machine` column.
+    pub has_machine: bool,
     pub obs_names: Vec<String>,
     pub obs: Vec<u32>,
     pub gap: Vec<f64>,
@@ -182,7 +200,34 @@ fn f64s(a: &ArrayRef) -> Result<Vec<f64>> {
 impl Table {
     /// From a validated batch.
     pub fn from_batch(b: &RecordBatch) -> Result<Table> {
-        let (run_names, run) = ids(b.column_by_name("run").expect("validated"));
+        let (bare_names, bare_run) = ids(b.column_by_name("run").expect("validated"));
+        let (machine_names, machine, has_machine) = match b.column_by_name("machine") {
+            Some(a) => {
+                let (names, id) = ids(a);
+                (names, id, true)
+            }
+            None => (vec![String::new()], vec![0; b.num_rows()], false),
+        };
+        // Run unit = (machine, run), ids in sorted (machine, run) order.
+        let mut pairs: std::collections::BTreeMap<(u32, u32), u32> = Default::default();
+        for (m, r) in machine.iter().zip(&bare_run) {
+            pairs.entry((*m, *r)).or_insert(0);
+        }
+        let mut run_names = Vec::with_capacity(pairs.len());
+        for (i, ((m, r), v)) in pairs.iter_mut().enumerate() {
+            *v = i as u32;
+            let bare = &bare_names[*r as usize];
+            run_names.push(if has_machine {
+                format!("{}/{bare}", machine_names[*m as usize])
+            } else {
+                bare.clone()
+            });
+        }
+        let run: Vec<u32> = machine
+            .iter()
+            .zip(&bare_run)
+            .map(|(m, r)| pairs[&(*m, *r)])
+            .collect();
         let (obs_names, obs) = ids(b.column_by_name("observable").expect("validated"));
         let sim = f64s(b.column_by_name("sim").expect("validated"))?;
         let real = f64s(b.column_by_name("real").expect("validated"))?;
@@ -221,6 +266,9 @@ impl Table {
             n: b.num_rows(),
             run_names,
             run,
+            machine_names,
+            machine,
+            has_machine,
             obs_names,
             obs,
             gap,

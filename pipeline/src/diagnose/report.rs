@@ -32,7 +32,8 @@ fn json_num(v: &serde_json::Value) -> String {
             let parts: Vec<String> = a.iter().map(json_num).collect();
             format!("({})", parts.join(", "))
         }
-        other => other.to_string(),
+        serde_json::Value::String(t) => esc(t),
+        other => esc(&other.to_string()),
     }
 }
 
@@ -141,11 +142,15 @@ pub fn section(d: &Diagnosis) -> String {
     s.push_str(&ranking_svg(d));
     s.push_str("<table><tr><th>effect</th><th>observable</th><th>before mm</th><th>after mm</th><th>shrink</th><th>p</th><th>selected</th><th>params</th></tr>");
     for e in &d.effects {
-        let params: Vec<String> = e
-            .params
-            .iter()
-            .map(|(k, v)| format!("{k}={}", general(*v)))
-            .collect();
+        // Selected effects: every parameter with its standard error.
+        let params: Vec<String> = if e.intervals.is_some() {
+            e.params_text()
+        } else {
+            e.params
+                .iter()
+                .map(|(k, v)| format!("{k}={}", general(*v)))
+                .collect()
+        };
         let name = match &e.covariate {
             Some(c) => format!("{}:{}", e.name, c),
             None => e.name.clone(),
@@ -157,13 +162,19 @@ pub fn section(d: &Diagnosis) -> String {
             esc(&e.observable),
             num(e.cv_rms_before_mm),
             num(e.cv_rms_after_mm),
-            e.shrink.map(|v| format!("{:.3}", v)).unwrap_or_else(|| "—".into()),
+            match (e.shrink, e.shrink_interval) {
+                (Some(v), Some([lo, hi])) => format!("{v:.3} [{lo:.3}, {hi:.3}]"),
+                (Some(v), None) => format!("{v:.3}"),
+                _ => "—".into(),
+            },
             e.p_value.map(|v| format!("{v:.2e}")).unwrap_or_else(|| "—".into()),
             if e.selected { "yes" } else { "" },
             esc(&e.skipped_reason.clone().unwrap_or_else(|| params.join(", ")))
         );
     }
-    s.push_str("</table><h3>Unexplained</h3>");
+    s.push_str("</table>");
+    per_machine_table(d, &mut s);
+    s.push_str("<h3>Unexplained</h3>");
     if d.unexplained.where_.is_empty() {
         s.push_str("<p>No cell remains significantly above the noise floor.</p>");
     } else {
@@ -185,4 +196,45 @@ pub fn section(d: &Diagnosis) -> String {
     }
     s.push_str("</section>");
     s
+}
+
+/// Selected effects whose machines disagree: each machine's own fit.
+fn per_machine_table(d: &Diagnosis, s: &mut String) {
+    let rows: Vec<_> = d
+        .effects
+        .iter()
+        .filter_map(|e| e.per_machine.as_ref().map(|m| (e, m)))
+        .collect();
+    if rows.is_empty() {
+        return;
+    }
+    s.push_str("<h3>Per machine: the machines disagree</h3><table><tr><th>effect</th><th>observable</th><th>machine</th><th>runs</th><th>n</th><th>params</th><th>offset mm</th><th>p (one effect for all)</th></tr>");
+    for (e, fits) in rows {
+        let name = match &e.covariate {
+            Some(c) => format!("{}:{}", e.name, c),
+            None => e.name.clone(),
+        };
+        for f in fits {
+            let params: Vec<String> = f
+                .params
+                .iter()
+                .map(|(k, v)| format!("{k}={}", general(*v)))
+                .collect();
+            let _ = write!(
+                s,
+                "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
+                esc(&name),
+                esc(&e.observable),
+                esc(&f.machine),
+                f.runs,
+                f.n,
+                esc(&params.join(", ")),
+                num(f.offset_mm),
+                e.machines_differ_p
+                    .map(|p| format!("{p:.2e}"))
+                    .unwrap_or_else(|| "—".into())
+            );
+        }
+    }
+    s.push_str("</table>");
 }

@@ -59,7 +59,7 @@ impl Problem<'_> {
         m.push(vec![true; self.units.len()]);
         m
     }
-    fn frame(&self, e: &dyn Effect) -> Result<Frame> {
+    pub fn frame(&self, e: &dyn Effect) -> Result<Frame> {
         e.covariates()
             .iter()
             .map(|c| {
@@ -385,6 +385,15 @@ pub struct Selection {
     pub contrib: Vec<Vec<f64>>,
     /// All-runs fits of the chosen effects, stagewise: (params, offset).
     pub final_params: Vec<(BTreeMap<String, f64>, f64)>,
+    /// The all-runs target each chosen effect was fitted to (the gap minus
+    /// the all-runs fits of the effects chosen before it).
+    pub final_targets: Vec<Vec<f64>>,
+    /// The cross-validated fits of the chosen effects (fold k = all runs):
+    /// intervals read their covariance and fold spread.
+    pub chosen_evals: Vec<CandEval>,
+    /// Held-out Σ residual² per unit before each chosen effect (its
+    /// `unit_sse` is after).
+    pub chosen_before: Vec<Vec<f64>>,
     /// Held-out residual after the selection, per row.
     pub residual: Vec<f64>,
     /// Held-out Σ residual² per unit before any effect (the raw gap) and
@@ -443,6 +452,9 @@ pub fn select(prob: &Problem, cands: &[&dyn Effect], opt: &SelectOptions) -> Res
     let mut chosen: Vec<usize> = Vec::new();
     let mut contrib: Vec<Vec<f64>> = Vec::new();
     let mut final_params = Vec::new();
+    let mut final_targets = Vec::new();
+    let mut chosen_evals = Vec::new();
+    let mut chosen_before = Vec::new();
     let stop_reason;
     let mut step = 0;
     loop {
@@ -611,10 +623,12 @@ pub fn select(prob: &Problem, cands: &[&dyn Effect], opt: &SelectOptions) -> Res
         }
         contrib.push(c);
         final_params.push(params_of(cands[ci], prob, &ev, k));
+        final_targets.push(tg.per_fold[k].as_ref().clone());
         if let Some(r) = records[ci].as_mut() {
             r.selected = true;
         }
-        before = ev.unit_sse.clone();
+        chosen_before.push(std::mem::replace(&mut before, ev.unit_sse.clone()));
+        chosen_evals.push(ev);
         chosen.push(ci);
         tg = Targets::new(new_targets, &prob.units);
     }
@@ -626,6 +640,9 @@ pub fn select(prob: &Problem, cands: &[&dyn Effect], opt: &SelectOptions) -> Res
         chosen,
         contrib,
         final_params,
+        final_targets,
+        chosen_evals,
+        chosen_before,
         residual,
         unit_sse_gap,
         unit_sse_after: before,

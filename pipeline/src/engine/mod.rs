@@ -27,7 +27,7 @@ use cache::{hash_bytes, hash_file, read_run_cache, record_valid, KeyBuilder, Sta
 pub use config::PipelineConfig;
 
 /// Version of the fleet `diagnose` step (bump when its output changes).
-pub const DIAGNOSE_STAGE_VERSION: u32 = 3;
+pub const DIAGNOSE_STAGE_VERSION: u32 = 4;
 
 /// Version of the manifest/failures layout.
 pub const MANIFEST_VERSION: u32 = 1;
@@ -240,13 +240,17 @@ impl Engine {
 
     /// `[diagnose]` as the diagnosis takes it.
     pub fn diagnose_config(&self) -> Result<DiagnoseConfig> {
-        diagnose_config_from(&self.config.section("diagnose"))
+        DiagnoseConfig::from_toml(&self.config.section("diagnose"))
             .with_context(|| format!("config {}: [diagnose]", self.config.source))
     }
 
-    /// Every effect the plugins add to the catalogue.
-    pub fn plugin_effects(&self) -> Vec<Box<dyn Effect>> {
-        self.plugins.iter().flat_map(|p| p.effects()).collect()
+    /// Each plugin's composites (plugin name, effects), in registry order;
+    /// the diagnosis scopes them to the plugin's observables.
+    pub fn plugin_effects(&self) -> Vec<(&'static str, Vec<Box<dyn Effect>>)> {
+        self.plugins
+            .iter()
+            .map(|p| (p.name(), p.effects()))
+            .collect()
     }
 
     /// Load and resolve one run: run.toml, plugin, machine, required tables.
@@ -409,9 +413,19 @@ impl Engine {
         let obs_file = fleet_dir.join("observations.parquet");
         if want_diagnose && !obs_paths.is_empty() {
             progress.message(&format!("joining observations of {} runs", obs_paths.len()));
+            // Issue 12: every row names its machine (a `machine` column
+            // beside `run`), and the observables each plugin produced are
+            // what its composites apply to (issue 13 item 1).
             let mut batches = Vec::new();
-            for p in &obs_paths {
-                batches.push(crate::contracts::read_parquet(p)?);
+            let mut produced: BTreeMap<String, BTreeSet<String>> = BTreeMap::new();
+            for r in outcome.runs.iter().filter(|r| r.observations.is_some()) {
+                let p = r.observations.as_ref().expect("filtered");
+                let b = with_machine_column(crate::contracts::read_parquet(p)?, &r.machine)?;
+                produced
+                    .entry(r.plugin.clone())
+                    .or_default()
+                    .extend(observable_names(&b));
+                batches.push(b);
             }
             let joined = union_concat(&batches)?;
             let bytes = parquet_bytes(&joined)?;
@@ -436,12 +450,31 @@ impl Engine {
 
             let dcfg = self.diagnose_config()?;
             let effects = self.plugin_effects();
+            let scoped: Vec<(Vec<String>, &(&str, Vec<Box<dyn Effect>>))> = effects
+                .iter()
+                .filter_map(|pe| {
+                    produced
+                        .get(pe.0)
+                        .map(|o| (o.iter().cloned().collect::<Vec<_>>(), pe))
+                })
+                .collect();
+            let scopes: Vec<diagnose::EffectScope> = scoped
+                .iter()
+                .map(|(obs, (plugin, effects))| diagnose::EffectScope {
+                    plugin,
+                    observables: Some(obs.as_slice()),
+                    effects,
+                })
+                .collect();
             let mut dkey = KeyBuilder::new("diagnose");
             dkey.part("version", &DIAGNOSE_STAGE_VERSION.to_string())
                 .part("config", &config_text(&self.config.section("diagnose")))
                 .part("observations", &okey);
-            for e in &effects {
-                dkey.part("effect", e.name());
+            for s in &scopes {
+                for e in s.effects {
+                    dkey.part("effect", &format!("{}/{}", s.plugin, e.name()));
+                }
+                dkey.part("scope", &s.observables.unwrap_or_default().join(","));
             }
             let dkey = dkey.finish();
             let d_cached = previous
@@ -459,7 +492,8 @@ impl Engine {
                     std::fs::read_to_string(fleet_dir.join("diagnosis_section.html")).ok();
             } else {
                 progress.message("diagnosing the sim-to-real gap");
-                let d = diagnose::diagnose(&joined, &dcfg, &effects).context("fleet diagnosis")?;
+                let d = diagnose::diagnose_scoped(&joined, &dcfg, &scopes)
+                    .context("fleet diagnosis")?;
                 let mut files = BTreeMap::new();
                 let dj = json_bytes(&d.diagnosis)?;
                 let dp = parquet_bytes(&d.per_row)?;
@@ -643,6 +677,46 @@ fn json_bytes(v: &impl Serialize) -> Result<Vec<u8>> {
     Ok(s.into_bytes())
 }
 
+/// A run's observations with a `machine` column (before `run`) when the
+/// plugin did not write one (issue 12: runs are (machine, run) pairs).
+pub fn with_machine_column(batch: RecordBatch, machine: &str) -> Result<RecordBatch> {
+    use arrow::array::{ArrayRef, StringArray};
+    use arrow::datatypes::{DataType, Field, Schema};
+    if batch.column_by_name("machine").is_some() {
+        return Ok(batch);
+    }
+    let schema = batch.schema();
+    let at = schema.index_of("run").unwrap_or(0);
+    let mut fields: Vec<Arc<Field>> = schema.fields().iter().cloned().collect();
+    let mut cols: Vec<ArrayRef> = batch.columns().to_vec();
+    fields.insert(at, Arc::new(Field::new("machine", DataType::Utf8, false)));
+    cols.insert(
+        at,
+        Arc::new(StringArray::from(vec![machine; batch.num_rows()])),
+    );
+    Ok(RecordBatch::try_new(
+        Arc::new(Schema::new_with_metadata(fields, schema.metadata().clone())),
+        cols,
+    )?)
+}
+
+/// Distinct values of a batch's `observable` column.
+fn observable_names(batch: &RecordBatch) -> BTreeSet<String> {
+    use arrow::array::AsArray;
+    let Some(a) = batch.column_by_name("observable") else {
+        return BTreeSet::new();
+    };
+    match arrow::compute::cast(a, &arrow::datatypes::DataType::Utf8) {
+        Ok(c) => c
+            .as_string::<i32>()
+            .iter()
+            .flatten()
+            .map(String::from)
+            .collect(),
+        Err(_) => BTreeSet::new(),
+    }
+}
+
 /// Concatenate batches whose schemas may differ (different plugins emit
 /// different covariates): the union of columns in first-seen order, nulls
 /// where a batch lacks a column.
@@ -690,50 +764,4 @@ pub fn union_concat(batches: &[RecordBatch]) -> Result<RecordBatch> {
         columns.push(arrow::compute::concat(&refs)?);
     }
     Ok(RecordBatch::try_new(schema, columns)?)
-}
-
-/// `[diagnose]` → DiagnoseConfig (checked).
-pub fn diagnose_config_from(section: &toml::Table) -> Result<DiagnoseConfig> {
-    let mut c = DiagnoseConfig::default();
-    for (k, v) in section {
-        match k.as_str() {
-            "folds" => {
-                c.folds = v
-                    .as_integer()
-                    .filter(|&f| f >= 2)
-                    .ok_or_else(|| anyhow!("folds must be an integer ≥ 2"))?
-                    as usize
-            }
-            "seed" => {
-                c.seed = v
-                    .as_integer()
-                    .filter(|&s| s >= 0)
-                    .ok_or_else(|| anyhow!("seed must be a non-negative integer"))?
-                    as u64
-            }
-            "alpha" => {
-                c.alpha = v
-                    .as_float()
-                    .or_else(|| v.as_integer().map(|i| i as f64))
-                    .filter(|a| *a > 0.0 && *a < 1.0)
-                    .ok_or_else(|| anyhow!("alpha must be a number in (0, 1)"))?
-            }
-            "effects" => {
-                let list = v
-                    .as_array()
-                    .ok_or_else(|| anyhow!("effects must be a list of effect names"))?
-                    .iter()
-                    .map(|e| {
-                        e.as_str()
-                            .map(|s| s.to_string())
-                            .ok_or_else(|| anyhow!("effects must be a list of effect names"))
-                    })
-                    .collect::<Result<Vec<_>>>()?;
-                c.effects = Some(list);
-            }
-            other => bail!("unknown key `{other}` (known: folds, seed, alpha, effects)"),
-        }
-    }
-    c.validate()?;
-    Ok(c)
 }

@@ -256,12 +256,15 @@ pub fn fleet_page(
         ));
     }
     body.push_str("<h2>Runs</h2>");
-    let rows: Vec<Vec<String>> = outcome
-        .runs
+    // Grouped by machine (issue 12): sorted by (machine, run).
+    let mut runs: Vec<&crate::engine::RunResult> = outcome.runs.iter().collect();
+    runs.sort_by(|a, b| (&a.machine, &a.run).cmp(&(&b.machine, &b.run)));
+    let rows: Vec<Vec<String>> = runs
         .iter()
         .map(|r| {
             vec![
-                format!("{}/{}", r.machine, r.run),
+                r.machine.clone(),
+                r.run.clone(),
                 r.plugin.clone(),
                 r.computed().to_string(),
                 r.cached().to_string(),
@@ -269,7 +272,13 @@ pub fn fleet_page(
         })
         .collect();
     body.push_str(&table(
-        &["run", "plugin", "stages computed", "stages cached"],
+        &[
+            "machine",
+            "run",
+            "plugin",
+            "stages computed",
+            "stages cached",
+        ],
         &rows,
     ));
     if !outcome.failures.is_empty() {
@@ -279,18 +288,37 @@ pub fn fleet_page(
             .iter()
             .map(|f| {
                 vec![
+                    f.machine.clone().unwrap_or_default(),
+                    f.run.clone().unwrap_or_default(),
                     f.run_dir.clone(),
                     f.stage.clone().unwrap_or_default(),
                     f.error.clone(),
                 ]
             })
             .collect();
-        body.push_str(&table(&["run", "stage", "error"], &rows));
+        body.push_str(&table(
+            &["machine", "run", "run directory", "stage", "error"],
+            &rows,
+        ));
     }
     let obs = outcome.out_dir.join("fleet").join("observations.parquet");
     if obs.is_file() {
         match gap_table::gap_by_run_observable(&obs) {
-            Ok(rows) => {
+            Ok((true, rows)) => {
+                body.push_str("<h2>Gap by machine, run and observable</h2>");
+                body.push_str(&table(
+                    &[
+                        "machine",
+                        "run",
+                        "observable",
+                        "n",
+                        "mean gap (mm)",
+                        "RMS gap (mm)",
+                    ],
+                    &rows,
+                ));
+            }
+            Ok((false, rows)) => {
                 body.push_str("<h2>Gap by run and observable</h2>");
                 body.push_str(&table(
                     &["run", "observable", "n", "mean gap (mm)", "RMS gap (mm)"],

@@ -65,6 +65,9 @@ impl MachinePlugin for FormPlugin {
             catalogue_effect(Kind::Wear, &["removed_mm3"]),
         )]
     }
+    fn observables(&self) -> Vec<&'static str> {
+        vec!["profile_error"]
+    }
     fn report_sections(&self, run: &Run, artifacts: &ArtifactStore) -> Vec<ReportSection> {
         report::sections(run, artifacts)
     }

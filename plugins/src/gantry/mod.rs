@@ -70,7 +70,7 @@ impl MachinePlugin for GantryPlugin {
         vec![("aplm-gantry", APLM_GANTRY_TOML)]
     }
     /// Physically named effects of the polished surface (DESIGN.md point 2):
-    /// - `thermal_bow` = bow(bridge_y_mm)·drift(t_s): the bridge bows as it
+    /// - `thermal_bow` = bow(y_mm)·drift(t_s): the bridge bows as it
     ///   warms; the spring-loaded disc turns the height change into a
     ///   pressure, hence removal, change (MODELS.md §2.5);
     /// - `raster_end_pressure` = edge(path_end_mm): acceleration and
@@ -90,12 +90,15 @@ impl MachinePlugin for GantryPlugin {
         ];
         if let Ok(e) = product(
             "thermal_bow",
-            catalogue_effect(Kind::Bow, &["bridge_y_mm"]),
+            catalogue_effect(Kind::Bow, &["y_mm"]),
             catalogue_effect(Kind::Drift, &["t_s"]),
         ) {
             v.insert(0, e);
         }
         v
+    }
+    fn observables(&self) -> Vec<&'static str> {
+        vec![observe::OBSERVABLE]
     }
     fn report_sections(&self, run: &Run, artifacts: &ArtifactStore) -> Vec<ReportSection> {
         report::sections(run, artifacts)

@@ -7,10 +7,10 @@
 //! the tool centre passed over it): x_mm, y_mm, t_s, feed_mm_s, dir (pass
 //! direction), path_end_mm (distance along the pass to its nearer end),
 //! a_mm_s2 (|tangential acceleration|), tool_removed_mm3 (volume the tool
-//! had removed before then: contact time × the disc's volume rate), and
-//! bridge_y_mm (the spindle's position along the bridge — y in this
-//! machine's frame — named for the gantry's `thermal_bow` composite so that
-//! composite applies only to machines with a bridge).
+//! had removed before then: contact time × the disc's volume rate). y_mm is
+//! the spindle's position along the bridge in this machine's frame, which
+//! the gantry's `thermal_bow` composite reads (composites apply only to
+//! their plugin's observables, issue 13 item 1).
 
 use anyhow::anyhow;
 use serde_json::json;
@@ -59,7 +59,8 @@ pub fn nearest_samples(grid: &Grid, path: &[PathSample]) -> Vec<usize> {
 
 const SPEC: StageSpec = StageSpec {
     name: "observe",
-    version: 1,
+    // 2: no bridge_y_mm column (thermal_bow reads y_mm, issue 13 item 1).
+    version: 2,
     reads: &[&TOPOGRAPHY, &MOTION],
     reads_artifacts: &["removal"],
     writes: &["observations"],
@@ -125,8 +126,7 @@ impl Stage for ObserveStage {
             .f64("sim", sim.to_vec())
             .f64("real", real.z.clone())
             .f64("x_mm", xs)
-            .f64("y_mm", ys.clone())
-            .f64("bridge_y_mm", ys)
+            .f64("y_mm", ys)
             .f64("t_s", pick(&|p| p.t_s))
             .f64("feed_mm_s", pick(&|p| p.feed_mm_s))
             .f64("dir", pick(&|p| p.dir))

@@ -67,6 +67,9 @@ impl MachinePlugin for GuidewayPlugin {
             catalogue_effect(Kind::Wear, &["infeed_count"]),
         )]
     }
+    fn observables(&self) -> Vec<&'static str> {
+        vec![observe::OBSERVABLE]
+    }
     fn report_sections(&self, run: &Run, artifacts: &ArtifactStore) -> Vec<ReportSection> {
         report::sections(run, artifacts)
     }

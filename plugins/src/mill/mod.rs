@@ -17,7 +17,7 @@
 
 use std::sync::Arc;
 
-use sparkout_pipeline::diagnose::Effect;
+use sparkout_pipeline::diagnose::{catalogue_effect, composite, Effect, Kind};
 use sparkout_pipeline::{ArtifactStore, MachinePlugin, ReportSection, Run, Stage};
 
 pub mod chain;
@@ -49,14 +49,20 @@ impl MachinePlugin for MillPlugin {
     fn builtin_machines(&self) -> Vec<(&'static str, &'static str)> {
         vec![("xfyz-mill", XFYZ_MILL_TOML)]
     }
-    /// No composite: thermal growth during the measurement is the
-    /// catalogue's `drift:t_s` (warm-up, A·(1 − e^(−t/τ))) or, with a
-    /// temperature log, `thermal:temp_c`. A composite renaming drift on t_s
-    /// would replace `drift:t_s` in every diagnosis — plugin effects apply
-    /// to all observables of a fleet, other plugins' and imported
-    /// observations included — so the mill adds none.
+    /// `thermal_growth` = drift in time (DESIGN.md: warm-up): the spindle
+    /// and column grow towards a steady state as A·(1 − e^(−t/τ)) while the
+    /// tracker points are taken; the identified geometric model is static,
+    /// so the growth is left in the tracker gap. It applies only to the
+    /// mill's tracker observables (issue 13 item 1: composites are scoped
+    /// to their plugin's observables), so other machines keep `drift:t_s`.
     fn effects(&self) -> Vec<Box<dyn Effect>> {
-        Vec::new()
+        vec![composite(
+            "thermal_growth",
+            catalogue_effect(Kind::Drift, &["t_s"]),
+        )]
+    }
+    fn observables(&self) -> Vec<&'static str> {
+        observe::OBSERVABLES.to_vec()
     }
     fn report_sections(&self, run: &Run, artifacts: &ArtifactStore) -> Vec<ReportSection> {
         report::sections(run, artifacts)

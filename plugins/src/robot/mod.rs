@@ -94,6 +94,9 @@ impl MachinePlugin for RobotPlugin {
         out.extend(products.into_iter().filter_map(|p| p.ok()));
         out
     }
+    fn observables(&self) -> Vec<&'static str> {
+        vec!["touch_normal*", "cut_depth"]
+    }
     fn report_sections(&self, run: &Run, artifacts: &ArtifactStore) -> Vec<ReportSection> {
         report::sections(run, artifacts)
     }

@@ -1,0 +1,134 @@
+//! Step 1, gather: the rows of one observable, sorted by run unit — a
+//! (machine, run) pair (issue 12) — then time, with the covariates that
+//! apply to it.
+
+use std::ops::Range;
+
+use rayon::prelude::*;
+
+use super::effect::CovStats;
+use super::observations::Table;
+use super::Notes;
+
+/// One covariate of an observable: values in row order, sorted, constants.
+pub struct Cov {
+    pub name: String,
+    pub v: Vec<f64>,
+    pub sorted: Vec<f64>,
+    pub stats: CovStats,
+}
+
+/// The rows of one observable and what the later steps read from them.
+pub struct ObsRows {
+    pub name: String,
+    /// Indices into the table, sorted by run unit, then t_s, then input order.
+    pub rows: Vec<usize>,
+    pub gap: Vec<f64>,
+    /// Contiguous ranges of `rows` per run unit.
+    pub run_ranges: Vec<Range<usize>>,
+    /// Machine id (into `Table::machine_names`) per row of `rows`.
+    pub machine: Vec<u32>,
+    /// Varying covariates with a finite value on every row.
+    pub cols: Vec<Cov>,
+}
+
+impl ObsRows {
+    pub fn n(&self) -> usize {
+        self.rows.len()
+    }
+    pub fn names(&self) -> Vec<String> {
+        self.cols.iter().map(|c| c.name.clone()).collect()
+    }
+    /// Distinct machine ids of this observable, ascending.
+    pub fn machines(&self) -> Vec<u32> {
+        let mut m = self.machine.clone();
+        m.sort_unstable();
+        m.dedup();
+        m
+    }
+}
+
+pub fn gather(table: &Table, oi: usize, notes: &mut Notes) -> ObsRows {
+    let oname = &table.obs_names[oi];
+    let t = table.cov("t_s");
+    let mut rows: Vec<usize> = (0..table.n)
+        .filter(|&i| table.obs[i] as usize == oi)
+        .collect();
+    rows.sort_by(|&a, &b| {
+        table.run[a]
+            .cmp(&table.run[b])
+            .then_with(|| match t {
+                Some(t) => t[a].total_cmp(&t[b]),
+                None => std::cmp::Ordering::Equal,
+            })
+            .then(a.cmp(&b))
+    });
+    let n = rows.len();
+    let gap: Vec<f64> = rows.iter().map(|&i| table.gap[i]).collect();
+    let run: Vec<u32> = rows.iter().map(|&i| table.run[i]).collect();
+    let machine: Vec<u32> = rows.iter().map(|&i| table.machine[i]).collect();
+    let mut run_ranges: Vec<Range<usize>> = Vec::new();
+    let mut s = 0;
+    for i in 1..=n {
+        if i == n || run[i] != run[s] {
+            run_ranges.push(s..i);
+            s = i;
+        }
+    }
+    // Covariates: gathered, sorted once (frames and cell edges).
+    let gathered: Vec<Cov> = table
+        .covs
+        .par_iter()
+        .map(|(name, v)| {
+            let v: Vec<f64> = rows.iter().map(|&i| v[i]).collect();
+            let mut sorted = v.clone();
+            sorted.sort_unstable_by(f64::total_cmp);
+            let stats = CovStats::from_sorted(&sorted);
+            Cov {
+                name: name.clone(),
+                v,
+                sorted,
+                stats,
+            }
+        })
+        .collect();
+    let mut cols = Vec::new();
+    for c in gathered {
+        // A covariate belongs to the observables whose rows carry it
+        // (CONTRACTS §2: a fleet table mixes observables, each with its
+        // own covariates; the others are null there). Absent for every
+        // row of this observable → not applicable; absent for some →
+        // skipped and said.
+        let finite = c.v.iter().filter(|v| v.is_finite()).count();
+        if finite == 0 {
+            continue;
+        }
+        if finite < c.v.len() {
+            notes.add(format!(
+                "{oname}: covariate {} is missing (null/NaN) in {} of {} rows: skipped",
+                c.name,
+                c.v.len() - finite,
+                c.v.len()
+            ));
+            continue;
+        }
+        if c.stats.is_constant() {
+            notes.add(format!("constant covariate {} skipped", c.name));
+        } else {
+            cols.push(c);
+        }
+    }
+    if table.covs.is_empty() {
+        notes.add("no covariates: offset only".into());
+    } else if cols.is_empty() {
+        notes.add(format!("{oname}: no varying covariates: offset only"));
+    }
+    ObsRows {
+        name: oname.clone(),
+        rows,
+        gap,
+        run_ranges,
+        machine,
+        cols,
+    }
+}
