@@ -100,6 +100,44 @@ pub enum Command {
         #[command(flatten)]
         config: ConfigArgs,
     },
+    /// Turn CSV (or Parquet) files with foreign column names into recorded runs.
+    #[command(
+        after_help = "Examples:\n  sparkout import datasets/samples/umich_cnc/*.csv.gz --mapping umich_cnc --out runs/\n  \
+                      sparkout import log.csv --out runs/ --table motion --machine mill-3 --plugin servo \\\n    \
+                      --map time=t_s --map Xcmd=cmd_x_mm --map Xact=act_x_mm --map Ycmd=cmd_y_mm --map Zcmd=cmd_z_mm \\\n    \
+                      --map F=feed_mm_s*0.0166667\n\
+                      SRC may be #N for the N-th column (0-based). Writes <out>/<machine>/<run>/{run.toml,<table>.parquet}; \
+                      one run per file (or per value of [import].split_by). Format: docs/import.md. \
+                      Exit 2 when a file was refused (the others are imported)."
+    )]
+    Import {
+        /// Input files: .csv, .csv.gz, .tsv or .parquet.
+        files: Vec<PathBuf>,
+        /// Fleet root the runs are written under.
+        #[arg(long, value_name = "DIR")]
+        out: Option<PathBuf>,
+        /// A built-in mapping name (e.g. umich_cnc) or a mapping TOML file.
+        #[arg(long, value_name = "NAME|TOML")]
+        mapping: Option<String>,
+        /// Map a column: SRC=DEST or SRC=DEST*FACTOR (repeatable; overrides the mapping).
+        #[arg(long = "map", value_name = "SRC=DEST[*F]", allow_hyphen_values = true)]
+        maps: Vec<String>,
+        /// Contract table the rows become (motion, probe, tracker, ...).
+        #[arg(long)]
+        table: Option<String>,
+        /// Machine id of the runs.
+        #[arg(long)]
+        machine: Option<String>,
+        /// Plugin of the runs.
+        #[arg(long)]
+        plugin: Option<String>,
+        /// t_s = row index × this period, when no column is mapped to t_s.
+        #[arg(long, value_name = "S")]
+        sample_period_s: Option<f64>,
+        /// List the built-in mappings and exit.
+        #[arg(long)]
+        list_mappings: bool,
+    },
     /// Generate a synthetic fleet (or an observations table) with injected effects.
     #[command(
         after_help = "Examples:\n  sparkout generate robot --runs 6 --seed 1 --out runs/ --effect wheel_wear\n  \

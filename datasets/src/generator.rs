@@ -121,6 +121,7 @@ pub fn all_generators() -> Vec<Arc<dyn Generator>> {
         Arc::new(crate::guideway::GENERATOR),
         Arc::new(crate::mill::GENERATOR),
         Arc::new(crate::form::GENERATOR),
+        Arc::new(crate::servo::GENERATOR),
         Arc::new(crate::observations::ObservationsGenerator),
     ]
 }

@@ -10,6 +10,7 @@ pub mod mill;
 pub mod observations;
 pub mod rng;
 pub mod robot;
+pub mod servo;
 pub mod validate;
 
 pub use generator::{

@@ -8,6 +8,7 @@ pub mod diagnose;
 pub mod effect_spec;
 pub mod engine;
 pub mod error;
+pub mod import;
 pub mod replay;
 pub mod report;
 pub mod traits;

@@ -10,6 +10,7 @@ pub mod gantry;
 pub mod guideway;
 pub mod mill;
 pub mod robot;
+pub mod servo;
 
 /// Every plugin this build knows, in a fixed order.
 pub fn all_plugins() -> Vec<Arc<dyn MachinePlugin>> {
@@ -19,5 +20,6 @@ pub fn all_plugins() -> Vec<Arc<dyn MachinePlugin>> {
         Arc::new(mill::MillPlugin),
         Arc::new(form::FormPlugin),
         Arc::new(gantry::GantryPlugin),
+        Arc::new(servo::ServoPlugin),
     ]
 }

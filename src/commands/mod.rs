@@ -3,6 +3,7 @@
 mod demo;
 mod diagnose;
 mod generate;
+mod import;
 mod replay;
 mod run;
 mod stage;
@@ -49,6 +50,27 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<u8> {
             };
             generate::generate(&what, &opts, out, &effects, list_effects, force)
         }
+        Command::Import {
+            files,
+            out,
+            mapping,
+            maps,
+            table,
+            machine,
+            plugin,
+            sample_period_s,
+            list_mappings,
+        } => import::import(&import::ImportArgs {
+            files: &files,
+            out: out.as_deref(),
+            mapping: mapping.as_deref(),
+            maps: &maps,
+            table: table.as_deref(),
+            machine: machine.as_deref(),
+            plugin: plugin.as_deref(),
+            sample_period_s,
+            list_mappings,
+        }),
         Command::Demo { out } => demo::demo(&out),
         Command::Diagnose {
             observations,

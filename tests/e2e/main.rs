@@ -30,3 +30,5 @@ mod replay_cli;
 mod robot_diagnosis_e2e;
 mod robot_stages;
 mod runless_tables;
+mod servo_e2e;
+mod umich_cnc;

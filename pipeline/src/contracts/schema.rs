@@ -89,6 +89,20 @@ pub const MOTION: TableSchema = TableSchema {
         opt("act_z_mm", F64),
         opt("feed_mm_s", F64),
         opt("segment", I32),
+        // v1.1 (servo traces, docs/servo.md): per-axis velocity and
+        // acceleration where the controller logs them.
+        opt("cmd_v_x_mm_s", F64),
+        opt("cmd_v_y_mm_s", F64),
+        opt("cmd_v_z_mm_s", F64),
+        opt("act_v_x_mm_s", F64),
+        opt("act_v_y_mm_s", F64),
+        opt("act_v_z_mm_s", F64),
+        opt("cmd_a_x_mm_s2", F64),
+        opt("cmd_a_y_mm_s2", F64),
+        opt("cmd_a_z_mm_s2", F64),
+        opt("act_a_x_mm_s2", F64),
+        opt("act_a_y_mm_s2", F64),
+        opt("act_a_z_mm_s2", F64),
     ],
     monotonic_t_s: true,
 };

@@ -13,6 +13,8 @@ use super::observations::Table;
 pub enum NoiseSource {
     Replicates,
     PointToPoint,
+    /// The RMS of the table's `real_u` (a stated resolution), when larger.
+    Stated,
 }
 
 impl NoiseSource {
@@ -20,6 +22,7 @@ impl NoiseSource {
         match self {
             NoiseSource::Replicates => "replicates",
             NoiseSource::PointToPoint => "point_to_point",
+            NoiseSource::Stated => "stated_uncertainty",
         }
     }
 }
@@ -70,7 +73,27 @@ pub fn floor_of(table: &Table, o: &ObsRows) -> NoiseFloor {
             .collect();
         replicate_floor(&o.gap, &key, &tr)
     });
-    rep.unwrap_or_else(|| point_to_point_floor(&o.gap, &o.run_ranges))
+    let nf = rep.unwrap_or_else(|| point_to_point_floor(&o.gap, &o.run_ranges));
+    // A measurement cannot be compared finer than its own stated
+    // uncertainty (e.g. positions logged in 1 mm steps): the floor is never
+    // below the RMS of `real_u` where the table states it.
+    let stated = table.real_u.as_ref().and_then(|u| {
+        let v: Vec<f64> = o
+            .rows
+            .iter()
+            .map(|&i| u[i])
+            .filter(|x| x.is_finite())
+            .collect();
+        (!v.is_empty()).then(|| (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt())
+    });
+    match stated {
+        Some(s) if s > nf.sigma_mm => NoiseFloor {
+            sigma_mm: s,
+            df: nf.df.max(o.rows.len() as f64),
+            source: NoiseSource::Stated,
+        },
+        _ => nf,
+    }
 }
 
 /// Covariates that change between replicates of one measurement by nature:
@@ -132,8 +155,21 @@ pub fn point_to_point_floor(gap: &[f64], runs: &[Range<usize>]) -> NoiseFloor {
     let med = median(&mut d.clone());
     let mut dev: Vec<f64> = d.iter().map(|v| (v - med).abs()).collect();
     let mad = median(&mut dev);
+    // Quantised data (a gap that mostly repeats its value exactly) have a
+    // MAD of 0 although they scatter: then the floor is the rounding noise
+    // of the typical step q, q/√12 (q = median non-zero |Δg|).
+    let sigma = if mad > 0.0 {
+        1.4826 * mad / std::f64::consts::SQRT_2
+    } else {
+        let mut steps: Vec<f64> = d.iter().map(|v| v.abs()).filter(|v| *v > 0.0).collect();
+        if steps.is_empty() {
+            0.0
+        } else {
+            median(&mut steps) / 12f64.sqrt()
+        }
+    };
     NoiseFloor {
-        sigma_mm: 1.4826 * mad / std::f64::consts::SQRT_2,
+        sigma_mm: sigma,
         df: (0.37 * d.len() as f64).max(1.0),
         source: NoiseSource::PointToPoint,
     }
@@ -174,5 +210,19 @@ mod tests {
         let whole: Vec<Range<usize>> = std::iter::once(0..gap.len()).collect();
         let p = point_to_point_floor(&gap, &whole);
         assert!((p.sigma_mm - 0.01).abs() < 0.001, "{}", p.sigma_mm);
+    }
+
+    #[test]
+    fn quantised_gap_has_a_rounding_floor_not_zero() {
+        // Mostly repeated values, occasional 1 mm steps: MAD(Δg) = 0.
+        let gap: Vec<f64> = (0..1000)
+            .map(|i| if (i / 7) % 5 == 0 { 1.0 } else { 0.0 })
+            .collect();
+        let p = point_to_point_floor(&gap, &[0..gap.len()]);
+        assert!(
+            (p.sigma_mm - 1.0 / 12f64.sqrt()).abs() < 1e-12,
+            "{}",
+            p.sigma_mm
+        );
     }
 }

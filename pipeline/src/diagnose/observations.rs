@@ -15,8 +15,9 @@ use crate::{InputError, Result};
 pub const MAX_OBSERVED_MM: f64 = 1e4;
 
 /// Columns that are never covariates (CONTRACTS.md §2, last paragraph;
-/// `machine` from issue 12: a run is identified by machine and run).
-pub const RESERVED: [&str; 7] = [
+/// `machine` from issue 12: a run is identified by machine and run;
+/// `real_u` is the optional standard uncertainty of `real`, v1.1).
+pub const RESERVED: [&str; 8] = [
     "machine",
     "run",
     "observable",
@@ -24,6 +25,7 @@ pub const RESERVED: [&str; 7] = [
     "real",
     "trial",
     "point",
+    "real_u",
 ];
 
 /// Reads observations.parquet (all row groups, concatenated) and validates it
@@ -208,6 +210,9 @@ pub struct Table {
     pub dropped: Vec<String>,
     pub trial: Option<Vec<i64>>,
     pub point: Option<Vec<i64>>,
+    /// `real_u`: each row's stated standard uncertainty of `real` (e.g. a
+    /// logging resolution step/√12); NaN where not stated.
+    pub real_u: Option<Vec<f64>>,
 }
 
 /// Sorted distinct strings of a text column and each row's index into
@@ -326,6 +331,12 @@ impl Table {
             dropped,
             trial: int("trial")?,
             point: int("point")?,
+            real_u: match b.column_by_name("real_u") {
+                Some(a) if a.data_type().is_floating() || a.data_type().is_integer() => {
+                    Some(f64s(a)?)
+                }
+                _ => None,
+            },
         })
     }
 

@@ -1,0 +1,200 @@
+//! `follow`: the commanded path of every axis through the machine's servo
+//! model (model.rs) beside what the axis did: simulated and measured
+//! following error e = actual − commanded (mm) and velocity error (mm/s).
+//!
+//! The velocity error is act − cmd velocity where the controller logs both;
+//! else the rate of the following error by central differences, applied to
+//! the measured and the simulated error alike (so the difference operator
+//! cancels in the gap). Each value carries the standard uncertainty its
+//! logging resolution implies (config.rs `Resolution`): quantised positions
+//! cannot show a following error finer than their step.
+
+use serde_json::json;
+use sparkout_pipeline::contracts::schema::MOTION;
+use sparkout_pipeline::contracts::BatchBuilder;
+use sparkout_pipeline::{Result, Stage, StageContext, StageOutput, StageSpec};
+
+use super::config::{ServoMachine, AXES};
+use super::model::simulate;
+use super::trace::{derivative, AxisTrace, Source, Trace};
+
+/// One axis compared with its model.
+#[derive(Debug, Clone)]
+pub struct AxisCompare {
+    pub axis: &'static str,
+    pub real_e_mm: Vec<f64>,
+    pub sim_e_mm: Vec<f64>,
+    pub u_e_mm: Vec<f64>,
+    pub real_ve_mm_s: Vec<f64>,
+    pub sim_ve_mm_s: Vec<f64>,
+    pub u_ve_mm_s: Vec<f64>,
+    pub ve_source: Source,
+}
+
+/// Simulated vs measured following and velocity errors of one axis.
+pub fn compare(t: &[f64], a: &AxisTrace, m: &ServoMachine) -> AxisCompare {
+    let (sim_e, sim_edot) = simulate(m.axes[a.index], t, &a.cmd_v_mm_s);
+    let real_e: Vec<f64> = a.act_mm.iter().zip(&a.cmd_mm).map(|(x, c)| x - c).collect();
+    let u_e: Vec<f64> = a
+        .act_mm
+        .iter()
+        .zip(&a.cmd_mm)
+        .map(|(x, c)| m.position.u_diff(*x, *c))
+        .collect();
+    let n = t.len();
+    let (real_ve, sim_ve, u_ve, src): (Vec<f64>, Vec<f64>, Vec<f64>, Source) = match &a.act_v_mm_s {
+        Some(av) => (
+            av.iter().zip(&a.cmd_v_mm_s).map(|(x, c)| x - c).collect(),
+            sim_edot,
+            av.iter()
+                .zip(&a.cmd_v_mm_s)
+                .map(|(x, c)| m.velocity.u_diff(*x, *c))
+                .collect(),
+            Source::Logged,
+        ),
+        None => {
+            let u: Vec<f64> = (0..n)
+                .map(|i| {
+                    let (lo, hi) = (i.saturating_sub(1), (i + 1).min(n.saturating_sub(1)));
+                    let dt = t[hi] - t[lo];
+                    if dt > 0.0 {
+                        (u_e[lo].powi(2) + u_e[hi].powi(2)).sqrt() / dt
+                    } else {
+                        0.0
+                    }
+                })
+                .collect();
+            (
+                derivative(t, &real_e),
+                derivative(t, &sim_e),
+                u,
+                Source::Differences,
+            )
+        }
+    };
+    AxisCompare {
+        axis: a.axis,
+        real_e_mm: real_e,
+        sim_e_mm: sim_e,
+        u_e_mm: u_e,
+        real_ve_mm_s: real_ve,
+        sim_ve_mm_s: sim_ve,
+        u_ve_mm_s: u_ve,
+        ve_source: src,
+    }
+}
+
+fn rms(v: impl Iterator<Item = f64>) -> f64 {
+    let (s, n) = v.fold((0.0, 0usize), |(s, n), x| (s + x * x, n + 1));
+    if n == 0 {
+        0.0
+    } else {
+        (s / n as f64).sqrt()
+    }
+}
+
+/// Least-squares lag (s) of e = c − lag·v over the moving samples: the
+/// axis' effective lag, to compare with the model's (1 − ff)/Kv.
+pub fn effective_lag_s(e: &[f64], v: &[f64], standstill_mm_s: f64) -> Option<f64> {
+    let rows: Vec<(f64, f64)> = e
+        .iter()
+        .zip(v)
+        .filter(|(_, v)| v.abs() > standstill_mm_s)
+        .map(|(e, v)| (*e, *v))
+        .collect();
+    if rows.len() < 3 {
+        return None;
+    }
+    let n = rows.len() as f64;
+    let (me, mv) = (
+        rows.iter().map(|r| r.0).sum::<f64>() / n,
+        rows.iter().map(|r| r.1).sum::<f64>() / n,
+    );
+    let sxx: f64 = rows.iter().map(|r| (r.1 - mv).powi(2)).sum();
+    let sxy: f64 = rows.iter().map(|r| (r.1 - mv) * (r.0 - me)).sum();
+    (sxx > 0.0).then(|| -sxy / sxx)
+}
+
+pub struct FollowStage;
+
+const SPEC: StageSpec = StageSpec {
+    name: "follow",
+    version: 1,
+    reads: &[&MOTION],
+    reads_artifacts: &[],
+    writes: &["following_error"],
+    about: "commanded path through the servo model: simulated vs measured following and velocity error per axis",
+};
+
+impl Stage for FollowStage {
+    fn spec(&self) -> &'static StageSpec {
+        &SPEC
+    }
+    fn validate_config(&self, config: &toml::Table) -> Result<()> {
+        sparkout_pipeline::config_check::check_config(config, &[])
+    }
+    fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
+        let machine = ServoMachine::from_config(&ctx.run.machine)?;
+        let trace = Trace::read(ctx.run)?;
+        let mut b = BatchBuilder::new().f64("t_s", trace.t_s.clone());
+        let mut per = serde_json::Map::new();
+        for a in &trace.axes {
+            let c = compare(&trace.t_s, a, &machine);
+            let s = machine.axes[a.index];
+            per.insert(
+                a.axis.to_string(),
+                json!({
+                    "model_kv_1_s": s.kv_1_s,
+                    "model_ff": s.ff,
+                    "model_lag_s": s.lag_s(),
+                    "effective_lag_s": effective_lag_s(&c.real_e_mm, &a.cmd_v_mm_s, 1e-3),
+                    "rms_real_following_error_mm": rms(c.real_e_mm.iter().copied()),
+                    "rms_sim_following_error_mm": rms(c.sim_e_mm.iter().copied()),
+                    "rms_following_gap_mm": rms(c.real_e_mm.iter().zip(&c.sim_e_mm).map(|(r, s)| r - s)),
+                    "rms_velocity_gap_mm_s": rms(c.real_ve_mm_s.iter().zip(&c.sim_ve_mm_s).map(|(r, s)| r - s)),
+                    "cmd_velocity": a.cmd_v_source.as_str(),
+                    "cmd_acceleration": a.cmd_a_source.as_str(),
+                    "velocity_error": c.ve_source.as_str(),
+                }),
+            );
+            let ax = a.axis;
+            b = b
+                .f64(&format!("cmd_v_{ax}_mm_s"), a.cmd_v_mm_s.clone())
+                .f64(&format!("real_e_{ax}_mm"), c.real_e_mm)
+                .f64(&format!("sim_e_{ax}_mm"), c.sim_e_mm)
+                .f64(&format!("u_e_{ax}_mm"), c.u_e_mm)
+                .f64(&format!("real_ve_{ax}_mm_s"), c.real_ve_mm_s)
+                .f64(&format!("sim_ve_{ax}_mm_s"), c.sim_ve_mm_s)
+                .f64(&format!("u_ve_{ax}_mm_s"), c.u_ve_mm_s);
+        }
+        let summary = json!({
+            "samples": trace.t_s.len(),
+            "axes": per,
+            "skipped_axes": trace.skipped,
+            "all_axes": AXES,
+        });
+        Ok(StageOutput::new(summary).with("following_error", b.build()))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::servo::model::AxisServo;
+
+    #[test]
+    fn effective_lag_of_a_pure_lag() {
+        let v: Vec<f64> = (0..50).map(|i| (i as f64 * 0.3).sin() * 20.0).collect();
+        let e: Vec<f64> = v.iter().map(|v| 0.01 - 0.008 * v).collect();
+        let l = effective_lag_s(&e, &v, 1e-3).unwrap();
+        assert!((l - 0.008).abs() < 1e-12);
+        assert_eq!(
+            AxisServo {
+                kv_1_s: 40.0,
+                ff: 0.2
+            }
+            .lag_s(),
+            0.02
+        );
+    }
+}

@@ -1,0 +1,111 @@
+//! Servo axes (docs/servo.md): any controller trace of commanded vs actual
+//! axis motion → following-error and velocity-error observables per axis →
+//! the gap diagnosis. The forward model is the commanded path through a
+//! configurable first-order position loop (gain Kv, velocity feed-forward
+//! ff per axis, model.rs), so the diagnosis says what that model misses:
+//! lag, acceleration-dependent lag, backlash, reversal spikes.
+//!
+//! Stages (edges from the artifacts they read and write):
+//!
+//! | stage | reads | writes |
+//! |---|---|---|
+//! | `follow` | motion | `following_error` |
+//! | `observe` | motion, `following_error` | `observations` |
+//!
+//! motion.parquet follows CONTRACTS.md §1 with the v1.1 optional per-axis
+//! velocity and acceleration columns (`cmd_v_x_mm_s`, `act_v_x_mm_s`,
+//! `cmd_a_x_mm_s2`, ...); an axis needs `act_<axis>_mm` to be compared.
+
+use std::sync::Arc;
+
+use sparkout_pipeline::diagnose::{catalogue_effect, composite, product, Effect, Kind};
+use sparkout_pipeline::{MachinePlugin, Stage};
+
+pub mod config;
+pub mod follow;
+pub mod model;
+pub mod observe;
+pub mod trace;
+
+/// A three-axis machine with a 30 1/s position loop and a 0.5 µm encoder
+/// (the generator's machine), built into the binary.
+pub const SERVO_MILL_TOML: &str = include_str!("../../../configs/machines/servo-mill.toml");
+/// The University of Michigan CNC mill of the tool-wear set.
+pub const UMICH_CNC_TOML: &str = include_str!("../../../configs/machines/umich-cnc.toml");
+
+pub fn builtin_machines() -> Vec<(&'static str, &'static str)> {
+    vec![
+        ("servo-mill", SERVO_MILL_TOML),
+        ("umich-cnc", UMICH_CNC_TOML),
+    ]
+}
+
+/// The `servo` plugin.
+pub struct ServoPlugin;
+
+impl MachinePlugin for ServoPlugin {
+    fn name(&self) -> &'static str {
+        "servo"
+    }
+    fn required_tables(&self) -> Vec<Vec<&'static str>> {
+        vec![vec!["motion"]]
+    }
+    fn stages(&self) -> Vec<Arc<dyn Stage>> {
+        vec![
+            Arc::new(follow::FollowStage),
+            Arc::new(observe::ObserveStage),
+        ]
+    }
+    fn builtin_machines(&self) -> Vec<(&'static str, &'static str)> {
+        builtin_machines()
+    }
+    /// Physically named versions of catalogue shapes on the servo's own
+    /// covariates (names no other plugin emits, so they rename nothing of
+    /// another fleet's diagnosis):
+    /// - `servo_lag` = lag(cmd_v_mm_s): the axis lags more (k < 0) or less
+    ///   (k > 0, s) than the model's (1 − ff)/Kv.
+    /// - `accel_lag` = inertia(cmd_a_mm_s2): an error ∝ acceleration — the
+    ///   loop is not first order (velocity loop, drive inertia).
+    /// - `reversal_spike` = edge(reversal_mm)·backlash(dir): friction at a
+    ///   reversal, decaying with the distance travelled since, its sign
+    ///   following the new direction (a ballbar's reversal spike).
+    ///
+    /// `backlash:dir` keeps its catalogue name (lost motion b·dir/2).
+    fn effects(&self) -> Vec<Box<dyn Effect>> {
+        let mut v = vec![
+            composite("servo_lag", catalogue_effect(Kind::Lag, &["cmd_v_mm_s"])),
+            composite(
+                "accel_lag",
+                catalogue_effect(Kind::Inertia, &["cmd_a_mm_s2"]),
+            ),
+        ];
+        // Both factors are linear forms: an error is a programming error,
+        // caught by the unit test below.
+        if let Ok(e) = product(
+            "reversal_spike",
+            catalogue_effect(Kind::Edge, &["reversal_mm"]),
+            catalogue_effect(Kind::Backlash, &["dir"]),
+        ) {
+            v.push(e);
+        }
+        v
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn composites_are_built() {
+        let names: Vec<String> = ServoPlugin.effects().iter().map(|e| e.key()).collect();
+        assert_eq!(
+            names,
+            [
+                "servo_lag:cmd_v_mm_s",
+                "accel_lag:cmd_a_mm_s2",
+                "reversal_spike:reversal_mm,dir"
+            ]
+        );
+    }
+}
