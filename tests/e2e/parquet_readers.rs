@@ -67,10 +67,32 @@ fn label(column: &str, i: usize) -> String {
 /// types other tools write), and what reading it must give. Values are
 /// whole numbers so that every type holds them exactly.
 fn column(name: &str, kind: ColumnKind, v: usize) -> (ArrayRef, Want) {
-    let idx: Vec<i64> = (0..N as i64).collect();
+    // Whole numbers inside the column's plausible range (contracts::plausible),
+    // so the readers' plausibility check passes: 0..N, wrapped where the
+    // range is narrower (a unit direction: 0, 1; an angle: 0..6), shifted to
+    // its lower bound where that is above 0. Time columns stay increasing.
+    let time = name == "t_s" || (name.starts_with("t_") && name.ends_with("_s"));
+    let (lo, hi) = sparkout_pipeline::contracts::plausible::all_ranges()
+        .iter()
+        .filter(|(_, c, _)| *c == name)
+        .fold((f64::NEG_INFINITY, f64::INFINITY), |(lo, hi), (_, _, r)| {
+            (lo.max(r.lo), hi.min(r.hi))
+        });
+    let lo = if lo.is_finite() {
+        lo.max(0.0).ceil() as i64
+    } else {
+        0
+    };
+    let span = if hi.is_finite() {
+        (hi.floor() as i64 - lo + 1).max(1)
+    } else {
+        i64::MAX
+    };
+    let idx: Vec<i64> = (0..N as i64)
+        .map(|i| if time { i } else { lo + i % span })
+        .collect();
     match kind {
         ColumnKind::F64 | ColumnKind::F32 => {
-            let time = name == "t_s" || (name.starts_with("t_") && name.ends_with("_s"));
             let vals: Vec<f64> = idx.iter().map(|&i| i as f64).collect();
             let n_variants = if time { 7 } else { 5 };
             let a: ArrayRef = match v % n_variants {

@@ -144,7 +144,14 @@ impl AeStream {
             _ => Clock::Rate(sample_rate_hz),
         };
         let threads = default_decode_threads();
-        Self::start(path, builder, column, clock, Self::DEFAULT_BATCH_ROWS, threads)
+        Self::start(
+            path,
+            builder,
+            column,
+            clock,
+            Self::DEFAULT_BATCH_ROWS,
+            threads,
+        )
     }
 
     fn start(
@@ -182,7 +189,10 @@ impl AeStream {
         let clock = match clock {
             Clock::Column(t, TimeOrigin::TableStart)
                 if matches!(
-                    builder.schema().field_with_name(&t).map(|f| f.data_type().clone()),
+                    builder
+                        .schema()
+                        .field_with_name(&t)
+                        .map(|f| f.data_type().clone()),
                     Ok(DataType::Timestamp(..))
                 ) =>
             {
@@ -376,6 +386,7 @@ fn to_chunk(
             if let Some(e) = bad(name, t.as_ref()) {
                 return Err(e);
             }
+            super::plausible::check_column(path, "ae", name, t.as_ref(), first_row)?;
             t.as_any()
                 .downcast_ref::<Float64Array>()
                 .expect("normalised")

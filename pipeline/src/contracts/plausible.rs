@@ -25,10 +25,11 @@ pub struct Range {
 }
 
 /// Lengths: the largest machine of the contract (a gantry bed) is a few
-/// metres; 100 m is implausible in any of them.
+/// metres and a guide-way trace tens of metres; 1 km is implausible in any
+/// of them, while a few metres written in µm (10⁶ and more) is caught.
 const LENGTH: Range = Range {
-    lo: -1e5,
-    hi: 1e5,
+    lo: -1e6,
+    hi: 1e6,
     unit: "mm",
     below: "values look like µm or nm (divide by 1000 or 10⁶) or encoder counts",
     above: "values look like µm or nm (divide by 1000 or 10⁶) or encoder counts",
@@ -45,8 +46,8 @@ const TIME: Range = Range {
     lo: -1e6,
     hi: 1e7,
     unit: "s",
-    below: "t_s is seconds since the run's start (CONTRACTS.md §1); values look like ms, µs or an absolute (epoch) time",
-    above: "t_s is seconds since the run's start (CONTRACTS.md §1); values look like ms, µs or an absolute (epoch) time — subtract the start and convert to s",
+    below: "t_s is seconds since the run's start (docs/formats.md); values look like ms, µs or an absolute (epoch) time",
+    above: "t_s is seconds since the run's start (docs/formats.md); values look like ms, µs or an absolute (epoch) time — subtract the start and convert to s",
 };
 const SPEED: Range = Range {
     lo: 0.0,
@@ -54,6 +55,23 @@ const SPEED: Range = Range {
     unit: "mm/s",
     below: "a speed cannot be negative",
     above: "values look like mm/min (divide by 60) or µm/s (divide by 1000)",
+};
+/// A signed axis velocity (motion v1.1 `cmd_v_<axis>_mm_s`, `act_v_…`).
+const AXIS_VELOCITY: Range = Range {
+    lo: -1e5,
+    hi: 1e5,
+    unit: "mm/s",
+    below: "values look like mm/min (divide by 60) or µm/s (divide by 1000)",
+    above: "values look like mm/min (divide by 60) or µm/s (divide by 1000)",
+};
+/// A signed axis acceleration (motion v1.1 `cmd_a_<axis>_mm_s2`, `act_a_…`):
+/// machine tools reach tens of m/s², 10⁷ mm/s² (1 000 g) is implausible.
+const AXIS_ACCELERATION: Range = Range {
+    lo: -1e7,
+    hi: 1e7,
+    unit: "mm/s²",
+    below: "values look like µm/s² (divide by 1000) or a wrong column",
+    above: "values look like µm/s² (divide by 1000) or a wrong column",
 };
 const TEMPERATURE: Range = Range {
     lo: -60.0,
@@ -151,7 +169,13 @@ const BY_COLUMN: &[(&str, &str, Range)] = &[
 /// The range for a column of a unit-suffixed name (CONTRACTS.md
 /// "Conventions": the unit is in the name).
 pub fn range_by_suffix(column: &str) -> Option<Range> {
-    if column.ends_with("_mm_s") {
+    if column.ends_with("_mm_s2") {
+        Some(AXIS_ACCELERATION)
+    } else if column.ends_with("_mm_s")
+        && (column.starts_with("cmd_v_") || column.starts_with("act_v_"))
+    {
+        Some(AXIS_VELOCITY)
+    } else if column.ends_with("_mm_s") {
         Some(SPEED)
     } else if column.ends_with("_mm") {
         Some(LENGTH)

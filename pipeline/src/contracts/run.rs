@@ -371,7 +371,7 @@ pub fn discover(root: &Path) -> std::io::Result<Discovery> {
             out.skipped.push((
                 dir.to_path_buf(),
                 format!(
-                    "skipped: holds {} but no run.toml, so it cannot be processed (CONTRACTS.md §1: every run directory needs a run.toml with [run] id, machine, plugin)",
+                    "skipped: holds {} but no run.toml, so it cannot be processed (docs/formats.md: every run directory needs a run.toml with [run] id, machine, plugin)",
                     tables.join(", ")
                 ),
             ));

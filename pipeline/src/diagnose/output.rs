@@ -530,7 +530,7 @@ pub fn assemble(
     let augmented_model = serde_json::json!({
         "version": 1,
         "kind": "sparkout.augmented_model",
-        "applies_as": "real ≈ sim + Σ over effects of (offset_mm + form(covariates; params)), per observable; forms as in CONTRACTS.md catalogue",
+        "applies_as": "real ≈ sim + Σ over effects of (offset_mm + form(covariates; params)), per observable; forms as in the effect catalogue of docs/formats.md",
         "effects": acc.augmented,
     });
     let report_html = report::section(&diagnosis);

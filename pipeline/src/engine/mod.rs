@@ -512,7 +512,7 @@ impl Engine {
                     column: Some("run.id".into()),
                     row: None,
                     error: format!(
-                        "duplicate run id: machine `{machine}` run `{id}` is claimed by {} directories ({}); run ids must be unique within a machine (CONTRACTS.md §1), so none of them is processed — rename [run].id in all but one",
+                        "duplicate run id: machine `{machine}` run `{id}` is claimed by {} directories ({}); run ids must be unique within a machine (docs/formats.md), so none of them is processed — rename [run].id in all but one",
                         all.len(),
                         all.join(" and ")
                     ),
