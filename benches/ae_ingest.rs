@@ -9,7 +9,7 @@
 //! `SPARKOUT_AE_BENCH_SAMPLES` to bench a smaller or larger log.
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
-use sparkout_pipeline::contracts::AeKind;
+use sparkout_pipeline::contracts::{AeKind, TimeOrigin};
 use sparkout_plugins::robot::ingest::{detect_file, IngestConfig};
 use std::hint::black_box;
 use std::path::{Path, PathBuf};
@@ -134,7 +134,15 @@ fn bench(c: &mut Criterion) {
         }
         g.bench_function(format!("parquet_{name}_to_contacts"), |b| {
             b.iter(|| {
-                let r = detect_file(black_box(&path), FS, AeKind::Raw, &cfg, 0.0).unwrap();
+                let r = detect_file(
+                    black_box(&path),
+                    FS,
+                    AeKind::Raw,
+                    &cfg,
+                    0.0,
+                    &TimeOrigin::TableStart,
+                )
+                .unwrap();
                 assert!(
                     r.events.len() >= n / 50_000 - 2,
                     "{} contacts",
