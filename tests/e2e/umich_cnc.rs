@@ -5,7 +5,7 @@
 //! effect is named per axis and the range of its parameter — not exact
 //! floats, so the diagnosis stays free to improve.
 
-use crate::common::sparkout;
+use crate::common::{self, sparkout};
 
 use std::path::Path;
 
@@ -63,21 +63,7 @@ fn umich_cnc_imports_and_diagnoses_every_axis() {
         std::fs::read_dir(runs.join("umich-cnc")).unwrap().count(),
         18
     );
-    let r = sparkout(&[
-        "run",
-        "--input",
-        runs.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-    ]);
-    assert!(
-        r.status.success(),
-        "{}\n{}",
-        String::from_utf8_lossy(&r.stdout),
-        String::from_utf8_lossy(&r.stderr)
-    );
-    let diag: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(out.join("fleet/diagnosis.json")).unwrap()).unwrap();
+    let diag: serde_json::Value = common::run_fleet_diagnosis(&runs, &out);
     for axis in ["x", "y", "z"] {
         // Positions are logged to three significant figures (1 mm / 0.1 mm
         // steps): the following-error gap is at that resolution, and the

@@ -3,6 +3,7 @@
 // Each test binary uses a different subset of these helpers.
 #![allow(dead_code)]
 
+use std::path::Path;
 use std::process::{Command, Output};
 
 pub fn sparkout(args: &[&str]) -> Output {
@@ -42,10 +43,16 @@ pub fn diagnose_generated_fleet(
     args.extend(extra_generate_args);
     let g = sparkout(&args);
     assert!(g.status.success(), "{}", String::from_utf8_lossy(&g.stderr));
+    run_fleet_diagnosis(&root, &out)
+}
+
+/// `sparkout run --input INPUT --out OUT` (must succeed), then the fleet's
+/// diagnosis.json.
+pub fn run_fleet_diagnosis(input: &Path, out: &Path) -> serde_json::Value {
     let r = sparkout(&[
         "run",
         "--input",
-        root.to_str().unwrap(),
+        input.to_str().unwrap(),
         "--out",
         out.to_str().unwrap(),
     ]);
