@@ -189,7 +189,12 @@ impl Engine {
         Ok(())
     }
 
-    pub(super) fn write_manifest(&self, input_root: &Path, out: &Path, o: &FleetOutcome) -> Result<()> {
+    pub(super) fn write_manifest(
+        &self,
+        input_root: &Path,
+        out: &Path,
+        o: &FleetOutcome,
+    ) -> Result<()> {
         let config: serde_json::Value =
             serde_json::to_value(&self.config.table).unwrap_or(serde_json::Value::Null);
         let manifest = serde_json::json!({
