@@ -318,7 +318,8 @@ fn normalised(t: &Table, schema: &TableSchema) -> Vec<(String, Want)> {
 #[test]
 fn files_written_by_pyarrow_pandas_polars_and_duckdb_read_identically() {
     let root = fixtures().join("writers");
-    let mut by_table: std::collections::BTreeMap<String, Vec<(PathBuf, Vec<(String, Want)>)>> =
+    type Columns = Vec<(String, Want)>;
+    let mut by_table: std::collections::BTreeMap<String, Vec<(PathBuf, Columns)>> =
         Default::default();
     let mut n = 0;
     for tool in ["pyarrow", "pandas", "polars", "duckdb"] {
