@@ -187,7 +187,11 @@ pub fn next_batch<I>(reader: &mut I) -> Option<Result<RecordBatch, String>>
 where
     I: Iterator<Item = Result<RecordBatch, arrow::error::ArrowError>>,
 {
-    match std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| reader.next())) {
+    quiet_decoder_panics();
+    DECODING.with(|d| d.set(true));
+    let next = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| reader.next()));
+    DECODING.with(|d| d.set(false));
+    match next {
         Ok(next) => next.map(|r| r.map_err(|e| e.to_string())),
         Err(payload) => {
             let msg = payload
@@ -198,6 +202,29 @@ where
             Some(Err(format!("the Parquet decoder failed: {msg}")))
         }
     }
+}
+
+thread_local! {
+    /// Set while this thread is inside the parquet decoder (`next_batch`).
+    static DECODING: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+}
+
+/// A panic inside the decoder is reported as the file's error, so its
+/// "thread panicked at …" and backtrace would only alarm the reader: a
+/// process-wide hook (installed once, chaining to the previous one) stays
+/// silent for those panics and passes every other panic on unchanged —
+/// under cargo-fuzz that is libFuzzer's aborting hook, so any panic outside
+/// the decoder is still a crash.
+fn quiet_decoder_panics() {
+    static ONCE: std::sync::Once = std::sync::Once::new();
+    ONCE.call_once(|| {
+        let previous = std::panic::take_hook();
+        std::panic::set_hook(Box::new(move |info| {
+            if !DECODING.with(|d| d.get()) {
+                previous(info);
+            }
+        }));
+    });
 }
 
 /// Decode every row group of an opened file into one batch; a batch that

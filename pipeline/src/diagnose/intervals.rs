@@ -305,12 +305,22 @@ pub fn format_pm(value: f64, se: f64) -> String {
     } else {
         value.abs().log10().floor() as i32
     };
+    // Enough decimals that the standard error shows at least one
+    // significant digit: `1.5000e-5 ± 0.0003e-5`, never `± 0.00e-5`.
+    let se_digits = |se: f64| -> i32 {
+        if se > 0.0 && se.is_finite() {
+            (-se.log10()).ceil() as i32
+        } else {
+            0
+        }
+    };
     if (-2..4).contains(&e) {
-        let d = (2 - e).clamp(0, 6) as usize;
+        let d = (2 - e).max(se_digits(se)).clamp(0, 10) as usize;
         return format!("{value:.d$} ± {se:.d$}");
     }
     let s = 10f64.powi(e);
-    format!("{:.2}e{e} ± {:.2}e{e}", value / s, se / s)
+    let d = se_digits(se / s).clamp(2, 8) as usize;
+    format!("{:.d$}e{e} ± {:.d$}e{e}", value / s, se / s)
 }
 
 /// Unit of a reported parameter, from its name and the effect's covariate
@@ -379,6 +389,8 @@ mod tests {
         assert_eq!(format_pm(1.5e-5, 0.08e-5), "1.50e-5 ± 0.08e-5");
         assert_eq!(format_pm(600.0, 25.0), "600 ± 25");
         assert_eq!(format_pm(0.0123, 0.0004), "0.0123 ± 0.0004");
+        assert_eq!(format_pm(1.5e-5, 0.0003e-5), "1.5000e-5 ± 0.0003e-5");
+        assert_eq!(format_pm(2.5, 0.0012), "2.500 ± 0.001");
         assert_eq!(unit_of("k", Some("removed_mm3")), "mm/mm³");
         assert_eq!(unit_of("tau_s", Some("t_s")), "s");
         assert_eq!(unit_of("amplitude_mm", Some("t_s")), "mm");
