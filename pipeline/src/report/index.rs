@@ -160,5 +160,5 @@ pub fn index_page(cfg: &toml::Table, outcome: &FleetOutcome) -> String {
         }
         body.push_str("</tbody></table></details>");
     }
-    page(&title_of(cfg, "sparkout — index"), &body)
+    page(&format!("{} — index", title_of(cfg, "sparkout")), &body)
 }
