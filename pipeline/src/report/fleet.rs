@@ -741,7 +741,7 @@ pub fn fleet_page(
     }
     // At a glance: one row per (machine, observable), each in its own unit.
     if !tree.is_empty() {
-        body.push_str("<h2>At a glance</h2><table class=\"glance\"><thead><tr><th>type / machine / observable</th><th>gap RMS</th><th>noise floor</th><th>named effect</th><th>held-out after</th><th>shrink</th><th>gap · after · floor</th></tr></thead><tbody>");
+        body.push_str("<h2>At a glance</h2><table class=\"glance\"><thead><tr><th>type / machine / observable</th><th>gap RMS</th><th>noise floor</th><th class=\"why\">named effect</th><th>held-out after</th><th>shrink</th><th>gap · after · floor</th></tr></thead><tbody>");
         for (t, machines) in &tree {
             for (m, obs) in machines {
                 for o in obs {
@@ -801,11 +801,15 @@ pub fn fleet_page(
             .filter_map(|n| n.as_str())
             .collect();
         if !notes.is_empty() {
-            body.push_str("<ul class=\"notes\">");
+            let _ = write!(
+                body,
+                "<details><summary>Diagnosis notes ({}): skipped covariates, trimmed outliers</summary><ul class=\"notes\">",
+                notes.len()
+            );
             for n in notes {
                 let _ = write!(body, "<li>{}</li>", esc(n));
             }
-            body.push_str("</ul>");
+            body.push_str("</ul></details>");
         }
     }
     for (t, machines) in &tree {

@@ -131,11 +131,7 @@ pub fn xy_chart_sized(
         let root = SVGBackend::with_string(&mut out, size).into_drawing_area();
         let _ = root.fill(&WHITE);
         let (x0, x1) = bounds(series.iter().flat_map(|s| s.points.iter().map(|p| p.0)));
-        let (y0, mut y1) = bounds(series.iter().flat_map(|s| s.points.iter().map(|p| p.1)));
-        if series.len() > 1 {
-            // Headroom for the legend (upper right), so it hides no point.
-            y1 += 0.12 * series.len() as f64 * (y1 - y0);
-        }
+        let (y0, y1) = bounds(series.iter().flat_map(|s| s.points.iter().map(|p| p.1)));
         let chart = ChartBuilder::on(&root)
             .caption(title, (FONT, CAPTION_PX))
             .margin(12)
@@ -170,24 +166,47 @@ pub fn xy_chart_sized(
                         chart.draw_series(pts.into_iter().map(|p| Circle::new(p, 3, c.filled())))
                     }
                 };
-                if let Ok(d) = drawn {
-                    d.label(s.name.to_string()).legend(move |(x, y)| {
-                        Rectangle::new([(x, y - 4), (x + 12, y + 4)], c.filled())
-                    });
-                }
-            }
-            if series.len() > 1 {
-                let _ = chart
-                    .configure_series_labels()
-                    .label_font((FONT, LABEL_PX))
-                    .border_style(BLACK)
-                    .background_style(WHITE.mix(0.8))
-                    .draw();
+                let _ = drawn;
             }
         }
         let _ = root.present();
     }
-    classed(out)
+    if series.len() < 2 {
+        return classed(out);
+    }
+    // The legend goes below the chart, one row per series, so it never
+    // hides a point.
+    let (w, h) = size;
+    let row = 20;
+    let total = h + 8 + row * series.len() as u32;
+    let mut s = format!(
+        r#"<svg class="chart" xmlns="http://www.w3.org/2000/svg" width="{w}" height="{total}" viewBox="0 0 {w} {total}" font-family="{FONT}">"#
+    );
+    s.push_str(&compact(&out));
+    for (i, se) in series.iter().enumerate() {
+        let c = COLORS[i % COLORS.len()];
+        let y = h + 4 + row * i as u32;
+        let mark = match se.mark {
+            Mark::Line => format!(
+                r#"<line x1="96" x2="120" y1="{m}" y2="{m}" stroke="{}" stroke-width="2"/>"#,
+                hex(c),
+                m = y + 8
+            ),
+            Mark::Points => format!(
+                r#"<circle cx="108" cy="{}" r="4" fill="{}"/>"#,
+                y + 8,
+                hex(c)
+            ),
+        };
+        let _ = write!(
+            s,
+            r#"{mark}<text x="128" y="{}" font-size="{BAR_TEXT_PX}">{}</text>"#,
+            y + 13,
+            crate::report::esc(se.name)
+        );
+    }
+    s.push_str("</svg>");
+    s
 }
 
 /// Horizontal bars (label, value), e.g. effect ranking. The label column
