@@ -75,8 +75,9 @@ pub fn print_outcome(o: &FleetOutcome) {
                 // Per observable: each has its own noise floor and effects,
                 // and a small observable's shrink is invisible in the total.
                 for o in sparkout_pipeline::report::observable_summaries(&v) {
+                    let u = &o.unit;
                     println!(
-                        "  {}: gap RMS {:.4} mm (noise {:.4} mm) → held-out {:.4} mm, {:.0} % shrink; {}",
+                        "  {}: gap RMS {:.4} {u} (noise {:.4} {u}) → held-out {:.4} {u}, {:.0} % shrink; {}",
                         o.observable,
                         o.rms_mm,
                         o.noise_floor_mm,

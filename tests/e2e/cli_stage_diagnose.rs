@@ -162,3 +162,81 @@ fn generated_observations_are_diagnosed() {
         assert!(out.join(f).is_file(), "{f}");
     }
 }
+
+/// observations v1.1 `unit`: one observable with two units is refused with
+/// the file, column and row; a consistent `unit` is carried into
+/// per_observable.
+#[test]
+fn observation_units_are_checked_and_reported() {
+    use std::sync::Arc;
+    let d = tempfile::tempdir().unwrap();
+    let write = |name: &str, units: Vec<Option<&str>>| {
+        let n = units.len();
+        let batch = arrow::record_batch::RecordBatch::try_from_iter([
+            (
+                "run",
+                Arc::new(arrow::array::StringArray::from(
+                    (0..n).map(|i| format!("r{}", i % 4)).collect::<Vec<_>>(),
+                )) as arrow::array::ArrayRef,
+            ),
+            (
+                "observable",
+                Arc::new(arrow::array::StringArray::from(vec!["velocity_error_x"; n])),
+            ),
+            ("unit", Arc::new(arrow::array::StringArray::from(units))),
+            (
+                "sim",
+                Arc::new(arrow::array::Float64Array::from(vec![0.0; n])),
+            ),
+            (
+                "real",
+                Arc::new(arrow::array::Float64Array::from(
+                    (0..n)
+                        .map(|i| 0.01 * ((i * 7919) % 13) as f64)
+                        .collect::<Vec<_>>(),
+                )),
+            ),
+            (
+                "t_s",
+                Arc::new(arrow::array::Float64Array::from(
+                    (0..n).map(|i| i as f64).collect::<Vec<_>>(),
+                )),
+            ),
+        ])
+        .unwrap();
+        let p = d.path().join(name);
+        let mut w = parquet::arrow::ArrowWriter::try_new(
+            std::fs::File::create(&p).unwrap(),
+            batch.schema(),
+            None,
+        )
+        .unwrap();
+        w.write(&batch).unwrap();
+        w.close().unwrap();
+        p
+    };
+    let mut mixed = vec![Some("mm/s"); 40];
+    mixed[17] = Some("mm");
+    let bad = write("mixed.parquet", mixed);
+    let o = sparkout(&[
+        "diagnose",
+        bad.to_str().unwrap(),
+        "--out",
+        d.path().join("o1").to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("mixed.parquet") && err.contains("`unit`") && err.contains("row 17"),
+        "{err}"
+    );
+    let good = write("good.parquet", vec![Some("mm/s"); 40]);
+    let v = json(&sparkout(&[
+        "diagnose",
+        good.to_str().unwrap(),
+        "--out",
+        d.path().join("o2").to_str().unwrap(),
+        "--json",
+    ]));
+    assert_eq!(v["per_observable"][0]["unit"], "mm/s", "{v:#}");
+}

@@ -9,6 +9,7 @@ mod cli_stage_diagnose;
 mod common;
 mod config_defaults;
 mod contracts_bad_input;
+mod demo_artifacts;
 mod diagnose_robust;
 mod diagnose_validate;
 mod form_diagnosis_e2e;

@@ -52,7 +52,36 @@ fn servo_lag_is_named_on_every_axis_with_its_lag() {
         let k = e["params"]["k"].as_f64().unwrap();
         assert!((k - 0.004).abs() < 0.0008, "{obs}: k {k} s (true 0.004)");
         assert!(e["shrink"].as_f64().unwrap() > 0.5, "{e:#}");
+        // observations v1.1 `unit`: positions in mm, velocities in mm/s.
+        assert_eq!(per(&diag, &obs)["unit"], "mm");
+        assert_eq!(
+            per(&diag, &format!("velocity_error_{axis}"))["unit"],
+            "mm/s"
+        );
     }
+    // Issue 12: a run's own observations.parquet names its machine.
+    let out = d.path().join("out");
+    let machine_dir = std::fs::read_dir(&out)
+        .unwrap()
+        .flatten()
+        .map(|e| e.path())
+        .find(|p| p.is_dir() && !p.ends_with("fleet"))
+        .expect("a machine directory");
+    let f = std::fs::File::open(machine_dir.join("r0000").join("observations.parquet")).unwrap();
+    let batch = parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder::try_new(f)
+        .unwrap()
+        .build()
+        .unwrap()
+        .next()
+        .unwrap()
+        .unwrap();
+    use arrow::array::AsArray;
+    let m = batch.column_by_name("machine").expect("machine column");
+    let m = arrow::compute::cast(m, &arrow::datatypes::DataType::Utf8).unwrap();
+    assert_eq!(
+        m.as_string::<i32>().value(0),
+        machine_dir.file_name().unwrap().to_str().unwrap()
+    );
 }
 
 #[test]

@@ -301,6 +301,7 @@ fn analyse(
     let (rb, ra) = ((sse_b / n as f64).sqrt(), (sse_a / n as f64).sqrt());
     acc.summaries.push(ObservableSummary {
         observable: o.name.clone(),
+        unit: table.obs_units[oi].clone(),
         n,
         runs: o.run_ranges.len(),
         machines: if table.has_machine {

@@ -16,8 +16,9 @@ pub const MAX_OBSERVED_MM: f64 = 1e4;
 
 /// Columns that are never covariates (CONTRACTS.md §2, last paragraph;
 /// `machine` from issue 12: a run is identified by machine and run;
-/// `real_u` is the optional standard uncertainty of `real`, v1.1).
-pub const RESERVED: [&str; 8] = [
+/// `real_u` is the optional standard uncertainty of `real`, v1.1; `unit`
+/// the optional unit of `sim`/`real`/`real_u` per observable, v1.1).
+pub const RESERVED: [&str; 9] = [
     "machine",
     "run",
     "observable",
@@ -26,7 +27,12 @@ pub const RESERVED: [&str; 8] = [
     "trial",
     "point",
     "real_u",
+    "unit",
 ];
+
+/// The unit of an observable whose table has no `unit` column (CONTRACTS.md
+/// §2: observations are in mm unless a `unit` column says otherwise).
+pub const DEFAULT_UNIT: &str = "mm";
 
 /// Reads observations.parquet (all row groups, concatenated) and validates it
 /// per CONTRACTS.md §2: `run`/`observable` text (and `machine` when
@@ -100,6 +106,7 @@ pub fn validate_observations(batch: &RecordBatch, path: &Path) -> Result<RecordB
                 .into());
         }
     }
+    check_units(batch, path)?;
     let mut fields: Vec<Arc<Field>> = schema.fields().iter().cloned().collect();
     let mut cols: Vec<ArrayRef> = batch.columns().to_vec();
     for name in ["sim", "real"] {
@@ -203,6 +210,9 @@ pub struct Table {
     pub has_machine: bool,
     pub obs_names: Vec<String>,
     pub obs: Vec<u32>,
+    /// Each observable's unit (index as `obs_names`): from the optional
+    /// `unit` column, else "mm".
+    pub obs_units: Vec<String>,
     pub gap: Vec<f64>,
     /// Covariates with only finite values, sorted by name.
     pub covs: Vec<(String, Vec<f64>)>,
@@ -242,6 +252,83 @@ fn ids(a: &ArrayRef) -> (Vec<String>, Vec<u32>) {
         DataType::LargeUtf8 => go(a.as_string::<i64>().iter()),
         _ => go(a.as_string::<i32>().iter()),
     }
+}
+
+/// The optional `unit` column: text (null = mm), never empty, and one unit
+/// per observable (a gap RMS over rows in mm and mm/s would mean nothing).
+fn check_units(batch: &RecordBatch, path: &Path) -> Result<()> {
+    let Some(u) = batch.column_by_name("unit") else {
+        return Ok(());
+    };
+    let u = cast(u, &DataType::Utf8).map_err(|_| {
+        InputError::new(path, format!("expected utf8 text, found {}", u.data_type())).column("unit")
+    })?;
+    let u = u.as_string::<i32>();
+    let o = cast(
+        batch.column_by_name("observable").expect("checked"),
+        &DataType::Utf8,
+    )?;
+    let o = o.as_string::<i32>();
+    let mut seen: std::collections::BTreeMap<&str, (&str, usize)> = Default::default();
+    for i in 0..u.len() {
+        // null = the default unit: a fleet table joins plugins that write
+        // the column with plugins that do not.
+        let unit = if u.is_null(i) {
+            DEFAULT_UNIT
+        } else {
+            u.value(i).trim()
+        };
+        if unit.is_empty() {
+            return Err(InputError::new(
+                path,
+                "empty unit (write null or leave the column out for mm, or name the unit)",
+            )
+            .column("unit")
+            .row(i)
+            .into());
+        }
+        let obs = o.value(i);
+        match seen.get(obs) {
+            Some((first, at)) if *first != unit => {
+                return Err(InputError::new(
+                    path,
+                    format!(
+                        "observable `{obs}` has unit `{unit}` here but `{first}` at row {at}: one observable, one unit"
+                    ),
+                )
+                .column("unit")
+                .row(i)
+                .into())
+            }
+            Some(_) => {}
+            None => {
+                seen.insert(obs, (unit, i));
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Each observable's unit (validated by `check_units`), "mm" without a
+/// `unit` column.
+fn observable_units(b: &RecordBatch, obs_names: &[String], obs: &[u32]) -> Vec<String> {
+    let mut units = vec![DEFAULT_UNIT.to_string(); obs_names.len()];
+    let Some(u) = b.column_by_name("unit") else {
+        return units;
+    };
+    let Ok(u) = cast(u, &DataType::Utf8) else {
+        return units;
+    };
+    let u = u.as_string::<i32>();
+    let mut done = vec![false; obs_names.len()];
+    for (i, &k) in obs.iter().enumerate() {
+        let k = k as usize;
+        if !done[k] && !u.is_null(i) {
+            units[k] = u.value(i).trim().to_string();
+            done[k] = true;
+        }
+    }
+    units
 }
 
 fn f64s(a: &ArrayRef) -> Result<Vec<f64>> {
@@ -284,6 +371,7 @@ impl Table {
             .map(|(m, r)| pairs[&(*m, *r)])
             .collect();
         let (obs_names, obs) = ids(b.column_by_name("observable").expect("validated"));
+        let obs_units = observable_units(b, &obs_names, &obs);
         let sim = f64s(b.column_by_name("sim").expect("validated"))?;
         let real = f64s(b.column_by_name("real").expect("validated"))?;
         let gap: Vec<f64> = real.iter().zip(&sim).map(|(r, s)| r - s).collect();
@@ -326,6 +414,7 @@ impl Table {
             has_machine,
             obs_names,
             obs,
+            obs_units,
             gap,
             covs,
             dropped,

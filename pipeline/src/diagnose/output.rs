@@ -151,6 +151,10 @@ pub struct CvInfo {
 #[derive(Debug, Clone, Serialize)]
 pub struct ObservableSummary {
     pub observable: String,
+    /// Unit of this observable's gap, RMS and noise-floor numbers (the
+    /// `_mm` field names are v1's; the values are in this unit — "mm"
+    /// unless the observations' `unit` column says otherwise).
+    pub unit: String,
     pub n: usize,
     /// Run units: (machine, run) pairs.
     pub runs: usize,

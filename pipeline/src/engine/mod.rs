@@ -5,11 +5,11 @@
 pub mod cache;
 pub mod config;
 pub mod dag;
-pub mod lock;
 mod fleet;
+pub mod lock;
 mod run;
-pub use fleet::{parquet_bytes, union_concat, with_machine_column};
 use fleet::json_bytes;
+pub use fleet::{parquet_bytes, union_concat, with_machine_column};
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};

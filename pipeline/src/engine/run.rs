@@ -141,10 +141,18 @@ impl Engine {
             let mut pending: Vec<(String, Vec<u8>)> = Vec::new();
             for (name, batch) in &output.artifacts {
                 check_finite(stage.name(), name, batch)?;
-                let bytes = parquet_bytes(batch)?;
+                // Issue 12: a run's observations name their machine too, so a
+                // per-run file read alone cannot be mistaken for another
+                // machine's run with the same id.
+                let batch = if name == "observations" {
+                    with_machine_column(batch.clone(), &run.spec.machine)?
+                } else {
+                    batch.clone()
+                };
+                let bytes = parquet_bytes(&batch)?;
                 files.insert(format!("{name}.parquet"), hash_bytes(&bytes));
                 pending.push((format!("{name}.parquet"), bytes));
-                store.insert(name, batch.clone());
+                store.insert(name, batch);
             }
             let summary_bytes = json_bytes(&output.summary)?;
             files.insert(summary_file.clone(), hash_bytes(&summary_bytes));

@@ -181,6 +181,8 @@ pub fn run_page(
 #[derive(Debug, Clone)]
 pub struct ObservableSummary {
     pub observable: String,
+    /// The unit of the numbers below ("mm" for a v1 diagnosis).
+    pub unit: String,
     pub rms_mm: f64,
     pub noise_floor_mm: f64,
     /// The selected effects, or why none was.
@@ -206,6 +208,11 @@ pub fn observable_summaries(diagnosis: &serde_json::Value) -> Vec<ObservableSumm
                     .get("observable")
                     .and_then(|x| x.as_str())
                     .unwrap_or("?")
+                    .to_string(),
+                unit: o
+                    .get("unit")
+                    .and_then(|x| x.as_str())
+                    .unwrap_or("mm")
                     .to_string(),
                 rms_mm: f("rms_mm"),
                 noise_floor_mm: f("noise_floor_mm"),

@@ -54,6 +54,9 @@ impl Stage for ObserveStage {
         let fe = ctx.artifacts.require("following_error")?;
         let n = trace.t_s.len();
         let (mut obs, mut sim, mut real, mut u) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        // observations v1.1 `unit`: velocity errors are mm/s, and the
+        // diagnosis prints each observable in its own unit.
+        let mut units: Vec<&str> = Vec::new();
         let (mut v, mut a, mut dir, mut rev) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
         let mut rows: Vec<usize> = Vec::new();
         let mut per = serde_json::Map::new();
@@ -67,6 +70,10 @@ impl Stage for ObserveStage {
                 real.extend_from_slice(batch_f64(&fe, &format!("real_{kind}_{}_{unit}", ax.axis))?);
                 u.extend_from_slice(batch_f64(&fe, &format!("u_{kind}_{}_{unit}", ax.axis))?);
                 obs.extend(std::iter::repeat_n(name, n));
+                units.extend(std::iter::repeat_n(
+                    if kind == "e" { "mm" } else { "mm/s" },
+                    n,
+                ));
                 v.extend_from_slice(&ax.cmd_v_mm_s);
                 a.extend_from_slice(&ax.cmd_a_mm_s2);
                 dir.extend_from_slice(&d);
@@ -79,6 +86,7 @@ impl Stage for ObserveStage {
         let mut b = BatchBuilder::new()
             .str("run", &vec![ctx.run.spec.id.as_str(); rows.len()])
             .str("observable", &obs)
+            .str("unit", &units)
             .f64("sim", sim)
             .f64("real", real)
             .f64("real_u", u)
