@@ -15,7 +15,7 @@ use serde_json::Value;
 use super::fleet_data::{binned_means, grid_means, per_run_rms, FleetRows, RunRms};
 use super::svg::{heat, shared_vmax, xy_chart_sized, Heat, Mark, Series};
 use super::{esc, page, title_of};
-use crate::diagnose::intervals::{format_pm, unit_of};
+use crate::diagnose::intervals::{format_pm, unit_of as param_unit};
 use crate::engine::FleetOutcome;
 
 /// Grid cells per axis of a gap map, and bins of a covariate curve: the
@@ -28,24 +28,42 @@ const CURVE_BINS: usize = 40;
 /// mm/s.
 pub struct Unit {
     /// The unit of the data (`mm` or `mm/s`).
-    pub data: &'static str,
+    pub data: String,
     /// The unit shown.
-    pub shown: &'static str,
+    pub shown: String,
     /// Shown = data × scale.
     pub scale: f64,
 }
 
+/// The unit an observable's numbers are in: `per_observable[].unit` of
+/// diagnosis.json (observations v1.1 `unit` column) when given, else "mm"
+/// — except `velocity_error_*`, which is mm/s even in a table written
+/// before the unit column existed.
+pub fn unit_of(observable: &str, unit: Option<&str>) -> Unit {
+    match unit {
+        Some("mm") => unit_of_observable("mm"),
+        Some("mm/s") => unit_of_observable("velocity_error"),
+        Some(other) => Unit {
+            data: other.to_string(),
+            shown: other.to_string(),
+            scale: 1.0,
+        },
+        None => unit_of_observable(observable),
+    }
+}
+
+/// By name alone (velocity_error_* is mm/s, everything else mm).
 pub fn unit_of_observable(observable: &str) -> Unit {
     if observable.starts_with("velocity_error") {
         Unit {
-            data: "mm/s",
-            shown: "mm/s",
+            data: "mm/s".into(),
+            shown: "mm/s".into(),
             scale: 1.0,
         }
     } else {
         Unit {
-            data: "mm",
-            shown: "µm",
+            data: "mm".into(),
+            shown: "µm".into(),
             scale: 1e3,
         }
     }
@@ -88,7 +106,7 @@ fn params_text(e: &Value) -> Vec<String> {
         .flatten()
     {
         let Some(v) = v.as_f64() else { continue };
-        let unit = unit_of(k, cov);
+        let unit = param_unit(k, cov);
         let iv = e.pointer(&format!("/intervals/{k}"));
         // Frame constants of a form (centre, span) come with a zero-width
         // interval: they were not fitted, so they are not a finding.
@@ -96,16 +114,32 @@ fn params_text(e: &Value) -> Vec<String> {
             continue;
         }
         match iv {
-            Some(iv) => out.push(format!(
-                "{k} = {} {unit} (95 % {:.3e} … {:.3e})",
-                format_pm(v, f(iv, "se")),
-                f(iv, "lo"),
-                f(iv, "hi")
-            )),
-            None => out.push(format!("{k} = {v:.3e} {unit}")),
+            Some(iv)
+                if [v, f(iv, "se"), f(iv, "lo"), f(iv, "hi")]
+                    .iter()
+                    .all(|x| x.is_finite()) =>
+            {
+                out.push(format!(
+                    "{k} = {} {unit} (95 % {:.3e} … {:.3e})",
+                    format_pm(v, f(iv, "se")),
+                    f(iv, "lo"),
+                    f(iv, "hi")
+                ))
+            }
+            _ if v.is_finite() => out.push(format!("{k} = {v:.3e} {unit}")),
+            _ => {}
         }
     }
     out
+}
+
+/// A p-value as text ("—" when there is none).
+fn pval(p: f64) -> String {
+    if p.is_finite() {
+        format!("{p:.1e}")
+    } else {
+        "—".into()
+    }
 }
 
 /// Why a candidate was not selected, from its entry and the observable's.
@@ -117,21 +151,25 @@ fn why_lost(e: &Value, winners: &BTreeMap<usize, (String, f64)>, stop: &str) -> 
         return format!("selected (step {})", e["step"]);
     }
     let shrink = f(e, "shrink");
-    let p = f(e, "p_value");
+    let p = pval(f(e, "p_value"));
     let step = e.get("step").and_then(|x| x.as_u64()).unwrap_or(1) as usize;
-    if !shrink.is_finite() || shrink <= 0.0 {
-        return format!("held-out gap not smaller (shrink {:.2})", shrink);
+    if !shrink.is_finite() {
+        return "no held-out score".into();
+    }
+    if shrink <= 0.0 {
+        return format!("held-out gap not smaller (shrink {shrink:.2})");
     }
     if let Some((w, ws)) = winners.get(&step) {
         return format!(
-            "step {step}: {w} shrank the held-out gap more ({ws:.2} vs {shrink:.2}; p = {p:.1e})"
+            "step {step}: {w} shrank the held-out gap more ({} vs {shrink:.2}; p = {p})",
+            super::fmt_fixed(Some(*ws), 2)
         );
     }
-    format!("not significant or selection stopped (p = {p:.1e}; {stop})")
+    format!("not significant or selection stopped (p = {p}; {stop})")
 }
 
 /// The folded candidate ranking of one observable, best first.
-fn candidates(d: &Value, observable: &str, stop: &str) -> String {
+fn candidates(d: &Value, observable: &str, stop: &str, u: &Unit) -> String {
     let mut es: Vec<&Value> = d
         .get("effects")
         .and_then(|e| e.as_array())
@@ -174,7 +212,6 @@ fn candidates(d: &Value, observable: &str, stop: &str) -> String {
             .then(ra.1.total_cmp(&rb.1))
             .then(key_of(a).cmp(&key_of(b)))
     });
-    let u = unit_of_observable(observable);
     let mut h = format!(
         "<details><summary>All {} candidates for {}, ranked, and why each lost</summary><table><thead><tr><th>effect</th><th>held-out RMS before ({})</th><th>after ({})</th><th>shrink</th><th>p</th><th>verdict</th></tr></thead><tbody>",
         es.len(),
@@ -211,7 +248,7 @@ fn augment_entries(out_dir: &std::path::Path) -> Vec<Value> {
 /// pooled over the machines that carry it).
 fn verdict(d: &Value, po: &Value, augment: &[Value], machine: &str) -> String {
     let obs = s(po, "observable");
-    let u = unit_of_observable(obs);
+    let u = unit_of(obs, po.get("unit").and_then(|x| x.as_str()));
     let (rms, floor) = (f(po, "rms_mm"), f(po, "noise_floor_mm"));
     let mut v = format!(
         "Gap RMS <b>{}</b> against a noise floor of {} ({})",
@@ -220,7 +257,7 @@ fn verdict(d: &Value, po: &Value, augment: &[Value], machine: &str) -> String {
         esc(s(po, "noise_floor_source"))
     );
     let above = po.get("gap_above_noise").and_then(|x| x.as_bool()) == Some(true);
-    if above && floor > 0.0 {
+    if above && floor > 0.0 && rms.is_finite() {
         let _ = write!(v, ", {:.1}× the floor", rms / floor);
     }
     v.push_str(". ");
@@ -268,7 +305,11 @@ fn verdict(d: &Value, po: &Value, augment: &[Value], machine: &str) -> String {
                         .and_then(|p| p.as_object())
                         .into_iter()
                         .flatten()
-                        .map(|(k, v)| format!("{k} = {:.3e}", v.as_f64().unwrap_or(f64::NAN)))
+                        .filter_map(|(k, v)| {
+                            v.as_f64()
+                                .filter(|x| x.is_finite())
+                                .map(|x| format!("{k} = {x:.3e}"))
+                        })
                         .collect();
                     let _ = write!(
                         t,
@@ -284,20 +325,24 @@ fn verdict(d: &Value, po: &Value, augment: &[Value], machine: &str) -> String {
         let si = po
             .get("shrink_interval")
             .and_then(|x| x.as_array())
-            .map(|a| {
-                format!(
-                    " (95 % {:.2}–{:.2})",
-                    a.first().and_then(|x| x.as_f64()).unwrap_or(f64::NAN),
-                    a.get(1).and_then(|x| x.as_f64()).unwrap_or(f64::NAN)
-                )
+            .and_then(|a| {
+                let lo = a
+                    .first()
+                    .and_then(|x| x.as_f64())
+                    .filter(|x| x.is_finite())?;
+                let hi = a
+                    .get(1)
+                    .and_then(|x| x.as_f64())
+                    .filter(|x| x.is_finite())?;
+                Some(format!(" (95 % {lo:.2}–{hi:.2})"))
             })
             .unwrap_or_default();
         let _ = write!(
             v,
-            "Held-out RMS {} → <b>{}</b>, shrink <b>{:.2}</b>{si}.",
+            "Held-out RMS {} → <b>{}</b>, shrink <b>{}</b>{si}.",
             u.show(f(po, "cv_rms_before_mm")),
             u.show(f(po, "cv_rms_after_mm")),
-            f(po, "shrink")
+            super::fmt_fixed(Some(f(po, "shrink")), 2)
         );
     }
     for a in augment.iter().filter(|a| {
@@ -306,9 +351,9 @@ fn verdict(d: &Value, po: &Value, augment: &[Value], machine: &str) -> String {
                 .and_then(|m| m.as_str())
                 .is_none_or(|m| m == machine)
     }) {
-        let au = a.get("unit").and_then(|x| x.as_str()).unwrap_or(u.data);
+        let au = a.get("unit").and_then(|x| x.as_str()).unwrap_or(&u.data);
         let scale = if au == u.data { u.scale } else { 1.0 };
-        let shown = if au == u.data { u.shown } else { au };
+        let shown = if au == u.data { u.shown.as_str() } else { au };
         let _ = write!(
             v,
             " Augmented simulator (+ {}): held-out gap {} {shown} plain → <b>{} {shown}</b> augmented.",
@@ -364,7 +409,10 @@ fn pictures(
     runs: Option<&Vec<RunRms>>,
     observable: &str,
 ) -> String {
-    let u = unit_of_observable(observable);
+    let u = unit_of(
+        observable,
+        po.and_then(|p| p.get("unit")).and_then(|x| x.as_str()),
+    );
     let mut h = String::from("<div class=\"figs\">");
     let mut outlined = false;
     let gap = FleetRows::at(&rows.gap, idx);
@@ -388,14 +436,14 @@ fn pictures(
         );
         let tiles = d.map(|d| xy_tiles(d, observable, pad)).unwrap_or_default();
         let t1 = format!("{observable}: gap, mean per cell");
-        let mut hm = Heat::new(&t1, &before, u.shown);
+        let mut hm = Heat::new(&t1, &before, &u.shown);
         hm.vmax = Some(vmax);
         hm.diverging = true;
         hm.outlines = &tiles;
         h.push_str(&heat(&hm));
         if has_after {
             let t2 = format!("{observable}: held-out gap after the selected effects");
-            let mut ha = Heat::new(&t2, &after, u.shown);
+            let mut ha = Heat::new(&t2, &after, &u.shown);
             ha.vmax = Some(vmax);
             ha.diverging = true;
             ha.outlines = &tiles;
@@ -745,8 +793,8 @@ pub fn fleet_page(
         for (t, machines) in &tree {
             for (m, obs) in machines {
                 for o in obs {
-                    let u = unit_of_observable(o);
                     let p = per_obs.get(o.as_str());
+                    let u = unit_of(o, p.and_then(|p| p.get("unit")).and_then(|x| x.as_str()));
                     let pf = |k: &str| p.map(|p| f(p, k)).unwrap_or(f64::NAN);
                     let above = p
                         .and_then(|p| p.get("gap_above_noise"))
@@ -780,7 +828,7 @@ pub fn fleet_page(
                         u.show(pf("noise_floor_mm")),
                         named,
                         if above && !sel.is_empty() { u.show(pf("cv_rms_after_mm")) } else { "—".into() },
-                        if above && !sel.is_empty() { format!("{:.0} %", 100.0 * pf("shrink")) } else { "—".into() },
+                        if above && !sel.is_empty() { super::fmt_fixed(Some(100.0 * pf("shrink")), 0) + " %" } else { "—".into() },
                         mini_bars(
                             pf("rms_mm"),
                             if above && !sel.is_empty() { pf("cv_rms_after_mm") } else { f64::NAN },
@@ -822,8 +870,8 @@ pub fn fleet_page(
                 runs_of.get(m.as_str()).copied().unwrap_or(0)
             );
             for o in obs {
-                let u = unit_of_observable(o);
                 let p = per_obs.get(o.as_str()).copied();
+                let u = unit_of(o, p.and_then(|p| p.get("unit")).and_then(|x| x.as_str()));
                 let _ = write!(
                     body,
                     "<section class=\"obs\" id=\"{}\"><h4>{} <span class=\"note\">({})</span></h4>",
@@ -851,7 +899,7 @@ pub fn fleet_page(
                     }
                 }
                 if let (Some(d), Some(p)) = (diagnosis, p) {
-                    body.push_str(&candidates(d, o, s(p, "stop_reason")));
+                    body.push_str(&candidates(d, o, s(p, "stop_reason"), &u));
                 }
                 body.push_str("</section>");
             }

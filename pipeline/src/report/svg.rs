@@ -49,6 +49,9 @@ fn bounds(values: impl Iterator<Item = f64>) -> (f64, f64) {
 /// A tick label with three significant digits and no exponent for the
 /// sizes a report shows.
 pub fn tick(v: f64) -> String {
+    if !v.is_finite() {
+        return "—".into();
+    }
     let a = v.abs();
     if a == 0.0 {
         "0".into()
