@@ -416,7 +416,7 @@ fn generate_run(
     let mut b = BatchBuilder::new().f64("t_s", t.clone());
     let names = ["x", "y", "z"];
     let mut cols: Vec<(String, Vec<f64>)> = Vec::new();
-    for k in 0..3 {
+    for (k, &a) in names.iter().enumerate() {
         let s = m.axes[k];
         let true_servo = match fx.lag_k_s {
             Some(lag) => AxisServo {
@@ -450,7 +450,6 @@ fn generate_run(
                 q_vel,
             ));
         }
-        let a = names[k];
         cols.push((
             format!("cmd_{a}_mm"),
             path.p[k].iter().map(|v| quantise(*v, q_pos)).collect(),
@@ -496,6 +495,8 @@ mod tests {
     use super::*;
 
     #[test]
+    // Stencils over i−1..=i+1 of several arrays: index loops read best.
+    #[allow(clippy::needless_range_loop)]
     fn program_is_continuous_and_consistent() {
         let cfg = ServoFleetConfig::default();
         let mut rng = ChaCha8Rng::seed_from_u64(1);

@@ -355,10 +355,10 @@ fn bad_inputs_are_rejected_and_the_batch_goes_on() {
         v.iter().cloned().fold(f64::MIN, f64::max) - v.iter().cloned().fold(f64::MAX, f64::min)
     };
     assert!(
-        pv(&after) < pv(&before),
+        pv(after) < pv(before),
         "the selective plan leaves the surface flatter: {} vs {}",
-        pv(&after),
-        pv(&before)
+        pv(after),
+        pv(before)
     );
     assert_eq!(f.as_array().unwrap().len(), 6, "{f:#}");
 

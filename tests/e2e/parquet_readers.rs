@@ -318,7 +318,8 @@ fn normalised(t: &Table, schema: &TableSchema) -> Vec<(String, Want)> {
 #[test]
 fn files_written_by_pyarrow_pandas_polars_and_duckdb_read_identically() {
     let root = fixtures().join("writers");
-    let mut by_table: std::collections::BTreeMap<String, Vec<(PathBuf, Vec<(String, Want)>)>> =
+    type Columns = Vec<(String, Want)>;
+    let mut by_table: std::collections::BTreeMap<String, Vec<(PathBuf, Columns)>> =
         Default::default();
     let mut n = 0;
     for tool in ["pyarrow", "pandas", "polars", "duckdb"] {
@@ -548,4 +549,30 @@ fn unsupported_codec_is_called_an_unsupported_codec() {
         "{e}"
     );
     assert!(e.message.contains("the file is intact"), "{e}");
+}
+
+/// Found by `cargo fuzz run observations` (issue 15 item 7): a corrupt page
+/// on which the parquet crate's decoder panics (division by zero in its
+/// plain byte-array dictionary decoder). It must be an error naming the file
+/// and the row group, with exit code 1 like any bad input — not a crash.
+#[test]
+fn a_page_that_panics_the_decoder_is_a_corrupt_page_error() {
+    let f = fixtures().join("fuzz_found/observations_decoder_div_by_zero.parquet");
+    let d = tempfile::tempdir().unwrap();
+    let o = super::common::sparkout(&[
+        "diagnose",
+        f.to_str().unwrap(),
+        "--out",
+        d.path().join("o").to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_ne!(o.status.code(), Some(101), "crashed: {err}");
+    assert!(!o.status.success());
+    assert!(
+        err.contains("observations_decoder_div_by_zero.parquet")
+            && err.contains("corrupt data page in row group 0")
+            && err.contains("the Parquet decoder failed"),
+        "{err}"
+    );
+    assert!(!d.path().join("o").join("diagnosis.json").exists());
 }

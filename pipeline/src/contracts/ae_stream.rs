@@ -290,7 +290,7 @@ fn first_timestamp(path: &Path, column: &str) -> Result<Option<f64>, InputError>
         .with_batch_size(1)
         .build()
         .map_err(|e| corrupt_page(path, &meta, 0, e))?;
-    match reader.next() {
+    match super::parquet_file::next_batch(&mut reader) {
         Some(Ok(b)) => Ok(super::convert::earliest_unix_s(b.column(0).as_ref())),
         Some(Err(e)) => Err(corrupt_page(path, &meta, 0, e)),
         None => Ok(None),
@@ -313,14 +313,14 @@ impl DecodeJob {
                         .build()
                         .map_err(|e| corrupt_page(&self.path, self.metadata.metadata(), row, e))
                 });
-            let reader = match reader {
+            let mut reader = match reader {
                 Ok(r) => r,
                 Err(e) => {
                     let _ = tx.send(Decoded::Chunk(Err(e)));
                     return;
                 }
             };
-            for batch in reader {
+            while let Some(batch) = super::parquet_file::next_batch(&mut reader) {
                 let chunk = batch
                     .map_err(|e| corrupt_page(&self.path, self.metadata.metadata(), row, e))
                     .and_then(|b| to_chunk(&self.path, &b, row, &self.value, &self.clock));

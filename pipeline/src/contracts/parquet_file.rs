@@ -177,6 +177,29 @@ pub fn corrupt_page(
     .row(row)
 }
 
+/// The next batch of a Parquet reader, with a panic inside the decoder
+/// turned into an error. The parquet crate (60.1) panics on some corrupt
+/// pages — fuzzing found "attempt to divide by zero" in its plain
+/// byte-array dictionary decoder (fuzz/README.md) — and a corrupt user file
+/// must reject its run, not abort the batch. The reader is not used again
+/// after a panic (the caller stops at the first error).
+pub fn next_batch<I>(reader: &mut I) -> Option<Result<RecordBatch, String>>
+where
+    I: Iterator<Item = Result<RecordBatch, arrow::error::ArrowError>>,
+{
+    match std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| reader.next())) {
+        Ok(next) => next.map(|r| r.map_err(|e| e.to_string())),
+        Err(payload) => {
+            let msg = payload
+                .downcast_ref::<&str>()
+                .map(|s| s.to_string())
+                .or_else(|| payload.downcast_ref::<String>().cloned())
+                .unwrap_or_else(|| "unknown panic".into());
+            Some(Err(format!("the Parquet decoder failed: {msg}")))
+        }
+    }
+}
+
 /// Decode every row group of an opened file into one batch; a batch that
 /// does not decode is a [`corrupt_page`].
 pub fn read_all(
@@ -185,12 +208,12 @@ pub fn read_all(
 ) -> Result<RecordBatch, InputError> {
     let schema = builder.schema().clone();
     let meta = builder.metadata().clone();
-    let reader = builder
+    let mut reader = builder
         .build()
         .map_err(|e| corrupt_page(path, &meta, 0, e))?;
     let mut batches = Vec::new();
     let mut row = 0;
-    for b in reader {
+    while let Some(b) = next_batch(&mut reader) {
         let b = b.map_err(|e| corrupt_page(path, &meta, row, e))?;
         row += b.num_rows();
         batches.push(b);

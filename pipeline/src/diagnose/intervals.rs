@@ -54,7 +54,7 @@ pub struct ParamInterval {
 const BOOTSTRAP: usize = 400;
 
 fn t975(df: f64) -> f64 {
-    if !(df >= 1.0) {
+    if df.is_nan() || df < 1.0 {
         return f64::NAN;
     }
     StudentsT::new(0.0, 1.0, df)
@@ -346,6 +346,30 @@ pub fn unit_of(param: &str, covariate: Option<&str>) -> String {
     }
 }
 
+/// Intervals of the chosen effects of one observable, in selection order:
+/// (parameter intervals, held-out shrink interval).
+pub type ChosenIntervals = Vec<(BTreeMap<String, ParamInterval>, Option<[f64; 2]>)>;
+
+pub fn chosen_intervals(
+    cands: &[&dyn Effect],
+    prob: &Problem,
+    sel: &super::select::Selection,
+    runs: &[Range<usize>],
+    seed: u64,
+) -> ChosenIntervals {
+    sel.chosen
+        .iter()
+        .enumerate()
+        .map(|(j, &ci)| {
+            let ev = &sel.chosen_evals[j];
+            (
+                param_intervals(cands[ci], prob, ev, &sel.final_targets[j], runs),
+                shrink_interval(&sel.chosen_before[j], &ev.unit_sse, seed ^ j as u64),
+            )
+        })
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -372,28 +396,4 @@ mod tests {
             "{lo} {point} {hi}"
         );
     }
-}
-
-/// Intervals of the chosen effects of one observable, in selection order:
-/// (parameter intervals, held-out shrink interval).
-pub type ChosenIntervals = Vec<(BTreeMap<String, ParamInterval>, Option<[f64; 2]>)>;
-
-pub fn chosen_intervals(
-    cands: &[&dyn Effect],
-    prob: &Problem,
-    sel: &super::select::Selection,
-    runs: &[Range<usize>],
-    seed: u64,
-) -> ChosenIntervals {
-    sel.chosen
-        .iter()
-        .enumerate()
-        .map(|(j, &ci)| {
-            let ev = &sel.chosen_evals[j];
-            (
-                param_intervals(cands[ci], prob, ev, &sel.final_targets[j], runs),
-                shrink_interval(&sel.chosen_before[j], &ev.unit_sse, seed ^ j as u64),
-            )
-        })
-        .collect()
 }

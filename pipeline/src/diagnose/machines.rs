@@ -71,13 +71,13 @@ pub fn per_machine(
             shape[i]
         }
     };
-    for i in 0..n {
+    for (i, &t) in target.iter().enumerate().take(n) {
         for a in 0..q {
             let fa = feat(i, a);
             if fa == 0.0 {
                 continue;
             }
-            h[a] += fa * target[i];
+            h[a] += fa * t;
             for b in 0..q {
                 g[a * q + b] += fa * feat(i, b);
             }
@@ -137,7 +137,7 @@ pub fn per_machine(
     }
     let d1 = ((m - 1) * p.max(1)) as f64;
     let d2 = n as f64 - (m * (p + 1)) as f64;
-    if d2 < 1.0 || !(sse_u > 0.0) {
+    if d2 < 1.0 || sse_u.is_nan() || sse_u <= 0.0 {
         return Ok(None);
     }
     let gain = 0.5 * (sse_r.max(sse_u) / sse_u).ln();

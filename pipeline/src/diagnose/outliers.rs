@@ -52,7 +52,7 @@ pub fn detect(o: &ObsRows, residual: &[f64]) -> Result<(Vec<usize>, f64, f64), S
     let med = median(&mut residual.to_vec());
     let mut dev: Vec<f64> = residual.iter().map(|r| (r - med).abs()).collect();
     let sigma = 1.4826 * median(&mut dev);
-    if !(sigma > 0.0) {
+    if sigma.is_nan() || sigma <= 0.0 {
         return Ok((Vec::new(), sigma, f64::NAN));
     }
     let thr = K_SIGMA * sigma;

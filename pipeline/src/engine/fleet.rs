@@ -70,7 +70,7 @@ impl Engine {
 
             let dcfg = self.diagnose_config()?;
             let effects = self.plugin_effects();
-            let scoped: Vec<(Vec<String>, &(&str, Vec<Box<dyn Effect>>))> = effects
+            let scoped: Vec<(Vec<String>, &PluginEffects)> = effects
                 .iter()
                 .filter_map(|pe| {
                     produced

@@ -33,6 +33,9 @@ pub use config::PipelineConfig;
 /// Version of the fleet `diagnose` step (bump when its output changes).
 pub const DIAGNOSE_STAGE_VERSION: u32 = 4;
 
+/// A plugin's name and the composite effects it adds to the diagnosis.
+pub type PluginEffects = (&'static str, Vec<Box<dyn Effect>>);
+
 /// Version of the manifest/failures layout.
 pub const MANIFEST_VERSION: u32 = 1;
 
@@ -276,7 +279,7 @@ impl Engine {
 
     /// Each plugin's composites (plugin name, effects), in registry order;
     /// the diagnosis scopes them to the plugin's observables.
-    pub fn plugin_effects(&self) -> Vec<(&'static str, Vec<Box<dyn Effect>>)> {
+    pub fn plugin_effects(&self) -> Vec<PluginEffects> {
         self.plugins
             .iter()
             .map(|p| (p.name(), p.effects()))
