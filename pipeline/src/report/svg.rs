@@ -224,36 +224,45 @@ pub fn bar_chart(title: &str, value_label: &str, bars: &[(String, f64)]) -> Stri
         let _ = root.fill(&WHITE);
         let (_, hi) = bounds(bars.iter().map(|b| b.1).chain([0.0]));
         let n = bars.len().max(1);
+        // Segmented rows: each label centred on its bar, bars apart.
         let chart = ChartBuilder::on(&root)
             .caption(title, (FONT, CAPTION_PX))
             .margin(12)
             .x_label_area_size(44)
             .y_label_area_size(label_w)
-            .build_cartesian_2d(0.0..hi.max(1e-12), 0..n);
+            .build_cartesian_2d(0.0..hi.max(1e-12), (0..n).into_segmented());
         if let Ok(mut chart) = chart {
             let labels: Vec<String> = bars.iter().map(|b| b.0.clone()).collect();
             let fx = |v: &f64| tick(*v);
+            let fy = |v: &SegmentValue<usize>| match v {
+                SegmentValue::CenterOf(i) => (n - 1)
+                    .checked_sub(*i)
+                    .and_then(|k| labels.get(k).cloned())
+                    .unwrap_or_default(),
+                _ => String::new(),
+            };
             let _ = chart
                 .configure_mesh()
                 .x_desc(value_label)
                 .y_labels(n)
                 .x_label_formatter(&fx)
-                .y_label_formatter(&|i| {
-                    (n - 1)
-                        .checked_sub(*i)
-                        .and_then(|k| labels.get(k).cloned())
-                        .unwrap_or_default()
-                })
+                .y_label_formatter(&fy)
                 .label_style((FONT, LABEL_PX))
                 .axis_desc_style((FONT, DESC_PX))
+                .light_line_style(WHITE.mix(0.0))
                 .disable_y_mesh()
                 .draw();
             let _ = chart.draw_series(bars.iter().enumerate().map(|(i, b)| {
                 let y = n - 1 - i;
-                Rectangle::new(
-                    [(0.0, y), (b.1.max(0.0), y + 1)],
+                let mut r = Rectangle::new(
+                    [
+                        (0.0, SegmentValue::Exact(y)),
+                        (b.1.max(0.0), SegmentValue::Exact(y + 1)),
+                    ],
                     COLORS[0].mix(0.8).filled(),
-                )
+                );
+                r.set_margin(3, 3, 0, 0);
+                r
             }));
         }
         let _ = root.present();
