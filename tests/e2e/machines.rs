@@ -184,8 +184,15 @@ fn two_machines_with_identical_run_ids_stay_apart() {
         "the clean machine is flagged: {:#}",
         diag["where"]
     );
-    // The fleet report groups by machine.
+    // The fleet report groups by machine type, then machine (issue 16: the
+    // per-run gap table gave way to a section per machine).
     let html = std::fs::read_to_string(out.join("fleet/report.html")).unwrap();
-    assert!(html.contains("Gap by machine, run and observable"));
-    assert!(html.contains("form-grinder-2"));
+    assert!(
+        html.contains("<h2>Machine type form</h2>"),
+        "no machine-type section"
+    );
+    assert!(
+        html.contains("<h3>Machine form-grinder-2"),
+        "no section of form-grinder-2"
+    );
 }

@@ -28,6 +28,7 @@ mod parquet_readers;
 mod proptest_parsers;
 mod reliability;
 mod replay_cli;
+mod reports;
 mod robot_diagnosis_e2e;
 mod robot_stages;
 mod runless_tables;

@@ -87,17 +87,28 @@ fn ranking_svg(d: &Diagnosis) -> String {
 /// The `<section>` of the fleet report.
 pub fn section(d: &Diagnosis) -> String {
     let mut s = String::from(r#"<section class="diagnosis"><h2>Sim-to-real gap diagnosis</h2>"#);
-    let _ = write!(
-        s,
-        "<p>Gap RMS {} mm (max |gap| {} mm, n = {}) against a noise floor of {} mm ({}). Held-out RMS after the selected effects: {} mm ({:.1} % of the gap energy unexplained).</p>",
-        num(Some(d.gap.rms_mm)),
-        num(Some(d.gap.max_abs_mm)),
-        d.gap.n,
-        num(Some(d.gap.noise_floor_mm)),
-        esc(&d.noise_floor_source),
-        num(Some(d.unexplained.rms_mm)),
-        100.0 * d.unexplained.share
-    );
+    // No pooled gap or "share unexplained" across observables: their
+    // scales differ (a touch probe's noise would swamp every real gap;
+    // issue 16). Each observable against its own floor, in its own row.
+    s.push_str("<table><tr><th>observable</th><th>n</th><th>gap RMS mm</th><th>noise floor mm</th><th>held-out RMS after mm</th><th>shrink</th><th>selected or why not</th></tr>");
+    for o in &d.per_observable {
+        let _ = write!(
+            s,
+            "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{:.2}</td><td>{}</td></tr>",
+            esc(&o.observable),
+            o.n,
+            num(Some(o.rms_mm)),
+            num(Some(o.noise_floor_mm)),
+            num(Some(o.cv_rms_after_mm)),
+            o.shrink,
+            esc(&if o.selected.is_empty() {
+                o.stop_reason.clone()
+            } else {
+                o.selected.join(", ")
+            })
+        );
+    }
+    s.push_str("</table>");
     let _ = write!(
         s,
         "<p>Selected: <b>{}</b>. Cross-validation: {} folds by {}; {}.</p>",

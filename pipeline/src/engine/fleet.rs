@@ -156,6 +156,9 @@ impl Engine {
         for r in &records {
             rkey.part(&r.stage, &r.key);
         }
+        // The augmentation's figures are shown in the verdicts when present.
+        let augment = hash_file(&fleet_dir.join("augment.json")).unwrap_or_default();
+        rkey.part("augment", &augment);
         let rkey = rkey.finish();
         let cached = previous
             .get("report")
@@ -177,12 +180,39 @@ impl Engine {
             records.push(StageRecord {
                 stage: "report".into(),
                 version: report::REPORT_VERSION,
-                key: rkey,
+                key: rkey.clone(),
                 files: [("report.html".to_string(), hash_bytes(&bytes))].into(),
                 cached: false,
             });
         }
         outcome.report = Some(fleet_dir.join("report.html"));
+        // out/index.html (issue 16 item 2): cached like the report, on its
+        // key and the trend page's presence.
+        let mut ikey = KeyBuilder::new("fleet-index");
+        ikey.part("report", &rkey).part(
+            "trend",
+            &out.join(report::index::TREND_PAGE).is_file().to_string(),
+        );
+        let ikey = ikey.finish();
+        if previous
+            .get("index")
+            .map(|p| record_valid(out, p, &ikey))
+            .unwrap_or(false)
+        {
+            let mut rec = previous["index"].clone();
+            rec.cached = true;
+            records.push(rec);
+        } else {
+            let bytes = report::index_page(&self.config.section("report"), outcome).into_bytes();
+            write_atomic(&out.join("index.html"), &bytes)?;
+            records.push(StageRecord {
+                stage: "index".into(),
+                version: report::REPORT_VERSION,
+                key: ikey,
+                files: [("index.html".to_string(), hash_bytes(&bytes))].into(),
+                cached: false,
+            });
+        }
         let cache: Vec<&StageRecord> = records.iter().collect();
         write_json_atomic(&fleet_dir.join(cache::RUN_CACHE_FILE), &cache)?;
         outcome.fleet = records;

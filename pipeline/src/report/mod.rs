@@ -2,17 +2,22 @@
 //! and for the fleet. Plugins contribute sections; the diagnosis contributes
 //! its own. Same inputs → same bytes (no timestamps).
 
+pub mod fleet;
+pub mod fleet_data;
 pub mod gap_table;
+pub mod index;
 pub mod svg;
+
+pub use fleet::fleet_page;
+pub use index::index_page;
 
 use std::collections::BTreeMap;
 use std::fmt::Write;
 
-use crate::engine::FleetOutcome;
 use crate::traits::{ReportSection, Run};
 
 /// Bump when the report layout changes (cache key of report steps).
-pub const REPORT_VERSION: u32 = 2;
+pub const REPORT_VERSION: u32 = 3;
 
 /// HTML-escape text.
 pub fn esc(s: &str) -> String {
@@ -63,17 +68,52 @@ pub fn table(header: &[&str], rows: &[Vec<String>]) -> String {
     s
 }
 
-const STYLE: &str = "body{font-family:system-ui,sans-serif;margin:2em;max-width:1100px;color:#222}\
-h1{font-size:1.5em}h2{font-size:1.2em;border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:2em}\
-table{border-collapse:collapse;margin:.5em 0}td,th{border:1px solid #ccc;padding:.25em .6em;text-align:right;font-variant-numeric:tabular-nums}\
-th{background:#f3f3f3}td:first-child,th:first-child{text-align:left}.bad{color:#b00}.ok{color:#070}\
-.note{color:#555;font-size:.9em}pre{background:#f6f6f6;padding:.5em;overflow-x:auto}";
+/// One stylesheet for every page: readable at 100 % zoom, charts scaled
+/// to the column (nothing wider than the viewport), wide tables scroll in
+/// their own box, and an A4 print layout (issue 16 item 4).
+const STYLE: &str = "body{font-family:system-ui,sans-serif;margin:1.5em auto;max-width:1100px;padding:0 1em;color:#222;line-height:1.4}\
+h1{font-size:1.5em}h2{font-size:1.25em;border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:2em}h3{font-size:1.1em;margin-top:1.5em}h4{font-size:1em;margin:1em 0 .3em}\
+table{border-collapse:collapse;margin:.5em 0;display:block;max-width:100%;overflow-x:auto}td,th{border:1px solid #ccc;padding:.25em .6em;text-align:right;font-variant-numeric:tabular-nums}\
+th{background:#f3f3f3}td:first-child,th:first-child{text-align:left}td{white-space:nowrap}td.why,th.why{text-align:left;white-space:normal;min-width:12em}.glance td:first-child{white-space:normal;min-width:14em}.bad{color:#b00}.ok{color:#070}\
+.note{color:#555;font-size:.9em}pre{background:#f6f6f6;padding:.5em;overflow-x:auto;max-width:100%}\
+svg.chart{display:block;max-width:100%;height:auto;margin:.4em 0}.figs{display:flex;flex-wrap:wrap;gap:.5em}.figs svg.chart{flex:1 1 520px;max-width:720px}\
+.warn{border:2px solid #b00;background:#fff4f4;color:#700;padding:.5em .8em;margin:.6em 0;font-weight:600}\
+.verdict{background:#f4f8ff;border-left:4px solid #2a6ebb;padding:.4em .7em}nav{margin-bottom:1em}a{color:#1a5fb4}\
+details{margin:.5em 0}summary{cursor:pointer;color:#1a5fb4}ul.files{columns:3 16em}\
+@media print{@page{size:A4;margin:12mm}body{max-width:none;margin:0;padding:0;font-size:10pt}nav{display:none}\
+h2,h3,h4{break-after:avoid}svg.chart,table,.verdict,.warn{break-inside:avoid}.figs{display:block}.figs svg.chart{max-width:100%}\
+details>summary{color:#222}a{color:#222;text-decoration:none}}";
 
-fn page(title: &str, body: &str) -> String {
+/// A self-contained HTML page: inline style, no script, no network.
+pub(crate) fn page(title: &str, body: &str) -> String {
     format!(
-        "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>{t}</title><style>{STYLE}</style></head><body>\n<h1>{t}</h1>\n{body}\n</body></html>\n",
+        "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><meta name=\"viewport\" content=\"width=device-width,initial-scale=1\"><title>{t}</title><style>{STYLE}</style></head><body>\n<h1>{t}</h1>\n{body}\n</body></html>\n",
         t = esc(title)
     )
+}
+
+/// A warning box for a result that contradicts its purpose (a polishing
+/// plan that worsens flatness, a fit far above its noise floor, a badly
+/// conditioned datum). `text` is escaped.
+pub fn warning(text: &str) -> String {
+    format!(
+        "<div class=\"warn\" role=\"alert\">Warning: {}</div>",
+        esc(text)
+    )
+}
+
+/// A warning when a fit's residual RMS is more than `factor` × the noise
+/// floor it should reach (the model misses something).
+pub fn warn_fit_above_floor(what: &str, rms_mm: f64, floor_mm: f64, factor: f64) -> Option<String> {
+    (rms_mm.is_finite() && floor_mm.is_finite() && floor_mm > 0.0 && rms_mm > factor * floor_mm)
+        .then(|| {
+            warning(&format!(
+                "{what}: residual RMS {:.1} µm is {:.1}× the noise floor of {:.1} µm — the model misses a systematic effect; check the fleet diagnosis before using its result.",
+                rms_mm * 1e3,
+                rms_mm / floor_mm,
+                floor_mm * 1e3
+            ))
+        })
 }
 
 fn title_of(cfg: &toml::Table, default: &str) -> String {
@@ -90,7 +130,9 @@ pub fn run_page(
     summaries: &BTreeMap<String, serde_json::Value>,
     sections: &[ReportSection],
 ) -> String {
-    let mut body = String::new();
+    let mut body = String::from(
+        "<nav><a href=\"../../index.html\">← index</a> · <a href=\"../../fleet/report.html\">fleet report</a></nav>",
+    );
     let _ = write!(
         body,
         "<p>Run <b>{}</b> of machine <b>{}</b> (plugin <code>{}</code>, machine config from {}){}.</p>",
@@ -112,16 +154,17 @@ pub fn run_page(
             s.html
         );
     }
-    body.push_str("<section><h2>Stage summaries (JSON)</h2>");
-    for (stage, v) in summaries {
+    // Raw stage summaries stay files beside the page (`<stage>.json`),
+    // linked, not dumped inline.
+    body.push_str("<section><h2>Stage outputs</h2><ul class=\"files\">");
+    for stage in summaries.keys() {
         let _ = write!(
             body,
-            "<h3>{}</h3><pre>{}</pre>",
-            esc(stage),
-            esc(&serde_json::to_string_pretty(v).unwrap_or_default())
+            "<li><a href=\"{f}\">{f}</a></li>",
+            f = esc(&format!("{stage}.json"))
         );
     }
-    body.push_str("</section>");
+    body.push_str("</ul></section>");
     page(
         &format!(
             "{} — {}/{}",
@@ -186,163 +229,4 @@ pub fn observable_summaries(diagnosis: &serde_json::Value) -> Vec<ObservableSumm
             }
         })
         .collect()
-}
-
-/// The fleet report: runs, failures, the gap per run and observable, the
-/// diagnosis section.
-pub fn fleet_page(
-    cfg: &toml::Table,
-    outcome: &FleetOutcome,
-    diagnosis: Option<&serde_json::Value>,
-    diagnosis_html: Option<&str>,
-) -> String {
-    let mut body = String::new();
-    let _ = write!(
-        body,
-        "<p>{} runs processed, {} rejected.</p>",
-        outcome.runs.len(),
-        outcome.failures.len()
-    );
-    if let Some(d) = diagnosis {
-        let sel = d
-            .get("selected")
-            .and_then(|s| s.as_array())
-            .map(|a| {
-                a.iter()
-                    .filter_map(|v| v.as_str())
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            })
-            .unwrap_or_default();
-        let rms = d
-            .pointer("/gap/rms_mm")
-            .and_then(|v| v.as_f64())
-            .unwrap_or(f64::NAN);
-        let after = d
-            .pointer("/unexplained/rms_mm")
-            .and_then(|v| v.as_f64())
-            .unwrap_or(f64::NAN);
-        let _ = write!(
-            body,
-            "<p><b>Sim-to-real gap, all observables:</b> RMS {} mm; {}; held-out RMS after the selected effects {} mm.</p>",
-            fmt_mm(rms),
-            if sel.is_empty() {
-                "no effect selected".to_string()
-            } else {
-                format!("explained by <b>{}</b>", esc(&sel))
-            },
-            fmt_mm(after)
-        );
-    }
-    if let Some(d) = diagnosis {
-        // Per observable first: each has its own noise floor and effects,
-        // and a small observable's shrink is invisible in the fleet total.
-        let rows: Vec<Vec<String>> = observable_summaries(d)
-            .iter()
-            .map(|o| {
-                vec![
-                    o.observable.clone(),
-                    fmt_mm(o.rms_mm),
-                    fmt_mm(o.noise_floor_mm),
-                    o.explained_by.clone(),
-                    fmt_mm(o.after_mm),
-                    format!("{:.0} %", 100.0 * o.shrink),
-                ]
-            })
-            .collect();
-        body.push_str(&table(
-            &[
-                "observable",
-                "gap RMS (mm)",
-                "noise floor (mm)",
-                "explained by",
-                "held-out RMS after (mm)",
-                "shrink",
-            ],
-            &rows,
-        ));
-    }
-    body.push_str("<h2>Runs</h2>");
-    // Grouped by machine (issue 12): sorted by (machine, run).
-    let mut runs: Vec<&crate::engine::RunResult> = outcome.runs.iter().collect();
-    runs.sort_by(|a, b| (&a.machine, &a.run).cmp(&(&b.machine, &b.run)));
-    let rows: Vec<Vec<String>> = runs
-        .iter()
-        .map(|r| {
-            vec![
-                r.machine.clone(),
-                r.run.clone(),
-                r.plugin.clone(),
-                r.computed().to_string(),
-                r.cached().to_string(),
-            ]
-        })
-        .collect();
-    body.push_str(&table(
-        &[
-            "machine",
-            "run",
-            "plugin",
-            "stages computed",
-            "stages cached",
-        ],
-        &rows,
-    ));
-    if !outcome.failures.is_empty() {
-        body.push_str("<h2 class=\"bad\">Rejected runs</h2>");
-        let rows: Vec<Vec<String>> = outcome
-            .failures
-            .iter()
-            .map(|f| {
-                vec![
-                    f.machine.clone().unwrap_or_default(),
-                    f.run.clone().unwrap_or_default(),
-                    f.run_dir.clone(),
-                    f.stage.clone().unwrap_or_default(),
-                    f.error.clone(),
-                ]
-            })
-            .collect();
-        body.push_str(&table(
-            &["machine", "run", "run directory", "stage", "error"],
-            &rows,
-        ));
-    }
-    let obs = outcome.out_dir.join("fleet").join("observations.parquet");
-    if obs.is_file() {
-        match gap_table::gap_by_run_observable(&obs) {
-            Ok((true, rows)) => {
-                body.push_str("<h2>Gap by machine, run and observable</h2>");
-                body.push_str(&table(
-                    &[
-                        "machine",
-                        "run",
-                        "observable",
-                        "n",
-                        "mean gap (mm)",
-                        "RMS gap (mm)",
-                    ],
-                    &rows,
-                ));
-            }
-            Ok((false, rows)) => {
-                body.push_str("<h2>Gap by run and observable</h2>");
-                body.push_str(&table(
-                    &["run", "observable", "n", "mean gap (mm)", "RMS gap (mm)"],
-                    &rows,
-                ));
-            }
-            Err(e) => {
-                let _ = write!(
-                    body,
-                    "<p class=\"bad\">gap table unavailable: {}</p>",
-                    esc(&e.to_string())
-                );
-            }
-        }
-    }
-    if let Some(h) = diagnosis_html {
-        body.push_str(h);
-    }
-    page(&title_of(cfg, "sparkout fleet report"), &body)
 }

@@ -1,4 +1,9 @@
 //! Inline SVG charts (plotters' SVG backend): no network, no JavaScript.
+//! Every chart carries `class="chart"` so the page's stylesheet can scale
+//! it down to the column width (no element wider than the viewport);
+//! axis text is 14 px so it reads at 100 % zoom (issue 16 item 3).
+
+use std::fmt::Write;
 
 use plotters::prelude::*;
 
@@ -12,6 +17,17 @@ const COLORS: [RGBColor; 7] = [
     RGBColor(86, 180, 233),
     RGBColor(0, 0, 0),
 ];
+
+const FONT: &str = "sans-serif";
+// Plotters' SVG backend writes text at ~0.8 × the size asked: these give
+// 16 px captions, 13–14 px tick labels and axis titles on the page.
+const CAPTION_PX: u32 = 20;
+const LABEL_PX: u32 = 17;
+const DESC_PX: u32 = 18;
+/// Text drawn by hand (colour bar), in px as written.
+const BAR_TEXT_PX: u32 = 14;
+/// Width of the colour bar strip beside a heat map.
+const BAR_W: u32 = 96;
 
 fn bounds(values: impl Iterator<Item = f64>) -> (f64, f64) {
     let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
@@ -30,6 +46,63 @@ fn bounds(values: impl Iterator<Item = f64>) -> (f64, f64) {
     (lo - pad, hi + pad)
 }
 
+/// A tick label with three significant digits and no exponent for the
+/// sizes a report shows.
+pub fn tick(v: f64) -> String {
+    if !v.is_finite() {
+        return "—".into();
+    }
+    let a = v.abs();
+    if a == 0.0 {
+        "0".into()
+    } else if v.fract() == 0.0 && a < 1e6 {
+        format!("{v:.0}")
+    } else if a >= 100.0 {
+        format!("{v:.0}")
+    } else if a >= 10.0 {
+        format!("{v:.1}")
+    } else if a >= 1.0 {
+        format!("{v:.2}")
+    } else if a >= 0.01 {
+        format!("{v:.3}")
+    } else {
+        format!("{v:.2e}")
+    }
+}
+
+/// Mark plotters' SVG as a chart (scaled by the stylesheet), compacted.
+fn classed(svg: String) -> String {
+    compact(&svg).replacen(
+        "<svg ",
+        &format!("<svg class=\"chart\" font-family=\"{FONT}\" "),
+        1,
+    )
+}
+
+/// Plotters' SVG without the attributes that restate defaults (opacity 1,
+/// no stroke width for unstroked shapes, the font family the root sets,
+/// 16-digit font sizes): a fleet page carries dozens of charts.
+fn compact(svg: &str) -> String {
+    let mut s = svg
+        .replace(" opacity=\"1\"", "")
+        .replace(" stroke=\"none\" stroke-width=\"1\"", "")
+        .replace(&format!(" font-family=\"{FONT}\""), "")
+        .replace("\n</text>", "</text>")
+        .replace(">\n", ">");
+    // font-size="16.129032258064516" → font-size="16.1"
+    let mut out = String::with_capacity(s.len());
+    while let Some(i) = s.find("font-size=\"") {
+        let start = i + "font-size=\"".len();
+        out.push_str(&s[..start]);
+        let end = s[start..].find('"').map(|e| start + e).unwrap_or(s.len());
+        let v: f64 = s[start..end].parse().unwrap_or(12.0);
+        out.push_str(&format!("{v:.1}"));
+        s = s[end..].to_string();
+    }
+    out.push_str(&s);
+    out
+}
+
 /// How a series is drawn.
 #[derive(Clone, Copy, PartialEq, Eq)]
 pub enum Mark {
@@ -45,23 +118,41 @@ pub struct Series<'a> {
 
 /// An x–y chart of one or more series.
 pub fn xy_chart(title: &str, x_label: &str, y_label: &str, series: &[Series]) -> String {
+    xy_chart_sized(title, x_label, y_label, series, (720, 380))
+}
+
+/// [`xy_chart`] at a given size in px (plots sized to their content).
+pub fn xy_chart_sized(
+    title: &str,
+    x_label: &str,
+    y_label: &str,
+    series: &[Series],
+    size: (u32, u32),
+) -> String {
     let mut out = String::new();
     {
-        let root = SVGBackend::with_string(&mut out, (640, 360)).into_drawing_area();
+        let root = SVGBackend::with_string(&mut out, size).into_drawing_area();
         let _ = root.fill(&WHITE);
         let (x0, x1) = bounds(series.iter().flat_map(|s| s.points.iter().map(|p| p.0)));
         let (y0, y1) = bounds(series.iter().flat_map(|s| s.points.iter().map(|p| p.1)));
         let chart = ChartBuilder::on(&root)
-            .caption(title, ("sans-serif", 16))
-            .margin(10)
-            .x_label_area_size(36)
-            .y_label_area_size(64)
+            .caption(title, (FONT, CAPTION_PX))
+            .margin(12)
+            .x_label_area_size(48)
+            .y_label_area_size(84)
             .build_cartesian_2d(x0..x1, y0..y1);
         if let Ok(mut chart) = chart {
+            let fx = |v: &f64| tick(*v);
             let _ = chart
                 .configure_mesh()
                 .x_desc(x_label)
                 .y_desc(y_label)
+                .x_labels(7)
+                .y_labels(6)
+                .x_label_formatter(&fx)
+                .y_label_formatter(&fx)
+                .label_style((FONT, LABEL_PX))
+                .axis_desc_style((FONT, DESC_PX))
                 .light_line_style(WHITE.mix(0.0))
                 .draw();
             for (i, s) in series.iter().enumerate() {
@@ -78,75 +169,209 @@ pub fn xy_chart(title: &str, x_label: &str, y_label: &str, series: &[Series]) ->
                         chart.draw_series(pts.into_iter().map(|p| Circle::new(p, 3, c.filled())))
                     }
                 };
-                if let Ok(d) = drawn {
-                    d.label(s.name.to_string()).legend(move |(x, y)| {
-                        Rectangle::new([(x, y - 4), (x + 12, y + 4)], c.filled())
-                    });
-                }
-            }
-            if series.len() > 1 {
-                let _ = chart
-                    .configure_series_labels()
-                    .border_style(BLACK)
-                    .background_style(WHITE.mix(0.8))
-                    .draw();
+                let _ = drawn;
             }
         }
         let _ = root.present();
     }
-    out
+    if series.len() < 2 {
+        return classed(out);
+    }
+    // The legend goes below the chart, one row per series, so it never
+    // hides a point.
+    let (w, h) = size;
+    let row = 20;
+    let total = h + 8 + row * series.len() as u32;
+    let mut s = format!(
+        r#"<svg class="chart" xmlns="http://www.w3.org/2000/svg" width="{w}" height="{total}" viewBox="0 0 {w} {total}" font-family="{FONT}">"#
+    );
+    s.push_str(&compact(&out));
+    for (i, se) in series.iter().enumerate() {
+        let c = COLORS[i % COLORS.len()];
+        let y = h + 4 + row * i as u32;
+        let mark = match se.mark {
+            Mark::Line => format!(
+                r#"<line x1="96" x2="120" y1="{m}" y2="{m}" stroke="{}" stroke-width="2"/>"#,
+                hex(c),
+                m = y + 8
+            ),
+            Mark::Points => format!(
+                r#"<circle cx="108" cy="{}" r="4" fill="{}"/>"#,
+                y + 8,
+                hex(c)
+            ),
+        };
+        let _ = write!(
+            s,
+            r#"{mark}<text x="128" y="{}" font-size="{BAR_TEXT_PX}">{}</text>"#,
+            y + 13,
+            crate::report::esc(se.name)
+        );
+    }
+    s.push_str("</svg>");
+    s
 }
 
-/// Horizontal bars (label, value), e.g. effect ranking.
+/// Horizontal bars (label, value), e.g. effect ranking. The label column
+/// is as wide as the longest label.
 pub fn bar_chart(title: &str, value_label: &str, bars: &[(String, f64)]) -> String {
     let mut out = String::new();
     {
-        let h = (60 + 22 * bars.len().max(1)) as u32;
-        let root = SVGBackend::with_string(&mut out, (640, h)).into_drawing_area();
+        let h = (84 + 26 * bars.len().max(1)) as u32;
+        let longest = bars.iter().map(|b| b.0.chars().count()).max().unwrap_or(4);
+        let label_w = (16 + 8 * longest).clamp(60, 320) as u32;
+        let root = SVGBackend::with_string(&mut out, (720, h)).into_drawing_area();
         let _ = root.fill(&WHITE);
         let (_, hi) = bounds(bars.iter().map(|b| b.1).chain([0.0]));
         let n = bars.len().max(1);
+        // Segmented rows: each label centred on its bar, bars apart.
         let chart = ChartBuilder::on(&root)
-            .caption(title, ("sans-serif", 16))
-            .margin(10)
-            .x_label_area_size(30)
-            .y_label_area_size(180)
-            .build_cartesian_2d(0.0..hi.max(1e-12), 0..n);
+            .caption(title, (FONT, CAPTION_PX))
+            .margin(12)
+            .x_label_area_size(44)
+            .y_label_area_size(label_w)
+            .build_cartesian_2d(0.0..hi.max(1e-12), (0..n).into_segmented());
         if let Ok(mut chart) = chart {
             let labels: Vec<String> = bars.iter().map(|b| b.0.clone()).collect();
+            let fx = |v: &f64| tick(*v);
+            let fy = |v: &SegmentValue<usize>| match v {
+                SegmentValue::CenterOf(i) => (n - 1)
+                    .checked_sub(*i)
+                    .and_then(|k| labels.get(k).cloned())
+                    .unwrap_or_default(),
+                _ => String::new(),
+            };
             let _ = chart
                 .configure_mesh()
                 .x_desc(value_label)
                 .y_labels(n)
-                .y_label_formatter(&|i| {
-                    (n - 1)
-                        .checked_sub(*i)
-                        .and_then(|k| labels.get(k).cloned())
-                        .unwrap_or_default()
-                })
+                .x_label_formatter(&fx)
+                .y_label_formatter(&fy)
+                .label_style((FONT, LABEL_PX))
+                .axis_desc_style((FONT, DESC_PX))
+                .light_line_style(WHITE.mix(0.0))
                 .disable_y_mesh()
                 .draw();
             let _ = chart.draw_series(bars.iter().enumerate().map(|(i, b)| {
                 let y = n - 1 - i;
-                Rectangle::new(
-                    [(0.0, y), (b.1.max(0.0), y + 1)],
+                let mut r = Rectangle::new(
+                    [
+                        (0.0, SegmentValue::Exact(y)),
+                        (b.1.max(0.0), SegmentValue::Exact(y + 1)),
+                    ],
                     COLORS[0].mix(0.8).filled(),
-                )
+                );
+                r.set_margin(3, 3, 0, 0);
+                r
             }));
         }
         let _ = root.present();
     }
-    out
+    classed(out)
 }
 
-/// A heat map of values on a grid (x, y, value), diverging colours around 0.
+/// A heat map: values on a grid, with a colour bar in `unit`.
+#[derive(Clone, Copy)]
+pub struct Heat<'a> {
+    pub title: &'a str,
+    /// (x, y, value) per cell centre.
+    pub cells: &'a [(f64, f64, f64)],
+    pub unit: &'a str,
+    pub x_label: &'a str,
+    pub y_label: &'a str,
+    /// The |value| at full colour: give the same to maps that are compared
+    /// (before/after) so they share one scale; `None` = this map's max.
+    pub vmax: Option<f64>,
+    /// Diverging blue–white–red around 0 (signed data) or sequential
+    /// white–red from 0 (magnitudes).
+    pub diverging: bool,
+    /// Rectangles [(x0, y0), (x1, y1)] to outline (e.g. significant cells).
+    pub outlines: &'a [[(f64, f64); 2]],
+}
+
+impl<'a> Heat<'a> {
+    /// Defaults: x/y in mm, own scale, diverging when any value is negative.
+    pub fn new(title: &'a str, cells: &'a [(f64, f64, f64)], unit: &'a str) -> Self {
+        Heat {
+            title,
+            cells,
+            unit,
+            x_label: "x (mm)",
+            y_label: "y (mm)",
+            vmax: None,
+            diverging: cells.iter().any(|c| c.2 < 0.0),
+            outlines: &[],
+        }
+    }
+}
+
+/// The largest finite |value| over cell sets: one colour scale for maps
+/// that are compared.
+pub fn shared_vmax<'a>(sets: impl IntoIterator<Item = &'a [(f64, f64, f64)]>) -> f64 {
+    sets.into_iter()
+        .flat_map(|s| s.iter().map(|c| c.2.abs()))
+        .filter(|v| v.is_finite())
+        .fold(0.0, f64::max)
+}
+
+fn colour(t: f64, diverging: bool) -> RGBColor {
+    if diverging {
+        let t = t.clamp(-1.0, 1.0);
+        // Blue for negative, red for positive, white at zero.
+        let (r, g, b) = if t >= 0.0 {
+            (255.0 - 75.0 * t, 255.0 * (1.0 - t), 255.0 * (1.0 - t))
+        } else {
+            (
+                255.0 * (1.0 + t),
+                255.0 * (1.0 + 0.6 * t),
+                255.0 - 75.0 * (-t),
+            )
+        };
+        RGBColor(r as u8, g as u8, b as u8)
+    } else {
+        let t = t.clamp(0.0, 1.0);
+        // White → orange → dark red.
+        let (r, g, b) = (
+            255.0 - 95.0 * t,
+            255.0 * (1.0 - t).powf(0.8),
+            255.0 * (1.0 - t).powi(2),
+        );
+        RGBColor(r as u8, g as u8, b as u8)
+    }
+}
+
+/// Colour-bar steps: a cell's colour is one of the bar's.
+const STEPS: usize = 32;
+
+/// `t` (value / vmax) rounded to the centre of its colour-bar step.
+fn quantise(t: f64, diverging: bool) -> f64 {
+    let lo = if diverging { -1.0 } else { 0.0 };
+    let t = t.clamp(lo, 1.0);
+    let w = (1.0 - lo) / STEPS as f64;
+    let k = (((t - lo) / w) as usize).min(STEPS - 1);
+    lo + (k as f64 + 0.5) * w
+}
+
+fn hex(c: RGBColor) -> String {
+    format!("#{:02x}{:02x}{:02x}", c.0, c.1, c.2)
+}
+
+/// A heat map of values on a grid (x, y, value) with its colour bar.
 pub fn heatmap(title: &str, cells: &[(f64, f64, f64)], value_label: &str) -> String {
-    let mut out = String::new();
+    heat(&Heat::new(title, cells, value_label))
+}
+
+/// A heat map as [`Heat`] describes it.
+pub fn heat(h: &Heat) -> String {
+    let (w, ht) = (720u32, 440u32);
+    let vmax = h.vmax.unwrap_or_else(|| shared_vmax([h.cells])).max(1e-12);
+    let mut inner = String::new();
+    let mut cells_svg = String::from("<g stroke=\"none\">");
     {
-        let root = SVGBackend::with_string(&mut out, (640, 420)).into_drawing_area();
+        let root = SVGBackend::with_string(&mut inner, (w - BAR_W, ht)).into_drawing_area();
         let _ = root.fill(&WHITE);
-        let mut xs: Vec<f64> = cells.iter().map(|c| c.0).collect();
-        let mut ys: Vec<f64> = cells.iter().map(|c| c.1).collect();
+        let mut xs: Vec<f64> = h.cells.iter().map(|c| c.0).collect();
+        let mut ys: Vec<f64> = h.cells.iter().map(|c| c.1).collect();
         xs.sort_by(f64::total_cmp);
         xs.dedup();
         ys.sort_by(f64::total_cmp);
@@ -159,45 +384,129 @@ pub fn heatmap(title: &str, cells: &[(f64, f64, f64)], value_label: &str) -> Str
         };
         let dx = if xs.len() > 1 { step(&xs) } else { 1.0 };
         let dy = if ys.len() > 1 { step(&ys) } else { 1.0 };
-        let (x0, x1) = bounds(xs.iter().copied());
-        let (y0, y1) = bounds(ys.iter().copied());
-        let vmax = cells
-            .iter()
-            .map(|c| c.2.abs())
-            .filter(|v| v.is_finite())
-            .fold(0.0, f64::max)
-            .max(1e-12);
+        let (x0, x1) = bounds(
+            xs.iter()
+                .flat_map(|x| [x - dx / 2.0, x + dx / 2.0])
+                .chain(h.outlines.iter().flat_map(|r| [r[0].0, r[1].0])),
+        );
+        let (y0, y1) = bounds(
+            ys.iter()
+                .flat_map(|y| [y - dy / 2.0, y + dy / 2.0])
+                .chain(h.outlines.iter().flat_map(|r| [r[0].1, r[1].1])),
+        );
         let chart = ChartBuilder::on(&root)
-            .caption(
-                format!("{title} (±{vmax:.4} {value_label})"),
-                ("sans-serif", 16),
-            )
-            .margin(10)
-            .x_label_area_size(36)
-            .y_label_area_size(64)
+            .caption(h.title, (FONT, CAPTION_PX))
+            .margin(12)
+            .x_label_area_size(48)
+            .y_label_area_size(76)
             .build_cartesian_2d(x0..x1, y0..y1);
         if let Ok(mut chart) = chart {
-            let _ = chart.configure_mesh().x_desc("x_mm").y_desc("y_mm").draw();
-            let _ = chart.draw_series(cells.iter().filter(|c| c.2.is_finite()).map(|c| {
-                let t = (c.2 / vmax).clamp(-1.0, 1.0);
-                // Blue for negative, red for positive, white at zero.
-                let (r, g, b) = if t >= 0.0 {
-                    (255.0, 255.0 * (1.0 - t), 255.0 * (1.0 - t))
-                } else {
-                    (255.0 * (1.0 + t), 255.0 * (1.0 + t), 255.0)
-                };
-                Rectangle::new(
-                    [
-                        (c.0 - dx / 2.0, c.1 - dy / 2.0),
-                        (c.0 + dx / 2.0, c.1 + dy / 2.0),
-                    ],
-                    RGBColor(r as u8, g as u8, b as u8).filled(),
-                )
-            }));
+            let fx = |v: &f64| tick(*v);
+            let _ = chart
+                .configure_mesh()
+                .x_desc(h.x_label)
+                .y_desc(h.y_label)
+                .x_labels(7)
+                .y_labels(6)
+                .x_label_formatter(&fx)
+                .y_label_formatter(&fx)
+                .label_style((FONT, LABEL_PX))
+                .axis_desc_style((FONT, DESC_PX))
+                .disable_mesh()
+                .draw();
+            // Cells and outlines written by hand as compact rects (a plotters
+            // rect carries five more attributes): the map's bytes matter on
+            // a fleet page with dozens of maps. Colours are quantised to the
+            // colour bar's steps.
+            // One path per colour: "M x y h w v h h -w z" per cell.
+            let mut by_colour: std::collections::BTreeMap<String, String> = Default::default();
+            for c in h.cells.iter().filter(|c| c.2.is_finite()) {
+                let (px0, py0) = chart.backend_coord(&(c.0 - dx / 2.0, c.1 + dy / 2.0));
+                let (px1, py1) = chart.backend_coord(&(c.0 + dx / 2.0, c.1 - dy / 2.0));
+                let t = quantise(c.2 / vmax, h.diverging);
+                let (cw, ch) = ((px1 - px0).max(1), (py1 - py0).max(1));
+                let _ = write!(
+                    by_colour.entry(hex(colour(t, h.diverging))).or_default(),
+                    "M{px0} {py0}h{cw}v{ch}h-{cw}z"
+                );
+            }
+            for (fill, d) in by_colour {
+                let _ = write!(cells_svg, r#"<path fill="{fill}" d="{d}"/>"#);
+            }
+            for r in h.outlines {
+                let (px0, py0) = chart.backend_coord(&(r[0].0, r[1].1));
+                let (px1, py1) = chart.backend_coord(&(r[1].0, r[0].1));
+                let _ = write!(
+                    cells_svg,
+                    r##"<rect x="{px0}" y="{py0}" width="{}" height="{}" fill="none" stroke="#000" stroke-width="2"/>"##,
+                    (px1 - px0).max(2),
+                    (py1 - py0).max(2)
+                );
+            }
         }
         let _ = root.present();
     }
-    out
+    let mut s = format!(
+        r#"<svg class="chart" xmlns="http://www.w3.org/2000/svg" width="{w}" height="{ht}" viewBox="0 0 {w} {ht}" font-family="{FONT}">"#
+    );
+    s.push_str(&compact(&inner));
+    cells_svg.push_str("</g>");
+    s.push_str(&cells_svg);
+    // The colour bar: 32 steps from −vmax (or 0) to +vmax, labelled.
+    let (bx, top, bottom) = ((w - BAR_W + 10) as f64, 64.0, (ht - 64) as f64);
+    let lo = if h.diverging { -vmax } else { 0.0 };
+    // A vertical gradient, top = +vmax; the id is unique per bar content
+    // (identical bars may share it: their definitions are identical).
+    let id = {
+        use std::hash::{Hash, Hasher};
+        let mut hs = std::collections::hash_map::DefaultHasher::new();
+        (h.diverging, vmax.to_bits()).hash(&mut hs);
+        format!("cbar{:x}", hs.finish())
+    };
+    let _ = write!(
+        s,
+        r#"<defs><linearGradient id="{id}" x1="0" y1="0" x2="0" y2="1">"#
+    );
+    let stops = 8;
+    for k in 0..=stops {
+        let f = k as f64 / stops as f64;
+        let v = vmax - f * (vmax - lo);
+        let _ = write!(
+            s,
+            r#"<stop offset="{f:.3}" stop-color="{}"/>"#,
+            hex(colour(v / vmax, h.diverging))
+        );
+    }
+    let _ = write!(
+        s,
+        r#"</linearGradient></defs><rect x="{bx}" y="{top}" width="18" height="{}" fill="url(#{id})"/>"#,
+        bottom - top
+    );
+    let _ = write!(
+        s,
+        r##"<rect x="{bx}" y="{top}" width="18" height="{}" fill="none" stroke="#444"/><text x="{}" y="{}" font-size="{BAR_TEXT_PX}" font-weight="bold" text-anchor="middle">{}</text>"##,
+        bottom - top,
+        bx + 9.0,
+        top - 14.0,
+        crate::report::esc(h.unit)
+    );
+    let ticks = 5;
+    for k in 0..ticks {
+        let f = k as f64 / (ticks - 1) as f64;
+        let v = vmax - f * (vmax - lo);
+        let y = top + f * (bottom - top);
+        let _ = write!(
+            s,
+            r##"<line x1="{}" x2="{}" y1="{y:.1}" y2="{y:.1}" stroke="#444"/><text x="{}" y="{:.1}" font-size="{BAR_TEXT_PX}">{}</text>"##,
+            bx + 18.0,
+            bx + 22.0,
+            bx + 25.0,
+            y + 5.0,
+            tick(v)
+        );
+    }
+    s.push_str("</svg>");
+    s
 }
 
 #[cfg(test)]
@@ -217,10 +526,39 @@ mod tests {
                 mark: Mark::Line,
             }],
         );
-        assert!(s.starts_with("<svg") && s.contains("</svg>"));
+        assert!(s.starts_with("<svg class=\"chart\"") && s.contains("</svg>"));
         let b = bar_chart("b", "mm", &[("drift:t_s".into(), 0.5)]);
         assert!(b.contains("drift:t_s"));
-        let h = heatmap("h", &[(0.0, 0.0, 1.0), (1.0, 0.0, -1.0)], "mm");
+        let h = heatmap("h", &[(0.0, 0.0, 1.0), (1.0, 0.0, -1.0)], "µm");
         assert!(h.contains("<rect"));
+    }
+
+    #[test]
+    fn heat_map_has_a_colour_bar_with_its_unit_and_scale() {
+        let cells = [(0.0, 0.0, 2.5), (1.0, 0.0, -1.0), (0.0, 1.0, 0.5)];
+        let mut hm = Heat::new("gap", &cells, "µm");
+        let own = heat(&hm);
+        // Unit and the full-scale tick (±2.5) on the bar.
+        assert!(own.contains(">µm</text>"), "{own}");
+        assert!(own.contains(">2.50</text>") && own.contains(">-2.50</text>"));
+        // A shared scale relabels the bar.
+        hm.vmax = Some(10.0);
+        let shared = heat(&hm);
+        assert!(shared.contains(">10</text>") && !shared.contains(">2.50</text>"));
+        // Outlines are drawn as unfilled rectangles.
+        let o = [[(-0.5, -0.5), (0.5, 0.5)]];
+        hm.outlines = &o;
+        assert!(
+            heat(&hm).matches("fill=\"none\"").count() > shared.matches("fill=\"none\"").count()
+        );
+    }
+
+    #[test]
+    fn ticks_read_without_exponents() {
+        assert_eq!(tick(12.345), "12.3");
+        assert_eq!(tick(0.5), "0.500");
+        assert_eq!(tick(0.0), "0");
+        assert_eq!(tick(250.0), "250");
+        assert_eq!(tick(3.0), "3");
     }
 }

@@ -5,8 +5,10 @@
 
 use serde_json::Value;
 use sparkout_pipeline::contracts::{batch_f64, batch_str};
-use sparkout_pipeline::report::svg::{bar_chart, heatmap, xy_chart, Mark, Series};
-use sparkout_pipeline::report::{esc, fmt_um, table};
+use sparkout_pipeline::report::svg::{
+    bar_chart, heat, heatmap, shared_vmax, xy_chart, Heat, Mark, Series,
+};
+use sparkout_pipeline::report::{esc, fmt_um, table, warning};
 use sparkout_pipeline::{ArtifactStore, ReportSection, Run};
 
 use super::machine::BODIES;
@@ -114,10 +116,19 @@ fn polish(a: &ArtifactStore, s: Option<&Value>) -> Option<ReportSection> {
     let fl = |state: &str, key: &str| um(s["flatness"][state][key].as_f64().unwrap_or(f64::NAN));
     let mut html = String::new();
     if let Some(w) = s["warning"].as_str() {
-        html.push_str(&format!(
-            "<p style=\"color:#b00;font-weight:bold;border:2px solid #b00;padding:0.5em\">WARNING: {}</p>",
-            esc(w)
-        ));
+        html.push_str(&warning(w));
+    }
+    // The plan's purpose is a flatter surface: say so loudly when its own
+    // prediction is not (minimum zone, the flatness the drawing states).
+    let mz = |state: &str| s["flatness"][state]["min_zone_mm"].as_f64();
+    if let (Some(before), Some(after)) = (mz("before"), mz("selective")) {
+        if after > before {
+            html.push_str(&warning(&format!(
+                "this polishing plan makes the surface less flat: minimum zone {} → {} µm predicted. Do not run it; check the tool influence and removal calibration.",
+                um(before),
+                um(after)
+            )));
+        }
     }
     html.push_str(&format!(
         "<p>Dwell-time optimisation (verdict: <b>{}</b>): {} dwell positions, {:.1} s dwell + {:.1} s lifted travel = <b>{:.1} s</b>, against <b>{:.1} s</b> for a raster of the same removal ({:.2} sweeps; ratio {:.2}). {} points ({:.1} % of the area) stood more than {} µm above the least-squares plane. Selective polishing stops paying off at a zone of {} of the area (by sweeping the zone).</p>",
@@ -155,19 +166,27 @@ fn polish(a: &ArtifactStore, s: Option<&Value>) -> Option<ReportSection> {
         ],
     ));
     if let Some(surf) = a.get("polish_surface").ok().flatten() {
-        if let Some(c) = cells(&surf, "above_plane_mm") {
-            html.push_str(&heatmap(
+        // Before and after on one colour scale, so the eye compares them.
+        let before = cells(&surf, "above_plane_mm").unwrap_or_default();
+        let after = cells(&surf, "after_mm").unwrap_or_default();
+        let vmax = shared_vmax([before.as_slice(), after.as_slice()]);
+        let diverging = before.iter().chain(&after).any(|c| c.2 < 0.0);
+        for (title, c) in [
+            (
                 "Height above the least-squares plane (the plan's input)",
-                &c,
-                "µm",
-            ));
-        }
-        if let Some(c) = cells(&surf, "after_mm") {
-            html.push_str(&heatmap(
+                &before,
+            ),
+            (
                 "Predicted after selective polishing (dwell ⊛ tool influence)",
-                &c,
-                "µm",
-            ));
+                &after,
+            ),
+        ] {
+            if !c.is_empty() {
+                let mut h = Heat::new(title, c, "µm");
+                h.vmax = Some(vmax);
+                h.diverging = diverging;
+                html.push_str(&heat(&h));
+            }
         }
     }
     if !x.is_empty() {

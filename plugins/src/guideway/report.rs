@@ -7,7 +7,10 @@ use arrow::record_batch::RecordBatch;
 use serde_json::Value;
 use sparkout_pipeline::contracts::{batch_f64, batch_i32};
 use sparkout_pipeline::report::svg::{bar_chart, xy_chart, Mark, Series};
-use sparkout_pipeline::report::{esc, fmt_um, table};
+use sparkout_pipeline::report::{esc, fmt_um, table, warn_fit_above_floor};
+
+/// A fit whose residual RMS exceeds this many reading-noise σ is flagged.
+const FIT_FLOOR_FACTOR: f64 = 5.0;
 use sparkout_pipeline::{ArtifactStore, ReportSection, Run};
 
 /// At most this many points per drawn series (inline SVG stays small).
@@ -323,7 +326,22 @@ pub fn sections(_run: &Run, a: &ArtifactStore) -> Vec<ReportSection> {
         out.extend(prediction(&b, fc.as_deref()));
     }
     if let (Some(s), Ok(Some(b))) = (a.summary("compensation"), a.get("compensation")) {
-        out.extend(compensation(&s, &b));
+        let mut sec = compensation(&s, &b);
+        // The compensation's predictor should reach the reading noise of
+        // the separation (MODELS.md §3); far above it, the offsets it
+        // writes carry a systematic error.
+        let floor = a
+            .summary("separate")
+            .and_then(|p| p["sigma_mm"].as_f64())
+            .unwrap_or(f64::NAN);
+        let rms = s["prediction_residual_rms_mm"].as_f64().unwrap_or(f64::NAN);
+        if let (Some(sec), Some(w)) = (
+            sec.as_mut(),
+            warn_fit_above_floor("compensation predictor", rms, floor, FIT_FLOOR_FACTOR),
+        ) {
+            sec.html.insert_str(0, &w);
+        }
+        out.extend(sec);
     }
     out
 }

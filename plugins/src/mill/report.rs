@@ -4,8 +4,8 @@
 
 use serde_json::Value;
 use sparkout_pipeline::contracts::{batch_f64, batch_i32};
-use sparkout_pipeline::report::svg::{heatmap, xy_chart, Mark, Series};
-use sparkout_pipeline::report::{fmt_fixed, fmt_um, table};
+use sparkout_pipeline::report::svg::{heat, shared_vmax, xy_chart, Heat, Mark, Series};
+use sparkout_pipeline::report::{fmt_fixed, fmt_um, table, warning};
 use sparkout_pipeline::{ArtifactStore, ReportSection, Run};
 
 use super::chain::{AXES, KINDS};
@@ -58,10 +58,17 @@ fn identification(s: &Value) -> ReportSection {
     );
     for w in s["warnings"].as_array().into_iter().flatten() {
         if let Some(w) = w.as_str() {
-            html.push_str(&format!(
-                "<p class=\"bad\">{}</p>",
-                sparkout_pipeline::report::esc(w)
-            ));
+            html.push_str(&warning(w));
+        }
+    }
+    // Compensation exists to shrink the volumetric error.
+    if let (Some(b), Some(a)) = (s["before_rms_mm"].as_f64(), s["after_rms_mm"].as_f64()) {
+        if a > b {
+            html.push_str(&warning(&format!(
+                "the compensation table makes the volumetric error worse: {:.1} → {:.1} µm RMS. Do not load it; check the tracker data and the identification.",
+                b * 1e3,
+                a * 1e3
+            )));
         }
     }
     let sq = &s["squareness"];
@@ -206,16 +213,23 @@ fn map(a: &ArtifactStore) -> Option<ReportSection> {
                 .map(|i| (x[i], y[i], v[i] * 1e3))
                 .collect()
         };
-        html.push_str(&heatmap(
-            &format!("|volumetric error| before compensation, z = {zl:.0} mm"),
-            &pick(before),
-            "µm",
-        ));
-        html.push_str(&heatmap(
-            &format!("|volumetric error| after table compensation, z = {zl:.0} mm"),
-            &pick(after),
-            "µm",
-        ));
+        // Before and after on one colour scale (per level).
+        let (b, af) = (pick(before), pick(after));
+        let vmax = shared_vmax([b.as_slice(), af.as_slice()]);
+        for (title, c) in [
+            (
+                format!("|volumetric error| before compensation, z = {zl:.0} mm"),
+                &b,
+            ),
+            (
+                format!("|volumetric error| after table compensation, z = {zl:.0} mm"),
+                &af,
+            ),
+        ] {
+            let mut h = Heat::new(&title, c, "µm");
+            h.vmax = Some(vmax);
+            html.push_str(&heat(&h));
+        }
     }
     Some(ReportSection {
         title: "Volumetric error map before and after compensation".into(),

@@ -5,7 +5,11 @@
 
 use serde_json::Value;
 use sparkout_pipeline::report::svg::{bar_chart, xy_chart, Mark, Series};
-use sparkout_pipeline::report::{esc, fmt_fixed, fmt_um, table};
+use sparkout_pipeline::report::{esc, fmt_fixed, fmt_um, table, warning};
+
+/// Condition number of the datum's 3×3 plane-normal system above which
+/// the report warns (orthogonal faces give 1).
+const DATUM_CONDITION_WARN: f64 = 100.0;
 use sparkout_pipeline::{ArtifactStore, ReportSection, Run};
 
 use super::planes::Face;
@@ -180,6 +184,15 @@ fn datum(s: &Value) -> Option<ReportSection> {
         esc(s["fit"].as_str().unwrap_or("tls")),
         num(&s["condition"], 3)
     );
+    // A datum from nearly parallel planes moves a lot with little noise.
+    if let Some(c) = s["condition"]
+        .as_f64()
+        .filter(|c| *c > DATUM_CONDITION_WARN)
+    {
+        html.push_str(&warning(&format!(
+            "the datum is badly conditioned (condition number {c:.0} > {DATUM_CONDITION_WARN:.0}): the three faces are close to parallel, so probing noise moves the datum far more than its σ suggests. Probe faces that are closer to orthogonal."
+        )));
+    }
     html.push_str(&table(
         &[
             "axis",
