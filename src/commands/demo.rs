@@ -44,8 +44,8 @@ pub fn demo(out: &Path) -> anyhow::Result<u8> {
         injected.join(", ")
     );
     println!(
-        "next: open {} in a browser, or try `sparkout stage datum --run {} --json`",
-        results.join("fleet").join("report.html").display(),
+        "next: open {} in a browser (the night's failures, the fleet report and every run), or try `sparkout stage datum --run {} --json`",
+        results.join("index.html").display(),
         outcome
             .runs
             .first()
