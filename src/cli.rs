@@ -57,6 +57,38 @@ pub enum Command {
         /// Worker threads across runs (default: all cores).
         #[arg(long, value_name = "N")]
         jobs: Option<usize>,
+        /// Process only shard i of n (0-based) and write <out>/shard.json
+        /// instead of the fleet steps; join the shards with `sparkout
+        /// aggregate` (README "Scale out").
+        #[arg(long, value_name = "I/N")]
+        shard: Option<String>,
+        /// How --shard splits the runs: `hash` of (machine, run) — stable —
+        /// or `size`: greedy by input bytes.
+        #[arg(
+            long,
+            value_name = "hash|size",
+            default_value = "hash",
+            requires = "shard"
+        )]
+        balance: String,
+    },
+    /// Join the outputs of `sparkout run --shard i/n` (every i) and run the
+    /// fleet steps once: observations, diagnosis, fleet report, index, manifest.
+    #[command(
+        after_help = "Example:\n  sparkout run --input runs/ --out shards/0 --shard 0/2\n  \
+                      sparkout run --input runs/ --out shards/1 --shard 1/2\n  \
+                      sparkout aggregate --shards shards/0 shards/1 --out out/\n\
+                      The fleet outputs equal those of `sparkout run --input runs/ --out out/`."
+    )]
+    Aggregate {
+        #[command(flatten)]
+        config: ConfigArgs,
+        /// The shards' output directories (each holds shard.json).
+        #[arg(long, value_name = "DIR", num_args = 1.., required = true)]
+        shards: Vec<PathBuf>,
+        /// Output directory (may be one of the shards' directories).
+        #[arg(long, value_name = "DIR")]
+        out: PathBuf,
     },
     /// Run one stage of one run (its upstream stages are computed in memory),
     /// or a stage that takes its inputs from flags (e.g. datum --planes).

@@ -23,7 +23,17 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<u8> {
             input,
             out,
             jobs,
-        } => run::run(&config, &input, &out, jobs),
+            shard,
+            balance,
+        } => match shard {
+            None => run::run(&config, &input, &out, jobs),
+            Some(s) => run::run_shard(&config, &input, &out, jobs, &s, &balance),
+        },
+        Command::Aggregate {
+            config,
+            shards,
+            out,
+        } => run::aggregate(&config, &shards, &out),
         Command::Stage {
             name,
             run,

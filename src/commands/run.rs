@@ -25,6 +25,54 @@ pub fn run(
     Ok(outcome.exit_code() as u8)
 }
 
+/// `sparkout run --shard i/n`: this shard's runs, then shard.json.
+pub fn run_shard(
+    config: &ConfigArgs,
+    input: &Path,
+    out: &Path,
+    jobs: Option<usize>,
+    shard: &str,
+    balance: &str,
+) -> anyhow::Result<u8> {
+    use sparkout_pipeline::engine::shard::{Balance, ShardSpec};
+    if jobs == Some(0) {
+        anyhow::bail!("--jobs must be at least 1");
+    }
+    let balance = match balance {
+        "hash" => Balance::Hash,
+        "size" => Balance::Size,
+        other => anyhow::bail!("--balance `{other}`: expected `hash` or `size`"),
+    };
+    let spec = ShardSpec::parse(shard, balance).map_err(anyhow::Error::msg)?;
+    let engine = registry::engine(config)?;
+    let progress = BatchProgress::new();
+    let outcome = engine.run_shard(input, out, jobs, &spec, &progress)?;
+    progress.finish();
+    print_outcome(&outcome);
+    println!(
+        "shard {}/{}: {}; join every shard with `sparkout aggregate --shards DIR... --out DIR`",
+        spec.index,
+        spec.count,
+        out.join(sparkout_pipeline::engine::shard::SHARD_FILE)
+            .display()
+    );
+    Ok(outcome.exit_code() as u8)
+}
+
+/// `sparkout aggregate --shards DIR... --out DIR`.
+pub fn aggregate(
+    config: &ConfigArgs,
+    shards: &[std::path::PathBuf],
+    out: &Path,
+) -> anyhow::Result<u8> {
+    let engine = registry::engine(config)?;
+    let progress = BatchProgress::new();
+    let outcome = engine.aggregate(shards, out, &progress)?;
+    progress.finish();
+    print_outcome(&outcome);
+    Ok(outcome.exit_code() as u8)
+}
+
 /// The end-of-batch summary an engineer reads first.
 pub fn print_outcome(o: &FleetOutcome) {
     let computed = o.stages_computed();

@@ -33,4 +33,5 @@ mod robot_diagnosis_e2e;
 mod robot_stages;
 mod runless_tables;
 mod servo_e2e;
+mod shards;
 mod umich_cnc;

@@ -8,6 +8,7 @@ pub mod dag;
 mod fleet;
 pub mod lock;
 mod run;
+pub mod shard;
 use fleet::json_bytes;
 pub use fleet::{parquet_bytes, union_concat, with_machine_column};
 
@@ -17,7 +18,7 @@ use std::sync::Arc;
 
 use anyhow::{anyhow, bail, Context};
 use arrow::record_batch::RecordBatch;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::contracts::{
     config_keys, discover, remove_orphaned_temps, table_schema, write_atomic, write_json_atomic,
@@ -51,7 +52,7 @@ pub struct Quiet;
 impl Progress for Quiet {}
 
 /// A rejected run, as failures.json lists it.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Failure {
     pub run_dir: String,
     pub machine: Option<String>,
@@ -85,7 +86,7 @@ impl Failure {
 }
 
 /// One run that went through.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct RunResult {
     pub machine: String,
     pub run: String,
@@ -392,6 +393,31 @@ impl Engine {
         jobs: Option<usize>,
         progress: &dyn Progress,
     ) -> Result<FleetOutcome> {
+        self.run_batch(input_root, out, jobs, None, progress)
+    }
+
+    /// One shard of the batch (`sparkout run --shard i/n`): its runs exactly
+    /// as `run_fleet` processes them, then shard.json instead of the fleet
+    /// steps (`aggregate` runs those once over every shard).
+    pub fn run_shard(
+        &self,
+        input_root: &Path,
+        out: &Path,
+        jobs: Option<usize>,
+        shard: &shard::ShardSpec,
+        progress: &dyn Progress,
+    ) -> Result<FleetOutcome> {
+        self.run_batch(input_root, out, jobs, Some(shard), progress)
+    }
+
+    fn run_batch(
+        &self,
+        input_root: &Path,
+        out: &Path,
+        jobs: Option<usize>,
+        shard: Option<&shard::ShardSpec>,
+        progress: &dyn Progress,
+    ) -> Result<FleetOutcome> {
         let found = discover(input_root)
             .with_context(|| format!("cannot list runs under {}", input_root.display()))?;
         if found.runs.is_empty() && found.skipped.is_empty() {
@@ -412,7 +438,11 @@ impl Engine {
                 out.display()
             );
         }
-        let (run_dirs, mut early_failures) = self.account_for_runs(&found);
+        let (mut run_dirs, mut early_failures) = self.account_for_runs(&found);
+        if let Some(sh) = shard {
+            run_dirs = shard::select_runs(&run_dirs, sh);
+            early_failures.retain(|f| shard::owns_failure(f, sh));
+        }
         for f in &early_failures {
             if let (Some(m), Some(r)) = (&f.machine, &f.run) {
                 // CONTRACTS.md: nothing of a rejected run stays in the output.
@@ -462,9 +492,84 @@ impl Engine {
             report: None,
             diagnosis: None,
         };
+        if let Some(sh) = shard {
+            shard::ShardManifest::write(
+                out,
+                &shard::ShardManifest {
+                    version: shard::SHARD_VERSION,
+                    kind: "sparkout.shard".into(),
+                    shard: sh.index,
+                    shards: sh.count,
+                    balance: sh.balance,
+                    sparkout_version: env!("CARGO_PKG_VERSION").into(),
+                    input_root: input_root.display().to_string(),
+                    config: serde_json::to_value(&self.config.table)
+                        .unwrap_or(serde_json::Value::Null),
+                    config_source: self.config.source.clone(),
+                    runs: outcome.runs.clone(),
+                    failures: outcome.failures.clone(),
+                },
+            )?;
+            return Ok(outcome);
+        }
         self.run_fleet_stages(out, &mut outcome, progress)?;
         write_json_atomic(&out.join("failures.json"), &outcome.failures)?;
         self.write_manifest(input_root, out, &outcome)?;
+        Ok(outcome)
+    }
+
+    /// `sparkout aggregate`: every shard's runs gathered under `out` (the
+    /// same layout a single-node `run` writes), then the fleet steps, once.
+    /// The fleet outputs equal those of a single-node run of the same input
+    /// and config (tests/e2e/shards.rs holds them byte-identical).
+    pub fn aggregate(
+        &self,
+        shard_dirs: &[PathBuf],
+        out: &Path,
+        progress: &dyn Progress,
+    ) -> Result<FleetOutcome> {
+        let manifests: Vec<shard::ShardManifest> = shard_dirs
+            .iter()
+            .map(|d| shard::ShardManifest::read(d))
+            .collect::<Result<_>>()?;
+        shard::check_shards(shard_dirs, &manifests)?;
+        let config = serde_json::to_value(&self.config.table).unwrap_or(serde_json::Value::Null);
+        if manifests[0].config != config {
+            bail!(
+                "the shards under {} were run with a different config than this aggregate was given: pass the same --config/--set to `aggregate` as to every `run --shard`",
+                shard_dirs[0].display()
+            );
+        }
+        let _lock = lock::BatchLock::acquire(out)?;
+        let input_root = PathBuf::from(&manifests[0].input_root);
+        let mut runs = Vec::new();
+        let mut failures = Vec::new();
+        progress.message(&format!("gathering {} shard(s)", manifests.len()));
+        for (dir, m) in shard_dirs.iter().zip(manifests) {
+            for mut r in m.runs {
+                let from = dir.join(&r.machine).join(&r.run);
+                let to = out.join(&r.machine).join(&r.run);
+                shard::copy_run_dir(&from, &to)?;
+                r.out_dir = to.display().to_string();
+                r.observations = Some(to.join("observations.parquet")).filter(|o| o.is_file());
+                runs.push(r);
+            }
+            failures.extend(m.failures);
+        }
+        // The order a single-node batch has: run directories sorted.
+        runs.sort_by(|a, b| PathBuf::from(&a.run_dir).cmp(&PathBuf::from(&b.run_dir)));
+        failures.sort_by(|a, b| a.run_dir.cmp(&b.run_dir));
+        let mut outcome = FleetOutcome {
+            out_dir: out.to_path_buf(),
+            runs,
+            failures,
+            fleet: Vec::new(),
+            report: None,
+            diagnosis: None,
+        };
+        self.run_fleet_stages(out, &mut outcome, progress)?;
+        write_json_atomic(&out.join("failures.json"), &outcome.failures)?;
+        self.write_manifest(&input_root, out, &outcome)?;
         Ok(outcome)
     }
 

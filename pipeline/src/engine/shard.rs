@@ -1,0 +1,329 @@
+//! Scale-out (issue 18, DESIGN.md "Scale"): runs are independent until the
+//! fleet diagnosis, so a nightly batch splits into `n` shards by run —
+//! `sparkout run --shard i/n` processes its share of the runs exactly as a
+//! single-node `run` would and writes `shard.json` instead of the fleet
+//! steps — and `sparkout aggregate --shards DIR... --out DIR` gathers the
+//! shards' run outputs and runs the fleet steps once. Scheduling belongs to
+//! an existing engine (deploy/slurm, deploy/k8s), never to sparkout.
+//!
+//! The partition is a pure function of the input: every shard computes the
+//! same assignment on its own, with no coordinator.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context};
+use serde::{Deserialize, Serialize};
+
+use super::{Failure, RunResult};
+use crate::contracts::{write_json_atomic, RunSpec};
+use crate::error::Result;
+
+/// Version of shard.json.
+pub const SHARD_VERSION: u32 = 1;
+
+/// The file a shard writes in its output directory.
+pub const SHARD_FILE: &str = "shard.json";
+
+/// How runs are spread over shards.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Balance {
+    /// By a hash of (machine, run): stable when runs are added or removed
+    /// (a run keeps its shard), balanced in count.
+    Hash,
+    /// Greedy by input bytes (largest first onto the lightest shard): even
+    /// work when run sizes differ widely (AE logs), but a new run can move
+    /// others.
+    Size,
+}
+
+/// `--shard i/n` (0-based i).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ShardSpec {
+    pub index: usize,
+    pub count: usize,
+    pub balance: Balance,
+}
+
+impl ShardSpec {
+    /// Parses `i/n` with 0 ≤ i < n.
+    pub fn parse(text: &str, balance: Balance) -> std::result::Result<ShardSpec, String> {
+        let (i, n) = text.split_once('/').ok_or_else(|| {
+            format!("--shard `{text}`: expected i/n, e.g. 0/4 (shards count from 0)")
+        })?;
+        let index: usize = i
+            .trim()
+            .parse()
+            .map_err(|_| format!("--shard `{text}`: `{i}` is not a whole number"))?;
+        let count: usize = n
+            .trim()
+            .parse()
+            .map_err(|_| format!("--shard `{text}`: `{n}` is not a whole number"))?;
+        if count == 0 || index >= count {
+            return Err(format!(
+                "--shard `{text}`: need 0 ≤ i < n (shards count from 0: 0/{c} … {last}/{c})",
+                c = count.max(1),
+                last = count.max(1) - 1
+            ));
+        }
+        Ok(ShardSpec {
+            index,
+            count,
+            balance,
+        })
+    }
+}
+
+/// The key a run is partitioned by: its (machine, run) id when run.toml
+/// reads, else its directory (such a run fails in whichever shard owns it).
+fn run_key(dir: &Path) -> String {
+    match RunSpec::load(dir) {
+        Ok(spec) => format!("{}\u{1f}{}", spec.machine, spec.id),
+        Err(_) => format!("dir\u{1f}{}", dir.display()),
+    }
+}
+
+/// Shard of a key under `Balance::Hash`: blake3, so the assignment does not
+/// depend on the platform, the Rust version or the order runs were found.
+fn hash_shard(key: &str, count: usize) -> usize {
+    let h = blake3::hash(key.as_bytes());
+    let mut first = [0u8; 8];
+    first.copy_from_slice(&h.as_bytes()[..8]);
+    (u64::from_le_bytes(first) % count as u64) as usize
+}
+
+fn dir_bytes(dir: &Path) -> u64 {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return 0;
+    };
+    entries
+        .flatten()
+        .map(|e| match e.metadata() {
+            Ok(m) if m.is_dir() => dir_bytes(&e.path()),
+            Ok(m) => m.len(),
+            Err(_) => 0,
+        })
+        .sum()
+}
+
+/// The run directories (sorted) this shard owns.
+pub fn select_runs(run_dirs: &[PathBuf], shard: &ShardSpec) -> Vec<PathBuf> {
+    let keys: Vec<String> = run_dirs.iter().map(|d| run_key(d)).collect();
+    let owner: Vec<usize> = match shard.balance {
+        Balance::Hash => keys.iter().map(|k| hash_shard(k, shard.count)).collect(),
+        Balance::Size => {
+            // Longest-processing-time first: largest run onto the shard with
+            // the fewest bytes so far (ties: key, then lowest shard index),
+            // within 4/3 of the optimal makespan.
+            let mut order: Vec<(u64, &str, usize)> = run_dirs
+                .iter()
+                .zip(&keys)
+                .enumerate()
+                .map(|(i, (d, k))| (dir_bytes(d), k.as_str(), i))
+                .collect();
+            order.sort_by(|a, b| b.0.cmp(&a.0).then(a.1.cmp(b.1)));
+            let mut load = vec![0u64; shard.count];
+            let mut owner = vec![0; run_dirs.len()];
+            for (bytes, _, i) in order {
+                let s = (0..shard.count)
+                    .min_by_key(|&s| (load[s], s))
+                    .expect("count ≥ 1");
+                load[s] += bytes;
+                owner[i] = s;
+            }
+            owner
+        }
+    };
+    run_dirs
+        .iter()
+        .zip(owner)
+        .filter(|(_, o)| *o == shard.index)
+        .map(|(d, _)| d.clone())
+        .collect()
+}
+
+/// Whether this shard lists a failure found before any run was processed
+/// (a directory without run.toml, a duplicate id): each such failure is
+/// listed by exactly one shard.
+pub fn owns_failure(f: &Failure, shard: &ShardSpec) -> bool {
+    hash_shard(&format!("failure\u{1f}{}", f.run_dir), shard.count) == shard.index
+}
+
+/// shard.json: what `aggregate` needs from one shard.
+#[derive(Debug, Serialize, Deserialize)]
+pub struct ShardManifest {
+    pub version: u32,
+    pub kind: String,
+    pub shard: usize,
+    pub shards: usize,
+    pub balance: Balance,
+    pub sparkout_version: String,
+    pub input_root: String,
+    /// The batch's whole config: every shard of one night must agree.
+    pub config: serde_json::Value,
+    pub config_source: String,
+    pub runs: Vec<RunResult>,
+    pub failures: Vec<Failure>,
+}
+
+impl ShardManifest {
+    pub fn write(out: &Path, m: &ShardManifest) -> Result<()> {
+        write_json_atomic(&out.join(SHARD_FILE), m)
+    }
+
+    pub fn read(dir: &Path) -> Result<ShardManifest> {
+        let path = dir.join(SHARD_FILE);
+        let bytes = std::fs::read(&path).with_context(|| {
+            format!(
+                "{} is not a finished shard: cannot read {} (run `sparkout run --shard i/n --out {}` to completion first)",
+                dir.display(),
+                path.display(),
+                dir.display()
+            )
+        })?;
+        let m: ShardManifest = serde_json::from_slice(&bytes)
+            .with_context(|| format!("{}: not a sparkout shard manifest", path.display()))?;
+        if m.version != SHARD_VERSION {
+            bail!(
+                "{}: shard manifest version {} (this sparkout reads {SHARD_VERSION})",
+                path.display(),
+                m.version
+            );
+        }
+        Ok(m)
+    }
+}
+
+/// The shards of one night, checked: same count, every index exactly once,
+/// same input root and config.
+pub fn check_shards(dirs: &[PathBuf], manifests: &[ShardManifest]) -> Result<()> {
+    let Some(first) = manifests.first() else {
+        bail!("aggregate needs at least one shard directory (--shards DIR...)");
+    };
+    let mut seen: Vec<Option<&PathBuf>> = vec![None; first.shards];
+    for (dir, m) in dirs.iter().zip(manifests) {
+        if m.shards != first.shards {
+            bail!(
+                "{} is shard {}/{} but {} is shard {}/{}: shards of different splits cannot be aggregated",
+                dir.display(),
+                m.shard,
+                m.shards,
+                dirs[0].display(),
+                first.shard,
+                first.shards
+            );
+        }
+        if m.input_root != first.input_root || m.config != first.config {
+            bail!(
+                "{} and {} were run with different {} — shards of one night must share --input and config",
+                dirs[0].display(),
+                dir.display(),
+                if m.input_root != first.input_root {
+                    format!("inputs ({} vs {})", first.input_root, m.input_root)
+                } else {
+                    "configs".to_string()
+                }
+            );
+        }
+        if let Some(other) = seen[m.shard] {
+            bail!(
+                "shard {}/{} appears twice: {} and {}",
+                m.shard,
+                m.shards,
+                other.display(),
+                dir.display()
+            );
+        }
+        seen[m.shard] = Some(dir);
+    }
+    let missing: Vec<String> = seen
+        .iter()
+        .enumerate()
+        .filter(|(_, s)| s.is_none())
+        .map(|(i, _)| format!("{i}/{}", first.shards))
+        .collect();
+    if !missing.is_empty() {
+        bail!(
+            "missing shard(s) {}: aggregate needs all {} shards of the night",
+            missing.join(", "),
+            first.shards
+        );
+    }
+    Ok(())
+}
+
+/// Copies a run's output directory from a shard into the aggregate output
+/// (to a temporary name, then renamed: a reader never sees half a run).
+pub fn copy_run_dir(from: &Path, to: &Path) -> Result<()> {
+    if from == to {
+        return Ok(());
+    }
+    let parent = to.parent().expect("a run dir has a machine dir above it");
+    std::fs::create_dir_all(parent)?;
+    let tmp = parent.join(format!(
+        ".{}.{}.tmp",
+        to.file_name().and_then(|n| n.to_str()).unwrap_or("run"),
+        std::process::id()
+    ));
+    let _ = std::fs::remove_dir_all(&tmp);
+    copy_tree(from, &tmp)
+        .with_context(|| format!("cannot copy {} to {}", from.display(), to.display()))?;
+    let _ = std::fs::remove_dir_all(to);
+    std::fs::rename(&tmp, to)?;
+    Ok(())
+}
+
+fn copy_tree(from: &Path, to: &Path) -> std::io::Result<()> {
+    std::fs::create_dir_all(to)?;
+    for e in std::fs::read_dir(from)? {
+        let e = e?;
+        let dst = to.join(e.file_name());
+        if e.file_type()?.is_dir() {
+            copy_tree(&e.path(), &dst)?;
+        } else {
+            std::fs::copy(e.path(), dst)?;
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn shard_specs_are_checked() {
+        assert!(ShardSpec::parse("0/4", Balance::Hash).is_ok());
+        assert!(ShardSpec::parse("3/4", Balance::Hash).is_ok());
+        for bad in ["4/4", "1/0", "x/2", "2", "-1/3"] {
+            assert!(ShardSpec::parse(bad, Balance::Hash).is_err(), "{bad}");
+        }
+    }
+
+    #[test]
+    fn every_run_lands_in_exactly_one_shard() {
+        let dirs: Vec<PathBuf> = (0..200)
+            .map(|i| PathBuf::from(format!("/nonexistent/m{}/r{i:04}", i % 3)))
+            .collect();
+        for balance in [Balance::Hash, Balance::Size] {
+            let mut all: Vec<PathBuf> = Vec::new();
+            let mut sizes = Vec::new();
+            for index in 0..4 {
+                let s = ShardSpec {
+                    index,
+                    count: 4,
+                    balance,
+                };
+                let mine = select_runs(&dirs, &s);
+                sizes.push(mine.len());
+                all.extend(mine);
+            }
+            all.sort();
+            let mut want = dirs.clone();
+            want.sort();
+            assert_eq!(all, want, "{balance:?}");
+            // 200 runs over 4 shards: none empty, none with half of them.
+            assert!(sizes.iter().all(|&n| n > 20 && n < 100), "{sizes:?}");
+        }
+    }
+}

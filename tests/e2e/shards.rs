@@ -1,0 +1,196 @@
+//! Issue 18 item 1: `sparkout run --shard i/n` + `sparkout aggregate` give
+//! the same fleet outputs, byte for byte, as one `sparkout run`; a killed
+//! shard resumes from its cache; bad shard sets are refused by name.
+
+use std::path::{Path, PathBuf};
+use std::process::Output;
+
+use super::common::sparkout;
+
+const FLEET_OUTPUTS: [&str; 7] = [
+    "fleet/observations.parquet",
+    "fleet/diagnosis.json",
+    "fleet/diagnosis.parquet",
+    "fleet/report.html",
+    "index.html",
+    "failures.json",
+    "manifest.json",
+];
+
+fn ok(o: Output) -> String {
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert!(o.status.success(), "{text}");
+    text
+}
+
+/// Two machine types, so the partition and the join cross plugins.
+fn fleet(dir: &Path) -> PathBuf {
+    let root = dir.join("runs");
+    let r = root.to_str().unwrap();
+    ok(sparkout(&[
+        "generate",
+        "servo",
+        "--runs",
+        "4",
+        "--seed",
+        "3",
+        "--out",
+        r,
+        "--effect",
+        "servo_lag=k_s=0.004",
+    ]));
+    ok(sparkout(&[
+        "generate", "mill", "--runs", "3", "--seed", "4", "--out", r,
+    ]));
+    root
+}
+
+fn shard(root: &Path, out: &Path, spec: &str, extra: &[&str]) -> Output {
+    let mut args = vec![
+        "run",
+        "--input",
+        root.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--shard",
+        spec,
+    ];
+    args.extend(extra);
+    sparkout(&args)
+}
+
+fn aggregate(shards: &[PathBuf], out: &Path) -> Output {
+    let mut args = vec!["aggregate", "--out", out.to_str().unwrap(), "--shards"];
+    args.extend(shards.iter().map(|s| s.to_str().unwrap()));
+    sparkout(&args)
+}
+
+fn read_outputs(out: &Path) -> Vec<(String, Vec<u8>)> {
+    FLEET_OUTPUTS
+        .iter()
+        .map(|f| {
+            let bytes = std::fs::read(out.join(f)).unwrap_or_else(|e| panic!("{f}: {e}"));
+            (f.to_string(), bytes)
+        })
+        .collect()
+}
+
+fn assert_same(a: &[(String, Vec<u8>)], b: &[(String, Vec<u8>)], what: &str) {
+    for ((name, x), (_, y)) in a.iter().zip(b) {
+        assert!(x == y, "{name} differs: {what}");
+    }
+}
+
+#[test]
+fn one_shard_four_shards_and_a_plain_run_write_identical_fleet_outputs() {
+    let d = tempfile::tempdir().unwrap();
+    let root = fleet(d.path());
+    // Every variant writes to the same --out (paths appear in the outputs).
+    let out = d.path().join("out");
+    ok(sparkout(&[
+        "run",
+        "--input",
+        root.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]));
+    let plain = read_outputs(&out);
+    std::fs::remove_dir_all(&out).unwrap();
+
+    let one = d.path().join("one");
+    ok(shard(&root, &one, "0/1", &[]));
+    ok(aggregate(std::slice::from_ref(&one), &out));
+    assert_same(&plain, &read_outputs(&out), "1 shard vs plain run");
+    std::fs::remove_dir_all(&out).unwrap();
+
+    for balance in ["hash", "size"] {
+        let shards: Vec<PathBuf> = (0..4)
+            .map(|i| d.path().join(format!("{balance}{i}")))
+            .collect();
+        let mut runs = 0;
+        for (i, s) in shards.iter().enumerate() {
+            let text = ok(shard(&root, s, &format!("{i}/4"), &["--balance", balance]));
+            assert!(s.join("shard.json").is_file());
+            assert!(!s.join("fleet").exists(), "a shard runs no fleet step");
+            let m: serde_json::Value =
+                serde_json::from_slice(&std::fs::read(s.join("shard.json")).unwrap()).unwrap();
+            runs += m["runs"].as_array().unwrap().len();
+            assert!(text.contains(&format!("shard {i}/4")), "{text}");
+        }
+        assert_eq!(runs, 7, "{balance}: every run in exactly one shard");
+        ok(aggregate(&shards, &out));
+        assert_same(
+            &plain,
+            &read_outputs(&out),
+            &format!("4 shards ({balance}) vs plain run"),
+        );
+        std::fs::remove_dir_all(&out).unwrap();
+    }
+}
+
+#[test]
+fn a_killed_shard_resumes_from_its_cache() {
+    let d = tempfile::tempdir().unwrap();
+    let root = fleet(d.path());
+    let s0 = d.path().join("s0");
+    // Like a kill -9 right after the first servo stage of a run completed.
+    let killed = std::process::Command::new(env!("CARGO_BIN_EXE_sparkout"))
+        .args([
+            "run",
+            "--input",
+            root.to_str().unwrap(),
+            "--out",
+            s0.to_str().unwrap(),
+            "--shard",
+            "0/1",
+            "--jobs",
+            "1",
+        ])
+        .env("SPARKOUT_LOG", "warn")
+        .env("SPARKOUT_FAULT_ABORT_AFTER_STAGE", "follow")
+        .output()
+        .unwrap();
+    assert!(!killed.status.success());
+    assert!(
+        !s0.join("shard.json").exists(),
+        "no shard.json after a kill"
+    );
+    let again = ok(shard(&root, &s0, "0/1", &[]));
+    assert!(
+        !again.contains(", 0 cached"),
+        "the completed stage was recomputed: {again}"
+    );
+    let out = d.path().join("out");
+    ok(aggregate(&[s0], &out));
+    assert!(out.join("fleet/diagnosis.json").is_file());
+}
+
+#[test]
+fn incomplete_or_mixed_shard_sets_are_refused() {
+    let d = tempfile::tempdir().unwrap();
+    let root = fleet(d.path());
+    let (a, b, c) = (d.path().join("a"), d.path().join("b"), d.path().join("c"));
+    ok(shard(&root, &a, "0/2", &[]));
+    ok(shard(&root, &b, "1/2", &[]));
+    ok(shard(&root, &c, "0/3", &[]));
+    let out = d.path().join("out");
+    let err = |o: Output| {
+        assert!(!o.status.success());
+        String::from_utf8_lossy(&o.stderr).to_string()
+    };
+    let e = err(aggregate(std::slice::from_ref(&a), &out));
+    assert!(e.contains("missing shard(s) 1/2"), "{e}");
+    let e = err(aggregate(&[a.clone(), a.clone(), b.clone()], &out));
+    assert!(e.contains("appears twice"), "{e}");
+    let e = err(aggregate(&[a.clone(), c.clone()], &out));
+    assert!(e.contains("different splits"), "{e}");
+    let e = err(aggregate(&[a.clone(), d.path().join("nowhere")], &out));
+    assert!(e.contains("is not a finished shard"), "{e}");
+    let e = err(shard(&root, &a, "2/2", &[]));
+    assert!(e.contains("0 ≤ i < n"), "{e}");
+    assert!(!out.join("manifest.json").exists());
+}
