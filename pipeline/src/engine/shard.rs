@@ -113,7 +113,7 @@ pub fn select_runs(run_dirs: &[PathBuf], shard: &ShardSpec) -> Vec<PathBuf> {
         Balance::Hash => keys.iter().map(|k| hash_shard(k, shard.count)).collect(),
         Balance::Size => {
             // Longest-processing-time first: largest run onto the shard with
-            // the fewest bytes so far (ties: key, then lowest shard index),
+            // the fewest bytes so far (runs of equal size in key order),
             // within 4/3 of the optimal makespan.
             let mut order: Vec<(u64, &str, usize)> = run_dirs
                 .iter()
@@ -122,13 +122,16 @@ pub fn select_runs(run_dirs: &[PathBuf], shard: &ShardSpec) -> Vec<PathBuf> {
                 .map(|(i, (d, k))| (dir_bytes(d), k.as_str(), i))
                 .collect();
             order.sort_by(|a, b| b.0.cmp(&a.0).then(a.1.cmp(b.1)));
-            let mut load = vec![0u64; shard.count];
+            // Equal loads (e.g. runs of one size) go to the shard with the
+            // fewest runs, so equal runs spread evenly.
+            let mut load = vec![(0u64, 0usize); shard.count];
             let mut owner = vec![0; run_dirs.len()];
             for (bytes, _, i) in order {
                 let s = (0..shard.count)
                     .min_by_key(|&s| (load[s], s))
                     .expect("count ≥ 1");
-                load[s] += bytes;
+                load[s].0 += bytes;
+                load[s].1 += 1;
                 owner[i] = s;
             }
             owner
