@@ -140,6 +140,9 @@ pub fn print_outcome(o: &FleetOutcome) {
     if let Some(r) = &o.report {
         println!("fleet report: {}", r.display());
     }
-    println!("failures: {}", o.out_dir.join("failures.json").display());
-    println!("manifest: {}", o.out_dir.join("manifest.json").display());
+    // A shard writes shard.json instead (its caller says so).
+    if o.report.is_some() {
+        println!("failures: {}", o.out_dir.join("failures.json").display());
+        println!("manifest: {}", o.out_dir.join("manifest.json").display());
+    }
 }
