@@ -71,6 +71,29 @@ pub enum Command {
             requires = "shard"
         )]
         balance: String,
+        /// Append the night's diagnosis to this fleet history
+        /// (DIR/night=YYYY-MM-DD/diagnosis.parquet) and write <out>/trend/.
+        #[arg(long, value_name = "DIR", conflicts_with = "shard")]
+        history: Option<PathBuf>,
+        /// The night's date for --history (default: the latest [run].started
+        /// of the batch's runs).
+        #[arg(long, value_name = "YYYY-MM-DD", requires = "history")]
+        night: Option<String>,
+    },
+    /// Each diagnosed effect over nights, from a fleet history: trend.html and
+    /// trend.json (alerts when an effect appears, disappears or moves beyond
+    /// its interval).
+    #[command(after_help = "Example: sparkout trend --history history/ --out trend/")]
+    Trend {
+        /// The history written by `sparkout run --history DIR`.
+        #[arg(long, value_name = "DIR")]
+        history: PathBuf,
+        /// Where trend.html and trend.json go.
+        #[arg(long, value_name = "DIR")]
+        out: PathBuf,
+        /// Print trend.json to stdout.
+        #[arg(long)]
+        json: bool,
     },
     /// Join the outputs of `sparkout run --shard i/n` (every i) and run the
     /// fleet steps once: observations, diagnosis, fleet report, index, manifest.
@@ -241,6 +264,12 @@ pub enum Command {
         /// Print diagnosis.json to stdout.
         #[arg(long)]
         json: bool,
+        /// Append this diagnosis to a fleet history (needs --night).
+        #[arg(long, value_name = "DIR", requires = "night")]
+        history: Option<PathBuf>,
+        /// The night's date for --history.
+        #[arg(long, value_name = "YYYY-MM-DD", requires = "history")]
+        night: Option<String>,
     },
     /// Stream a run's (compensated) commanded path to CiA 402 drives over CANopen,
     /// inside a safety envelope; record what the drives did as a new run.

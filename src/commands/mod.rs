@@ -7,6 +7,7 @@ mod import;
 mod replay;
 mod run;
 mod stage;
+mod trend;
 mod validate;
 mod validate_input;
 
@@ -25,10 +26,13 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<u8> {
             jobs,
             shard,
             balance,
+            history,
+            night,
         } => match shard {
-            None => run::run(&config, &input, &out, jobs),
+            None => run::run(&config, &input, &out, jobs, history.map(|h| (h, night))),
             Some(s) => run::run_shard(&config, &input, &out, jobs, &s, &balance),
         },
+        Command::Trend { history, out, json } => trend::trend(&history, &out, json),
         Command::Aggregate {
             config,
             shards,
@@ -91,6 +95,8 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<u8> {
             seed,
             plugins,
             json,
+            history,
+            night,
         } => diagnose::diagnose(
             &observations,
             &out,
@@ -102,7 +108,14 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<u8> {
                 plugins,
                 json,
             },
-        ),
+        )
+        .and_then(|code| match (history, night) {
+            (Some(h), Some(n)) => {
+                trend::append(&h, &n, &out.join("diagnosis.json"), &out.join("trend"))
+                    .map(|()| code)
+            }
+            _ => Ok(code),
+        }),
         Command::Validate {
             quick,
             out,

@@ -13,11 +13,15 @@ pub fn run(
     input: &Path,
     out: &Path,
     jobs: Option<usize>,
+    history: Option<(std::path::PathBuf, Option<String>)>,
 ) -> anyhow::Result<u8> {
     if jobs == Some(0) {
         anyhow::bail!("--jobs must be at least 1");
     }
-    let engine = registry::engine(config)?;
+    let mut engine = registry::engine(config)?;
+    if let Some((dir, night)) = history {
+        engine.set_history(dir, night)?;
+    }
     let progress = BatchProgress::new();
     let outcome = engine.run_fleet(input, out, jobs, &progress)?;
     progress.finish();

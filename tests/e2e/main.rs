@@ -34,4 +34,5 @@ mod robot_stages;
 mod runless_tables;
 mod servo_e2e;
 mod shards;
+mod trend;
 mod umich_cnc;

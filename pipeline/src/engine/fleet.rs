@@ -186,6 +186,9 @@ impl Engine {
             });
         }
         outcome.report = Some(fleet_dir.join("report.html"));
+        if let (Some((dir, night)), Some(d)) = (&self.history, diagnosis_json.as_ref()) {
+            self.append_history(dir, night.as_deref(), d, outcome, out, progress)?;
+        }
         // out/index.html (issue 16 item 2): cached like the report, on its
         // key and the trend page's presence.
         let mut ikey = KeyBuilder::new("fleet-index");
@@ -216,6 +219,39 @@ impl Engine {
         let cache: Vec<&StageRecord> = records.iter().collect();
         write_json_atomic(&fleet_dir.join(cache::RUN_CACHE_FILE), &cache)?;
         outcome.fleet = records;
+        Ok(())
+    }
+
+    /// `run --history`: the night's diagnosis into the history, the trend
+    /// report into `<out>/trend/`.
+    fn append_history(
+        &self,
+        dir: &Path,
+        night: Option<&str>,
+        diagnosis: &serde_json::Value,
+        outcome: &FleetOutcome,
+        out: &Path,
+        progress: &dyn Progress,
+    ) -> Result<()> {
+        let night = match night {
+            Some(n) => n.to_string(),
+            None => outcome
+                .runs
+                .iter()
+                .filter_map(|r| RunSpec::load(Path::new(&r.run_dir)).ok()?.started)
+                .filter(|s| s.len() >= 10)
+                .map(|s| s[..10].to_string())
+                .max()
+                .ok_or_else(|| {
+                    anyhow!("--history: no run states [run].started, so the night is unknown — give --night YYYY-MM-DD")
+                })?,
+        };
+        let file = report::trend::append_night(dir, &night, diagnosis)?;
+        progress.message(&format!("history: {}", file.display()));
+        let t = report::trend::write_trend(dir, &out.join("trend"))?;
+        for a in &t.alerts {
+            tracing::warn!("trend alert {} {}: {}", a.night, a.kind, a.message);
+        }
         Ok(())
     }
 

@@ -151,6 +151,8 @@ pub struct Engine {
     plugins: Vec<Arc<dyn MachinePlugin>>,
     resolver: MachineResolver,
     config: PipelineConfig,
+    /// `run --history DIR [--night D]` (issue 13 item 5).
+    history: Option<(PathBuf, Option<String>)>,
 }
 
 fn config_text(t: &toml::Table) -> String {
@@ -172,9 +174,21 @@ impl Engine {
             plugins,
             resolver,
             config,
+            history: None,
         };
         engine.validate_config()?;
         Ok(engine)
+    }
+
+    /// Append each batch's diagnosis to a fleet history and write the trend
+    /// report to `<out>/trend/` (before the index, which links it). `night`
+    /// defaults to the latest `[run].started` of the batch's runs.
+    pub fn set_history(&mut self, dir: PathBuf, night: Option<String>) -> Result<()> {
+        if let Some(n) = &night {
+            report::trend::check_night(n)?;
+        }
+        self.history = Some((dir, night));
+        Ok(())
     }
 
     pub fn config(&self) -> &PipelineConfig {

@@ -7,6 +7,7 @@ pub mod fleet_data;
 pub mod gap_table;
 pub mod index;
 pub mod svg;
+pub mod trend;
 
 pub use fleet::fleet_page;
 pub use index::index_page;
