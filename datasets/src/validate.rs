@@ -45,6 +45,16 @@ pub const CATALOGUE_CASES: [&str; 15] = [
 /// product of two non-position covariates.
 pub const OOC_CASES: [&str; 3] = ["step:x_mm", "bump:x_mm,y_mm", "product:feed_mm_s,force_n"];
 
+/// Issue 13 item 6: two effects at once (each at SNR 10/√2, both must be
+/// named), one effect under 1 % ±30σ spikes (named, its interval holding
+/// the truth, robust shrink near the spike-free oracle), and one effect on
+/// one of three machines only (localised to that machine).
+pub const TWO_EFFECT_CASES: [&str; 2] = ["drift:t_s+wear:removed_mm3", "scale:x_mm+thermal:temp_c"];
+pub const SPIKE_CASES: [&str; 2] = ["wear:removed_mm3", "drift:t_s"];
+pub const ONE_MACHINE_CASES: [&str; 1] = ["wear:removed_mm3"];
+/// The machine that carries the effect in one-machine fleets (of m0, m1, m2).
+const EFFECT_MACHINE: &str = "m1";
+
 #[derive(Debug, Clone, Serialize)]
 pub struct ValidateConfig {
     pub quick: bool,
@@ -58,6 +68,8 @@ pub struct ValidateConfig {
     pub free_fleets: usize,
     /// Fleets per out-of-catalogue effect (SNR 10); 0 skips them.
     pub ooc_fleets: usize,
+    /// Fleets per two-effect, spike and one-machine case; 0 skips them.
+    pub mixed_fleets: usize,
     pub fleet: ObsFleetConfig,
     pub diagnose: DiagnoseConfig,
 }
@@ -73,6 +85,7 @@ impl ValidateConfig {
             effects: None,
             free_fleets: if quick { 4 } else { 20 },
             ooc_fleets: if quick { 1 } else { 5 },
+            mixed_fleets: if quick { 1 } else { 5 },
             fleet: ObsFleetConfig::default(),
             diagnose: DiagnoseConfig::default(),
         }
@@ -105,6 +118,17 @@ pub struct FleetResult {
     /// and how many held the true value (issue 13 item 2).
     pub intervals_checked: usize,
     pub intervals_covered: usize,
+    /// Two-effect fleets: both true effects among the selected.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub all_named: Option<bool>,
+    /// Spike fleets: the diagnosis's robust held-out shrink of the
+    /// observable (outliers trimmed), against `oracle_shrink`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub robust_shrink: Option<f64>,
+    /// One-machine fleets: a `where` cell over `machine` names the machine
+    /// that carries the effect.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub machine_localised: Option<bool>,
     pub seconds: f64,
 }
 
@@ -147,6 +171,21 @@ pub struct ValidationReport {
     /// (target 90–99 %), over catalogue fleets whose effect was named.
     pub interval_coverage: Option<f64>,
     pub intervals_checked: usize,
+    /// Two-effect fleets where both effects were named, and their mean
+    /// shrink / oracle.
+    pub two_effects_fleets: usize,
+    pub two_effects_all_named_rate: Option<f64>,
+    pub two_effects_shrink_over_oracle: Option<f64>,
+    /// Spike fleets: top-1 correct, the 95 % interval holding the truth,
+    /// and the robust shrink / the spike-free oracle.
+    pub spike_fleets: usize,
+    pub spike_named_rate: Option<f64>,
+    pub spike_interval_coverage: Option<f64>,
+    pub spike_robust_shrink_over_oracle: Option<f64>,
+    /// One-machine fleets: localised to the machine; named (top-1).
+    pub one_machine_fleets: usize,
+    pub one_machine_localised_rate: Option<f64>,
+    pub one_machine_named_rate: Option<f64>,
     pub results: Vec<FleetResult>,
 }
 
@@ -272,23 +311,63 @@ fn run_fleet(cfg: &ValidateConfig, job: &Job) -> Result<FleetResult> {
     };
     let sigma = fleet.noise_mm;
     let l = layout(&fleet)?;
-    let (spec, effect) = if job.truth == "none" {
-        (None, vec![0.0; l.len()])
+    // Each run's machine (round robin over m0, m1, m2) in one-machine fleets.
+    let machine_of_row: Option<Vec<String>> = (job.kind == "one_machine").then(|| {
+        let mut runs: Vec<&String> = l.run.iter().collect();
+        runs.sort();
+        runs.dedup();
+        l.run
+            .iter()
+            .map(|r| format!("m{}", runs.binary_search(&r).unwrap_or(0) % 3))
+            .collect()
+    });
+    let parts: Vec<&str> = if job.truth == "none" {
+        Vec::new()
     } else {
-        let s: EffectSpec = job.truth.parse().map_err(anyhow::Error::msg)?;
-        let s = resolved_spec(&s, &l)?;
-        let (s, v) = scale_to_snr(&s, &l, job.snr, sigma)?;
-        debug_assert_eq!(apply_effect(&s, &l)?.len(), v.len());
-        (Some(s), v)
+        job.truth.split('+').collect()
     };
-    let real: Vec<f64> = l
+    let part_snr = job.snr / (parts.len().max(1) as f64).sqrt();
+    let mut spec = None;
+    let mut effect = vec![0.0; l.len()];
+    for part in &parts {
+        let s: EffectSpec = part.parse().map_err(anyhow::Error::msg)?;
+        let s = resolved_spec(&s, &l)?;
+        let (s, v) = scale_to_snr(&s, &l, part_snr, sigma)?;
+        debug_assert_eq!(apply_effect(&s, &l)?.len(), v.len());
+        for (e, x) in effect.iter_mut().zip(&v) {
+            *e += x;
+        }
+        spec.get_or_insert(s);
+    }
+    if let Some(m) = &machine_of_row {
+        for (e, mi) in effect.iter_mut().zip(m) {
+            if mi != EFFECT_MACHINE {
+                *e = 0.0;
+            }
+        }
+    }
+    let mut real: Vec<f64> = l
         .sim
         .iter()
         .zip(&effect)
         .zip(noise(&fleet, l.len()))
         .map(|((s, e), n)| s + e + n)
         .collect();
-    let batch = to_batch(&l, &real, &fleet.observable)?;
+    if job.kind == "spikes" {
+        // 1 % of rows, ±30σ, alternating sign, at seed-dependent rows.
+        let offset = (job.seed % 100) as usize;
+        for (k, i) in (offset..real.len()).step_by(100).enumerate() {
+            real[i] += if k % 2 == 0 { 30.0 } else { -30.0 } * sigma;
+        }
+    }
+    let mut batch = to_batch(&l, &real, &fleet.observable)?;
+    if let Some(m) = &machine_of_row {
+        batch = sparkout_pipeline::engine::with_machine_column(batch, "")?;
+        let idx = batch.schema().index_of("machine")?;
+        let mut cols = batch.columns().to_vec();
+        cols[idx] = std::sync::Arc::new(arrow::array::StringArray::from(m.clone()));
+        batch = arrow::record_batch::RecordBatch::try_new(batch.schema(), cols)?;
+    }
     let dcfg = DiagnoseConfig {
         seed: job.seed,
         ..cfg.diagnose.clone()
@@ -314,14 +393,25 @@ fn run_fleet(cfg: &ValidateConfig, job: &Job) -> Result<FleetResult> {
     } else {
         0.0
     };
+    let single = matches!(job.kind, "catalogue" | "spikes");
     let param_rel_error = match &spec {
-        Some(s) if named == job.truth && job.kind == "catalogue" => param_error(s, d),
+        Some(s) if named == job.truth && single => param_error(s, d),
         _ => None,
     };
     let (intervals_checked, intervals_covered) = match &spec {
-        Some(s) if named == job.truth && job.kind == "catalogue" => interval_hits(s, d),
+        Some(s) if named == job.truth && single => interval_hits(s, d),
         _ => (0, 0),
     };
+    let all_named = (job.kind == "two_effects")
+        .then(|| parts.iter().all(|p| d.selected.iter().any(|s| s == p)));
+    let robust_shrink = (job.kind == "spikes")
+        .then(|| d.per_observable.first().map(|o| o.shrink))
+        .flatten();
+    let machine_localised = (job.kind == "one_machine").then(|| {
+        d.where_
+            .iter()
+            .any(|c| c.covariate == "machine" && c.lo.as_str() == Some(EFFECT_MACHINE))
+    });
     Ok(FleetResult {
         truth: job.truth.clone(),
         kind: job.kind.into(),
@@ -336,6 +426,9 @@ fn run_fleet(cfg: &ValidateConfig, job: &Job) -> Result<FleetResult> {
         unexplained_over_sigma: d.unexplained.rms_mm / sigma.max(1e-300),
         intervals_checked,
         intervals_covered,
+        all_named,
+        robust_shrink,
+        machine_localised,
         seconds: start.elapsed().as_secs_f64(),
     })
 }
@@ -390,6 +483,23 @@ pub fn run(cfg: &ValidateConfig) -> Result<ValidationReport> {
                 snr: 10.0,
                 seed: mix(cfg.seed, 2000 + oi as u64, 0, rep as u64),
             });
+        }
+    }
+    let mixed: [(&str, &[&str], f64); 3] = [
+        ("two_effects", &TWO_EFFECT_CASES, 10.0),
+        ("spikes", &SPIKE_CASES, 10.0),
+        ("one_machine", &ONE_MACHINE_CASES, 10.0),
+    ];
+    for (ki, (kind, cases, snr)) in mixed.iter().enumerate() {
+        for (ci, case) in cases.iter().enumerate() {
+            for rep in 0..cfg.mixed_fleets {
+                jobs.push(Job {
+                    truth: case.to_string(),
+                    kind: *kind,
+                    snr: *snr,
+                    seed: mix(cfg.seed, 3000 + 10 * ki as u64 + ci as u64, 0, rep as u64),
+                });
+            }
         }
     }
     // A pool of its own with large stacks: fleets run in parallel and each
@@ -473,6 +583,14 @@ fn summarise(cfg: &ValidateConfig, results: Vec<FleetResult>, seconds: f64) -> V
         .collect();
     let checked: usize = cat.iter().map(|r| r.intervals_checked).sum();
     let covered: usize = cat.iter().map(|r| r.intervals_covered).sum();
+    let of =
+        |kind: &str| -> Vec<&FleetResult> { results.iter().filter(|r| r.kind == kind).collect() };
+    let rate = |rs: &[&FleetResult], f: &dyn Fn(&FleetResult) -> bool| -> Option<f64> {
+        (!rs.is_empty()).then(|| rs.iter().filter(|r| f(r)).count() as f64 / rs.len() as f64)
+    };
+    let (two, spikes, one) = (of("two_effects"), of("spikes"), of("one_machine"));
+    let spike_checked: usize = spikes.iter().map(|r| r.intervals_checked).sum();
+    let spike_covered: usize = spikes.iter().map(|r| r.intervals_covered).sum();
     ValidationReport {
         quick: cfg.quick,
         seed: cfg.seed,
@@ -508,6 +626,26 @@ fn summarise(cfg: &ValidateConfig, results: Vec<FleetResult>, seconds: f64) -> V
         ),
         interval_coverage: (checked > 0).then(|| covered as f64 / checked as f64),
         intervals_checked: checked,
+        two_effects_fleets: two.len(),
+        two_effects_all_named_rate: rate(&two, &|r| r.all_named == Some(true)),
+        two_effects_shrink_over_oracle: mean(
+            &two.iter()
+                .map(|r| r.shrink / r.oracle_shrink.max(1e-12))
+                .collect::<Vec<_>>(),
+        ),
+        spike_fleets: spikes.len(),
+        spike_named_rate: rate(&spikes, &|r| r.named == r.truth),
+        spike_interval_coverage: (spike_checked > 0)
+            .then(|| spike_covered as f64 / spike_checked as f64),
+        spike_robust_shrink_over_oracle: mean(
+            &spikes
+                .iter()
+                .filter_map(|r| Some(r.robust_shrink? / r.oracle_shrink.max(1e-12)))
+                .collect::<Vec<_>>(),
+        ),
+        one_machine_fleets: one.len(),
+        one_machine_localised_rate: rate(&one, &|r| r.machine_localised == Some(true)),
+        one_machine_named_rate: rate(&one, &|r| r.named == r.truth),
         results,
     }
 }
@@ -597,6 +735,30 @@ pub fn render_text(r: &ValidationReport) -> String {
         "top-1 accuracy at SNR ≥ 3: {:.1} %; shrink / oracle at SNR ≥ 3: {:.2}",
         100.0 * r.accuracy_snr_ge3,
         r.shrink_over_oracle_snr_ge3
+    );
+    let pct = |v: Option<f64>| v.map_or("—".to_string(), |v| format!("{:.0} %", 100.0 * v));
+    let num = |v: Option<f64>| v.map_or("—".to_string(), |v| format!("{v:.2}"));
+    let _ = writeln!(
+        s,
+        "two effects at once ({} fleets): both named {}; shrink / oracle {}",
+        r.two_effects_fleets,
+        pct(r.two_effects_all_named_rate),
+        num(r.two_effects_shrink_over_oracle)
+    );
+    let _ = writeln!(
+        s,
+        "1 % ±30σ spikes ({} fleets): named {}; 95 % interval holds the truth {}; robust shrink / spike-free oracle {}",
+        r.spike_fleets,
+        pct(r.spike_named_rate),
+        pct(r.spike_interval_coverage),
+        num(r.spike_robust_shrink_over_oracle)
+    );
+    let _ = writeln!(
+        s,
+        "effect on one of three machines ({} fleets): localised to it {}; named {}",
+        r.one_machine_fleets,
+        pct(r.one_machine_localised_rate),
+        pct(r.one_machine_named_rate)
     );
     let _ = writeln!(
         s,

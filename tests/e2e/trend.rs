@@ -145,7 +145,10 @@ fn run_history_dates_the_night_from_the_runs_and_writes_the_trend_page() {
     assert!(out.join("trend/trend.json").is_file());
     // Written before the index, so the night's index links it.
     let index = std::fs::read_to_string(out.join("index.html")).unwrap();
-    assert!(index.contains("trend/trend.html"), "index does not link the trend");
+    assert!(
+        index.contains("trend/trend.html"),
+        "index does not link the trend"
+    );
 }
 
 #[test]
