@@ -138,6 +138,24 @@ pub fn print_outcome(o: &FleetOutcome) {
                         o.explained_by
                     );
                 }
+                // Effects only one machine has (diagnosis.json machine_effects).
+                for e in v["machine_effects"].as_array().into_iter().flatten() {
+                    let params: Vec<String> = e["params"]
+                        .as_object()
+                        .into_iter()
+                        .flatten()
+                        .map(|(k, p)| format!("{k} = {:.3e}", p.as_f64().unwrap_or(f64::NAN)))
+                        .collect();
+                    println!(
+                        "  {} on machine {} only: {} ({}), held-out shrink {:.0} % over its {} runs",
+                        e["observable"].as_str().unwrap_or("?"),
+                        e["machine"].as_str().unwrap_or("?"),
+                        e["effect"].as_str().unwrap_or("?"),
+                        params.join(", "),
+                        100.0 * e["shrink"].as_f64().unwrap_or(f64::NAN),
+                        e["runs"]
+                    );
+                }
             }
         }
     }

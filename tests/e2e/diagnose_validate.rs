@@ -57,8 +57,12 @@ fn validation_subset_meets_the_bar() {
     assert_eq!(r.spike_named_rate, Some(1.0), "{text}");
     assert_eq!(r.spike_interval_coverage, Some(1.0), "{text}");
     let robust = r.spike_robust_shrink_over_oracle.unwrap();
-    assert!(robust > 0.9 && robust < 1.1, "robust shrink / oracle {robust}");
+    assert!(
+        robust > 0.9 && robust < 1.1,
+        "robust shrink / oracle {robust}"
+    );
     assert_eq!(r.one_machine_localised_rate, Some(1.0), "{text}");
+    assert_eq!(r.one_machine_named_rate, Some(1.0), "{text}");
     assert_eq!(r.two_effects_fleets, 2);
     assert!(r.two_effects_all_named_rate.unwrap() >= 0.5, "{text}");
     assert!(r.two_effects_shrink_over_oracle.unwrap() > 0.9, "{text}");

@@ -148,3 +148,60 @@ pub fn per_machine(
         fits,
     }))
 }
+
+/// Where a `where` cell over `machine` localised an observable's gap to one
+/// machine, that machine's rows of that observable are diagnosed on their
+/// own (the same candidates, folds over its runs): an effect only one
+/// machine has is diluted by the others in the fleet-wide fit and may pass
+/// no held-out test there. The sub-table has one machine, so this never
+/// recurses.
+pub fn localised_effects(
+    batch: &arrow::array::RecordBatch,
+    d: &super::output::Diagnosis,
+    cfg: &super::DiagnoseConfig,
+    scopes: &[super::EffectScope],
+) -> crate::Result<Vec<super::output::MachineEffect>> {
+    use arrow::array::{AsArray, BooleanArray};
+    let mut pairs: Vec<(String, String)> = d
+        .where_
+        .iter()
+        .filter(|c| c.covariate == "machine")
+        .filter_map(|c| Some((c.observable.clone(), c.lo.as_str()?.to_string())))
+        .collect();
+    pairs.sort();
+    pairs.dedup();
+    let (Some(m_col), Some(o_col)) = (
+        batch.column_by_name("machine"),
+        batch.column_by_name("observable"),
+    ) else {
+        return Ok(Vec::new());
+    };
+    let m_col = arrow::compute::cast(m_col, &arrow::datatypes::DataType::Utf8)?;
+    let o_col = arrow::compute::cast(o_col, &arrow::datatypes::DataType::Utf8)?;
+    let (m_col, o_col) = (m_col.as_string::<i32>(), o_col.as_string::<i32>());
+    let mut found = Vec::new();
+    for (observable, machine) in pairs {
+        let keep: BooleanArray = (0..batch.num_rows())
+            .map(|i| Some(m_col.value(i) == machine && o_col.value(i) == observable))
+            .collect();
+        let sub = arrow::compute::filter_record_batch(batch, &keep)?;
+        // A machine's own diagnosis needs held-out runs.
+        let Ok(one) = super::diagnose_scoped(&sub, cfg, scopes) else {
+            continue;
+        };
+        let runs = one.diagnosis.per_observable.first().map_or(0, |p| p.runs);
+        for e in one.diagnosis.effects.iter().filter(|e| e.selected) {
+            found.push(super::output::MachineEffect {
+                machine: machine.clone(),
+                observable: observable.clone(),
+                effect: e.key(),
+                params: e.params.clone(),
+                intervals: e.intervals.clone(),
+                shrink: e.shrink,
+                shrink_interval: e.shrink_interval,
+                runs,
+            });
+        }
+    }
+    Ok(found)
+}

@@ -167,7 +167,12 @@ pub fn diagnose_scoped(
     for oi in 0..table.obs_names.len() {
         diagnose_observable(&table, oi, cfg, scopes, &mut acc, &mut notes)?;
     }
-    output::assemble(&batch, &table, cfg, acc, notes)
+    let mut out = output::assemble(&batch, &table, cfg, acc, notes)?;
+    if table.machine_names.len() > 1 {
+        out.diagnosis.machine_effects =
+            machines::localised_effects(&batch, &out.diagnosis, cfg, scopes)?;
+    }
+    Ok(out)
 }
 
 /// One observable: gather, a plain pass, and — when it leaves isolated

@@ -203,6 +203,28 @@ pub struct Diagnosis {
     pub cv: CvInfo,
     pub per_observable: Vec<ObservableSummary>,
     pub notes: Vec<String>,
+    /// Effects named on one machine's rows alone, where a `where` cell over
+    /// `machine` localised the gap to that machine (issues 12 item 3, 13
+    /// item 6): the fleet-wide fit dilutes an effect only one machine has.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub machine_effects: Vec<MachineEffect>,
+}
+
+/// An effect selected by diagnosing one machine's rows of one observable.
+#[derive(Debug, Clone, Serialize)]
+pub struct MachineEffect {
+    pub machine: String,
+    pub observable: String,
+    /// `name:covariate`, as `selected` spells it.
+    pub effect: String,
+    pub params: BTreeMap<String, f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub intervals: Option<BTreeMap<String, ParamInterval>>,
+    pub shrink: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub shrink_interval: Option<[f64; 2]>,
+    /// Runs of that machine the effect was fitted and held out on.
+    pub runs: usize,
 }
 
 pub struct DiagnosisOutput {
@@ -523,6 +545,7 @@ pub fn assemble(
         },
         per_observable: acc.summaries,
         notes: notes.into_vec(),
+        machine_effects: Vec::new(),
     };
     let per_row = per_row_batch(
         batch,
