@@ -506,7 +506,7 @@ pub fn run(cfg: &ValidateConfig) -> Result<ValidationReport> {
             for rep in 0..cfg.mixed_fleets {
                 jobs.push(Job {
                     truth: case.to_string(),
-                    kind: *kind,
+                    kind,
                     snr: *snr,
                     seed: mix(cfg.seed, 3000 + 10 * ki as u64 + ci as u64, 0, rep as u64),
                 });

@@ -186,13 +186,19 @@ fn two_machines_with_identical_run_ids_stay_apart() {
     );
     // …and named on that machine's rows alone (machine_effects), never on
     // the clean one.
-    let me = diag["machine_effects"].as_array().cloned().unwrap_or_default();
+    let me = diag["machine_effects"]
+        .as_array()
+        .cloned()
+        .unwrap_or_default();
     assert!(
         me.iter().any(|e| e["machine"] == "form-grinder-2"),
         "the worn machine's effect is not named: {:#}",
         diag["machine_effects"]
     );
-    assert!(me.iter().all(|e| e["machine"] == "form-grinder-2"), "{me:#?}");
+    assert!(
+        me.iter().all(|e| e["machine"] == "form-grinder-2"),
+        "{me:#?}"
+    );
     // The fleet report groups by machine type, then machine (issue 16: the
     // per-run gap table gave way to a section per machine).
     let html = std::fs::read_to_string(out.join("fleet/report.html")).unwrap();

@@ -55,9 +55,8 @@ pub fn tick(v: f64) -> String {
     let a = v.abs();
     if a == 0.0 {
         "0".into()
-    } else if v.fract() == 0.0 && a < 1e6 {
-        format!("{v:.0}")
-    } else if a >= 100.0 {
+    } else if (v.fract() == 0.0 && a < 1e6) || a >= 100.0 {
+        // Whole numbers, and anything ≥ 100, without decimals.
         format!("{v:.0}")
     } else if a >= 10.0 {
         format!("{v:.1}")

@@ -447,7 +447,7 @@ pub fn trend(rows: &[HistoryRow]) -> Trend {
                     continue;
                 };
                 let scale = (sa * sa + sb * sb).sqrt();
-                if !(scale > 0.0) || !p.value.is_finite() || !q.value.is_finite() {
+                if scale.is_nan() || scale <= 0.0 || !p.value.is_finite() || !q.value.is_finite() {
                     continue;
                 }
                 let z = (p.value - q.value).abs() / scale;
