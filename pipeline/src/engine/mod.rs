@@ -121,6 +121,18 @@ pub struct FleetOutcome {
 }
 
 impl FleetOutcome {
+    /// Before the fleet steps; failures in run-directory order.
+    fn new(out: &Path, runs: Vec<RunResult>, mut failures: Vec<Failure>) -> FleetOutcome {
+        failures.sort_by(|a, b| a.run_dir.cmp(&b.run_dir));
+        FleetOutcome {
+            out_dir: out.to_path_buf(),
+            runs,
+            failures,
+            fleet: Vec::new(),
+            report: None,
+            diagnosis: None,
+        }
+    }
     pub fn stages_computed(&self) -> usize {
         self.runs.iter().map(|r| r.computed()).sum::<usize>()
             + self.fleet.iter().filter(|s| !s.cached).count()
@@ -497,15 +509,7 @@ impl Engine {
             }
         }
         failures.append(&mut early_failures);
-        failures.sort_by(|a, b| a.run_dir.cmp(&b.run_dir));
-        let mut outcome = FleetOutcome {
-            out_dir: out.to_path_buf(),
-            runs,
-            failures,
-            fleet: Vec::new(),
-            report: None,
-            diagnosis: None,
-        };
+        let mut outcome = FleetOutcome::new(out, runs, failures);
         if let Some(sh) = shard {
             shard::ShardManifest::write(
                 out,
@@ -572,15 +576,7 @@ impl Engine {
         }
         // The order a single-node batch has: run directories sorted.
         runs.sort_by(|a, b| PathBuf::from(&a.run_dir).cmp(&PathBuf::from(&b.run_dir)));
-        failures.sort_by(|a, b| a.run_dir.cmp(&b.run_dir));
-        let mut outcome = FleetOutcome {
-            out_dir: out.to_path_buf(),
-            runs,
-            failures,
-            fleet: Vec::new(),
-            report: None,
-            diagnosis: None,
-        };
+        let mut outcome = FleetOutcome::new(out, runs, failures);
         self.run_fleet_stages(out, &mut outcome, progress)?;
         write_json_atomic(&out.join("failures.json"), &outcome.failures)?;
         self.write_manifest(&input_root, out, &outcome)?;
