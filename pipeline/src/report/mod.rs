@@ -4,7 +4,6 @@
 
 pub mod fleet;
 pub mod fleet_data;
-pub mod gap_table;
 pub mod index;
 pub mod svg;
 pub mod trend;
