@@ -199,6 +199,11 @@ fn two_machines_with_identical_run_ids_stay_apart() {
         me.iter().all(|e| e["machine"] == "form-grinder-2"),
         "{me:#?}"
     );
+    let page = std::fs::read_to_string(out.join("fleet/report.html")).unwrap();
+    assert!(
+        page.contains("This machine alone"),
+        "machine effect not on the fleet page"
+    );
     // The fleet report groups by machine type, then machine (issue 16: the
     // per-run gap table gave way to a section per machine).
     let html = std::fs::read_to_string(out.join("fleet/report.html")).unwrap();

@@ -97,7 +97,13 @@ fn key_of(e: &Value) -> String {
 /// `k = 1.50e-5 ± 0.08e-5 mm/mm³ (95 % −… … …)` for each parameter of a
 /// selected effect (diagnosis.json `effects[].intervals`).
 fn params_text(e: &Value) -> Vec<String> {
-    let cov = e.get("covariate").and_then(|c| c.as_str());
+    // An `effects` entry names its covariate; a `machine_effects` entry
+    // spells it inside `effect` (name:covariate).
+    let cov = e.get("covariate").and_then(|c| c.as_str()).or_else(|| {
+        e.get("effect")
+            .and_then(|x| x.as_str())
+            .and_then(|k| k.split_once(':').map(|(_, c)| c))
+    });
     let mut out = Vec::new();
     for (k, v) in e
         .get("params")
@@ -343,6 +349,29 @@ fn verdict(d: &Value, po: &Value, augment: &[Value], machine: &str) -> String {
             u.show(f(po, "cv_rms_before_mm")),
             u.show(f(po, "cv_rms_after_mm")),
             super::fmt_fixed(Some(f(po, "shrink")), 2)
+        );
+    }
+    // Effects named on this machine's rows alone (diagnosis.json
+    // machine_effects): the pooled fit may miss what only one machine has.
+    for me in d
+        .get("machine_effects")
+        .and_then(|m| m.as_array())
+        .into_iter()
+        .flatten()
+        .filter(|me| s(me, "observable") == obs && s(me, "machine") == machine)
+    {
+        let p = params_text(me);
+        let _ = write!(
+            v,
+            " <span class=\"bad\">This machine alone</span>: <b>{}</b>{}, held-out shrink {} over its {} runs.",
+            esc(s(me, "effect")),
+            if p.is_empty() {
+                String::new()
+            } else {
+                format!(" with {}", esc(&p.join(", ")))
+            },
+            super::fmt_fixed(Some(f(me, "shrink")), 2),
+            me.get("runs").and_then(|x| x.as_u64()).unwrap_or(0)
         );
     }
     for a in augment.iter().filter(|a| {
