@@ -48,12 +48,17 @@ pub enum Command {
     Run {
         #[command(flatten)]
         config: ConfigArgs,
-        /// Root of the recorded runs: <root>/<machine>/<run>/run.toml.
-        #[arg(long, value_name = "DIR")]
+        /// Root of the recorded runs: <root>/<machine>/<run>/run.toml; a
+        /// directory or s3:// gs:// az:// file:// URL (README "Scale out").
+        #[arg(long, value_name = "DIR|URL")]
         input: PathBuf,
-        /// Output directory.
-        #[arg(long, value_name = "DIR")]
+        /// Output directory, or a bucket URL the outputs are published to.
+        #[arg(long, value_name = "DIR|URL")]
         out: PathBuf,
+        /// Local directory for staged remote inputs and outputs bound for
+        /// object storage (default: under the system temp dir, per URL).
+        #[arg(long, value_name = "DIR")]
+        work: Option<PathBuf>,
         /// Worker threads across runs (default: all cores).
         #[arg(long, value_name = "N")]
         jobs: Option<usize>,
@@ -106,12 +111,30 @@ pub enum Command {
     Aggregate {
         #[command(flatten)]
         config: ConfigArgs,
-        /// The shards' output directories (each holds shard.json).
-        #[arg(long, value_name = "DIR", num_args = 1.., required = true)]
+        /// The shards' output directories or bucket URLs (each holds shard.json).
+        #[arg(long, value_name = "DIR|URL", num_args = 1.., required = true)]
         shards: Vec<PathBuf>,
-        /// Output directory (may be one of the shards' directories).
-        #[arg(long, value_name = "DIR")]
+        /// Output directory (may be one of the shards' directories) or URL.
+        #[arg(long, value_name = "DIR|URL")]
         out: PathBuf,
+        /// Local directory for staged shards and outputs bound for object
+        /// storage (default: under the system temp dir, per URL).
+        #[arg(long, value_name = "DIR")]
+        work: Option<PathBuf>,
+    },
+    /// Copy a directory tree to or from object storage: a local directory to
+    /// s3:// gs:// az:// (uploaded under temporary keys, renamed into place,
+    /// manifest.json last), or a bucket prefix to a local directory.
+    #[command(
+        after_help = "Examples:\n  sparkout sync runs/ s3://fleet-data/2026-11-25/runs\n  \
+                      sparkout sync s3://fleet-data/2026-11-25/out out/\n\
+                      Credentials and endpoint from AWS_* / GOOGLE_* / AZURE_* (README \"Scale out\")."
+    )]
+    Sync {
+        /// Source: a directory or a bucket URL.
+        from: PathBuf,
+        /// Destination: a bucket URL or a directory.
+        to: PathBuf,
     },
     /// Run one stage of one run (its upstream stages are computed in memory),
     /// or a stage that takes its inputs from flags (e.g. datum --planes).

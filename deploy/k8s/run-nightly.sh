@@ -11,4 +11,4 @@ kubectl -n "$ns" apply -f "$here/shards-job.yaml"
 kubectl -n "$ns" wait --for=condition=complete --timeout=12h job/sparkout-shards
 kubectl -n "$ns" apply -f "$here/aggregate-job.yaml"
 kubectl -n "$ns" wait --for=condition=complete --timeout=2h job/sparkout-aggregate
-echo "night written to /data/out on the sparkout-data volume"
+echo "night published to \$BUCKET/out (see BUCKET in the two Job manifests)"

@@ -11,6 +11,7 @@ pub mod error;
 pub mod import;
 pub mod replay;
 pub mod report;
+pub mod storage;
 pub mod traits;
 pub mod values;
 

@@ -44,7 +44,7 @@ impl Run {
     /// Whether the run has this table's file.
     pub fn has_table(&self, schema: &TableSchema) -> bool {
         self.reads.lock().expect("read log").insert(schema.name);
-        self.table_path(schema).is_file()
+        crate::contracts::input_file::InputFile::exists(&self.table_path(schema))
     }
     /// The table, validated; `Ok(None)` when the run has no such file.
     pub fn table(&self, schema: &'static TableSchema) -> Result<Option<Arc<Table>>, InputError> {

@@ -23,21 +23,27 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<u8> {
             config,
             input,
             out,
+            work,
             jobs,
             shard,
             balance,
             history,
             night,
-        } => match shard {
-            None => run::run(&config, &input, &out, jobs, history.map(|h| (h, night))),
-            Some(s) => run::run_shard(&config, &input, &out, jobs, &s, &balance),
-        },
+        } => {
+            let places = run::Places::resolve(&input, &out, work.as_deref())?;
+            match shard {
+                None => run::run(&config, &places, jobs, history.map(|h| (h, night))),
+                Some(s) => run::run_shard(&config, &places, jobs, &s, &balance),
+            }
+        }
         Command::Trend { history, out, json } => trend::trend(&history, &out, json),
         Command::Aggregate {
             config,
             shards,
             out,
-        } => run::aggregate(&config, &shards, &out),
+            work,
+        } => run::aggregate(&config, &shards, &out, work.as_deref()),
+        Command::Sync { from, to } => run::sync(&from, &to),
         Command::Stage {
             name,
             run,

@@ -1,17 +1,33 @@
 //! `sparkout run`: the nightly batch.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use sparkout_pipeline::engine::FleetOutcome;
+use sparkout_pipeline::storage::{self, Location, Output};
 
 use crate::cli::ConfigArgs;
 use crate::progress::BatchProgress;
 use crate::registry;
 
+/// `--input` and `--out` as local directories: a bucket input staged into
+/// the work directory (large Parquet files read in place by ranged GETs), a
+/// bucket output written locally and published when the batch is done.
+pub struct Places {
+    input: PathBuf,
+    out: Output,
+}
+
+impl Places {
+    pub fn resolve(input: &Path, out: &Path, work: Option<&Path>) -> anyhow::Result<Places> {
+        let out = Output::resolve(out, work)?;
+        let input = storage::resolve_input(input, work, "input", true)?;
+        Ok(Places { input, out })
+    }
+}
+
 pub fn run(
     config: &ConfigArgs,
-    input: &Path,
-    out: &Path,
+    places: &Places,
     jobs: Option<usize>,
     history: Option<(std::path::PathBuf, Option<String>)>,
 ) -> anyhow::Result<u8> {
@@ -23,17 +39,17 @@ pub fn run(
         engine.set_history(dir, night)?;
     }
     let progress = BatchProgress::new();
-    let outcome = engine.run_fleet(input, out, jobs, &progress)?;
+    let outcome = engine.run_fleet(&places.input, &places.out.local, jobs, &progress)?;
     progress.finish();
     print_outcome(&outcome);
+    places.out.publish()?;
     Ok(outcome.exit_code() as u8)
 }
 
 /// `sparkout run --shard i/n`: this shard's runs, then shard.json.
 pub fn run_shard(
     config: &ConfigArgs,
-    input: &Path,
-    out: &Path,
+    places: &Places,
     jobs: Option<usize>,
     shard: &str,
     balance: &str,
@@ -50,31 +66,76 @@ pub fn run_shard(
     let spec = ShardSpec::parse(shard, balance).map_err(anyhow::Error::msg)?;
     let engine = registry::engine(config)?;
     let progress = BatchProgress::new();
-    let outcome = engine.run_shard(input, out, jobs, &spec, &progress)?;
+    let outcome = engine.run_shard(&places.input, &places.out.local, jobs, &spec, &progress)?;
     progress.finish();
     print_outcome(&outcome);
     println!(
         "shard {}/{}: {}; join every shard with `sparkout aggregate --shards DIR... --out DIR`",
         spec.index,
         spec.count,
-        out.join(sparkout_pipeline::engine::shard::SHARD_FILE)
+        places
+            .out
+            .local
+            .join(sparkout_pipeline::engine::shard::SHARD_FILE)
             .display()
     );
+    places.out.publish()?;
     Ok(outcome.exit_code() as u8)
 }
 
 /// `sparkout aggregate --shards DIR... --out DIR`.
 pub fn aggregate(
     config: &ConfigArgs,
-    shards: &[std::path::PathBuf],
+    shards: &[PathBuf],
     out: &Path,
+    work: Option<&Path>,
 ) -> anyhow::Result<u8> {
     let engine = registry::engine(config)?;
+    let out = Output::resolve(out, work)?;
+    // A shard's artifacts are copied into the fleet output, so a remote
+    // shard is downloaded whole (no ranged-read stubs).
+    let shards = shards
+        .iter()
+        .map(|s| storage::resolve_input(s, work, "shard", false))
+        .collect::<anyhow::Result<Vec<_>>>()?;
     let progress = BatchProgress::new();
-    let outcome = engine.aggregate(shards, out, &progress)?;
+    let outcome = engine.aggregate(&shards, &out.local, &progress)?;
     progress.finish();
     print_outcome(&outcome);
+    out.publish()?;
     Ok(outcome.exit_code() as u8)
+}
+
+/// `sparkout sync FROM TO`: one side local, the other a bucket URL.
+pub fn sync(from: &Path, to: &Path) -> anyhow::Result<u8> {
+    match (Location::parse(from)?, Location::parse(to)?) {
+        (Location::Local(dir), Location::Remote(remote)) => {
+            if !dir.is_dir() {
+                anyhow::bail!("{}: no such directory", dir.display());
+            }
+            Output {
+                local: dir,
+                remote: Some(remote),
+            }
+            .publish()?;
+        }
+        (Location::Remote(remote), Location::Local(dir)) => {
+            let r = storage::stage_down(&remote, &dir, None)?;
+            eprintln!(
+                "downloaded {} to {}: {} files ({:.1} MB), {} unchanged, {} removed",
+                remote.url,
+                dir.display(),
+                r.downloaded,
+                r.downloaded_bytes as f64 / 1e6,
+                r.unchanged,
+                r.removed
+            );
+        }
+        _ => anyhow::bail!(
+            "`sparkout sync` copies between a local directory and a bucket URL (s3://, gs://, az://); use cp for two local paths"
+        ),
+    }
+    Ok(0)
 }
 
 /// The end-of-batch summary an engineer reads first.

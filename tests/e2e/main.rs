@@ -23,6 +23,7 @@ mod machines;
 mod mill_diagnosis_e2e;
 mod mill_stages;
 mod negative_values;
+mod object_store;
 mod pandas_fleet;
 mod parquet_readers;
 mod proptest_parsers;

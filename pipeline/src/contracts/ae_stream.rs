@@ -17,7 +17,7 @@
 //! column: without one, sample `i` is at `i / sample_rate_hz`. Time columns
 //! may hold timestamps (docs/formats.md §2), measured from a [`TimeOrigin`].
 
-use std::fs::File;
+use super::input_file::InputFile;
 use std::path::{Path, PathBuf};
 use std::sync::mpsc::{sync_channel, Receiver, SyncSender};
 
@@ -156,7 +156,7 @@ impl AeStream {
 
     fn start(
         path: &Path,
-        builder: ParquetRecordBatchReaderBuilder<File>,
+        builder: ParquetRecordBatchReaderBuilder<InputFile>,
         value: &str,
         clock: Clock,
         batch_rows: usize,
@@ -303,7 +303,7 @@ impl DecodeJob {
     fn run(self, tx: &SyncSender<Decoded>) {
         for &g in &self.groups {
             let mut row = self.first_rows[g];
-            let reader = File::open(&self.path)
+            let reader = InputFile::open(&self.path)
                 .map_err(|e| InputError::new(&self.path, format!("cannot open: {e}")))
                 .and_then(|file| {
                     ParquetRecordBatchReaderBuilder::new_with_metadata(file, self.metadata.clone())

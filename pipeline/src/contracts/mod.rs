@@ -5,6 +5,7 @@ pub mod ae_stream;
 pub mod batch;
 pub mod config_keys;
 pub mod convert;
+pub mod input_file;
 pub mod motion;
 pub mod parquet_file;
 pub mod plausible;

@@ -4,8 +4,6 @@
 //! decode are different messages, each naming the file. The checks before
 //! decoding read only the footer, so a huge AE log costs nothing extra.
 
-use std::fs::File;
-use std::io::{Read, Seek, SeekFrom};
 use std::path::Path;
 
 use arrow::record_batch::RecordBatch;
@@ -13,7 +11,9 @@ use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
 use parquet::basic::Compression;
 use parquet::file::metadata::ParquetMetaData;
 
+use super::input_file::InputFile;
 use crate::error::InputError;
+use parquet::file::reader::Length;
 
 /// Codecs this build decodes (every codec Parquet writers use by default:
 /// pandas/pyarrow/Spark/DuckDB write snappy, polars zstd).
@@ -24,14 +24,11 @@ const MAGIC_ENCRYPTED: &[u8; 4] = b"PARE";
 
 /// Open a Parquet file for reading: the footer is checked, the codecs of
 /// every column chunk are known, and every column chunk lies inside the file.
-pub fn open_parquet(path: &Path) -> Result<ParquetRecordBatchReaderBuilder<File>, InputError> {
-    let mut file =
-        File::open(path).map_err(|e| InputError::new(path, format!("cannot open: {e}")))?;
-    let len = file
-        .metadata()
-        .map_err(|e| InputError::new(path, format!("cannot stat: {e}")))?
-        .len();
-    check_frame(path, &mut file, len)?;
+pub fn open_parquet(path: &Path) -> Result<ParquetRecordBatchReaderBuilder<InputFile>, InputError> {
+    let file =
+        InputFile::open(path).map_err(|e| InputError::new(path, format!("cannot open: {e}")))?;
+    let len = file.len();
+    check_frame(path, &file, len)?;
     let builder = ParquetRecordBatchReaderBuilder::try_new(file).map_err(|e| {
         InputError::new(
             path,
@@ -46,11 +43,11 @@ pub fn open_parquet(path: &Path) -> Result<ParquetRecordBatchReaderBuilder<File>
 }
 
 /// `PAR1 … <footer> <footer length: u32 LE> PAR1`.
-fn check_frame(path: &Path, file: &mut File, len: u64) -> Result<(), InputError> {
+fn check_frame(path: &Path, file: &InputFile, len: u64) -> Result<(), InputError> {
     let io = |e: std::io::Error| InputError::new(path, format!("cannot read: {e}"));
     let mut head = [0u8; 4];
     if len >= 4 {
-        file.read_exact(&mut head).map_err(io)?;
+        head.copy_from_slice(&file.read_at(0, 4).map_err(io)?[..4]);
     }
     if len < 4 || (&head != MAGIC && &head != MAGIC_ENCRYPTED) {
         return Err(InputError::new(
@@ -62,8 +59,7 @@ fn check_frame(path: &Path, file: &mut File, len: u64) -> Result<(), InputError>
     }
     let mut tail = [0u8; 8];
     let framed = len >= 12 && {
-        file.seek(SeekFrom::End(-8)).map_err(io)?;
-        file.read_exact(&mut tail).map_err(io)?;
+        tail.copy_from_slice(&file.read_at(len - 8, 8).map_err(io)?[..8]);
         &tail[4..] == MAGIC || &tail[4..] == MAGIC_ENCRYPTED
     };
     if !framed {
@@ -89,7 +85,6 @@ fn check_frame(path: &Path, file: &mut File, len: u64) -> Result<(), InputError>
             ),
         ));
     }
-    file.seek(SeekFrom::Start(0)).map_err(io)?;
     Ok(())
 }
 
@@ -231,7 +226,7 @@ fn quiet_decoder_panics() {
 /// does not decode is a [`corrupt_page`].
 pub fn read_all(
     path: &Path,
-    builder: ParquetRecordBatchReaderBuilder<File>,
+    builder: ParquetRecordBatchReaderBuilder<InputFile>,
 ) -> Result<RecordBatch, InputError> {
     let schema = builder.schema().clone();
     let meta = builder.metadata().clone();

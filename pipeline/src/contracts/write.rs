@@ -112,7 +112,7 @@ pub fn write_parquet_batches_atomic(
 }
 
 /// Whether a file name is one of [`temp_path`]'s: `.<name>.<pid>.tmp`.
-fn is_temp_name(name: &str) -> bool {
+pub(crate) fn is_temp_name(name: &str) -> bool {
     let Some(inner) = name.strip_prefix('.').and_then(|n| n.strip_suffix(".tmp")) else {
         return false;
     };

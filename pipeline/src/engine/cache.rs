@@ -17,6 +17,24 @@ pub fn hash_file(path: &Path) -> Result<String> {
     Ok(h.finalize().to_hex().to_string())
 }
 
+/// The content key of an input table: blake3 of its bytes, or — for a
+/// Parquet file left in object storage (`<name>.remote.json`) — of the
+/// object's path, size and ETag, so an unchanged remote input keeps its
+/// stages cached without being downloaded.
+pub fn hash_input(path: &Path) -> Result<String> {
+    if path.is_file() {
+        return hash_file(path);
+    }
+    let stub = crate::storage::RemoteStub::read(&crate::storage::RemoteStub::path_for(path))?;
+    let id = format!(
+        "remote\n{}\n{}\n{}",
+        stub.rel,
+        stub.size,
+        stub.e_tag.as_deref().unwrap_or("")
+    );
+    Ok(hash_bytes(id.as_bytes()))
+}
+
 pub fn hash_bytes(bytes: &[u8]) -> String {
     blake3::hash(bytes).to_hex().to_string()
 }

@@ -28,7 +28,9 @@ use crate::diagnose::{self, DiagnoseConfig, Effect};
 use crate::error::{InputError, Result};
 use crate::report;
 use crate::traits::{ArtifactStore, MachinePlugin, Run, Stage, StageContext, StageOutput};
-use cache::{hash_bytes, hash_file, read_run_cache, record_valid, KeyBuilder, StageRecord};
+use cache::{
+    hash_bytes, hash_file, hash_input, read_run_cache, record_valid, KeyBuilder, StageRecord,
+};
 pub use config::PipelineConfig;
 
 /// Version of the fleet `diagnose` step (bump when its output changes).
@@ -684,7 +686,7 @@ impl Engine {
                 .unwrap_or(crate::contracts::TimeOrigin::TableStart);
             for schema in crate::contracts::ALL_TABLES {
                 let path = dir.join(schema.file_name());
-                if !path.is_file() {
+                if !crate::contracts::input_file::InputFile::exists(&path) {
                     continue;
                 }
                 let r: std::result::Result<(), InputError> = if schema.name == "ae" {

@@ -94,7 +94,7 @@ impl Engine {
                     continue;
                 }
                 if !table_hashes.contains_key(t) {
-                    let h = hash_file(&run.table_path(schema)).with_context(|| {
+                    let h = hash_input(&run.table_path(schema)).with_context(|| {
                         format!("cannot hash {}", run.table_path(schema).display())
                     })?;
                     table_hashes.insert(t.to_string(), h);

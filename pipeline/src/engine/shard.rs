@@ -92,6 +92,8 @@ fn hash_shard(key: &str, count: usize) -> usize {
     (u64::from_le_bytes(first) % count as u64) as usize
 }
 
+/// Input bytes of a run directory; a Parquet file left in object storage
+/// counts with the size its stub records, not the stub's own.
 fn dir_bytes(dir: &Path) -> u64 {
     let Ok(entries) = std::fs::read_dir(dir) else {
         return 0;
@@ -100,7 +102,19 @@ fn dir_bytes(dir: &Path) -> u64 {
         .flatten()
         .map(|e| match e.metadata() {
             Ok(m) if m.is_dir() => dir_bytes(&e.path()),
-            Ok(m) => m.len(),
+            Ok(m) => {
+                let name = e.file_name();
+                if name
+                    .to_str()
+                    .is_some_and(|n| n.ends_with(crate::storage::REMOTE_STUB_SUFFIX))
+                {
+                    crate::storage::RemoteStub::read(&e.path())
+                        .map(|s| s.size)
+                        .unwrap_or(m.len())
+                } else {
+                    m.len()
+                }
+            }
             Err(_) => 0,
         })
         .sum()

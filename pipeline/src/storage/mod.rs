@@ -1,0 +1,258 @@
+//! Object storage for `--input`, `--out` and `--shards` (issue 18 item 2,
+//! README "Scale out"): `s3://`, `gs://`, `az://` (also `abfs://`,
+//! `azure://`) through the `object_store` crate that arrow-rs and polars use;
+//! `file://` is a local path.
+//!
+//! The engine itself knows only local directories (its cache, locks and
+//! atomic renames are file-system operations), so a remote location is
+//! bridged at the edges:
+//! - **in** ([`stage_down`]): the objects under the prefix are mirrored into a
+//!   local staging directory — small files downloaded (skipped when the
+//!   object's size and ETag are unchanged since the last staging), and every
+//!   Parquet file of at least [`stream_min_bytes`] left remote: a small
+//!   `<name>.remote.json` stands in for it and readers fetch its pages by
+//!   ranged GETs ([`crate::contracts::input_file`]), so an AE log of
+//!   gigabytes streams row group by row group as from disk;
+//! - **out** ([`publish`]): the batch writes into a local work directory and
+//!   every file is then uploaded under a temporary key and renamed into place
+//!   (an object appears whole or not at all), changed files only, and
+//!   `manifest.json` last — a reader that starts from the manifest never sees
+//!   a partial batch.
+//!
+//! Credentials and endpoints come from the standard environment
+//! (`AWS_ACCESS_KEY_ID`, `AWS_SECRET_ACCESS_KEY`, `AWS_REGION`,
+//! `AWS_ENDPOINT`, `AWS_ALLOW_HTTP`, `GOOGLE_SERVICE_ACCOUNT`,
+//! `AZURE_STORAGE_ACCOUNT_NAME`, … as the `object_store` builders'
+//! `from_env` read them).
+
+mod remote;
+mod sync;
+
+pub use remote::{RemoteObject, RemoteStub, REMOTE_STUB_SUFFIX};
+pub use sync::{publish, stage_down, PublishReport, StageReport};
+
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, OnceLock};
+
+use anyhow::{bail, Context, Result};
+use object_store::path::Path as ObjectPath;
+use object_store::ObjectStore;
+
+/// Where a batch reads or writes: a local directory or a prefix in a bucket.
+#[derive(Debug, Clone)]
+pub enum Location {
+    Local(PathBuf),
+    Remote(RemotePrefix),
+}
+
+/// A bucket and a key prefix, connected.
+#[derive(Clone)]
+pub struct RemotePrefix {
+    /// The URL as the user wrote it, without a trailing slash.
+    pub url: String,
+    pub store: Arc<dyn ObjectStore>,
+    pub prefix: ObjectPath,
+}
+
+impl std::fmt::Debug for RemotePrefix {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.url)
+    }
+}
+
+/// The URL schemes read as object storage.
+const SCHEMES: &[&str] = &["s3", "s3a", "gs", "az", "abfs", "abfss", "azure", "adl"];
+
+/// Does this argument name object storage (`scheme://…`)?
+pub fn is_url(arg: &Path) -> bool {
+    arg.to_str()
+        .and_then(|s| s.split_once("://"))
+        .is_some_and(|(scheme, _)| scheme == "file" || SCHEMES.contains(&scheme))
+}
+
+impl Location {
+    /// A path, `file://PATH` or a bucket URL. An unknown `scheme://` is an
+    /// error rather than a directory of that name.
+    pub fn parse(arg: &Path) -> Result<Location> {
+        let Some(s) = arg.to_str() else {
+            return Ok(Location::Local(arg.to_path_buf()));
+        };
+        let Some((scheme, rest)) = s.split_once("://") else {
+            return Ok(Location::Local(arg.to_path_buf()));
+        };
+        if scheme == "file" {
+            return Ok(Location::Local(PathBuf::from(rest)));
+        }
+        if !SCHEMES.contains(&scheme) {
+            bail!(
+                "`{s}`: unknown storage scheme `{scheme}://` (sparkout reads local paths, file://, s3://, gs://, az://)"
+            );
+        }
+        Ok(Location::Remote(RemotePrefix::connect(s)?))
+    }
+}
+
+impl RemotePrefix {
+    /// Build the store from the URL and the standard environment.
+    pub fn connect(url: &str) -> Result<RemotePrefix> {
+        let url = url.trim_end_matches('/').to_string();
+        let parsed =
+            url::Url::parse(&url).with_context(|| format!("`{url}` is not a valid URL"))?;
+        let store: Arc<dyn ObjectStore> = match parsed.scheme() {
+            "s3" | "s3a" => Arc::new(
+                object_store::aws::AmazonS3Builder::from_env()
+                    .with_url(url.as_str())
+                    .build()
+                    .with_context(|| store_hint(&url, "AWS_*"))?,
+            ),
+            "gs" => Arc::new(
+                object_store::gcp::GoogleCloudStorageBuilder::from_env()
+                    .with_url(url.as_str())
+                    .build()
+                    .with_context(|| store_hint(&url, "GOOGLE_*"))?,
+            ),
+            _ => Arc::new(
+                object_store::azure::MicrosoftAzureBuilder::from_env()
+                    .with_url(url.as_str())
+                    .build()
+                    .with_context(|| store_hint(&url, "AZURE_*"))?,
+            ),
+        };
+        // The key prefix is the URL's path; Azure's `az://container/p`
+        // and S3's `s3://bucket/p` both put the container in the host.
+        let prefix = ObjectPath::from_url_path(parsed.path())
+            .with_context(|| format!("`{url}`: the path is not a valid object key prefix"))?;
+        Ok(RemotePrefix { url, store, prefix })
+    }
+
+    /// The object key of a path relative to this prefix (`/`-separated).
+    pub fn key(&self, rel: &str) -> ObjectPath {
+        let mut key = self.prefix.clone();
+        for part in rel.split('/').filter(|p| !p.is_empty()) {
+            key = key.join(part);
+        }
+        key
+    }
+
+    /// The path of a key below this prefix, `/`-separated.
+    pub fn relative(&self, key: &ObjectPath) -> Option<String> {
+        let parts: Vec<String> = key
+            .prefix_match(&self.prefix)?
+            .map(|p| p.as_ref().to_string())
+            .collect();
+        (!parts.is_empty()).then(|| parts.join("/"))
+    }
+}
+
+fn store_hint(url: &str, env: &str) -> String {
+    format!(
+        "cannot configure object storage for `{url}`: set the credentials and endpoint in the environment ({env}; README \"Scale out\")"
+    )
+}
+
+/// The one runtime that drives object-store requests from sparkout's
+/// blocking code (rayon workers and the main thread call [`block_on`]; none
+/// of them is a runtime thread). Two workers: requests wait on the network,
+/// not the CPU.
+fn runtime() -> &'static tokio::runtime::Runtime {
+    static RT: OnceLock<tokio::runtime::Runtime> = OnceLock::new();
+    RT.get_or_init(|| {
+        tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(2)
+            .thread_name("sparkout-object-store")
+            .enable_all()
+            .build()
+            .expect("a tokio runtime for object storage")
+    })
+}
+
+pub(crate) fn block_on<F: std::future::Future>(f: F) -> F::Output {
+    runtime().block_on(f)
+}
+
+/// Parquet files at least this large stay remote and are read by ranged
+/// GETs; smaller ones are downloaded. `SPARKOUT_STREAM_MIN_BYTES` overrides
+/// (the tests use 0 so every Parquet input streams).
+pub fn stream_min_bytes() -> u64 {
+    std::env::var("SPARKOUT_STREAM_MIN_BYTES")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(16 << 20)
+}
+
+/// The local directory that stands for a remote location: `--work DIR` when
+/// given, else a directory under the system's temp dir named by a hash of
+/// the URL and its role, so a re-run on the same node finds its cache.
+pub fn work_dir(work: Option<&Path>, url: &str, role: &str) -> PathBuf {
+    let name = format!(
+        "{role}-{}",
+        &blake3::hash(url.as_bytes()).to_hex().as_str()[..16]
+    );
+    match work {
+        Some(w) => w.join(name),
+        None => std::env::temp_dir().join("sparkout-work").join(name),
+    }
+}
+
+/// `--input`/`--shards` as a local directory: a bucket prefix is staged
+/// into the work directory first (large Parquet files left remote when
+/// `stream` is set). Prints what staging did to stderr.
+pub fn resolve_input(arg: &Path, work: Option<&Path>, role: &str, stream: bool) -> Result<PathBuf> {
+    match Location::parse(arg)? {
+        Location::Local(p) => Ok(p),
+        Location::Remote(remote) => {
+            let local = work_dir(work, &remote.url, role);
+            let r = stage_down(&remote, &local, stream.then(stream_min_bytes))?;
+            eprintln!(
+                "staged {} into {}: {} downloaded ({:.1} MB), {} unchanged, {} read in place by ranged GETs ({:.1} MB), {} removed",
+                remote.url,
+                local.display(),
+                r.downloaded,
+                r.downloaded_bytes as f64 / 1e6,
+                r.unchanged,
+                r.streamed,
+                r.streamed_bytes as f64 / 1e6,
+                r.removed
+            );
+            Ok(local)
+        }
+    }
+}
+
+/// Where a command writes: the local directory, and the bucket prefix it is
+/// published to afterwards ([`Output::publish`]).
+pub struct Output {
+    pub local: PathBuf,
+    pub remote: Option<RemotePrefix>,
+}
+
+impl Output {
+    pub fn resolve(arg: &Path, work: Option<&Path>) -> Result<Output> {
+        Ok(match Location::parse(arg)? {
+            Location::Local(local) => Output {
+                local,
+                remote: None,
+            },
+            Location::Remote(remote) => Output {
+                local: work_dir(work, &remote.url, "out"),
+                remote: Some(remote),
+            },
+        })
+    }
+
+    /// Upload the local directory when the output is remote; prints a line.
+    pub fn publish(&self) -> Result<()> {
+        if let Some(remote) = &self.remote {
+            let r = publish(&self.local, remote)?;
+            eprintln!(
+                "published {} to {}: {} uploaded ({:.1} MB), {} unchanged",
+                self.local.display(),
+                remote.url,
+                r.uploaded,
+                r.uploaded_bytes as f64 / 1e6,
+                r.unchanged
+            );
+        }
+        Ok(())
+    }
+}
