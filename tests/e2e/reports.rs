@@ -177,6 +177,37 @@ fn demo_pages_are_linked_self_contained_and_answer_per_observable() {
     );
     // A per-run RMS chart per explained observable.
     assert!(fleet.contains("RMS per run, before and held-out after"));
+    // Above the fold (issue 16 "done when"): the at-a-glance table answers
+    // where (a gap-map thumbnail), which (the gap against the named
+    // effect's covariate) and how far (bars) for the explained observables.
+    let glance = fleet
+        .split("<table class=\"glance\">")
+        .nth(1)
+        .and_then(|s| s.split("</table>").next())
+        .expect("at-a-glance table");
+    let row = |anchor: &str| -> &str {
+        glance
+            .split(&format!("href=\"#{anchor}\""))
+            .nth(1)
+            .and_then(|s| s.split("</tr>").next())
+            .unwrap_or_else(|| panic!("no glance row for {anchor}"))
+    };
+    let g = row("aplm-gantry--surface-z");
+    assert!(
+        g.contains("aria-label=\"gap map") && g.matches("<rect").count() >= 9,
+        "no gap-map thumbnail for the gantry: {g}"
+    );
+    assert!(
+        g.contains("aria-label=\"gap of surface_z against t_s\""),
+        "no covariate thumbnail for the gantry: {g}"
+    );
+    let f = row("form-grinder--profile-error");
+    assert!(
+        f.contains("aria-label=\"gap of profile_error against removed_mm3\"")
+            && f.contains("<polyline"),
+        "no covariate thumbnail for the form grinder: {f}"
+    );
+    assert!(f.contains("aria-label=\"gap, after, noise floor\""), "{f}");
 }
 
 /// Headless Chromium on a copy of `page` that counts the elements wider

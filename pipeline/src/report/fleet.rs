@@ -13,7 +13,7 @@ use std::fmt::Write;
 use serde_json::Value;
 
 use super::fleet_data::{binned_means, grid_means, per_run_rms, FleetRows, RunRms};
-use super::svg::{heat, shared_vmax, xy_chart_sized, Heat, Mark, Series};
+use super::svg::{heat, mini_curve, mini_heat, shared_vmax, xy_chart_sized, Heat, Mark, Series};
 use super::{esc, page, title_of};
 use crate::diagnose::intervals::{format_pm, unit_of as param_unit};
 use crate::engine::FleetOutcome;
@@ -487,18 +487,7 @@ fn pictures(
         .and_then(|a| a.first())
         .and_then(|x| x.as_str());
     if let Some(k) = named {
-        // A 2-D covariate (thermal_bow:y_mm,t_s): the map shows the
-        // positions, the curve the other one.
-        let covs: Vec<&str> = k
-            .split_once(':')
-            .map(|(_, c)| c.split(',').collect())
-            .unwrap_or_default();
-        let cov = covs
-            .iter()
-            .find(|c| !matches!(**c, "x_mm" | "y_mm"))
-            .or(covs.first())
-            .copied()
-            .unwrap_or("");
+        let cov = curve_covariate(k);
         let others: Vec<String> = po
             .and_then(|p| p.get("selected"))
             .and_then(|x| x.as_array())
@@ -628,6 +617,68 @@ fn pictures(
     h
 }
 
+/// The covariate an effect's curve is drawn against. A 2-D covariate
+/// (thermal_bow:y_mm,t_s): the map shows the positions, the curve the other.
+fn curve_covariate(effect_key: &str) -> &str {
+    let covs: Vec<&str> = effect_key
+        .split_once(':')
+        .map(|(_, c)| c.split(',').collect())
+        .unwrap_or_default();
+    covs.iter()
+        .find(|c| !matches!(**c, "x_mm" | "y_mm"))
+        .or(covs.first())
+        .copied()
+        .unwrap_or("")
+}
+
+/// Cells per axis of the at-a-glance gap map thumbnail.
+const MINI_MAP_BINS: usize = 8;
+/// Bins of the at-a-glance curve thumbnail.
+const MINI_CURVE_BINS: usize = 16;
+
+/// "Where" and "which" as thumbnails for the at-a-glance table (issue 16:
+/// the answers above the fold): the gap map over x/y when the rows have
+/// positions, and the gap against the named effect's covariate.
+fn glance_pictures(
+    rows: Option<&FleetRows>,
+    machine: &str,
+    observable: &str,
+    named: Option<&str>,
+) -> String {
+    let Some(rows) = rows else {
+        return String::new();
+    };
+    let Some(idx) = rows
+        .groups
+        .get(&(machine.to_string(), observable.to_string()))
+    else {
+        return String::new();
+    };
+    let gap = FleetRows::at(&rows.gap, idx);
+    let mut out = String::new();
+    if let (Some(x), Some(y)) = (rows.values("x_mm", idx), rows.values("y_mm", idx)) {
+        let cells: Vec<(f64, f64, f64)> = grid_means(&x, &y, &[&gap], MINI_MAP_BINS)
+            .into_iter()
+            .map(|c| (c.0, c.1, c.2[0]))
+            .collect();
+        out.push_str(&mini_heat(&cells, 48, 34));
+    }
+    if let Some(k) = named {
+        let cov = curve_covariate(k);
+        if let Some(c) = rows.values(cov, idx) {
+            let pts: Vec<(f64, f64)> = binned_means(&c, &[&gap], MINI_CURVE_BINS)
+                .into_iter()
+                .map(|(x, m)| (x, m[0]))
+                .collect();
+            if !out.is_empty() {
+                out.push(' ');
+            }
+            out.push_str(&mini_curve(&pts, 64, 34, &format!("gap of {observable} against {cov}")));
+        }
+    }
+    out
+}
+
 /// "How far" as a picture for the at-a-glance table: the gap RMS (grey),
 /// the held-out RMS after (green) and the noise floor (black tick), on
 /// the row's own scale.
@@ -639,9 +690,9 @@ fn mini_bars(rms: f64, after: f64, floor: f64) -> String {
     if top <= 0.0 {
         return String::new();
     }
-    let w = |v: f64| if v.is_finite() { 110.0 * v / top } else { 0.0 };
+    let w = |v: f64| if v.is_finite() { 72.0 * v / top } else { 0.0 };
     let mut s = format!(
-        r##"<svg class="mini" width="120" height="18" role="img" aria-label="gap, after, noise floor"><rect x="0" y="2" width="{:.1}" height="6" fill="#999"/>"##,
+        r##"<svg class="mini" width="78" height="18" role="img" aria-label="gap, after, noise floor"><rect x="0" y="2" width="{:.1}" height="6" fill="#999"/>"##,
         w(rms)
     );
     if after.is_finite() {
@@ -818,7 +869,7 @@ pub fn fleet_page(
     }
     // At a glance: one row per (machine, observable), each in its own unit.
     if !tree.is_empty() {
-        body.push_str("<h2>At a glance</h2><table class=\"glance\"><thead><tr><th>type / machine / observable</th><th>gap RMS</th><th>noise floor</th><th class=\"why\">named effect</th><th>held-out after</th><th>shrink</th><th>gap · after · floor</th></tr></thead><tbody>");
+        body.push_str("<h2>At a glance</h2><table class=\"glance\"><thead><tr><th>type / machine / observable</th><th>gap RMS</th><th>noise floor</th><th class=\"why\">named effect</th><th>where · which</th><th>held-out after</th><th>shrink</th><th>how far</th></tr></thead><tbody>");
         for (t, machines) in &tree {
             for (m, obs) in machines {
                 for o in obs {
@@ -848,7 +899,7 @@ pub fn fleet_page(
                     };
                     let _ = write!(
                         body,
-                        "<tr><td><a href=\"#{}\">{} / {} / {}</a></td><td>{}</td><td>{}</td><td class=\"why\">{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
+                        "<tr><td><a href=\"#{}\">{} / {} / {}</a></td><td>{}</td><td>{}</td><td class=\"why\">{}</td><td class=\"thumbs\">{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
                         anchor(&[m, o]),
                         esc(t),
                         esc(m),
@@ -856,6 +907,16 @@ pub fn fleet_page(
                         u.show(pf("rms_mm")),
                         u.show(pf("noise_floor_mm")),
                         named,
+                        if above {
+                            glance_pictures(
+                                rows.as_ref(),
+                                m,
+                                o,
+                                (!sel.is_empty()).then(|| sel.split(", ").next().unwrap_or("")),
+                            )
+                        } else {
+                            String::new()
+                        },
                         if above && !sel.is_empty() { u.show(pf("cv_rms_after_mm")) } else { "—".into() },
                         if above && !sel.is_empty() { super::fmt_fixed(Some(100.0 * pf("shrink")), 0) + " %" } else { "—".into() },
                         mini_bars(
@@ -867,7 +928,7 @@ pub fn fleet_page(
                 }
             }
         }
-        body.push_str("</tbody></table>");
+        body.push_str("</tbody></table><p class=\"note\">where: the gap map over the workpiece (red: real above sim, blue: below); which: the mean gap against the named effect's covariate; how far: gap RMS (grey), held-out RMS after the named effects (green), noise floor (black tick). Each row on its own scale; the full pictures are in the observable's section.</p>");
     }
     if let Some(d) = diagnosis {
         let notes: Vec<&str> = d

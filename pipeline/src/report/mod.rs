@@ -71,10 +71,10 @@ pub fn table(header: &[&str], rows: &[Vec<String>]) -> String {
 /// One stylesheet for every page: readable at 100 % zoom, charts scaled
 /// to the column (nothing wider than the viewport), wide tables scroll in
 /// their own box, and an A4 print layout (issue 16 item 4).
-const STYLE: &str = "body{font-family:system-ui,sans-serif;margin:1.5em auto;max-width:1100px;padding:0 1em;color:#222;line-height:1.4}\
+const STYLE: &str = "body{font-family:system-ui,sans-serif;margin:1.5em auto;max-width:1200px;padding:0 1em;color:#222;line-height:1.4}\
 h1{font-size:1.5em}h2{font-size:1.25em;border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:2em}h3{font-size:1.1em;margin-top:1.5em}h4{font-size:1em;margin:1em 0 .3em}\
 table{border-collapse:collapse;margin:.5em 0;display:block;max-width:100%;overflow-x:auto}td,th{border:1px solid #ccc;padding:.25em .6em;text-align:right;font-variant-numeric:tabular-nums}\
-th{background:#f3f3f3}td:first-child,th:first-child{text-align:left}td{white-space:nowrap}td.why,th.why{text-align:left;white-space:normal;min-width:12em}.glance td:first-child{white-space:normal;min-width:14em}.bad{color:#b00}.ok{color:#070}\
+th{background:#f3f3f3}td:first-child,th:first-child{text-align:left}td{white-space:nowrap}td.why,th.why{text-align:left;white-space:normal;min-width:12em}.glance td:first-child{white-space:normal;min-width:11em}.glance td.why{min-width:9em}.glance{font-size:95%}.bad{color:#b00}.ok{color:#070}\
 .note{color:#555;font-size:.9em}pre{background:#f6f6f6;padding:.5em;overflow-x:auto;max-width:100%}\
 svg.chart{display:block;max-width:100%;height:auto;margin:.4em 0}.figs{display:flex;flex-wrap:wrap;gap:.5em}.figs svg.chart{flex:1 1 520px;max-width:720px}\
 .warn{border:2px solid #b00;background:#fff4f4;color:#700;padding:.5em .8em;margin:.6em 0;font-weight:600}\

@@ -561,3 +561,70 @@ mod tests {
         assert_eq!(tick(3.0), "3");
     }
 }
+
+/// A thumbnail of a gap map for the at-a-glance table ("where"): the cells
+/// on the full map's diverging colour scale, no axes — the full map with
+/// its axes and colour bar is in the observable's section, one click away.
+pub fn mini_heat(cells: &[(f64, f64, f64)], w: u32, h: u32) -> String {
+    let mut xs: Vec<f64> = cells.iter().map(|c| c.0).collect();
+    let mut ys: Vec<f64> = cells.iter().map(|c| c.1).collect();
+    xs.sort_by(f64::total_cmp);
+    xs.dedup();
+    ys.sort_by(f64::total_cmp);
+    ys.dedup();
+    let vmax = shared_vmax([cells]);
+    if xs.is_empty() || ys.is_empty() || vmax <= 0.0 {
+        return String::new();
+    }
+    let (cw, ch) = (w as f64 / xs.len() as f64, h as f64 / ys.len() as f64);
+    let mut s = format!(
+        r##"<svg class="mini" width="{w}" height="{h}" role="img" aria-label="gap map (red: real above sim, blue: below)"><rect width="{w}" height="{h}" fill="#eee"/>"##
+    );
+    for &(x, y, v) in cells {
+        if !v.is_finite() {
+            continue;
+        }
+        let ix = xs.partition_point(|a| *a < x) as f64;
+        // y grows upwards on the workpiece, downwards in SVG.
+        let iy = (ys.len() - 1 - ys.partition_point(|a| *a < y)) as f64;
+        let _ = write!(
+            s,
+            r##"<rect x="{:.1}" y="{:.1}" width="{:.1}" height="{:.1}" fill="{}"/>"##,
+            ix * cw,
+            iy * ch,
+            cw + 0.3,
+            ch + 0.3,
+            hex(colour(quantise(v / vmax, true), true))
+        );
+    }
+    s.push_str("</svg>");
+    s
+}
+
+/// A thumbnail of the gap against a covariate ("which"): mean gap per bin
+/// as a line over a zero line, on the row's own scale.
+pub fn mini_curve(points: &[(f64, f64)], w: u32, h: u32, label: &str) -> String {
+    let pts: Vec<(f64, f64)> = points
+        .iter()
+        .copied()
+        .filter(|p| p.0.is_finite() && p.1.is_finite())
+        .collect();
+    if pts.len() < 2 {
+        return String::new();
+    }
+    let (x0, x1) = bounds(pts.iter().map(|p| p.0));
+    let (y0, y1) = bounds(pts.iter().map(|p| p.1).chain([0.0]));
+    let (wf, hf) = (w as f64, h as f64);
+    let px = |x: f64| 1.0 + (wf - 2.0) * (x - x0) / (x1 - x0).max(1e-300);
+    let py = |y: f64| 1.0 + (hf - 2.0) * (1.0 - (y - y0) / (y1 - y0).max(1e-300));
+    let mut s = format!(
+        r##"<svg class="mini" width="{w}" height="{h}" role="img" aria-label="{}"><line x1="0" x2="{w}" y1="{z:.1}" y2="{z:.1}" stroke="#bbb"/><polyline fill="none" stroke="#1f77b4" stroke-width="1.5" points=""##,
+        super::esc(label),
+        z = py(0.0)
+    );
+    for (i, (x, y)) in pts.iter().enumerate() {
+        let _ = write!(s, "{}{:.1},{:.1}", if i > 0 { " " } else { "" }, px(*x), py(*y));
+    }
+    s.push_str(r#""/></svg>"#);
+    s
+}
