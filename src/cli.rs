@@ -84,6 +84,12 @@ pub enum Command {
         /// of the batch's runs).
         #[arg(long, value_name = "YYYY-MM-DD", requires = "history")]
         night: Option<String>,
+        /// Add the effects of an earlier diagnosis (its
+        /// fleet/augmented_model.json) to the sim side and report the plain
+        /// vs augmented gap on the runs it was not fitted on
+        /// (fleet/augment.json, fleet page verdicts).
+        #[arg(long, value_name = "JSON", conflicts_with = "shard")]
+        augment: Option<PathBuf>,
     },
     /// Each diagnosed effect over nights, from a fleet history: trend.html and
     /// trend.json (alerts when an effect appears, disappears or moves beyond

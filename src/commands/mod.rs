@@ -29,10 +29,17 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<u8> {
             balance,
             history,
             night,
+            augment,
         } => {
             let places = run::Places::resolve(&input, &out, work.as_deref())?;
             match shard {
-                None => run::run(&config, &places, jobs, history.map(|h| (h, night))),
+                None => run::run(
+                    &config,
+                    &places,
+                    jobs,
+                    history.map(|h| (h, night)),
+                    augment.as_deref(),
+                ),
                 Some(s) => run::run_shard(&config, &places, jobs, &s, &balance),
             }
         }

@@ -30,6 +30,7 @@ pub fn run(
     places: &Places,
     jobs: Option<usize>,
     history: Option<(std::path::PathBuf, Option<String>)>,
+    augment: Option<&Path>,
 ) -> anyhow::Result<u8> {
     if jobs == Some(0) {
         anyhow::bail!("--jobs must be at least 1");
@@ -37,6 +38,9 @@ pub fn run(
     let mut engine = registry::engine(config)?;
     if let Some((dir, night)) = history {
         engine.set_history(dir, night)?;
+    }
+    if let Some(model) = augment {
+        engine.set_augment(model)?;
     }
     let progress = BatchProgress::new();
     let outcome = engine.run_fleet(&places.input, &places.out.local, jobs, &progress)?;

@@ -3,6 +3,7 @@
 //! file: ~8 GB of test executables and most of the link time saved).
 //! Run one group with `cargo test --test e2e gantry_stages::`.
 
+mod augment;
 mod bad_input_matrix;
 mod cli_fleet;
 mod cli_stage_diagnose;

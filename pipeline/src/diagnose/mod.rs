@@ -14,6 +14,7 @@
 //! pure and deterministic for a given seed: names are sorted, folds come
 //! from a seeded shuffle, rayon only fills vectors whose order is fixed.
 
+pub mod augment;
 pub mod candidates;
 pub mod cells;
 pub mod config;

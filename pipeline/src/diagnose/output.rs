@@ -418,9 +418,19 @@ pub fn record_selected(
         }
         let (params, off) = &sel.final_params[j];
         let covs = e.covariates();
+        // The catalogue form it evaluates as outside the diagnosis (`run
+        // --augment`): its own name, or that of the catalogue effect a
+        // plugin composite renames; none for products of forms.
+        let form = super::effect::Kind::from_name(e.name())
+            .or_else(|| {
+                e.replaces()
+                    .and_then(|r| super::effect::Kind::from_name(r.split(':').next().unwrap_or("")))
+            })
+            .map(|k| k.name());
         acc.augmented.push(serde_json::json!({
             "observable": o.name,
             "name": e.name(),
+            "form": form,
             "covariate": if covs.is_empty() { serde_json::Value::Null } else { covs.join(",").into() },
             "key": key,
             "params": params.iter().filter(|(_, v)| v.is_finite()).map(|(k, v)| (k.clone(), serde_json::json!(v))).collect::<serde_json::Map<_, _>>(),
@@ -558,6 +568,9 @@ pub fn assemble(
         "version": 1,
         "kind": "sparkout.augmented_model",
         "applies_as": "real ≈ sim + Σ over effects of (offset_mm + form(covariates; params)), per observable; forms as in the effect catalogue of docs/formats.md",
+        // `run --augment` reports the augmented gap on the runs not listed
+        // here (held out by construction).
+        "fitted_on_runs": table.run_names,
         "effects": acc.augmented,
     });
     let report_html = report::section(&diagnosis);

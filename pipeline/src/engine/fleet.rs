@@ -174,6 +174,22 @@ impl Engine {
             outcome.diagnosis = Some(fleet_dir.join("diagnosis.json"));
         }
 
+        // The augmented simulator (issue 13 item 4): written before the
+        // report, whose key covers it; a batch without --augment removes a
+        // previous one so the page never shows a stale comparison.
+        let augment_file = fleet_dir.join("augment.json");
+        match (&self.augment, obs_file.is_file()) {
+            (Some(model), true) => {
+                progress.message("re-simulating with the augmented model");
+                let obs = crate::contracts::read_parquet(&obs_file)?;
+                let a = crate::diagnose::augment::evaluate(model, &obs)?;
+                write_atomic(&augment_file, &json_bytes(&a)?)?;
+            }
+            _ => {
+                let _ = std::fs::remove_file(&augment_file);
+            }
+        }
+
         // Fleet report: cached on every run's stage keys + failures + diagnosis.
         let mut rkey = KeyBuilder::new("fleet-report");
         rkey.part("version", &report::REPORT_VERSION.to_string())

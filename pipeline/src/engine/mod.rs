@@ -34,7 +34,7 @@ use cache::{
 pub use config::PipelineConfig;
 
 /// Version of the fleet `diagnose` step (bump when its output changes).
-pub const DIAGNOSE_STAGE_VERSION: u32 = 4;
+pub const DIAGNOSE_STAGE_VERSION: u32 = 5;
 
 /// A plugin's name and the composite effects it adds to the diagnosis.
 pub type PluginEffects = (&'static str, Vec<Box<dyn Effect>>);
@@ -167,6 +167,8 @@ pub struct Engine {
     config: PipelineConfig,
     /// `run --history DIR [--night D]` (issue 13 item 5).
     history: Option<(PathBuf, Option<String>)>,
+    /// `run --augment augmented_model.json` (issue 13 item 4).
+    augment: Option<crate::diagnose::augment::AugmentedModel>,
 }
 
 fn config_text(t: &toml::Table) -> String {
@@ -189,6 +191,7 @@ impl Engine {
             resolver,
             config,
             history: None,
+            augment: None,
         };
         engine.validate_config()?;
         Ok(engine)
@@ -202,6 +205,15 @@ impl Engine {
             report::trend::check_night(n)?;
         }
         self.history = Some((dir, night));
+        Ok(())
+    }
+
+    /// Add a previous diagnosis's effects to the sim side of the fleet's
+    /// observations and report the plain vs augmented gap
+    /// (`fleet/augment.json`). The model is read and checked here, before
+    /// any run is processed.
+    pub fn set_augment(&mut self, model: &Path) -> Result<()> {
+        self.augment = Some(crate::diagnose::augment::AugmentedModel::load(model)?);
         Ok(())
     }
 

@@ -246,7 +246,7 @@ fn augment_entries(out_dir: &std::path::Path) -> Vec<Value> {
     std::fs::read(out_dir.join("fleet").join("augment.json"))
         .ok()
         .and_then(|b| serde_json::from_slice::<Value>(&b).ok())
-        .and_then(|v| v.get("observables").and_then(|o| o.as_array()).cloned())
+        .and_then(|v| v.get("entries").and_then(|o| o.as_array()).cloned())
         .unwrap_or_default()
 }
 
@@ -383,14 +383,21 @@ fn verdict(d: &Value, po: &Value, augment: &[Value], machine: &str) -> String {
         let au = a.get("unit").and_then(|x| x.as_str()).unwrap_or(&u.data);
         let scale = if au == u.data { u.scale } else { 1.0 };
         let shown = if au == u.data { u.shown.as_str() } else { au };
+        let held = a.get("held_out").and_then(|x| x.as_bool()) == Some(true);
         let _ = write!(
             v,
-            " Augmented simulator (+ {}): held-out gap {} {shown} plain → <b>{} {shown}</b> augmented.",
+            " Augmented simulator (+ {}), on {} {}: gap {} {shown} plain → <b>{} {shown}</b> augmented.",
             esc(&a
                 .get("effects")
                 .and_then(|e| e.as_array())
                 .map(|e| e.iter().filter_map(|x| x.as_str()).collect::<Vec<_>>().join(", "))
                 .unwrap_or_default()),
+            a.get("runs").and_then(|x| x.as_u64()).unwrap_or(0),
+            if held {
+                "runs it was not fitted on"
+            } else {
+                "runs it was fitted on (in-sample: no other run tonight)"
+            },
             super::svg::tick(f(a, "heldout_rms_plain") * scale),
             super::svg::tick(f(a, "heldout_rms_augmented") * scale),
         );
@@ -673,7 +680,12 @@ fn glance_pictures(
             if !out.is_empty() {
                 out.push(' ');
             }
-            out.push_str(&mini_curve(&pts, 64, 34, &format!("gap of {observable} against {cov}")));
+            out.push_str(&mini_curve(
+                &pts,
+                64,
+                34,
+                &format!("gap of {observable} against {cov}"),
+            ));
         }
     }
     out

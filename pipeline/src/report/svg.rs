@@ -508,60 +508,6 @@ pub fn heat(h: &Heat) -> String {
     s
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn charts_are_svg() {
-        let pts = [(0.0, 1.0), (1.0, 2.0), (2.0, 1.5)];
-        let s = xy_chart(
-            "t",
-            "x",
-            "y",
-            &[Series {
-                name: "a",
-                points: &pts,
-                mark: Mark::Line,
-            }],
-        );
-        assert!(s.starts_with("<svg class=\"chart\"") && s.contains("</svg>"));
-        let b = bar_chart("b", "mm", &[("drift:t_s".into(), 0.5)]);
-        assert!(b.contains("drift:t_s"));
-        let h = heatmap("h", &[(0.0, 0.0, 1.0), (1.0, 0.0, -1.0)], "µm");
-        assert!(h.contains("<rect"));
-    }
-
-    #[test]
-    fn heat_map_has_a_colour_bar_with_its_unit_and_scale() {
-        let cells = [(0.0, 0.0, 2.5), (1.0, 0.0, -1.0), (0.0, 1.0, 0.5)];
-        let mut hm = Heat::new("gap", &cells, "µm");
-        let own = heat(&hm);
-        // Unit and the full-scale tick (±2.5) on the bar.
-        assert!(own.contains(">µm</text>"), "{own}");
-        assert!(own.contains(">2.50</text>") && own.contains(">-2.50</text>"));
-        // A shared scale relabels the bar.
-        hm.vmax = Some(10.0);
-        let shared = heat(&hm);
-        assert!(shared.contains(">10</text>") && !shared.contains(">2.50</text>"));
-        // Outlines are drawn as unfilled rectangles.
-        let o = [[(-0.5, -0.5), (0.5, 0.5)]];
-        hm.outlines = &o;
-        assert!(
-            heat(&hm).matches("fill=\"none\"").count() > shared.matches("fill=\"none\"").count()
-        );
-    }
-
-    #[test]
-    fn ticks_read_without_exponents() {
-        assert_eq!(tick(12.345), "12.3");
-        assert_eq!(tick(0.5), "0.500");
-        assert_eq!(tick(0.0), "0");
-        assert_eq!(tick(250.0), "250");
-        assert_eq!(tick(3.0), "3");
-    }
-}
-
 /// A thumbnail of a gap map for the at-a-glance table ("where"): the cells
 /// on the full map's diverging colour scale, no axes — the full map with
 /// its axes and colour bar is in the observable's section, one click away.
@@ -623,8 +569,68 @@ pub fn mini_curve(points: &[(f64, f64)], w: u32, h: u32, label: &str) -> String 
         z = py(0.0)
     );
     for (i, (x, y)) in pts.iter().enumerate() {
-        let _ = write!(s, "{}{:.1},{:.1}", if i > 0 { " " } else { "" }, px(*x), py(*y));
+        let _ = write!(
+            s,
+            "{}{:.1},{:.1}",
+            if i > 0 { " " } else { "" },
+            px(*x),
+            py(*y)
+        );
     }
     s.push_str(r#""/></svg>"#);
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn charts_are_svg() {
+        let pts = [(0.0, 1.0), (1.0, 2.0), (2.0, 1.5)];
+        let s = xy_chart(
+            "t",
+            "x",
+            "y",
+            &[Series {
+                name: "a",
+                points: &pts,
+                mark: Mark::Line,
+            }],
+        );
+        assert!(s.starts_with("<svg class=\"chart\"") && s.contains("</svg>"));
+        let b = bar_chart("b", "mm", &[("drift:t_s".into(), 0.5)]);
+        assert!(b.contains("drift:t_s"));
+        let h = heatmap("h", &[(0.0, 0.0, 1.0), (1.0, 0.0, -1.0)], "µm");
+        assert!(h.contains("<rect"));
+    }
+
+    #[test]
+    fn heat_map_has_a_colour_bar_with_its_unit_and_scale() {
+        let cells = [(0.0, 0.0, 2.5), (1.0, 0.0, -1.0), (0.0, 1.0, 0.5)];
+        let mut hm = Heat::new("gap", &cells, "µm");
+        let own = heat(&hm);
+        // Unit and the full-scale tick (±2.5) on the bar.
+        assert!(own.contains(">µm</text>"), "{own}");
+        assert!(own.contains(">2.50</text>") && own.contains(">-2.50</text>"));
+        // A shared scale relabels the bar.
+        hm.vmax = Some(10.0);
+        let shared = heat(&hm);
+        assert!(shared.contains(">10</text>") && !shared.contains(">2.50</text>"));
+        // Outlines are drawn as unfilled rectangles.
+        let o = [[(-0.5, -0.5), (0.5, 0.5)]];
+        hm.outlines = &o;
+        assert!(
+            heat(&hm).matches("fill=\"none\"").count() > shared.matches("fill=\"none\"").count()
+        );
+    }
+
+    #[test]
+    fn ticks_read_without_exponents() {
+        assert_eq!(tick(12.345), "12.3");
+        assert_eq!(tick(0.5), "0.500");
+        assert_eq!(tick(0.0), "0");
+        assert_eq!(tick(250.0), "250");
+        assert_eq!(tick(3.0), "3");
+    }
 }

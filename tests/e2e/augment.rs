@@ -1,0 +1,203 @@
+//! Issue 13 item 4 (the generic part): `sparkout run --augment` adds the
+//! effects of an earlier night's diagnosis to the sim side of tonight's
+//! observations and reports the plain vs augmented gap on runs the model was
+//! not fitted on (fleet/augment.json, fleet page verdicts).
+
+use std::path::Path;
+
+use super::common::sparkout;
+
+fn ok(o: std::process::Output) -> String {
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert!(o.status.success(), "{text}");
+    text
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// `runs` runs of `plugin` with `effect`; the last `tonight` of them moved
+/// into a second root (new run ids of the same machine: tonight's runs).
+fn two_nights(dir: &Path, plugin: &str, machine: &str, effect: &str, runs: usize, tonight: usize) {
+    let all = dir.join("all");
+    ok(sparkout(&[
+        "generate",
+        plugin,
+        "--runs",
+        &runs.to_string(),
+        "--seed",
+        "11",
+        "--out",
+        s(&all),
+        "--effect",
+        effect,
+    ]));
+    let (a, b) = (dir.join("A").join(machine), dir.join("B").join(machine));
+    std::fs::create_dir_all(&a).unwrap();
+    std::fs::create_dir_all(&b).unwrap();
+    for i in 0..runs {
+        let id = format!("r{i:04}");
+        let to = if i < runs - tonight { &a } else { &b };
+        std::fs::rename(all.join(machine).join(&id), to.join(&id)).unwrap();
+    }
+}
+
+fn augment_json(out: &Path) -> serde_json::Value {
+    serde_json::from_slice(&std::fs::read(out.join("fleet/augment.json")).expect("augment.json"))
+        .unwrap()
+}
+
+fn entry<'a>(a: &'a serde_json::Value, observable: &str) -> &'a serde_json::Value {
+    a["entries"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|e| e["observable"] == observable)
+        .unwrap_or_else(|| panic!("no augment entry for {observable}: {a:#}"))
+}
+
+#[test]
+fn last_nights_effects_shrink_tonights_gap_on_held_out_runs() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    two_nights(dir, "form", "form-grinder", "wheel_wear", 10, 4);
+    let (out_a, out_b) = (dir.join("outA"), dir.join("outB"));
+    ok(sparkout(&[
+        "run",
+        "--input",
+        s(&dir.join("A")),
+        "--out",
+        s(&out_a),
+    ]));
+    let model = out_a.join("fleet/augmented_model.json");
+    let m: serde_json::Value = serde_json::from_slice(&std::fs::read(&model).unwrap()).unwrap();
+    assert_eq!(m["fitted_on_runs"].as_array().unwrap().len(), 6, "{m:#}");
+    ok(sparkout(&[
+        "run",
+        "--input",
+        s(&dir.join("B")),
+        "--out",
+        s(&out_b),
+        "--augment",
+        s(&model),
+    ]));
+    let a = augment_json(&out_b);
+    let e = entry(&a, "profile_error");
+    assert_eq!(e["held_out"], true, "{e:#}");
+    assert_eq!(e["runs"], 4, "{e:#}");
+    assert_eq!(e["effects"][0], "wheel_wear:removed_mm3", "{e:#}");
+    let (plain, aug) = (
+        e["heldout_rms_plain"].as_f64().unwrap(),
+        e["heldout_rms_augmented"].as_f64().unwrap(),
+    );
+    assert!(aug < 0.3 * plain, "augmented {aug} vs plain {plain}");
+    let page = std::fs::read_to_string(out_b.join("fleet/report.html")).unwrap();
+    assert!(
+        page.contains(
+            "Augmented simulator (+ wheel_wear:removed_mm3), on 4 runs it was not fitted on"
+        ),
+        "no augmented verdict on the fleet page"
+    );
+
+    // A night without --augment drops the comparison (no stale figures).
+    ok(sparkout(&[
+        "run",
+        "--input",
+        s(&dir.join("B")),
+        "--out",
+        s(&out_b),
+    ]));
+    assert!(!out_b.join("fleet/augment.json").exists());
+    let page = std::fs::read_to_string(out_b.join("fleet/report.html")).unwrap();
+    assert!(!page.contains("Augmented simulator"));
+}
+
+#[test]
+fn servo_lag_from_last_night_applies_to_tonight() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    two_nights(dir, "servo", "servo-mill", "servo_lag=k_s=0.004", 8, 3);
+    let (out_a, out_b) = (dir.join("outA"), dir.join("outB"));
+    ok(sparkout(&[
+        "run",
+        "--input",
+        s(&dir.join("A")),
+        "--out",
+        s(&out_a),
+    ]));
+    ok(sparkout(&[
+        "run",
+        "--input",
+        s(&dir.join("B")),
+        "--out",
+        s(&out_b),
+        "--augment",
+        s(&out_a.join("fleet/augmented_model.json")),
+    ]));
+    let a = augment_json(&out_b);
+    let e = entry(&a, "following_error_x");
+    assert_eq!(e["held_out"], true, "{e:#}");
+    let (plain, aug) = (
+        e["heldout_rms_plain"].as_f64().unwrap(),
+        e["heldout_rms_augmented"].as_f64().unwrap(),
+    );
+    assert!(aug < 0.3 * plain, "augmented {aug} vs plain {plain}");
+}
+
+#[test]
+fn a_bad_augmented_model_is_refused_before_anything_runs() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    ok(sparkout(&[
+        "generate",
+        "servo",
+        "--runs",
+        "2",
+        "--seed",
+        "1",
+        "--out",
+        s(&dir.join("runs")),
+    ]));
+    let bad = dir.join("model.json");
+    for (text, field) in [
+        (
+            r#"{"version": 1, "kind": "something.else", "effects": []}"#,
+            "kind",
+        ),
+        (
+            r#"{"version": 1, "kind": "sparkout.augmented_model", "effects": [{"observable": "x", "key": "lag:v", "form": "nonsense"}]}"#,
+            "effects[0].form",
+        ),
+        (
+            r#"{"version": 1, "kind": "sparkout.augmented_model", "effects": [{"observable": "x", "key": "lag:v", "form": "lag", "params": {"k": "fast"}}]}"#,
+            "effects[0].params.k",
+        ),
+    ] {
+        std::fs::write(&bad, text).unwrap();
+        let out = dir.join("out");
+        let o = sparkout(&[
+            "run",
+            "--input",
+            s(&dir.join("runs")),
+            "--out",
+            s(&out),
+            "--augment",
+            s(&bad),
+        ]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{err}");
+        assert!(
+            err.contains("model.json") && err.contains(&format!("field `{field}`")),
+            "{err}"
+        );
+        assert!(
+            !out.join("manifest.json").exists(),
+            "ran despite a bad model"
+        );
+    }
+}
