@@ -8,7 +8,7 @@
 //! The files are written once to `target/bench-data/` (≈ 600 MB each); set
 //! `SPARKOUT_AE_BENCH_SAMPLES` to bench a smaller or larger log.
 
-use criterion::{criterion_group, criterion_main, Criterion, Throughput};
+use criterion::{criterion_group, Criterion, Throughput};
 use sparkout_pipeline::contracts::{AeKind, TimeOrigin};
 use sparkout_plugins::robot::ingest::{detect_file, IngestConfig};
 use std::hint::black_box;
@@ -106,14 +106,7 @@ fn log_path(codec_name: &str, n: usize) -> PathBuf {
 fn bench(c: &mut Criterion) {
     common::register_references(c, "ae_ingest");
     let n = samples();
-    let cfg = IngestConfig {
-        window_s: 0.001,
-        k_sigma: 8.0,
-        min_dwell_s: 0.0005,
-        hysteresis: 0.5,
-        noise_window_s: 0.005,
-        segment_tolerance_s: 0.005,
-    };
+    let cfg = ingest_config();
     let mut g = c.benchmark_group("ae_ingest");
     g.throughput(Throughput::Elements(n as u64));
     g.sample_size(10);
@@ -156,4 +149,88 @@ fn bench(c: &mut Criterion) {
 }
 
 criterion_group!(benches, bench);
-criterion_main!(benches);
+
+fn main() {
+    if std::env::var_os("SPARKOUT_BENCH_SCALING").is_some() {
+        scaling();
+        return;
+    }
+    benches();
+    Criterion::default().configure_from_args().final_summary();
+}
+
+fn ingest_config() -> IngestConfig {
+    IngestConfig {
+        window_s: 0.001,
+        k_sigma: 8.0,
+        min_dwell_s: 0.0005,
+        hysteresis: 0.5,
+        noise_window_s: 0.005,
+        segment_tolerance_s: 0.005,
+    }
+}
+
+/// Peak resident set of this process so far (VmHWM), MiB.
+fn peak_rss_mib() -> f64 {
+    std::fs::read_to_string("/proc/self/status")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with("VmHWM:"))
+                .and_then(|l| l.split_whitespace().nth(1)?.parse::<f64>().ok())
+        })
+        .map_or(f64::NAN, |kib| kib / 1024.0)
+}
+
+/// `SPARKOUT_BENCH_SCALING=1 cargo bench --bench ae_ingest` (issue 19 item
+/// 3): zstd logs of `SPARKOUT_AE_SCALING_SAMPLES` (comma-separated; default
+/// 10⁷ and 10⁸; 10⁹ writes ≈ 8 GB) in 48 row groups each, written once to
+/// target/bench-data/, ingested from disk best of 3 (1 at ≥ 10⁹); prints
+/// samples/s, the cost exponent of each step and the process's peak RSS
+/// (monotone: sizes run smallest first, so a flat figure means bounded).
+fn scaling() {
+    let sizes: Vec<usize> = std::env::var("SPARKOUT_AE_SCALING_SAMPLES")
+        .unwrap_or_else(|_| "10000000,100000000".into())
+        .split(',')
+        .map(|v| {
+            v.trim()
+                .parse()
+                .expect("SPARKOUT_AE_SCALING_SAMPLES: integers")
+        })
+        .collect();
+    let cfg = ingest_config();
+    let mut prev: Option<(usize, f64)> = None;
+    for n in sizes {
+        let path = log_path("zstd", n);
+        if !path.exists() {
+            eprintln!("writing {} ({n} samples)", path.display());
+            write_log(
+                &path,
+                n,
+                parquet::basic::Compression::ZSTD(Default::default()),
+            );
+        }
+        let reps = if n >= 1_000_000_000 { 1 } else { 3 };
+        let secs = (0..reps)
+            .map(|_| {
+                let t = std::time::Instant::now();
+                let r = detect_file(&path, FS, AeKind::Raw, &cfg, 0.0, &TimeOrigin::TableStart)
+                    .unwrap();
+                black_box(r.events.len());
+                t.elapsed().as_secs_f64()
+            })
+            .fold(f64::INFINITY, f64::min);
+        let exponent = prev.map_or(String::new(), |(n0, s0)| {
+            format!(
+                "  exponent {:.2}",
+                (secs / s0).ln() / (n as f64 / n0 as f64).ln()
+            )
+        });
+        println!(
+            "ae_ingest scaling {n:>11} samples {secs:>8.3} s {:>7.1} M samples/s  peak RSS {:.0} MiB{exponent}",
+            n as f64 / secs / 1e6,
+            peak_rss_mib()
+        );
+        prev = Some((n, secs));
+    }
+}

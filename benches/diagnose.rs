@@ -6,24 +6,26 @@
 //! drift + backlash gap, so forward selection runs two rounds plus the stop
 //! round — the realistic worst case rather than a no-gap shortcut.
 
+use arrow::array::RecordBatch;
 use criterion::{criterion_group, Criterion};
 use sparkout_datasets::observations::{generate, ObsFleetConfig};
 use sparkout_pipeline::diagnose::{diagnose, DiagnoseConfig};
 use sparkout_pipeline::EffectSpec;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 mod common;
 
-fn bench_diagnose(c: &mut Criterion) {
-    common::register_references(c, "diagnose");
+/// The bench fleet: `runs` runs × nx×ny grid (1 mm pitch, `spacing_mm`
+/// scales it) × `passes`, with a drift + backlash gap.
+fn fleet(runs: usize, nx: usize, ny: usize, passes: usize, spacing_mm: f64) -> RecordBatch {
     let cfg = ObsFleetConfig {
-        runs: 20,
+        runs,
         seed: 7,
         noise_mm: 0.001,
-        nx: 100,
-        ny: 100,
-        spacing_mm: 1.0,
-        passes: 5,
+        nx,
+        ny,
+        spacing_mm,
+        passes,
         replicate_fraction: 0.0,
         observable: "surface_z".into(),
     };
@@ -31,7 +33,12 @@ fn bench_diagnose(c: &mut Criterion) {
         "drift:t_s=amplitude_mm=0.01,tau_s=20000".parse().unwrap(),
         "backlash:dir=b_mm=0.004".parse().unwrap(),
     ];
-    let obs = generate(&cfg, &effects).expect("fleet");
+    generate(&cfg, &effects).expect("fleet")
+}
+
+fn bench_diagnose(c: &mut Criterion) {
+    common::register_references(c, "diagnose");
+    let obs = fleet(20, 100, 100, 5, 1.0);
     assert_eq!(obs.num_rows(), 1_000_000);
     let dcfg = DiagnoseConfig {
         folds: 5,
@@ -65,6 +72,64 @@ fn main() {
             );
         }
     }
+    if std::env::var_os("SPARKOUT_BENCH_SCALING").is_some() {
+        scaling();
+        return;
+    }
     benches();
     Criterion::default().configure_from_args().final_summary();
+}
+
+/// `SPARKOUT_BENCH_SCALING=1 cargo bench --bench diagnose` (issue 19 item 3):
+/// the diagnosis's cost against rows (more runs of one grid: 10⁴ … 10⁶
+/// rows) and against grid density (20 runs of one 100 mm square sampled
+/// ever finer), best of 3 (of 1 above 5·10⁵ rows), with the cost exponent
+/// of each step — printed, not gated.
+fn scaling() {
+    let dcfg = DiagnoseConfig {
+        folds: 5,
+        ..Default::default()
+    };
+    let time = |obs: &RecordBatch| {
+        let reps = if obs.num_rows() > 500_000 { 1 } else { 3 };
+        (0..reps)
+            .map(|_| {
+                let t = Instant::now();
+                diagnose(obs, &dcfg, &[]).expect("diagnose");
+                t.elapsed().as_secs_f64()
+            })
+            .fold(f64::INFINITY, f64::min)
+    };
+    let report = |what: &str, points: &[(usize, f64)]| {
+        for (i, &(rows, secs)) in points.iter().enumerate() {
+            let exponent = if i == 0 {
+                String::new()
+            } else {
+                let (r0, s0) = points[i - 1];
+                format!(
+                    "  exponent {:.2}",
+                    (secs / s0).ln() / (rows as f64 / r0 as f64).ln()
+                )
+            };
+            println!("diagnose scaling [{what}] {rows:>8} rows {secs:>7.3} s{exponent}");
+        }
+    };
+    // Rows by runs: 20×20 grid × 5 passes = 2 000 rows per run.
+    let by_runs: Vec<(usize, f64)> = [5usize, 50, 169, 500]
+        .iter()
+        .map(|&runs| {
+            let obs = fleet(runs, 20, 20, 5, 5.0);
+            (obs.num_rows(), time(&obs))
+        })
+        .collect();
+    report("runs", &by_runs);
+    // Grid density: 20 runs × 5 passes of a 100 mm square at pitch 100/n mm.
+    let by_density: Vec<(usize, f64)> = [10usize, 32, 100]
+        .iter()
+        .map(|&n| {
+            let obs = fleet(20, n, n, 5, 100.0 / n as f64);
+            (obs.num_rows(), time(&obs))
+        })
+        .collect();
+    report("grid density", &by_density);
 }

@@ -4,7 +4,7 @@
 //! (realfft rows + rustfft columns). Reference: benches/reference/fftconvolve.py
 //! (scipy.signal.fftconvolve on the same sizes).
 
-use criterion::{criterion_group, criterion_main, Criterion};
+use criterion::{criterion_group, Criterion};
 use sparkout_plugins::gantry::tool_influence::{fft_convolve_same, PolishTool};
 use std::hint::black_box;
 
@@ -12,9 +12,8 @@ mod common;
 
 const N: usize = 2048;
 
-fn bench(c: &mut Criterion) {
-    common::register_references(c, "fft_removal");
-    let tool = PolishTool {
+fn tool() -> PolishTool {
+    PolishTool {
         k_p_per_pa: 1.7097e-8,
         pressure_pa: 389.93,
         radius_mm: 100.0,
@@ -24,17 +23,26 @@ fn bench(c: &mut Criterion) {
         feed_mm_s: 100.0,
         step_over_mm: 50.0,
         accel_mm_s2: 500.0,
-    };
-    let (ker, kx, ky) = tool.kernel(1.0, 1.0);
+    }
+}
+
+/// A uniform random n×n dwell map (xorshift64, fixed seed).
+fn dwell(n: usize) -> Vec<f64> {
     let mut s: u64 = 0x9E37_79B9_7F4A_7C15;
-    let dwell: Vec<f64> = (0..N * N)
+    (0..n * n)
         .map(|_| {
             s ^= s << 13;
             s ^= s >> 7;
             s ^= s << 17;
             (s >> 11) as f64 / (1u64 << 53) as f64 * 0.01
         })
-        .collect();
+        .collect()
+}
+
+fn bench(c: &mut Criterion) {
+    common::register_references(c, "fft_removal");
+    let (ker, kx, ky) = tool().kernel(1.0, 1.0);
+    let dwell = dwell(N);
     c.bench_function("fft removal 2048x2048 (201x201 tool)", |b| {
         b.iter(|| black_box(fft_convolve_same(black_box(&dwell), N, N, &ker, kx, ky)))
     });
@@ -45,4 +53,42 @@ criterion_group! {
     config = Criterion::default().sample_size(10);
     targets = bench
 }
-criterion_main!(benches);
+
+fn main() {
+    if std::env::var_os("SPARKOUT_BENCH_SCALING").is_some() {
+        scaling();
+        return;
+    }
+    benches();
+    Criterion::default().configure_from_args().final_summary();
+}
+
+/// `SPARKOUT_BENCH_SCALING=1 cargo bench --bench fft_removal` (issue 19
+/// item 3): the same convolution for N = 512 … 4096 (201² tool), best of 3,
+/// with the cost exponent of each doubling (N² log N predicts ≈ 2.1–2.2).
+/// `python3 benches/reference/fftconvolve.py --scaling` times scipy alike.
+fn scaling() {
+    let (ker, kx, ky) = tool().kernel(1.0, 1.0);
+    let mut prev: Option<(usize, f64)> = None;
+    for n in [512usize, 1024, 2048, 4096] {
+        let d = dwell(n);
+        let secs = (0..3)
+            .map(|_| {
+                let t = std::time::Instant::now();
+                black_box(fft_convolve_same(black_box(&d), n, n, &ker, kx, ky));
+                t.elapsed().as_secs_f64()
+            })
+            .fold(f64::INFINITY, f64::min);
+        let exponent = prev.map_or(String::new(), |(n0, s0)| {
+            format!(
+                "  exponent {:.2}",
+                (secs / s0).ln() / (n as f64 / n0 as f64).ln()
+            )
+        });
+        println!(
+            "fft_removal scaling N = {n:>4}: {:>8.1} ms{exponent}",
+            secs * 1e3
+        );
+        prev = Some((n, secs));
+    }
+}

@@ -11,6 +11,7 @@
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use sparkout_plugins::guideway::config::PredictorConfig;
 use sparkout_plugins::guideway::predictor::predict;
+use sparkout_plugins::guideway::{ar_fpe, rls::Rls};
 use std::hint::black_box;
 
 mod common;
@@ -68,6 +69,32 @@ fn bench(c: &mut Criterion) {
         b.iter(|| {
             let p = predict(black_box(&dz), &cfg).expect("predict");
             black_box(p.prediction_error_var_mm2)
+        })
+    });
+    // The two kernels the issue gates separately (issue 19 item 2): the
+    // FPE order search p ≤ 20 over the twice-differenced 10⁶ samples (the
+    // numpy normal-equations reference in benches/reference/ar_fpe_numpy.py),
+    // and RLS of the chosen order over the same samples.
+    let y = ar_fpe::difference(&dz, cfg.d);
+    g.bench_function("fpe_search_p20_1e6", |b| {
+        b.iter(|| {
+            let s = ar_fpe::fpe_search(black_box(&y), 20).expect("search");
+            black_box(s.order)
+        })
+    });
+    let order = p.search.order;
+    g.bench_function("rls_chosen_order_1e6", |b| {
+        b.iter(|| {
+            let mut rls = Rls::new(order, cfg.p0, cfg.forgetting);
+            let mut x = vec![0.0; order];
+            let mut last = 0.0;
+            for t in order..y.len() {
+                for (i, v) in x.iter_mut().enumerate() {
+                    *v = y[t - 1 - i];
+                }
+                last = rls.update(&x, y[t]);
+            }
+            black_box(last)
         })
     });
     g.finish();

@@ -3,9 +3,11 @@
 # (≈ 14 600 observation rows per run) in 8 shards as local processes
 # (`--jobs 1` each), then `aggregate`; for N = $SINGLE_AT also a single-node
 # `run` (its fleet outputs compared with the aggregate's) and its no-change
-# re-run (every stage cached). Prints one line per measurement.
+# re-run (every stage cached). Prints one line per measurement. No effect is
+# injected unless EFFECT is set.
 #   scripts/measure-scale.sh target/release/sparkout /tmp/scale 500 1000 2000
 set -euo pipefail
+export SPARKOUT_LOG=${SPARKOUT_LOG:-warn}
 bin=$(realpath "$1"); work=$2; shift 2
 single_at=${SINGLE_AT:-1000}
 shards=${SHARDS:-8}
@@ -16,7 +18,9 @@ for n in "$@"; do
   d="$work/n$n"
   rm -rf "$d"; mkdir -p "$d"
   t=$(now)
-  "$bin" generate servo --runs "$n" --seed 7 --out "$d/runs" --effect servo_lag=k_s=0.004 >/dev/null
+  # EFFECT (e.g. servo_lag=k_s=0.004) makes the diagnosis select effects:
+  # far more work (every catalogue candidate × folds × rounds).
+  "$bin" generate servo --runs "$n" --seed 7 --out "$d/runs" ${EFFECT:+--effect "$EFFECT"} >/dev/null
   echo "n=$n generate $(secs "$t" "$(now)") s"
   t=$(now)
   pids=()

@@ -3,8 +3,10 @@ of a 2048 x 2048 dwell map with the disc tool's 201 x 201 influence function
 (100 mm radius on a 1 mm grid), the same sizes and kernel as the Rust bench.
 
     pip install numpy scipy
-    python3 benches/reference/fftconvolve.py
+    python3 benches/reference/fftconvolve.py             # 2048 x 2048, median of 5
+    python3 benches/reference/fftconvolve.py --scaling   # N = 512 ... 4096, best of 3
 """
+import sys
 import time
 
 import numpy as np
@@ -18,6 +20,21 @@ yy, xx = np.mgrid[-h : h + 1, -h : h + 1].astype(float)
 rho = np.hypot(xx, yy)
 ker = np.where(rho <= R, k_p * p * np.sqrt(v_lin**2 + (2 * np.pi * n_rev * rho) ** 2), 0.0)
 rng = np.random.default_rng(0)
+
+if "--scaling" in sys.argv:
+    prev = None
+    for n in (512, 1024, 2048, 4096):
+        d = rng.random((n, n)) * 0.01
+        fftconvolve(d, ker, mode="same")
+        best = min(
+            (lambda t0: (fftconvolve(d, ker, mode="same"), time.perf_counter() - t0)[1])(time.perf_counter())
+            for _ in range(3)
+        )
+        exp = "" if prev is None else f"  exponent {np.log(best / prev[1]) / np.log(n / prev[0]):.2f}"
+        print(f"scipy fftconvolve scaling N = {n:4d}: {best * 1e3:8.1f} ms{exp}")
+        prev = (n, best)
+    sys.exit(0)
+
 dwell = rng.random((N, N)) * 0.01
 
 fftconvolve(dwell, ker, mode="same")  # warm-up

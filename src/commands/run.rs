@@ -37,6 +37,12 @@ pub fn run(
     }
     let mut engine = registry::engine(config)?;
     if let Some((dir, night)) = history {
+        if storage::is_url(&dir) {
+            anyhow::bail!(
+                "--history {}: the fleet history must be a local or shared directory (object storage is supported for --input, --out and --shards only); sync it with `sparkout sync`",
+                dir.display()
+            );
+        }
         engine.set_history(dir, night)?;
     }
     if let Some(model) = augment {
