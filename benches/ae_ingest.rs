@@ -151,12 +151,7 @@ fn bench(c: &mut Criterion) {
 criterion_group!(benches, bench);
 
 fn main() {
-    if std::env::var_os("SPARKOUT_BENCH_SCALING").is_some() {
-        scaling();
-        return;
-    }
-    benches();
-    Criterion::default().configure_from_args().final_summary();
+    common::run_or_scale(benches, scaling);
 }
 
 fn ingest_config() -> IngestConfig {
@@ -199,7 +194,7 @@ fn scaling() {
         })
         .collect();
     let cfg = ingest_config();
-    let mut prev: Option<(usize, f64)> = None;
+    let mut prev: Option<(f64, f64)> = None;
     for n in sizes {
         let path = log_path("zstd", n);
         if !path.exists() {
@@ -211,26 +206,17 @@ fn scaling() {
             );
         }
         let reps = if n >= 1_000_000_000 { 1 } else { 3 };
-        let secs = (0..reps)
-            .map(|_| {
-                let t = std::time::Instant::now();
-                let r = detect_file(&path, FS, AeKind::Raw, &cfg, 0.0, &TimeOrigin::TableStart)
-                    .unwrap();
-                black_box(r.events.len());
-                t.elapsed().as_secs_f64()
-            })
-            .fold(f64::INFINITY, f64::min);
-        let exponent = prev.map_or(String::new(), |(n0, s0)| {
-            format!(
-                "  exponent {:.2}",
-                (secs / s0).ln() / (n as f64 / n0 as f64).ln()
-            )
+        let secs = common::best_of(reps, || {
+            let r =
+                detect_file(&path, FS, AeKind::Raw, &cfg, 0.0, &TimeOrigin::TableStart).unwrap();
+            black_box(r.events.len());
         });
+        let exponent = common::exponent_text(prev, n as f64, secs);
         println!(
             "ae_ingest scaling {n:>11} samples {secs:>8.3} s {:>7.1} M samples/s  peak RSS {:.0} MiB{exponent}",
             n as f64 / secs / 1e6,
             peak_rss_mib()
         );
-        prev = Some((n, secs));
+        prev = Some((n as f64, secs));
     }
 }

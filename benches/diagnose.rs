@@ -11,7 +11,7 @@ use criterion::{criterion_group, Criterion};
 use sparkout_datasets::observations::{generate, ObsFleetConfig};
 use sparkout_pipeline::diagnose::{diagnose, DiagnoseConfig};
 use sparkout_pipeline::EffectSpec;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 mod common;
 
@@ -72,12 +72,7 @@ fn main() {
             );
         }
     }
-    if std::env::var_os("SPARKOUT_BENCH_SCALING").is_some() {
-        scaling();
-        return;
-    }
-    benches();
-    Criterion::default().configure_from_args().final_summary();
+    common::run_or_scale(benches, scaling);
 }
 
 /// `SPARKOUT_BENCH_SCALING=1 cargo bench --bench diagnose` (issue 19 item 3):
@@ -92,26 +87,16 @@ fn scaling() {
     };
     let time = |obs: &RecordBatch| {
         let reps = if obs.num_rows() > 500_000 { 1 } else { 3 };
-        (0..reps)
-            .map(|_| {
-                let t = Instant::now();
-                diagnose(obs, &dcfg, &[]).expect("diagnose");
-                t.elapsed().as_secs_f64()
-            })
-            .fold(f64::INFINITY, f64::min)
+        common::best_of(reps, || {
+            diagnose(obs, &dcfg, &[]).expect("diagnose");
+        })
     };
     let report = |what: &str, points: &[(usize, f64)]| {
-        for (i, &(rows, secs)) in points.iter().enumerate() {
-            let exponent = if i == 0 {
-                String::new()
-            } else {
-                let (r0, s0) = points[i - 1];
-                format!(
-                    "  exponent {:.2}",
-                    (secs / s0).ln() / (rows as f64 / r0 as f64).ln()
-                )
-            };
+        let mut prev = None;
+        for &(rows, secs) in points {
+            let exponent = common::exponent_text(prev, rows as f64, secs);
             println!("diagnose scaling [{what}] {rows:>8} rows {secs:>7.3} s{exponent}");
+            prev = Some((rows as f64, secs));
         }
     };
     // Rows by runs: 20×20 grid × 5 passes = 2 000 rows per run.

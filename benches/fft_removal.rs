@@ -5,7 +5,7 @@
 //! (scipy.signal.fftconvolve on the same sizes).
 
 use criterion::{criterion_group, Criterion};
-use sparkout_plugins::gantry::tool_influence::{fft_convolve_same, PolishTool};
+use sparkout_plugins::gantry::tool_influence::{fft_convolve_same, Convolver, PolishTool};
 use std::hint::black_box;
 
 mod common;
@@ -46,6 +46,13 @@ fn bench(c: &mut Criterion) {
     c.bench_function("fft removal 2048x2048 (201x201 tool)", |b| {
         b.iter(|| black_box(fft_convolve_same(black_box(&dwell), N, N, &ker, kx, ky)))
     });
+    // Steady state (issue 19 item 2): plans and the tool's spectrum kept
+    // across calls, as the dwell solver and repeated removals use them.
+    let conv = Convolver::new(N, N, &ker, kx, ky);
+    c.bench_function(
+        "fft removal 2048x2048 (201x201 tool), spectrum cached",
+        |b| b.iter(|| black_box(conv.apply(black_box(&dwell)))),
+    );
 }
 
 criterion_group! {
@@ -55,12 +62,7 @@ criterion_group! {
 }
 
 fn main() {
-    if std::env::var_os("SPARKOUT_BENCH_SCALING").is_some() {
-        scaling();
-        return;
-    }
-    benches();
-    Criterion::default().configure_from_args().final_summary();
+    common::run_or_scale(benches, scaling);
 }
 
 /// `SPARKOUT_BENCH_SCALING=1 cargo bench --bench fft_removal` (issue 19
@@ -69,26 +71,17 @@ fn main() {
 /// `python3 benches/reference/fftconvolve.py --scaling` times scipy alike.
 fn scaling() {
     let (ker, kx, ky) = tool().kernel(1.0, 1.0);
-    let mut prev: Option<(usize, f64)> = None;
+    let mut prev: Option<(f64, f64)> = None;
     for n in [512usize, 1024, 2048, 4096] {
         let d = dwell(n);
-        let secs = (0..3)
-            .map(|_| {
-                let t = std::time::Instant::now();
-                black_box(fft_convolve_same(black_box(&d), n, n, &ker, kx, ky));
-                t.elapsed().as_secs_f64()
-            })
-            .fold(f64::INFINITY, f64::min);
-        let exponent = prev.map_or(String::new(), |(n0, s0)| {
-            format!(
-                "  exponent {:.2}",
-                (secs / s0).ln() / (n as f64 / n0 as f64).ln()
-            )
+        let secs = common::best_of(3, || {
+            black_box(fft_convolve_same(black_box(&d), n, n, &ker, kx, ky));
         });
+        let exponent = common::exponent_text(prev, n as f64, secs);
         println!(
             "fft_removal scaling N = {n:>4}: {:>8.1} ms{exponent}",
             secs * 1e3
         );
-        prev = Some((n, secs));
+        prev = Some((n as f64, secs));
     }
 }

@@ -9,6 +9,8 @@ use sparkout_plugins::guideway::three_probe::{separate_lsq, separate_recursion, 
 use std::hint::black_box;
 use std::path::Path;
 
+mod common;
+
 const POINTS: usize = 100_000;
 const STEP_MM: f64 = 30.0;
 
@@ -50,6 +52,7 @@ fn readings() -> sparkout_plugins::guideway::input::Readings {
 }
 
 fn bench(c: &mut Criterion) {
+    common::register_references(c, "guideway_separate");
     let r = readings();
     let mut g = c.benchmark_group("guideway_separate");
     g.throughput(Throughput::Elements(POINTS as u64));

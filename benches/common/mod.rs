@@ -50,3 +50,35 @@ pub fn register_references(c: &mut Criterion, group: &str) {
     });
     g.finish();
 }
+
+/// Best wall time of `reps` calls of `f`, seconds (the scaling modes: the
+/// minimum is the figure least disturbed by the rest of the machine).
+pub fn best_of(reps: usize, mut f: impl FnMut()) -> f64 {
+    (0..reps.max(1))
+        .map(|_| {
+            let t = std::time::Instant::now();
+            f();
+            t.elapsed().as_secs_f64()
+        })
+        .fold(f64::INFINITY, f64::min)
+}
+
+/// The cost exponent between two (size, seconds) points: log(t₁/t₀) /
+/// log(n₁/n₀), as text for a scaling line ("" for the first point).
+pub fn exponent_text(prev: Option<(f64, f64)>, size: f64, secs: f64) -> String {
+    prev.map_or(String::new(), |(n0, s0)| {
+        format!("  exponent {:.2}", (secs / s0).ln() / (size / n0).ln())
+    })
+}
+
+/// A bench's `main`: `SPARKOUT_BENCH_SCALING=1` runs its scaling sweep
+/// (printed, not gated), otherwise the criterion benches as
+/// `criterion_main!` would.
+pub fn run_or_scale(benches: fn(), scaling: fn()) {
+    if std::env::var_os("SPARKOUT_BENCH_SCALING").is_some() {
+        scaling();
+        return;
+    }
+    benches();
+    Criterion::default().configure_from_args().final_summary();
+}

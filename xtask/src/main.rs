@@ -288,7 +288,25 @@ fn run_benches(targets: &[String]) -> Result<()> {
     let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
     for t in targets {
         eprintln!("cargo bench --bench {t}");
-        let status = Command::new(&cargo)
+        let mut cmd = Command::new(&cargo);
+        // `cargo xtask` runs under `cargo run`, which sets CARGO_PKG_NAME=xtask
+        // and friends; build scripts that watch those variables (ring's
+        // rerun-if-env-changed) would then rebuild the release dependency
+        // tree (≈ 25 min) on every gate run. Give `cargo bench` the
+        // developer's environment instead.
+        for (k, _) in std::env::vars_os() {
+            let k = k.to_string_lossy();
+            if k.starts_with("CARGO_PKG_")
+                || k.starts_with("CARGO_MANIFEST_")
+                || matches!(
+                    k.as_ref(),
+                    "CARGO_CRATE_NAME" | "CARGO_BIN_NAME" | "CARGO_PRIMARY_PACKAGE"
+                )
+            {
+                cmd.env_remove(k.as_ref());
+            }
+        }
+        let status = cmd
             .current_dir(workspace_root())
             .args(["bench", "--bench", t, "--", "--noplot"])
             .status()

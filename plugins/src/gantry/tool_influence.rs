@@ -254,15 +254,24 @@ impl Convolver {
             .zip(self.kernel.par_iter())
             .for_each(|(u, v)| *u *= *v);
         process_columns(&self.inv, &mut a, py);
-        // Back to rows: only the ny rows the crop keeps (offset oy).
+        // Back to rows: only the ny rows the crop keeps (offset oy), in
+        // blocks of rows on the pool (a copy: results do not depend on it).
         let (ox, oy) = (self.kx / 2, self.ky / 2);
         let mut rows = vec![zero; ny * cx];
-        for i in 0..cx {
-            let col = &a[i * py + oy..i * py + oy + ny];
-            for (j, v) in col.iter().enumerate() {
-                rows[j * cx + i] = *v;
-            }
-        }
+        rows.par_chunks_mut(TRANSPOSE_BLOCK * cx)
+            .enumerate()
+            .for_each(|(b, block)| {
+                let j0 = b * TRANSPOSE_BLOCK;
+                let h = block.len() / cx;
+                for i0 in (0..cx).step_by(TRANSPOSE_BLOCK) {
+                    for i in i0..(i0 + TRANSPOSE_BLOCK).min(cx) {
+                        let col = &a[i * py + oy + j0..i * py + oy + j0 + h];
+                        for (j, v) in col.iter().enumerate() {
+                            block[j * cx + i] = *v;
+                        }
+                    }
+                }
+            });
         let c2r = &self.c2r;
         let mut out = vec![0.0; nx * ny];
         out.par_chunks_mut(nx)
@@ -284,19 +293,27 @@ impl Convolver {
     }
 }
 
+/// Side of the cache blocks of the transposes.
+const TRANSPOSE_BLOCK: usize = 32;
+
 /// Row-major (h × w) → column-major with column length `ld` (rows ≥ h stay
-/// zero), in cache-sized blocks.
+/// zero), in cache-sized blocks, blocks of columns on the pool.
 fn transpose(src: &[Complex<f64>], h: usize, w: usize, dst: &mut [Complex<f64>], ld: usize) {
-    const B: usize = 32;
-    for j0 in (0..h).step_by(B) {
-        for i0 in (0..w).step_by(B) {
-            for j in j0..(j0 + B).min(h) {
-                for i in i0..(i0 + B).min(w) {
-                    dst[i * ld + j] = src[j * w + i];
+    const B: usize = TRANSPOSE_BLOCK;
+    dst.par_chunks_mut(B * ld)
+        .enumerate()
+        .for_each(|(b, cols)| {
+            let i0 = b * B;
+            let ncol = (cols.len() / ld).min(w.saturating_sub(i0));
+            for j0 in (0..h).step_by(B) {
+                for j in j0..(j0 + B).min(h) {
+                    let row = &src[j * w + i0..j * w + i0 + ncol];
+                    for (di, v) in row.iter().enumerate() {
+                        cols[di * ld + j] = *v;
+                    }
                 }
             }
-        }
-    }
+        });
 }
 
 fn process_columns(fft: &Arc<dyn rustfft::Fft<f64>>, data: &mut [Complex<f64>], len: usize) {
