@@ -181,16 +181,8 @@ fn bench_gate(o: Options) -> Result<()> {
     }
 
     // Refuse an uncalibrated baseline before spending minutes on benches.
-    if let Some(e) = gate
-        .gate
-        .iter()
-        .find(|e| selected(e) && (e.ratio <= 0.0 || e.threshold <= 0.0))
-    {
-        bail!(
-            "{}: {} is not calibrated: run `cargo xtask bench-gate --calibrate --runs 5`",
-            o.gate_path.display(),
-            e.bench
-        );
+    for e in gate.gate.iter().filter(|e| selected(e)) {
+        check_calibrated(e).map_err(|err| anyhow::anyhow!("{}: {err}", o.gate_path.display()))?;
     }
     if o.run {
         run_benches(&targets)?;
@@ -254,18 +246,24 @@ impl Verdict {
     }
 }
 
+/// An entry without a baseline (ratio/threshold 0) cannot gate anything.
+fn check_calibrated(e: &GateEntry) -> Result<()> {
+    if e.ratio <= 0.0 || e.threshold <= 0.0 {
+        bail!(
+            "{} is not calibrated: run `cargo xtask bench-gate --calibrate --runs 5`",
+            e.bench
+        );
+    }
+    Ok(())
+}
+
 /// The gate's decision, apart from running anything: every entry must be
 /// calibrated and have both its bench and its reference in `medians` (a
 /// missing result is an error naming the bench, never a silent pass).
 fn compare(entries: &[GateEntry], medians: &BTreeMap<String, f64>) -> Result<Vec<Verdict>> {
     let mut out = Vec::new();
     for e in entries {
-        if e.ratio <= 0.0 || e.threshold <= 0.0 {
-            bail!(
-                "{} is not calibrated: run `cargo xtask bench-gate --calibrate --runs 5`",
-                e.bench
-            );
-        }
+        check_calibrated(e)?;
         let now = ratio_of(e, medians)?;
         out.push(Verdict {
             bench: e.bench.clone(),
