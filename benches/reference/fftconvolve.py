@@ -25,11 +25,12 @@ if "--scaling" in sys.argv:
     prev = None
     for n in (512, 1024, 2048, 4096):
         d = rng.random((n, n)) * 0.01
-        fftconvolve(d, ker, mode="same")
-        best = min(
-            (lambda t0: (fftconvolve(d, ker, mode="same"), time.perf_counter() - t0)[1])(time.perf_counter())
-            for _ in range(3)
-        )
+        fftconvolve(d, ker, mode="same")  # warm-up
+        best = float("inf")
+        for _ in range(3):
+            t0 = time.perf_counter()
+            fftconvolve(d, ker, mode="same")
+            best = min(best, time.perf_counter() - t0)
         exp = "" if prev is None else f"  exponent {np.log(best / prev[1]) / np.log(n / prev[0]):.2f}"
         print(f"scipy fftconvolve scaling N = {n:4d}: {best * 1e3:8.1f} ms{exp}")
         prev = (n, best)

@@ -180,16 +180,16 @@ fn bench_gate(o: Options) -> Result<()> {
         return Ok(());
     }
 
+    let selected_entries: Vec<GateEntry> =
+        gate.gate.iter().filter(|e| selected(e)).cloned().collect();
     // Refuse an uncalibrated baseline before spending minutes on benches.
-    for e in gate.gate.iter().filter(|e| selected(e)) {
+    for e in &selected_entries {
         check_calibrated(e).map_err(|err| anyhow::anyhow!("{}: {err}", o.gate_path.display()))?;
     }
     if o.run {
         run_benches(&targets)?;
     }
     let medians = read_criterion_medians(&criterion_dir)?;
-    let selected_entries: Vec<GateEntry> =
-        gate.gate.iter().filter(|e| selected(e)).cloned().collect();
     let verdicts = compare(&selected_entries, &medians)
         .map_err(|e| anyhow::anyhow!("{}: {e}", o.gate_path.display()))?;
     println!(

@@ -263,12 +263,10 @@ impl Convolver {
             .for_each(|(b, block)| {
                 let j0 = b * TRANSPOSE_BLOCK;
                 let h = block.len() / cx;
-                for i0 in (0..cx).step_by(TRANSPOSE_BLOCK) {
-                    for i in i0..(i0 + TRANSPOSE_BLOCK).min(cx) {
-                        let col = &a[i * py + oy + j0..i * py + oy + j0 + h];
-                        for (j, v) in col.iter().enumerate() {
-                            block[j * cx + i] = *v;
-                        }
+                for i in 0..cx {
+                    let col = &a[i * py + oy + j0..i * py + oy + j0 + h];
+                    for (j, v) in col.iter().enumerate() {
+                        block[j * cx + i] = *v;
                     }
                 }
             });
