@@ -29,7 +29,7 @@ fn samples() -> usize {
 
 /// The AE log: the ae_kernel bench's signal (5 mV noise, a contact burst every
 /// 50 ms), so both benches exercise the detector's in-contact path alike.
-fn write_log(path: &Path, n: usize, codec: parquet::basic::Compression) {
+fn write_log(path: &Path, n: usize, rows_per_group: usize, codec: parquet::basic::Compression) {
     use arrow::array::{Float32Array, Float64Array};
     use arrow::datatypes::{DataType, Field, Schema};
     use arrow::record_batch::RecordBatch;
@@ -42,7 +42,7 @@ fn write_log(path: &Path, n: usize, codec: parquet::basic::Compression) {
     ]));
     let props = WriterProperties::builder()
         .set_compression(codec)
-        .set_max_row_group_row_count(Some(n.div_ceil(ROW_GROUPS)))
+        .set_max_row_group_row_count(Some(rows_per_group))
         .set_dictionary_enabled(false)
         .build();
     std::fs::create_dir_all(path.parent().unwrap()).unwrap();
@@ -94,6 +94,9 @@ fn write_log(path: &Path, n: usize, codec: parquet::basic::Compression) {
     std::fs::rename(&tmp, path).unwrap();
 }
 
+/// Rows per row group of the scaling logs (pyarrow's default group size).
+const SCALING_ROWS_PER_GROUP: usize = 1 << 20;
+
 fn log_path(codec_name: &str, n: usize) -> PathBuf {
     let target = std::env::var_os("CARGO_TARGET_DIR")
         .map(PathBuf::from)
@@ -123,7 +126,7 @@ fn bench(c: &mut Criterion) {
                 "writing {} ({n} samples, {ROW_GROUPS} row groups)",
                 path.display()
             );
-            write_log(&path, n, codec);
+            write_log(&path, n, n.div_ceil(ROW_GROUPS), codec);
         }
         g.bench_function(format!("parquet_{name}_to_contacts"), |b| {
             b.iter(|| {
@@ -179,9 +182,10 @@ fn peak_rss_mib() -> f64 {
 
 /// `SPARKOUT_BENCH_SCALING=1 cargo bench --bench ae_ingest` (issue 19 item
 /// 3): zstd logs of `SPARKOUT_AE_SCALING_SAMPLES` (comma-separated; default
-/// 10⁷ and 10⁸; 10⁹ writes ≈ 8 GB) in 48 row groups each, written once to
-/// target/bench-data/, ingested from disk best of 3 (1 at ≥ 10⁹); prints
-/// samples/s, the cost exponent of each step and the process's peak RSS
+/// 10⁷ and 10⁸; 10⁹ writes ≈ 9 GB) in row groups of 2²⁰ rows (pyarrow's
+/// default; a fixed group size, so memory is bounded by the group, not
+/// the log), written once to target/bench-data/, ingested from disk best
+/// of 3 (1 at ≥ 10⁹); prints samples/s, the cost exponent of each step and the process's peak RSS
 /// (monotone: sizes run smallest first, so a flat figure means bounded).
 fn scaling() {
     let sizes: Vec<usize> = std::env::var("SPARKOUT_AE_SCALING_SAMPLES")
@@ -196,12 +200,13 @@ fn scaling() {
     let cfg = ingest_config();
     let mut prev: Option<(f64, f64)> = None;
     for n in sizes {
-        let path = log_path("zstd", n);
+        let path = log_path("zstd_rg1Mi", n);
         if !path.exists() {
             eprintln!("writing {} ({n} samples)", path.display());
             write_log(
                 &path,
                 n,
+                SCALING_ROWS_PER_GROUP,
                 parquet::basic::Compression::ZSTD(Default::default()),
             );
         }

@@ -278,21 +278,7 @@ pub enum Command {
         #[arg(long, value_name = "DIR")]
         out: PathBuf,
         #[command(flatten)]
-        config: ConfigArgs,
-        /// Cross-validation folds (by machine and run).
-        #[arg(long)]
-        folds: Option<usize>,
-        /// Restrict the catalogue: comma-separated effect names.
-        #[arg(long, value_delimiter = ',')]
-        effects: Option<Vec<String>>,
-        #[arg(long)]
-        seed: Option<u64>,
-        /// Add this plugin's composite effects (repeatable), e.g. --plugin form.
-        #[arg(long = "plugin", value_name = "NAME")]
-        plugins: Vec<String>,
-        /// Print diagnosis.json to stdout.
-        #[arg(long)]
-        json: bool,
+        flags: DiagnoseFlags,
         /// Append this diagnosis to a fleet history (needs --night).
         #[arg(long, value_name = "DIR", requires = "night")]
         history: Option<PathBuf>,
@@ -330,6 +316,27 @@ pub enum Command {
         #[command(flatten)]
         config: ConfigArgs,
     },
+}
+
+/// `sparkout diagnose` settings: the config, then flags over it.
+#[derive(Args, Debug, Clone)]
+pub struct DiagnoseFlags {
+    #[command(flatten)]
+    pub config: ConfigArgs,
+    /// Cross-validation folds (by machine and run).
+    #[arg(long)]
+    pub folds: Option<usize>,
+    /// Restrict the catalogue: comma-separated effect names.
+    #[arg(long, value_delimiter = ',')]
+    pub effects: Option<Vec<String>>,
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// Add this plugin's composite effects (repeatable), e.g. --plugin form.
+    #[arg(long = "plugin", value_name = "NAME")]
+    pub plugins: Vec<String>,
+    /// Print diagnosis.json to stdout.
+    #[arg(long)]
+    pub json: bool,
 }
 
 /// `sparkout replay` flags.

@@ -28,6 +28,28 @@ pub enum Check {
     /// A whole number in lo..=hi (a TOML integer, or a float without a
     /// fractional part as `--set` may write one).
     WholeIn(i64, i64),
+    /// An odd whole number ≥ lo (a window of points centred on one).
+    OddAtLeast(i64),
+}
+
+/// How a stage's config section is checked before anything runs (its
+/// `StageSpec::config`).
+#[derive(Debug, Clone, Copy)]
+pub enum SectionCheck {
+    /// Against these keys and what each value must be.
+    Keys(&'static [(&'static str, Check)]),
+    /// By parsing it: a serde struct with `deny_unknown_fields` read by
+    /// [`parse_section`], then its range checks.
+    Parsed(fn(&toml::Table) -> crate::Result<()>),
+}
+
+impl SectionCheck {
+    pub fn check(&self, config: &toml::Table) -> crate::Result<()> {
+        match self {
+            SectionCheck::Keys(keys) => check_config(config, keys),
+            SectionCheck::Parsed(parse) => parse(config),
+        }
+    }
 }
 
 /// A TOML integer, or a float with no fractional part.
@@ -68,6 +90,7 @@ pub fn check_config(config: &toml::Table, keys: &[(&str, Check)]) -> crate::Resu
             Check::Probability => toml_f64(v).is_some_and(|x| x > 0.0 && x < 1.0),
             Check::AtLeastOne => toml_f64(v).is_some_and(|x| x.is_finite() && x >= 1.0),
             Check::WholeIn(lo, hi) => whole_number(v).is_some_and(|i| (*lo..=*hi).contains(&i)),
+            Check::OddAtLeast(lo) => whole_number(v).is_some_and(|i| i >= *lo && i % 2 == 1),
             Check::Bool => v.is_bool(),
             Check::OneOf(opts) => v.as_str().is_some_and(|s| opts.contains(&s)),
         };
@@ -79,6 +102,7 @@ pub fn check_config(config: &toml::Table, keys: &[(&str, Check)]) -> crate::Resu
                 Check::Probability => "a number in (0, 1)".to_string(),
                 Check::AtLeastOne => "a number ≥ 1".to_string(),
                 Check::WholeIn(lo, hi) => format!("a whole number in {lo}..={hi}"),
+                Check::OddAtLeast(lo) => format!("an odd whole number ≥ {lo}"),
                 Check::Bool => "true or false".to_string(),
                 Check::OneOf(opts) => format!("one of {}", opts.join(", ")),
             };
@@ -204,5 +228,15 @@ mod tests {
             "key `n` must be a whole number in 1..=5, found 3.5"
         );
         assert!(check_whole(&t("n = 6"), "n", 1, 5).is_err());
+        let odd = [("w", Check::OddAtLeast(5))];
+        assert!(check_config(&t("w = 7"), &odd).is_ok());
+        assert!(check_config(&t("w = 7.0"), &odd).is_ok());
+        for bad in ["w = 6", "w = 3", "w = 7.5", "w = -7"] {
+            let e = check_config(&t(bad), &odd).unwrap_err();
+            assert!(
+                e.to_string().contains("an odd whole number ≥ 5"),
+                "{bad}: {e}"
+            );
+        }
     }
 }

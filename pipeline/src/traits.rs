@@ -240,6 +240,11 @@ pub struct StageSpec {
     pub writes: &'static [&'static str],
     /// One-line description for `--help` listings.
     pub about: &'static str,
+    /// How the stage's config section (`[<plugin>.<stage>]`) is checked
+    /// before anything runs: its keys and what each value must be, or a
+    /// parse into the stage's serde struct (the default
+    /// [`Stage::validate_config`] applies it).
+    pub config: crate::config_check::SectionCheck,
 }
 
 impl StageSpec {
@@ -259,6 +264,12 @@ impl StageSpec {
         for t in self.reads {
             if !seen.insert(t.name) {
                 anyhow::bail!("stage `{name}` declares table `{}` twice", t.name);
+            }
+        }
+        if let crate::config_check::SectionCheck::Keys(config_keys) = self.config {
+            let mut keys = std::collections::BTreeSet::new();
+            if let Some((k, _)) = config_keys.iter().find(|(k, _)| !keys.insert(*k)) {
+                anyhow::bail!("stage `{name}` declares config key `{k}` twice");
             }
         }
         for list in [self.reads_artifacts, self.writes] {
@@ -311,9 +322,11 @@ impl StageSpec {
 pub trait Stage: Send + Sync {
     /// What the stage reads and writes; a `const` in the stage's file.
     fn spec(&self) -> &'static StageSpec;
-    /// Check the config section before anything runs.
-    fn validate_config(&self, _config: &toml::Table) -> Result<()> {
-        Ok(())
+    /// Check the config section before anything runs, as the spec's
+    /// `config` says (an unknown key or a bad value is an error naming the
+    /// key).
+    fn validate_config(&self, config: &toml::Table) -> Result<()> {
+        self.spec().config.check(config)
     }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput>;
     /// Run from command-line options alone (no run directory), when the stage
@@ -396,6 +409,7 @@ mod tests {
         reads_artifacts: &["plan"],
         writes: &["removal"],
         about: "",
+        config: crate::config_check::SectionCheck::Keys(&[]),
     };
 
     #[test]

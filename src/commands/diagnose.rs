@@ -6,18 +6,9 @@ use anyhow::{bail, Context};
 use sparkout_pipeline::contracts::{write_atomic, write_json_atomic, write_parquet_atomic};
 use sparkout_pipeline::diagnose::{self, DiagnoseConfig, EffectScope};
 
-use crate::cli::ConfigArgs;
 use crate::registry;
 
-/// The command's flags.
-pub struct Flags {
-    pub config: ConfigArgs,
-    pub folds: Option<usize>,
-    pub effects: Option<Vec<String>>,
-    pub seed: Option<u64>,
-    pub plugins: Vec<String>,
-    pub json: bool,
-}
+pub use crate::cli::DiagnoseFlags as Flags;
 
 /// `[diagnose]` of the config (built-in, --config, --set), then the flags.
 pub fn config(flags: &Flags) -> anyhow::Result<DiagnoseConfig> {

@@ -102,32 +102,17 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<u8> {
         Command::Diagnose {
             observations,
             out,
-            config,
-            folds,
-            effects,
-            seed,
-            plugins,
-            json,
+            flags,
             history,
             night,
-        } => diagnose::diagnose(
-            &observations,
-            &out,
-            &diagnose::Flags {
-                config,
-                folds,
-                effects,
-                seed,
-                plugins,
-                json,
-            },
-        )
-        .and_then(|code| match (history, night) {
-            (Some(h), Some(n)) => {
-                trend::append(&h, &n, &out.join("diagnosis.json"), &out.join("trend"))
-                    .map(|()| code)
+        } => diagnose::diagnose(&observations, &out, &flags).and_then(|code| {
+            match (history, night) {
+                (Some(h), Some(n)) => {
+                    trend::append(&h, &n, &out.join("diagnosis.json"), &out.join("trend"))
+                        .map(|()| code)
+                }
+                _ => Ok(code),
             }
-            _ => Ok(code),
         }),
         Command::Validate {
             quick,

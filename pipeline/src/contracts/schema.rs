@@ -107,41 +107,41 @@ pub const MOTION: TableSchema = TableSchema {
     monotonic_t_s: true,
 };
 
+/// The columns that name one probing point (face, point, trial, method,
+/// approach speed, nominal position), shared by probe.parquet (a touch)
+/// and plan.parquet (a planned approach), between their own columns.
+macro_rules! probing_point_columns {
+    ([$($before:expr),*], [$($after:expr),*]) => {
+        &[
+            $($before,)*
+            req("face", Utf8),
+            req("point", I32),
+            req("trial", I32),
+            req("method", Utf8),
+            req("approach_mm_s", F64),
+            req("nom_x_mm", F64),
+            req("nom_y_mm", F64),
+            req("nom_z_mm", F64),
+            $($after,)*
+        ]
+    };
+}
+
 pub const PROBE: TableSchema = TableSchema {
     name: "probe",
-    columns: &[
-        req("t_s", F64),
-        req("face", Utf8),
-        req("point", I32),
-        req("trial", I32),
-        req("method", Utf8),
-        req("approach_mm_s", F64),
-        req("nom_x_mm", F64),
-        req("nom_y_mm", F64),
-        req("nom_z_mm", F64),
-        req("x_mm", F64),
-        req("y_mm", F64),
-        req("z_mm", F64),
-    ],
+    columns: probing_point_columns!(
+        [req("t_s", F64)],
+        [req("x_mm", F64), req("y_mm", F64), req("z_mm", F64)]
+    ),
     monotonic_t_s: true,
 };
 
 pub const PLAN: TableSchema = TableSchema {
     name: "plan",
-    columns: &[
-        req("seq", I32),
-        req("face", Utf8),
-        req("point", I32),
-        req("trial", I32),
-        req("method", Utf8),
-        req("approach_mm_s", F64),
-        req("nom_x_mm", F64),
-        req("nom_y_mm", F64),
-        req("nom_z_mm", F64),
-        req("dir_x", F64),
-        req("dir_y", F64),
-        req("dir_z", F64),
-    ],
+    columns: probing_point_columns!(
+        [req("seq", I32)],
+        [req("dir_x", F64), req("dir_y", F64), req("dir_z", F64)]
+    ),
     monotonic_t_s: false,
 };
 

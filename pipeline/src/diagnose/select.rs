@@ -377,6 +377,24 @@ pub struct Record {
     pub selected: bool,
 }
 
+impl Record {
+    /// A candidate that was not scored at this step, and why.
+    fn skipped(idx: usize, step: usize, why: String, sse_before: f64) -> Record {
+        Record {
+            idx,
+            step,
+            skipped: Some(why),
+            sse_before,
+            sse_after: f64::NAN,
+            mean_log_ratio: f64::NAN,
+            p_value: f64::NAN,
+            params: BTreeMap::new(),
+            offset_mm: f64::NAN,
+            selected: false,
+        }
+    }
+}
+
 pub struct Selection {
     pub records: Vec<Record>,
     /// Candidate indices in the order they were selected.
@@ -425,20 +443,14 @@ pub fn select(prob: &Problem, cands: &[&dyn Effect], opt: &SelectOptions) -> Res
     for (i, c) in cands.iter().enumerate() {
         let need = c.n_params() + 1;
         if need > min_train {
-            records[i] = Some(Record {
-                idx: i,
-                step: 1,
-                skipped: Some(format!(
+            records[i] = Some(Record::skipped(
+                i,
+                1,
+                format!(
                     "{need} parameters but only {min_train} observations in the smallest training fold"
-                )),
-                sse_before: f64::NAN,
-                sse_after: f64::NAN,
-                mean_log_ratio: f64::NAN,
-                p_value: f64::NAN,
-                params: BTreeMap::new(),
-                offset_mm: f64::NAN,
-                selected: false,
-            });
+                ),
+                f64::NAN,
+            ));
         }
     }
     let gap = Arc::new(prob.gap.to_vec());
@@ -492,18 +504,12 @@ pub fn select(prob: &Problem, cands: &[&dyn Effect], opt: &SelectOptions) -> Res
         for (i, ev) in evals {
             match ev {
                 Err(e) => {
-                    records[i] = Some(Record {
-                        idx: i,
+                    records[i] = Some(Record::skipped(
+                        i,
                         step,
-                        skipped: Some(format!("fit failed: {e}")),
+                        format!("fit failed: {e}"),
                         sse_before,
-                        sse_after: f64::NAN,
-                        mean_log_ratio: f64::NAN,
-                        p_value: f64::NAN,
-                        params: BTreeMap::new(),
-                        offset_mm: f64::NAN,
-                        selected: false,
-                    });
+                    ));
                 }
                 Ok(ev) => {
                     let (mlr, p) = paired_log_test(&before, &ev.unit_sse);

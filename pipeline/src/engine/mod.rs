@@ -3,14 +3,19 @@
 //! reports, then failures.json and — last — manifest.json.
 
 pub mod cache;
+mod checks;
 pub mod config;
 pub mod dag;
 mod fleet;
 pub mod lock;
+mod outcome;
 mod run;
 pub mod shard;
+pub use checks::check_finite;
+use checks::check_plugin;
 use fleet::json_bytes;
 pub use fleet::{parquet_bytes, union_concat, with_machine_column};
+pub use outcome::*;
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
@@ -42,125 +47,6 @@ pub type PluginEffects = (&'static str, Vec<Box<dyn Effect>>);
 /// Version of the manifest/failures layout.
 pub const MANIFEST_VERSION: u32 = 1;
 
-/// Receives progress from a long batch (the CLI draws a bar or logs lines).
-pub trait Progress: Sync {
-    fn start(&self, _runs: usize) {}
-    fn run_done(&self, _label: &str, _ok: bool, _computed: usize, _cached: usize) {}
-    fn message(&self, _msg: &str) {}
-}
-
-/// Progress that says nothing (tests, library use).
-pub struct Quiet;
-impl Progress for Quiet {}
-
-/// A rejected run, as failures.json lists it.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-pub struct Failure {
-    pub run_dir: String,
-    pub machine: Option<String>,
-    pub run: Option<String>,
-    pub stage: Option<String>,
-    pub file: Option<String>,
-    pub column: Option<String>,
-    pub row: Option<usize>,
-    pub error: String,
-}
-
-impl Failure {
-    fn from_error(
-        run_dir: &Path,
-        spec: Option<&RunSpec>,
-        stage: Option<&str>,
-        e: &anyhow::Error,
-    ) -> Self {
-        let input = e.chain().find_map(|c| c.downcast_ref::<InputError>());
-        Failure {
-            run_dir: run_dir.display().to_string(),
-            machine: spec.map(|s| s.machine.clone()),
-            run: spec.map(|s| s.id.clone()),
-            stage: stage.map(|s| s.to_string()),
-            file: input.map(|i| i.file.display().to_string()),
-            column: input.and_then(|i| i.column.clone()),
-            row: input.and_then(|i| i.row),
-            error: format!("{e:#}"),
-        }
-    }
-}
-
-/// One run that went through.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-pub struct RunResult {
-    pub machine: String,
-    pub run: String,
-    pub plugin: String,
-    pub run_dir: String,
-    pub out_dir: String,
-    pub inputs: BTreeMap<String, String>,
-    pub stages: Vec<StageRecord>,
-    #[serde(skip)]
-    pub observations: Option<PathBuf>,
-}
-
-impl RunResult {
-    pub fn computed(&self) -> usize {
-        self.stages.iter().filter(|s| !s.cached).count()
-    }
-    pub fn cached(&self) -> usize {
-        self.stages.iter().filter(|s| s.cached).count()
-    }
-}
-
-/// What a whole batch did.
-#[derive(Debug, Clone, Serialize)]
-pub struct FleetOutcome {
-    pub out_dir: PathBuf,
-    pub runs: Vec<RunResult>,
-    pub failures: Vec<Failure>,
-    /// Fleet-level steps (observations, diagnose, report) with their keys.
-    pub fleet: Vec<StageRecord>,
-    pub report: Option<PathBuf>,
-    pub diagnosis: Option<PathBuf>,
-}
-
-impl FleetOutcome {
-    /// Before the fleet steps; failures in run-directory order.
-    fn new(out: &Path, runs: Vec<RunResult>, mut failures: Vec<Failure>) -> FleetOutcome {
-        failures.sort_by(|a, b| a.run_dir.cmp(&b.run_dir));
-        FleetOutcome {
-            out_dir: out.to_path_buf(),
-            runs,
-            failures,
-            fleet: Vec::new(),
-            report: None,
-            diagnosis: None,
-        }
-    }
-    pub fn stages_computed(&self) -> usize {
-        self.runs.iter().map(|r| r.computed()).sum::<usize>()
-            + self.fleet.iter().filter(|s| !s.cached).count()
-    }
-    pub fn stages_cached(&self) -> usize {
-        self.runs.iter().map(|r| r.cached()).sum::<usize>()
-            + self.fleet.iter().filter(|s| s.cached).count()
-    }
-    /// 0 all good, 2 some runs failed (1 is for usage/config errors, which
-    /// never get this far).
-    pub fn exit_code(&self) -> i32 {
-        if self.failures.is_empty() {
-            0
-        } else {
-            2
-        }
-    }
-}
-
-/// A problem `validate-input` found.
-#[derive(Debug, Clone, Serialize)]
-pub struct Problem {
-    pub run_dir: String,
-    pub message: String,
-}
-
 pub struct Engine {
     plugins: Vec<Arc<dyn MachinePlugin>>,
     resolver: MachineResolver,
@@ -176,8 +62,9 @@ fn config_text(t: &toml::Table) -> String {
 }
 
 impl Engine {
-    /// Checks the config against the registered plugins and their stages
-    /// before anything runs (unknown plugin, unknown stage, bad values).
+    /// The engine over these plugins; checks each plugin's declared stages
+    /// and the config against them before anything runs (unknown plugin,
+    /// unknown stage, bad values).
     pub fn new(
         plugins: Vec<Arc<dyn MachinePlugin>>,
         resolver: MachineResolver,
@@ -231,85 +118,6 @@ impl Engine {
 
     fn plugin_names(&self) -> Vec<&'static str> {
         self.plugins.iter().map(|p| p.name()).collect()
-    }
-
-    fn validate_config(&self) -> Result<()> {
-        let src = &self.config.source;
-        // A typo'd plugin (`--set guidewy.separate.method=...`, `[robotx.ingest]`)
-        // would otherwise configure nothing, silently.
-        let mut sections: Vec<&str> = vec!["pipeline", "diagnose", "report"];
-        sections.extend(self.plugin_names());
-        for (key, value) in &self.config.table {
-            if !sections.contains(&key.as_str()) {
-                bail!(
-                    "config {src} (with any --set): unknown {} `{key}`; the known sections are {} (a plugin's stages go under [PLUGIN.STAGE])",
-                    if value.is_table() { "section" } else { "top-level key" },
-                    sections.iter().map(|s| format!("[{s}]")).collect::<Vec<_>>().join(", ")
-                );
-            }
-        }
-        for (section, known) in [
-            ("pipeline", &["plugins", "stages"][..]),
-            ("report", &["title"][..]),
-        ] {
-            for key in self.config.section(section).keys() {
-                if !known.contains(&key.as_str()) {
-                    bail!(
-                        "config {src} (with any --set): unknown key [{section}].{key} (known: {})",
-                        known.join(", ")
-                    );
-                }
-            }
-        }
-        if let Some(list) = self.config.pipeline_list("plugins")? {
-            for p in &list {
-                if self.plugin(p).is_none() {
-                    bail!(
-                        "config {src}: [pipeline].plugins names unknown plugin `{p}` (known: {})",
-                        self.plugin_names().join(", ")
-                    );
-                }
-            }
-        }
-        let all_stages: BTreeSet<&str> = self
-            .plugins
-            .iter()
-            .flat_map(|p| p.stages().into_iter().map(|s| s.name()).collect::<Vec<_>>())
-            .chain(["diagnose", "report"])
-            .collect();
-        if let Some(list) = self.config.pipeline_list("stages")? {
-            for s in &list {
-                if !all_stages.contains(s.as_str()) {
-                    bail!(
-                        "config {src}: [pipeline].stages names unknown stage `{s}` (known: {})",
-                        all_stages.iter().copied().collect::<Vec<_>>().join(", ")
-                    );
-                }
-            }
-        }
-        for plugin in &self.plugins {
-            let section = self.config.section(plugin.name());
-            let stages = plugin.stages();
-            for (key, value) in &section {
-                let stage =
-                    stages.iter().find(|s| s.name() == key).ok_or_else(|| {
-                        anyhow!(
-                        "config {src}: [{}.{key}] is not a stage of plugin `{}` (its stages: {})",
-                        plugin.name(),
-                        plugin.name(),
-                        stages.iter().map(|s| s.name()).collect::<Vec<_>>().join(", ")
-                    )
-                    })?;
-                let t = value.as_table().ok_or_else(|| {
-                    anyhow!("config {src}: [{}.{key}] must be a table", plugin.name())
-                })?;
-                stage
-                    .validate_config(t)
-                    .with_context(|| format!("config {src}: [{}.{key}]", plugin.name()))?;
-            }
-        }
-        self.diagnose_config()?;
-        Ok(())
     }
 
     /// `[diagnose]` as the diagnosis takes it.
@@ -665,106 +473,6 @@ impl Engine {
             .flat_map(|p| p.stages())
             .find(|s| s.name() == name)
     }
-
-    /// `sparkout validate-input`: the checks `sparkout run` makes, with the
-    /// same code — discovery (directories without run.toml, duplicate ids),
-    /// run.toml, machine, every stage computed in memory — writing nothing.
-    /// For a rejected run, every other present table that breaks the
-    /// contract is listed too, so one pass shows all there is to fix.
-    pub fn validate_input(&self, root: &Path) -> Result<(usize, Vec<Problem>)> {
-        let found = discover(root)?;
-        let (dirs, early) = self.account_for_runs(&found);
-        let mut problems: Vec<Problem> = early
-            .into_iter()
-            .map(|f| Problem {
-                run_dir: f.run_dir,
-                message: f.error,
-            })
-            .collect();
-        let enabled = self.plugins_enabled()?;
-        for dir in &dirs {
-            let d = dir.display().to_string();
-            let Some(Err(f)) = self.check_run(dir, enabled.as_ref()) else {
-                continue;
-            };
-            let first = f.error.clone();
-            problems.push(Problem {
-                run_dir: d.clone(),
-                message: first.clone(),
-            });
-            // Validate every table that is present, whatever else is wrong.
-            let origin = RunSpec::load(dir)
-                .map(|s| s.time_origin())
-                .unwrap_or(crate::contracts::TimeOrigin::TableStart);
-            for schema in crate::contracts::ALL_TABLES {
-                let path = dir.join(schema.file_name());
-                if !crate::contracts::input_file::InputFile::exists(&path) {
-                    continue;
-                }
-                let r: std::result::Result<(), InputError> = if schema.name == "ae" {
-                    AeStream::open_at(&path, &origin, AeStream::DEFAULT_BATCH_ROWS)
-                        .and_then(|mut s| s.try_for_each(|c| c.map(|_| ())))
-                } else {
-                    Table::read_at(&path, schema, &origin).map(|_| ())
-                };
-                if let Err(e) = r {
-                    let m = e.to_string();
-                    if !first.contains(&m) {
-                        problems.push(Problem {
-                            run_dir: d.clone(),
-                            message: m,
-                        });
-                    }
-                }
-            }
-        }
-        problems.sort_by(|a, b| a.run_dir.cmp(&b.run_dir));
-        // Directories checked: the runs, the duplicates and the skipped.
-        let checked: BTreeSet<String> = dirs
-            .iter()
-            .map(|d| d.display().to_string())
-            .chain(problems.iter().map(|p| p.run_dir.clone()))
-            .collect();
-        Ok((checked.len(), problems))
-    }
-
-    /// One run through `run`'s per-run path, in memory: `None` when its
-    /// plugin is not enabled, else accepted or the failure `run` would list.
-    pub fn check_run(
-        &self,
-        dir: &Path,
-        enabled: Option<&BTreeSet<String>>,
-    ) -> Option<std::result::Result<RunResult, Failure>> {
-        self.process_run_at(dir, None, enabled)
-    }
-}
-
-/// A non-finite number never reaches an artifact (issue 15): NaN or inf out
-/// of a stage means an input the checks let through or a bug, and either way
-/// the run is rejected rather than written (null is how an artifact says
-/// "not applicable").
-pub fn check_finite(stage: &str, artifact: &str, batch: &RecordBatch) -> Result<()> {
-    use arrow::array::{Array, Float32Array, Float64Array};
-    for (f, col) in batch.schema().fields().iter().zip(batch.columns()) {
-        let bad = if let Some(a) = col.as_any().downcast_ref::<Float64Array>() {
-            (0..a.len())
-                .find(|&i| !a.is_null(i) && !a.value(i).is_finite())
-                .map(|i| (i, a.value(i)))
-        } else if let Some(a) = col.as_any().downcast_ref::<Float32Array>() {
-            (0..a.len())
-                .find(|&i| !a.is_null(i) && !a.value(i).is_finite())
-                .map(|i| (i, a.value(i) as f64))
-        } else {
-            None
-        };
-        if let Some((row, v)) = bad {
-            bail!(
-                "stage `{stage}` computed {v} in artifact `{artifact}`, column `{}`, row {row}: a non-finite number is never written (an input outside the checks, or a bug to report)",
-                f.name()
-            );
-        }
-    }
-    Ok(())
 }
 
 /// A stage's files, then the run's cache file listing every stage done so
@@ -804,32 +512,4 @@ pub fn clamp_jobs(jobs: Option<usize>) -> usize {
         }
         Some(j) => j,
     }
-}
-
-/// What a plugin declares, checked when the engine is built: every stage's
-/// spec on its own, stage names unique within the plugin, and the DAG its
-/// stages form (each artifact read is written by exactly one stage, no
-/// cycle).
-fn check_plugin(plugin: &dyn MachinePlugin) -> Result<()> {
-    let stages = plugin.stages();
-    let mut names = BTreeSet::new();
-    for s in &stages {
-        s.spec()
-            .check()
-            .with_context(|| format!("plugin `{}`", plugin.name()))?;
-        if !names.insert(s.name()) {
-            bail!(
-                "plugin `{}` has two stages named `{}`",
-                plugin.name(),
-                s.name()
-            );
-        }
-    }
-    dag::topological_order(&stages).with_context(|| format!("plugin `{}`", plugin.name()))?;
-    for set in plugin.required_tables() {
-        if let Some(t) = set.iter().find(|t| table_schema(t).is_none()) {
-            bail!("plugin `{}` requires unknown table `{t}`", plugin.name());
-        }
-    }
-    Ok(())
 }

@@ -94,29 +94,21 @@ impl<R: BufRead> Records<R> {
                             field.push(b);
                         }
                     }
-                    S::QuoteInQuoted => {
-                        if b == b'"' {
-                            field.push(b'"');
-                            s = S::Quoted;
-                        } else if b == self.delimiter {
-                            fields.push(std::mem::take(&mut field));
-                            s = S::Start;
-                        } else if b == b'\n' || (b == b'\r' && line.get(i + 1) == Some(&b'\n')) {
-                            ended = true;
-                            break;
-                        } else {
-                            return Err(CsvError::AfterQuote(self.line));
-                        }
+                    // `""` inside quotes is a quote; `"` opens a quoted field.
+                    S::QuoteInQuoted if b == b'"' => {
+                        field.push(b'"');
+                        s = S::Quoted;
                     }
-                    S::Start | S::Plain => {
-                        if b == b'"' && s == S::Start {
-                            s = S::Quoted;
-                        } else if b == self.delimiter {
+                    S::Start if b == b'"' => s = S::Quoted,
+                    S::QuoteInQuoted | S::Start | S::Plain => {
+                        if b == self.delimiter {
                             fields.push(std::mem::take(&mut field));
                             s = S::Start;
                         } else if b == b'\n' || (b == b'\r' && line.get(i + 1) == Some(&b'\n')) {
                             ended = true;
                             break;
+                        } else if s == S::QuoteInQuoted {
+                            return Err(CsvError::AfterQuote(self.line));
                         } else {
                             field.push(b);
                             s = S::Plain;

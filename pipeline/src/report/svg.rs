@@ -48,6 +48,66 @@ fn bounds(values: impl Iterator<Item = f64>) -> (f64, f64) {
 
 /// A tick label with three significant digits and no exponent for the
 /// sizes a report shows.
+/// A chart on the SVG backend over f64 axes.
+type Chart<'a, 'b> = ChartContext<'a, SVGBackend<'b>, Cartesian2d<F64Axis, F64Axis>>;
+type F64Axis = plotters::coord::types::RangedCoordf64;
+
+/// The pages' chart frame: caption, margins, label areas (the y label area
+/// wide enough for the chart's tick text), over the given x and y ranges.
+fn framed_chart<'a, 'b>(
+    root: &'a DrawingArea<SVGBackend<'b>, plotters::coord::Shift>,
+    title: &str,
+    y_label_area_px: u32,
+    (x, y): (std::ops::Range<f64>, std::ops::Range<f64>),
+) -> Option<Chart<'a, 'b>> {
+    ChartBuilder::on(root)
+        .caption(title, (FONT, CAPTION_PX))
+        .margin(12)
+        .x_label_area_size(48)
+        .y_label_area_size(y_label_area_px)
+        .build_cartesian_2d(x, y)
+        .ok()
+}
+
+/// Grid lines behind a chart: the bold mesh only (curves), or none (maps,
+/// whose cells fill the plot).
+#[derive(Clone, Copy)]
+enum Grid {
+    Bold,
+    None,
+}
+
+/// Axes with their descriptions and tick text in the pages' style.
+fn draw_axes(chart: &mut Chart, (x_label, y_label): (&str, &str), grid: Grid) {
+    let fx = |v: &f64| tick(*v);
+    let mut mesh = chart.configure_mesh();
+    mesh.x_desc(x_label)
+        .y_desc(y_label)
+        .x_labels(7)
+        .y_labels(6)
+        .x_label_formatter(&fx)
+        .y_label_formatter(&fx)
+        .label_style((FONT, LABEL_PX))
+        .axis_desc_style((FONT, DESC_PX));
+    match grid {
+        Grid::Bold => mesh.light_line_style(WHITE.mix(0.0)),
+        Grid::None => mesh.disable_mesh(),
+    };
+    let _ = mesh.draw();
+}
+
+/// Smallest spacing of distinct finite values (a grid's cell size; 1e300
+/// when there are fewer than two).
+pub fn spacing(v: impl Iterator<Item = f64>) -> f64 {
+    let mut u: Vec<f64> = v.filter(|x| x.is_finite()).collect();
+    u.sort_by(f64::total_cmp);
+    u.dedup();
+    u.windows(2)
+        .map(|w| w[1] - w[0])
+        .fold(f64::INFINITY, f64::min)
+        .min(1e300)
+}
+
 pub fn tick(v: f64) -> String {
     if !v.is_finite() {
         return "—".into();
@@ -134,26 +194,9 @@ pub fn xy_chart_sized(
         let _ = root.fill(&WHITE);
         let (x0, x1) = bounds(series.iter().flat_map(|s| s.points.iter().map(|p| p.0)));
         let (y0, y1) = bounds(series.iter().flat_map(|s| s.points.iter().map(|p| p.1)));
-        let chart = ChartBuilder::on(&root)
-            .caption(title, (FONT, CAPTION_PX))
-            .margin(12)
-            .x_label_area_size(48)
-            .y_label_area_size(84)
-            .build_cartesian_2d(x0..x1, y0..y1);
-        if let Ok(mut chart) = chart {
-            let fx = |v: &f64| tick(*v);
-            let _ = chart
-                .configure_mesh()
-                .x_desc(x_label)
-                .y_desc(y_label)
-                .x_labels(7)
-                .y_labels(6)
-                .x_label_formatter(&fx)
-                .y_label_formatter(&fx)
-                .label_style((FONT, LABEL_PX))
-                .axis_desc_style((FONT, DESC_PX))
-                .light_line_style(WHITE.mix(0.0))
-                .draw();
+        let chart = framed_chart(&root, title, 84, (x0..x1, y0..y1));
+        if let Some(mut chart) = chart {
+            draw_axes(&mut chart, (x_label, y_label), Grid::Bold);
             for (i, s) in series.iter().enumerate() {
                 let c = COLORS[i % COLORS.len()];
                 let pts: Vec<(f64, f64)> = s
@@ -375,14 +418,16 @@ pub fn heat(h: &Heat) -> String {
         xs.dedup();
         ys.sort_by(f64::total_cmp);
         ys.dedup();
-        let step = |v: &[f64]| {
-            v.windows(2)
-                .map(|w| w[1] - w[0])
-                .fold(f64::INFINITY, f64::min)
-                .min(1e300)
+        let dx = if xs.len() > 1 {
+            spacing(xs.iter().copied())
+        } else {
+            1.0
         };
-        let dx = if xs.len() > 1 { step(&xs) } else { 1.0 };
-        let dy = if ys.len() > 1 { step(&ys) } else { 1.0 };
+        let dy = if ys.len() > 1 {
+            spacing(ys.iter().copied())
+        } else {
+            1.0
+        };
         let (x0, x1) = bounds(
             xs.iter()
                 .flat_map(|x| [x - dx / 2.0, x + dx / 2.0])
@@ -393,26 +438,9 @@ pub fn heat(h: &Heat) -> String {
                 .flat_map(|y| [y - dy / 2.0, y + dy / 2.0])
                 .chain(h.outlines.iter().flat_map(|r| [r[0].1, r[1].1])),
         );
-        let chart = ChartBuilder::on(&root)
-            .caption(h.title, (FONT, CAPTION_PX))
-            .margin(12)
-            .x_label_area_size(48)
-            .y_label_area_size(76)
-            .build_cartesian_2d(x0..x1, y0..y1);
-        if let Ok(mut chart) = chart {
-            let fx = |v: &f64| tick(*v);
-            let _ = chart
-                .configure_mesh()
-                .x_desc(h.x_label)
-                .y_desc(h.y_label)
-                .x_labels(7)
-                .y_labels(6)
-                .x_label_formatter(&fx)
-                .y_label_formatter(&fx)
-                .label_style((FONT, LABEL_PX))
-                .axis_desc_style((FONT, DESC_PX))
-                .disable_mesh()
-                .draw();
+        let chart = framed_chart(&root, h.title, 76, (x0..x1, y0..y1));
+        if let Some(mut chart) = chart {
+            draw_axes(&mut chart, (h.x_label, h.y_label), Grid::None);
             // Cells and outlines written by hand as compact rects (a plotters
             // rect carries five more attributes): the map's bytes matter on
             // a fleet page with dozens of maps. Colours are quantised to the

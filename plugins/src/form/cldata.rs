@@ -15,11 +15,12 @@ use std::path::{Path, PathBuf};
 use anyhow::{anyhow, bail, Context};
 use arrow::record_batch::RecordBatch;
 use serde_json::Value;
+use sparkout_pipeline::config_check::SectionCheck;
 use sparkout_pipeline::contracts::schema::PROFILE;
 use sparkout_pipeline::contracts::{batch_f64, batch_i32, write_atomic, BatchBuilder, Table};
 use sparkout_pipeline::{Result, Stage, StageArgs, StageContext, StageOutput, StageSpec};
 
-use super::config::{check_config, Check};
+use super::config::Check;
 use super::curvature::CurvatureConfig;
 use super::model::ProfileRows;
 use super::segment::{self, SegmentConfig};
@@ -98,14 +99,12 @@ const SPEC: StageSpec = StageSpec {
     reads_artifacts: &["toolpath"],
     writes: &["cldata"],
     about: "CLDATA-like text programs (GOTO / X, Z, A, C) per segment; run-less: --profile FILE --r-max-mm --range-mm --segments --cldata-dir DIR",
+    config: SectionCheck::Keys(KEYS),
 };
 
 impl Stage for CldataStage {
     fn spec(&self) -> &'static StageSpec {
         &SPEC
-    }
-    fn validate_config(&self, config: &toml::Table) -> Result<()> {
-        check_config(config, KEYS)
     }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
         let tp = ctx.artifacts.require("toolpath")?;

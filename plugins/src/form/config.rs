@@ -8,8 +8,9 @@ use sparkout_pipeline::{cfg_f64, Result};
 
 use super::curvature::CurvatureConfig;
 
-/// `window_points` shared by every stage that differentiates the profile.
-pub const WINDOW_KEY: (&str, Check) = ("window_points", Check::AtLeastOne);
+/// `window_points` shared by every stage that differentiates the profile:
+/// an odd number of points ≥ 5 per local cubic fit.
+pub const WINDOW_KEY: (&str, Check) = ("window_points", Check::OddAtLeast(5));
 
 /// The curvature settings of a stage section (checked: odd, ≥ 5).
 pub fn curvature(cfg: &toml::Table) -> CurvatureConfig {
@@ -18,16 +19,6 @@ pub fn curvature(cfg: &toml::Table) -> CurvatureConfig {
             .map(|w| w as usize)
             .unwrap_or(CurvatureConfig::default().window_points),
     }
-}
-
-/// Extra checks of `window_points` beyond "a number ≥ 1".
-pub fn check_window(cfg: &toml::Table) -> Result<()> {
-    if let Some(w) = cfg_f64(cfg, "window_points") {
-        if w.fract() != 0.0 || w < 5.0 || (w as usize).is_multiple_of(2) {
-            anyhow::bail!("key `window_points` must be an odd whole number ≥ 5 (points per local cubic fit), found {w}");
-        }
-    }
-    Ok(())
 }
 
 /// A whole number ≥ 1 (segment counts).

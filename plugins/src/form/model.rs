@@ -327,6 +327,19 @@ pub fn profile_rows(run: &Run) -> Result<(std::sync::Arc<Table>, ProfileRows)> {
     Ok((t, rows))
 }
 
+/// What every δ(φ) stage starts from: the machine's usable wheel range,
+/// the run's profile table and rows, the design profile (with the stage
+/// section's curvature window) and the programmed nominal radius r_kn.
+pub fn profile_setup(
+    ctx: &sparkout_pipeline::StageContext,
+) -> Result<(WheelRange, std::sync::Arc<Table>, ProfileRows, Profile, f64)> {
+    let range = WheelRange::from_machine(&ctx.run.machine)?;
+    let (table, rows) = profile_rows(ctx.run)?;
+    let design = rows.design(table.path(), &super::config::curvature(ctx.config))?;
+    let r_kn = nominal_radius(ctx.run, ctx.config, &range)?;
+    Ok((range, table, rows, design, r_kn))
+}
+
 /// A number from run.toml `[process]` (integers accepted).
 pub fn process_f64(run: &Run, key: &str) -> Option<f64> {
     match run.spec.process.get(key)? {
@@ -412,11 +425,13 @@ pub fn check_wheel_radius(
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use std::f64::consts::TAU;
 
-    fn ellipse(n: usize, a: f64, b: f64) -> Profile {
+    /// An ellipse profile with semi-axes a, b (mm), n points (the form
+    /// plugin's tests share it).
+    pub(crate) fn ellipse(n: usize, a: f64, b: f64) -> Profile {
         let phi: Vec<f64> = (0..n).map(|i| TAU * i as f64 / n as f64).collect();
         let r: Vec<f64> = phi
             .iter()

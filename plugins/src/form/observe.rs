@@ -20,14 +20,15 @@ use std::collections::BTreeMap;
 
 use anyhow::bail;
 use serde_json::json;
+use sparkout_pipeline::config_check::SectionCheck;
 use sparkout_pipeline::contracts::schema::PROFILE;
 use sparkout_pipeline::contracts::BatchBuilder;
 use sparkout_pipeline::{cfg_f64, InputError, Result, Stage, StageContext, StageOutput, StageSpec};
 
-use super::config::{check_config, check_window, curvature, Check, WINDOW_KEY};
+use super::config::{Check, WINDOW_KEY};
 use super::model::{
-    centre_path, check_wheel_radius, feed_mm_s, nominal_radius, process_f64, profile_error,
-    profile_rows, DeltaModel, WheelRange,
+    centre_path, check_wheel_radius, feed_mm_s, process_f64, profile_error, profile_setup,
+    DeltaModel,
 };
 
 pub const KEYS: &[(&str, Check)] = &[
@@ -45,22 +46,16 @@ const SPEC: StageSpec = StageSpec {
     reads_artifacts: &[],
     writes: &["observations"],
     about: "paired observations profile_error (measured vs δ(φ) of the model; covariates phi_rad, wheel_radius_mm, t_s, removed_mm3)",
+    config: SectionCheck::Keys(KEYS),
 };
 
 impl Stage for ObserveStage {
     fn spec(&self) -> &'static StageSpec {
         &SPEC
     }
-    fn validate_config(&self, config: &toml::Table) -> Result<()> {
-        check_config(config, KEYS)?;
-        check_window(config)
-    }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
-        let range = WheelRange::from_machine(&ctx.run.machine)?;
-        let (t, rows) = profile_rows(ctx.run)?;
+        let (range, t, rows, p, r_kn) = profile_setup(ctx)?;
         let file = t.path();
-        let p = rows.design(file, &curvature(ctx.config))?;
-        let r_kn = nominal_radius(ctx.run, ctx.config, &range)?;
         let path = centre_path(&p, r_kn).with_model(DeltaModel::from_config(ctx.config));
         let arc = p.arc_length_mm();
         let feed = feed_mm_s(ctx.run)?;

@@ -8,15 +8,16 @@ use std::collections::BTreeSet;
 use anyhow::bail;
 use arrow::record_batch::RecordBatch;
 use serde_json::{json, Value};
+use sparkout_pipeline::config_check::SectionCheck;
 use sparkout_pipeline::contracts::schema::PROFILE;
 use sparkout_pipeline::contracts::BatchBuilder;
 use sparkout_pipeline::{cfg_f64, InputError, Result, Stage, StageContext, StageOutput, StageSpec};
 
-use super::config::{check_config, check_window, curvature, Check, WINDOW_KEY};
+use super::config::{Check, WINDOW_KEY};
 use super::curvature::Profile;
 use super::model::{
-    centre_path, check_wheel_radius, feed_mm_s, nominal_radius, process_f64, profile_error,
-    profile_rows, DeltaModel, ProfileRows, WheelRange,
+    centre_path, check_wheel_radius, feed_mm_s, process_f64, profile_error, profile_setup,
+    DeltaModel, ProfileRows, WheelRange,
 };
 
 pub const KEYS: &[(&str, Check)] = &[
@@ -157,21 +158,15 @@ const SPEC: StageSpec = StageSpec {
     reads_artifacts: &[],
     writes: &["profile_error", "compensation"],
     about: "profile error δ(φ) of the design profile for the actual wheel radius vs the programmed nominal, with curvature κ(φ) (MODELS.md §4)",
+    config: SectionCheck::Keys(KEYS),
 };
 
 impl Stage for ProfileErrorStage {
     fn spec(&self) -> &'static StageSpec {
         &SPEC
     }
-    fn validate_config(&self, config: &toml::Table) -> Result<()> {
-        check_config(config, KEYS)?;
-        check_window(config)
-    }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
-        let range = WheelRange::from_machine(&ctx.run.machine)?;
-        let (t, rows) = profile_rows(ctx.run)?;
-        let p = rows.design(t.path(), &curvature(ctx.config))?;
-        let r_kn = nominal_radius(ctx.run, ctx.config, &range)?;
+        let (range, t, rows, p, r_kn) = profile_setup(ctx)?;
         let radii = actual_radii(ctx, &rows, t.path(), &range)?;
         let (batch, summary) = compute(
             &p,

@@ -78,19 +78,9 @@ fn segments(s: &Value, a: &ArtifactStore) -> Option<ReportSection> {
                     data.push((format!("segment {id}, {end} radius"), thin(pts, 360)));
                 }
             }
-            let series: Vec<Series> = data
-                .iter()
-                .map(|(n, p)| Series {
-                    name: n,
-                    points: p,
-                    mark: Mark::Line,
-                })
-                .collect();
-            html.push_str(&xy_chart(
+            html.push_str(&delta_phi_chart(
                 "Profile error against φ per segment (wheel at each end of its segment)",
-                "φ (°)",
-                "δ (µm)",
-                &series,
+                &data,
             ));
         }
     }
@@ -156,19 +146,9 @@ fn run_error(s: &Value, a: &ArtifactStore) -> Option<ReportSection> {
                     (format!("R_k = {r:.3} mm"), thin(pts, 360))
                 })
                 .collect();
-            let series: Vec<Series> = data
-                .iter()
-                .map(|(n, p)| Series {
-                    name: n,
-                    points: p,
-                    mark: Mark::Line,
-                })
-                .collect();
-            html.push_str(&xy_chart(
+            html.push_str(&delta_phi_chart(
                 "Model profile error δ(φ) of this run",
-                "φ (°)",
-                "δ (µm)",
-                &series,
+                &data,
             ));
         }
     }
@@ -232,4 +212,17 @@ pub fn sections(_run: &Run, a: &ArtifactStore) -> Vec<ReportSection> {
     }
     out.extend(measured(a));
     out
+}
+
+/// δ(φ) curves, one line each, in µm over φ in degrees.
+fn delta_phi_chart(title: &str, curves: &[(String, Vec<(f64, f64)>)]) -> String {
+    let series: Vec<Series> = curves
+        .iter()
+        .map(|(n, p)| Series {
+            name: n,
+            points: p,
+            mark: Mark::Line,
+        })
+        .collect();
+    xy_chart(title, "φ (°)", "δ (µm)", &series)
 }

@@ -8,11 +8,12 @@
 use anyhow::{anyhow, bail};
 use arrow::record_batch::RecordBatch;
 use serde_json::{json, Value};
+use sparkout_pipeline::config_check::SectionCheck;
 use sparkout_pipeline::contracts::schema::PROFILE;
 use sparkout_pipeline::contracts::BatchBuilder;
 use sparkout_pipeline::{cfg_f64, InputError, Result, Stage, StageContext, StageOutput, StageSpec};
 
-use super::config::{check_config, check_count, check_window, curvature, Check, WINDOW_KEY};
+use super::config::{check_config, check_count, curvature, Check, WINDOW_KEY};
 use super::curvature::Profile;
 use super::model::{centre_path, profile_rows, CentrePath, DeltaModel, WheelRange};
 
@@ -47,7 +48,6 @@ pub const KEYS: &[(&str, Check)] = &[
 
 pub fn validate(config: &toml::Table) -> Result<()> {
     check_config(config, KEYS)?;
-    check_window(config)?;
     check_count(config, "segments", MAX_SEGMENTS)?;
     check_count(config, "sweep_max", 100)?;
     check_count(config, "radius_samples", 1001)?;
@@ -342,14 +342,12 @@ const SPEC: StageSpec = StageSpec {
     reads_artifacts: &[],
     writes: &["segments", "segment_error", "segment_sweep", "toolpath"],
     about: "split the usable wheel-radius range into N segments: nominal, range and max profile error per segment, tool paths (X, Z, A, C), sweep over N (MODELS.md §4)",
+    config: SectionCheck::Parsed(validate),
 };
 
 impl Stage for SegmentStage {
     fn spec(&self) -> &'static StageSpec {
         &SPEC
-    }
-    fn validate_config(&self, config: &toml::Table) -> Result<()> {
-        validate(config)
     }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
         let machine = WheelRange::from_machine(&ctx.run.machine).ok();
@@ -382,18 +380,8 @@ impl Stage for SegmentStage {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::form::curvature::CurvatureConfig;
+    use crate::form::model::tests::ellipse;
     use crate::form::model::DeltaModel;
-    use std::f64::consts::TAU;
-
-    pub fn ellipse(n: usize, a: f64, b: f64) -> Profile {
-        let phi: Vec<f64> = (0..n).map(|i| TAU * i as f64 / n as f64).collect();
-        let r: Vec<f64> = phi
-            .iter()
-            .map(|f| a * b / ((b * f.cos()).powi(2) + (a * f.sin()).powi(2)).sqrt())
-            .collect();
-        Profile::new(&phi, &r, &CurvatureConfig::default()).unwrap()
-    }
 
     #[test]
     fn segments_tile_the_range_and_errors_shrink_with_n() {

@@ -281,17 +281,7 @@ mod tests {
     use crate::gantry::tool_influence::direct_convolve_same;
 
     fn tool() -> PolishTool {
-        PolishTool {
-            k_p_per_pa: 1.7097e-8,
-            pressure_pa: 389.93,
-            radius_mm: 100.0,
-            rev_per_s: 2.5,
-            linear_speed_mm_s: 1000.0,
-            spring_compression_mm: 0.5,
-            feed_mm_s: 100.0,
-            step_over_mm: 50.0,
-            accel_mm_s2: 500.0,
-        }
+        crate::gantry::tool_influence::tests::aplm_tool(100.0, 50.0)
     }
 
     #[test]
@@ -303,7 +293,7 @@ mod tests {
             .map(|k| ((k * 37) % 11) as f64 / 10.0)
             .collect();
         let (ker, kx, ky) = t.kernel(30.0, 30.0);
-        let full = direct_convolve_same(&d, op.lx, op.ly, &ker, kx, ky);
+        let full = direct_convolve_same(&d, (op.lx, op.ly), &ker, (kx, ky));
         let rem = op.removal(&d);
         for j in 0..7 {
             for i in 0..9 {

@@ -15,11 +15,12 @@ use anyhow::{anyhow, Context};
 use microlp::{ComparisonOp, OptimizationDirection, Problem};
 use nalgebra::{Matrix3, Vector3};
 use serde_json::{json, Value};
+use sparkout_pipeline::config_check::SectionCheck;
 use sparkout_pipeline::contracts::schema::TOPOGRAPHY;
 use sparkout_pipeline::contracts::{BatchBuilder, Table};
 use sparkout_pipeline::{Result, Stage, StageArgs, StageContext, StageOutput, StageSpec};
 
-use super::config::{check_config, Check, STATES};
+use super::config::{Check, STATES};
 use super::grid;
 use super::surface::{read_surface, SurfaceSpec};
 
@@ -261,14 +262,12 @@ const SPEC: StageSpec = StageSpec {
     reads_artifacts: &[],
     writes: &["flatness"],
     about: "least-squares and exact minimum-zone flatness of a topography state (MODELS.md §2.4)",
+    config: SectionCheck::Keys(KEYS),
 };
 
 impl Stage for FlatnessStage {
     fn spec(&self) -> &'static StageSpec {
         &SPEC
-    }
-    fn validate_config(&self, config: &toml::Table) -> Result<()> {
-        check_config(config, KEYS)
     }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
         let t = ctx.run.require(&TOPOGRAPHY)?;

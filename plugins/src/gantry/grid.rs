@@ -238,6 +238,20 @@ pub fn surface(table: &Table, state: &str) -> Result<Surface, InputError> {
 
 /// The pattern state, which the compensation matrices are referred to
 /// (MODELS.md §2.1): a topography without one is a bad input.
+/// What every surface stage starts from: the run's gantry, its
+/// topography table and the `pattern` state's surface (which fixes the
+/// grid every other state must share).
+pub fn run_surface(
+    ctx: &sparkout_pipeline::StageContext,
+) -> sparkout_pipeline::Result<(super::machine::Gantry, std::sync::Arc<Table>, Surface)> {
+    let g = super::machine::Gantry::from_run(&ctx.run.machine, &ctx.run.spec)?;
+    let t = ctx
+        .run
+        .require(&sparkout_pipeline::contracts::schema::TOPOGRAPHY)?;
+    let pattern = pattern(&t)?;
+    Ok((g, t, pattern))
+}
+
 pub fn pattern(table: &Table) -> Result<Surface, InputError> {
     let have = states(table)?;
     if !have.iter().any(|s| s == "pattern") {

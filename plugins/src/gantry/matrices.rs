@@ -19,11 +19,12 @@
 
 use anyhow::anyhow;
 use serde_json::json;
+use sparkout_pipeline::config_check::SectionCheck;
 use sparkout_pipeline::contracts::schema::{MOTION, TOPOGRAPHY};
 use sparkout_pipeline::contracts::BatchBuilder;
 use sparkout_pipeline::{InputError, Result, Stage, StageContext, StageOutput, StageSpec};
 
-use super::config::{check_config, Check};
+use super::config::Check;
 use super::grid::{self, Grid, Surface};
 use super::machine::{Body, Gantry, PassAxis, BODIES};
 use super::moving_load;
@@ -53,9 +54,16 @@ pub struct Matrices {
 fn unit_response(body: &Body, g: f64, v: f64, tol_rel: f64) -> Result<(f64, f64, usize)> {
     let b = &body.beam;
     let scale = b.span_mm.powi(3) / (48.0 * b.ei_n_mm2);
-    let f = moving_load::series(b, g, g, v, 1.0, 0.0, tol_rel * scale)
+    let unit = |force_n, moment_n_mm| moving_load::MovingLoad {
+        x_mm: g,
+        at_mm: g,
+        v_mm_s: v,
+        force_n,
+        moment_n_mm,
+    };
+    let f = moving_load::series(b, unit(1.0, 0.0), tol_rel * scale)
         .map_err(|e| anyhow!("{}: {e}", body.name))?;
-    let m = moving_load::series(b, g, g, v, 0.0, 1.0, tol_rel * scale / b.span_mm)
+    let m = moving_load::series(b, unit(0.0, 1.0), tol_rel * scale / b.span_mm)
         .map_err(|e| anyhow!("{}: {e}", body.name))?;
     Ok((f.w_mm, m.w_mm, f.terms.max(m.terms)))
 }
@@ -262,14 +270,12 @@ const SPEC: StageSpec = StageSpec {
             "compensation_path",
         ],
     about: "static and dynamic compensation matrices Γ = τ − τ_pattern with each body's share (MODELS.md §2.1–2.3)",
+    config: SectionCheck::Keys(KEYS),
 };
 
 impl Stage for MatricesStage {
     fn spec(&self) -> &'static StageSpec {
         &SPEC
-    }
-    fn validate_config(&self, config: &toml::Table) -> Result<()> {
-        check_config(config, KEYS)
     }
     /// `sparkout stage matrices --topography FILE --json`, with the built-in
     /// aplm-gantry machine.

@@ -65,28 +65,53 @@ fn alpha1(beam: &Beam, v: f64) -> Result<f64, SeriesError> {
     Ok(a1)
 }
 
-/// The series exactly as MODELS.md §2.3 writes it. `a` = v·t is the load's
-/// position; `tol_mm` bounds the truncation error of W_F + W_M.
+/// A load crossing the beam, seen at one point: the deflection at `x_mm`
+/// while the load is at `at_mm` (= v·t), moving at `v_mm_s`, pressing with
+/// `force_n` and turning with `moment_n_mm`.
+#[derive(Debug, Clone, Copy)]
+pub struct MovingLoad {
+    pub x_mm: f64,
+    pub at_mm: f64,
+    pub v_mm_s: f64,
+    pub force_n: f64,
+    pub moment_n_mm: f64,
+}
+
+/// The two series' scales, 2|F|l³/(EIπ⁴) and 2|M|l²/(EIπ³) (MODELS.md §2.3).
+fn series_scales(beam: &Beam, load: &MovingLoad) -> (f64, f64) {
+    let (l, ei) = (beam.span_mm, beam.ei_n_mm2);
+    (
+        2.0 * load.force_n.abs() * l.powi(3) / (ei * PI.powi(4)),
+        2.0 * load.moment_n_mm.abs() * l * l / (ei * PI.powi(3)),
+    )
+}
+
+/// Mode n of the solution: (n, its wave number nπ/l, α_n = α₁/n, ω_n).
+fn mode(beam: &Beam, a1: f64, n: usize) -> (f64, f64, f64, f64) {
+    let nf = n as f64;
+    (nf, nf * PI / beam.span_mm, a1 / nf, beam.omega(n))
+}
+
+/// The series exactly as MODELS.md §2.3 writes it; `tol_mm` bounds the
+/// truncation error of W_F + W_M. Kept beside [`series`] as its check: the
+/// tests require both to agree (to 1e-11 of the static deflection).
 pub fn series_direct(
     beam: &Beam,
-    x: f64,
-    a: f64,
-    v: f64,
-    force_n: f64,
-    moment_n_mm: f64,
+    load: MovingLoad,
     tol_mm: f64,
 ) -> Result<SeriesValue, SeriesError> {
-    let (l, ei) = (beam.span_mm, beam.ei_n_mm2);
+    let MovingLoad {
+        x_mm: x,
+        at_mm: a,
+        v_mm_s: v,
+        ..
+    } = load;
     let a1 = alpha1(beam, v)?;
     let t = if v > 0.0 { a / v } else { 0.0 };
-    let cf = 2.0 * force_n.abs() * l.powi(3) / (ei * PI.powi(4));
-    let cm = 2.0 * moment_n_mm.abs() * l * l / (ei * PI.powi(3));
+    let (cf, cm) = series_scales(beam, &load);
     let (mut sf, mut sm) = (0.0, 0.0);
     for n in 1..=MAX_TERMS {
-        let nf = n as f64;
-        let b = nf * PI / l;
-        let an = a1 / nf;
-        let w = beam.omega(n);
+        let (nf, b, an, w) = mode(beam, a1, n);
         let amp = 1.0 / (1.0 - an * an);
         let sx = (b * x).sin();
         sf += amp * sx * ((b * a).sin() - an * (w * t).sin()) / nf.powi(4);
@@ -97,7 +122,7 @@ pub fn series_direct(
         let tail = g * (cf / (3.0 * nf.powi(3)) + cm / (2.0 * nf * nf));
         if tail <= tol_mm {
             return Ok(SeriesValue {
-                w_mm: -(force_n.signum() * cf * sf + moment_n_mm.signum() * cm * sm),
+                w_mm: -(load.force_n.signum() * cf * sf + load.moment_n_mm.signum() * cm * sm),
                 terms: n,
             });
         }
@@ -108,16 +133,14 @@ pub fn series_direct(
 /// The same solution as the static closed forms plus the series of the
 /// dynamic − static difference (Kummer's acceleration): identical value,
 /// far fewer terms; exactly the static deflection at v = 0.
-pub fn series(
-    beam: &Beam,
-    x: f64,
-    a: f64,
-    v: f64,
-    force_n: f64,
-    moment_n_mm: f64,
-    tol_mm: f64,
-) -> Result<SeriesValue, SeriesError> {
-    let (l, ei) = (beam.span_mm, beam.ei_n_mm2);
+pub fn series(beam: &Beam, load: MovingLoad, tol_mm: f64) -> Result<SeriesValue, SeriesError> {
+    let MovingLoad {
+        x_mm: x,
+        at_mm: a,
+        v_mm_s: v,
+        force_n,
+        moment_n_mm,
+    } = load;
     let a1 = alpha1(beam, v)?;
     let stat = -(force_n * beam.point(x, a) + moment_n_mm * beam.moment(x, a));
     if a1 == 0.0 {
@@ -127,14 +150,10 @@ pub fn series(
         });
     }
     let t = a / v;
-    let cf = 2.0 * force_n.abs() * l.powi(3) / (ei * PI.powi(4));
-    let cm = 2.0 * moment_n_mm.abs() * l * l / (ei * PI.powi(3));
+    let (cf, cm) = series_scales(beam, &load);
     let (mut sf, mut sm) = (0.0, 0.0);
     for n in 1..=MAX_TERMS {
-        let nf = n as f64;
-        let b = nf * PI / l;
-        let an = a1 / nf;
-        let w = beam.omega(n);
+        let (nf, b, an, w) = mode(beam, a1, n);
         let den = 1.0 - an * an;
         let sx = (b * x).sin();
         // dynamic − static bracket: (α² s − α sin ωt)/(1 − α²), |·| ≤ α/(1 − α).
@@ -158,6 +177,16 @@ pub fn series(
 mod tests {
     use super::*;
 
+    fn load(x_mm: f64, at_mm: f64, v_mm_s: f64, force_n: f64, moment_n_mm: f64) -> MovingLoad {
+        MovingLoad {
+            x_mm,
+            at_mm,
+            v_mm_s,
+            force_n,
+            moment_n_mm,
+        }
+    }
+
     fn stringer() -> Beam {
         // aplm-gantry stringer: steel box 250×150×8, l = 2400 mm, 3033 N.
         Beam {
@@ -179,7 +208,7 @@ mod tests {
             (50.0, 60.0),
         ] {
             let stat = -f * b.point(x, a);
-            let d = series_direct(&b, x, a, 1e-9, f, 0.0, 1e-12 * scale).unwrap();
+            let d = series_direct(&b, load(x, a, 1e-9, f, 0.0), 1e-12 * scale).unwrap();
             let rel = (d.w_mm - stat).abs() / stat.abs();
             assert!(
                 rel < 1e-9,
@@ -196,7 +225,7 @@ mod tests {
         let m = 2.0e4;
         let scale = m * b.span_mm.powi(2) / b.ei_n_mm2;
         for (x, a) in [(700.0, 1500.0), (1900.0, 400.0)] {
-            let d = series_direct(&b, x, a, 0.0, 0.0, m, 1e-8 * scale).unwrap();
+            let d = series_direct(&b, load(x, a, 0.0, 0.0, m), 1e-8 * scale).unwrap();
             let stat = -m * b.moment(x, a);
             assert!((d.w_mm - stat).abs() < 2e-8 * scale, "{} vs {stat}", d.w_mm);
         }
@@ -211,8 +240,8 @@ mod tests {
         // dynamics are large.
         for v in [150.0, 0.5 * b.critical_speed_mm_s()] {
             for (x, a) in [(1200.0, 1200.0), (500.0, 1900.0), (2100.0, 300.0)] {
-                let d = series_direct(&b, x, a, v, f, m, 1e-11 * scale).unwrap();
-                let k = series(&b, x, a, v, f, m, 1e-11 * scale).unwrap();
+                let d = series_direct(&b, load(x, a, v, f, m), 1e-11 * scale).unwrap();
+                let k = series(&b, load(x, a, v, f, m), 1e-11 * scale).unwrap();
                 assert!(
                     (d.w_mm - k.w_mm).abs() < 1e-9 * scale,
                     "v={v} x={x}: {} vs {}",
@@ -224,7 +253,7 @@ mod tests {
         }
         // At speed the dynamic deflection differs from the static one.
         let v = 0.5 * b.critical_speed_mm_s();
-        let k = series(&b, 1200.0, 1200.0, v, f, 0.0, 1e-11 * scale).unwrap();
+        let k = series(&b, load(1200.0, 1200.0, v, f, 0.0), 1e-11 * scale).unwrap();
         assert!((k.w_mm + f * b.point(1200.0, 1200.0)).abs() > 1e-3 * scale);
     }
 
@@ -233,11 +262,7 @@ mod tests {
         let b = stringer();
         let e = series(
             &b,
-            1.0,
-            1.0,
-            1.01 * b.critical_speed_mm_s(),
-            1.0,
-            0.0,
+            load(1.0, 1.0, 1.01 * b.critical_speed_mm_s(), 1.0, 0.0),
             1e-12,
         )
         .unwrap_err();

@@ -14,13 +14,13 @@
 
 use anyhow::anyhow;
 use serde_json::json;
+use sparkout_pipeline::config_check::SectionCheck;
 use sparkout_pipeline::contracts::schema::{MOTION, TOPOGRAPHY};
 use sparkout_pipeline::contracts::{batch_f64, BatchBuilder};
 use sparkout_pipeline::{Result, Stage, StageContext, StageOutput, StageSpec};
 
-use super::config::{check_config, Check, STATES};
+use super::config::{Check, STATES};
 use super::grid::{self, Grid};
-use super::machine::Gantry;
 use super::removal::polishing_path;
 use super::tool_influence::PathSample;
 
@@ -65,19 +65,15 @@ const SPEC: StageSpec = StageSpec {
     reads_artifacts: &["removal"],
     writes: &["observations"],
     about: "paired observations surface_z (measured polished vs predicted) for the gap diagnosis (docs/formats.md)",
+    config: SectionCheck::Keys(KEYS),
 };
 
 impl Stage for ObserveStage {
     fn spec(&self) -> &'static StageSpec {
         &SPEC
     }
-    fn validate_config(&self, config: &toml::Table) -> Result<()> {
-        check_config(config, KEYS)
-    }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
-        let g = Gantry::from_run(&ctx.run.machine, &ctx.run.spec)?;
-        let t = ctx.run.require(&TOPOGRAPHY)?;
-        let pattern = grid::pattern(&t)?;
+        let (g, t, pattern) = grid::run_surface(ctx)?;
         let state = ctx.cfg_str("state", "after_polish");
         let real = grid::same_grid(&t, state, &pattern.grid)?;
         let rem = ctx.artifacts.require("removal")?;

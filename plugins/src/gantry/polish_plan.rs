@@ -27,6 +27,7 @@
 //! that removal, selective time over raster time against f.
 
 use serde_json::{json, Value};
+use sparkout_pipeline::config_check::SectionCheck;
 use sparkout_pipeline::contracts::schema::TOPOGRAPHY;
 use sparkout_pipeline::contracts::{BatchBuilder, Table};
 use sparkout_pipeline::json_f64;
@@ -458,19 +459,15 @@ const SPEC: StageSpec = StageSpec {
     reads_artifacts: &[],
     writes: &["polish_plan", "polish_surface"],
     about: "selective polishing by dwell-time optimisation: flattest surface about the best plane within feed limits, flatness and time vs raster, breakeven area (MODELS.md §2.5–2.6)",
+    config: SectionCheck::Keys(KEYS),
 };
 
 impl Stage for PolishPlanStage {
     fn spec(&self) -> &'static StageSpec {
         &SPEC
     }
-    fn validate_config(&self, config: &toml::Table) -> Result<()> {
-        check_config(config, KEYS)
-    }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
-        let g = Gantry::from_run(&ctx.run.machine, &ctx.run.spec)?;
-        let t = ctx.run.require(&TOPOGRAPHY)?;
-        grid::pattern(&t)?;
+        let (g, t, _) = grid::run_surface(ctx)?;
         let s = load(&t, ctx.cfg_str("state", "after_grind"), &g)?;
         let (summary, batch, surface) = analyse(&g, &s, PlanConfig::from_table(ctx.config))?;
         Ok(StageOutput::new(summary)
@@ -514,17 +511,7 @@ mod tests {
     use super::*;
 
     fn tool() -> PolishTool {
-        PolishTool {
-            k_p_per_pa: 1.7097e-8,
-            pressure_pa: 389.93,
-            radius_mm: 60.0,
-            rev_per_s: 2.5,
-            linear_speed_mm_s: 1000.0,
-            spring_compression_mm: 0.5,
-            feed_mm_s: 100.0,
-            step_over_mm: 30.0,
-            accel_mm_s2: 500.0,
-        }
+        crate::gantry::tool_influence::tests::aplm_tool(60.0, 30.0)
     }
 
     #[test]

@@ -5,11 +5,12 @@
 
 use anyhow::Context;
 use serde_json::json;
+use sparkout_pipeline::config_check::SectionCheck;
 use sparkout_pipeline::contracts::schema::{MOTION, TOPOGRAPHY};
 use sparkout_pipeline::contracts::BatchBuilder;
 use sparkout_pipeline::{InputError, Result, Run, Stage, StageContext, StageOutput, StageSpec};
 
-use super::config::{check_config, Check, STATES};
+use super::config::{Check, STATES};
 use super::grid::{self, Grid, Surface};
 use super::machine::{Gantry, PassAxis};
 use super::tool_influence::{
@@ -131,19 +132,15 @@ const SPEC: StageSpec = StageSpec {
     reads_artifacts: &[],
     writes: &["removal"],
     about: "Preston removal of the polishing path (dwell ⊛ tool influence, FFT) and the predicted final topography (MODELS.md §2.5)",
+    config: SectionCheck::Keys(KEYS),
 };
 
 impl Stage for RemovalStage {
     fn spec(&self) -> &'static StageSpec {
         &SPEC
     }
-    fn validate_config(&self, config: &toml::Table) -> Result<()> {
-        check_config(config, KEYS)
-    }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
-        let g = Gantry::from_run(&ctx.run.machine, &ctx.run.spec)?;
-        let t = ctx.run.require(&TOPOGRAPHY)?;
-        let pattern = grid::pattern(&t)?;
+        let (g, t, pattern) = grid::run_surface(ctx)?;
         let from = ctx.cfg_str("from_state", "after_grind");
         let start = grid::same_grid(&t, from, &pattern.grid)?;
         check_tool_fits(&g, &start.grid, t.path())?;

@@ -321,14 +321,13 @@ fn process_columns(fft: &Arc<dyn rustfft::Fft<f64>>, data: &mut [Complex<f64>], 
     );
 }
 
-/// The same convolution done directly (tests; tiny grids).
+/// The same convolution done directly (tests; tiny grids): image and
+/// kernel with their (columns, rows).
 pub fn direct_convolve_same(
     img: &[f64],
-    nx: usize,
-    ny: usize,
+    (nx, ny): (usize, usize),
     ker: &[f64],
-    kx: usize,
-    ky: usize,
+    (kx, ky): (usize, usize),
 ) -> Vec<f64> {
     let (ox, oy) = ((kx / 2) as isize, (ky / 2) as isize);
     let mut out = vec![0.0; nx * ny];
@@ -600,8 +599,25 @@ pub fn spiral_path(
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
+
+    /// The aplm-gantry's polishing tool (k_p, pressure and speeds of
+    /// MODELS.md §2.5's example) at a given disc radius and step-over; the
+    /// gantry plugin's tests share it.
+    pub(crate) fn aplm_tool(radius_mm: f64, step_over_mm: f64) -> PolishTool {
+        PolishTool {
+            k_p_per_pa: 1.7097e-8,
+            pressure_pa: 389.93,
+            radius_mm,
+            rev_per_s: 2.5,
+            linear_speed_mm_s: 1000.0,
+            spring_compression_mm: 0.5,
+            feed_mm_s: 100.0,
+            step_over_mm,
+            accel_mm_s2: 500.0,
+        }
+    }
 
     #[test]
     fn fft_equals_direct_convolution() {
@@ -612,7 +628,7 @@ mod tests {
         let (kx, ky) = (7, 5);
         let ker: Vec<f64> = (0..kx * ky).map(|k| 1.0 + (k % 3) as f64).collect();
         let a = fft_convolve_same(&img, nx, ny, &ker, kx, ky);
-        let b = direct_convolve_same(&img, nx, ny, &ker, kx, ky);
+        let b = direct_convolve_same(&img, (nx, ny), &ker, (kx, ky));
         for (u, v) in a.iter().zip(&b) {
             assert!((u - v).abs() < 1e-10, "{u} vs {v}");
         }
@@ -620,17 +636,7 @@ mod tests {
 
     #[test]
     fn influence_function_and_sizes() {
-        let t = PolishTool {
-            k_p_per_pa: 1.7097e-8,
-            pressure_pa: 389.93,
-            radius_mm: 200.0,
-            rev_per_s: 2.5,
-            linear_speed_mm_s: 1000.0,
-            spring_compression_mm: 0.5,
-            feed_mm_s: 100.0,
-            step_over_mm: 100.0,
-            accel_mm_s2: 500.0,
-        };
+        let t = aplm_tool(200.0, 100.0);
         // Centre: k_p·p·v_lin = 6.667e-6 × 1000 mm/s.
         assert!((t.rate_mm_s(0.0) - 1.7097e-8 * 389.93 * 1000.0).abs() < 1e-15);
         assert_eq!(t.rate_mm_s(200.1), 0.0);

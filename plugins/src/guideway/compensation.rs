@@ -31,12 +31,13 @@
 use anyhow::{anyhow, Context};
 use nalgebra::{DMatrix, DVector};
 use serde_json::{json, Value};
+use sparkout_pipeline::config_check::SectionCheck;
 use sparkout_pipeline::contracts::schema::GUIDEWAY;
 use sparkout_pipeline::contracts::BatchBuilder;
 use sparkout_pipeline::{InputError, Result, Stage, StageContext, StageOutput, StageSpec};
 
 use super::ar_fpe;
-use super::config::{check_config, machine_f64, COMPENSATION_KEYS};
+use super::config::{machine_f64, COMPENSATION_KEYS};
 use super::separate::SepData;
 
 /// The fitted thermal and reversal terms.
@@ -262,14 +263,12 @@ const SPEC: StageSpec = StageSpec {
     reads_artifacts: &["separation", "predictor"],
     writes: &["compensation"],
     about: "headstock path F(n+1) = f + g + δ̂z + reversal, thermal g fitted from infeed count/temperature (MODELS.md §3.4); dz_mm offsets with t_s for CAN replay",
+    config: SectionCheck::Keys(COMPENSATION_KEYS),
 };
 
 impl Stage for CompensationStage {
     fn spec(&self) -> &'static StageSpec {
         &SPEC
-    }
-    fn validate_config(&self, config: &toml::Table) -> Result<()> {
-        check_config(config, COMPENSATION_KEYS)
     }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
         let s = SepData::from_batch(ctx.artifacts.require("separation")?.as_ref())?;
@@ -370,12 +369,7 @@ mod tests {
             temp_c: None,
         };
         for p in 0..passes {
-            let js: Vec<usize> = if p % 2 == 0 {
-                (0..m).collect()
-            } else {
-                (0..m).rev().collect()
-            };
-            for j in js {
+            for j in crate::guideway::input::tests::pass_points(m, p as usize) {
                 let i = s.n.len();
                 let dir = if p % 2 == 0 { 1.0 } else { -1.0 };
                 let wiggle = 1e-5 * ((i * 7919) % 13) as f64 / 13.0;

@@ -516,6 +516,16 @@ fn resample(r: Readings) -> Result<Readings> {
 pub(crate) mod tests {
     use super::*;
 
+    /// Point indices 0..m in the order pass `pass` visits them: forward on
+    /// even passes, back on odd ones (a back-and-forth traverse).
+    pub fn pass_points(m: usize, pass: usize) -> Vec<usize> {
+        if pass.is_multiple_of(2) {
+            (0..m).collect()
+        } else {
+            (0..m).rev().collect()
+        }
+    }
+
     pub fn geom(spacing: f64, step: f64) -> Geometry {
         Geometry {
             spacing_mm: spacing,

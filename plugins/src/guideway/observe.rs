@@ -19,11 +19,12 @@
 use std::collections::BTreeMap;
 
 use serde_json::json;
+use sparkout_pipeline::config_check::SectionCheck;
 use sparkout_pipeline::contracts::BatchBuilder;
 use sparkout_pipeline::{Result, Stage, StageContext, StageOutput, StageSpec};
 
 use super::compensation::ThermalReversal;
-use super::config::{check_config, OBSERVE_KEYS};
+use super::config::OBSERVE_KEYS;
 use super::separate::SepData;
 
 pub const OBSERVABLE: &str = "motion_error";
@@ -65,14 +66,12 @@ const SPEC: StageSpec = StageSpec {
     reads_artifacts: &["separation", "compensation"],
     writes: &["observations"],
     about: "paired observations motion_error (measured δz vs the straightness model from the other passes) for the gap diagnosis (docs/formats.md)",
+    config: SectionCheck::Keys(OBSERVE_KEYS),
 };
 
 impl Stage for ObserveStage {
     fn spec(&self) -> &'static StageSpec {
         &SPEC
-    }
-    fn validate_config(&self, config: &toml::Table) -> Result<()> {
-        check_config(config, OBSERVE_KEYS)
     }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
         let s = SepData::from_batch(ctx.artifacts.require("separation")?.as_ref())?;

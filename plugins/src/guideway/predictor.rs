@@ -15,6 +15,7 @@ use anyhow::anyhow;
 use arrow::array::{Array, Float64Array};
 use arrow::record_batch::RecordBatch;
 use serde_json::{json, Value};
+use sparkout_pipeline::config_check::SectionCheck;
 use sparkout_pipeline::contracts::schema::GUIDEWAY;
 use sparkout_pipeline::contracts::{read_parquet, BatchBuilder};
 use sparkout_pipeline::json_f64;
@@ -199,14 +200,12 @@ const SPEC: StageSpec = StageSpec {
     reads_artifacts: &["separation"],
     writes: &["predictor", "ar_fpe", "forecast"],
     about: "AR order of the d-times differenced δz by FPE (or BIC / HQ), online RLS, one-step prediction, scalar Kalman fusion, forecasts (MODELS.md §3.2–3.3)",
+    config: SectionCheck::Parsed(PredictorConfig::validate),
 };
 
 impl Stage for PredictorStage {
     fn spec(&self) -> &'static StageSpec {
         &SPEC
-    }
-    fn validate_config(&self, config: &toml::Table) -> Result<()> {
-        PredictorConfig::validate(config)
     }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
         let cfg = PredictorConfig::from_table(ctx.config, Some(ctx.run));

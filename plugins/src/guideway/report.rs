@@ -167,22 +167,19 @@ fn fpe(s: &Value) -> Option<ReportSection> {
             )
         })
         .collect();
-    let coef: Vec<String> = s["coefficients"]
-        .as_array()
-        .map(|a| {
-            a.iter()
-                .map(|v| format!("{:.4}", v.as_f64().unwrap_or(f64::NAN)))
-                .collect()
-        })
-        .unwrap_or_default();
-    let rls: Vec<String> = s["rls_coefficients"]
-        .as_array()
-        .map(|a| {
-            a.iter()
-                .map(|v| format!("{:.4}", v.as_f64().unwrap_or(f64::NAN)))
-                .collect()
-        })
-        .unwrap_or_default();
+    // A JSON array of coefficients as text, 4 decimals each.
+    let coefficients = |key: &str| -> Vec<String> {
+        s[key]
+            .as_array()
+            .map(|a| {
+                a.iter()
+                    .map(|v| format!("{:.4}", v.as_f64().unwrap_or(f64::NAN)))
+                    .collect()
+            })
+            .unwrap_or_default()
+    };
+    let coef = coefficients("coefficients");
+    let rls = coefficients("rls_coefficients");
     let mut html = format!(
         "<p>δz differenced d = {} times; AR order by {}: <b>p = {}</b> (FPE would choose {}, BIC {}, HQ {}). Batch coefficients ({}), online RLS after the last sample ({}). One-step prediction-error variance {} µm² (source: below 1 µm).</p>",
         s["d"],

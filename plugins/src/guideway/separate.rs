@@ -13,6 +13,7 @@ use anyhow::{anyhow, Context};
 use arrow::array::{Array, Float64Array, Int32Array, Int64Array, Int8Array};
 use arrow::record_batch::RecordBatch;
 use serde_json::{json, Value};
+use sparkout_pipeline::config_check::SectionCheck;
 use sparkout_pipeline::contracts::schema::GUIDEWAY;
 use sparkout_pipeline::contracts::{batch_f64, batch_i32, BatchBuilder};
 use sparkout_pipeline::json_f64 as num;
@@ -186,14 +187,12 @@ const SPEC: StageSpec = StageSpec {
     reads_artifacts: &[],
     writes: &["separation"],
     about: "three-probe error separation: workpiece h, table motion error δz, pitch β — published recursion or one LS solve with uncertainty (MODELS.md §3.1)",
+    config: SectionCheck::Parsed(SeparateConfig::validate),
 };
 
 impl Stage for SeparateStage {
     fn spec(&self) -> &'static StageSpec {
         &SPEC
-    }
-    fn validate_config(&self, config: &toml::Table) -> Result<()> {
-        SeparateConfig::validate(config)
     }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
         let cfg = SeparateConfig::from_ctx(ctx);

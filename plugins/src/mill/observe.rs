@@ -20,6 +20,7 @@
 use std::collections::BTreeMap;
 
 use serde_json::json;
+use sparkout_pipeline::config_check::SectionCheck;
 use sparkout_pipeline::contracts::schema::{THERMAL, TRACKER};
 use sparkout_pipeline::contracts::{BatchBuilder, Table};
 use sparkout_pipeline::{InputError, Result, Stage, StageContext, StageOutput, StageSpec};
@@ -85,14 +86,12 @@ const SPEC: StageSpec = StageSpec {
     reads_artifacts: &["kinematic_params"],
     writes: &["observations"],
     about: "paired observations tracker_dx/dy/dz (measured vs identified model) for the gap diagnosis (docs/formats.md)",
+    config: SectionCheck::Parsed(|c| ObserveConfig::parse(c).map(drop)),
 };
 
 impl Stage for ObserveStage {
     fn spec(&self) -> &'static StageSpec {
         &SPEC
-    }
-    fn validate_config(&self, config: &toml::Table) -> Result<()> {
-        ObserveConfig::parse(config).map(|_| ())
     }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
         let cfg = ObserveConfig::parse(ctx.config)?;

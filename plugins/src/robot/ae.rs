@@ -108,6 +108,38 @@ enum Phase {
     Active,
 }
 
+/// Samples per block of the fast paths (a multiple of [`LANES`]).
+const BLOCK: usize = 16;
+/// Independent accumulators per block (so the sums vectorise).
+const LANES: usize = 4;
+
+/// Over one block of new samples `xs` and the samples `os` leaving the
+/// window: Σd, Σmax(d, 0) and (when `NEG`) Σmin(d, 0) of d = x² − o², each
+/// in LANES lane-wise partial sums added as ((0 + 1) + (2 + 3)). Both fast
+/// paths use these to decide whether a block can cross a threshold
+/// without replaying it sample by sample; `NEG` is a const so the armed
+/// path does not pay for the sum it does not need.
+#[inline(always)]
+fn block_sums<const NEG: bool>(xs: &[f32], os: &[f32]) -> [f64; 3] {
+    let mut tot = [0.0f64; LANES];
+    let mut pos = [0.0f64; LANES];
+    let mut neg = [0.0f64; LANES];
+    for (xc, oc) in xs.chunks_exact(LANES).zip(os.chunks_exact(LANES)) {
+        for k in 0..LANES {
+            let x = xc[k] as f64;
+            let o = oc[k] as f64;
+            let d = x * x - o * o;
+            tot[k] += d;
+            pos[k] += d.max(0.0);
+            if NEG {
+                neg[k] += d.min(0.0);
+            }
+        }
+    }
+    let fold = |a: [f64; LANES]| (a[0] + a[1]) + (a[2] + a[3]);
+    [fold(tot), fold(pos), fold(neg)]
+}
+
 /// Streaming detector state. Feed contiguous samples with [`AeDetector::feed`];
 /// call [`AeDetector::reset`] at a gap in the recording (a new block: the
 /// window restarts and the noise floor is re-estimated) and
@@ -348,20 +380,25 @@ impl AeDetector {
         let mut sum = self.sum;
         let mut mx = self.max_sum_armed;
         let mut i = start;
+        // One sample: add x² − o², stop right after a crossing.
+        macro_rules! step {
+            ($x:expr, $o:expr) => {{
+                let (x, o) = ($x as f64, $o as f64);
+                sum += x * x - o * o;
+                i += 1;
+                if sum > on {
+                    self.sum = sum;
+                    self.max_sum_armed = mx.max(sum);
+                    return (i, true);
+                }
+                mx = mx.max(sum);
+            }};
+        }
         // Samples whose outgoing partner is in the history ring.
         while i < end.min(w) {
-            let x = v[i] as f64;
-            let o = self.hist[(self.head + i) % w] as f64;
-            sum += x * x - o * o;
-            i += 1;
-            if sum > on {
-                self.sum = sum;
-                self.max_sum_armed = mx.max(sum);
-                return (i, true);
-            }
-            mx = mx.max(sum);
+            step!(v[i], self.hist[(self.head + i) % w]);
         }
-        // Both samples in the chunk: the hot loop, in blocks of B samples.
+        // Both samples in the chunk: the hot loop, in blocks of BLOCK samples.
         // Within a block the sum of the squared differences and the sum of
         // their positive parts are lane-wise reductions (vectorisable, no
         // dependency on the running sum); `sum + Σ max(d, 0)` bounds every
@@ -370,54 +407,23 @@ impl AeDetector {
         // loop-carried addition. Otherwise the block is replayed sample by
         // sample to find the exact crossing. (The largest envelope seen while
         // armed, kept for the "no contact" message, is sampled per block.)
-        const B: usize = 16;
-        const L: usize = 4;
-        while i + B <= end {
-            let xs = &v[i..i + B];
-            let os = &v[i - w..i - w + B];
-            let mut tot = [0.0f64; L];
-            let mut pos = [0.0f64; L];
-            for (xc, oc) in xs.chunks_exact(L).zip(os.chunks_exact(L)) {
-                for k in 0..L {
-                    let x = xc[k] as f64;
-                    let o = oc[k] as f64;
-                    let d = x * x - o * o;
-                    tot[k] += d;
-                    pos[k] += d.max(0.0);
-                }
-            }
-            let bound = sum + ((pos[0] + pos[1]) + (pos[2] + pos[3]));
+        while i + BLOCK <= end {
+            let xs = &v[i..i + BLOCK];
+            let os = &v[i - w..i - w + BLOCK];
+            let [tot, pos, _] = block_sums::<false>(xs, os);
+            let bound = sum + pos;
             if bound > on {
-                let mut s = sum;
-                for k in 0..B {
-                    let x = xs[k] as f64;
-                    let o = os[k] as f64;
-                    s += x * x - o * o;
-                    if s > on {
-                        self.sum = s;
-                        self.max_sum_armed = mx.max(s);
-                        return (i + k + 1, true);
-                    }
-                    mx = mx.max(s);
+                for k in 0..BLOCK {
+                    step!(xs[k], os[k]);
                 }
-                sum = s;
             } else {
-                sum += (tot[0] + tot[1]) + (tot[2] + tot[3]);
+                sum += tot;
                 mx = mx.max(sum);
+                i += BLOCK;
             }
-            i += B;
         }
         while i < end {
-            let x = v[i] as f64;
-            let o = v[i - w] as f64;
-            sum += x * x - o * o;
-            i += 1;
-            if sum > on {
-                self.sum = sum;
-                self.max_sum_armed = mx.max(sum);
-                return (i, true);
-            }
-            mx = mx.max(sum);
+            step!(v[i], v[i - w]);
         }
         self.sum = sum;
         self.max_sum_armed = mx;
@@ -454,31 +460,17 @@ impl AeDetector {
         while i < end.min(w) {
             step!(v[i], self.hist[(self.head + i) % w]);
         }
-        const B: usize = 16;
-        const L: usize = 4;
-        while i + B <= end {
-            let xs = &v[i..i + B];
-            let os = &v[i - w..i - w + B];
-            let mut tot = [0.0f64; L];
-            let mut pos = [0.0f64; L];
-            let mut neg = [0.0f64; L];
-            for (xc, oc) in xs.chunks_exact(L).zip(os.chunks_exact(L)) {
-                for k in 0..L {
-                    let x = xc[k] as f64;
-                    let o = oc[k] as f64;
-                    let d = x * x - o * o;
-                    tot[k] += d;
-                    pos[k] += d.max(0.0);
-                    neg[k] += d.min(0.0);
-                }
-            }
-            let hi = sum + ((pos[0] + pos[1]) + (pos[2] + pos[3]));
-            let lo = sum + ((neg[0] + neg[1]) + (neg[2] + neg[3]));
+        while i + BLOCK <= end {
+            let xs = &v[i..i + BLOCK];
+            let os = &v[i - w..i - w + BLOCK];
+            let [tot, pos, neg] = block_sums::<true>(xs, os);
+            let hi = sum + pos;
+            let lo = sum + neg;
             if lo >= off && hi <= peak {
-                sum += (tot[0] + tot[1]) + (tot[2] + tot[3]);
-                i += B;
+                sum += tot;
+                i += BLOCK;
             } else {
-                for k in 0..B {
+                for k in 0..BLOCK {
                     step!(xs[k], os[k]);
                 }
             }
@@ -642,247 +634,4 @@ pub fn detect_events(
 }
 
 #[cfg(test)]
-pub(crate) mod tests {
-    use super::*;
-
-    /// A deterministic test signal: Gaussian-ish noise (sum of uniforms from
-    /// an LCG) plus decaying bursts at the given onsets.
-    pub fn synth(
-        n: usize,
-        fs: f64,
-        noise_v: f64,
-        bursts: &[(f64, f64, f64)], // (onset_s, amplitude_v, decay_s)
-        seed: u64,
-    ) -> (Vec<f64>, Vec<f32>) {
-        let mut s = seed
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        let mut uni = || {
-            s = s
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            ((s >> 11) as f64) / ((1u64 << 53) as f64)
-        };
-        let t: Vec<f64> = (0..n).map(|i| i as f64 / fs).collect();
-        let v: Vec<f32> = t
-            .iter()
-            .map(|&ti| {
-                // Irwin–Hall(12) − 6 ≈ N(0, 1)
-                let g: f64 = (0..12).map(|_| uni()).sum::<f64>() - 6.0;
-                let mut x = noise_v * g;
-                for &(t0, a, tau) in bursts {
-                    if ti >= t0 {
-                        let dt = ti - t0;
-                        x +=
-                            a * (-dt / tau).exp() * (2.0 * std::f64::consts::PI * 250e3 * dt).sin();
-                    }
-                }
-                x as f32
-            })
-            .collect();
-        (t, v)
-    }
-
-    fn params(fs: f64) -> AeParams {
-        AeParams::from_seconds(fs, 1e-3, 8.0, 0.5e-3, 0.5, 5e-3)
-    }
-
-    #[test]
-    fn envelope_of_constant_sine_is_amplitude_over_sqrt2() {
-        let fs = 1e6;
-        let v: Vec<f32> = (0..10_000)
-            .map(|i| (2.0 * std::f64::consts::PI * 1e4 * i as f64 / fs).sin() as f32)
-            .collect();
-        let e = rms_envelope(&v, 1000);
-        assert!((e[9_999] - std::f64::consts::FRAC_1_SQRT_2).abs() < 1e-3);
-    }
-
-    #[test]
-    fn events_within_one_window_of_burst_onsets_one_per_burst() {
-        let fs = 1e6;
-        let onsets = [0.012, 0.030, 0.0473, 0.081];
-        let bursts: Vec<(f64, f64, f64)> = onsets.iter().map(|&t| (t, 0.2, 2e-3)).collect();
-        let (t, v) = synth(100_000, fs, 0.005, &bursts, 7);
-        let p = params(fs);
-        let (ev, det) = detect_events(&t, &v, p, 1.5 / fs);
-        assert_eq!(ev.len(), onsets.len(), "one event per burst: {ev:?}");
-        for (e, &t0) in ev.iter().zip(&onsets) {
-            assert!(
-                e.onset_t_s >= t0 && e.onset_t_s - t0 <= 1e-3,
-                "onset {} vs truth {}",
-                e.onset_t_s,
-                t0
-            );
-            assert!(e.peak_v > 0.05 && e.duration_s() > 0.5e-3);
-        }
-        let f = det.floors()[0];
-        // Noise floor ≈ σ of the noise (5 mV); threshold a bit above it.
-        assert!((f.mean_v - 0.005).abs() < 5e-4, "{f:?}");
-        assert!(f.threshold_v > f.mean_v && f.release_v < f.threshold_v);
-    }
-
-    #[test]
-    fn chunking_does_not_change_events() {
-        let fs = 1e6;
-        let bursts = [(0.02, 0.15, 1e-3), (0.05, 0.3, 3e-3), (0.09, 0.1, 1e-3)];
-        let (t, v) = synth(200_000, fs, 0.004, &bursts, 3);
-        let p = params(fs);
-        let (whole, _) = detect_events(&t, &v, p, 1.5 / fs);
-        assert_eq!(whole.len(), 3);
-        for chunk in [1usize, 7, 999, 1000, 1001, 4096, 65_537] {
-            let mut det = AeDetector::new(p);
-            let mut out = Vec::new();
-            for (tc, vc) in t.chunks(chunk).zip(v.chunks(chunk)) {
-                det.feed(tc, vc, &mut out);
-            }
-            det.finish(&mut out);
-            assert_eq!(out.len(), whole.len(), "chunk {chunk}");
-            for (a, b) in out.iter().zip(&whole) {
-                assert_eq!(a.onset_index, b.onset_index, "chunk {chunk}");
-                assert!((a.peak_v - b.peak_v).abs() < 1e-9 * b.peak_v);
-            }
-        }
-    }
-
-    #[test]
-    fn running_sum_matches_naive_envelope_after_a_huge_burst() {
-        // Cancellation check: a burst 10⁴× the floor, then quiet floor; the
-        // envelope the detector carries must match the naive one.
-        let fs = 1e6;
-        let (t, v) = synth(300_000, fs, 0.001, &[(0.02, 10.0, 5e-3)], 11);
-        let p = params(fs);
-        let mut det = AeDetector::new(p);
-        let mut out = Vec::new();
-        det.feed(&t, &v, &mut out);
-        let naive = rms_envelope(&v, p.window);
-        let env = (det.sum / p.window as f64).sqrt();
-        assert!(
-            (env - naive[v.len() - 1]).abs() < 1e-9,
-            "{env} vs {}",
-            naive[v.len() - 1]
-        );
-        assert_eq!(out.len(), 1);
-    }
-
-    #[test]
-    fn short_spike_below_dwell_is_not_a_contact() {
-        // A trailing-window envelope stretches any impulse to the window
-        // length, so only a dwell longer than the window rejects spikes:
-        // 1.5 ms here against a 1 ms window. A 20 µs spike holds the
-        // envelope up for ≈ 1 ms (no event); a contact burst decaying over
-        // 3 ms holds it for several ms (one event).
-        let fs = 1e6;
-        let (t, v) = synth(
-            60_000,
-            fs,
-            0.005,
-            &[(0.02, 0.2, 2e-5), (0.04, 0.2, 3e-3)],
-            5,
-        );
-        let p = AeParams::from_seconds(fs, 1e-3, 8.0, 1.5e-3, 0.5, 5e-3);
-        let (ev, det) = detect_events(&t, &v, p, 1.5 / fs);
-        assert_eq!(ev.len(), 1, "{ev:?}");
-        assert!((ev[0].onset_t_s - 0.04).abs() < 1e-3);
-        assert!(det.max_envelope_armed_v() > det.floors()[0].threshold_v);
-    }
-
-    /// A plain reference: naive envelope, the same warm-up / calibration /
-    /// threshold / dwell / hysteresis rules written the obvious way.
-    fn reference(t: &[f64], v: &[f32], p: AeParams) -> Vec<(u64, f64, f64)> {
-        let w = p.window;
-        let sums: Vec<f64> = (0..v.len())
-            .map(|i| {
-                let lo = (i + 1).saturating_sub(w);
-                v[lo..=i].iter().map(|&x| (x as f64) * (x as f64)).sum()
-            })
-            .collect();
-        let cal: Vec<f64> = (w..w + p.noise_window)
-            .map(|i| (sums[i] / w as f64).sqrt())
-            .collect();
-        let n = cal.len() as f64;
-        let mean = cal.iter().sum::<f64>() / n;
-        let var = cal.iter().map(|e| (e - mean).powi(2)).sum::<f64>() / (n - 1.0);
-        let sigma = var.sqrt().max(1e-3 * mean).max(1e-12);
-        let on = w as f64 * (mean + p.k_sigma * sigma).powi(2);
-        let off = w as f64 * (mean + p.hysteresis * p.k_sigma * sigma).powi(2);
-        let mut out = Vec::new();
-        let mut i = w + p.noise_window;
-        while i < v.len() {
-            if sums[i] > on {
-                let start = i;
-                let mut j = i;
-                while j < v.len() && sums[j] > on && j - start < p.min_dwell {
-                    j += 1;
-                }
-                if j - start >= p.min_dwell {
-                    let mut peak = sums[start..j].iter().cloned().fold(0.0, f64::max);
-                    while j < v.len() && sums[j] >= off {
-                        peak = peak.max(sums[j]);
-                        j += 1;
-                    }
-                    let end_t = if j < v.len() { t[j] } else { t[v.len() - 1] };
-                    out.push((start as u64, end_t, (peak / w as f64).sqrt()));
-                    i = j + 1;
-                } else {
-                    i = j + 1;
-                }
-            } else {
-                i += 1;
-            }
-        }
-        out
-    }
-
-    #[test]
-    fn fast_paths_match_the_naive_reference() {
-        // Bursts of many sizes, some barely above the threshold, some
-        // shorter than the dwell once past the window.
-        let fs = 1e6;
-        let bursts: Vec<(f64, f64, f64)> = (0..25)
-            .map(|k| {
-                let a = [0.004, 0.006, 0.01, 0.03, 0.3][k % 5];
-                let tau = [2e-4, 1e-3, 3e-3][k % 3];
-                (0.012 + 0.011 * k as f64, a, tau)
-            })
-            .collect();
-        let (t, v) = synth(300_000, fs, 0.005, &bursts, 13);
-        let p = AeParams::from_seconds(fs, 3e-4, 6.0, 2e-4, 0.4, 2e-3);
-        let expect = reference(&t, &v, p);
-        assert!(expect.len() >= 10, "{}", expect.len());
-        for chunk in [777usize, 65_536, 300_000] {
-            let mut det = AeDetector::new(p);
-            let mut got = Vec::new();
-            for (tc, vc) in t.chunks(chunk).zip(v.chunks(chunk)) {
-                det.feed(tc, vc, &mut got);
-            }
-            det.finish(&mut got);
-            assert_eq!(got.len(), expect.len(), "chunk {chunk}");
-            for (g, e) in got.iter().zip(&expect) {
-                assert_eq!(g.onset_index, e.0);
-                assert_eq!(g.end_t_s, e.1);
-                assert!((g.peak_v - e.2).abs() < 1e-9 * e.2);
-            }
-        }
-    }
-
-    #[test]
-    fn gaps_restart_window_and_noise_floor() {
-        let fs = 1e6;
-        // Two recording blocks 1 s apart, each with its own burst and a
-        // different noise level.
-        let (t1, v1) = synth(20_000, fs, 0.002, &[(0.012, 0.1, 2e-3)], 1);
-        let (t2, mut v2) = synth(20_000, fs, 0.002, &[(0.013, 0.1, 2e-3)], 2);
-        v2.iter_mut().for_each(|x| *x *= 2.0);
-        let mut t = t1.clone();
-        t.extend(t2.iter().map(|x| x + 1.0));
-        let mut v = v1;
-        v.extend(v2);
-        let (ev, det) = detect_events(&t, &v, params(fs), 1.5 / fs);
-        assert_eq!(ev.len(), 2, "{ev:?}");
-        assert!((ev[0].onset_t_s - 0.012).abs() < 1e-3);
-        assert!((ev[1].onset_t_s - 1.013).abs() < 1e-3);
-        assert_eq!(det.floors().len(), 2);
-        assert!(det.floors()[1].mean_v > 1.5 * det.floors()[0].mean_v);
-        assert_eq!(gaps(&t, None, 1.5 / fs), vec![20_000]);
-    }
-}
+pub(crate) mod tests;

@@ -8,10 +8,8 @@
 //! `prev_move_dir`, `source`), `contacts` (one row per AE event) and, when
 //! both recorded and AE-derived touches exist, `touch_compare`.
 //!
-//! Length (over 700 lines): both touch sources (probe.parquet, and the AE
-//! chain: plan, motion interpolation, contact detection, the comparison of
-//! the two) map to the same `Touch`; `Motion` and `compare` are the next
-//! candidates for their own files.
+//! ingest/plan_motion.rs reads the plan and interpolates motion;
+//! ingest/compare.rs compares both sources and writes `contacts`.
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -20,6 +18,7 @@ use anyhow::Context;
 use nalgebra::Vector3;
 use serde_json::{json, Value};
 use sparkout_pipeline::config_check::flags_to_table;
+use sparkout_pipeline::config_check::SectionCheck;
 use sparkout_pipeline::contracts::schema::{AE, MOTION, PLAN, PROBE};
 use sparkout_pipeline::contracts::{AeKind, AeStream, BatchBuilder, Table, TimeOrigin};
 use sparkout_pipeline::{
@@ -30,6 +29,11 @@ use super::ae::{gaps, AeDetector, AeEvent, AeParams};
 use super::config::{check_config, Check};
 use super::planes::Face;
 use super::touches::{self, Touch};
+
+mod plan_motion;
+pub use plan_motion::*;
+mod compare;
+use compare::*;
 
 pub struct IngestStage;
 
@@ -69,238 +73,6 @@ impl IngestConfig {
             noise_window_s: f("noise_window_s", 0.005),
             segment_tolerance_s: f("segment_tolerance_s", 0.005),
         }
-    }
-}
-
-/// One plan row.
-#[derive(Debug, Clone)]
-pub struct PlanRow {
-    pub seq: i32,
-    pub face: Face,
-    pub point: i32,
-    pub trial: i32,
-    pub method: String,
-    pub approach_mm_s: f64,
-    pub nom: Vector3<f64>,
-    pub dir: Vector3<f64>,
-}
-
-fn unknown_face(path: &Path, label: &str, row: usize) -> InputError {
-    InputError::new(
-        path,
-        format!(
-            "unknown face label `{label}` (expected xy, yz or zx: the faces with normal Z, X, Y)"
-        ),
-    )
-    .column("face")
-    .row(row)
-}
-
-pub fn read_plan(t: &Table) -> Result<Vec<PlanRow>> {
-    let path = t.path();
-    let seq = t.i32("seq")?;
-    let face = t.str("face")?;
-    let point = t.i32("point")?;
-    let trial = t.i32("trial")?;
-    let method = t.str("method")?;
-    let v = t.f64("approach_mm_s")?;
-    let (nx, ny, nz) = (t.f64("nom_x_mm")?, t.f64("nom_y_mm")?, t.f64("nom_z_mm")?);
-    let (dx, dy, dz) = (t.f64("dir_x")?, t.f64("dir_y")?, t.f64("dir_z")?);
-    let mut out = Vec::with_capacity(t.len());
-    let mut seen = BTreeMap::new();
-    for i in 0..t.len() {
-        let f = Face::parse(face[i]).ok_or_else(|| unknown_face(path, face[i], i))?;
-        let d = Vector3::new(dx[i], dy[i], dz[i]);
-        let n = d.norm();
-        if !(n > 1e-9) {
-            return Err(InputError::new(path, "approach direction is zero")
-                .column("dir_x")
-                .row(i)
-                .into());
-        }
-        if let Some(prev) = seen.insert(seq[i], i) {
-            return Err(InputError::new(
-                path,
-                format!("seq {} appears twice (rows {prev} and {i})", seq[i]),
-            )
-            .column("seq")
-            .row(i)
-            .into());
-        }
-        out.push(PlanRow {
-            seq: seq[i],
-            face: f,
-            point: point[i],
-            trial: trial[i],
-            method: method[i].to_string(),
-            approach_mm_s: v[i],
-            nom: Vector3::new(nx[i], ny[i], nz[i]),
-            dir: d / n,
-        });
-    }
-    Ok(out)
-}
-
-/// The machine's default approach direction of a face (when no plan says):
-/// `[probing].approach_dir_<face>` in the machine config, else −normal axis
-/// (the block below/behind the face).
-pub fn default_dir(
-    machine: &sparkout_pipeline::contracts::MachineConfig,
-    face: Face,
-) -> Vector3<f64> {
-    let key = format!("probing.approach_dir_{}", face.label());
-    if let Some(a) = machine.get(&key).and_then(|v| v.as_array()) {
-        let v: Vec<f64> = a
-            .iter()
-            .filter_map(|x| x.as_float().or_else(|| x.as_integer().map(|i| i as f64)))
-            .collect();
-        if v.len() == 3 {
-            let d = Vector3::new(v[0], v[1], v[2]);
-            if d.norm() > 0.0 {
-                return d.normalize();
-            }
-        }
-    }
-    let mut d = Vector3::zeros();
-    d[face.normal_axis()] = -1.0;
-    d
-}
-
-/// The motion log as the AE mapping needs it.
-pub struct Motion {
-    path: std::path::PathBuf,
-    t: Vec<f64>,
-    pos: [Vec<f64>; 3],
-    cmd: [Vec<f64>; 3],
-    segment: Option<Vec<i32>>,
-    /// First sample index of each segment value ≥ 0.
-    seg_first: BTreeMap<i32, usize>,
-    /// Index range of each segment value ≥ 0 (first, last).
-    seg_span: BTreeMap<i32, (usize, usize)>,
-    /// Whether positions are measured (`act_*`) rather than commanded.
-    pub measured: bool,
-}
-
-impl Motion {
-    pub fn from_table(t: &Table) -> Result<Motion> {
-        let ts = t.f64("t_s")?.to_vec();
-        let cmd = [
-            t.f64("cmd_x_mm")?.to_vec(),
-            t.f64("cmd_y_mm")?.to_vec(),
-            t.f64("cmd_z_mm")?.to_vec(),
-        ];
-        let has_act = ["act_x_mm", "act_y_mm", "act_z_mm"].iter().all(|c| {
-            t.has(c)
-                && t.batch()
-                    .column_by_name(c)
-                    .is_some_and(|a| a.null_count() == 0)
-        });
-        let pos = if has_act {
-            let v = [t.f64("act_x_mm")?, t.f64("act_y_mm")?, t.f64("act_z_mm")?];
-            for (k, c) in v.iter().enumerate() {
-                if let Some(i) = c.iter().position(|x| !x.is_finite()) {
-                    return Err(InputError::new(t.path(), "NaN or infinite position")
-                        .column(["act_x_mm", "act_y_mm", "act_z_mm"][k])
-                        .row(i)
-                        .into());
-                }
-            }
-            [v[0].to_vec(), v[1].to_vec(), v[2].to_vec()]
-        } else {
-            cmd.clone()
-        };
-        let segment = t.opt_i32("segment").map(|s| s.to_vec());
-        let mut seg_first = BTreeMap::new();
-        let mut seg_span = BTreeMap::new();
-        if let Some(s) = &segment {
-            for (i, &v) in s.iter().enumerate() {
-                if v >= 0 {
-                    seg_first.entry(v).or_insert(i);
-                    seg_span
-                        .entry(v)
-                        .and_modify(|e: &mut (usize, usize)| e.1 = i)
-                        .or_insert((i, i));
-                }
-            }
-        }
-        Ok(Motion {
-            path: t.path().to_path_buf(),
-            t: ts,
-            pos,
-            cmd,
-            segment,
-            seg_first,
-            seg_span,
-            measured: has_act,
-        })
-    }
-
-    pub fn has_segments(&self) -> bool {
-        self.segment.is_some()
-    }
-
-    pub fn span_s(&self) -> (f64, f64) {
-        (self.t[0], self.t[self.t.len() - 1])
-    }
-
-    /// Linear interpolation of the TCP position at controller time `t`;
-    /// `None` outside the log.
-    pub fn position_at(&self, t: f64) -> Option<Vector3<f64>> {
-        let n = self.t.len();
-        if !(t >= self.t[0] && t <= self.t[n - 1]) {
-            return None;
-        }
-        let j = self.t.partition_point(|&x| x <= t).clamp(1, n - 1);
-        let (t0, t1) = (self.t[j - 1], self.t[j]);
-        let w = if t1 > t0 { (t - t0) / (t1 - t0) } else { 0.0 };
-        let at = |k: usize| self.pos[k][j - 1] + w * (self.pos[k][j] - self.pos[k][j - 1]);
-        Some(Vector3::new(at(0), at(1), at(2)))
-    }
-
-    /// The plan `seq` being approached at time `t`: the segment of the last
-    /// sample at or before `t`; when that is −1 (the robot already stopping
-    /// or retracting), the segment whose samples lie within `tol` of `t`.
-    pub fn segment_at(&self, t: f64, tol: f64) -> Option<i32> {
-        let seg = self.segment.as_ref()?;
-        let j = self.t.partition_point(|&x| x <= t);
-        if j > 0 && seg[j - 1] >= 0 {
-            return Some(seg[j - 1]);
-        }
-        let mut best: Option<(f64, i32)> = None;
-        let lo = self.t.partition_point(|&x| x < t - tol);
-        let hi = self.t.partition_point(|&x| x <= t + tol);
-        for (ti, &s) in self.t[lo..hi].iter().zip(&seg[lo..hi]) {
-            if s >= 0 {
-                let d = (ti - t).abs();
-                if best.is_none_or(|b| d < b.0) {
-                    best = Some((d, s));
-                }
-            }
-        }
-        best.map(|b| b.1)
-    }
-
-    /// Sign (±1) of the last commanded move along `axis` before segment
-    /// `seq` began (for backlash: the direction the axis was last driven).
-    pub fn prev_move_sign(&self, seq: i32, axis: usize) -> Option<f64> {
-        let first = *self.seg_first.get(&seq)?;
-        let c = &self.cmd[axis];
-        let mut i = first;
-        while i > 0 {
-            let d = c[i] - c[i - 1];
-            if d.abs() > 1e-9 {
-                return Some(d.signum());
-            }
-            i -= 1;
-        }
-        None
-    }
-
-    /// Time span of a segment.
-    pub fn segment_span_s(&self, seq: i32) -> Option<(f64, f64)> {
-        self.seg_span
-            .get(&seq)
-            .map(|&(a, b)| (self.t[a], self.t[b]))
     }
 }
 
@@ -538,14 +310,8 @@ fn probe_touches(
     motion: Option<&Motion>,
     machine: &sparkout_pipeline::contracts::MachineConfig,
 ) -> Result<Vec<Touch>> {
-    let path = t.path();
     let ts = t.f64("t_s")?;
-    let face = t.str("face")?;
-    let point = t.i32("point")?;
-    let trial = t.i32("trial")?;
-    let method = t.str("method")?;
-    let v = t.f64("approach_mm_s")?;
-    let (nx, ny, nz) = (t.f64("nom_x_mm")?, t.f64("nom_y_mm")?, t.f64("nom_z_mm")?);
+    let c = PointColumns::read(t)?;
     let (x, y, z) = (t.f64("x_mm")?, t.f64("y_mm")?, t.f64("z_mm")?);
     type Key = (Face, i32, i32, String, u64);
     let key = |f: Face, p: i32, tr: i32, m: &str, v: f64| -> Key {
@@ -558,8 +324,14 @@ fn probe_touches(
         .collect();
     let mut out = Vec::with_capacity(t.len());
     for i in 0..t.len() {
-        let f = Face::parse(face[i]).ok_or_else(|| unknown_face(path, face[i], i))?;
-        let row = plan_by_key.get(&key(f, point[i], trial[i], method[i], v[i]));
+        let f = c.face[i];
+        let row = plan_by_key.get(&key(
+            f,
+            c.point[i],
+            c.trial[i],
+            c.method[i],
+            c.approach_mm_s[i],
+        ));
         let (seq, dir) = match row {
             Some(r) => (r.seq, r.dir),
             None => (-1, default_dir(machine, f)),
@@ -571,11 +343,11 @@ fn probe_touches(
         out.push(Touch {
             t_s: ts[i],
             face: f,
-            point: point[i],
-            trial: trial[i],
-            method: method[i].to_string(),
-            approach_mm_s: v[i],
-            nom: Vector3::new(nx[i], ny[i], nz[i]),
+            point: c.point[i],
+            trial: c.trial[i],
+            method: c.method[i].to_string(),
+            approach_mm_s: c.approach_mm_s[i],
+            nom: c.nom(i),
             p: Vector3::new(x[i], y[i], z[i]),
             seq,
             dir,
@@ -586,126 +358,6 @@ fn probe_touches(
     Ok(out)
 }
 
-/// Recorded vs AE-derived touches of the same plan row.
-fn compare(probe: &[Touch], ae: &[Touch]) -> Option<(arrow::record_batch::RecordBatch, Value)> {
-    let ae_by_seq: BTreeMap<i32, &Touch> = ae.iter().map(|t| (t.seq, t)).collect();
-    let pairs: Vec<(&Touch, &Touch)> = probe
-        .iter()
-        .filter(|p| p.seq >= 0)
-        .filter_map(|p| ae_by_seq.get(&p.seq).map(|a| (p, *a)))
-        .collect();
-    if pairs.is_empty() {
-        return None;
-    }
-    let d: Vec<Vector3<f64>> = pairs.iter().map(|(p, a)| p.p - a.p).collect();
-    let dn: Vec<f64> = pairs.iter().map(|(p, a)| p.normal() - a.normal()).collect();
-    let dt: Vec<f64> = pairs.iter().map(|(p, a)| p.t_s - a.t_s).collect();
-    let dist: Vec<f64> = d.iter().map(|v| v.norm()).collect();
-    let batch = BatchBuilder::new()
-        .i32("seq", pairs.iter().map(|(p, _)| p.seq).collect())
-        .str(
-            "face",
-            &pairs
-                .iter()
-                .map(|(p, _)| p.face.label())
-                .collect::<Vec<_>>(),
-        )
-        .i32("point", pairs.iter().map(|(p, _)| p.point).collect())
-        .i32("trial", pairs.iter().map(|(p, _)| p.trial).collect())
-        .str(
-            "method",
-            &pairs
-                .iter()
-                .map(|(p, _)| p.method.as_str())
-                .collect::<Vec<_>>(),
-        )
-        .f64(
-            "approach_mm_s",
-            pairs.iter().map(|(p, _)| p.approach_mm_s).collect(),
-        )
-        .f64("dt_s", dt.clone())
-        .f64("dx_mm", d.iter().map(|v| v.x).collect())
-        .f64("dy_mm", d.iter().map(|v| v.y).collect())
-        .f64("dz_mm", d.iter().map(|v| v.z).collect())
-        .f64("dnormal_mm", dn.clone())
-        .f64("dist_mm", dist.clone())
-        .build();
-    let n = pairs.len() as f64;
-    let mean = |v: &[f64]| v.iter().sum::<f64>() / n;
-    // The controller registers a touch L seconds after the contact the AE
-    // shows: the time difference estimates the trigger latency directly.
-    let summary = json!({
-        "n": pairs.len(),
-        "rms_dist_mm": (dist.iter().map(|x| x * x).sum::<f64>() / n).sqrt(),
-        "max_dist_mm": dist.iter().fold(0.0f64, |m, x| m.max(*x)),
-        "mean_dnormal_mm": mean(&dn),
-        "mean_dt_s": mean(&dt),
-        "by_speed": by_speed(&pairs, &dn, &dt),
-    });
-    Some((batch, summary))
-}
-
-fn by_speed(pairs: &[(&Touch, &Touch)], dn: &[f64], dt: &[f64]) -> Value {
-    let mut g: BTreeMap<(String, u64), (f64, Vec<usize>)> = BTreeMap::new();
-    for (i, (p, _)) in pairs.iter().enumerate() {
-        g.entry((p.method.clone(), p.approach_mm_s.to_bits()))
-            .or_insert((p.approach_mm_s, Vec::new()))
-            .1
-            .push(i);
-    }
-    Value::Array(
-        g.into_iter()
-            .map(|((m, _), (v, idx))| {
-                let n = idx.len() as f64;
-                json!({
-                    "method": m,
-                    "approach_mm_s": v,
-                    "n": idx.len(),
-                    "mean_dnormal_mm": idx.iter().map(|&i| dn[i]).sum::<f64>() / n,
-                    "mean_dt_s": idx.iter().map(|&i| dt[i]).sum::<f64>() / n,
-                })
-            })
-            .collect(),
-    )
-}
-
-fn contacts_batch(r: &AeResult, roles: &[(i32, Role)]) -> arrow::record_batch::RecordBatch {
-    let e = &r.events;
-    BatchBuilder::new()
-        .f64(
-            "t_s",
-            e.iter().map(|x| x.onset_t_s + r.clock_offset_s).collect(),
-        )
-        .f64("ae_t_s", e.iter().map(|x| x.onset_t_s).collect())
-        .i64("ae_row", e.iter().map(|x| x.onset_index as i64).collect())
-        .f64("peak_v", e.iter().map(|x| x.peak_v).collect())
-        .f64("duration_s", e.iter().map(|x| x.duration_s()).collect())
-        .f64(
-            "threshold_v",
-            e.iter().map(|x| x.floor.threshold_v).collect(),
-        )
-        .f64("release_v", e.iter().map(|x| x.floor.release_v).collect())
-        .f64("noise_mean_v", e.iter().map(|x| x.floor.mean_v).collect())
-        .f64("noise_sigma_v", e.iter().map(|x| x.floor.sigma_v).collect())
-        .i32("seq", roles.iter().map(|r| r.0).collect())
-        .str(
-            "role",
-            &roles.iter().map(|r| r.1.label()).collect::<Vec<_>>(),
-        )
-        .build()
-}
-
-fn empty_contacts() -> arrow::record_batch::RecordBatch {
-    let r = AeResult {
-        events: Vec::new(),
-        detector: AeDetector::new(AeParams::from_seconds(1.0, 1.0, 1.0, 1.0, 1.0, 2.0)),
-        samples: 0,
-        blocks: 0,
-        clock_offset_s: 0.0,
-    };
-    contacts_batch(&r, &[])
-}
-
 const SPEC: StageSpec = StageSpec {
     name: "ingest",
     version: 1,
@@ -713,14 +365,12 @@ const SPEC: StageSpec = StageSpec {
     reads_artifacts: &[],
     writes: &["touches", "contacts", "touch_compare"],
     about: "touches from probe.parquet or from AE contacts mapped through motion + plan (MODELS.md §1.2)",
+    config: SectionCheck::Keys(KEYS),
 };
 
 impl Stage for IngestStage {
     fn spec(&self) -> &'static StageSpec {
         &SPEC
-    }
-    fn validate_config(&self, config: &toml::Table) -> Result<()> {
-        check_config(config, KEYS)
     }
     fn run_standalone(&self, args: &StageArgs) -> Option<Result<Value>> {
         Some(standalone(args))

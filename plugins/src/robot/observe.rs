@@ -54,10 +54,11 @@ use arrow::array::Int32Array;
 use arrow::datatypes::{DataType, Field};
 use nalgebra::Vector3;
 use serde_json::json;
+use sparkout_pipeline::config_check::SectionCheck;
 use sparkout_pipeline::contracts::{batch_f64, batch_i32, batch_str, BatchBuilder};
 use sparkout_pipeline::{Result, Stage, StageContext, StageOutput, StageSpec};
 
-use super::config::{check_config, Check};
+use super::config::Check;
 use super::planes::{Face, Plane};
 use super::touches::{self, opt_col};
 
@@ -164,14 +165,12 @@ const SPEC: StageSpec = StageSpec {
     reads_artifacts: &["touches", "planes", "cycle"],
     writes: &["observations"],
     about: "paired observations touch_normal and cut_depth for the gap diagnosis (docs/formats.md)",
+    config: SectionCheck::Keys(KEYS),
 };
 
 impl Stage for ObserveStage {
     fn spec(&self) -> &'static StageSpec {
         &SPEC
-    }
-    fn validate_config(&self, config: &toml::Table) -> Result<()> {
-        check_config(config, KEYS)
     }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
         let fit = ctx.cfg_str("fit", "tls");

@@ -13,10 +13,11 @@
 use std::collections::BTreeMap;
 
 use serde_json::{json, Value};
+use sparkout_pipeline::config_check::SectionCheck;
 use sparkout_pipeline::contracts::BatchBuilder;
 use sparkout_pipeline::{Result, Stage, StageContext, StageOutput, StageSpec};
 
-use super::config::{check_config, Check};
+use super::config::Check;
 use super::planes::Face;
 use super::touches::{self, Touch};
 
@@ -294,14 +295,12 @@ const SPEC: StageSpec = StageSpec {
     reads_artifacts: &["touches"],
     writes: &["repeatability"],
     about: "range and std of the normal coordinate per method × speed × face; bias vs scatter; trigger latency (MODELS.md §1.1)",
+    config: SectionCheck::Keys(KEYS),
 };
 
 impl Stage for RepeatabilityStage {
     fn spec(&self) -> &'static StageSpec {
         &SPEC
-    }
-    fn validate_config(&self, config: &toml::Table) -> Result<()> {
-        check_config(config, KEYS)
     }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
         let t = touches::require(ctx)?;

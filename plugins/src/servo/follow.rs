@@ -10,6 +10,7 @@
 //! cannot show a following error finer than their step.
 
 use serde_json::json;
+use sparkout_pipeline::config_check::SectionCheck;
 use sparkout_pipeline::contracts::schema::MOTION;
 use sparkout_pipeline::contracts::BatchBuilder;
 use sparkout_pipeline::{Result, Stage, StageContext, StageOutput, StageSpec};
@@ -124,14 +125,12 @@ const SPEC: StageSpec = StageSpec {
     reads_artifacts: &[],
     writes: &["following_error"],
     about: "commanded path through the servo model: simulated vs measured following and velocity error per axis",
+    config: SectionCheck::Keys(&[]),
 };
 
 impl Stage for FollowStage {
     fn spec(&self) -> &'static StageSpec {
         &SPEC
-    }
-    fn validate_config(&self, config: &toml::Table) -> Result<()> {
-        sparkout_pipeline::config_check::check_config(config, &[])
     }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
         let machine = ServoMachine::from_config(&ctx.run.machine)?;

@@ -15,6 +15,7 @@
 //! the path feed `feed_mm_s` and the program `segment` (line).
 
 use serde_json::json;
+use sparkout_pipeline::config_check::SectionCheck;
 use sparkout_pipeline::contracts::schema::MOTION;
 use sparkout_pipeline::contracts::{batch_f64, BatchBuilder};
 use sparkout_pipeline::{Result, Stage, StageContext, StageOutput, StageSpec};
@@ -39,14 +40,12 @@ const SPEC: StageSpec = StageSpec {
     reads_artifacts: &["following_error"],
     writes: &["observations"],
     about: "paired observations following_error_<axis> (mm) and velocity_error_<axis> (mm/s) for the gap diagnosis",
+    config: SectionCheck::Parsed(|c| ObserveConfig::parse(c).map(drop)),
 };
 
 impl Stage for ObserveStage {
     fn spec(&self) -> &'static StageSpec {
         &SPEC
-    }
-    fn validate_config(&self, config: &toml::Table) -> Result<()> {
-        ObserveConfig::parse(config).map(|_| ())
     }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
         let cfg = ObserveConfig::parse(ctx.config)?;

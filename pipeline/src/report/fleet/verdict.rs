@@ -1,0 +1,387 @@
+//! The verdict line of one (machine, observable) and its candidates table:
+//! the gap in the observable's unit, the named effect with its parameters
+//! and intervals, the held-out shrink, the augmented simulator's gap.
+
+use super::*;
+
+/// An observable's unit and how it is shown: gaps in mm are shown in µm;
+/// `velocity_error_*` is a velocity (mm/s, MODELS.md servo §), shown in
+/// mm/s.
+pub struct Unit {
+    /// The unit of the data (`mm` or `mm/s`).
+    pub data: String,
+    /// The unit shown.
+    pub shown: String,
+    /// Shown = data × scale.
+    pub scale: f64,
+}
+
+/// The unit an observable's numbers are in: `per_observable[].unit` of
+/// diagnosis.json (observations v1.1 `unit` column) when given, else "mm"
+/// — except `velocity_error_*`, which is mm/s even in a table written
+/// before the unit column existed.
+pub fn unit_of(observable: &str, unit: Option<&str>) -> Unit {
+    match unit {
+        Some("mm") => unit_of_observable("mm"),
+        Some("mm/s") => unit_of_observable("velocity_error"),
+        Some(other) => Unit {
+            data: other.to_string(),
+            shown: other.to_string(),
+            scale: 1.0,
+        },
+        None => unit_of_observable(observable),
+    }
+}
+
+/// By name alone (velocity_error_* is mm/s, everything else mm).
+pub fn unit_of_observable(observable: &str) -> Unit {
+    if observable.starts_with("velocity_error") {
+        Unit {
+            data: "mm/s".into(),
+            shown: "mm/s".into(),
+            scale: 1.0,
+        }
+    } else {
+        Unit {
+            data: "mm".into(),
+            shown: "µm".into(),
+            scale: 1e3,
+        }
+    }
+}
+
+impl Unit {
+    /// A data value shown with three significant digits and its unit.
+    pub fn show(&self, v: f64) -> String {
+        if !v.is_finite() {
+            return "—".into();
+        }
+        format!("{} {}", super::super::svg::tick(v * self.scale), self.shown)
+    }
+}
+
+pub(super) fn f(v: &Value, k: &str) -> f64 {
+    v.get(k).and_then(|x| x.as_f64()).unwrap_or(f64::NAN)
+}
+
+pub(super) fn s<'a>(v: &'a Value, k: &str) -> &'a str {
+    v.get(k).and_then(|x| x.as_str()).unwrap_or("")
+}
+
+pub(super) fn key_of(e: &Value) -> String {
+    match e.get("covariate").and_then(|c| c.as_str()) {
+        Some(c) => format!("{}:{c}", s(e, "name")),
+        None => s(e, "name").to_string(),
+    }
+}
+
+/// `k = 1.50e-5 ± 0.08e-5 mm/mm³ (95 % −… … …)` for each parameter of a
+/// selected effect (diagnosis.json `effects[].intervals`).
+pub(super) fn params_text(e: &Value) -> Vec<String> {
+    // An `effects` entry names its covariate; a `machine_effects` entry
+    // spells it inside `effect` (name:covariate).
+    let cov = e.get("covariate").and_then(|c| c.as_str()).or_else(|| {
+        e.get("effect")
+            .and_then(|x| x.as_str())
+            .and_then(|k| k.split_once(':').map(|(_, c)| c))
+    });
+    let mut out = Vec::new();
+    for (k, v) in e
+        .get("params")
+        .and_then(|p| p.as_object())
+        .into_iter()
+        .flatten()
+    {
+        let Some(v) = v.as_f64() else { continue };
+        let unit = param_unit(k, cov);
+        let iv = e.pointer(&format!("/intervals/{k}"));
+        // Frame constants of a form (centre, span) come with a zero-width
+        // interval: they were not fitted, so they are not a finding.
+        if iv.is_some_and(|iv| f(iv, "se") == 0.0 && f(iv, "lo") == f(iv, "hi")) {
+            continue;
+        }
+        match iv {
+            Some(iv)
+                if [v, f(iv, "se"), f(iv, "lo"), f(iv, "hi")]
+                    .iter()
+                    .all(|x| x.is_finite()) =>
+            {
+                out.push(format!(
+                    "{k} = {} {unit} (95 % {:.3e} … {:.3e})",
+                    format_pm(v, f(iv, "se")),
+                    f(iv, "lo"),
+                    f(iv, "hi")
+                ))
+            }
+            _ if v.is_finite() => out.push(format!("{k} = {v:.3e} {unit}")),
+            _ => {}
+        }
+    }
+    out
+}
+
+/// A p-value as text ("—" when there is none).
+pub(super) fn pval(p: f64) -> String {
+    if p.is_finite() {
+        format!("{p:.1e}")
+    } else {
+        "—".into()
+    }
+}
+
+/// Why a candidate was not selected, from its entry and the observable's.
+pub(super) fn why_lost(e: &Value, winners: &BTreeMap<usize, (String, f64)>, stop: &str) -> String {
+    if let Some(r) = e.get("skipped_reason").and_then(|r| r.as_str()) {
+        return format!("not tried: {r}");
+    }
+    if e.get("selected").and_then(|x| x.as_bool()) == Some(true) {
+        return format!("selected (step {})", e["step"]);
+    }
+    let shrink = f(e, "shrink");
+    let p = pval(f(e, "p_value"));
+    let step = e.get("step").and_then(|x| x.as_u64()).unwrap_or(1) as usize;
+    if !shrink.is_finite() {
+        return "no held-out score".into();
+    }
+    if shrink <= 0.0 {
+        return format!("held-out gap not smaller (shrink {shrink:.2})");
+    }
+    if let Some((w, ws)) = winners.get(&step) {
+        return format!(
+            "step {step}: {w} shrank the held-out gap more ({} vs {shrink:.2}; p = {p})",
+            super::super::fmt_fixed(Some(*ws), 2)
+        );
+    }
+    format!("not significant or selection stopped (p = {p}; {stop})")
+}
+
+/// The folded candidate ranking of one observable, best first.
+pub(super) fn candidates(d: &Value, observable: &str, stop: &str, u: &Unit) -> String {
+    let mut es: Vec<&Value> = d
+        .get("effects")
+        .and_then(|e| e.as_array())
+        .into_iter()
+        .flatten()
+        .filter(|e| s(e, "observable") == observable)
+        .collect();
+    if es.is_empty() {
+        return String::new();
+    }
+    let winners: BTreeMap<usize, (String, f64)> = es
+        .iter()
+        .filter(|e| e.get("selected").and_then(|x| x.as_bool()) == Some(true))
+        .map(|e| {
+            (
+                e.get("step").and_then(|x| x.as_u64()).unwrap_or(1) as usize,
+                (key_of(e), f(e, "shrink")),
+            )
+        })
+        .collect();
+    // Selected first (in order), then by held-out RMS after, skipped last.
+    let rank = |e: &Value| {
+        let sel = e.get("selected").and_then(|x| x.as_bool()) == Some(true);
+        let skipped = e.get("skipped_reason").map(|r| !r.is_null()) == Some(true);
+        let after = f(e, "cv_rms_after_mm");
+        (
+            if sel {
+                0
+            } else if skipped {
+                2
+            } else {
+                1
+            },
+            if sel { f(e, "step") } else { after },
+        )
+    };
+    es.sort_by(|a, b| {
+        let (ra, rb) = (rank(a), rank(b));
+        ra.0.cmp(&rb.0)
+            .then(ra.1.total_cmp(&rb.1))
+            .then(key_of(a).cmp(&key_of(b)))
+    });
+    let mut h = format!(
+        "<details><summary>All {} candidates for {}, ranked, and why each lost</summary><table><thead><tr><th>effect</th><th>held-out RMS before ({})</th><th>after ({})</th><th>shrink</th><th>p</th><th>verdict</th></tr></thead><tbody>",
+        es.len(),
+        esc(observable),
+        u.shown,
+        u.shown
+    );
+    for e in es {
+        let _ = write!(
+            h,
+            "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td class=\"why\">{}</td></tr>",
+            esc(&key_of(e)),
+            super::super::svg::tick(f(e, "cv_rms_before_mm") * u.scale),
+            super::super::svg::tick(f(e, "cv_rms_after_mm") * u.scale),
+            super::super::fmt_fixed(Some(f(e, "shrink")), 2),
+            super::super::fmt_fixed(Some(f(e, "p_value")), 4),
+            esc(&why_lost(e, &winners, stop))
+        );
+    }
+    h.push_str("</tbody></table></details>");
+    h
+}
+
+/// augment.json entries (written by the augmentation step when it ran).
+pub(super) fn augment_entries(out_dir: &std::path::Path) -> Vec<Value> {
+    std::fs::read(out_dir.join("fleet").join("augment.json"))
+        .ok()
+        .and_then(|b| serde_json::from_slice::<Value>(&b).ok())
+        .and_then(|v| v.get("entries").and_then(|o| o.as_array()).cloned())
+        .unwrap_or_default()
+}
+
+/// The verdict line of one observable (the diagnosis is per observable,
+/// pooled over the machines that carry it).
+pub(super) fn verdict(d: &Value, po: &Value, augment: &[Value], machine: &str) -> String {
+    let obs = s(po, "observable");
+    let u = unit_of(obs, po.get("unit").and_then(|x| x.as_str()));
+    let (rms, floor) = (f(po, "rms_mm"), f(po, "noise_floor_mm"));
+    let mut v = format!(
+        "Gap RMS <b>{}</b> against a noise floor of {} ({})",
+        u.show(rms),
+        u.show(floor),
+        esc(s(po, "noise_floor_source"))
+    );
+    let above = po.get("gap_above_noise").and_then(|x| x.as_bool()) == Some(true);
+    if above && floor > 0.0 && rms.is_finite() {
+        let _ = write!(v, ", {:.1}× the floor", rms / floor);
+    }
+    v.push_str(". ");
+    let selected: Vec<&str> = po
+        .get("selected")
+        .and_then(|x| x.as_array())
+        .map(|a| a.iter().filter_map(|x| x.as_str()).collect())
+        .unwrap_or_default();
+    if !above {
+        v.push_str("<span class=\"ok\">At the noise floor: nothing to explain.</span>");
+    } else if selected.is_empty() {
+        let _ = write!(
+            v,
+            "<span class=\"bad\">Not explained</span>: {}.",
+            esc(s(po, "stop_reason"))
+        );
+    } else {
+        let effects: Vec<&Value> = d
+            .get("effects")
+            .and_then(|e| e.as_array())
+            .into_iter()
+            .flatten()
+            .filter(|e| {
+                s(e, "observable") == obs
+                    && e.get("selected").and_then(|x| x.as_bool()) == Some(true)
+            })
+            .collect();
+        let mut named = Vec::new();
+        for k in &selected {
+            let e = effects.iter().find(|e| key_of(e) == *k);
+            let mut t = format!("<b>{}</b>", esc(k));
+            if let Some(e) = e {
+                let p = params_text(e);
+                if !p.is_empty() {
+                    let _ = write!(t, " with {}", esc(&p.join(", ")));
+                }
+                // The machines disagree: this machine's own fit.
+                if let Some(own) = e
+                    .get("per_machine")
+                    .and_then(|m| m.as_array())
+                    .and_then(|m| m.iter().find(|x| s(x, "machine") == machine))
+                {
+                    let ps: Vec<String> = own
+                        .get("params")
+                        .and_then(|p| p.as_object())
+                        .into_iter()
+                        .flatten()
+                        .filter_map(|(k, v)| {
+                            v.as_f64()
+                                .filter(|x| x.is_finite())
+                                .map(|x| format!("{k} = {x:.3e}"))
+                        })
+                        .collect();
+                    let _ = write!(
+                        t,
+                        " (machines differ; {} alone: {})",
+                        esc(machine),
+                        esc(&ps.join(", "))
+                    );
+                }
+            }
+            named.push(t);
+        }
+        let _ = write!(v, "Explained by {}. ", named.join("; then "));
+        let si = po
+            .get("shrink_interval")
+            .and_then(|x| x.as_array())
+            .and_then(|a| {
+                let lo = a
+                    .first()
+                    .and_then(|x| x.as_f64())
+                    .filter(|x| x.is_finite())?;
+                let hi = a
+                    .get(1)
+                    .and_then(|x| x.as_f64())
+                    .filter(|x| x.is_finite())?;
+                Some(format!(" (95 % {lo:.2}–{hi:.2})"))
+            })
+            .unwrap_or_default();
+        let _ = write!(
+            v,
+            "Held-out RMS {} → <b>{}</b>, shrink <b>{}</b>{si}.",
+            u.show(f(po, "cv_rms_before_mm")),
+            u.show(f(po, "cv_rms_after_mm")),
+            super::super::fmt_fixed(Some(f(po, "shrink")), 2)
+        );
+    }
+    // Effects named on this machine's rows alone (diagnosis.json
+    // machine_effects): the pooled fit may miss what only one machine has.
+    for me in d
+        .get("machine_effects")
+        .and_then(|m| m.as_array())
+        .into_iter()
+        .flatten()
+        .filter(|me| s(me, "observable") == obs && s(me, "machine") == machine)
+    {
+        let p = params_text(me);
+        let _ = write!(
+            v,
+            " <span class=\"bad\">This machine alone</span>: <b>{}</b>{}, held-out shrink {} over its {} runs.",
+            esc(s(me, "effect")),
+            if p.is_empty() {
+                String::new()
+            } else {
+                format!(" with {}", esc(&p.join(", ")))
+            },
+            super::super::fmt_fixed(Some(f(me, "shrink")), 2),
+            me.get("runs").and_then(|x| x.as_u64()).unwrap_or(0)
+        );
+    }
+    for a in augment.iter().filter(|a| {
+        s(a, "observable") == obs
+            && a.get("machine")
+                .and_then(|m| m.as_str())
+                .is_none_or(|m| m == machine)
+    }) {
+        let au = a.get("unit").and_then(|x| x.as_str()).unwrap_or(&u.data);
+        let scale = if au == u.data { u.scale } else { 1.0 };
+        let shown = if au == u.data { u.shown.as_str() } else { au };
+        let held = a.get("held_out").and_then(|x| x.as_bool()) == Some(true);
+        let _ = write!(
+            v,
+            " Augmented simulator (+ {}), on {} {}: gap {} {shown} plain → <b>{} {shown}</b> augmented.",
+            esc(&a
+                .get("effects")
+                .and_then(|e| e.as_array())
+                .map(|e| e.iter().filter_map(|x| x.as_str()).collect::<Vec<_>>().join(", "))
+                .unwrap_or_default()),
+            a.get("runs").and_then(|x| x.as_u64()).unwrap_or(0),
+            if held {
+                "runs it was not fitted on"
+            } else {
+                "runs it was fitted on (in-sample: no other run tonight)"
+            },
+            super::super::svg::tick(f(a, "heldout_rms_plain") * scale),
+            super::super::svg::tick(f(a, "heldout_rms_augmented") * scale),
+        );
+    }
+    v
+}
