@@ -149,6 +149,58 @@ fn servo_lag_from_last_night_applies_to_tonight() {
     assert!(aug < 0.3 * plain, "augmented {aug} vs plain {plain}");
 }
 
+/// A plugin composite that is a product of forms — the gantry's
+/// `thermal_bow` = bow(y_mm)·drift(t_s) — is replayed from last night's
+/// fit (it used to be listed as not applied).
+#[test]
+fn a_product_of_forms_from_last_night_applies_to_tonight() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    two_nights(dir, "gantry", "aplm-gantry", "thermal_bow", 8, 3);
+    let (out_a, out_b) = (dir.join("outA"), dir.join("outB"));
+    ok(sparkout(&[
+        "run",
+        "--input",
+        s(&dir.join("A")),
+        "--out",
+        s(&out_a),
+    ]));
+    let model = out_a.join("fleet/augmented_model.json");
+    let m: serde_json::Value = serde_json::from_slice(&std::fs::read(&model).unwrap()).unwrap();
+    let bow = m["effects"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|e| e["key"] == "thermal_bow:y_mm,t_s")
+        .unwrap_or_else(|| panic!("thermal_bow not selected: {m:#}"));
+    assert_eq!(
+        bow["form"],
+        serde_json::Value::Null,
+        "a product has no single form"
+    );
+    assert_eq!(bow["linear"]["factors"][0]["form"], "bow", "{bow:#}");
+    assert_eq!(bow["linear"]["factors"][1]["form"], "drift", "{bow:#}");
+    ok(sparkout(&[
+        "run",
+        "--input",
+        s(&dir.join("B")),
+        "--out",
+        s(&out_b),
+        "--augment",
+        s(&model),
+    ]));
+    let a = augment_json(&out_b);
+    assert_eq!(a["not_applied"], serde_json::json!([]), "{a:#}");
+    let e = entry(&a, "surface_z");
+    assert_eq!(e["held_out"], true, "{e:#}");
+    assert_eq!(e["effects"][0], "thermal_bow:y_mm,t_s", "{e:#}");
+    let (plain, aug) = (
+        e["heldout_rms_plain"].as_f64().unwrap(),
+        e["heldout_rms_augmented"].as_f64().unwrap(),
+    );
+    assert!(aug < 0.5 * plain, "augmented {aug} vs plain {plain}");
+}
+
 #[test]
 fn a_bad_augmented_model_is_refused_before_anything_runs() {
     let d = tempfile::tempdir().unwrap();

@@ -6,12 +6,13 @@
 //! night's model on tonight's runs). Written to `fleet/augment.json`, shown
 //! in the fleet page's verdicts.
 //!
-//! What this is not (yet): the effects enter as the catalogue's additive
-//! forms (docs/formats.md, "Candidate effects"), evaluated on each row's
-//! covariates — not inside the plugins' physics (wheel radius in the form
-//! grinder's profile model, bridge deflection in Γ, g in the guide-way
-//! compensation F), and the compensation artifacts are not recomputed from
-//! it. Effects that are not one catalogue form are listed as not applied.
+//! Each effect is replayed exactly as the diagnosis fitted it (its linear
+//! form's θ, intercept and coefficients, products of forms included) on
+//! each row's covariates, and added to the sim side. What this is not
+//! (yet): the effects do not enter the plugins' physics (wheel radius in
+//! the form grinder's profile model, bridge deflection in Γ, g in the
+//! guide-way compensation F), and the compensation artifacts are not
+//! recomputed from them.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
@@ -20,7 +21,7 @@ use anyhow::{bail, Context, Result};
 use arrow::array::RecordBatch;
 use serde_json::{json, Value};
 
-use super::effect::{shape_value, Kind};
+use super::effect::{rebuild_linear_form, shape_value, CovStats, EffectData, Kind};
 use crate::contracts::batch::{batch_f64, batch_str};
 
 /// One selected effect of an augmented model.
@@ -34,6 +35,87 @@ pub struct AugmentEffect {
     pub covariates: Vec<String>,
     pub params: BTreeMap<String, f64>,
     pub offset_mm: f64,
+    /// The fit as the diagnosis made it, when the model carries it (diagnose
+    /// step version 6): replayed exactly, products of forms included.
+    pub linear: Option<LinearFit>,
+}
+
+/// A linear-form fit: `intercept + Σ coef_j · feature_j(frame, covariates; θ)`.
+#[derive(Debug, Clone)]
+pub struct LinearFit {
+    pub factors: Vec<(Kind, Vec<String>)>,
+    /// Covariate statistics in `covariates` order (the features' scaling).
+    pub frame: Vec<CovStats>,
+    pub theta: f64,
+    pub intercept: f64,
+    pub coef: Vec<f64>,
+}
+
+impl LinearFit {
+    /// The effect's prediction (offset included) on rows whose covariates
+    /// are `cols` (in `covariates` order); None when the form cannot be
+    /// rebuilt or its features fail.
+    fn predict(&self, covariates: &[String], cols: &[Vec<f64>]) -> Option<Vec<f64>> {
+        let form = rebuild_linear_form(&self.factors)?;
+        if form.n_linear() != self.coef.len() || form.covariates() != covariates {
+            return None;
+        }
+        let n = cols.first().map_or(0, Vec::len);
+        let mut x = EffectData::new(n);
+        for (c, v) in covariates.iter().zip(cols) {
+            x.push(c, v);
+        }
+        let mut feats = vec![Vec::new(); form.n_linear()];
+        form.features(&self.frame, &x, self.theta, &mut feats)
+            .ok()?;
+        let mut out = vec![self.intercept; n];
+        for (f, b) in feats.iter().zip(&self.coef) {
+            for (o, v) in out.iter_mut().zip(f) {
+                *o += b * v;
+            }
+        }
+        Some(out)
+    }
+}
+
+/// The `linear` block of an augmented-model effect, if present and whole
+/// (a model from before it, or one with a non-finite number, has none).
+fn linear_fit(e: &Value, covariates: &[String]) -> Option<LinearFit> {
+    let l = e.get("linear").filter(|l| !l.is_null())?;
+    let factors = l
+        .get("factors")?
+        .as_array()?
+        .iter()
+        .map(|f| {
+            let kind = Kind::from_name(f.get("form")?.as_str()?)?;
+            let covs = f
+                .get("covariates")?
+                .as_array()?
+                .iter()
+                .map(|c| c.as_str().map(str::to_string))
+                .collect::<Option<Vec<String>>>()?;
+            Some((kind, covs))
+        })
+        .collect::<Option<Vec<_>>>()?;
+    let frames = e.get("frame")?.as_object()?;
+    let frame = covariates
+        .iter()
+        .map(|c| serde_json::from_value::<CovStats>(frames.get(c)?.clone()).ok())
+        .collect::<Option<Vec<_>>>()?;
+    let num = |v: &Value| v.as_f64().filter(|x| x.is_finite());
+    Some(LinearFit {
+        factors,
+        frame,
+        // No θ (a purely linear form) is null.
+        theta: l.get("theta").and_then(num).unwrap_or(f64::NAN),
+        intercept: num(l.get("intercept")?)?,
+        coef: l
+            .get("coef")?
+            .as_array()?
+            .iter()
+            .map(num)
+            .collect::<Option<Vec<f64>>>()?,
+    })
 }
 
 /// An augmented_model.json, checked.
@@ -123,6 +205,7 @@ impl AugmentedModel {
                     .filter(|x| x.is_finite())
                     .ok_or_else(|| here(&field("offset_mm"), "expected a finite number"))?,
             };
+            let linear = linear_fit(e, &covariates);
             effects.push(AugmentEffect {
                 observable,
                 key,
@@ -130,6 +213,7 @@ impl AugmentedModel {
                 covariates,
                 params,
                 offset_mm,
+                linear,
             });
         }
         let fitted_on = v
@@ -195,11 +279,11 @@ pub fn evaluate(model: &AugmentedModel, obs: &RecordBatch) -> Result<Value> {
     let mut not_applied = Vec::new();
     let mut by_obs: BTreeMap<&str, Vec<&AugmentEffect>> = BTreeMap::new();
     for e in &model.effects {
-        if e.kind.is_none() {
+        if e.kind.is_none() && e.linear.is_none() {
             not_applied.push(json!({
                 "observable": e.observable,
                 "effect": e.key,
-                "why": "not one catalogue form: cannot be evaluated outside its plugin",
+                "why": "neither one catalogue form nor a replayable linear fit (a model written before diagnose step version 6): re-run the diagnosis",
             }));
             continue;
         }
@@ -228,19 +312,36 @@ pub fn evaluate(model: &AugmentedModel, obs: &RecordBatch) -> Result<Value> {
                 continue;
             };
             let pick = |c: &Vec<f64>| rows.iter().map(|&i| c[i]).collect::<Vec<f64>>();
-            let c1 = cols
-                .first()
-                .map(&pick)
-                .unwrap_or_else(|| vec![0.0; rows.len()]);
-            let c2 = cols.get(1).map(pick);
-            let kind = e.kind.expect("filtered");
-            let shape = shape_value(kind, &e.params, &c1, c2.as_deref());
-            for (a, s) in added.iter_mut().zip(shape) {
-                *a += if kind == Kind::Offset {
-                    s
-                } else {
-                    s + e.offset_mm
-                };
+            let picked: Vec<Vec<f64>> = cols.iter().map(pick).collect();
+            // The exact fit when the model carries it, else the catalogue
+            // form from the contract parameters.
+            let effect = match (&e.linear, e.kind) {
+                (Some(l), _) => l.predict(&e.covariates, &picked),
+                (None, Some(kind)) => {
+                    let c1 = picked
+                        .first()
+                        .cloned()
+                        .unwrap_or_else(|| vec![0.0; rows.len()]);
+                    let shape = shape_value(kind, &e.params, &c1, picked.get(1).map(Vec::as_slice));
+                    let off = if kind == Kind::Offset {
+                        0.0
+                    } else {
+                        e.offset_mm
+                    };
+                    Some(shape.into_iter().map(|v| v + off).collect())
+                }
+                (None, None) => None,
+            };
+            let Some(effect) = effect else {
+                not_applied.push(json!({
+                    "observable": o,
+                    "effect": e.key,
+                    "why": "its fitted form could not be rebuilt from the model",
+                }));
+                continue;
+            };
+            for (a, v) in added.iter_mut().zip(effect) {
+                *a += v;
             }
             applied.push(e.key.clone());
         }
@@ -304,8 +405,138 @@ pub fn evaluate(model: &AugmentedModel, obs: &RecordBatch) -> Result<Value> {
         "version": 1,
         "kind": "sparkout.augment",
         "model": model.path.display().to_string(),
-        "applies_as": "sim_augmented = sim + Σ (offset_mm + form(covariates; params)) per observable; figures on the runs the model was not fitted on (held_out = true), else on all runs (held_out = false: in-sample)",
+        "applies_as": "sim_augmented = sim + Σ effects per observable, each as the diagnosis fitted it (its linear form replayed; else offset_mm + form(covariates; params)); figures on the runs the model was not fitted on (held_out = true), else on all runs (held_out = false: in-sample)",
         "entries": entries,
         "not_applied": not_applied,
     }))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::contracts::BatchBuilder;
+    use crate::diagnose::effect::{catalogue_effect, product};
+
+    /// Two observables: `surface_z` carries a product of forms (the
+    /// gantry's bow(y)·drift(t)), `probe_z` a catalogue drift on t_s; 1 µm
+    /// noise.
+    fn table() -> RecordBatch {
+        let mut rng = 99u64;
+        let mut noise = move || {
+            let mut u = || {
+                rng = rng
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                ((rng >> 11) as f64 + 0.5) / ((1u64 << 53) as f64)
+            };
+            let (a, b) = (u(), u());
+            1e-3 * (-2.0 * a.ln()).sqrt() * (2.0 * std::f64::consts::PI * b).cos()
+        };
+        let (mut run, mut obs, mut real, mut y, mut t) = (vec![], vec![], vec![], vec![], vec![]);
+        for r in 0..8 {
+            for i in 0..150 {
+                let (yi, ti) = ((i % 15) as f64 * 7.0, i as f64 * 4.0);
+                let bow = 4.0 * yi * (98.0 - yi) / (98.0f64 * 98.0);
+                run.push(format!("r{r}"));
+                obs.push("surface_z");
+                real.push(0.02 * bow * (1.0 - (-ti / 200.0).exp()) + noise());
+                y.push(Some(yi));
+                t.push(Some(ti));
+                run.push(format!("r{r}"));
+                obs.push("probe_z");
+                real.push(0.01 * (1.0 - (-ti / 150.0).exp()) + noise());
+                y.push(None);
+                t.push(Some(ti));
+            }
+        }
+        let n = real.len();
+        BatchBuilder::new()
+            .str("run", &run.iter().map(String::as_str).collect::<Vec<_>>())
+            .str("observable", &obs)
+            .f64("sim", vec![0.0; n])
+            .f64("real", real)
+            .opt_f64("y_mm", y)
+            .opt_f64("t_s", t)
+            .build()
+    }
+
+    fn entry<'a>(v: &'a Value, observable: &str) -> &'a Value {
+        v["entries"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|e| e["observable"] == observable)
+            .unwrap_or_else(|| panic!("no entry for {observable}: {v:#}"))
+    }
+
+    /// The augmented model replays every selected effect exactly as the
+    /// diagnosis fitted it — a product of forms too (it used to be "not
+    /// applied") — and for a catalogue effect the replay equals the
+    /// contract form evaluated from its reported parameters.
+    #[test]
+    fn every_linear_effect_replays_and_agrees_with_its_contract_form() {
+        let batch = table();
+        let bow = product(
+            "thermal_bow",
+            catalogue_effect(Kind::Bow, &["y_mm"]),
+            catalogue_effect(Kind::Drift, &["t_s"]),
+        )
+        .unwrap();
+        let out = super::super::diagnose(&batch, &Default::default(), &[bow]).unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("augmented_model.json");
+        std::fs::write(&path, serde_json::to_vec(&out.augmented_model).unwrap()).unwrap();
+        let model = AugmentedModel::load(&path).unwrap();
+        let keys: Vec<&str> = model.effects.iter().map(|e| e.key.as_str()).collect();
+        assert!(keys.contains(&"thermal_bow:y_mm,t_s"), "{keys:?}");
+        assert!(keys.iter().any(|k| k.starts_with("drift:t_s")), "{keys:?}");
+        assert!(
+            model.effects.iter().all(|e| e.linear.is_some()),
+            "{model:#?}"
+        );
+
+        let v = evaluate(&model, &batch).unwrap();
+        assert_eq!(v["not_applied"], json!([]), "{v:#}");
+        for o in ["surface_z", "probe_z"] {
+            let e = entry(&v, o);
+            let aug = e["heldout_rms_augmented"].as_f64().unwrap();
+            // In-sample here (every run was fitted on): what is left is the
+            // 1 µm noise.
+            assert!(aug < 1.2e-3, "{o}: augmented {aug} {e:#}");
+            assert!(e["shrink"].as_f64().unwrap() > 0.8, "{e:#}");
+        }
+
+        // The catalogue drift from its contract parameters instead.
+        let mut by_form = model.clone();
+        for e in &mut by_form.effects {
+            if e.kind == Some(Kind::Drift) {
+                e.linear = None;
+            }
+        }
+        let w = evaluate(&by_form, &batch).unwrap();
+        let (a, b) = (
+            entry(&v, "probe_z")["heldout_rms_augmented"]
+                .as_f64()
+                .unwrap(),
+            entry(&w, "probe_z")["heldout_rms_augmented"]
+                .as_f64()
+                .unwrap(),
+        );
+        assert!(
+            (a - b).abs() <= 1e-9 * a.max(1e-12),
+            "replay {a} vs form {b}"
+        );
+
+        // A product without its `linear` block (an old model) is listed as
+        // not applied, saying why.
+        let mut old = model.clone();
+        old.effects.iter_mut().for_each(|e| e.linear = None);
+        let x = evaluate(&old, &batch).unwrap();
+        let na = x["not_applied"].as_array().unwrap();
+        assert!(
+            na.iter().any(|n| n["effect"] == "thermal_bow:y_mm,t_s"
+                && n["why"].as_str().unwrap().contains("re-run the diagnosis")),
+            "{x:#}"
+        );
+    }
 }

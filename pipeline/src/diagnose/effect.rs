@@ -121,7 +121,7 @@ pub trait FittedEffect: Send + Sync {
 /// only (never from the gap), over all rows of an observable: the range that
 /// bounds `bow` and `periodic`, and the typical sample step (the smallest
 /// admissible wavelength is 3 sample steps, CONTRACTS.md catalogue table).
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct CovStats {
     pub min: f64,
     pub max: f64,
@@ -227,6 +227,27 @@ pub trait LinearForm: Send + Sync {
     /// coefficients and the fitted offset; returns the parameters and the
     /// offset in the convention `offset_mm + form(c; params)`.
     fn params(&self, frame: &Frame, theta: f64, coef: &[f64], offset: f64) -> ParamsAndOffset;
+    /// The catalogue forms it is built from, each on its covariates (one
+    /// for a catalogue shape, two for a product), so a fit can be replayed
+    /// outside the diagnosis ([`rebuild_linear_form`]); empty for a form
+    /// that is not built from the catalogue.
+    fn factors(&self) -> Vec<(Kind, Vec<String>)> {
+        Vec::new()
+    }
+}
+
+/// The linear form of `factors` (as [`LinearForm::factors`] lists them):
+/// a catalogue shape, or the product of two. None for any other list.
+pub fn rebuild_linear_form(factors: &[(Kind, Vec<String>)]) -> Option<Arc<dyn LinearForm>> {
+    let effect = |(k, c): &(Kind, Vec<String>)| {
+        let covs: Vec<&str> = c.iter().map(String::as_str).collect();
+        catalogue_effect(*k, &covs)
+    };
+    match factors {
+        [one] => effect(one).linear_form(),
+        [a, b] => product("replay", effect(a), effect(b)).ok()?.linear_form(),
+        _ => None,
+    }
 }
 
 /// The v1 catalogue kinds (CONTRACTS.md table).

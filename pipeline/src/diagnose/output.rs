@@ -427,6 +427,23 @@ pub fn record_selected(
                     .and_then(|r| super::effect::Kind::from_name(r.split(':').next().unwrap_or("")))
             })
             .map(|k| k.name());
+        // The all-runs fit exactly as the diagnosis predicts with it (θ,
+        // feature-space intercept and coefficients of its linear form, and
+        // the catalogue forms it is built from), so `run --augment` replays
+        // any linear-form effect — products of forms included.
+        let linear = match (&sel.chosen_evals[j].fit, e.linear_form()) {
+            (super::select::CandFit::Fast { theta, beta }, Some(form))
+                if !form.factors().is_empty() =>
+            {
+                serde_json::json!({
+                    "factors": form.factors().iter().map(|(k, c)| serde_json::json!({"form": k.name(), "covariates": c})).collect::<Vec<_>>(),
+                    "theta": fin(theta[prob.k]),
+                    "intercept": fin(beta[prob.k][0]),
+                    "coef": beta[prob.k][1..].iter().map(|b| fin(*b)).collect::<Vec<_>>(),
+                })
+            }
+            _ => serde_json::Value::Null,
+        };
         acc.augmented.push(serde_json::json!({
             "observable": o.name,
             "name": e.name(),
@@ -436,6 +453,7 @@ pub fn record_selected(
             "params": params.iter().filter(|(_, v)| v.is_finite()).map(|(k, v)| (k.clone(), serde_json::json!(v))).collect::<serde_json::Map<_, _>>(),
             "offset_mm": fin(*off),
             "frame": covs.iter().map(|c| (c.clone(), serde_json::json!(prob.frames.get(c)))).collect::<serde_json::Map<_, _>>(),
+            "linear": linear,
         }));
     }
     for (pos, &i) in o.rows.iter().enumerate() {

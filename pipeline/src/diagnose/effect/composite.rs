@@ -83,6 +83,14 @@ impl LinearForm for ProductForm {
         c.extend(self.b.covariates());
         c
     }
+    fn factors(&self) -> Vec<(Kind, Vec<String>)> {
+        let (a, b) = (self.a.factors(), self.b.factors());
+        if a.len() == 1 && b.len() == 1 {
+            a.into_iter().chain(b).collect()
+        } else {
+            Vec::new()
+        }
+    }
     fn n_linear(&self) -> usize {
         self.a.n_linear() * self.b.n_linear()
     }

@@ -24,6 +24,9 @@ impl LinearForm for Shape {
     fn covariates(&self) -> Vec<String> {
         self.covs.clone()
     }
+    fn factors(&self) -> Vec<(Kind, Vec<String>)> {
+        vec![(self.kind, self.covs.clone())]
+    }
     fn n_linear(&self) -> usize {
         self.kind.n_linear()
     }
