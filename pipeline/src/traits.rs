@@ -168,6 +168,9 @@ pub struct StageContext<'a> {
     /// config), already checked by [`Stage::validate_config`].
     pub config: &'a toml::Table,
     pub artifacts: &'a ArtifactStore,
+    /// `run --augment MODEL`, for a stage whose spec sets
+    /// `reads_augmented_model` (None otherwise, and on a night without it).
+    pub augment: Option<&'a crate::diagnose::augment::AugmentedModel>,
 }
 
 impl StageContext<'_> {
@@ -238,6 +241,10 @@ pub struct StageSpec {
     pub reads_artifacts: &'static [&'static str],
     /// Artifacts this stage writes.
     pub writes: &'static [&'static str],
+    /// The stage puts an augmented model's effects into its physics
+    /// (`sparkout run --augment`): it gets the model in
+    /// [`StageContext::augment`], and the model's hash enters its cache key.
+    pub reads_augmented_model: bool,
     /// One-line description for `--help` listings.
     pub about: &'static str,
     /// How the stage's config section (`[<plugin>.<stage>]`) is checked
@@ -408,6 +415,7 @@ mod tests {
         reads: &[&TOPOGRAPHY, &MOTION],
         reads_artifacts: &["plan"],
         writes: &["removal"],
+        reads_augmented_model: false,
         about: "",
         config: crate::config_check::SectionCheck::Keys(&[]),
     };

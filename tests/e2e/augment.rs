@@ -96,6 +96,11 @@ fn last_nights_effects_shrink_tonights_gap_on_held_out_runs() {
         e["heldout_rms_augmented"].as_f64().unwrap(),
     );
     assert!(aug < 0.3 * plain, "augmented {aug} vs plain {plain}");
+    // The wear entered the form grinder's physics (the worn wheel), not an
+    // added term: listed as such, and tonight's compensation is the worn
+    // wheel's — its centre moved in along the normal by the fitted wear,
+    // which grows with the volume removed along the profile.
+    assert_eq!(e["in_physics"][0], "wheel_wear:removed_mm3", "{e:#}");
     let page = std::fs::read_to_string(out_b.join("fleet/report.html")).unwrap();
     assert!(
         page.contains(
@@ -103,6 +108,29 @@ fn last_nights_effects_shrink_tonights_gap_on_held_out_runs() {
         ),
         "no augmented verdict on the fleet page"
     );
+    assert!(page.contains("Re-simulated in the plugin's physics: wheel_wear:removed_mm3"));
+    let comp = |out: &Path| {
+        let b = sparkout_pipeline::contracts::batch::read_parquet(
+            &out.join("form-grinder/r0009/compensation.parquet"),
+        )
+        .unwrap();
+        let col = |c: &str| {
+            sparkout_pipeline::contracts::batch_f64(&b, c)
+                .unwrap()
+                .to_vec()
+        };
+        (col("dx_mm"), col("dy_mm"))
+    };
+    let (dx1, dy1) = comp(&out_b);
+    let summary: serde_json::Value = serde_json::from_slice(
+        &std::fs::read(out_b.join("form-grinder/r0009/profile_error.json")).unwrap(),
+    )
+    .unwrap();
+    assert_eq!(
+        summary["augmented"]["in_physics"], "wheel_wear:removed_mm3",
+        "{summary:#}"
+    );
+    let wear_max = summary["augmented"]["wear_max_mm"].as_f64().unwrap();
 
     // A night without --augment drops the comparison (no stale figures).
     ok(sparkout(&[
@@ -115,6 +143,18 @@ fn last_nights_effects_shrink_tonights_gap_on_held_out_runs() {
     assert!(!out_b.join("fleet/augment.json").exists());
     let page = std::fs::read_to_string(out_b.join("fleet/report.html")).unwrap();
     assert!(!page.contains("Augmented simulator"));
+    // ... and its compensation is the known wheel's again: the augmented
+    // one had moved the centre by up to the fitted wear (a few µm).
+    let (dx0, dy0) = comp(&out_b);
+    let moved: Vec<f64> = (0..dx0.len())
+        .map(|i| (dx1[i] - dx0[i]).hypot(dy1[i] - dy0[i]))
+        .collect();
+    let most = moved.iter().fold(0.0f64, |m, v| m.max(*v));
+    assert!(
+        (most - wear_max).abs() < 1e-9 && most > 1e-3,
+        "centre moved by up to {most} mm, fitted wear up to {wear_max} mm"
+    );
+    assert!(moved.last() > moved.first(), "wear grows along the profile");
 }
 
 #[test]
@@ -199,6 +239,86 @@ fn a_product_of_forms_from_last_night_applies_to_tonight() {
         e["heldout_rms_augmented"].as_f64().unwrap(),
     );
     assert!(aug < 0.5 * plain, "augmented {aug} vs plain {plain}");
+}
+
+/// The guide-way grinder's thermal growth per infeed enters g of the
+/// compensation F (and the re-simulated motion error), not an added term.
+#[test]
+fn thermal_growth_from_last_night_enters_the_guideway_compensation() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    two_nights(dir, "guideway", "guideway-grinder", "thermal_infeed", 8, 3);
+    let (out_a, out_b, out_p) = (dir.join("outA"), dir.join("outB"), dir.join("outP"));
+    ok(sparkout(&[
+        "run",
+        "--input",
+        s(&dir.join("A")),
+        "--out",
+        s(&out_a),
+    ]));
+    let model = out_a.join("fleet/augmented_model.json");
+    let tonight = dir.join("B");
+    for (out, augment) in [(&out_b, true), (&out_p, false)] {
+        let mut args = vec!["run", "--input", s(&tonight), "--out", s(out)];
+        if augment {
+            args.extend(["--augment", s(&model)]);
+        }
+        ok(sparkout(&args));
+    }
+    let a = augment_json(&out_b);
+    let e = entry(&a, "motion_error");
+    assert_eq!(e["in_physics"][0], "thermal_infeed:infeed_count", "{e:#}");
+    assert_eq!(e["held_out"], true, "{e:#}");
+    let (plain, aug) = (
+        e["heldout_rms_plain"].as_f64().unwrap(),
+        e["heldout_rms_augmented"].as_f64().unwrap(),
+    );
+    assert!(aug < 0.7 * plain, "augmented {aug} vs plain {plain}");
+
+    // g = κ·(infeed_count − 1) with the fleet's κ (injected 0.4 µm per
+    // infeed): the command differs from the plain night's by exactly
+    // (κ_fleet − κ_run)·(count − 1), count from f = −infeed·(count − 1).
+    let run = "guideway-grinder/r0007";
+    let summary = |out: &Path| -> serde_json::Value {
+        serde_json::from_slice(&std::fs::read(out.join(run).join("compensation.json")).unwrap())
+            .unwrap()
+    };
+    let (sa, sp) = (summary(&out_b), summary(&out_p));
+    let k_fleet = sa["augmented"]["k_mm_per_infeed"].as_f64().unwrap();
+    assert!((k_fleet - 4e-4).abs() < 1.2e-4, "κ = {k_fleet}: {sa:#}");
+    let k_run = sp["fit"]["thermal_k_mm_per_infeed"].as_f64().unwrap();
+    assert_eq!(
+        sa["augmented"]["k_mm_per_infeed_run_fit"].as_f64(),
+        Some(k_run)
+    );
+    let infeed = sa["infeed_mm"].as_f64().unwrap();
+    assert!(infeed > 0.0, "{sa:#}");
+    let col = |out: &Path, c: &str| {
+        let b = sparkout_pipeline::contracts::batch::read_parquet(
+            &out.join(run).join("compensation.parquet"),
+        )
+        .unwrap();
+        sparkout_pipeline::contracts::batch_f64(&b, c)
+            .unwrap()
+            .to_vec()
+    };
+    let (ga, gp, f) = (
+        col(&out_b, "g_mm"),
+        col(&out_p, "g_mm"),
+        col(&out_b, "f_mm"),
+    );
+    let mut grew = false;
+    for i in 0..ga.len() {
+        let count_less_1 = -f[i] / infeed;
+        let want = (k_fleet - k_run) * count_less_1;
+        assert!(
+            (ga[i] - gp[i] - want).abs() < 1e-9,
+            "row {i}: {} vs {want}",
+            ga[i] - gp[i]
+        );
+        grew |= count_less_1 > 0.5;
+    }
+    assert!(grew, "the run has more than one infeed");
 }
 
 #[test]

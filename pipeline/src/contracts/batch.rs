@@ -51,6 +51,13 @@ impl BatchBuilder {
         self.columns.push(Arc::new(Float64Array::from(v)));
         self
     }
+    /// A nullable text column (None → null).
+    pub fn opt_str(mut self, name: &str, v: Vec<Option<&str>>) -> Self {
+        self.fields
+            .push(Field::new(name, arrow::datatypes::DataType::Utf8, true));
+        self.columns.push(Arc::new(StringArray::from(v)));
+        self
+    }
     /// Keep an existing column (pass-through of extra columns).
     pub fn column(mut self, field: Field, col: ArrayRef) -> Self {
         self.fields.push(field);

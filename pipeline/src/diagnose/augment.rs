@@ -118,10 +118,42 @@ fn linear_fit(e: &Value, covariates: &[String]) -> Option<LinearFit> {
     })
 }
 
+impl AugmentEffect {
+    /// The effect's value (offset included) on rows whose covariates are
+    /// `cols`, in `covariates` order: the diagnosis's fit replayed when the
+    /// model carries it, else the catalogue form from the contract
+    /// parameters. None when neither can be evaluated.
+    pub fn predict(&self, cols: &[Vec<f64>]) -> Option<Vec<f64>> {
+        match (&self.linear, self.kind) {
+            (Some(l), _) => l.predict(&self.covariates, cols),
+            (None, Some(kind)) => {
+                let n = cols.first().map_or(0, Vec::len);
+                let c1 = cols.first().cloned().unwrap_or_else(|| vec![0.0; n]);
+                let shape = shape_value(kind, &self.params, &c1, cols.get(1).map(Vec::as_slice));
+                let off = if kind == Kind::Offset {
+                    0.0
+                } else {
+                    self.offset_mm
+                };
+                Some(shape.into_iter().map(|v| v + off).collect())
+            }
+            (None, None) => None,
+        }
+    }
+
+    /// The composite or catalogue name (`wheel_wear` of
+    /// `wheel_wear:removed_mm3`).
+    pub fn name(&self) -> &str {
+        self.key.split(':').next().unwrap_or("")
+    }
+}
+
 /// An augmented_model.json, checked.
 #[derive(Debug, Clone)]
 pub struct AugmentedModel {
     pub path: PathBuf,
+    /// blake3 of the file: the cache key of every stage that reads it.
+    pub content_hash: String,
     pub effects: Vec<AugmentEffect>,
     /// `machine/run` of every run the model was fitted on (empty when the
     /// model predates the field: then nothing counts as held out by id).
@@ -225,9 +257,20 @@ impl AugmentedModel {
             .collect();
         Ok(AugmentedModel {
             path: path.to_path_buf(),
+            content_hash: blake3::hash(&bytes).to_hex().to_string(),
             effects,
             fitted_on,
         })
+    }
+
+    /// The effects selected for one observable.
+    pub fn effects_for<'a>(
+        &'a self,
+        observable: &'a str,
+    ) -> impl Iterator<Item = &'a AugmentEffect> + 'a {
+        self.effects
+            .iter()
+            .filter(move |e| e.observable == observable)
     }
 }
 
@@ -258,6 +301,34 @@ fn rms(v: impl Iterator<Item = f64>) -> f64 {
     }
 }
 
+/// The sim side a plugin re-simulated with effects in its physics
+/// (`sim_augmented`, else `sim`), and which effects it put there, per row
+/// (none where the column is absent or null).
+fn resimulated(obs: &RecordBatch, sim: &[f64]) -> Result<(Vec<f64>, Vec<Vec<String>>)> {
+    let sim_base: Vec<f64> = match float_column(obs, "sim_augmented") {
+        Some(a) => a
+            .iter()
+            .zip(sim)
+            .map(|(a, s)| if a.is_finite() { *a } else { *s })
+            .collect(),
+        None => sim.to_vec(),
+    };
+    let in_physics: Vec<Vec<String>> = if obs.schema().index_of("sim_augmented_effects").is_ok() {
+        batch_str(obs, "sim_augmented_effects")?
+            .into_iter()
+            .map(|s| {
+                s.split(',')
+                    .filter(|k| !k.is_empty())
+                    .map(str::to_string)
+                    .collect()
+            })
+            .collect()
+    } else {
+        vec![Vec::new(); obs.num_rows()]
+    };
+    Ok((sim_base, in_physics))
+}
+
 /// The augmented simulator on the joined observations: one entry per
 /// (observable, machine) the model has applicable effects for, in the shape
 /// the fleet page reads (`fleet/augment.json`).
@@ -276,6 +347,7 @@ pub fn evaluate(model: &AugmentedModel, obs: &RecordBatch) -> Result<Value> {
     } else {
         None
     };
+    let (sim_base, in_physics) = resimulated(obs, sim)?;
     let mut not_applied = Vec::new();
     let mut by_obs: BTreeMap<&str, Vec<&AugmentEffect>> = BTreeMap::new();
     for e in &model.effects {
@@ -297,9 +369,11 @@ pub fn evaluate(model: &AugmentedModel, obs: &RecordBatch) -> Result<Value> {
         if rows.is_empty() {
             continue;
         }
-        // sim_aug = sim + Σ (offset + form(covariates; params)).
+        // sim_aug = (sim_augmented where the plugin re-simulated, else sim)
+        // + Σ the effects not already in its physics.
         let mut added = vec![0.0; rows.len()];
         let mut applied = Vec::new();
+        let mut applied_in_physics = Vec::new();
         for e in effects {
             let cols: Option<Vec<Vec<f64>>> =
                 e.covariates.iter().map(|c| float_column(obs, c)).collect();
@@ -313,26 +387,7 @@ pub fn evaluate(model: &AugmentedModel, obs: &RecordBatch) -> Result<Value> {
             };
             let pick = |c: &Vec<f64>| rows.iter().map(|&i| c[i]).collect::<Vec<f64>>();
             let picked: Vec<Vec<f64>> = cols.iter().map(pick).collect();
-            // The exact fit when the model carries it, else the catalogue
-            // form from the contract parameters.
-            let effect = match (&e.linear, e.kind) {
-                (Some(l), _) => l.predict(&e.covariates, &picked),
-                (None, Some(kind)) => {
-                    let c1 = picked
-                        .first()
-                        .cloned()
-                        .unwrap_or_else(|| vec![0.0; rows.len()]);
-                    let shape = shape_value(kind, &e.params, &c1, picked.get(1).map(Vec::as_slice));
-                    let off = if kind == Kind::Offset {
-                        0.0
-                    } else {
-                        e.offset_mm
-                    };
-                    Some(shape.into_iter().map(|v| v + off).collect())
-                }
-                (None, None) => None,
-            };
-            let Some(effect) = effect else {
+            let Some(effect) = e.predict(&picked) else {
                 not_applied.push(json!({
                     "observable": o,
                     "effect": e.key,
@@ -340,8 +395,18 @@ pub fn evaluate(model: &AugmentedModel, obs: &RecordBatch) -> Result<Value> {
                 }));
                 continue;
             };
-            for (a, v) in added.iter_mut().zip(effect) {
-                *a += v;
+            // Rows whose plugin put the effect into its physics
+            // (`sim_augmented`) do not get it again as an added term.
+            let mut physics = false;
+            for ((a, v), &i) in added.iter_mut().zip(effect).zip(&rows) {
+                if in_physics[i].contains(&e.key) {
+                    physics = true;
+                } else {
+                    *a += v;
+                }
+            }
+            if physics {
+                applied_in_physics.push(e.key.clone());
             }
             applied.push(e.key.clone());
         }
@@ -372,11 +437,12 @@ pub fn evaluate(model: &AugmentedModel, obs: &RecordBatch) -> Result<Value> {
             let plain = rms(use_rows.iter().map(|&k| real[rows[k]] - sim[rows[k]]));
             let aug = rms(use_rows
                 .iter()
-                .map(|&k| real[rows[k]] - sim[rows[k]] - added[k]));
+                .map(|&k| real[rows[k]] - sim_base[rows[k]] - added[k]));
             let mut entry = json!({
                 "observable": o,
                 "machine": m,
                 "effects": applied,
+                "in_physics": applied_in_physics,
                 "runs": runs.len(),
                 "rows": use_rows.len(),
                 "held_out": held_out,
@@ -405,7 +471,7 @@ pub fn evaluate(model: &AugmentedModel, obs: &RecordBatch) -> Result<Value> {
         "version": 1,
         "kind": "sparkout.augment",
         "model": model.path.display().to_string(),
-        "applies_as": "sim_augmented = sim + Σ effects per observable, each as the diagnosis fitted it (its linear form replayed; else offset_mm + form(covariates; params)); figures on the runs the model was not fitted on (held_out = true), else on all runs (held_out = false: in-sample)",
+        "applies_as": "sim_augmented = the plugin's re-simulation with the effects listed in `in_physics` inside its physics (else sim) + Σ the other effects, each as the diagnosis fitted it (its linear form replayed; else offset_mm + form(covariates; params)); figures on the runs the model was not fitted on (held_out = true), else on all runs (held_out = false: in-sample)",
         "entries": entries,
         "not_applied": not_applied,
     }))

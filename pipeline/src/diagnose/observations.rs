@@ -17,8 +17,10 @@ pub const MAX_OBSERVED_MM: f64 = 1e4;
 /// Columns that are never covariates (CONTRACTS.md §2, last paragraph;
 /// `machine` from issue 12: a run is identified by machine and run;
 /// `real_u` is the optional standard uncertainty of `real`, v1.1; `unit`
-/// the optional unit of `sim`/`real`/`real_u` per observable, v1.1).
-pub const RESERVED: [&str; 9] = [
+/// the optional unit of `sim`/`real`/`real_u` per observable, v1.1;
+/// `sim_augmented` the sim side re-simulated with an augmented model's
+/// effects in the plugin's physics, `run --augment`).
+pub const RESERVED: [&str; 10] = [
     "machine",
     "run",
     "observable",
@@ -28,6 +30,7 @@ pub const RESERVED: [&str; 9] = [
     "point",
     "real_u",
     "unit",
+    "sim_augmented",
 ];
 
 /// The unit of an observable whose table has no `unit` column (CONTRACTS.md

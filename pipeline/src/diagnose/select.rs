@@ -34,6 +34,9 @@ use super::effect::{CovStats, Effect, EffectData, FittedEffect, Frame};
 use super::fit::{self, add_into, choose_theta, dot, scan_rows, FoldSpec};
 use crate::Result;
 
+mod cross_validate;
+pub use cross_validate::*;
+
 /// Level of the parsimony comparison (see `select`).
 pub const PARSIMONY_ALPHA: f64 = 0.05;
 
@@ -86,246 +89,155 @@ impl Problem<'_> {
     }
 }
 
-/// Per-fold targets (fold k = all runs) and their Σy² per unit.
-pub struct Targets {
-    pub per_fold: Vec<Arc<Vec<f64>>>,
-    distinct: Vec<Arc<Vec<f64>>>,
-    of_fold: Vec<usize>,
-    yy_u: Vec<Vec<f64>>,
-}
+/// A candidate scored in one round: its index, fit, mean log RMS ratio
+/// (held-out gain) and one-sided p-value.
+type Scored = (usize, CandEval, f64, f64);
 
-impl Targets {
-    pub fn new(per_fold: Vec<Arc<Vec<f64>>>, units: &[Range<usize>]) -> Targets {
-        let mut distinct: Vec<Arc<Vec<f64>>> = Vec::new();
-        let mut of_fold = Vec::new();
-        for t in &per_fold {
-            match distinct.iter().position(|d| Arc::ptr_eq(d, t)) {
-                Some(i) => of_fold.push(i),
-                None => {
-                    of_fold.push(distinct.len());
-                    distinct.push(t.clone());
-                }
+/// One round of forward selection's scoring: every live candidate
+/// cross-validated against the current targets (in parallel), its record
+/// written (a failed fit is skipped with the reason).
+fn score_round(
+    prob: &Problem,
+    cands: &[&dyn Effect],
+    tg: &Targets,
+    live: &[usize],
+    before: &[f64],
+    step: usize,
+    records: &mut [Option<Record>],
+) -> Vec<Scored> {
+    let evals: Vec<(usize, Result<CandEval>)> = live
+        .par_iter()
+        .map(|&i| (i, evaluate(cands[i], prob, tg)))
+        .collect();
+    let sse_before: f64 = before.iter().sum();
+    let mut scored = Vec::new();
+    for (i, ev) in evals {
+        match ev {
+            Err(e) => {
+                records[i] = Some(Record::skipped(
+                    i,
+                    step,
+                    format!("fit failed: {e}"),
+                    sse_before,
+                ));
+            }
+            Ok(ev) => {
+                let (mlr, p) = paired_log_test(before, &ev.unit_sse);
+                let (params, off) = params_of(cands[i], prob, &ev, prob.k);
+                records[i] = Some(Record {
+                    idx: i,
+                    step,
+                    skipped: None,
+                    sse_before,
+                    sse_after: ev.unit_sse.iter().sum(),
+                    mean_log_ratio: mlr,
+                    p_value: p,
+                    params,
+                    offset_mm: off,
+                    selected: false,
+                });
+                scored.push((i, ev, mlr, p));
             }
         }
-        let yy_u = distinct
-            .iter()
-            .map(|t| {
-                units
-                    .iter()
-                    .map(|u| dot(&t[u.clone()], &t[u.clone()]))
-                    .collect()
-            })
-            .collect();
-        Targets {
-            per_fold,
-            distinct,
-            of_fold,
-            yy_u,
-        }
     }
+    scored
 }
 
-/// A candidate's cross-validated fit.
-pub enum CandFit {
-    /// θ and [offset, coefs…] per fold (k + 1 entries).
-    Fast {
-        theta: Vec<f64>,
-        beta: Vec<Vec<f64>>,
-    },
-    /// A plugin effect without a linear form: one fitted effect per fold.
-    Slow { fitted: Vec<Box<dyn FittedEffect>> },
-}
-
-pub struct CandEval {
-    pub fit: CandFit,
-    /// Held-out SSE per unit.
-    pub unit_sse: Vec<f64>,
-}
-
-/// Cross-validates one candidate against the current targets.
-pub fn evaluate(e: &dyn Effect, prob: &Problem, tg: &Targets) -> Result<CandEval> {
-    let masks = prob.train_masks();
-    let frame = prob.frame(e)?;
-    let Some(form) = e.linear_form() else {
-        return evaluate_slow(e, prob, tg, &masks);
+/// The round's choice among `scored`: the best by mean log ratio (ties by
+/// fewer parameters, then name order) among the statistically *and*
+/// practically significant — a consistent 0.01 % gain over many points
+/// passes a t-test but explains nothing — then, for parsimony, a simpler
+/// significant candidate that is not significantly worse. None: nothing is
+/// significant.
+fn pick(
+    scored: &[Scored],
+    cands: &[&dyn Effect],
+    opt: &SelectOptions,
+    sse_before: f64,
+) -> Option<usize> {
+    let significant = |s: &Scored| {
+        s.3 < opt.alpha && s.2 >= opt.min_gain && s.1.unit_sse.iter().sum::<f64>() < sse_before
     };
-    let nf = masks.len();
-    let tslices: Vec<&[f64]> = tg.distinct.iter().map(|t| t.as_slice()).collect();
-    let thetas: Vec<f64> = match form.theta(&frame) {
-        None => vec![f64::NAN; nf],
-        Some(tr) => {
-            let mut store = Vec::new();
-            let rows = scan_rows(
-                form.as_ref(),
-                &frame,
-                &tr,
-                &prob.x,
-                &prob.units,
-                &tslices,
-                &mut store,
-            )?;
-            let spec = FoldSpec {
-                train: &masks,
-                target_of_fold: &tg.of_fold,
-            };
-            choose_theta(form.as_ref(), &frame, &tr, &rows, &tg.yy_u, &spec)?
-        }
-    };
-    let p = form.n_linear() + 1;
-    let mut beta = vec![Vec::new(); nf];
-    let mut unit_sse = vec![f64::NAN; prob.units.len()];
-    let mut done = vec![false; nf];
-    let mut buf = vec![Vec::new(); form.n_linear()];
-    for f0 in 0..nf {
-        if done[f0] {
+    let mut best: Option<usize> = None;
+    for (j, s) in scored.iter().enumerate() {
+        if !significant(s) {
             continue;
         }
-        let th = thetas[f0];
-        let same: Vec<usize> = (f0..nf)
-            .filter(|&f| !done[f] && (thetas[f].to_bits() == th.to_bits()))
-            .collect();
-        form.features(&frame, &prob.x, th, &mut buf)?;
-        let g_u: Vec<Vec<f64>> = prob
-            .units
+        best = match best {
+            None => Some(j),
+            Some(b) => {
+                let (sb, np_b) = (scored[b].2, cands[scored[b].0].n_params());
+                let np = cands[s.0].n_params();
+                if s.2 > sb || (s.2 == sb && np < np_b) {
+                    Some(j)
+                } else {
+                    Some(b)
+                }
+            }
+        };
+    }
+    let b = best?;
+    let np_best = cands[scored[b].0].n_params();
+    let mut alt: Option<usize> = None;
+    for (j, s) in scored.iter().enumerate() {
+        if j == b || !significant(s) || cands[s.0].n_params() >= np_best {
+            continue;
+        }
+        let (gain, p_worse) = paired_log_test(&s.1.unit_sse, &scored[b].1.unit_sse);
+        // "Not significantly worse" at α_p = max(α, 0.05): this test
+        // asks which of two explanations holds, with only as many pairs
+        // as held-out runs, so it is run at a less strict level than the
+        // "is there an effect" test.
+        let alpha_p = opt.alpha.max(PARSIMONY_ALPHA);
+        if p_worse.is_nan() || p_worse >= alpha_p || gain < opt.min_gain {
+            // The simplest such candidate; among equally simple ones the
+            // best scored.
+            let np = cands[s.0].n_params();
+            alt = match alt {
+                Some(a) => {
+                    let np_a = cands[scored[a].0].n_params();
+                    if np < np_a || (np == np_a && s.2 > scored[a].2) {
+                        Some(j)
+                    } else {
+                        Some(a)
+                    }
+                }
+                None => Some(j),
+            };
+        }
+    }
+    Some(alt.unwrap_or(b))
+}
+
+/// Every fold's new target, and the held-out contribution per row.
+type TakenOut = (Vec<Arc<Vec<f64>>>, Vec<f64>);
+
+/// The chosen effect taken out of every fold's target (its prediction from
+/// that fold's fit subtracted), and its held-out contribution per row (each
+/// unit predicted by the fold that held it out).
+fn take_out(prob: &Problem, e: &dyn Effect, ev: &CandEval, tg: &Targets) -> Result<TakenOut> {
+    let k = prob.k;
+    let mut new_targets = Vec::with_capacity(k + 1);
+    let mut c = vec![0.0; prob.x.len()];
+    for f in 0..=k {
+        let pred = predict_fold(e, prob, ev, f)?;
+        let t: Vec<f64> = tg.per_fold[f]
             .iter()
-            .map(|u| fit::design_gram(&buf, None, u.clone()))
+            .zip(&pred)
+            .map(|(y, p)| y - p)
             .collect();
-        let mut h_cache: BTreeMap<usize, Vec<Vec<f64>>> = BTreeMap::new();
-        for &f in &same {
-            done[f] = true;
-            let t = tg.of_fold[f];
-            let h_u = h_cache.entry(t).or_insert_with(|| {
-                prob.units
-                    .iter()
-                    .map(|u| fit::design_xy(&buf, tslices[t], u.clone()))
-                    .collect()
-            });
-            let mut g = vec![0.0; p * p];
-            let mut h = vec![0.0; p];
-            for (u, tr) in masks[f].iter().enumerate() {
-                if *tr {
-                    add_into(&mut g, &g_u[u]);
-                    add_into(&mut h, &h_u[u]);
+        if f < k {
+            for (u, uf) in prob.unit_fold.iter().enumerate() {
+                if *uf == f {
+                    for i in prob.units[u].clone() {
+                        c[i] = pred[i];
+                    }
                 }
             }
-            let b = fit::solve(&g, &h).ok_or_else(|| anyhow!("singular normal equations"))?;
-            for (u, tr) in masks[f].iter().enumerate() {
-                if !*tr {
-                    unit_sse[u] = fit::sse(&g_u[u], &h_u[u], tg.yy_u[t][u], &b);
-                }
-            }
-            beta[f] = b;
         }
+        new_targets.push(Arc::new(t));
     }
-    Ok(CandEval {
-        fit: CandFit::Fast {
-            theta: thetas,
-            beta,
-        },
-        unit_sse,
-    })
-}
-
-fn gather<'a>(
-    prob: &Problem,
-    covs: &[String],
-    rows: &[usize],
-    store: &'a mut Vec<Vec<f64>>,
-) -> Result<EffectData<'a>> {
-    store.clear();
-    for c in covs {
-        let col = prob.x.require(c)?;
-        store.push(rows.iter().map(|&i| col[i]).collect());
-    }
-    let mut d = EffectData::new(rows.len());
-    for (c, v) in covs.iter().zip(store.iter()) {
-        d.push(c, v);
-    }
-    Ok(d)
-}
-
-fn evaluate_slow(
-    e: &dyn Effect,
-    prob: &Problem,
-    tg: &Targets,
-    masks: &[Vec<bool>],
-) -> Result<CandEval> {
-    let covs = e.covariates();
-    let mut fitted = Vec::new();
-    let mut unit_sse = vec![f64::NAN; prob.units.len()];
-    for (f, m) in masks.iter().enumerate() {
-        let rows: Vec<usize> = prob
-            .units
-            .iter()
-            .zip(m)
-            .filter(|(_, t)| **t)
-            .flat_map(|(u, _)| u.clone())
-            .collect();
-        let y: Vec<f64> = rows.iter().map(|&i| tg.per_fold[f][i]).collect();
-        let mut store = Vec::new();
-        let xd = gather(prob, &covs, &rows, &mut store)?;
-        let fe = e.fit(&xd, &y)?;
-        let pred = fe.predict(&prob.x);
-        let off = fe.offset_mm();
-        for (u, t) in m.iter().enumerate() {
-            if !*t {
-                let r = prob.units[u].clone();
-                unit_sse[u] = r.map(|i| (tg.per_fold[f][i] - off - pred[i]).powi(2)).sum();
-            }
-        }
-        fitted.push(fe);
-    }
-    Ok(CandEval {
-        fit: CandFit::Slow { fitted },
-        unit_sse,
-    })
-}
-
-/// The prediction (offset included) of fold `f`'s fit on every row.
-pub fn predict_fold(e: &dyn Effect, prob: &Problem, ev: &CandEval, f: usize) -> Result<Vec<f64>> {
-    match &ev.fit {
-        CandFit::Fast { theta, beta } => {
-            let form = e.linear_form().expect("fast fit has a form");
-            let frame = prob.frame(e)?;
-            let mut buf = vec![Vec::new(); form.n_linear()];
-            form.features(&frame, &prob.x, theta[f], &mut buf)?;
-            let b = &beta[f];
-            let mut out = vec![b[0]; prob.x.len()];
-            for (col, bj) in buf.iter().zip(&b[1..]) {
-                for (o, v) in out.iter_mut().zip(col) {
-                    *o += bj * v;
-                }
-            }
-            Ok(out)
-        }
-        CandFit::Slow { fitted } => {
-            let off = fitted[f].offset_mm();
-            Ok(fitted[f]
-                .predict(&prob.x)
-                .into_iter()
-                .map(|v| v + off)
-                .collect())
-        }
-    }
-}
-
-/// Contract parameters and offset of fold `f`'s fit (f = k: all runs).
-pub fn params_of(
-    e: &dyn Effect,
-    prob: &Problem,
-    ev: &CandEval,
-    f: usize,
-) -> (BTreeMap<String, f64>, f64) {
-    match &ev.fit {
-        CandFit::Fast { theta, beta } => {
-            let form = e.linear_form().expect("fast");
-            match prob.frame(e) {
-                Ok(frame) => form.params(&frame, theta[f], &beta[f][1..], beta[f][0]),
-                Err(_) => (BTreeMap::new(), f64::NAN),
-            }
-        }
-        CandFit::Slow { fitted } => (fitted[f].params(), fitted[f].offset_mm()),
-    }
+    Ok((new_targets, c))
 }
 
 /// One-sided paired t-test that `after` is smaller than `before`, on the
@@ -495,41 +407,8 @@ pub fn select(prob: &Problem, cands: &[&dyn Effect], opt: &SelectOptions) -> Res
             stop_reason = "no candidate left".to_string();
             break;
         }
-        let evals: Vec<(usize, Result<CandEval>)> = live
-            .par_iter()
-            .map(|&i| (i, evaluate(cands[i], prob, &tg)))
-            .collect();
         let sse_before: f64 = before.iter().sum();
-        let mut scored: Vec<(usize, CandEval, f64, f64)> = Vec::new();
-        for (i, ev) in evals {
-            match ev {
-                Err(e) => {
-                    records[i] = Some(Record::skipped(
-                        i,
-                        step,
-                        format!("fit failed: {e}"),
-                        sse_before,
-                    ));
-                }
-                Ok(ev) => {
-                    let (mlr, p) = paired_log_test(&before, &ev.unit_sse);
-                    let (params, off) = params_of(cands[i], prob, &ev, k);
-                    records[i] = Some(Record {
-                        idx: i,
-                        step,
-                        skipped: None,
-                        sse_before,
-                        sse_after: ev.unit_sse.iter().sum(),
-                        mean_log_ratio: mlr,
-                        p_value: p,
-                        params,
-                        offset_mm: off,
-                        selected: false,
-                    });
-                    scored.push((i, ev, mlr, p));
-                }
-            }
-        }
+        let mut scored = score_round(prob, cands, &tg, &live, &before, step, &mut records);
         if !opt.allow_selection {
             stop_reason = "no gap above noise".to_string();
             break;
@@ -541,92 +420,15 @@ pub fn select(prob: &Problem, cands: &[&dyn Effect], opt: &SelectOptions) -> Res
             );
             break;
         }
-        // Best by mean log ratio; ties by fewer parameters, then name order.
-        // Statistically *and* practically significant: a consistent 0.01 %
-        // gain over many points passes a t-test but explains nothing.
-        let significant = |s: &(usize, CandEval, f64, f64)| {
-            s.3 < opt.alpha && s.2 >= opt.min_gain && s.1.unit_sse.iter().sum::<f64>() < sse_before
-        };
-        let mut best: Option<usize> = None;
-        for (j, s) in scored.iter().enumerate() {
-            if !significant(s) {
-                continue;
-            }
-            best = match best {
-                None => Some(j),
-                Some(b) => {
-                    let (sb, np_b) = (scored[b].2, cands[scored[b].0].n_params());
-                    let np = cands[s.0].n_params();
-                    if s.2 > sb || (s.2 == sb && np < np_b) {
-                        Some(j)
-                    } else {
-                        Some(b)
-                    }
-                }
-            };
-        }
-        let Some(mut b) = best else {
+        let Some(b) = pick(&scored, cands, opt, sse_before) else {
             stop_reason = format!(
                 "no candidate lowers the held-out gap significantly (p < {})",
                 opt.alpha
             );
             break;
         };
-        // Parsimony: a simpler significant candidate not significantly worse.
-        let np_best = cands[scored[b].0].n_params();
-        let mut alt: Option<usize> = None;
-        for (j, s) in scored.iter().enumerate() {
-            if j == b || !significant(s) || cands[s.0].n_params() >= np_best {
-                continue;
-            }
-            let (gain, p_worse) = paired_log_test(&s.1.unit_sse, &scored[b].1.unit_sse);
-            // "Not significantly worse" at α_p = max(α, 0.05): this test
-            // asks which of two explanations holds, with only as many pairs
-            // as held-out runs, so it is run at a less strict level than the
-            // "is there an effect" test.
-            let alpha_p = opt.alpha.max(PARSIMONY_ALPHA);
-            if p_worse.is_nan() || p_worse >= alpha_p || gain < opt.min_gain {
-                // The simplest such candidate; among equally simple ones the
-                // best scored.
-                let np = cands[s.0].n_params();
-                alt = match alt {
-                    Some(a) => {
-                        let np_a = cands[scored[a].0].n_params();
-                        if np < np_a || (np == np_a && s.2 > scored[a].2) {
-                            Some(j)
-                        } else {
-                            Some(a)
-                        }
-                    }
-                    None => Some(j),
-                };
-            }
-        }
-        if let Some(a) = alt {
-            b = a;
-        }
         let (ci, ev, _, _) = scored.swap_remove(b);
-        // Update every fold's target; record held-out contributions.
-        let mut new_targets = Vec::with_capacity(k + 1);
-        let mut c = vec![0.0; n];
-        for f in 0..=k {
-            let pred = predict_fold(cands[ci], prob, &ev, f)?;
-            let t: Vec<f64> = tg.per_fold[f]
-                .iter()
-                .zip(&pred)
-                .map(|(y, p)| y - p)
-                .collect();
-            if f < k {
-                for (u, uf) in prob.unit_fold.iter().enumerate() {
-                    if *uf == f {
-                        for i in prob.units[u].clone() {
-                            c[i] = pred[i];
-                        }
-                    }
-                }
-            }
-            new_targets.push(Arc::new(t));
-        }
+        let (new_targets, c) = take_out(prob, cands[ci], &ev, &tg)?;
         contrib.push(c);
         final_params.push(params_of(cands[ci], prob, &ev, k));
         final_targets.push(tg.per_fold[k].as_ref().clone());

@@ -5,8 +5,60 @@
 
 use super::*;
 
+/// The fleet steps' cache: last night's records (`fleet/.sparkout-cache`)
+/// and tonight's, in step order. A step either reuses its files (valid
+/// for its key) or writes new ones.
+struct FleetCache {
+    previous: BTreeMap<String, StageRecord>,
+    records: Vec<StageRecord>,
+}
+
+impl FleetCache {
+    /// True, with the record kept (marked cached), when `stage`'s files
+    /// under `dir` are those its `key` made.
+    fn reuse(&mut self, stage: &str, dir: &Path, key: &str) -> bool {
+        match self.previous.get(stage) {
+            Some(p) if record_valid(dir, p, key) => {
+                let mut rec = p.clone();
+                rec.cached = true;
+                self.records.push(rec);
+                true
+            }
+            _ => false,
+        }
+    }
+
+    /// Write a step's files under `dir` (each atomically) and record them.
+    fn write(
+        &mut self,
+        stage: &str,
+        version: u32,
+        key: String,
+        dir: &Path,
+        files: &[(&str, &[u8])],
+    ) -> Result<()> {
+        let mut hashes = BTreeMap::new();
+        for (name, bytes) in files {
+            write_atomic(&dir.join(name), bytes)?;
+            hashes.insert(name.to_string(), hash_bytes(bytes));
+        }
+        self.records.push(StageRecord {
+            stage: stage.into(),
+            version,
+            key,
+            files: hashes,
+            cached: false,
+        });
+        Ok(())
+    }
+}
+
+/// The joined observations and, per plugin, the observables it produced.
+type Joined = (RecordBatch, BTreeMap<String, BTreeSet<String>>);
+
 impl Engine {
-    /// Fleet steps: join observations, diagnose, fleet report.
+    /// Fleet steps, in order: join observations, diagnose, the augmented
+    /// simulator, the fleet report, the history, the index page.
     pub(super) fn run_fleet_stages(
         &self,
         out: &Path,
@@ -15,169 +67,183 @@ impl Engine {
     ) -> Result<()> {
         let fleet_dir = out.join("fleet");
         std::fs::create_dir_all(&fleet_dir)?;
-        let previous: BTreeMap<String, StageRecord> = read_run_cache(&fleet_dir);
-        let mut records = Vec::new();
-        let mut diagnosis_json: Option<serde_json::Value> = None;
-        let mut diagnosis_html: Option<String> = None;
+        let mut cache = FleetCache {
+            previous: read_run_cache(&fleet_dir),
+            records: Vec::new(),
+        };
         let want_diagnose = self
             .config
             .pipeline_list("stages")?
             .map(|l| l.iter().any(|s| s == "diagnose" || s == "observe"))
             .unwrap_or(true);
-
-        let obs_paths: Vec<&PathBuf> = outcome
-            .runs
-            .iter()
-            .filter_map(|r| r.observations.as_ref())
-            .collect();
-        let obs_file = fleet_dir.join("observations.parquet");
-        if want_diagnose && !obs_paths.is_empty() {
-            // The joined table is a function of each run's observations file
-            // (whose blake3 its observe stage recorded), machine and plugin,
-            // in order: keyed on those, a no-change night decides "cached"
-            // without reading or re-encoding millions of rows (issue 18
-            // item 4: the cached re-run of 1 000 runs in ≤ 2 s).
-            let mut okey = KeyBuilder::new("fleet-observations");
-            okey.part("version", "2");
-            for r in outcome.runs.iter().filter(|r| r.observations.is_some()) {
-                let p = r.observations.as_ref().expect("filtered");
-                let recorded = r
-                    .stages
-                    .iter()
-                    .find_map(|s| s.files.get("observations.parquet").cloned());
-                let h = match recorded {
-                    Some(h) => h,
-                    None => hash_file(p)?,
-                };
-                okey.part(&format!("{}/{}/{}", r.plugin, r.machine, r.run), &h);
-            }
-            let okey = okey.finish();
-            let obs_cached = previous
-                .get("observations")
-                .map(|p| record_valid(&fleet_dir, p, &okey))
-                .unwrap_or(false);
-            // Issue 12: every row names its machine (a `machine` column
-            // beside `run`), and the observables each plugin produced are
-            // what its composites apply to (issue 13 item 1).
-            let join = || -> Result<(RecordBatch, BTreeMap<String, BTreeSet<String>>)> {
-                progress.message(&format!("joining observations of {} runs", obs_paths.len()));
-                let mut batches = Vec::new();
-                let mut produced: BTreeMap<String, BTreeSet<String>> = BTreeMap::new();
-                for r in outcome.runs.iter().filter(|r| r.observations.is_some()) {
-                    let p = r.observations.as_ref().expect("filtered");
-                    let b = with_machine_column(crate::contracts::read_parquet(p)?, &r.machine)?;
-                    produced
-                        .entry(r.plugin.clone())
-                        .or_default()
-                        .extend(observable_names(&b));
-                    batches.push(b);
-                }
-                Ok((union_concat(&batches)?, produced))
-            };
-            let mut joined = None;
-            if obs_cached {
-                let mut rec = previous["observations"].clone();
-                rec.cached = true;
-                records.push(rec);
-            } else {
-                let (batch, produced) = join()?;
-                let bytes = parquet_bytes(&batch)?;
-                write_atomic(&obs_file, &bytes)?;
-                records.push(StageRecord {
-                    stage: "observations".into(),
-                    version: 2,
-                    key: okey.clone(),
-                    files: [("observations.parquet".to_string(), hash_bytes(&bytes))].into(),
-                    cached: false,
-                });
-                joined = Some((batch, produced));
-            }
-
-            let dcfg = self.diagnose_config()?;
-            let effects = self.plugin_effects();
-            // Which plugin's composites apply where follows from the joined
-            // observations (okey) and the registered effects, so the key
-            // needs only those.
-            let plugins_in_batch: BTreeSet<&str> =
-                outcome.runs.iter().map(|r| r.plugin.as_str()).collect();
-            let mut dkey = KeyBuilder::new("diagnose");
-            dkey.part("version", &DIAGNOSE_STAGE_VERSION.to_string())
-                .part("config", &config_text(&self.config.section("diagnose")))
-                .part("observations", &okey);
-            for (plugin, effects) in effects.iter().filter(|pe| plugins_in_batch.contains(pe.0)) {
-                for e in effects {
-                    dkey.part("effect", &format!("{plugin}/{}", e.name()));
-                }
-            }
-            let dkey = dkey.finish();
-            let d_cached = previous
-                .get("diagnose")
-                .map(|p| record_valid(&fleet_dir, p, &dkey))
-                .unwrap_or(false);
-            if d_cached {
-                let mut rec = previous["diagnose"].clone();
-                rec.cached = true;
-                records.push(rec);
-                diagnosis_json = std::fs::read(fleet_dir.join("diagnosis.json"))
-                    .ok()
-                    .and_then(|b| serde_json::from_slice(&b).ok());
-                diagnosis_html =
-                    std::fs::read_to_string(fleet_dir.join("diagnosis_section.html")).ok();
-            } else {
-                let (joined, produced) = match joined.take() {
-                    Some(j) => j,
-                    None => join()?,
-                };
-                let scoped: Vec<(Vec<String>, &PluginEffects)> = effects
-                    .iter()
-                    .filter_map(|pe| {
-                        produced
-                            .get(pe.0)
-                            .map(|o| (o.iter().cloned().collect::<Vec<_>>(), pe))
-                    })
-                    .collect();
-                let scopes: Vec<diagnose::EffectScope> = scoped
-                    .iter()
-                    .map(|(obs, (plugin, effects))| diagnose::EffectScope {
-                        plugin,
-                        observables: Some(obs.as_slice()),
-                        effects,
-                    })
-                    .collect();
-                progress.message("diagnosing the sim-to-real gap");
-                let d = diagnose::diagnose_scoped(&joined, &dcfg, &scopes)
-                    .context("fleet diagnosis")?;
-                let mut files = BTreeMap::new();
-                let dj = json_bytes(&d.diagnosis)?;
-                let dp = parquet_bytes(&d.per_row)?;
-                let am = json_bytes(&d.augmented_model)?;
-                let dh = d.report_html.clone().into_bytes();
-                for (name, bytes) in [
-                    ("diagnosis.json", &dj),
-                    ("diagnosis.parquet", &dp),
-                    ("augmented_model.json", &am),
-                    ("diagnosis_section.html", &dh),
-                ] {
-                    write_atomic(&fleet_dir.join(name), bytes)?;
-                    files.insert(name.to_string(), hash_bytes(bytes));
-                }
-                diagnosis_json = serde_json::to_value(&d.diagnosis).ok();
-                diagnosis_html = Some(d.report_html);
-                records.push(StageRecord {
-                    stage: "diagnose".into(),
-                    version: DIAGNOSE_STAGE_VERSION,
-                    key: dkey,
-                    files,
-                    cached: false,
-                });
-            }
+        let has_observations = outcome.runs.iter().any(|r| r.observations.is_some());
+        let mut diagnosis: (Option<serde_json::Value>, Option<String>) = (None, None);
+        if want_diagnose && has_observations {
+            let (okey, joined) =
+                self.fleet_observations(&mut cache, &fleet_dir, outcome, progress)?;
+            diagnosis =
+                self.fleet_diagnosis(&mut cache, &fleet_dir, outcome, &okey, joined, progress)?;
             outcome.diagnosis = Some(fleet_dir.join("diagnosis.json"));
         }
+        self.fleet_augment(&fleet_dir, progress)?;
+        let rkey = self.fleet_report(&mut cache, &fleet_dir, outcome, &diagnosis)?;
+        if let (Some((dir, night)), Some(d)) = (&self.history, diagnosis.0.as_ref()) {
+            self.append_history(dir, night.as_deref(), d, outcome, out, progress)?;
+        }
+        self.fleet_index(&mut cache, out, outcome, &rkey)?;
+        let records: Vec<&StageRecord> = cache.records.iter().collect();
+        write_json_atomic(&fleet_dir.join(cache::RUN_CACHE_FILE), &records)?;
+        outcome.fleet = cache.records;
+        Ok(())
+    }
 
-        // The augmented simulator (issue 13 item 4): written before the
-        // report, whose key covers it; a batch without --augment removes a
-        // previous one so the page never shows a stale comparison.
+    /// Every run's observations with a `machine` column beside `run`
+    /// (issue 12), and the observables each plugin produced — what its
+    /// composites apply to (issue 13 item 1).
+    fn join_observations(&self, outcome: &FleetOutcome, progress: &dyn Progress) -> Result<Joined> {
+        let runs: Vec<&RunResult> = outcome
+            .runs
+            .iter()
+            .filter(|r| r.observations.is_some())
+            .collect();
+        progress.message(&format!("joining observations of {} runs", runs.len()));
+        let mut batches = Vec::new();
+        let mut produced: BTreeMap<String, BTreeSet<String>> = BTreeMap::new();
+        for r in runs {
+            let p = r.observations.as_ref().expect("filtered");
+            let b = with_machine_column(crate::contracts::read_parquet(p)?, &r.machine)?;
+            produced
+                .entry(r.plugin.clone())
+                .or_default()
+                .extend(observable_names(&b));
+            batches.push(b);
+        }
+        Ok((union_concat(&batches)?, produced))
+    }
+
+    /// `fleet/observations.parquet`. The joined table is a function of each
+    /// run's observations file (whose blake3 its observe stage recorded),
+    /// machine and plugin, in order: keyed on those, a no-change night
+    /// decides "cached" without reading or re-encoding millions of rows
+    /// (issue 18 item 4: the cached re-run of 1 000 runs in ≤ 2 s). Returns
+    /// the key and the joined table when it was built.
+    fn fleet_observations(
+        &self,
+        cache: &mut FleetCache,
+        fleet_dir: &Path,
+        outcome: &FleetOutcome,
+        progress: &dyn Progress,
+    ) -> Result<(String, Option<Joined>)> {
+        let mut okey = KeyBuilder::new("fleet-observations");
+        okey.part("version", "2");
+        for r in outcome.runs.iter().filter(|r| r.observations.is_some()) {
+            let p = r.observations.as_ref().expect("filtered");
+            let recorded = r
+                .stages
+                .iter()
+                .find_map(|s| s.files.get("observations.parquet").cloned());
+            let h = match recorded {
+                Some(h) => h,
+                None => hash_file(p)?,
+            };
+            okey.part(&format!("{}/{}/{}", r.plugin, r.machine, r.run), &h);
+        }
+        let okey = okey.finish();
+        if cache.reuse("observations", fleet_dir, &okey) {
+            return Ok((okey, None));
+        }
+        let (batch, produced) = self.join_observations(outcome, progress)?;
+        let bytes = parquet_bytes(&batch)?;
+        cache.write(
+            "observations",
+            2,
+            okey.clone(),
+            fleet_dir,
+            &[("observations.parquet", &bytes)],
+        )?;
+        Ok((okey, Some((batch, produced))))
+    }
+
+    /// The fleet diagnosis (`fleet/diagnosis.*`, augmented_model.json), each
+    /// plugin's composites scoped to the observables it produced. Returns
+    /// diagnosis.json as a value and its report section.
+    fn fleet_diagnosis(
+        &self,
+        cache: &mut FleetCache,
+        fleet_dir: &Path,
+        outcome: &FleetOutcome,
+        okey: &str,
+        joined: Option<Joined>,
+        progress: &dyn Progress,
+    ) -> Result<(Option<serde_json::Value>, Option<String>)> {
+        let dcfg = self.diagnose_config()?;
+        let effects = self.plugin_effects();
+        // Which plugin's composites apply where follows from the joined
+        // observations (okey) and the registered effects, so the key
+        // needs only those.
+        let plugins_in_batch: BTreeSet<&str> =
+            outcome.runs.iter().map(|r| r.plugin.as_str()).collect();
+        let mut dkey = KeyBuilder::new("diagnose");
+        dkey.part("version", &DIAGNOSE_STAGE_VERSION.to_string())
+            .part("config", &config_text(&self.config.section("diagnose")))
+            .part("observations", okey);
+        for (plugin, effects) in effects.iter().filter(|pe| plugins_in_batch.contains(pe.0)) {
+            for e in effects {
+                dkey.part("effect", &format!("{plugin}/{}", e.name()));
+            }
+        }
+        let dkey = dkey.finish();
+        if cache.reuse("diagnose", fleet_dir, &dkey) {
+            return Ok((
+                std::fs::read(fleet_dir.join("diagnosis.json"))
+                    .ok()
+                    .and_then(|b| serde_json::from_slice(&b).ok()),
+                std::fs::read_to_string(fleet_dir.join("diagnosis_section.html")).ok(),
+            ));
+        }
+        let (joined, produced) = match joined {
+            Some(j) => j,
+            None => self.join_observations(outcome, progress)?,
+        };
+        let scoped: Vec<(Vec<String>, &PluginEffects)> = effects
+            .iter()
+            .filter_map(|pe| {
+                produced
+                    .get(pe.0)
+                    .map(|o| (o.iter().cloned().collect::<Vec<_>>(), pe))
+            })
+            .collect();
+        let scopes: Vec<diagnose::EffectScope> = scoped
+            .iter()
+            .map(|(obs, (plugin, effects))| diagnose::EffectScope {
+                plugin,
+                observables: Some(obs.as_slice()),
+                effects,
+            })
+            .collect();
+        progress.message("diagnosing the sim-to-real gap");
+        let d = diagnose::diagnose_scoped(&joined, &dcfg, &scopes).context("fleet diagnosis")?;
+        cache.write(
+            "diagnose",
+            DIAGNOSE_STAGE_VERSION,
+            dkey,
+            fleet_dir,
+            &[
+                ("diagnosis.json", &json_bytes(&d.diagnosis)?),
+                ("diagnosis.parquet", &parquet_bytes(&d.per_row)?),
+                ("augmented_model.json", &json_bytes(&d.augmented_model)?),
+                ("diagnosis_section.html", d.report_html.as_bytes()),
+            ],
+        )?;
+        Ok((serde_json::to_value(&d.diagnosis).ok(), Some(d.report_html)))
+    }
+
+    /// The augmented simulator (issue 13 item 4): written before the
+    /// report, whose key covers it; a batch without --augment removes a
+    /// previous one so the page never shows a stale comparison.
+    fn fleet_augment(&self, fleet_dir: &Path, progress: &dyn Progress) -> Result<()> {
         let augment_file = fleet_dir.join("augment.json");
+        let obs_file = fleet_dir.join("observations.parquet");
         match (&self.augment, obs_file.is_file()) {
             (Some(model), true) => {
                 progress.message("re-simulating with the augmented model");
@@ -189,8 +255,18 @@ impl Engine {
                 let _ = std::fs::remove_file(&augment_file);
             }
         }
+        Ok(())
+    }
 
-        // Fleet report: cached on every run's stage keys + failures + diagnosis.
+    /// The fleet report, cached on every run's stage keys, the failures,
+    /// the fleet steps before it and the augmentation. Returns its key.
+    fn fleet_report(
+        &self,
+        cache: &mut FleetCache,
+        fleet_dir: &Path,
+        outcome: &mut FleetOutcome,
+        (diagnosis_json, diagnosis_html): &(Option<serde_json::Value>, Option<String>),
+    ) -> Result<String> {
         let mut rkey = KeyBuilder::new("fleet-report");
         rkey.part("version", &report::REPORT_VERSION.to_string())
             .part("config", &config_text(&self.config.section("report")));
@@ -202,72 +278,57 @@ impl Engine {
         for f in &outcome.failures {
             rkey.part("failure", &format!("{}: {}", f.run_dir, f.error));
         }
-        for r in &records {
+        for r in &cache.records {
             rkey.part(&r.stage, &r.key);
         }
         // The augmentation's figures are shown in the verdicts when present.
         let augment = hash_file(&fleet_dir.join("augment.json")).unwrap_or_default();
         rkey.part("augment", &augment);
         let rkey = rkey.finish();
-        let cached = previous
-            .get("report")
-            .map(|p| record_valid(&fleet_dir, p, &rkey))
-            .unwrap_or(false);
-        if cached {
-            let mut rec = previous["report"].clone();
-            rec.cached = true;
-            records.push(rec);
-        } else {
+        if !cache.reuse("report", fleet_dir, &rkey) {
             let html = report::fleet_page(
                 &self.config.section("report"),
                 outcome,
                 diagnosis_json.as_ref(),
                 diagnosis_html.as_deref(),
             );
-            let bytes = html.into_bytes();
-            write_atomic(&fleet_dir.join("report.html"), &bytes)?;
-            records.push(StageRecord {
-                stage: "report".into(),
-                version: report::REPORT_VERSION,
-                key: rkey.clone(),
-                files: [("report.html".to_string(), hash_bytes(&bytes))].into(),
-                cached: false,
-            });
+            cache.write(
+                "report",
+                report::REPORT_VERSION,
+                rkey.clone(),
+                fleet_dir,
+                &[("report.html", html.as_bytes())],
+            )?;
         }
         outcome.report = Some(fleet_dir.join("report.html"));
-        if let (Some((dir, night)), Some(d)) = (&self.history, diagnosis_json.as_ref()) {
-            self.append_history(dir, night.as_deref(), d, outcome, out, progress)?;
-        }
-        // out/index.html (issue 16 item 2): cached like the report, on its
-        // key and the trend page's presence.
+        Ok(rkey)
+    }
+
+    /// out/index.html (issue 16 item 2): cached like the report, on its key
+    /// and the trend page's presence.
+    fn fleet_index(
+        &self,
+        cache: &mut FleetCache,
+        out: &Path,
+        outcome: &FleetOutcome,
+        rkey: &str,
+    ) -> Result<()> {
         let mut ikey = KeyBuilder::new("fleet-index");
-        ikey.part("report", &rkey).part(
+        ikey.part("report", rkey).part(
             "trend",
             &out.join(report::index::TREND_PAGE).is_file().to_string(),
         );
         let ikey = ikey.finish();
-        if previous
-            .get("index")
-            .map(|p| record_valid(out, p, &ikey))
-            .unwrap_or(false)
-        {
-            let mut rec = previous["index"].clone();
-            rec.cached = true;
-            records.push(rec);
-        } else {
-            let bytes = report::index_page(&self.config.section("report"), outcome).into_bytes();
-            write_atomic(&out.join("index.html"), &bytes)?;
-            records.push(StageRecord {
-                stage: "index".into(),
-                version: report::REPORT_VERSION,
-                key: ikey,
-                files: [("index.html".to_string(), hash_bytes(&bytes))].into(),
-                cached: false,
-            });
+        if !cache.reuse("index", out, &ikey) {
+            let html = report::index_page(&self.config.section("report"), outcome);
+            cache.write(
+                "index",
+                report::REPORT_VERSION,
+                ikey,
+                out,
+                &[("index.html", html.as_bytes())],
+            )?;
         }
-        let cache: Vec<&StageRecord> = records.iter().collect();
-        write_json_atomic(&fleet_dir.join(cache::RUN_CACHE_FILE), &cache)?;
-        outcome.fleet = records;
         Ok(())
     }
 

@@ -60,6 +60,57 @@ impl Engine {
         }))
     }
 
+    /// A stage's cache key: its name, version, plugin and config section,
+    /// run.toml and the machine config, the hash of every table it reads
+    /// (hashed once per run, in `table_hashes`), the keys of the stages
+    /// whose artifacts it reads, and the augmented model's hash when it
+    /// reads one.
+    fn stage_key(
+        &self,
+        stage: &Arc<dyn Stage>,
+        plugin: &str,
+        cfg: &toml::Table,
+        run: &Run,
+        table_hashes: &mut BTreeMap<String, String>,
+        producer_key: &BTreeMap<String, String>,
+    ) -> Result<String> {
+        let mut key = KeyBuilder::new("stage");
+        key.part("stage", stage.name())
+            .part("version", &stage.version().to_string())
+            .part("plugin", plugin)
+            .part("config", &config_text(cfg))
+            .part("run.toml", &run.spec.text)
+            .part("machine", &run.machine.text);
+        for schema in stage.spec().reads {
+            let t = schema.name;
+            if !run.has_table(schema) {
+                key.part(t, "absent");
+                continue;
+            }
+            if !table_hashes.contains_key(t) {
+                let h = hash_input(&run.table_path(schema))
+                    .with_context(|| format!("cannot hash {}", run.table_path(schema).display()))?;
+                table_hashes.insert(t.to_string(), h);
+            }
+            key.part(t, &table_hashes[t]);
+        }
+        for a in stage.reads_artifacts() {
+            key.part(
+                a,
+                producer_key.get(*a).map(|s| s.as_str()).unwrap_or("absent"),
+            );
+        }
+        if stage.spec().reads_augmented_model {
+            key.part(
+                "augmented_model",
+                self.augment
+                    .as_ref()
+                    .map_or("none", |m| m.content_hash.as_str()),
+            );
+        }
+        Ok(key.finish())
+    }
+
     /// Every stage of one run. With `run_out` the artifacts are written and
     /// the cache consulted; without, everything is computed in memory and
     /// nothing written (`validate-input` runs exactly the checks `run` runs).
@@ -80,34 +131,18 @@ impl Engine {
         for stage in &stages {
             *failed_stage = Some(stage.name().to_string());
             let cfg = self.stage_config(plugin.name(), stage.name());
-            let mut key = KeyBuilder::new("stage");
-            key.part("stage", stage.name())
-                .part("version", &stage.version().to_string())
-                .part("plugin", plugin.name())
-                .part("config", &config_text(&cfg))
-                .part("run.toml", &run.spec.text)
-                .part("machine", &run.machine.text);
-            for schema in stage.spec().reads {
-                let t = schema.name;
-                if !run.has_table(schema) {
-                    key.part(t, "absent");
-                    continue;
-                }
-                if !table_hashes.contains_key(t) {
-                    let h = hash_input(&run.table_path(schema)).with_context(|| {
-                        format!("cannot hash {}", run.table_path(schema).display())
-                    })?;
-                    table_hashes.insert(t.to_string(), h);
-                }
-                key.part(t, &table_hashes[t]);
-            }
-            for a in stage.reads_artifacts() {
-                key.part(
-                    a,
-                    producer_key.get(*a).map(|s| s.as_str()).unwrap_or("absent"),
-                );
-            }
-            let key = key.finish();
+            let augment = self
+                .augment
+                .as_ref()
+                .filter(|_| stage.spec().reads_augmented_model);
+            let key = self.stage_key(
+                stage,
+                plugin.name(),
+                &cfg,
+                &run,
+                &mut table_hashes,
+                &producer_key,
+            )?;
             for w in stage.writes() {
                 producer_key.insert(w.to_string(), key.clone());
             }
@@ -135,6 +170,7 @@ impl Engine {
                 run: &run,
                 config: &cfg,
                 artifacts: &store,
+                augment,
             };
             let output = run_checked(stage.as_ref(), &ctx)?;
             let mut files = BTreeMap::new();
@@ -259,6 +295,7 @@ impl Engine {
                 run: &run,
                 config: &cfg,
                 artifacts: &store,
+                augment: None,
             };
             let output = run_checked(stage.as_ref(), &ctx)?;
             for (name, batch) in &output.artifacts {

@@ -40,6 +40,138 @@ fn anchor(parts: &[&str]) -> String {
         .join("--")
 }
 
+/// Type → machine → observables: the page's outline.
+type Tree<'a> = BTreeMap<&'a str, BTreeMap<String, Vec<String>>>;
+
+/// The page's outline from the rows (the diagnosis's observables when the
+/// rows could not be read).
+fn machine_tree<'a>(
+    rows: Option<&FleetRows>,
+    per_obs: &BTreeMap<&str, &Value>,
+    type_of: &BTreeMap<&str, &'a str>,
+) -> Tree<'a> {
+    let mut tree = Tree::new();
+    if let Some(r) = rows {
+        for (m, o) in r.groups.keys() {
+            let t = type_of.get(m.as_str()).copied().unwrap_or("—");
+            tree.entry(t)
+                .or_default()
+                .entry(m.clone())
+                .or_default()
+                .push(o.clone());
+        }
+    } else {
+        for (o, p) in per_obs {
+            for m in p
+                .get("machines")
+                .and_then(|m| m.as_array())
+                .into_iter()
+                .flatten()
+                .filter_map(|m| m.as_str())
+            {
+                let t = type_of.get(m).copied().unwrap_or("—");
+                tree.entry(t)
+                    .or_default()
+                    .entry(m.to_string())
+                    .or_default()
+                    .push(o.to_string());
+            }
+        }
+    }
+    tree
+}
+
+/// "At a glance": one row per (machine, observable), each in its own unit.
+fn glance_table(tree: &Tree, per_obs: &BTreeMap<&str, &Value>, rows: Option<&FleetRows>) -> String {
+    if tree.is_empty() {
+        return String::new();
+    }
+    let mut body = String::from("<h2>At a glance</h2><table class=\"glance\"><thead><tr><th>type / machine / observable</th><th>gap RMS</th><th>noise floor</th><th class=\"why\">named effect</th><th>where · which</th><th>held-out after</th><th>shrink</th><th>how far</th></tr></thead><tbody>");
+    for (t, machines) in tree {
+        for (m, obs) in machines {
+            for o in obs {
+                let p = per_obs.get(o.as_str());
+                let u = unit_of(o, p.and_then(|p| p.get("unit")).and_then(|x| x.as_str()));
+                let pf = |k: &str| p.map(|p| f(p, k)).unwrap_or(f64::NAN);
+                let above = p
+                    .and_then(|p| p.get("gap_above_noise"))
+                    .and_then(|x| x.as_bool())
+                    == Some(true);
+                let sel = p
+                    .and_then(|p| p.get("selected"))
+                    .and_then(|x| x.as_array())
+                    .map(|a| {
+                        a.iter()
+                            .filter_map(|x| x.as_str())
+                            .collect::<Vec<_>>()
+                            .join(", ")
+                    })
+                    .unwrap_or_default();
+                let named = if !above {
+                    "<span class=\"ok\">at noise floor</span>".to_string()
+                } else if sel.is_empty() {
+                    "<span class=\"bad\">not explained</span>".to_string()
+                } else {
+                    esc(&sel)
+                };
+                let _ = write!(
+                    body,
+                    "<tr><td><a href=\"#{}\">{} / {} / {}</a></td><td>{}</td><td>{}</td><td class=\"why\">{}</td><td class=\"thumbs\">{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
+                    anchor(&[m, o]),
+                    esc(t),
+                    esc(m),
+                    esc(o),
+                    u.show(pf("rms_mm")),
+                    u.show(pf("noise_floor_mm")),
+                    named,
+                    if above {
+                        glance_pictures(
+                            rows,
+                            m,
+                            o,
+                            (!sel.is_empty()).then(|| sel.split(", ").next().unwrap_or("")),
+                        )
+                    } else {
+                        String::new()
+                    },
+                    if above && !sel.is_empty() { u.show(pf("cv_rms_after_mm")) } else { "—".into() },
+                    if above && !sel.is_empty() { super::fmt_fixed(Some(100.0 * pf("shrink")), 0) + " %" } else { "—".into() },
+                    mini_bars(
+                        pf("rms_mm"),
+                        if above && !sel.is_empty() { pf("cv_rms_after_mm") } else { f64::NAN },
+                        pf("noise_floor_mm")
+                    ),
+                );
+            }
+        }
+    }
+    body.push_str("</tbody></table><p class=\"note\">where: the gap map over the workpiece (red: real above sim, blue: below); which: the mean gap against the named effect's covariate; how far: gap RMS (grey), held-out RMS after the named effects (green), noise floor (black tick). Each row on its own scale; the full pictures are in the observable's section.</p>");
+    body
+}
+
+/// The diagnosis's notes (skipped covariates, trimmed outliers), folded.
+fn diagnosis_notes(d: &Value) -> String {
+    let notes: Vec<&str> = d
+        .get("notes")
+        .and_then(|n| n.as_array())
+        .into_iter()
+        .flatten()
+        .filter_map(|n| n.as_str())
+        .collect();
+    if notes.is_empty() {
+        return String::new();
+    }
+    let mut body = format!(
+        "<details><summary>Diagnosis notes ({}): skipped covariates, trimmed outliers</summary><ul class=\"notes\">",
+        notes.len()
+    );
+    for n in notes {
+        let _ = write!(body, "<li>{}</li>", esc(n));
+    }
+    body.push_str("</ul></details>");
+    body
+}
+
 /// The fleet report.
 pub fn fleet_page(
     cfg: &toml::Table,
@@ -108,118 +240,10 @@ pub fn fleet_page(
         BTreeMap::new()
     };
     let augment = augment_entries(out);
-    // Type → machine → observables (from the rows; the diagnosis's
-    // observables when the rows could not be read).
-    let mut tree: BTreeMap<&str, BTreeMap<String, Vec<String>>> = BTreeMap::new();
-    if let Some(r) = &rows {
-        for (m, o) in r.groups.keys() {
-            let t = type_of.get(m.as_str()).copied().unwrap_or("—");
-            tree.entry(t)
-                .or_default()
-                .entry(m.clone())
-                .or_default()
-                .push(o.clone());
-        }
-    } else {
-        for (o, p) in &per_obs {
-            for m in p
-                .get("machines")
-                .and_then(|m| m.as_array())
-                .into_iter()
-                .flatten()
-                .filter_map(|m| m.as_str())
-            {
-                let t = type_of.get(m).copied().unwrap_or("—");
-                tree.entry(t)
-                    .or_default()
-                    .entry(m.to_string())
-                    .or_default()
-                    .push(o.to_string());
-            }
-        }
-    }
-    // At a glance: one row per (machine, observable), each in its own unit.
-    if !tree.is_empty() {
-        body.push_str("<h2>At a glance</h2><table class=\"glance\"><thead><tr><th>type / machine / observable</th><th>gap RMS</th><th>noise floor</th><th class=\"why\">named effect</th><th>where · which</th><th>held-out after</th><th>shrink</th><th>how far</th></tr></thead><tbody>");
-        for (t, machines) in &tree {
-            for (m, obs) in machines {
-                for o in obs {
-                    let p = per_obs.get(o.as_str());
-                    let u = unit_of(o, p.and_then(|p| p.get("unit")).and_then(|x| x.as_str()));
-                    let pf = |k: &str| p.map(|p| f(p, k)).unwrap_or(f64::NAN);
-                    let above = p
-                        .and_then(|p| p.get("gap_above_noise"))
-                        .and_then(|x| x.as_bool())
-                        == Some(true);
-                    let sel = p
-                        .and_then(|p| p.get("selected"))
-                        .and_then(|x| x.as_array())
-                        .map(|a| {
-                            a.iter()
-                                .filter_map(|x| x.as_str())
-                                .collect::<Vec<_>>()
-                                .join(", ")
-                        })
-                        .unwrap_or_default();
-                    let named = if !above {
-                        "<span class=\"ok\">at noise floor</span>".to_string()
-                    } else if sel.is_empty() {
-                        "<span class=\"bad\">not explained</span>".to_string()
-                    } else {
-                        esc(&sel)
-                    };
-                    let _ = write!(
-                        body,
-                        "<tr><td><a href=\"#{}\">{} / {} / {}</a></td><td>{}</td><td>{}</td><td class=\"why\">{}</td><td class=\"thumbs\">{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
-                        anchor(&[m, o]),
-                        esc(t),
-                        esc(m),
-                        esc(o),
-                        u.show(pf("rms_mm")),
-                        u.show(pf("noise_floor_mm")),
-                        named,
-                        if above {
-                            glance_pictures(
-                                rows.as_ref(),
-                                m,
-                                o,
-                                (!sel.is_empty()).then(|| sel.split(", ").next().unwrap_or("")),
-                            )
-                        } else {
-                            String::new()
-                        },
-                        if above && !sel.is_empty() { u.show(pf("cv_rms_after_mm")) } else { "—".into() },
-                        if above && !sel.is_empty() { super::fmt_fixed(Some(100.0 * pf("shrink")), 0) + " %" } else { "—".into() },
-                        mini_bars(
-                            pf("rms_mm"),
-                            if above && !sel.is_empty() { pf("cv_rms_after_mm") } else { f64::NAN },
-                            pf("noise_floor_mm")
-                        ),
-                    );
-                }
-            }
-        }
-        body.push_str("</tbody></table><p class=\"note\">where: the gap map over the workpiece (red: real above sim, blue: below); which: the mean gap against the named effect's covariate; how far: gap RMS (grey), held-out RMS after the named effects (green), noise floor (black tick). Each row on its own scale; the full pictures are in the observable's section.</p>");
-    }
+    let tree = machine_tree(rows.as_ref(), &per_obs, &type_of);
+    body.push_str(&glance_table(&tree, &per_obs, rows.as_ref()));
     if let Some(d) = diagnosis {
-        let notes: Vec<&str> = d
-            .get("notes")
-            .and_then(|n| n.as_array())
-            .into_iter()
-            .flatten()
-            .filter_map(|n| n.as_str())
-            .collect();
-        if !notes.is_empty() {
-            let _ = write!(
-                body,
-                "<details><summary>Diagnosis notes ({}): skipped covariates, trimmed outliers</summary><ul class=\"notes\">",
-                notes.len()
-            );
-            for n in notes {
-                let _ = write!(body, "<li>{}</li>", esc(n));
-            }
-            body.push_str("</ul></details>");
-        }
+        body.push_str(&diagnosis_notes(d));
     }
     for (t, machines) in &tree {
         let _ = write!(body, "<h2>Machine type {}</h2>", esc(t));

@@ -98,6 +98,7 @@ const SPEC: StageSpec = StageSpec {
     reads: &[],
     reads_artifacts: &["toolpath"],
     writes: &["cldata"],
+    reads_augmented_model: false,
     about: "CLDATA-like text programs (GOTO / X, Z, A, C) per segment; run-less: --profile FILE --r-max-mm --range-mm --segments --cldata-dir DIR",
     config: SectionCheck::Keys(KEYS),
 };

@@ -224,7 +224,11 @@ impl Profile {
         self.interp(phi, v, None)
     }
 
-    fn interp(&self, phi: f64, v: &[f64], slope: Option<&[f64]>) -> Option<f64> {
+    /// Where φ falls on the design grid: the segment's end points (k, k1)
+    /// and the position t ∈ [0, 1] between them (φ wrapped on a closed
+    /// turn; past the end of an open profile, the last point with t = 0).
+    /// None outside an open profile.
+    pub fn segment_at(&self, phi: f64) -> Option<(usize, usize, f64)> {
         let n = self.len();
         let (p0, p1) = (self.phi_rad[0], self.phi_rad[n - 1]);
         let mut x = phi;
@@ -245,14 +249,25 @@ impl Profile {
         } else if self.closed {
             (0, p0 + std::f64::consts::TAU)
         } else {
-            return Some(v[n - 1]);
+            return Some((n - 1, n - 1, 0.0));
         };
         let x0 = self.phi_rad[k];
-        let hh = x1 - x0;
-        let t = ((x - x0) / hh).clamp(0.0, 1.0);
+        Some((k, k1, ((x - x0) / (x1 - x0)).clamp(0.0, 1.0)))
+    }
+
+    fn interp(&self, phi: f64, v: &[f64], slope: Option<&[f64]>) -> Option<f64> {
+        let (k, k1, t) = self.segment_at(phi)?;
+        if k == k1 {
+            return Some(v[k]);
+        }
         Some(match slope {
             None => v[k] + t * (v[k1] - v[k]),
             Some(m) => {
+                let hh = if k1 > k {
+                    self.phi_rad[k1] - self.phi_rad[k]
+                } else {
+                    self.phi_rad[0] + std::f64::consts::TAU - self.phi_rad[k]
+                };
                 let (t2, t3) = (t * t, t * t * t);
                 (2.0 * t3 - 3.0 * t2 + 1.0) * v[k]
                     + (t3 - 2.0 * t2 + t) * hh * m[k]

@@ -19,6 +19,7 @@ use std::sync::Arc;
 use sparkout_pipeline::diagnose::{catalogue_effect, composite, Effect, Kind};
 use sparkout_pipeline::{ArtifactStore, MachinePlugin, ReportSection, Run, Stage};
 
+pub mod augment;
 pub mod cldata;
 pub mod config;
 pub mod curvature;

@@ -178,6 +178,39 @@ pub fn profile_error(p: &Profile, path: &CentrePath, r_k: f64) -> Result<Vec<f64
         .collect()
 }
 
+/// δ at φ for a wheel the controller knows as radius `r_k` that has worn
+/// by `wear_mm` since (unknown to the controller): the model at the two
+/// design points around φ, interpolated as [`Profile::value_at`]
+/// interpolates a per-point δ, so a per-row wear agrees with δ computed on
+/// the grid. The controller places the centre for `r_k` (MODELS.md §4:
+/// radially in by R_kn − R_k); the worn wheel's surface then stands
+/// `wear_mm` further off the profile along the normal — exactly so in the
+/// osculating-circle geometry (δ = L − ρ − R with L fixed by the
+/// controller's R_k), and to first order in the published form. None
+/// outside the profile or where the wheel cannot follow it.
+pub fn delta_at(p: &Profile, path: &CentrePath, phi: f64, r_k: f64, wear_mm: f64) -> Option<f64> {
+    let (k, k1, t) = p.segment_at(phi)?;
+    let (a, b) = (path.delta(p, k, r_k)?, path.delta(p, k1, r_k)?);
+    Some(wear_mm + if k == k1 { a } else { a + t * (b - a) })
+}
+
+/// The volume the wheel has removed since its last dressing as a function
+/// of arc length s along the profile: (`[process] removed_before_mm3`,
+/// stock_mm × wheel width) so that removed = v0 + area·s; None unless
+/// run.toml gives removed_before_mm3 and stock_mm and a width is known
+/// (`[process] width_mm`, else the machine's `wheel.width_mm`).
+pub fn wheel_usage(run: &Run) -> Option<(f64, f64)> {
+    let width = process_f64(run, "width_mm").or_else(|| run.machine.f64("wheel.width_mm"));
+    match (
+        process_f64(run, "removed_before_mm3"),
+        process_f64(run, "stock_mm"),
+        width,
+    ) {
+        (Some(v0), Some(stock), Some(w)) => Some((v0, stock * w)),
+        _ => None,
+    }
+}
+
 /// The machine's usable wheel-radius range (`[wheel]` of the machine
 /// config): a new wheel has `radius_max_mm`, dressing may take it down by
 /// `usable_range_mm` (MODELS.md §4: 175 mm, 50 mm in the source).

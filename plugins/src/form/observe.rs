@@ -19,16 +19,17 @@
 use std::collections::BTreeMap;
 
 use anyhow::bail;
-use serde_json::json;
+use serde_json::{json, Value};
 use sparkout_pipeline::config_check::SectionCheck;
 use sparkout_pipeline::contracts::schema::PROFILE;
 use sparkout_pipeline::contracts::BatchBuilder;
 use sparkout_pipeline::{cfg_f64, InputError, Result, Stage, StageContext, StageOutput, StageSpec};
 
+use super::augment::WheelWear;
 use super::config::{Check, WINDOW_KEY};
 use super::model::{
-    centre_path, check_wheel_radius, feed_mm_s, process_f64, profile_error, profile_setup,
-    DeltaModel,
+    centre_path, check_wheel_radius, delta_at, feed_mm_s, process_f64, profile_error,
+    profile_setup, wheel_usage, DeltaModel,
 };
 
 pub const KEYS: &[(&str, Check)] = &[
@@ -41,10 +42,12 @@ pub struct ObserveStage;
 
 const SPEC: StageSpec = StageSpec {
     name: "observe",
-    version: 1,
+    // 2: `sim_augmented` (+ effects) under `run --augment`; summary `augmented`.
+    version: 2,
     reads: &[&PROFILE],
     reads_artifacts: &[],
     writes: &["observations"],
+    reads_augmented_model: true,
     about: "paired observations profile_error (measured vs δ(φ) of the model; covariates phi_rad, wheel_radius_mm, t_s, removed_mm3)",
     config: SectionCheck::Keys(KEYS),
 };
@@ -59,16 +62,11 @@ impl Stage for ObserveStage {
         let path = centre_path(&p, r_kn).with_model(DeltaModel::from_config(ctx.config));
         let arc = p.arc_length_mm();
         let feed = feed_mm_s(ctx.run)?;
-        let width =
-            process_f64(ctx.run, "width_mm").or_else(|| ctx.run.machine.f64("wheel.width_mm"));
-        let usage = match (
-            process_f64(ctx.run, "removed_before_mm3"),
-            process_f64(ctx.run, "stock_mm"),
-            width,
-        ) {
-            (Some(v0), Some(stock), Some(w)) => Some((v0, stock * w)),
-            _ => None,
-        };
+        let usage = wheel_usage(ctx.run);
+        // `run --augment`: a fitted wheel wear re-simulated as the radius
+        // the wheel lost (form/augment.rs), where the run says how much
+        // the wheel has removed.
+        let wear = WheelWear::of(ctx).filter(|_| usage.is_some());
         let process_radius = process_f64(ctx.run, "wheel_radius_mm");
         if rows.measured_rows.is_empty() {
             bail!(
@@ -78,6 +76,7 @@ impl Stage for ObserveStage {
         }
         // δ on the design grid per distinct radius (a run usually has one).
         let mut deltas: BTreeMap<u64, Vec<f64>> = BTreeMap::new();
+        let mut sim_aug = Vec::new();
         let (mut sim, mut real, mut phi, mut wr, mut ts, mut rem) = (
             Vec::new(),
             Vec::new(),
@@ -130,6 +129,11 @@ impl Stage for ObserveStage {
                 .row(i)
                 .into());
             };
+            if let (Some(w), Some((v0, area))) = (&wear, usage) {
+                let loss = w.radius_loss_mm(&[v0 + area * s]).unwrap_or_default();
+                let wear = loss.first().copied().unwrap_or(f64::NAN);
+                sim_aug.push(delta_at(&p, &path, f, rk, wear).unwrap_or(f64::NAN));
+            }
             sim.push(dl);
             real.push((rows.r[i] - r_design) * g0.cos());
             phi.push(f);
@@ -153,6 +157,28 @@ impl Stage for ObserveStage {
         if usage.is_some() {
             b = b.f64("removed_mm3", rem);
         }
+        let augmented = match &wear {
+            // A row whose worn wheel cannot follow the profile keeps the
+            // plain sim (null): the fleet step then adds the effect there.
+            Some(w) => {
+                let keys = w.keys();
+                let ok: Vec<bool> = sim_aug.iter().map(|v| v.is_finite()).collect();
+                b = b
+                    .opt_f64(
+                        "sim_augmented",
+                        sim_aug
+                            .iter()
+                            .map(|v| v.is_finite().then_some(*v))
+                            .collect(),
+                    )
+                    .opt_str(
+                        "sim_augmented_effects",
+                        ok.iter().map(|&o| o.then_some(keys.as_str())).collect(),
+                    );
+                json!({"in_physics": keys, "rows": ok.iter().filter(|&&o| o).count()})
+            }
+            None => Value::Null,
+        };
         let summary = json!({
             "observable": "profile_error",
             "rows": n,
@@ -162,6 +188,7 @@ impl Stage for ObserveStage {
             "gap_mean_mm": gap.iter().sum::<f64>() / n as f64,
             "covariates": if usage.is_some() { json!(["phi_rad", "wheel_radius_mm", "t_s", "removed_mm3"]) } else { json!(["phi_rad", "wheel_radius_mm", "t_s"]) },
             "nominal_source": if cfg_f64(ctx.config, "nominal_mm").is_some() { "config" } else { "run" },
+            "augmented": augmented,
         });
         Ok(StageOutput::new(summary).with("observations", b.build()))
     }

@@ -13,11 +13,12 @@ use sparkout_pipeline::contracts::schema::PROFILE;
 use sparkout_pipeline::contracts::BatchBuilder;
 use sparkout_pipeline::{cfg_f64, InputError, Result, Stage, StageContext, StageOutput, StageSpec};
 
+use super::augment::WheelWear;
 use super::config::{Check, WINDOW_KEY};
 use super::curvature::Profile;
 use super::model::{
     centre_path, check_wheel_radius, feed_mm_s, process_f64, profile_error, profile_setup,
-    DeltaModel, ProfileRows, WheelRange,
+    wheel_usage, DeltaModel, ProfileRows, WheelRange,
 };
 
 pub const KEYS: &[(&str, Check)] = &[
@@ -153,10 +154,12 @@ pub struct ProfileErrorStage;
 
 const SPEC: StageSpec = StageSpec {
     name: "profile_error",
-    version: 1,
+    // 2: compensation for the worn wheel under `run --augment`; summary `augmented`.
+    version: 2,
     reads: &[&PROFILE],
     reads_artifacts: &[],
     writes: &["profile_error", "compensation"],
+    reads_augmented_model: true,
     about: "profile error δ(φ) of the design profile for the actual wheel radius vs the programmed nominal, with curvature κ(φ) (MODELS.md §4)",
     config: SectionCheck::Keys(KEYS),
 };
@@ -177,8 +180,29 @@ impl Stage for ProfileErrorStage {
             DeltaModel::from_config(ctx.config),
         )?;
         let feed = feed_mm_s(ctx.run)?;
+        // `run --augment`: a fitted wheel wear makes the compensation that
+        // replay sends the one for the worn wheel (form/augment.rs), along
+        // the volume the wheel removes over the profile.
+        let (wear_mm, augmented) = match (WheelWear::of(ctx), wheel_usage(ctx.run)) {
+            (Some(w), Some((v0, area))) => {
+                let removed: Vec<f64> = p.arc_length_mm().iter().map(|s| v0 + area * s).collect();
+                let loss = w.radius_loss_mm(&removed);
+                let info = json!({
+                    "in_physics": w.keys(),
+                    "wear_max_mm": loss.as_ref().map(|l| l.iter().fold(0.0f64, |m, v| m.max(v.abs()))),
+                });
+                (loss, info)
+            }
+            (Some(w), None) => (
+                None,
+                json!({"in_physics": null, "not_applied": w.keys(), "why": "run.toml gives no removed_before_mm3 and stock_mm: the wheel's usage is unknown"}),
+            ),
+            _ => (None, Value::Null),
+        };
         // The largest actual radius (the first) gets the compensation.
-        let comp = compensation(&p, r_kn, radii[0], feed);
+        let comp = compensation(&p, r_kn, radii[0], wear_mm.as_deref(), feed);
+        let mut summary = summary;
+        summary["augmented"] = augmented;
         Ok(StageOutput::new(summary)
             .with("profile_error", batch)
             .with("compensation", comp))
@@ -189,8 +213,16 @@ impl Stage for ProfileErrorStage {
 /// `r_k`: the exact centre P + R_k·n minus the one the controller uses
 /// (the programmed P + R_kn·n moved radially in by R_kn − R_k), in the
 /// work's plane, per profile point at t_s = arc length / feed (strictly
-/// increasing). The shape CAN replay reads: t_s, dx_mm, dy_mm.
-pub fn compensation(p: &Profile, r_kn: f64, r_k: f64, feed_mm_s: f64) -> RecordBatch {
+/// increasing). With `wear_mm` (per profile point, `run --augment`) the
+/// wheel is smaller than the controller knows by that much: the exact
+/// centre is P + (R_k − w)·n. The shape CAN replay reads: t_s, dx_mm, dy_mm.
+pub fn compensation(
+    p: &Profile,
+    r_kn: f64,
+    r_k: f64,
+    wear_mm: Option<&[f64]>,
+    feed_mm_s: f64,
+) -> RecordBatch {
     let arc = p.arc_length_mm();
     let d = r_kn - r_k;
     let (mut dx, mut dy) = (Vec::with_capacity(p.len()), Vec::with_capacity(p.len()));
@@ -200,8 +232,9 @@ pub fn compensation(p: &Profile, r_kn: f64, r_k: f64, feed_mm_s: f64) -> RecordB
         let cn = [pt[0] + r_kn * n[0], pt[1] + r_kn * n[1]];
         let re = cn[0].hypot(cn[1]);
         let ctrl = [cn[0] - d * cn[0] / re, cn[1] - d * cn[1] / re];
-        dx.push(pt[0] + r_k * n[0] - ctrl[0]);
-        dy.push(pt[1] + r_k * n[1] - ctrl[1]);
+        let r_actual = r_k - wear_mm.map_or(0.0, |w| w[i]);
+        dx.push(pt[0] + r_actual * n[0] - ctrl[0]);
+        dy.push(pt[1] + r_actual * n[1] - ctrl[1]);
     }
     BatchBuilder::new()
         .f64("t_s", arc.iter().map(|s| s / feed_mm_s).collect())
@@ -224,7 +257,7 @@ mod tests {
     fn compensation_removes_the_error_along_the_normal() {
         let (phi, r) = sample(720, |f| ellipse_r(f, 60.0, 40.0));
         let p = Profile::new(&phi, &r, &CurvatureConfig::default()).unwrap();
-        let b = compensation(&p, 170.0, 160.0, 5.0);
+        let b = compensation(&p, 170.0, 160.0, None, 5.0);
         let (t, dx, dy) = (
             batch_f64(&b, "t_s").unwrap(),
             batch_f64(&b, "dx_mm").unwrap(),

@@ -341,6 +341,7 @@ const SPEC: StageSpec = StageSpec {
     reads: &[&PROFILE],
     reads_artifacts: &[],
     writes: &["segments", "segment_error", "segment_sweep", "toolpath"],
+    reads_augmented_model: false,
     about: "split the usable wheel-radius range into N segments: nominal, range and max profile error per segment, tool paths (X, Z, A, C), sweep over N (MODELS.md §4)",
     config: SectionCheck::Parsed(validate),
 };

@@ -261,6 +261,7 @@ const SPEC: StageSpec = StageSpec {
     reads: &[&TOPOGRAPHY],
     reads_artifacts: &[],
     writes: &["flatness"],
+    reads_augmented_model: false,
     about: "least-squares and exact minimum-zone flatness of a topography state (MODELS.md §2.4)",
     config: SectionCheck::Keys(KEYS),
 };

@@ -269,6 +269,7 @@ const SPEC: StageSpec = StageSpec {
             "compensation_table",
             "compensation_path",
         ],
+    reads_augmented_model: false,
     about: "static and dynamic compensation matrices Γ = τ − τ_pattern with each body's share (MODELS.md §2.1–2.3)",
     config: SectionCheck::Keys(KEYS),
 };

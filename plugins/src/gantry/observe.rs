@@ -64,6 +64,7 @@ const SPEC: StageSpec = StageSpec {
     reads: &[&TOPOGRAPHY, &MOTION],
     reads_artifacts: &["removal"],
     writes: &["observations"],
+    reads_augmented_model: false,
     about: "paired observations surface_z (measured polished vs predicted) for the gap diagnosis (docs/formats.md)",
     config: SectionCheck::Keys(KEYS),
 };

@@ -458,6 +458,7 @@ const SPEC: StageSpec = StageSpec {
     reads: &[&TOPOGRAPHY],
     reads_artifacts: &[],
     writes: &["polish_plan", "polish_surface"],
+    reads_augmented_model: false,
     about: "selective polishing by dwell-time optimisation: flattest surface about the best plane within feed limits, flatness and time vs raster, breakeven area (MODELS.md §2.5–2.6)",
     config: SectionCheck::Keys(KEYS),
 };

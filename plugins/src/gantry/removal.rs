@@ -131,6 +131,7 @@ const SPEC: StageSpec = StageSpec {
     reads: &[&TOPOGRAPHY, &MOTION],
     reads_artifacts: &[],
     writes: &["removal"],
+    reads_augmented_model: false,
     about: "Preston removal of the polishing path (dwell ⊛ tool influence, FFT) and the predicted final topography (MODELS.md §2.5)",
     config: SectionCheck::Keys(KEYS),
 };

@@ -37,6 +37,7 @@ use sparkout_pipeline::contracts::BatchBuilder;
 use sparkout_pipeline::{InputError, Result, Stage, StageContext, StageOutput, StageSpec};
 
 use super::ar_fpe;
+use super::augment::ThermalGrowth;
 use super::config::{machine_f64, COMPENSATION_KEYS};
 use super::separate::SepData;
 
@@ -258,10 +259,12 @@ pub struct CompensationStage;
 
 const SPEC: StageSpec = StageSpec {
     name: "compensation",
-    version: 2,
+    // 3: g from the augmented model's thermal growth under `run --augment`.
+    version: 3,
     reads: &[],
     reads_artifacts: &["separation", "predictor"],
     writes: &["compensation"],
+    reads_augmented_model: true,
     about: "headstock path F(n+1) = f + g + δ̂z + reversal, thermal g fitted from infeed count/temperature (MODELS.md §3.4); dz_mm offsets with t_s for CAN replay",
     config: SectionCheck::Keys(COMPENSATION_KEYS),
 };
@@ -283,11 +286,25 @@ impl Stage for CompensationStage {
             .iter()
             .filter_map(|v| v.as_f64())
             .collect();
-        let fit = fit_thermal_reversal(
+        let mut fit = fit_thermal_reversal(
             &s,
             ctx.cfg_str("thermal", "auto") == "auto",
             ctx.cfg_str("reversal", "auto") == "auto",
         );
+        // `run --augment`: g carries the fleet's thermal growth per infeed
+        // (guideway/augment.rs); the run's own fit is reported beside it.
+        let augmented = match ThermalGrowth::of(ctx) {
+            Some(tg) => {
+                let own = fit.k_mm_per_infeed;
+                fit.k_mm_per_infeed = Some(tg.k_mm_per_infeed);
+                fit.notes.push(format!(
+                    "g uses the augmented model's {} mm per infeed ({})",
+                    tg.k_mm_per_infeed, tg.keys
+                ));
+                json!({"in_physics": tg.keys, "k_mm_per_infeed": tg.k_mm_per_infeed, "k_mm_per_infeed_run_fit": own})
+            }
+            None => Value::Null,
+        };
         let infeed = ctx.cfg_f64(
             "infeed_mm",
             ctx.run
@@ -330,6 +347,7 @@ impl Stage for CompensationStage {
             "dz_rms_mm": rms(&offset),
             "prediction_residual_rms_mm": rms(&c.residual),
             "replay_columns": ["t_s", "dz_mm"],
+            "augmented": augmented,
         });
         let pick = |v: &[f64]| c.rows.iter().map(|&i| v[i]).collect::<Vec<f64>>();
         let batch = BatchBuilder::new()

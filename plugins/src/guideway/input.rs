@@ -248,22 +248,11 @@ pub fn raw_from_table(table: &Table) -> Result<RawReadings> {
     })
 }
 
-/// Check and prepare raw readings (see the module doc for what is an error).
-pub fn prepare(
-    path: &Path,
-    raw: RawReadings,
-    g: &Geometry,
-    opt: &InputOptions,
-) -> Result<Readings> {
+/// The samples' own checks: `n` consecutive (MODELS.md §3.1 indexes the
+/// recursion by n), and no probe stuck on one reading for
+/// `stuck_samples` samples in a row.
+fn check_samples(path: &Path, raw: &RawReadings, opt: &InputOptions) -> Result<()> {
     let len = raw.n.len();
-    if len < 3 {
-        return Err(bad(
-            path,
-            "n",
-            None,
-            format!("{len} samples: the three-probe separation needs at least 3"),
-        ));
-    }
     // n: consecutive samples, no gaps, no repeats (MODELS.md §3.1 indexes
     // the recursion by n).
     for i in 1..len {
@@ -310,8 +299,14 @@ pub fn prepare(
             }
         }
     }
-    // Direction: recorded, else the sign of the move (kept over stops).
-    let dir: Vec<f64> = match &raw.dir {
+    Ok(())
+}
+
+/// The direction of travel per sample: recorded (`dir`, ±1), else the
+/// sign of the move, kept over stops.
+fn direction(path: &Path, raw: &RawReadings) -> Result<Vec<f64>> {
+    let len = raw.n.len();
+    Ok(match &raw.dir {
         Some(d) => {
             if let Some(i) = d.iter().position(|v| *v != 1 && *v != -1) {
                 return Err(bad(
@@ -343,7 +338,27 @@ pub fn prepare(
             }
             out
         }
-    };
+    })
+}
+
+/// Check and prepare raw readings (see the module doc for what is an error).
+pub fn prepare(
+    path: &Path,
+    raw: RawReadings,
+    g: &Geometry,
+    opt: &InputOptions,
+) -> Result<Readings> {
+    let len = raw.n.len();
+    if len < 3 {
+        return Err(bad(
+            path,
+            "n",
+            None,
+            format!("{len} samples: the three-probe separation needs at least 3"),
+        ));
+    }
+    check_samples(path, &raw, opt)?;
+    let dir = direction(path, &raw)?;
     let mut pass = vec![0i32; len];
     for i in 1..len {
         pass[i] = pass[i - 1] + (dir[i] != dir[i - 1]) as i32;

@@ -20,6 +20,7 @@ use sparkout_pipeline::diagnose::{catalogue_effect, composite, Effect, Kind};
 use sparkout_pipeline::{ArtifactStore, MachinePlugin, ReportSection, Run, Stage};
 
 pub mod ar_fpe;
+pub mod augment;
 pub mod compensation;
 pub mod config;
 pub mod input;

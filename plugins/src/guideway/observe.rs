@@ -23,6 +23,7 @@ use sparkout_pipeline::config_check::SectionCheck;
 use sparkout_pipeline::contracts::BatchBuilder;
 use sparkout_pipeline::{Result, Stage, StageContext, StageOutput, StageSpec};
 
+use super::augment::ThermalGrowth;
 use super::compensation::ThermalReversal;
 use super::config::OBSERVE_KEYS;
 use super::separate::SepData;
@@ -61,10 +62,12 @@ pub struct ObserveStage;
 
 const SPEC: StageSpec = StageSpec {
     name: "observe",
-    version: 1,
+    // 2: `sim_augmented` (+ effects) under `run --augment`; summary `augmented`.
+    version: 2,
     reads: &[],
     reads_artifacts: &["separation", "compensation"],
     writes: &["observations"],
+    reads_augmented_model: true,
     about: "paired observations motion_error (measured δz vs the straightness model from the other passes) for the gap diagnosis (docs/formats.md)",
     config: SectionCheck::Keys(OBSERVE_KEYS),
 };
@@ -101,6 +104,25 @@ impl Stage for ObserveStage {
             "infeed_count",
             rows.iter().map(|&i| s.infeed_count[i]).collect(),
         );
+        // `run --augment`: the fleet's thermal growth per infeed in the
+        // model's g (guideway/augment.rs), the rest of the model as above.
+        let augmented = match ThermalGrowth::of(ctx) {
+            Some(tg) => {
+                let mut m = model.clone().unwrap_or_default();
+                m.k_mm_per_infeed = Some(tg.k_mm_per_infeed);
+                let aug = leave_pass_out_sim(&s, Some(&m));
+                b = b
+                    .opt_f64("sim_augmented", rows.iter().map(|&i| aug[i]).collect())
+                    .opt_str(
+                        "sim_augmented_effects",
+                        rows.iter()
+                            .map(|&i| aug[i].map(|_| tg.keys.as_str()))
+                            .collect(),
+                    );
+                json!({"in_physics": tg.keys, "k_mm_per_infeed": tg.k_mm_per_infeed})
+            }
+            None => serde_json::Value::Null,
+        };
         let gap: Vec<f64> = rows
             .iter()
             .map(|&i| s.dz_mm[i] - sim[i].expect("kept"))
@@ -111,6 +133,7 @@ impl Stage for ObserveStage {
             "sim": mode,
             "motion_error": {"n": rows.len(), "rms_gap_mm": rms},
             "skipped_no_other_pass": s.len() - rows.len(),
+            "augmented": augmented,
         });
         Ok(StageOutput::new(summary).with("observations", b.build()))
     }

@@ -199,6 +199,7 @@ const SPEC: StageSpec = StageSpec {
     reads: &[],
     reads_artifacts: &["separation"],
     writes: &["predictor", "ar_fpe", "forecast"],
+    reads_augmented_model: false,
     about: "AR order of the d-times differenced δz by FPE (or BIC / HQ), online RLS, one-step prediction, scalar Kalman fusion, forecasts (MODELS.md §3.2–3.3)",
     config: SectionCheck::Parsed(PredictorConfig::validate),
 };

@@ -186,6 +186,7 @@ const SPEC: StageSpec = StageSpec {
     reads: &[&GUIDEWAY],
     reads_artifacts: &[],
     writes: &["separation"],
+    reads_augmented_model: false,
     about: "three-probe error separation: workpiece h, table motion error δz, pitch β — published recursion or one LS solve with uncertainty (MODELS.md §3.1)",
     config: SectionCheck::Parsed(SeparateConfig::validate),
 };

@@ -628,6 +628,7 @@ const SPEC: StageSpec = StageSpec {
             "tracker_residuals",
             "compensation_path",
         ],
+    reads_augmented_model: false,
     about: "XFYZ 21-error identification from laser-tracker points (Levenberg–Marquardt, covariance), held-out validation, volumetric error before/after, compensation table (MODELS.md §5)",
     config: SectionCheck::Parsed(|c| KinematicsConfig::parse(c).map(drop)),
 };

@@ -85,6 +85,7 @@ const SPEC: StageSpec = StageSpec {
     reads: &[&TRACKER, &THERMAL],
     reads_artifacts: &["kinematic_params"],
     writes: &["observations"],
+    reads_augmented_model: false,
     about: "paired observations tracker_dx/dy/dz (measured vs identified model) for the gap diagnosis (docs/formats.md)",
     config: SectionCheck::Parsed(|c| ObserveConfig::parse(c).map(drop)),
 };

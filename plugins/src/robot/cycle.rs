@@ -466,6 +466,7 @@ const SPEC: StageSpec = StageSpec {
     reads: &[&PASSES],
     reads_artifacts: &[],
     writes: &["cycle"],
+    reads_augmented_model: false,
     about: "compliance model of the grinding cycle: α, predicted vs measured cut per pass, remaining stock, τ (MODELS.md §1.4)",
     config: SectionCheck::Keys(KEYS),
 };

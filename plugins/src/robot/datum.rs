@@ -379,6 +379,7 @@ const SPEC: StageSpec = StageSpec {
     reads: &[],
     reads_artifacts: &["touches"],
     writes: &["planes", "datum"],
+    reads_augmented_model: false,
     about: "face planes (thesis OLS + orthogonal TLS, robust), datum = intersection with covariance, squareness, E = A·α (MODELS.md §1.3)",
     config: SectionCheck::Keys(KEYS),
 };

@@ -364,6 +364,7 @@ const SPEC: StageSpec = StageSpec {
     reads: &[&PROBE, &AE, &MOTION, &PLAN],
     reads_artifacts: &[],
     writes: &["touches", "contacts", "touch_compare"],
+    reads_augmented_model: false,
     about: "touches from probe.parquet or from AE contacts mapped through motion + plan (MODELS.md §1.2)",
     config: SectionCheck::Keys(KEYS),
 };

@@ -164,6 +164,7 @@ const SPEC: StageSpec = StageSpec {
     reads: &[],
     reads_artifacts: &["touches", "planes", "cycle"],
     writes: &["observations"],
+    reads_augmented_model: false,
     about: "paired observations touch_normal and cut_depth for the gap diagnosis (docs/formats.md)",
     config: SectionCheck::Keys(KEYS),
 };

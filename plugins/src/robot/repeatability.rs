@@ -294,6 +294,7 @@ const SPEC: StageSpec = StageSpec {
     reads: &[],
     reads_artifacts: &["touches"],
     writes: &["repeatability"],
+    reads_augmented_model: false,
     about: "range and std of the normal coordinate per method × speed × face; bias vs scatter; trigger latency (MODELS.md §1.1)",
     config: SectionCheck::Keys(KEYS),
 };

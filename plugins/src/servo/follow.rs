@@ -124,6 +124,7 @@ const SPEC: StageSpec = StageSpec {
     reads: &[&MOTION],
     reads_artifacts: &[],
     writes: &["following_error"],
+    reads_augmented_model: false,
     about: "commanded path through the servo model: simulated vs measured following and velocity error per axis",
     config: SectionCheck::Keys(&[]),
 };

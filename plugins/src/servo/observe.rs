@@ -39,6 +39,7 @@ const SPEC: StageSpec = StageSpec {
     reads: &[&MOTION],
     reads_artifacts: &["following_error"],
     writes: &["observations"],
+    reads_augmented_model: false,
     about: "paired observations following_error_<axis> (mm) and velocity_error_<axis> (mm/s) for the gap diagnosis",
     config: SectionCheck::Parsed(|c| ObserveConfig::parse(c).map(drop)),
 };

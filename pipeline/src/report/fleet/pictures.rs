@@ -25,58 +25,64 @@ pub(super) fn xy_tiles(d: &Value, observable: &str, scale_pad: (f64, f64)) -> Ve
         .collect()
 }
 
-/// The pictures of one (machine, observable).
-pub(super) fn pictures(
+/// Where: the gap map over the workpiece, before and (held out) after the
+/// selected effects, the significant cells outlined. Returns the maps and
+/// whether any cell is outlined.
+fn where_maps(
     d: Option<&Value>,
+    rows: &FleetRows,
+    idx: &[usize],
+    observable: &str,
+    u: &Unit,
+    (gap, res): (&[f64], &[f64]),
+) -> (String, bool) {
+    let has_after = res.iter().any(|r| r.is_finite());
+    let mut h = String::new();
+    let (Some(x), Some(y)) = (rows.values("x_mm", idx), rows.values("y_mm", idx)) else {
+        return (String::new(), false);
+    };
+    let cells = grid_means(&x, &y, &[gap, res], MAP_BINS);
+    let before: Vec<(f64, f64, f64)> = cells.iter().map(|c| (c.0, c.1, c.2[0] * u.scale)).collect();
+    let after: Vec<(f64, f64, f64)> = cells.iter().map(|c| (c.0, c.1, c.2[1] * u.scale)).collect();
+    let vmax = shared_vmax([before.as_slice(), after.as_slice()]);
+    let pad = (
+        spacing(before.iter().map(|c| c.0)) / 2.0,
+        spacing(before.iter().map(|c| c.1)) / 2.0,
+    );
+    let pad = (
+        if pad.0.is_finite() { pad.0 } else { 0.5 },
+        if pad.1.is_finite() { pad.1 } else { 0.5 },
+    );
+    let tiles = d.map(|d| xy_tiles(d, observable, pad)).unwrap_or_default();
+    let t1 = format!("{observable}: gap, mean per cell");
+    let mut hm = Heat::new(&t1, &before, &u.shown);
+    hm.vmax = Some(vmax);
+    hm.diverging = true;
+    hm.outlines = &tiles;
+    h.push_str(&heat(&hm));
+    if has_after {
+        let t2 = format!("{observable}: held-out gap after the selected effects");
+        let mut ha = Heat::new(&t2, &after, &u.shown);
+        ha.vmax = Some(vmax);
+        ha.diverging = true;
+        ha.outlines = &tiles;
+        h.push_str(&heat(&ha));
+    }
+    (h, !tiles.is_empty())
+}
+
+/// Which: the gap (less the other selected effects) against the named
+/// effect's covariate, with its fitted curve and the held-out gap after.
+fn which_curve(
     po: Option<&Value>,
     rows: &FleetRows,
     idx: &[usize],
-    runs: Option<&Vec<RunRms>>,
     observable: &str,
+    u: &Unit,
+    (gap, res): (&[f64], &[f64]),
 ) -> String {
-    let u = unit_of(
-        observable,
-        po.and_then(|p| p.get("unit")).and_then(|x| x.as_str()),
-    );
-    let mut h = String::from("<div class=\"figs\">");
-    let mut outlined = false;
-    let gap = FleetRows::at(&rows.gap, idx);
-    let res = FleetRows::at(&rows.residual, idx);
     let has_after = res.iter().any(|r| r.is_finite());
-    // 1. Where: the gap map over the workpiece.
-    if let (Some(x), Some(y)) = (rows.values("x_mm", idx), rows.values("y_mm", idx)) {
-        let cells = grid_means(&x, &y, &[&gap, &res], MAP_BINS);
-        let before: Vec<(f64, f64, f64)> =
-            cells.iter().map(|c| (c.0, c.1, c.2[0] * u.scale)).collect();
-        let after: Vec<(f64, f64, f64)> =
-            cells.iter().map(|c| (c.0, c.1, c.2[1] * u.scale)).collect();
-        let vmax = shared_vmax([before.as_slice(), after.as_slice()]);
-        let pad = (
-            spacing(before.iter().map(|c| c.0)) / 2.0,
-            spacing(before.iter().map(|c| c.1)) / 2.0,
-        );
-        let pad = (
-            if pad.0.is_finite() { pad.0 } else { 0.5 },
-            if pad.1.is_finite() { pad.1 } else { 0.5 },
-        );
-        let tiles = d.map(|d| xy_tiles(d, observable, pad)).unwrap_or_default();
-        let t1 = format!("{observable}: gap, mean per cell");
-        let mut hm = Heat::new(&t1, &before, &u.shown);
-        hm.vmax = Some(vmax);
-        hm.diverging = true;
-        hm.outlines = &tiles;
-        h.push_str(&heat(&hm));
-        if has_after {
-            let t2 = format!("{observable}: held-out gap after the selected effects");
-            let mut ha = Heat::new(&t2, &after, &u.shown);
-            ha.vmax = Some(vmax);
-            ha.diverging = true;
-            ha.outlines = &tiles;
-            h.push_str(&heat(&ha));
-        }
-        outlined = !tiles.is_empty();
-    }
-    // 2. Which: the gap against the named effect's covariate.
+    let mut h = String::new();
     let named = po
         .and_then(|p| p.get("selected"))
         .and_then(|x| x.as_array())
@@ -98,7 +104,7 @@ pub(super) fn pictures(
         if let (Some(c), Some(fit)) = (c, fit) {
             // Partial gap: the gap less the other selected effects, so the
             // named effect's curve is drawn against what it has to explain.
-            let mut partial = gap.clone();
+            let mut partial = gap.to_vec();
             for o in &others {
                 if let Some(v) = rows.values(o, idx) {
                     for (p, x) in partial.iter_mut().zip(&v) {
@@ -108,7 +114,7 @@ pub(super) fn pictures(
                     }
                 }
             }
-            let b = binned_means(&c, &[&partial, &fit, &res], CURVE_BINS);
+            let b = binned_means(&c, &[&partial, &fit, res], CURVE_BINS);
             let pick = |k: usize| -> Vec<(f64, f64)> {
                 b.iter().map(|(x, m)| (*x, m[k] * u.scale)).collect()
             };
@@ -147,8 +153,19 @@ pub(super) fn pictures(
             ));
         }
     }
-    // 3. How far: each run's RMS before and held-out after.
-    if let Some(runs) = runs.filter(|r| !r.is_empty() && has_after) {
+    h
+}
+
+/// How far: each run's gap RMS before and held-out RMS after, beside the
+/// noise floor.
+fn how_far_runs(
+    po: Option<&Value>,
+    runs: Option<&Vec<RunRms>>,
+    observable: &str,
+    u: &Unit,
+) -> String {
+    let mut h = String::new();
+    if let Some(runs) = runs.filter(|r| !r.is_empty()) {
         // Many runs: consecutive groups, each its pooled RMS (Σ n·rms² /
         // Σ n), so the chart's size does not grow with the fleet.
         let all = runs;
@@ -205,6 +222,32 @@ pub(super) fn pictures(
             ],
             (720, 320),
         ));
+    }
+    h
+}
+
+/// The pictures of one (machine, observable).
+pub(super) fn pictures(
+    d: Option<&Value>,
+    po: Option<&Value>,
+    rows: &FleetRows,
+    idx: &[usize],
+    runs: Option<&Vec<RunRms>>,
+    observable: &str,
+) -> String {
+    let u = unit_of(
+        observable,
+        po.and_then(|p| p.get("unit")).and_then(|x| x.as_str()),
+    );
+    let mut h = String::from("<div class=\"figs\">");
+    let gap = FleetRows::at(&rows.gap, idx);
+    let res = FleetRows::at(&rows.residual, idx);
+    let has_after = res.iter().any(|r| r.is_finite());
+    let (maps, outlined) = where_maps(d, rows, idx, observable, &u, (&gap, &res));
+    h.push_str(&maps);
+    h.push_str(&which_curve(po, rows, idx, observable, &u, (&gap, &res)));
+    if has_after {
+        h.push_str(&how_far_runs(po, runs, observable, &u));
     }
     h.push_str("</div>");
     if outlined {

@@ -231,6 +231,53 @@ pub(super) fn augment_entries(out_dir: &std::path::Path) -> Vec<Value> {
         .unwrap_or_default()
 }
 
+/// The augmented simulator's lines of a verdict (`fleet/augment.json`
+/// entries for this observable and machine).
+fn augment_lines(augment: &[Value], obs: &str, machine: &str, u: &Unit) -> String {
+    let mut v = String::new();
+    for a in augment.iter().filter(|a| {
+        s(a, "observable") == obs
+            && a.get("machine")
+                .and_then(|m| m.as_str())
+                .is_none_or(|m| m == machine)
+    }) {
+        let au = a.get("unit").and_then(|x| x.as_str()).unwrap_or(&u.data);
+        let scale = if au == u.data { u.scale } else { 1.0 };
+        let shown = if au == u.data { u.shown.as_str() } else { au };
+        let held = a.get("held_out").and_then(|x| x.as_bool()) == Some(true);
+        let _ = write!(
+            v,
+            " Augmented simulator (+ {}), on {} {}: gap {} {shown} plain → <b>{} {shown}</b> augmented.",
+            esc(&a
+                .get("effects")
+                .and_then(|e| e.as_array())
+                .map(|e| e.iter().filter_map(|x| x.as_str()).collect::<Vec<_>>().join(", "))
+                .unwrap_or_default()),
+            a.get("runs").and_then(|x| x.as_u64()).unwrap_or(0),
+            if held {
+                "runs it was not fitted on"
+            } else {
+                "runs it was fitted on (in-sample: no other run tonight)"
+            },
+            super::super::svg::tick(f(a, "heldout_rms_plain") * scale),
+            super::super::svg::tick(f(a, "heldout_rms_augmented") * scale),
+        );
+        let physics: Vec<&str> = a
+            .get("in_physics")
+            .and_then(|e| e.as_array())
+            .map(|e| e.iter().filter_map(|x| x.as_str()).collect())
+            .unwrap_or_default();
+        if !physics.is_empty() {
+            let _ = write!(
+                v,
+                " Re-simulated in the plugin's physics: {} (its compensation too).",
+                esc(&physics.join(", "))
+            );
+        }
+    }
+    v
+}
+
 /// The verdict line of one observable (the diagnosis is per observable,
 /// pooled over the machines that carry it).
 pub(super) fn verdict(d: &Value, po: &Value, augment: &[Value], machine: &str) -> String {
@@ -355,33 +402,6 @@ pub(super) fn verdict(d: &Value, po: &Value, augment: &[Value], machine: &str) -
             me.get("runs").and_then(|x| x.as_u64()).unwrap_or(0)
         );
     }
-    for a in augment.iter().filter(|a| {
-        s(a, "observable") == obs
-            && a.get("machine")
-                .and_then(|m| m.as_str())
-                .is_none_or(|m| m == machine)
-    }) {
-        let au = a.get("unit").and_then(|x| x.as_str()).unwrap_or(&u.data);
-        let scale = if au == u.data { u.scale } else { 1.0 };
-        let shown = if au == u.data { u.shown.as_str() } else { au };
-        let held = a.get("held_out").and_then(|x| x.as_bool()) == Some(true);
-        let _ = write!(
-            v,
-            " Augmented simulator (+ {}), on {} {}: gap {} {shown} plain → <b>{} {shown}</b> augmented.",
-            esc(&a
-                .get("effects")
-                .and_then(|e| e.as_array())
-                .map(|e| e.iter().filter_map(|x| x.as_str()).collect::<Vec<_>>().join(", "))
-                .unwrap_or_default()),
-            a.get("runs").and_then(|x| x.as_u64()).unwrap_or(0),
-            if held {
-                "runs it was not fitted on"
-            } else {
-                "runs it was fitted on (in-sample: no other run tonight)"
-            },
-            super::super::svg::tick(f(a, "heldout_rms_plain") * scale),
-            super::super::svg::tick(f(a, "heldout_rms_augmented") * scale),
-        );
-    }
+    v.push_str(&augment_lines(augment, obs, machine, &u));
     v
 }

@@ -1,0 +1,248 @@
+//! Cross-validating one candidate: per-fold targets, the fast path for
+//! linear forms (sufficient statistics, θ scanned per fold), the slow path
+//! (refit per fold) for plugin effects, and each fold's prediction and
+//! parameters.
+
+use super::*;
+
+/// Per-fold targets (fold k = all runs) and their Σy² per unit.
+pub struct Targets {
+    pub per_fold: Vec<Arc<Vec<f64>>>,
+    distinct: Vec<Arc<Vec<f64>>>,
+    of_fold: Vec<usize>,
+    yy_u: Vec<Vec<f64>>,
+}
+
+impl Targets {
+    pub fn new(per_fold: Vec<Arc<Vec<f64>>>, units: &[Range<usize>]) -> Targets {
+        let mut distinct: Vec<Arc<Vec<f64>>> = Vec::new();
+        let mut of_fold = Vec::new();
+        for t in &per_fold {
+            match distinct.iter().position(|d| Arc::ptr_eq(d, t)) {
+                Some(i) => of_fold.push(i),
+                None => {
+                    of_fold.push(distinct.len());
+                    distinct.push(t.clone());
+                }
+            }
+        }
+        let yy_u = distinct
+            .iter()
+            .map(|t| {
+                units
+                    .iter()
+                    .map(|u| dot(&t[u.clone()], &t[u.clone()]))
+                    .collect()
+            })
+            .collect();
+        Targets {
+            per_fold,
+            distinct,
+            of_fold,
+            yy_u,
+        }
+    }
+}
+
+/// A candidate's cross-validated fit.
+pub enum CandFit {
+    /// θ and [offset, coefs…] per fold (k + 1 entries).
+    Fast {
+        theta: Vec<f64>,
+        beta: Vec<Vec<f64>>,
+    },
+    /// A plugin effect without a linear form: one fitted effect per fold.
+    Slow { fitted: Vec<Box<dyn FittedEffect>> },
+}
+
+pub struct CandEval {
+    pub fit: CandFit,
+    /// Held-out SSE per unit.
+    pub unit_sse: Vec<f64>,
+}
+
+/// Cross-validates one candidate against the current targets.
+pub fn evaluate(e: &dyn Effect, prob: &Problem, tg: &Targets) -> Result<CandEval> {
+    let masks = prob.train_masks();
+    let frame = prob.frame(e)?;
+    let Some(form) = e.linear_form() else {
+        return evaluate_slow(e, prob, tg, &masks);
+    };
+    let nf = masks.len();
+    let tslices: Vec<&[f64]> = tg.distinct.iter().map(|t| t.as_slice()).collect();
+    let thetas: Vec<f64> = match form.theta(&frame) {
+        None => vec![f64::NAN; nf],
+        Some(tr) => {
+            let mut store = Vec::new();
+            let rows = scan_rows(
+                form.as_ref(),
+                &frame,
+                &tr,
+                &prob.x,
+                &prob.units,
+                &tslices,
+                &mut store,
+            )?;
+            let spec = FoldSpec {
+                train: &masks,
+                target_of_fold: &tg.of_fold,
+            };
+            choose_theta(form.as_ref(), &frame, &tr, &rows, &tg.yy_u, &spec)?
+        }
+    };
+    let p = form.n_linear() + 1;
+    let mut beta = vec![Vec::new(); nf];
+    let mut unit_sse = vec![f64::NAN; prob.units.len()];
+    let mut done = vec![false; nf];
+    let mut buf = vec![Vec::new(); form.n_linear()];
+    for f0 in 0..nf {
+        if done[f0] {
+            continue;
+        }
+        let th = thetas[f0];
+        let same: Vec<usize> = (f0..nf)
+            .filter(|&f| !done[f] && (thetas[f].to_bits() == th.to_bits()))
+            .collect();
+        form.features(&frame, &prob.x, th, &mut buf)?;
+        let g_u: Vec<Vec<f64>> = prob
+            .units
+            .iter()
+            .map(|u| fit::design_gram(&buf, None, u.clone()))
+            .collect();
+        let mut h_cache: BTreeMap<usize, Vec<Vec<f64>>> = BTreeMap::new();
+        for &f in &same {
+            done[f] = true;
+            let t = tg.of_fold[f];
+            let h_u = h_cache.entry(t).or_insert_with(|| {
+                prob.units
+                    .iter()
+                    .map(|u| fit::design_xy(&buf, tslices[t], u.clone()))
+                    .collect()
+            });
+            let mut g = vec![0.0; p * p];
+            let mut h = vec![0.0; p];
+            for (u, tr) in masks[f].iter().enumerate() {
+                if *tr {
+                    add_into(&mut g, &g_u[u]);
+                    add_into(&mut h, &h_u[u]);
+                }
+            }
+            let b = fit::solve(&g, &h).ok_or_else(|| anyhow!("singular normal equations"))?;
+            for (u, tr) in masks[f].iter().enumerate() {
+                if !*tr {
+                    unit_sse[u] = fit::sse(&g_u[u], &h_u[u], tg.yy_u[t][u], &b);
+                }
+            }
+            beta[f] = b;
+        }
+    }
+    Ok(CandEval {
+        fit: CandFit::Fast {
+            theta: thetas,
+            beta,
+        },
+        unit_sse,
+    })
+}
+
+pub(super) fn gather<'a>(
+    prob: &Problem,
+    covs: &[String],
+    rows: &[usize],
+    store: &'a mut Vec<Vec<f64>>,
+) -> Result<EffectData<'a>> {
+    store.clear();
+    for c in covs {
+        let col = prob.x.require(c)?;
+        store.push(rows.iter().map(|&i| col[i]).collect());
+    }
+    let mut d = EffectData::new(rows.len());
+    for (c, v) in covs.iter().zip(store.iter()) {
+        d.push(c, v);
+    }
+    Ok(d)
+}
+
+pub(super) fn evaluate_slow(
+    e: &dyn Effect,
+    prob: &Problem,
+    tg: &Targets,
+    masks: &[Vec<bool>],
+) -> Result<CandEval> {
+    let covs = e.covariates();
+    let mut fitted = Vec::new();
+    let mut unit_sse = vec![f64::NAN; prob.units.len()];
+    for (f, m) in masks.iter().enumerate() {
+        let rows: Vec<usize> = prob
+            .units
+            .iter()
+            .zip(m)
+            .filter(|(_, t)| **t)
+            .flat_map(|(u, _)| u.clone())
+            .collect();
+        let y: Vec<f64> = rows.iter().map(|&i| tg.per_fold[f][i]).collect();
+        let mut store = Vec::new();
+        let xd = gather(prob, &covs, &rows, &mut store)?;
+        let fe = e.fit(&xd, &y)?;
+        let pred = fe.predict(&prob.x);
+        let off = fe.offset_mm();
+        for (u, t) in m.iter().enumerate() {
+            if !*t {
+                let r = prob.units[u].clone();
+                unit_sse[u] = r.map(|i| (tg.per_fold[f][i] - off - pred[i]).powi(2)).sum();
+            }
+        }
+        fitted.push(fe);
+    }
+    Ok(CandEval {
+        fit: CandFit::Slow { fitted },
+        unit_sse,
+    })
+}
+
+/// The prediction (offset included) of fold `f`'s fit on every row.
+pub fn predict_fold(e: &dyn Effect, prob: &Problem, ev: &CandEval, f: usize) -> Result<Vec<f64>> {
+    match &ev.fit {
+        CandFit::Fast { theta, beta } => {
+            let form = e.linear_form().expect("fast fit has a form");
+            let frame = prob.frame(e)?;
+            let mut buf = vec![Vec::new(); form.n_linear()];
+            form.features(&frame, &prob.x, theta[f], &mut buf)?;
+            let b = &beta[f];
+            let mut out = vec![b[0]; prob.x.len()];
+            for (col, bj) in buf.iter().zip(&b[1..]) {
+                for (o, v) in out.iter_mut().zip(col) {
+                    *o += bj * v;
+                }
+            }
+            Ok(out)
+        }
+        CandFit::Slow { fitted } => {
+            let off = fitted[f].offset_mm();
+            Ok(fitted[f]
+                .predict(&prob.x)
+                .into_iter()
+                .map(|v| v + off)
+                .collect())
+        }
+    }
+}
+
+/// Contract parameters and offset of fold `f`'s fit (f = k: all runs).
+pub fn params_of(
+    e: &dyn Effect,
+    prob: &Problem,
+    ev: &CandEval,
+    f: usize,
+) -> (BTreeMap<String, f64>, f64) {
+    match &ev.fit {
+        CandFit::Fast { theta, beta } => {
+            let form = e.linear_form().expect("fast");
+            match prob.frame(e) {
+                Ok(frame) => form.params(&frame, theta[f], &beta[f][1..], beta[f][0]),
+                Err(_) => (BTreeMap::new(), f64::NAN),
+            }
+        }
+        CandFit::Slow { fitted } => (fitted[f].params(), fitted[f].offset_mm()),
+    }
+}
