@@ -47,6 +47,18 @@ fn two_nights(dir: &Path, plugin: &str, machine: &str, effect: &str, runs: usize
     }
 }
 
+/// `sparkout run` over `dir/<input>` into `dir/<out>`, with `--augment
+/// model` when given; returns the output directory.
+fn night(dir: &Path, input: &str, out: &str, model: Option<&Path>) -> std::path::PathBuf {
+    let (input, out_dir) = (dir.join(input), dir.join(out));
+    let mut args = vec!["run", "--input", s(&input), "--out", s(&out_dir)];
+    if let Some(m) = model {
+        args.extend(["--augment", s(m)]);
+    }
+    ok(sparkout(&args));
+    out_dir
+}
+
 fn augment_json(out: &Path) -> serde_json::Value {
     serde_json::from_slice(&std::fs::read(out.join("fleet/augment.json")).expect("augment.json"))
         .unwrap()
@@ -66,26 +78,11 @@ fn last_nights_effects_shrink_tonights_gap_on_held_out_runs() {
     let d = tempfile::tempdir().unwrap();
     let dir = d.path();
     two_nights(dir, "form", "form-grinder", "wheel_wear", 10, 4);
-    let (out_a, out_b) = (dir.join("outA"), dir.join("outB"));
-    ok(sparkout(&[
-        "run",
-        "--input",
-        s(&dir.join("A")),
-        "--out",
-        s(&out_a),
-    ]));
+    let out_a = night(dir, "A", "outA", None);
     let model = out_a.join("fleet/augmented_model.json");
     let m: serde_json::Value = serde_json::from_slice(&std::fs::read(&model).unwrap()).unwrap();
     assert_eq!(m["fitted_on_runs"].as_array().unwrap().len(), 6, "{m:#}");
-    ok(sparkout(&[
-        "run",
-        "--input",
-        s(&dir.join("B")),
-        "--out",
-        s(&out_b),
-        "--augment",
-        s(&model),
-    ]));
+    let out_b = night(dir, "B", "outB", Some(&model));
     let a = augment_json(&out_b);
     let e = entry(&a, "profile_error");
     assert_eq!(e["held_out"], true, "{e:#}");
@@ -133,13 +130,7 @@ fn last_nights_effects_shrink_tonights_gap_on_held_out_runs() {
     let wear_max = summary["augmented"]["wear_max_mm"].as_f64().unwrap();
 
     // A night without --augment drops the comparison (no stale figures).
-    ok(sparkout(&[
-        "run",
-        "--input",
-        s(&dir.join("B")),
-        "--out",
-        s(&out_b),
-    ]));
+    night(dir, "B", "outB", None);
     assert!(!out_b.join("fleet/augment.json").exists());
     let page = std::fs::read_to_string(out_b.join("fleet/report.html")).unwrap();
     assert!(!page.contains("Augmented simulator"));
@@ -162,23 +153,13 @@ fn servo_lag_from_last_night_applies_to_tonight() {
     let d = tempfile::tempdir().unwrap();
     let dir = d.path();
     two_nights(dir, "servo", "servo-mill", "servo_lag=k_s=0.004", 8, 3);
-    let (out_a, out_b) = (dir.join("outA"), dir.join("outB"));
-    ok(sparkout(&[
-        "run",
-        "--input",
-        s(&dir.join("A")),
-        "--out",
-        s(&out_a),
-    ]));
-    ok(sparkout(&[
-        "run",
-        "--input",
-        s(&dir.join("B")),
-        "--out",
-        s(&out_b),
-        "--augment",
-        s(&out_a.join("fleet/augmented_model.json")),
-    ]));
+    let out_a = night(dir, "A", "outA", None);
+    let out_b = night(
+        dir,
+        "B",
+        "outB",
+        Some(&out_a.join("fleet/augmented_model.json")),
+    );
     let a = augment_json(&out_b);
     let e = entry(&a, "following_error_x");
     assert_eq!(e["held_out"], true, "{e:#}");
@@ -197,14 +178,7 @@ fn a_product_of_forms_from_last_night_applies_to_tonight() {
     let d = tempfile::tempdir().unwrap();
     let dir = d.path();
     two_nights(dir, "gantry", "aplm-gantry", "thermal_bow", 8, 3);
-    let (out_a, out_b) = (dir.join("outA"), dir.join("outB"));
-    ok(sparkout(&[
-        "run",
-        "--input",
-        s(&dir.join("A")),
-        "--out",
-        s(&out_a),
-    ]));
+    let out_a = night(dir, "A", "outA", None);
     let model = out_a.join("fleet/augmented_model.json");
     let m: serde_json::Value = serde_json::from_slice(&std::fs::read(&model).unwrap()).unwrap();
     let bow = m["effects"]
@@ -220,25 +194,50 @@ fn a_product_of_forms_from_last_night_applies_to_tonight() {
     );
     assert_eq!(bow["linear"]["factors"][0]["form"], "bow", "{bow:#}");
     assert_eq!(bow["linear"]["factors"][1]["form"], "drift", "{bow:#}");
-    ok(sparkout(&[
-        "run",
-        "--input",
-        s(&dir.join("B")),
-        "--out",
-        s(&out_b),
-        "--augment",
-        s(&model),
-    ]));
+    let out_b = night(dir, "B", "outB", Some(&model));
     let a = augment_json(&out_b);
     assert_eq!(a["not_applied"], serde_json::json!([]), "{a:#}");
     let e = entry(&a, "surface_z");
     assert_eq!(e["held_out"], true, "{e:#}");
     assert_eq!(e["effects"][0], "thermal_bow:y_mm,t_s", "{e:#}");
+    // In the gantry's physics: the removal re-simulated with the bridge's
+    // pressure loss (gantry/augment.rs), not an added term.
+    assert_eq!(e["in_physics"][0], "thermal_bow:y_mm,t_s", "{e:#}");
     let (plain, aug) = (
         e["heldout_rms_plain"].as_f64().unwrap(),
         e["heldout_rms_augmented"].as_f64().unwrap(),
     );
     assert!(aug < 0.5 * plain, "augmented {aug} vs plain {plain}");
+
+    // The compensation path replay sends lowers the tool by the bridge's
+    // lift: never raised, lowered by up to the lift the removal reports.
+    let out_p = night(dir, "B", "outP", None);
+    let run = "aplm-gantry/r0007";
+    let dz = |out: &Path| {
+        let b = sparkout_pipeline::contracts::batch::read_parquet(
+            &out.join(run).join("compensation_path.parquet"),
+        )
+        .unwrap();
+        sparkout_pipeline::contracts::batch_f64(&b, "dz_mm")
+            .unwrap()
+            .to_vec()
+    };
+    let (da, dp) = (dz(&out_b), dz(&out_p));
+    let m: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out_b.join(run).join("matrices.json")).unwrap())
+            .unwrap();
+    let lift = m["augmented"]["bridge_lift_max_mm"].as_f64().unwrap();
+    assert!(lift > 1e-3, "{m:#}");
+    let lowered: Vec<f64> = da.iter().zip(&dp).map(|(a, p)| p - a).collect();
+    assert!(
+        lowered.iter().all(|l| *l >= -1e-12),
+        "the tool is never raised"
+    );
+    let most = lowered.iter().fold(0.0f64, |a, b| a.max(*b));
+    assert!(
+        (most - lift).abs() < 0.05 * lift,
+        "lowered by up to {most}, lift {lift}"
+    );
 }
 
 /// The guide-way grinder's thermal growth per infeed enters g of the
@@ -248,23 +247,10 @@ fn thermal_growth_from_last_night_enters_the_guideway_compensation() {
     let d = tempfile::tempdir().unwrap();
     let dir = d.path();
     two_nights(dir, "guideway", "guideway-grinder", "thermal_infeed", 8, 3);
-    let (out_a, out_b, out_p) = (dir.join("outA"), dir.join("outB"), dir.join("outP"));
-    ok(sparkout(&[
-        "run",
-        "--input",
-        s(&dir.join("A")),
-        "--out",
-        s(&out_a),
-    ]));
+    let out_a = night(dir, "A", "outA", None);
     let model = out_a.join("fleet/augmented_model.json");
-    let tonight = dir.join("B");
-    for (out, augment) in [(&out_b, true), (&out_p, false)] {
-        let mut args = vec!["run", "--input", s(&tonight), "--out", s(out)];
-        if augment {
-            args.extend(["--augment", s(&model)]);
-        }
-        ok(sparkout(&args));
-    }
+    let out_b = night(dir, "B", "outB", Some(&model));
+    let out_p = night(dir, "B", "outP", None);
     let a = augment_json(&out_b);
     let e = entry(&a, "motion_error");
     assert_eq!(e["in_physics"][0], "thermal_infeed:infeed_count", "{e:#}");

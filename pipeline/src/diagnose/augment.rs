@@ -148,6 +148,17 @@ impl AugmentEffect {
     }
 }
 
+/// What separates the effect keys in `sim_augmented_effects`: a key such
+/// as `thermal_bow:y_mm,t_s` holds a comma.
+pub const KEY_SEPARATOR: char = ';';
+
+/// Effect keys as `sim_augmented_effects` lists them.
+pub fn join_keys<'a>(keys: impl IntoIterator<Item = &'a str>) -> String {
+    keys.into_iter()
+        .collect::<Vec<_>>()
+        .join(&KEY_SEPARATOR.to_string())
+}
+
 /// An augmented_model.json, checked.
 #[derive(Debug, Clone)]
 pub struct AugmentedModel {
@@ -317,7 +328,7 @@ fn resimulated(obs: &RecordBatch, sim: &[f64]) -> Result<(Vec<f64>, Vec<Vec<Stri
         batch_str(obs, "sim_augmented_effects")?
             .into_iter()
             .map(|s| {
-                s.split(',')
+                s.split(KEY_SEPARATOR)
                     .filter(|k| !k.is_empty())
                     .map(str::to_string)
                     .collect()
@@ -487,17 +498,8 @@ mod tests {
     /// gantry's bow(y)·drift(t)), `probe_z` a catalogue drift on t_s; 1 µm
     /// noise.
     fn table() -> RecordBatch {
-        let mut rng = 99u64;
-        let mut noise = move || {
-            let mut u = || {
-                rng = rng
-                    .wrapping_mul(6364136223846793005)
-                    .wrapping_add(1442695040888963407);
-                ((rng >> 11) as f64 + 0.5) / ((1u64 << 53) as f64)
-            };
-            let (a, b) = (u(), u());
-            1e-3 * (-2.0 * a.ln()).sqrt() * (2.0 * std::f64::consts::PI * b).cos()
-        };
+        let mut normal = crate::diagnose::tests::normal_rng(99);
+        let mut noise = move || 1e-3 * normal();
         let (mut run, mut obs, mut real, mut y, mut t) = (vec![], vec![], vec![], vec![], vec![]);
         for r in 0..8 {
             for i in 0..150 {

@@ -363,4 +363,4 @@ fn analyse(
 }
 
 #[cfg(test)]
-mod tests;
+pub(crate) mod tests;

@@ -261,17 +261,7 @@ fn selected_effects_are_ordered_by_explained_signal() {
     use crate::contracts::BatchBuilder;
     let runs = 8;
     let per = 60;
-    let mut rng = 12345u64;
-    let mut normal = move || {
-        let mut u = || {
-            rng = rng
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            ((rng >> 11) as f64 + 0.5) / ((1u64 << 53) as f64)
-        };
-        let (a, b) = (u(), u());
-        (-2.0 * a.ln()).sqrt() * (2.0 * std::f64::consts::PI * b).cos()
-    };
+    let mut normal = normal_rng(12345);
     let (mut run, mut obs, mut sim, mut real, mut x, mut removed, mut t) =
         (vec![], vec![], vec![], vec![], vec![], vec![], vec![]);
     for r in 0..runs {
@@ -316,4 +306,20 @@ fn selected_effects_are_ordered_by_explained_signal() {
         "{sel:?}"
     );
     assert!(sel.iter().any(|k| k.ends_with("x_mm")), "{sel:?}");
+}
+
+/// A seeded standard normal (an LCG through Box–Muller): the diagnosis
+/// tests' noise.
+pub(crate) fn normal_rng(seed: u64) -> impl FnMut() -> f64 {
+    let mut rng = seed;
+    move || {
+        let mut u = || {
+            rng = rng
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            ((rng >> 11) as f64 + 0.5) / ((1u64 << 53) as f64)
+        };
+        let (a, b) = (u(), u());
+        (-2.0 * a.ln()).sqrt() * (2.0 * std::f64::consts::PI * b).cos()
+    }
 }

@@ -19,7 +19,7 @@
 //! included) is read as w. Under this model the re-simulated gap equals
 //! the additive one; what the physics adds is the compensation.
 
-use sparkout_pipeline::diagnose::augment::AugmentEffect;
+use sparkout_pipeline::diagnose::augment::{join_keys, AugmentEffect};
 use sparkout_pipeline::StageContext;
 
 /// The observable whose effects this reads.
@@ -44,13 +44,9 @@ impl<'a> WheelWear<'a> {
         (!effects.is_empty()).then_some(WheelWear { effects })
     }
 
-    /// The effects' keys, comma-joined (`sim_augmented_effects`).
+    /// The effects' keys, joined by `;` (`sim_augmented_effects`; a key itself may hold a comma).
     pub fn keys(&self) -> String {
-        self.effects
-            .iter()
-            .map(|e| e.key.as_str())
-            .collect::<Vec<_>>()
-            .join(",")
+        join_keys(self.effects.iter().map(|e| e.key.as_str()))
     }
 
     /// Radius lost (mm) at each removed volume; None when an effect cannot

@@ -24,6 +24,7 @@ use sparkout_pipeline::contracts::schema::{MOTION, TOPOGRAPHY};
 use sparkout_pipeline::contracts::BatchBuilder;
 use sparkout_pipeline::{InputError, Result, Stage, StageContext, StageOutput, StageSpec};
 
+use super::augment::ThermalBow;
 use super::config::Check;
 use super::grid::{self, Grid, Surface};
 use super::machine::{Body, Gantry, PassAxis, BODIES};
@@ -260,16 +261,18 @@ const KEYS: &[(&str, Check)] = &[];
 
 const SPEC: StageSpec = StageSpec {
     name: "matrices",
-    version: 1,
+    // 2: under `run --augment` the compensation path lowers the tool by the
+    // thermal bow's bridge lift (reads the removal summary's mean depth).
+    version: 2,
     reads: &[&TOPOGRAPHY, &MOTION],
-    reads_artifacts: &[],
+    reads_artifacts: &["removal"],
     writes: &[
             "static_matrix",
             "dynamic_matrix",
             "compensation_table",
             "compensation_path",
         ],
-    reads_augmented_model: false,
+    reads_augmented_model: true,
     about: "static and dynamic compensation matrices Γ = τ − τ_pattern with each body's share (MODELS.md §2.1–2.3)",
     config: SectionCheck::Keys(KEYS),
 };
@@ -310,6 +313,7 @@ impl Stage for MatricesStage {
             .with("dynamic_matrix", m.matrix_batch(&m.dynamic))
             .with("compensation_table", m.controller_batch());
         let mut path_rows = 0;
+        let mut augmented = serde_json::Value::Null;
         if let Some(mo) = ctx.run.table(&MOTION)? {
             let (ts, xs, ys) = (mo.f64("t_s")?, mo.f64("cmd_x_mm")?, mo.f64("cmd_y_mm")?);
             let gd = m.gamma(&m.dynamic);
@@ -323,6 +327,34 @@ impl Stage for MatricesStage {
                 dz.push(m.grid.bilinear(&gd, xs[k], ys[k]));
             }
             path_rows = t_out.len();
+            // `run --augment` (gantry/augment.rs): the bridge lifts by
+            // b(y, t) as it warms; lower the tool by it.
+            let mean_removal = ctx
+                .artifacts
+                .summary("removal")
+                .and_then(|s| s["removal_mean_mm"].as_f64())
+                .filter(|r| *r > 0.0);
+            if let (Some(bow), Some(r)) = (ThermalBow::of(ctx), mean_removal) {
+                let mut ys_out = Vec::with_capacity(t_out.len());
+                let mut last = f64::NEG_INFINITY;
+                for k in 0..ts.len() {
+                    if ts[k] > last {
+                        ys_out.push(ys[k]);
+                        last = ts[k];
+                    }
+                }
+                let (growth, _) = bow.growth_and_offset(&ys_out, &t_out).ok_or_else(|| {
+                    anyhow!("the augmented model's thermal bow cannot be evaluated")
+                })?;
+                let lift_per_growth = g.polish.spring_compression_mm / r;
+                for (d, gr) in dz.iter_mut().zip(&growth) {
+                    *d -= gr * lift_per_growth;
+                }
+                augmented = json!({
+                    "in_physics": bow.keys(),
+                    "bridge_lift_max_mm": growth.iter().fold(0.0f64, |m, v| m.max(v.abs())) * lift_per_growth,
+                });
+            }
             out = out.with(
                 "compensation_path",
                 BatchBuilder::new()
@@ -332,6 +364,7 @@ impl Stage for MatricesStage {
             );
         }
         out.summary = summary(&g, &m, path_rows);
+        out.summary["augmented"] = augmented;
         Ok(out)
     }
 }

@@ -20,6 +20,7 @@ use sparkout_pipeline::contracts::MachineConfig;
 use sparkout_pipeline::diagnose::{catalogue_effect, composite, product, Effect, Kind};
 use sparkout_pipeline::{ArtifactStore, MachinePlugin, ReportSection, Run, Stage};
 
+pub mod augment;
 pub mod beam;
 pub mod config;
 pub mod dwell;

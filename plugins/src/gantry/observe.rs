@@ -60,7 +60,8 @@ pub fn nearest_samples(grid: &Grid, path: &[PathSample]) -> Vec<usize> {
 const SPEC: StageSpec = StageSpec {
     name: "observe",
     // 2: no bridge_y_mm column (thermal_bow reads y_mm, issue 13 item 1).
-    version: 2,
+    // 3: `sim_augmented` from the removal's thermal-bow re-simulation.
+    version: 3,
     reads: &[&TOPOGRAPHY, &MOTION],
     reads_artifacts: &["removal"],
     writes: &["observations"],
@@ -117,7 +118,7 @@ impl Stage for ObserveStage {
         });
         let gap: Vec<f64> = (0..n).map(|k| real.z[k] - sim[k]).collect();
         let rms = (gap.iter().map(|v| v * v).sum::<f64>() / n as f64).sqrt();
-        let batch = BatchBuilder::new()
+        let mut batch = BatchBuilder::new()
             .str("run", &vec![ctx.run.spec.id.as_str(); n])
             .str("observable", &vec![OBSERVABLE; n])
             .f64("sim", sim.to_vec())
@@ -132,8 +133,19 @@ impl Stage for ObserveStage {
             .f64(
                 "tool_removed_mm3",
                 near.iter().map(|&s| cum[s] * vol).collect(),
-            )
-            .build();
+            );
+        // `run --augment`: the removal stage re-simulated the thermal bow in
+        // the physics (gantry/augment.rs); its final surface is this sim.
+        let in_physics = ctx
+            .artifacts
+            .summary("removal")
+            .and_then(|s| s["augmented"]["in_physics"].as_str().map(str::to_string));
+        if let (Some(keys), Ok(aug)) = (&in_physics, batch_f64(&rem, "final_augmented_mm")) {
+            batch = batch
+                .f64("sim_augmented", aug.to_vec())
+                .str("sim_augmented_effects", &vec![keys.as_str(); n]);
+        }
+        let batch = batch.build();
         let summary = json!({
             "rows": n,
             "observable": OBSERVABLE,

@@ -10,6 +10,7 @@ use sparkout_pipeline::contracts::schema::{MOTION, TOPOGRAPHY};
 use sparkout_pipeline::contracts::BatchBuilder;
 use sparkout_pipeline::{InputError, Result, Run, Stage, StageContext, StageOutput, StageSpec};
 
+use super::augment::ThermalBow;
 use super::config::{Check, STATES};
 use super::grid::{self, Grid, Surface};
 use super::machine::{Gantry, PassAxis};
@@ -118,6 +119,42 @@ pub fn predict(run: &Run, g: &Gantry, start: Surface, prefer_motion: bool) -> Re
     })
 }
 
+/// `run --augment` (gantry/augment.rs): the removal re-simulated with the
+/// thermal bow's pressure loss along the path, plus the effect's constant
+/// part, as the final surface per node; and what was applied.
+fn with_thermal_bow(
+    r: &Removal,
+    g: &Gantry,
+    bow: &ThermalBow,
+    node_y_mm: &[f64],
+) -> Result<(Vec<f64>, serde_json::Value)> {
+    let mean_removal = r.removal_mm.iter().sum::<f64>() / r.removal_mm.len().max(1) as f64;
+    let (py, pt): (Vec<f64>, Vec<f64>) = r.path.iter().map(|p| (p.y_mm, p.t_s)).unzip();
+    let (growth, _) = bow
+        .growth_and_offset(&py, &pt)
+        .context("the augmented model's thermal bow cannot be evaluated")?;
+    let (_, offset) = bow
+        .growth_and_offset(node_y_mm, &vec![0.0; node_y_mm.len()])
+        .context("the augmented model's thermal bow cannot be evaluated")?;
+    let scale = if mean_removal > 0.0 {
+        1.0 / mean_removal
+    } else {
+        0.0
+    };
+    let grid = &r.start.grid;
+    let dwell = dwell_map(grid, &r.path, |k| (1.0 - growth[k] * scale).max(0.0));
+    let removal = removal_of_dwell(grid, &g.polish, &dwell);
+    let fin = (0..grid.len())
+        .map(|k| r.start.z[k] - removal[k] + offset[k])
+        .collect();
+    let lift_max =
+        growth.iter().fold(0.0f64, |m, v| m.max(v.abs())) * scale * g.polish.spring_compression_mm;
+    Ok((
+        fin,
+        json!({"in_physics": bow.keys(), "mean_removal_mm": mean_removal, "bridge_lift_max_mm": lift_max}),
+    ))
+}
+
 pub struct RemovalStage;
 
 const KEYS: &[(&str, Check)] = &[
@@ -127,11 +164,12 @@ const KEYS: &[(&str, Check)] = &[
 
 const SPEC: StageSpec = StageSpec {
     name: "removal",
-    version: 1,
+    // 2: `final_augmented_mm` under `run --augment`; summary `augmented`.
+    version: 2,
     reads: &[&TOPOGRAPHY, &MOTION],
     reads_artifacts: &[],
     writes: &["removal"],
-    reads_augmented_model: false,
+    reads_augmented_model: true,
     about: "Preston removal of the polishing path (dwell ⊛ tool influence, FFT) and the predicted final topography (MODELS.md §2.5)",
     config: SectionCheck::Keys(KEYS),
 };
@@ -170,14 +208,19 @@ impl Stage for RemovalStage {
             "removal_max_mm": r.removal_mm.iter().cloned().fold(0.0, f64::max),
             "removal_min_mm": r.removal_mm.iter().cloned().fold(f64::INFINITY, f64::min),
         });
-        let batch = BatchBuilder::new()
+        let mut batch = BatchBuilder::new()
             .f64("x_mm", xs)
-            .f64("y_mm", ys)
+            .f64("y_mm", ys.clone())
             .f64("start_mm", r.start.z.clone())
             .f64("dwell_s", r.dwell_s.clone())
             .f64("removal_mm", r.removal_mm.clone())
-            .f64("final_mm", r.final_mm.clone())
-            .build();
-        Ok(StageOutput::new(summary).with("removal", batch))
+            .f64("final_mm", r.final_mm.clone());
+        let mut summary = summary;
+        if let Some(bow) = ThermalBow::of(ctx) {
+            let (fin, info) = with_thermal_bow(&r, &g, &bow, &ys)?;
+            batch = batch.f64("final_augmented_mm", fin);
+            summary["augmented"] = info;
+        }
+        Ok(StageOutput::new(summary).with("removal", batch.build()))
     }
 }

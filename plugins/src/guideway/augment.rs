@@ -15,7 +15,7 @@
 //!   reported beside it) — so the command replay sends carries the
 //!   diagnosis.
 
-use sparkout_pipeline::diagnose::augment::AugmentEffect;
+use sparkout_pipeline::diagnose::augment::{join_keys, AugmentEffect};
 use sparkout_pipeline::StageContext;
 
 use super::observe::OBSERVABLE;
@@ -24,7 +24,7 @@ use super::observe::OBSERVABLE;
 pub struct ThermalGrowth {
     /// κ, mm per infeed.
     pub k_mm_per_infeed: f64,
-    /// The effects' keys, comma-joined (`sim_augmented_effects`).
+    /// The effects' keys, joined by `;` (`sim_augmented_effects`; a key itself may hold a comma).
     pub keys: String,
 }
 
@@ -50,11 +50,7 @@ impl ThermalGrowth {
         }
         k.is_finite().then(|| ThermalGrowth {
             k_mm_per_infeed: k,
-            keys: effects
-                .iter()
-                .map(|e| e.key.as_str())
-                .collect::<Vec<_>>()
-                .join(","),
+            keys: join_keys(effects.iter().map(|e| e.key.as_str())),
         })
     }
 }
