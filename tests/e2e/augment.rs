@@ -307,6 +307,57 @@ fn thermal_growth_from_last_night_enters_the_guideway_compensation() {
     assert!(grew, "the run has more than one infeed");
 }
 
+/// The mill's spindle growth: tracker_dz re-simulated with it, and taken
+/// out of the compensation path replay sends.
+#[test]
+fn spindle_growth_from_last_night_leaves_the_mill_compensation_path() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    two_nights(dir, "mill", "xfyz-mill", "thermal_growth", 8, 3);
+    let out_a = night(dir, "A", "outA", None);
+    let model = out_a.join("fleet/augmented_model.json");
+    let out_b = night(dir, "B", "outB", Some(&model));
+    let out_p = night(dir, "B", "outP", None);
+    let a = augment_json(&out_b);
+    let e = entry(&a, "tracker_dz");
+    // Named in time or, with the spindle sensor logged, as thermal:temp_c
+    // (the sensor warms with the spindle): either is the spindle's growth.
+    let named = e["in_physics"][0].as_str().unwrap_or_default();
+    assert!(
+        named == "thermal_growth:t_s" || named == "thermal:temp_c",
+        "{e:#}"
+    );
+    let (plain, aug) = (
+        e["heldout_rms_plain"].as_f64().unwrap(),
+        e["heldout_rms_augmented"].as_f64().unwrap(),
+    );
+    assert!(aug < 0.7 * plain, "augmented {aug} vs plain {plain}");
+    let run = "xfyz-mill/r0007";
+    let col = |out: &Path, c: &str| {
+        let b = sparkout_pipeline::contracts::batch::read_parquet(
+            &out.join(run).join("compensation_path.parquet"),
+        )
+        .unwrap();
+        sparkout_pipeline::contracts::batch_f64(&b, c)
+            .unwrap()
+            .to_vec()
+    };
+    let k: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out_b.join(run).join("kinematics.json")).unwrap())
+            .unwrap();
+    let g_max = k["augmented"]["growth_max_mm"].as_f64().unwrap();
+    assert!(g_max > 5e-3, "{k:#}");
+    // dz lowered by the growth, which rises with time; dx, dy untouched.
+    let taken: Vec<f64> = col(&out_p, "dz_mm")
+        .iter()
+        .zip(col(&out_b, "dz_mm"))
+        .map(|(p, a)| p - a)
+        .collect();
+    assert!((taken.iter().fold(0.0f64, |m, v| m.max(v.abs())) - g_max).abs() < 1e-12);
+    assert!(taken.last() > taken.first(), "growth rises while measuring");
+    assert_eq!(col(&out_p, "dx_mm"), col(&out_b, "dx_mm"));
+}
+
 #[test]
 fn a_bad_augmented_model_is_refused_before_anything_runs() {
     let d = tempfile::tempdir().unwrap();

@@ -76,7 +76,6 @@ impl Stage for ObserveStage {
         }
         // δ on the design grid per distinct radius (a run usually has one).
         let mut deltas: BTreeMap<u64, Vec<f64>> = BTreeMap::new();
-        let mut sim_aug = Vec::new();
         let (mut sim, mut real, mut phi, mut wr, mut ts, mut rem) = (
             Vec::new(),
             Vec::new(),
@@ -129,11 +128,6 @@ impl Stage for ObserveStage {
                 .row(i)
                 .into());
             };
-            if let (Some(w), Some((v0, area))) = (&wear, usage) {
-                let loss = w.radius_loss_mm(&[v0 + area * s]).unwrap_or_default();
-                let wear = loss.first().copied().unwrap_or(f64::NAN);
-                sim_aug.push(delta_at(&p, &path, f, rk, wear).unwrap_or(f64::NAN));
-            }
             sim.push(dl);
             real.push((rows.r[i] - r_design) * g0.cos());
             phi.push(f);
@@ -144,6 +138,14 @@ impl Stage for ObserveStage {
             }
         }
         let n = sim.len();
+        // The worn wheel per row (None where it cannot follow the profile:
+        // that row keeps the plain sim and the fleet step adds the effect).
+        let sim_aug: Option<Vec<Option<f64>>> = wear.as_ref().map(|w| {
+            let loss = w.radius_loss_mm(&rem).unwrap_or_else(|| vec![f64::NAN; n]);
+            (0..n)
+                .map(|k| delta_at(&p, &path, phi[k], wr[k], loss[k]).filter(|v| v.is_finite()))
+                .collect()
+        });
         let gap: Vec<f64> = real.iter().zip(&sim).map(|(r, s)| r - s).collect();
         let rms = (gap.iter().map(|g| g * g).sum::<f64>() / n as f64).sqrt();
         let mut b = BatchBuilder::new()
@@ -157,27 +159,18 @@ impl Stage for ObserveStage {
         if usage.is_some() {
             b = b.f64("removed_mm3", rem);
         }
-        let augmented = match &wear {
-            // A row whose worn wheel cannot follow the profile keeps the
-            // plain sim (null): the fleet step then adds the effect there.
-            Some(w) => {
+        let augmented = match (&wear, sim_aug) {
+            (Some(w), Some(aug)) => {
                 let keys = w.keys();
-                let ok: Vec<bool> = sim_aug.iter().map(|v| v.is_finite()).collect();
+                let listed: Vec<Option<&str>> =
+                    aug.iter().map(|v| v.map(|_| keys.as_str())).collect();
+                let applied = listed.iter().flatten().count();
                 b = b
-                    .opt_f64(
-                        "sim_augmented",
-                        sim_aug
-                            .iter()
-                            .map(|v| v.is_finite().then_some(*v))
-                            .collect(),
-                    )
-                    .opt_str(
-                        "sim_augmented_effects",
-                        ok.iter().map(|&o| o.then_some(keys.as_str())).collect(),
-                    );
-                json!({"in_physics": keys, "rows": ok.iter().filter(|&&o| o).count()})
+                    .opt_f64("sim_augmented", aug)
+                    .opt_str("sim_augmented_effects", listed);
+                json!({"in_physics": keys, "rows": applied})
             }
-            None => Value::Null,
+            _ => Value::Null,
         };
         let summary = json!({
             "observable": "profile_error",

@@ -29,10 +29,11 @@ use arrow::datatypes::DataType;
 use arrow::record_batch::RecordBatch;
 use serde_json::{json, Value};
 use sparkout_pipeline::config_check::SectionCheck;
-use sparkout_pipeline::contracts::schema::TRACKER;
+use sparkout_pipeline::contracts::schema::{THERMAL, TRACKER};
 use sparkout_pipeline::contracts::{batch_f64, batch_i32, batch_str, BatchBuilder, Table};
 use sparkout_pipeline::{InputError, Result, Run, Stage, StageContext, StageOutput, StageSpec};
 
+use super::augment::SpindleGrowth;
 use super::chain::{
     chain_point, function_axis, function_index, function_name, ErrorValues, Layout, Model, Point,
     AXES, FRAME, N_FUNCTIONS, SQUARENESS, V3,
@@ -617,8 +618,9 @@ pub struct KinematicsStage;
 
 const SPEC: StageSpec = StageSpec {
     name: "kinematics",
-    version: 1,
-    reads: &[&TRACKER],
+    // 2: the compensation path less the spindle growth under `run --augment`.
+    version: 2,
+    reads: &[&TRACKER, &THERMAL],
     reads_artifacts: &[],
     writes: &[
             "kinematic_params",
@@ -628,7 +630,7 @@ const SPEC: StageSpec = StageSpec {
             "tracker_residuals",
             "compensation_path",
         ],
-    reads_augmented_model: false,
+    reads_augmented_model: true,
     about: "XFYZ 21-error identification from laser-tracker points (Levenberg–Marquardt, covariance), held-out validation, volumetric error before/after, compensation table (MODELS.md §5)",
     config: SectionCheck::Parsed(|c| KinematicsConfig::parse(c).map(drop)),
 };
@@ -643,12 +645,56 @@ impl Stage for KinematicsStage {
         let machine = cfg.apply(&machine);
         let data = tracker_points(ctx.run, &machine)?;
         let r = analyse(data, &machine, &cfg)?;
-        let mut out = StageOutput::new(r.summary);
+        let mut summary = r.summary;
+        let mut out = StageOutput::new(serde_json::Value::Null);
+        let growth = SpindleGrowth::of(ctx);
         for (name, batch) in r.artifacts {
+            let batch = match (&growth, name.as_str()) {
+                // `run --augment` (mill/augment.rs): the growth taken out of
+                // the correction replay sends.
+                (Some(sg), "compensation_path") => {
+                    let temp = match ctx.run.table(&THERMAL)? {
+                        Some(th) if sg.needs_temperature() => {
+                            let t = sparkout_pipeline::contracts::batch_f64(&batch, "t_s")?;
+                            Some(super::observe::temperature_at(&th, None, t)?)
+                        }
+                        _ => None,
+                    };
+                    let (b, g_max) = without_growth(&batch, sg, temp.as_deref())?;
+                    summary["augmented"] = json!({"in_physics": sg.keys(), "growth_max_mm": g_max});
+                    b
+                }
+                _ => batch,
+            };
             out = out.with(&name, batch);
         }
+        out.summary = summary;
         Ok(out)
     }
+}
+
+/// The compensation path with the spindle's growth g(t) taken out of dz;
+/// and the largest |g|.
+fn without_growth(
+    path: &RecordBatch,
+    sg: &SpindleGrowth,
+    temp_c: Option<&[f64]>,
+) -> Result<(RecordBatch, f64)> {
+    use sparkout_pipeline::contracts::batch_f64;
+    let t = batch_f64(path, "t_s")?;
+    let (g, _) = sg.growth_and_offset(t, temp_c).ok_or_else(|| {
+        anyhow::anyhow!("the augmented model's spindle growth cannot be evaluated")
+    })?;
+    let mut b = BatchBuilder::new();
+    for (f, c) in path.schema().fields().iter().zip(path.columns()) {
+        if f.name() == "dz_mm" {
+            let dz = batch_f64(path, "dz_mm")?;
+            b = b.f64("dz_mm", dz.iter().zip(&g).map(|(d, g)| d - g).collect());
+        } else {
+            b = b.column(f.as_ref().clone(), c.clone());
+        }
+    }
+    Ok((b.build(), g.iter().fold(0.0f64, |m, v| m.max(v.abs()))))
 }
 
 #[cfg(test)]

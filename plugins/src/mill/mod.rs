@@ -20,6 +20,7 @@ use std::sync::Arc;
 use sparkout_pipeline::diagnose::{catalogue_effect, composite, Effect, Kind};
 use sparkout_pipeline::{ArtifactStore, MachinePlugin, ReportSection, Run, Stage};
 
+pub mod augment;
 pub mod chain;
 pub mod config;
 pub mod identify;

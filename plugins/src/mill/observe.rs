@@ -25,6 +25,7 @@ use sparkout_pipeline::contracts::schema::{THERMAL, TRACKER};
 use sparkout_pipeline::contracts::{BatchBuilder, Table};
 use sparkout_pipeline::{InputError, Result, Stage, StageContext, StageOutput, StageSpec};
 
+use super::augment::SpindleGrowth;
 use super::config::{MillMachine, ObserveConfig};
 use super::kinematics::{model_from_params, tracker_points};
 
@@ -81,11 +82,12 @@ pub struct ObserveStage;
 
 const SPEC: StageSpec = StageSpec {
     name: "observe",
-    version: 1,
+    // 2: `sim_augmented` on tracker_dz under `run --augment`.
+    version: 2,
     reads: &[&TRACKER, &THERMAL],
     reads_artifacts: &["kinematic_params"],
     writes: &["observations"],
-    reads_augmented_model: false,
+    reads_augmented_model: true,
     about: "paired observations tracker_dx/dy/dz (measured vs identified model) for the gap diagnosis (docs/formats.md)",
     config: SectionCheck::Parsed(|c| ObserveConfig::parse(c).map(drop)),
 };
@@ -136,6 +138,28 @@ impl Stage for ObserveStage {
         if let Some(temp) = &temp {
             b = b.f64("temp_c", rows.iter().map(|&i| temp[i]).collect());
         }
+        // `run --augment`: the spindle's growth along z (mill/augment.rs).
+        let mut augmented = serde_json::Value::Null;
+        if let (Some(sg), Some(t)) = (SpindleGrowth::of(ctx), &data.t_s) {
+            if let Some((g, offset)) = sg.growth_and_offset(t, temp.as_deref()) {
+                let keys = sg.keys();
+                let dz = 2 * n;
+                b = b
+                    .opt_f64(
+                        "sim_augmented",
+                        (0..rows.len())
+                            .map(|r| (r >= dz).then(|| sim[r] + g[rows[r]] + offset))
+                            .collect(),
+                    )
+                    .opt_str(
+                        "sim_augmented_effects",
+                        (0..rows.len())
+                            .map(|r| (r >= dz).then_some(keys.as_str()))
+                            .collect(),
+                    );
+                augmented = json!({"in_physics": keys, "growth_max_mm": g.iter().fold(0.0f64, |m, v| m.max(v.abs()))});
+            }
+        }
         let mut per = serde_json::Map::new();
         for (k, name) in OBSERVABLES.iter().enumerate() {
             let g = &(k * n..(k + 1) * n);
@@ -154,6 +178,7 @@ impl Stage for ObserveStage {
                 "t_s": data.t_s.is_some(),
                 "temp_c": temp.is_some(),
             },
+            "augmented": augmented,
         });
         Ok(StageOutput::new(summary).with("observations", b.build()))
     }
