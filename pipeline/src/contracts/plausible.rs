@@ -9,6 +9,7 @@
 use arrow::array::{Array, Float32Array, Float64Array, Int32Array, Int64Array, Int8Array};
 
 use super::schema::TableSchema;
+use super::table::first_failing;
 use crate::error::InputError;
 
 /// A plausible interval for a column, and what a value beyond each end most
@@ -288,10 +289,19 @@ pub fn check_column(
     let Some(r) = range_for(table, column) else {
         return Ok(());
     };
-    let Some(mut it) = values(col) else {
-        return Ok(());
+    // NaN is the finite check's to report, not this one's.
+    let in_range = |v: f64| v.is_nan() | ((v >= r.lo) & (v <= r.hi));
+    let any = col.as_any();
+    let bad = if col.null_count() > 0 {
+        values(col).and_then(|mut it| it.find(|(_, v)| !in_range(*v)))
+    } else if let Some(a) = any.downcast_ref::<Float64Array>() {
+        first_failing(a.values(), in_range).map(|i| (i, a.value(i)))
+    } else if let Some(a) = any.downcast_ref::<Float32Array>() {
+        first_failing(a.values(), |v| in_range(v as f64)).map(|i| (i, a.value(i) as f64))
+    } else {
+        values(col).and_then(|mut it| it.find(|(_, v)| !in_range(*v)))
     };
-    if let Some((i, v)) = it.find(|(_, v)| !v.is_nan() && !(r.lo..=r.hi).contains(v)) {
+    if let Some((i, v)) = bad {
         let why = if v < r.lo { r.below } else { r.above };
         return Err(InputError::new(
             path,

@@ -88,25 +88,56 @@ pub(crate) fn first_non_finite(col: &dyn Array) -> Option<(usize, &'static str)>
     }
     let classify = |v: f64| if v.is_nan() { "NaN" } else { "infinite value" };
     if let Some(a) = col.as_any().downcast_ref::<Float64Array>() {
-        return a
-            .values()
-            .iter()
-            .position(|v| !v.is_finite())
-            .map(|i| (i, classify(a.value(i))));
+        return first_failing(a.values(), |v| v.is_finite()).map(|i| (i, classify(a.value(i))));
     }
     if let Some(a) = col.as_any().downcast_ref::<Float32Array>() {
-        return a
-            .values()
-            .iter()
-            .position(|v| !v.is_finite())
+        return first_failing(a.values(), |v| v.is_finite())
             .map(|i| (i, classify(a.value(i) as f64)));
     }
     None
 }
 
-/// First row `i` with t[i] < t[i-1].
+/// The first index whose value fails `ok`. Scans in chunks whose test has
+/// no early exit (so it vectorises), then finds the index inside the first
+/// failing chunk: validating an AE log runs at memory speed, where a
+/// `position` with a branch per sample cost a fifth of the ingest.
+pub(crate) fn first_failing<T: Copy>(v: &[T], ok: impl Fn(T) -> bool) -> Option<usize> {
+    const CHUNK: usize = 512;
+    v.chunks(CHUNK).enumerate().find_map(|(c, chunk)| {
+        let all_ok = chunk.iter().fold(true, |acc, &x| acc & ok(x));
+        (!all_ok).then(|| c * CHUNK + chunk.iter().position(|&x| !ok(x)).unwrap_or(0))
+    })
+}
+
+/// The first row whose time stamp is below its predecessor's.
 pub(crate) fn first_decrease(t: &[f64]) -> Option<usize> {
-    t.windows(2).position(|w| w[1] < w[0]).map(|i| i + 1)
+    if t.len() < 2 {
+        return None;
+    }
+    // Pairs (t[i], t[i+1]) as the slice shifted by one; a pair is fine
+    // unless t[i+1] < t[i] (a NaN is the finite check's to report).
+    let later = &t[1..];
+    let ok_pairs = |c: usize, len: usize| {
+        t[c..c + len]
+            .iter()
+            .zip(&later[c..c + len])
+            .fold(true, |acc, (a, b)| {
+                acc & ((*b >= *a) | a.is_nan() | b.is_nan())
+            })
+    };
+    const CHUNK: usize = 512;
+    let n = later.len();
+    (0..n).step_by(CHUNK).find_map(|c| {
+        let len = CHUNK.min(n - c);
+        (!ok_pairs(c, len)).then(|| {
+            c + 1
+                + t[c..c + len]
+                    .iter()
+                    .zip(&later[c..c + len])
+                    .position(|(a, b)| b < a)
+                    .unwrap_or(0)
+        })
+    })
 }
 
 impl Table {
@@ -302,5 +333,39 @@ impl Table {
             .downcast_ref::<StringArray>()
             .ok_or_else(|| InputError::new(&self.path, "expected utf8").column(column))?;
         Ok((0..a.len()).map(|i| a.value(i)).collect())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The chunked scans find exactly the row a plain scan finds — at chunk
+    /// boundaries, with NaN (a decrease only where `<` says so), and none.
+    #[test]
+    fn chunked_scans_agree_with_plain_ones() {
+        let naive_decrease = |t: &[f64]| t.windows(2).position(|w| w[1] < w[0]).map(|i| i + 1);
+        let naive_fail = |v: &[f64]| v.iter().position(|x| !x.is_finite());
+        for n in [0usize, 1, 2, 511, 512, 513, 1024, 1500] {
+            let base: Vec<f64> = (0..n).map(|i| i as f64 * 0.5).collect();
+            assert_eq!(first_decrease(&base), None);
+            assert_eq!(first_failing(&base, |x: f64| x.is_finite()), None);
+            for at in [0usize, 1, 510, 511, 512, 513, 1023, 1499] {
+                if at >= n {
+                    continue;
+                }
+                let mut t = base.clone();
+                t[at] = -1.0;
+                assert_eq!(first_decrease(&t), naive_decrease(&t), "n {n} at {at}");
+                let mut t = base.clone();
+                t[at] = f64::NAN;
+                assert_eq!(first_decrease(&t), naive_decrease(&t), "NaN, n {n} at {at}");
+                assert_eq!(first_failing(&t, |x: f64| x.is_finite()), naive_fail(&t));
+                t[at] = f64::INFINITY;
+                assert_eq!(first_failing(&t, |x: f64| x.is_finite()), Some(at));
+            }
+        }
+        let a = Float32Array::from(vec![1.0f32, 2.0, f32::NAN, f32::INFINITY]);
+        assert_eq!(first_non_finite(&a), Some((2, "NaN")));
     }
 }
