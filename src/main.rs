@@ -9,6 +9,7 @@ mod registry;
 use std::process::ExitCode;
 
 fn main() -> ExitCode {
+    sparkout_pipeline::alloc::keep_freed_memory();
     let cli = match cli::parse() {
         Ok(cli) => cli,
         Err(code) => return code,

@@ -75,6 +75,8 @@ pub fn exponent_text(prev: Option<(f64, f64)>, size: f64, secs: f64) -> String {
 /// (printed, not gated), otherwise the criterion benches as
 /// `criterion_main!` would.
 pub fn run_or_scale(benches: fn(), scaling: fn()) {
+    // As the `sparkout` binary does: the benches time its path.
+    sparkout_pipeline::alloc::keep_freed_memory();
     if std::env::var_os("SPARKOUT_BENCH_SCALING").is_some() {
         scaling();
         return;

@@ -2,6 +2,7 @@
 //! data contracts (validated readers and atomic writers), the gap diagnosis
 //! and reports. It knows no concrete machine: plugins plug in by trait.
 
+pub mod alloc;
 pub mod config_check;
 pub mod contracts;
 pub mod diagnose;
