@@ -59,6 +59,14 @@ fn night(dir: &Path, input: &str, out: &str, model: Option<&Path>) -> std::path:
     out_dir
 }
 
+/// A float column of a run's artifact (`<out>/<machine>/<run>/<file>`).
+fn artifact_col(out: &Path, run: &str, file: &str, column: &str) -> Vec<f64> {
+    let b = sparkout_pipeline::contracts::batch::read_parquet(&out.join(run).join(file)).unwrap();
+    sparkout_pipeline::contracts::batch_f64(&b, column)
+        .unwrap()
+        .to_vec()
+}
+
 fn augment_json(out: &Path) -> serde_json::Value {
     serde_json::from_slice(&std::fs::read(out.join("fleet/augment.json")).expect("augment.json"))
         .unwrap()
@@ -107,15 +115,7 @@ fn last_nights_effects_shrink_tonights_gap_on_held_out_runs() {
     );
     assert!(page.contains("Re-simulated in the plugin's physics: wheel_wear:removed_mm3"));
     let comp = |out: &Path| {
-        let b = sparkout_pipeline::contracts::batch::read_parquet(
-            &out.join("form-grinder/r0009/compensation.parquet"),
-        )
-        .unwrap();
-        let col = |c: &str| {
-            sparkout_pipeline::contracts::batch_f64(&b, c)
-                .unwrap()
-                .to_vec()
-        };
+        let col = |c: &str| artifact_col(out, "form-grinder/r0009", "compensation.parquet", c);
         (col("dx_mm"), col("dy_mm"))
     };
     let (dx1, dy1) = comp(&out_b);
@@ -213,15 +213,7 @@ fn a_product_of_forms_from_last_night_applies_to_tonight() {
     // lift: never raised, lowered by up to the lift the removal reports.
     let out_p = night(dir, "B", "outP", None);
     let run = "aplm-gantry/r0007";
-    let dz = |out: &Path| {
-        let b = sparkout_pipeline::contracts::batch::read_parquet(
-            &out.join(run).join("compensation_path.parquet"),
-        )
-        .unwrap();
-        sparkout_pipeline::contracts::batch_f64(&b, "dz_mm")
-            .unwrap()
-            .to_vec()
-    };
+    let dz = |out: &Path| artifact_col(out, run, "compensation_path.parquet", "dz_mm");
     let (da, dp) = (dz(&out_b), dz(&out_p));
     let m: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out_b.join(run).join("matrices.json")).unwrap())
@@ -279,15 +271,7 @@ fn thermal_growth_from_last_night_enters_the_guideway_compensation() {
     );
     let infeed = sa["infeed_mm"].as_f64().unwrap();
     assert!(infeed > 0.0, "{sa:#}");
-    let col = |out: &Path, c: &str| {
-        let b = sparkout_pipeline::contracts::batch::read_parquet(
-            &out.join(run).join("compensation.parquet"),
-        )
-        .unwrap();
-        sparkout_pipeline::contracts::batch_f64(&b, c)
-            .unwrap()
-            .to_vec()
-    };
+    let col = |out: &Path, c: &str| artifact_col(out, run, "compensation.parquet", c);
     let (ga, gp, f) = (
         col(&out_b, "g_mm"),
         col(&out_p, "g_mm"),
@@ -333,15 +317,7 @@ fn spindle_growth_from_last_night_leaves_the_mill_compensation_path() {
     );
     assert!(aug < 0.7 * plain, "augmented {aug} vs plain {plain}");
     let run = "xfyz-mill/r0007";
-    let col = |out: &Path, c: &str| {
-        let b = sparkout_pipeline::contracts::batch::read_parquet(
-            &out.join(run).join("compensation_path.parquet"),
-        )
-        .unwrap();
-        sparkout_pipeline::contracts::batch_f64(&b, c)
-            .unwrap()
-            .to_vec()
-    };
+    let col = |out: &Path, c: &str| artifact_col(out, run, "compensation_path.parquet", c);
     let k: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out_b.join(run).join("kinematics.json")).unwrap())
             .unwrap();

@@ -53,11 +53,17 @@ impl<'a> ThermalBow<'a> {
         Some(v)
     }
 
-    /// (G(y, t), effect(y, 0)): the growth while polishing and the constant
-    /// part, per point. None when an effect cannot be evaluated.
-    pub fn growth_and_offset(&self, y_mm: &[f64], t_s: &[f64]) -> Option<(Vec<f64>, Vec<f64>)> {
+    /// The constant part effect(y, 0) per point (before polishing warms
+    /// the bridge). None when an effect cannot be evaluated.
+    pub fn offset(&self, y_mm: &[f64]) -> Option<Vec<f64>> {
+        self.value(y_mm, &vec![0.0; y_mm.len()])
+    }
+
+    /// G(y, t) = effect(y, t) − effect(y, 0): the growth while polishing,
+    /// per point. None when an effect cannot be evaluated.
+    pub fn growth(&self, y_mm: &[f64], t_s: &[f64]) -> Option<Vec<f64>> {
         let at = self.value(y_mm, t_s)?;
-        let at0 = self.value(y_mm, &vec![0.0; y_mm.len()])?;
-        Some((at.iter().zip(&at0).map(|(a, b)| a - b).collect(), at0))
+        let at0 = self.offset(y_mm)?;
+        Some(at.iter().zip(&at0).map(|(a, b)| a - b).collect())
     }
 }

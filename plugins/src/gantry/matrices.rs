@@ -343,7 +343,7 @@ impl Stage for MatricesStage {
                         last = ts[k];
                     }
                 }
-                let (growth, _) = bow.growth_and_offset(&ys_out, &t_out).ok_or_else(|| {
+                let growth = bow.growth(&ys_out, &t_out).ok_or_else(|| {
                     anyhow!("the augmented model's thermal bow cannot be evaluated")
                 })?;
                 let lift_per_growth = g.polish.spring_compression_mm / r;

@@ -130,12 +130,10 @@ fn with_thermal_bow(
 ) -> Result<(Vec<f64>, serde_json::Value)> {
     let mean_removal = r.removal_mm.iter().sum::<f64>() / r.removal_mm.len().max(1) as f64;
     let (py, pt): (Vec<f64>, Vec<f64>) = r.path.iter().map(|p| (p.y_mm, p.t_s)).unzip();
-    let (growth, _) = bow
-        .growth_and_offset(&py, &pt)
-        .context("the augmented model's thermal bow cannot be evaluated")?;
-    let (_, offset) = bow
-        .growth_and_offset(node_y_mm, &vec![0.0; node_y_mm.len()])
-        .context("the augmented model's thermal bow cannot be evaluated")?;
+    let evaluated =
+        |v: Option<Vec<f64>>| v.context("the augmented model's thermal bow cannot be evaluated");
+    let growth = evaluated(bow.growth(&py, &pt))?;
+    let offset = evaluated(bow.offset(node_y_mm))?;
     let scale = if mean_removal > 0.0 {
         1.0 / mean_removal
     } else {
