@@ -157,15 +157,9 @@ fn main() {
     common::run_or_scale(benches, scaling);
 }
 
+/// The detector's defaults (`[robot.ingest]` of nightly.toml).
 fn ingest_config() -> IngestConfig {
-    IngestConfig {
-        window_s: 0.001,
-        k_sigma: 8.0,
-        min_dwell_s: 0.0005,
-        hysteresis: 0.5,
-        noise_window_s: 0.005,
-        segment_tolerance_s: 0.005,
-    }
+    IngestConfig::default()
 }
 
 /// Peak resident set of this process so far (VmHWM), MiB.

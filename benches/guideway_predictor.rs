@@ -54,7 +54,7 @@ fn bench(c: &mut Criterion) {
     let dz = series();
     let mut table = toml::Table::new();
     table.insert("p_max".into(), toml::Value::Integer(20));
-    let cfg = PredictorConfig::from_table(&table, None);
+    let cfg = PredictorConfig::from_table(&table, None).unwrap();
     // Once, untimed: what to compare with benches/reference/ar_fpe.py.
     let p = predict(&dz, &cfg).expect("predict");
     let fpe: Vec<String> = p.search.fpe[..5]

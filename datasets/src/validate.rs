@@ -355,7 +355,7 @@ fn mix(seed: u64, a: u64, b: u64, c: u64) -> u64 {
 
 /// Runs the validation (rayon over fleets; results in a fixed order).
 pub fn run(cfg: &ValidateConfig) -> Result<ValidationReport> {
-    cfg.diagnose.validate()?;
+    cfg.diagnose.check()?;
     let start = Instant::now();
     let mut jobs = Vec::new();
     for (ci, case) in CATALOGUE_CASES.iter().enumerate() {

@@ -174,27 +174,13 @@ pub struct StageContext<'a> {
 }
 
 impl StageContext<'_> {
-    /// A number from the stage config, with a default.
-    pub fn cfg_f64(&self, key: &str, default: f64) -> f64 {
-        cfg_f64(self.config, key).unwrap_or(default)
+    /// The stage's config section as its [`Section`] struct (already
+    /// checked by [`Stage::validate_config`]; absent keys take the defaults).
+    ///
+    /// [`Section`]: crate::config_check::Section
+    pub fn section<T: crate::config_check::Section>(&self) -> Result<T> {
+        crate::config_check::read_section(self.config)
     }
-    pub fn cfg_str<'b>(&'b self, key: &str, default: &'b str) -> &'b str {
-        self.config
-            .get(key)
-            .and_then(|v| v.as_str())
-            .unwrap_or(default)
-    }
-    pub fn cfg_bool(&self, key: &str, default: bool) -> bool {
-        self.config
-            .get(key)
-            .and_then(|v| v.as_bool())
-            .unwrap_or(default)
-    }
-}
-
-/// A number in a TOML table (integers accepted).
-pub fn cfg_f64(t: &toml::Table, key: &str) -> Option<f64> {
-    t.get(key).and_then(crate::values::toml_f64)
 }
 
 /// What a stage produced for one run.
@@ -247,10 +233,10 @@ pub struct StageSpec {
     pub reads_augmented_model: bool,
     /// One-line description for `--help` listings.
     pub about: &'static str,
-    /// How the stage's config section (`[<plugin>.<stage>]`) is checked
-    /// before anything runs: its keys and what each value must be, or a
-    /// parse into the stage's serde struct (the default
-    /// [`Stage::validate_config`] applies it).
+    /// The stage's config section (`[<plugin>.<stage>]`) as its
+    /// [`Section`](crate::config_check::Section) struct: checked before
+    /// anything runs (the default [`Stage::validate_config`] applies it),
+    /// its defaults tested against configs/nightly.toml.
     pub config: crate::config_check::SectionCheck,
 }
 
@@ -273,11 +259,10 @@ impl StageSpec {
                 anyhow::bail!("stage `{name}` declares table `{}` twice", t.name);
             }
         }
-        if let crate::config_check::SectionCheck::Keys(config_keys) = self.config {
-            let mut keys = std::collections::BTreeSet::new();
-            if let Some((k, _)) = config_keys.iter().find(|(k, _)| !keys.insert(*k)) {
-                anyhow::bail!("stage `{name}` declares config key `{k}` twice");
-            }
+        if let Some(k) = (self.config.undeclared_checks)().first() {
+            anyhow::bail!(
+                "stage `{name}` checks config key `{k}`, which its section struct does not have"
+            );
         }
         for list in [self.reads_artifacts, self.writes] {
             let mut seen = std::collections::BTreeSet::new();
@@ -417,7 +402,7 @@ mod tests {
         writes: &["removal"],
         reads_augmented_model: false,
         about: "",
-        config: crate::config_check::SectionCheck::Keys(&[]),
+        config: crate::config_check::SectionCheck::of::<crate::config_check::NoKeys>(),
     };
 
     #[test]

@@ -13,19 +13,22 @@ pub use crate::cli::DiagnoseFlags as Flags;
 /// `[diagnose]` of the config (built-in, --config, --set), then the flags.
 pub fn config(flags: &Flags) -> anyhow::Result<DiagnoseConfig> {
     let pc = registry::config(&flags.config)?;
-    let mut cfg = DiagnoseConfig::from_toml(&pc.section("diagnose"))
-        .with_context(|| format!("config {}: [diagnose]", pc.source))?;
+    // The flags are keys of the section, checked with it.
+    let mut section = pc.section("diagnose");
     if let Some(k) = flags.folds {
-        cfg.folds = k;
+        section.insert("folds".into(), toml::Value::Integer(k as i64));
     }
     if let Some(s) = flags.seed {
-        cfg.seed = s;
+        section.insert("seed".into(), toml::Value::Integer(s as i64));
     }
-    if flags.effects.is_some() {
-        cfg.effects = flags.effects.clone();
+    if let Some(e) = &flags.effects {
+        section.insert(
+            "effects".into(),
+            toml::Value::Array(e.iter().cloned().map(toml::Value::String).collect()),
+        );
     }
-    cfg.validate()?;
-    Ok(cfg)
+    DiagnoseConfig::from_toml(&section)
+        .with_context(|| format!("config {} (with the flags): [diagnose]", pc.source))
 }
 
 /// Does `observable` match one of a plugin's declared names (`prefix*`

@@ -130,3 +130,126 @@ fn nightly_toml_writes_the_code_defaults() {
         "changing tolerance_mm changed nothing: {d:?}"
     );
 }
+
+/// The lines of nightly.toml's `[name]` block (up to the next header).
+fn block<'a>(text: &'a str, name: &str) -> Option<Vec<&'a str>> {
+    let header = format!("[{name}]");
+    let mut lines = text.lines().skip_while(|l| l.trim() != header);
+    lines.next()?;
+    Some(
+        lines
+            .take_while(|l| !l.trim_start().starts_with('['))
+            .collect(),
+    )
+}
+
+/// `# key = value` lines of a block: the keys nightly.toml documents without
+/// setting (their default comes from the machine or the run).
+fn commented_keys(lines: &[&str]) -> Vec<String> {
+    lines
+        .iter()
+        .filter_map(|l| l.trim().strip_prefix('#'))
+        .filter_map(|l| {
+            let (k, _) = l.split_once('=')?;
+            let k = k.trim();
+            (!k.is_empty() && k.chars().all(|c| c.is_ascii_alphanumeric() || c == '_'))
+                .then(|| k.to_string())
+        })
+        .collect()
+}
+
+fn same_value(a: &toml::Value, b: &toml::Value) -> bool {
+    match (
+        sparkout_pipeline::toml_f64(a),
+        sparkout_pipeline::toml_f64(b),
+    ) {
+        (Some(x), Some(y)) => x == y,
+        _ => a == b,
+    }
+}
+
+/// What is wrong with one section of nightly.toml against its struct.
+fn section_disagreements(
+    name: &str,
+    text: &str,
+    spec: &sparkout_pipeline::config_check::SectionCheck,
+) -> Vec<String> {
+    let mut bad = Vec::new();
+    let Some(lines) = block(text, name) else {
+        return vec![format!(
+            "[{name}] is missing (every section documents its keys)"
+        )];
+    };
+    let table: toml::Table = lines.join("\n").parse().unwrap();
+    if let Err(e) = spec.check(&table) {
+        bad.push(format!("[{name}] is refused: {e}"));
+    }
+    let defaults = (spec.defaults)();
+    let keys = (spec.keys)();
+    let commented = commented_keys(&lines);
+    for (k, v) in &table {
+        match defaults.get(k) {
+            Some(d) if same_value(d, v) => {}
+            Some(d) => bad.push(format!("[{name}] {k} = {v}, the code's default is {d}")),
+            None => bad.push(format!(
+                "[{name}] sets {k} = {v}, which has no default in the code (write it commented)"
+            )),
+        }
+    }
+    for k in keys {
+        let set = table.contains_key(*k);
+        let documented = commented.iter().any(|c| c == k);
+        if defaults.contains_key(*k) && !set {
+            bad.push(format!("[{name}] does not write {k} = {}", defaults[*k]));
+        }
+        if !defaults.contains_key(*k) && !set && !documented {
+            bad.push(format!(
+                "[{name}] does not document {k} (a `# {k} = …` line)"
+            ));
+        }
+    }
+    for c in &commented {
+        if !keys.contains(&c.as_str()) {
+            bad.push(format!(
+                "[{name}] documents `{c}`, which is not a key of the section"
+            ));
+        } else if defaults.contains_key(c) {
+            bad.push(format!(
+                "[{name}] comments out `{c}`, which has a default: write it uncommented"
+            ));
+        }
+    }
+    bad
+}
+
+/// Every registered stage's section struct and `[diagnose]` against
+/// configs/nightly.toml: each value written is the struct's default, every
+/// default is written, every key without one is documented in a comment,
+/// and nothing else is (so the shipped config cannot disagree with the code
+/// or fall behind it).
+#[test]
+fn nightly_toml_sections_are_the_section_structs() {
+    use sparkout_pipeline::config_check::SectionCheck;
+    let text = sparkout_pipeline::engine::config::NIGHTLY_TOML;
+    let mut bad = section_disagreements(
+        "diagnose",
+        text,
+        &SectionCheck::of::<sparkout_pipeline::diagnose::DiagnoseConfig>(),
+    );
+    let mut stages = 0;
+    for p in sparkout_plugins::all_plugins() {
+        for s in p.stages() {
+            let name = format!("{}.{}", p.name(), s.name());
+            bad.extend(section_disagreements(&name, text, &s.spec().config));
+            stages += 1;
+        }
+    }
+    assert!(stages >= 20, "{stages} stages");
+    assert!(bad.is_empty(), "configs/nightly.toml:\n{}", bad.join("\n"));
+    // The check sees a wrong value, a missing default and a stale comment.
+    let spec = SectionCheck::of::<sparkout_pipeline::diagnose::DiagnoseConfig>();
+    let wrong = text.replace("folds = 5 ", "folds = 4 ");
+    assert!(!section_disagreements("diagnose", &wrong, &spec).is_empty());
+    let stale = text.replace("seed = 0 ", "# seed = 0 ");
+    assert!(!section_disagreements("diagnose", &stale, &spec).is_empty());
+}

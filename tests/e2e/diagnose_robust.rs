@@ -239,5 +239,8 @@ fn cli_diagnose_scopes_plugins_and_honours_config() {
     ]);
     assert_eq!(bad.status.code(), Some(1));
     let err = String::from_utf8_lossy(&bad.stderr);
-    assert!(err.contains("fold") && err.contains("known keys"), "{err}");
+    assert!(
+        err.contains("fold") && err.contains("known: folds"),
+        "{err}"
+    );
 }

@@ -177,7 +177,7 @@ fn ar4_series(seed: u64, len: usize) -> Vec<f64> {
 
 #[test]
 fn fpe_picks_the_true_order_of_an_ar4_in_most_seeds() {
-    let cfg = PredictorConfig::from_table(&toml::Table::new(), None);
+    let cfg = PredictorConfig::from_table(&toml::Table::new(), None).unwrap();
     let mut hits = 0;
     let seeds = 10;
     for seed in 0..seeds {
@@ -199,7 +199,7 @@ fn fpe_picks_the_true_order_of_an_ar4_in_most_seeds() {
 
 #[test]
 fn rls_converges_to_the_batch_least_squares_coefficients() {
-    let cfg = PredictorConfig::from_table(&toml::Table::new(), None);
+    let cfg = PredictorConfig::from_table(&toml::Table::new(), None).unwrap();
     let dz = ar4_series(3, 5000);
     let y = difference(&dz, 2);
     let s = (y.iter().map(|v| v * v).sum::<f64>() / y.len() as f64).sqrt();
@@ -522,7 +522,9 @@ fn order_selection_hit_rates_of_fpe_bic_and_hq() {
         &[0.5, -0.3, 0.25, -0.3],
     ];
     let seeds = 60u64;
-    let p_max = PredictorConfig::from_table(&toml::Table::new(), None).p_max;
+    let p_max = PredictorConfig::from_table(&toml::Table::new(), None)
+        .unwrap()
+        .p_max;
     println!("| true model | criterion | true order | under | over |");
     println!("|---|---|---|---|---|");
     let mut bic_hits_ar4 = 0;

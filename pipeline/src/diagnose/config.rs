@@ -1,10 +1,12 @@
 //! `[diagnose]`: the one settings struct of the diagnosis (issue 13 item 1),
 //! parsed in one place for `sparkout run`, `sparkout diagnose` and
-//! `sparkout validate` — serde with `deny_unknown_fields`, defaults here
-//! only, then [`DiagnoseConfig::validate`] before anything runs.
+//! `sparkout validate` — a [`Section`] like every stage's: defaults here
+//! only, ranges as data, checked before anything runs.
 
-use anyhow::{anyhow, bail};
+use anyhow::bail;
 use serde::{Deserialize, Serialize};
+
+use crate::config_check::{check_settings, read_section, Check, Section};
 
 use crate::Result;
 
@@ -45,61 +47,39 @@ impl Default for DiagnoseConfig {
     }
 }
 
-/// The keys `[diagnose]` accepts (for error messages and docs).
-pub const KEYS: [&str; 7] = [
-    "folds",
-    "effects",
-    "seed",
-    "alpha",
-    "noise_margin",
-    "max_effects",
-    "min_gain",
-];
-
-impl DiagnoseConfig {
-    /// `[diagnose]` → settings, checked. Unknown keys and wrong types are
-    /// errors naming the key.
-    pub fn from_toml(section: &toml::Table) -> Result<DiagnoseConfig> {
-        let c: DiagnoseConfig =
-            toml::Value::Table(section.clone())
-                .try_into()
-                .map_err(|e: toml::de::Error| {
-                    let msg = e.message().to_string();
-                    if msg.contains("unknown field") {
-                        anyhow!("{msg} (known keys: {})", KEYS.join(", "))
-                    } else {
-                        anyhow!("{msg}")
-                    }
-                })?;
-        c.validate()?;
-        Ok(c)
-    }
-
-    pub fn validate(&self) -> Result<()> {
-        if self.folds < 2 {
-            bail!("diagnose.folds must be at least 2 (got {})", self.folds);
-        }
-        if !(self.alpha > 0.0 && self.alpha < 1.0) {
-            bail!("diagnose.alpha must be in (0, 1) (got {})", self.alpha);
-        }
-        if !(self.noise_margin >= 1.0 && self.noise_margin.is_finite()) {
-            bail!(
-                "diagnose.noise_margin must be ≥ 1 (got {})",
-                self.noise_margin
-            );
-        }
-        if !(self.min_gain >= 0.0 && self.min_gain.is_finite()) {
-            bail!("diagnose.min_gain must be ≥ 0 (got {})", self.min_gain);
-        }
-        if self.max_effects == 0 {
-            bail!("diagnose.max_effects must be at least 1");
-        }
+impl Section for DiagnoseConfig {
+    const CHECKS: &'static [(&'static str, Check)] = &[
+        ("folds", Check::WholeIn(2, 1000)),
+        ("seed", Check::WholeIn(0, i64::MAX)),
+        ("alpha", Check::Probability),
+        ("noise_margin", Check::AtLeastOne),
+        ("max_effects", Check::WholeIn(1, 100)),
+        ("min_gain", Check::NonNegative),
+    ];
+    fn validate(&self) -> Result<()> {
         if let Some(e) = &self.effects {
             if e.is_empty() {
                 bail!("diagnose.effects is empty: name at least one effect or omit it");
             }
         }
         Ok(())
+    }
+}
+
+impl DiagnoseConfig {
+    /// `[diagnose]` → settings, checked. Unknown keys and bad values are
+    /// errors naming the key ([`crate::ConfigError`]).
+    pub fn from_toml(section: &toml::Table) -> Result<DiagnoseConfig> {
+        read_section(section)
+    }
+    /// Settings built in code, held to the section's checks. Any u64 seed
+    /// is valid in code (TOML holds seeds up to i64::MAX only, the check's
+    /// bound for a config file).
+    pub fn check(&self) -> Result<()> {
+        check_settings(&DiagnoseConfig {
+            seed: 0,
+            ..self.clone()
+        })
     }
 }
 
@@ -119,26 +99,14 @@ mod tests {
         assert_eq!(c.effects, Some(vec!["drift".to_string()]));
         let bad: toml::Table = "fold = 3".parse().unwrap();
         let e = DiagnoseConfig::from_toml(&bad).unwrap_err().to_string();
-        assert!(e.contains("fold") && e.contains("known keys"), "{e}");
+        assert!(e.contains("fold") && e.contains("known: folds"), "{e}");
         let bad: toml::Table = "folds = 1".parse().unwrap();
         assert!(DiagnoseConfig::from_toml(&bad).is_err());
         let bad: toml::Table = "alpha = \"x\"".parse().unwrap();
         assert!(DiagnoseConfig::from_toml(&bad).is_err());
-    }
-
-    /// configs/nightly.toml's `[diagnose]` parses into these settings (the
-    /// shipped config and the struct cannot disagree unnoticed).
-    #[test]
-    fn shipped_nightly_config_parses() {
-        let text = include_str!("../../../configs/nightly.toml");
-        let t: toml::Table = text.parse().unwrap();
-        let sec = t
-            .get("diagnose")
-            .and_then(|v| v.as_table())
-            .cloned()
-            .unwrap_or_default();
-        let c = DiagnoseConfig::from_toml(&sec).unwrap();
-        assert_eq!(c.folds, DiagnoseConfig::default().folds);
-        assert_eq!(c.alpha, DiagnoseConfig::default().alpha);
+        let bad: toml::Table = "effects = []".parse().unwrap();
+        assert!(DiagnoseConfig::from_toml(&bad).is_err());
+        let bad: toml::Table = "noise_margin = 0.5".parse().unwrap();
+        assert!(DiagnoseConfig::from_toml(&bad).is_err());
     }
 }

@@ -156,7 +156,7 @@ pub fn diagnose_scoped(
     cfg: &DiagnoseConfig,
     scopes: &[EffectScope],
 ) -> Result<DiagnosisOutput> {
-    cfg.validate()?;
+    cfg.check()?;
     let batch = observations::validate_observations(obs, Path::new("<observations>"))?;
     let table = Table::from_batch(&batch)?;
     let mut notes = Notes::default();

@@ -15,13 +15,12 @@ use std::path::{Path, PathBuf};
 use anyhow::{anyhow, bail, Context};
 use arrow::record_batch::RecordBatch;
 use serde_json::Value;
-use sparkout_pipeline::config_check::SectionCheck;
+use sparkout_pipeline::config_check::{read_section, NoKeys, SectionCheck};
 use sparkout_pipeline::contracts::schema::PROFILE;
 use sparkout_pipeline::contracts::{batch_f64, batch_i32, write_atomic, BatchBuilder, Table};
 use sparkout_pipeline::{Result, Stage, StageArgs, StageContext, StageOutput, StageSpec};
 
-use super::config::Check;
-use super::curvature::CurvatureConfig;
+use super::config::{curvature, SegmentSection};
 use super::model::ProfileRows;
 use super::segment::{self, SegmentConfig};
 
@@ -90,8 +89,6 @@ pub fn cldata_batch(programs: &BTreeMap<i32, String>) -> RecordBatch {
 
 pub struct CldataStage;
 
-const KEYS: &[(&str, Check)] = &[];
-
 const SPEC: StageSpec = StageSpec {
     name: "form_cldata",
     version: 1,
@@ -100,7 +97,7 @@ const SPEC: StageSpec = StageSpec {
     writes: &["cldata"],
     reads_augmented_model: false,
     about: "CLDATA-like text programs (GOTO / X, Z, A, C) per segment; run-less: --profile FILE --r-max-mm --range-mm --segments --cldata-dir DIR",
-    config: SectionCheck::Keys(KEYS),
+    config: SectionCheck::of::<NoKeys>(),
 };
 
 impl Stage for CldataStage {
@@ -167,18 +164,11 @@ fn standalone(args: &StageArgs) -> Result<Value> {
             cfg.insert(key.into(), toml::Value::Float(x));
         }
     }
-    segment::validate(&cfg).context("stage form_cldata")?;
-    let sc: SegmentConfig = segment::config_for(&cfg, None)?;
+    let section: SegmentSection = read_section(&cfg).context("stage form_cldata")?;
+    let sc: SegmentConfig = segment::config_for(&section, None)?;
     let t = Table::read(&file, &PROFILE)?;
     let rows = ProfileRows::from_table(&t)?;
-    let ccfg = CurvatureConfig {
-        window_points: cfg
-            .get("window_points")
-            .and_then(|v| v.as_float())
-            .map(|w| w as usize)
-            .unwrap_or(CurvatureConfig::default().window_points),
-    };
-    let p = rows.design(&file, &ccfg)?;
+    let p = rows.design(&file, &curvature(section.window_points))?;
     let res = segment::compute(&p, &sc, &file, &rows.design_rows)?;
     let mut summary = res.output.summary.clone();
     if let Some(dir) = args.get("cldata-dir") {
@@ -203,7 +193,7 @@ fn standalone(args: &StageArgs) -> Result<Value> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::form::curvature::Profile;
+    use crate::form::curvature::{CurvatureConfig, Profile};
     use crate::form::model::WheelRange;
     use crate::form::segment::{segment, toolpath_batch};
 

@@ -36,8 +36,9 @@ pub struct CentrePath {
     pub model: DeltaModel,
 }
 
-/// Which δ(φ) formula to use.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+/// Which δ(φ) formula to use (`delta_model`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
 pub enum DeltaModel {
     /// MODELS.md §4 as published ([`delta_mm`]).
     #[default]
@@ -56,13 +57,6 @@ impl DeltaModel {
             "osculating" => Some(DeltaModel::Osculating),
             _ => None,
         }
-    }
-    /// From a stage config's `delta_model` (checked by validate_config).
-    pub fn from_config(cfg: &toml::Table) -> DeltaModel {
-        cfg.get("delta_model")
-            .and_then(|v| v.as_str())
-            .and_then(DeltaModel::parse)
-            .unwrap_or_default()
     }
     pub fn delta(self, kappa: f64, gamma: f64, r_kn: f64, r_k: f64) -> Option<f64> {
         match self {
@@ -362,14 +356,17 @@ pub fn profile_rows(run: &Run) -> Result<(std::sync::Arc<Table>, ProfileRows)> {
 
 /// What every δ(φ) stage starts from: the machine's usable wheel range,
 /// the run's profile table and rows, the design profile (with the stage
-/// section's curvature window) and the programmed nominal radius r_kn.
+/// section's curvature window) and the programmed nominal radius r_kn (the
+/// section's `nominal_mm`, else [`nominal_radius`]'s fallbacks).
 pub fn profile_setup(
     ctx: &sparkout_pipeline::StageContext,
+    window_points: usize,
+    nominal_mm: Option<f64>,
 ) -> Result<(WheelRange, std::sync::Arc<Table>, ProfileRows, Profile, f64)> {
     let range = WheelRange::from_machine(&ctx.run.machine)?;
     let (table, rows) = profile_rows(ctx.run)?;
-    let design = rows.design(table.path(), &super::config::curvature(ctx.config))?;
-    let r_kn = nominal_radius(ctx.run, ctx.config, &range)?;
+    let design = rows.design(table.path(), &super::config::curvature(window_points))?;
+    let r_kn = nominal_radius(ctx.run, nominal_mm, &range)?;
     Ok((range, table, rows, design, r_kn))
 }
 
@@ -402,7 +399,7 @@ pub fn feed_mm_s(run: &Run) -> Result<f64> {
 /// The nominal radius the run's program was made for: stage config
 /// `nominal_mm`, else run.toml `[process] nominal_wheel_radius_mm`, else the
 /// machine's largest radius (a program for the new wheel).
-pub fn nominal_radius(run: &Run, cfg: &toml::Table, range: &WheelRange) -> Result<f64> {
+pub fn nominal_radius(run: &Run, nominal_mm: Option<f64>, range: &WheelRange) -> Result<f64> {
     let outside = |r: f64| {
         format!(
             "nominal wheel radius {r} mm is outside the machine's usable range [{}, {}] mm",
@@ -410,7 +407,7 @@ pub fn nominal_radius(run: &Run, cfg: &toml::Table, range: &WheelRange) -> Resul
             range.r_max_mm
         )
     };
-    if let Some(r) = sparkout_pipeline::cfg_f64(cfg, "nominal_mm") {
+    if let Some(r) = nominal_mm {
         if !range.contains(r) {
             anyhow::bail!("stage config nominal_mm: {}", outside(r));
         }

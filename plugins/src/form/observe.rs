@@ -23,20 +23,14 @@ use serde_json::{json, Value};
 use sparkout_pipeline::config_check::SectionCheck;
 use sparkout_pipeline::contracts::schema::PROFILE;
 use sparkout_pipeline::contracts::BatchBuilder;
-use sparkout_pipeline::{cfg_f64, InputError, Result, Stage, StageContext, StageOutput, StageSpec};
+use sparkout_pipeline::{InputError, Result, Stage, StageContext, StageOutput, StageSpec};
 
 use super::augment::WheelWear;
-use super::config::{Check, WINDOW_KEY};
+use super::config::ObserveConfig;
 use super::model::{
     centre_path, check_wheel_radius, delta_at, feed_mm_s, process_f64, profile_error,
-    profile_setup, wheel_usage, DeltaModel,
+    profile_setup, wheel_usage,
 };
-
-pub const KEYS: &[(&str, Check)] = &[
-    ("nominal_mm", Check::Positive),
-    ("delta_model", Check::OneOf(DeltaModel::NAMES)),
-    WINDOW_KEY,
-];
 
 pub struct ObserveStage;
 
@@ -49,7 +43,7 @@ const SPEC: StageSpec = StageSpec {
     writes: &["observations"],
     reads_augmented_model: true,
     about: "paired observations profile_error (measured vs δ(φ) of the model; covariates phi_rad, wheel_radius_mm, t_s, removed_mm3)",
-    config: SectionCheck::Keys(KEYS),
+    config: SectionCheck::of::<ObserveConfig>(),
 };
 
 impl Stage for ObserveStage {
@@ -57,9 +51,10 @@ impl Stage for ObserveStage {
         &SPEC
     }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
-        let (range, t, rows, p, r_kn) = profile_setup(ctx)?;
+        let cfg: ObserveConfig = ctx.section()?;
+        let (range, t, rows, p, r_kn) = profile_setup(ctx, cfg.window_points, cfg.nominal_mm)?;
         let file = t.path();
-        let path = centre_path(&p, r_kn).with_model(DeltaModel::from_config(ctx.config));
+        let path = centre_path(&p, r_kn).with_model(cfg.delta_model);
         let arc = p.arc_length_mm();
         let feed = feed_mm_s(ctx.run)?;
         let usage = wheel_usage(ctx.run);
@@ -180,7 +175,7 @@ impl Stage for ObserveStage {
             "gap_rms_mm": rms,
             "gap_mean_mm": gap.iter().sum::<f64>() / n as f64,
             "covariates": if usage.is_some() { json!(["phi_rad", "wheel_radius_mm", "t_s", "removed_mm3"]) } else { json!(["phi_rad", "wheel_radius_mm", "t_s"]) },
-            "nominal_source": if cfg_f64(ctx.config, "nominal_mm").is_some() { "config" } else { "run" },
+            "nominal_source": if cfg.nominal_mm.is_some() { "config" } else { "run" },
             "augmented": augmented,
         });
         Ok(StageOutput::new(summary).with("observations", b.build()))

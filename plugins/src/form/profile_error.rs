@@ -11,33 +11,27 @@ use serde_json::{json, Value};
 use sparkout_pipeline::config_check::SectionCheck;
 use sparkout_pipeline::contracts::schema::PROFILE;
 use sparkout_pipeline::contracts::BatchBuilder;
-use sparkout_pipeline::{cfg_f64, InputError, Result, Stage, StageContext, StageOutput, StageSpec};
+use sparkout_pipeline::{InputError, Result, Stage, StageContext, StageOutput, StageSpec};
 
 use super::augment::WheelWear;
-use super::config::{Check, WINDOW_KEY};
+use super::config::ProfileErrorConfig;
 use super::curvature::Profile;
 use super::model::{
     centre_path, check_wheel_radius, feed_mm_s, process_f64, profile_error, profile_setup,
     wheel_usage, DeltaModel, ProfileRows, WheelRange,
 };
 
-pub const KEYS: &[(&str, Check)] = &[
-    ("nominal_mm", Check::Positive),
-    ("wheel_radius_mm", Check::Positive),
-    ("delta_model", Check::OneOf(DeltaModel::NAMES)),
-    WINDOW_KEY,
-];
-
 /// The actual wheel radii of a run: the stage config's `wheel_radius_mm`,
 /// else every distinct `wheel_radius_mm` of the measured rows, else
 /// run.toml `[process] wheel_radius_mm`. Each must be in the usable range.
 pub fn actual_radii(
     ctx: &StageContext,
+    wheel_radius_mm: Option<f64>,
     rows: &ProfileRows,
     file: &std::path::Path,
     range: &WheelRange,
 ) -> Result<Vec<f64>> {
-    if let Some(r) = cfg_f64(ctx.config, "wheel_radius_mm") {
+    if let Some(r) = wheel_radius_mm {
         if !range.contains(r) {
             bail!(
                 "[form.profile_error].wheel_radius_mm = {r} is outside the machine's usable range [{}, {}] mm",
@@ -161,7 +155,7 @@ const SPEC: StageSpec = StageSpec {
     writes: &["profile_error", "compensation"],
     reads_augmented_model: true,
     about: "profile error δ(φ) of the design profile for the actual wheel radius vs the programmed nominal, with curvature κ(φ) (MODELS.md §4)",
-    config: SectionCheck::Keys(KEYS),
+    config: SectionCheck::of::<ProfileErrorConfig>(),
 };
 
 impl Stage for ProfileErrorStage {
@@ -169,15 +163,16 @@ impl Stage for ProfileErrorStage {
         &SPEC
     }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
-        let (range, t, rows, p, r_kn) = profile_setup(ctx)?;
-        let radii = actual_radii(ctx, &rows, t.path(), &range)?;
+        let cfg: ProfileErrorConfig = ctx.section()?;
+        let (range, t, rows, p, r_kn) = profile_setup(ctx, cfg.window_points, cfg.nominal_mm)?;
+        let radii = actual_radii(ctx, cfg.wheel_radius_mm, &rows, t.path(), &range)?;
         let (batch, summary) = compute(
             &p,
             r_kn,
             &radii,
             t.path(),
             &rows.design_rows,
-            DeltaModel::from_config(ctx.config),
+            cfg.delta_model,
         )?;
         let feed = feed_mm_s(ctx.run)?;
         // `run --augment`: a fitted wheel wear makes the compensation that

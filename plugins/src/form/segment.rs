@@ -11,9 +11,9 @@ use serde_json::{json, Value};
 use sparkout_pipeline::config_check::SectionCheck;
 use sparkout_pipeline::contracts::schema::PROFILE;
 use sparkout_pipeline::contracts::BatchBuilder;
-use sparkout_pipeline::{cfg_f64, InputError, Result, Stage, StageContext, StageOutput, StageSpec};
+use sparkout_pipeline::{InputError, Result, Stage, StageContext, StageOutput, StageSpec};
 
-use super::config::{check_config, check_count, curvature, Check, WINDOW_KEY};
+use super::config::{curvature, SegmentSection, MAX_SEGMENTS};
 use super::curvature::Profile;
 use super::model::{centre_path, profile_rows, CentrePath, DeltaModel, WheelRange};
 
@@ -31,40 +31,6 @@ pub struct SegmentConfig {
     /// Axial position of the section (Z of the tool path).
     pub z_mm: f64,
     pub model: DeltaModel,
-}
-
-pub const MAX_SEGMENTS: usize = 1000;
-
-pub const KEYS: &[(&str, Check)] = &[
-    ("r_max_mm", Check::Positive),
-    ("range_mm", Check::Positive),
-    ("segments", Check::AtLeastOne),
-    ("radius_samples", Check::AtLeastOne),
-    ("sweep_max", Check::AtLeastOne),
-    ("z_mm", Check::NonNegative),
-    ("delta_model", Check::OneOf(DeltaModel::NAMES)),
-    WINDOW_KEY,
-];
-
-pub fn validate(config: &toml::Table) -> Result<()> {
-    check_config(config, KEYS)?;
-    check_count(config, "segments", MAX_SEGMENTS)?;
-    check_count(config, "sweep_max", 100)?;
-    check_count(config, "radius_samples", 1001)?;
-    if let Some(n) = cfg_f64(config, "radius_samples") {
-        if n < 2.0 {
-            bail!("key `radius_samples` must be ≥ 2 (both ends of each segment)");
-        }
-    }
-    if let (Some(r), Some(w)) = (cfg_f64(config, "r_max_mm"), cfg_f64(config, "range_mm")) {
-        WheelRange {
-            r_max_mm: r,
-            range_mm: w,
-        }
-        .check()
-        .map_err(|m| anyhow!(m))?;
-    }
-    Ok(())
 }
 
 /// One segment's result.
@@ -269,9 +235,9 @@ pub fn toolpath_batch(p: &Profile, segs: &[Segment], z_mm: f64) -> RecordBatch {
 }
 
 /// The settings for a run: stage config first, then the machine.
-pub fn config_for(cfg: &toml::Table, machine: Option<WheelRange>) -> Result<SegmentConfig> {
-    let r_max = cfg_f64(cfg, "r_max_mm").or(machine.map(|m| m.r_max_mm));
-    let width = cfg_f64(cfg, "range_mm").or(machine.map(|m| m.range_mm));
+pub fn config_for(cfg: &SegmentSection, machine: Option<WheelRange>) -> Result<SegmentConfig> {
+    let r_max = cfg.r_max_mm.or(machine.map(|m| m.r_max_mm));
+    let width = cfg.range_mm.or(machine.map(|m| m.range_mm));
     let (Some(r_max_mm), Some(range_mm)) = (r_max, width) else {
         bail!("the wheel's usable range is unknown: give r_max_mm and range_mm (--r-max-mm, --range-mm) or a machine with [wheel] radius_max_mm and usable_range_mm");
     };
@@ -279,13 +245,11 @@ pub fn config_for(cfg: &toml::Table, machine: Option<WheelRange>) -> Result<Segm
     range.check().map_err(|m| anyhow!(m))?;
     Ok(SegmentConfig {
         range,
-        segments: cfg_f64(cfg, "segments").map(|v| v as usize).unwrap_or(5),
-        radius_samples: cfg_f64(cfg, "radius_samples")
-            .map(|v| v as usize)
-            .unwrap_or(11),
-        sweep_max: cfg_f64(cfg, "sweep_max").map(|v| v as usize).unwrap_or(10),
-        z_mm: cfg_f64(cfg, "z_mm").unwrap_or(0.0),
-        model: DeltaModel::from_config(cfg),
+        segments: cfg.segments.unwrap_or(5),
+        radius_samples: cfg.radius_samples,
+        sweep_max: cfg.sweep_max,
+        z_mm: cfg.z_mm.unwrap_or(0.0),
+        model: cfg.delta_model,
     })
 }
 
@@ -343,7 +307,7 @@ const SPEC: StageSpec = StageSpec {
     writes: &["segments", "segment_error", "segment_sweep", "toolpath"],
     reads_augmented_model: false,
     about: "split the usable wheel-radius range into N segments: nominal, range and max profile error per segment, tool paths (X, Z, A, C), sweep over N (MODELS.md §4)",
-    config: SectionCheck::Parsed(validate),
+    config: SectionCheck::of::<SegmentSection>(),
 };
 
 impl Stage for SegmentStage {
@@ -352,18 +316,16 @@ impl Stage for SegmentStage {
     }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
         let machine = WheelRange::from_machine(&ctx.run.machine).ok();
-        let sc = config_for(ctx.config, machine)?;
+        let cfg: SegmentSection = ctx.section()?;
+        let sc = config_for(&cfg, machine)?;
         let (t, rows) = profile_rows(ctx.run)?;
-        let p = rows.design(t.path(), &curvature(ctx.config))?;
-        let z = match cfg_f64(ctx.config, "z_mm") {
+        let p = rows.design(t.path(), &curvature(cfg.window_points))?;
+        let z = match cfg.z_mm {
             Some(z) => z,
             None => ctx.run.spec.process_f64("z_mm", 0.0),
         };
         // Segment count: stage config, else the machine's `[wheel] segments`.
-        let segments = match (
-            cfg_f64(ctx.config, "segments"),
-            ctx.run.machine.f64("wheel.segments"),
-        ) {
+        let segments = match (cfg.segments, ctx.run.machine.f64("wheel.segments")) {
             (None, Some(m)) if m >= 1.0 && m.fract() == 0.0 && m <= MAX_SEGMENTS as f64 => {
                 m as usize
             }
@@ -434,6 +396,7 @@ mod tests {
 
     #[test]
     fn config_is_checked() {
+        let validate = sparkout_pipeline::config_check::read_section::<SegmentSection>;
         let t: toml::Table = "segments = 0".parse().unwrap();
         assert!(validate(&t).is_err());
         let t: toml::Table = "segments = 2.5".parse().unwrap();
@@ -446,5 +409,7 @@ mod tests {
             .parse()
             .unwrap();
         assert!(validate(&t).is_ok());
+        let t: toml::Table = "radius_samples = 1".parse().unwrap();
+        assert!(validate(&t).is_err());
     }
 }

@@ -20,7 +20,7 @@ use sparkout_pipeline::contracts::schema::TOPOGRAPHY;
 use sparkout_pipeline::contracts::{BatchBuilder, Table};
 use sparkout_pipeline::{Result, Stage, StageArgs, StageContext, StageOutput, StageSpec};
 
-use super::config::{Check, STATES};
+use super::config::FlatnessConfig;
 use super::grid;
 use super::surface::{read_surface, SurfaceSpec};
 
@@ -253,8 +253,6 @@ pub fn analyse(t: &Table, state: Option<&str>) -> Result<(Vec<(String, Flatness)
 
 pub struct FlatnessStage;
 
-const KEYS: &[(&str, Check)] = &[("state", Check::OneOf(&STATES))];
-
 const SPEC: StageSpec = StageSpec {
     name: "flatness",
     version: 1,
@@ -263,7 +261,7 @@ const SPEC: StageSpec = StageSpec {
     writes: &["flatness"],
     reads_augmented_model: false,
     about: "least-squares and exact minimum-zone flatness of a topography state (MODELS.md §2.4)",
-    config: SectionCheck::Keys(KEYS),
+    config: SectionCheck::of::<FlatnessConfig>(),
 };
 
 impl Stage for FlatnessStage {
@@ -272,8 +270,8 @@ impl Stage for FlatnessStage {
     }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
         let t = ctx.run.require(&TOPOGRAPHY)?;
-        let state = ctx.config.get("state").and_then(|v| v.as_str());
-        let (all, summary) = analyse(&t, state)?;
+        let cfg: FlatnessConfig = ctx.section()?;
+        let (all, summary) = analyse(&t, cfg.state.as_deref())?;
         Ok(StageOutput::new(summary).with("flatness", batch(&all)))
     }
     /// `sparkout stage flatness --topography FILE [--state NAME] --json`

@@ -19,13 +19,12 @@
 
 use anyhow::anyhow;
 use serde_json::json;
-use sparkout_pipeline::config_check::SectionCheck;
+use sparkout_pipeline::config_check::{NoKeys, SectionCheck};
 use sparkout_pipeline::contracts::schema::{MOTION, TOPOGRAPHY};
 use sparkout_pipeline::contracts::BatchBuilder;
 use sparkout_pipeline::{InputError, Result, Stage, StageContext, StageOutput, StageSpec};
 
 use super::augment::ThermalBow;
-use super::config::Check;
 use super::grid::{self, Grid, Surface};
 use super::machine::{Body, Gantry, PassAxis, BODIES};
 use super::moving_load;
@@ -257,8 +256,6 @@ pub fn summary(g: &Gantry, m: &Matrices, path_rows: usize) -> serde_json::Value 
 
 pub struct MatricesStage;
 
-const KEYS: &[(&str, Check)] = &[];
-
 const SPEC: StageSpec = StageSpec {
     name: "matrices",
     // 2: under `run --augment` the compensation path lowers the tool by the
@@ -274,7 +271,7 @@ const SPEC: StageSpec = StageSpec {
         ],
     reads_augmented_model: true,
     about: "static and dynamic compensation matrices Γ = τ − τ_pattern with each body's share (MODELS.md §2.1–2.3)",
-    config: SectionCheck::Keys(KEYS),
+    config: SectionCheck::of::<NoKeys>(),
 };
 
 impl Stage for MatricesStage {

@@ -19,7 +19,7 @@ use sparkout_pipeline::contracts::schema::{MOTION, TOPOGRAPHY};
 use sparkout_pipeline::contracts::{batch_f64, BatchBuilder};
 use sparkout_pipeline::{Result, Stage, StageContext, StageOutput, StageSpec};
 
-use super::config::{Check, STATES};
+use super::config::ObserveConfig;
 use super::grid::{self, Grid};
 use super::removal::polishing_path;
 use super::tool_influence::PathSample;
@@ -27,11 +27,6 @@ use super::tool_influence::PathSample;
 pub const OBSERVABLE: &str = "surface_z";
 
 pub struct ObserveStage;
-
-const KEYS: &[(&str, Check)] = &[
-    ("state", Check::OneOf(&STATES)),
-    ("path", Check::OneOf(&["motion", "raster"])),
-];
 
 /// Index of the on-pass sample nearest to each node (all samples when the
 /// path has no passes).
@@ -67,7 +62,7 @@ const SPEC: StageSpec = StageSpec {
     writes: &["observations"],
     reads_augmented_model: false,
     about: "paired observations surface_z (measured polished vs predicted) for the gap diagnosis (docs/formats.md)",
-    config: SectionCheck::Keys(KEYS),
+    config: SectionCheck::of::<ObserveConfig>(),
 };
 
 impl Stage for ObserveStage {
@@ -76,7 +71,8 @@ impl Stage for ObserveStage {
     }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
         let (g, t, pattern) = grid::run_surface(ctx)?;
-        let state = ctx.cfg_str("state", "after_polish");
+        let cfg: ObserveConfig = ctx.section()?;
+        let state = cfg.state.as_str();
         let real = grid::same_grid(&t, state, &pattern.grid)?;
         let rem = ctx.artifacts.require("removal")?;
         let sim = batch_f64(&rem, "final_mm")?;
@@ -88,12 +84,7 @@ impl Stage for ObserveStage {
             ));
         }
         let grid = real.grid;
-        let (path, _) = polishing_path(
-            ctx.run,
-            &g,
-            &grid,
-            ctx.cfg_str("path", "motion") == "motion",
-        )?;
+        let (path, _) = polishing_path(ctx.run, &g, &grid, cfg.path == "motion")?;
         if path.is_empty() {
             return Err(anyhow!("the polishing path has no samples"));
         }

@@ -26,8 +26,9 @@
 //! fraction f of the points needing the same depth, the dwell solved for
 //! that removal, selective time over raster time against f.
 
+use serde::{Deserialize, Serialize};
 use serde_json::{json, Value};
-use sparkout_pipeline::config_check::SectionCheck;
+use sparkout_pipeline::config_check::{read_section, SectionCheck};
 use sparkout_pipeline::contracts::schema::TOPOGRAPHY;
 use sparkout_pipeline::contracts::{BatchBuilder, Table};
 use sparkout_pipeline::json_f64;
@@ -35,7 +36,7 @@ use sparkout_pipeline::{
     InputError, Result, Stage, StageArgs, StageContext, StageOutput, StageSpec,
 };
 
-use super::config::{check_config, Check, STATES};
+use super::config::{Check, Section, STATES};
 use super::dwell::{DwellLimits, DwellOperator, Target};
 use super::flatness::{flatness, least_squares, Flatness};
 use super::grid::{self, Grid, Surface};
@@ -44,8 +45,11 @@ use super::removal::{check_tool_fits, plan_raster};
 use super::tool_influence::{dwell_map, removal_of_dwell, PolishTool};
 
 /// Settings (`[gantry.polish_plan]`).
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
 pub struct PlanConfig {
+    /// The surface to plan selective polishing on.
+    pub state: String,
     /// Band above the least-squares plane: a surface whose minimum zone is
     /// within it is left alone; points above it are the "zone".
     pub tolerance_mm: f64,
@@ -64,6 +68,7 @@ pub struct PlanConfig {
 impl Default for PlanConfig {
     fn default() -> Self {
         PlanConfig {
+            state: "after_grind".to_string(),
             tolerance_mm: 0.01,
             rapid_mm_s: 500.0,
             sweep_steps: 20,
@@ -76,35 +81,18 @@ impl Default for PlanConfig {
     }
 }
 
-const KEYS: &[(&str, Check)] = &[
-    ("state", Check::OneOf(&STATES)),
-    ("tolerance_mm", Check::NonNegative),
-    ("rapid_mm_s", Check::Positive),
-    ("sweep_steps", Check::AtLeastOne),
-    ("max_feed_mm_s", Check::Positive),
-    ("min_feed_mm_s", Check::Positive),
-    ("overhang_fraction", Check::Probability),
-    ("time_weight", Check::NonNegative),
-    ("iterations", Check::AtLeastOne),
-];
-
-impl PlanConfig {
-    fn from_table(t: &toml::Table) -> PlanConfig {
-        let d = PlanConfig::default();
-        let f = |k: &str| sparkout_pipeline::cfg_f64(t, k);
-        PlanConfig {
-            tolerance_mm: f("tolerance_mm").unwrap_or(d.tolerance_mm),
-            rapid_mm_s: f("rapid_mm_s").unwrap_or(d.rapid_mm_s),
-            sweep_steps: f("sweep_steps")
-                .map(|v| v as usize)
-                .unwrap_or(d.sweep_steps),
-            max_feed_mm_s: f("max_feed_mm_s").unwrap_or(d.max_feed_mm_s),
-            min_feed_mm_s: f("min_feed_mm_s").unwrap_or(d.min_feed_mm_s),
-            overhang_fraction: f("overhang_fraction").unwrap_or(d.overhang_fraction),
-            time_weight: f("time_weight").unwrap_or(d.time_weight),
-            iterations: f("iterations").map(|v| v as usize).unwrap_or(d.iterations),
-        }
-    }
+impl Section for PlanConfig {
+    const CHECKS: &'static [(&'static str, Check)] = &[
+        ("state", Check::OneOf(&STATES)),
+        ("tolerance_mm", Check::NonNegative),
+        ("rapid_mm_s", Check::Positive),
+        ("sweep_steps", Check::WholeIn(1, 10_000)),
+        ("max_feed_mm_s", Check::Positive),
+        ("min_feed_mm_s", Check::Positive),
+        ("overhang_fraction", Check::Probability),
+        ("time_weight", Check::NonNegative),
+        ("iterations", Check::WholeIn(1, 10_000_000)),
+    ];
 }
 
 /// One dwelt tool-centre position, in execution order.
@@ -325,7 +313,7 @@ pub fn analyse(
     arrow::record_batch::RecordBatch,
     arrow::record_batch::RecordBatch,
 )> {
-    let planner = Planner::new(&s.grid, &g.polish, cfg, g.pass_axis == PassAxis::X);
+    let planner = Planner::new(&s.grid, &g.polish, cfg.clone(), g.pass_axis == PassAxis::X);
     let n = s.grid.len();
     let (xs, ys): (Vec<f64>, Vec<f64>) = (0..n).map(|k| s.grid.xy(k)).unzip();
     let dz = above_plane(s)?;
@@ -460,7 +448,7 @@ const SPEC: StageSpec = StageSpec {
     writes: &["polish_plan", "polish_surface"],
     reads_augmented_model: false,
     about: "selective polishing by dwell-time optimisation: flattest surface about the best plane within feed limits, flatness and time vs raster, breakeven area (MODELS.md §2.5–2.6)",
-    config: SectionCheck::Keys(KEYS),
+    config: SectionCheck::of::<PlanConfig>(),
 };
 
 impl Stage for PolishPlanStage {
@@ -469,8 +457,9 @@ impl Stage for PolishPlanStage {
     }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
         let (g, t, _) = grid::run_surface(ctx)?;
-        let s = load(&t, ctx.cfg_str("state", "after_grind"), &g)?;
-        let (summary, batch, surface) = analyse(&g, &s, PlanConfig::from_table(ctx.config))?;
+        let cfg: PlanConfig = ctx.section()?;
+        let s = load(&t, &cfg.state, &g)?;
+        let (summary, batch, surface) = analyse(&g, &s, cfg)?;
         Ok(StageOutput::new(summary)
             .with("polish_plan", batch)
             .with("polish_surface", surface))
@@ -483,7 +472,10 @@ impl Stage for PolishPlanStage {
             let mut cfg = toml::Table::new();
             for (k, v) in args {
                 match k.as_str() {
-                    "topography" | "state" => {}
+                    "topography" => {}
+                    "state" => {
+                        cfg.insert("state".into(), toml::Value::String(v.clone()));
+                    }
                     "tolerance-mm" | "tolerance_mm" => {
                         let x: f64 = v.parse().map_err(|_| anyhow::anyhow!("--tolerance-mm must be a number, got `{v}`"))?;
                         cfg.insert("tolerance_mm".into(), toml::Value::Float(x));
@@ -491,18 +483,12 @@ impl Stage for PolishPlanStage {
                     other => anyhow::bail!("unknown flag --{other} for `polish_plan` (known: --topography FILE, --state NAME, --tolerance-mm MM)"),
                 }
             }
-            check_config(&cfg, KEYS)?;
+            let cfg: PlanConfig = read_section(&cfg)?;
             let m = super::builtin_machine()?;
             let g = Gantry::read(&m, &toml::Table::new(), std::path::PathBuf::from(file))?;
             let t = Table::read(std::path::Path::new(file), &TOPOGRAPHY)?;
-            let s = load(
-                &t,
-                args.get("state")
-                    .map(|s| s.as_str())
-                    .unwrap_or("after_grind"),
-                &g,
-            )?;
-            Ok(analyse(&g, &s, PlanConfig::from_table(&cfg))?.0)
+            let s = load(&t, &cfg.state, &g)?;
+            Ok(analyse(&g, &s, cfg)?.0)
         })())
     }
 }

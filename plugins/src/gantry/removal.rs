@@ -11,7 +11,7 @@ use sparkout_pipeline::contracts::BatchBuilder;
 use sparkout_pipeline::{InputError, Result, Run, Stage, StageContext, StageOutput, StageSpec};
 
 use super::augment::ThermalBow;
-use super::config::{Check, STATES};
+use super::config::RemovalConfig;
 use super::grid::{self, Grid, Surface};
 use super::machine::{Gantry, PassAxis};
 use super::tool_influence::{
@@ -155,11 +155,6 @@ fn with_thermal_bow(
 
 pub struct RemovalStage;
 
-const KEYS: &[(&str, Check)] = &[
-    ("from_state", Check::OneOf(&STATES)),
-    ("path", Check::OneOf(&["motion", "raster"])),
-];
-
 const SPEC: StageSpec = StageSpec {
     name: "removal",
     // 2: `final_augmented_mm` under `run --augment`; summary `augmented`.
@@ -169,7 +164,7 @@ const SPEC: StageSpec = StageSpec {
     writes: &["removal"],
     reads_augmented_model: true,
     about: "Preston removal of the polishing path (dwell ⊛ tool influence, FFT) and the predicted final topography (MODELS.md §2.5)",
-    config: SectionCheck::Keys(KEYS),
+    config: SectionCheck::of::<RemovalConfig>(),
 };
 
 impl Stage for RemovalStage {
@@ -178,16 +173,11 @@ impl Stage for RemovalStage {
     }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
         let (g, t, pattern) = grid::run_surface(ctx)?;
-        let from = ctx.cfg_str("from_state", "after_grind");
+        let cfg: RemovalConfig = ctx.section()?;
+        let from = cfg.from_state.as_str();
         let start = grid::same_grid(&t, from, &pattern.grid)?;
         check_tool_fits(&g, &start.grid, t.path())?;
-        let r = predict(
-            ctx.run,
-            &g,
-            start,
-            ctx.cfg_str("path", "motion") == "motion",
-        )
-        .context("removal")?;
+        let r = predict(ctx.run, &g, start, cfg.path == "motion").context("removal")?;
         let grid = r.start.grid;
         let n = grid.len();
         let (xs, ys): (Vec<f64>, Vec<f64>) = (0..n).map(|k| grid.xy(k)).unzip();

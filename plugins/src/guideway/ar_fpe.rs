@@ -55,7 +55,8 @@ pub fn undifference(y: f64, prev: &[f64], c: &[f64]) -> f64 {
 }
 
 /// Order-selection criterion.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
 pub enum Criterion {
     Fpe,
     Bic,

@@ -38,7 +38,7 @@ use sparkout_pipeline::{InputError, Result, Stage, StageContext, StageOutput, St
 
 use super::ar_fpe;
 use super::augment::ThermalGrowth;
-use super::config::{machine_f64, COMPENSATION_KEYS};
+use super::config::{machine_f64, AutoOff, CompensationConfig};
 use super::separate::SepData;
 
 /// The fitted thermal and reversal terms.
@@ -266,7 +266,7 @@ const SPEC: StageSpec = StageSpec {
     writes: &["compensation"],
     reads_augmented_model: true,
     about: "headstock path F(n+1) = f + g + δ̂z + reversal, thermal g fitted from infeed count/temperature (MODELS.md §3.4); dz_mm offsets with t_s for CAN replay",
-    config: SectionCheck::Keys(COMPENSATION_KEYS),
+    config: SectionCheck::of::<CompensationConfig>(),
 };
 
 impl Stage for CompensationStage {
@@ -286,10 +286,11 @@ impl Stage for CompensationStage {
             .iter()
             .filter_map(|v| v.as_f64())
             .collect();
+        let cfg: CompensationConfig = ctx.section()?;
         let mut fit = fit_thermal_reversal(
             &s,
-            ctx.cfg_str("thermal", "auto") == "auto",
-            ctx.cfg_str("reversal", "auto") == "auto",
+            cfg.thermal == AutoOff::Auto,
+            cfg.reversal == AutoOff::Auto,
         );
         // `run --augment`: g carries the fleet's thermal growth per infeed
         // (guideway/augment.rs); the run's own fit is reported beside it.
@@ -305,16 +306,14 @@ impl Stage for CompensationStage {
             }
             None => Value::Null,
         };
-        let infeed = ctx.cfg_f64(
-            "infeed_mm",
+        let infeed = cfg.infeed_mm.unwrap_or_else(|| {
             ctx.run
                 .spec
-                .process_f64("infeed_mm", machine_f64(ctx.run, "process.infeed_mm", 0.0)),
-        );
-        let backlash = ctx.cfg_f64(
-            "backlash_mm",
-            machine_f64(ctx.run, "headstock.backlash_mm", 0.0),
-        );
+                .process_f64("infeed_mm", machine_f64(ctx.run, "process.infeed_mm", 0.0))
+        });
+        let backlash = cfg
+            .backlash_mm
+            .unwrap_or_else(|| machine_f64(ctx.run, "headstock.backlash_mm", 0.0));
         let c = curve(&s, &fit, d, &coef, infeed, backlash);
         let t: Vec<f64> = c.rows.iter().map(|&i| s.t_s[i]).collect();
         if let Some(w) = t.windows(2).position(|w| w[1] <= w[0]) {

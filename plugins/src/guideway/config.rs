@@ -1,92 +1,62 @@
-//! `[guideway.<stage>]` config sections: known keys and their checks (the
-//! key checker is the pipeline's shared one, `config_check::check_config`,
-//! which holds no robot logic), integer keys, and the settings each stage
-//! reads, with defaults from the machine config where MODELS.md gives one.
+//! `[guideway.<stage>]` config sections, one serde struct each (defaults
+//! here only, each key's range as data, read by the pipeline's shared
+//! `config_check::read_section`), and the settings each stage resolves from
+//! them with defaults from the machine config where MODELS.md gives one.
 
-use sparkout_pipeline::{Result, Run, StageContext};
-
-pub use sparkout_pipeline::config_check::{check_config, Check};
+use serde::{Deserialize, Serialize};
+use sparkout_pipeline::config_check::{read_section, Check, Section};
+use sparkout_pipeline::{Result, Run};
 
 use super::ar_fpe::Criterion;
 use super::input::InputOptions;
 use super::three_probe::{Method, Reference};
 
-/// An integer key within [lo, hi]: the pipeline's one whole-number check.
-pub use sparkout_pipeline::config_check::check_whole as check_int;
-
-pub fn int(config: &toml::Table, key: &str, default: usize) -> usize {
-    match config.get(key) {
-        Some(toml::Value::Integer(i)) => *i as usize,
-        Some(toml::Value::Float(f)) => *f as usize,
-        _ => default,
-    }
-}
-
-pub const SEPARATE_KEYS: &[(&str, Check)] = &[
-    ("method", Check::OneOf(&["lsq", "recursion"])),
-    ("reference", Check::OneOf(&["line", "ends"])),
-    ("interpolate", Check::Bool),
-    ("probe_sigma_mm", Check::Positive),
-    ("stuck_samples", Check::AtLeastOne),
-];
-
-/// `[guideway.separate]`.
-#[derive(Debug, Clone, Copy)]
-pub struct SeparateConfig {
+/// `[guideway.separate]` (MODELS.md §3.1).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SeparateSection {
     pub method: Method,
     pub reference: Reference,
-    pub input: InputOptions,
-    /// Reading noise when the solve has no redundancy (default: machine
-    /// `[probes] sigma_mm`).
-    pub probe_sigma_mm: f64,
+    pub interpolate: bool,
+    pub stuck_samples: usize,
+    /// None: the machine's `[probes] sigma_mm`.
+    pub probe_sigma_mm: Option<f64>,
 }
 
-impl SeparateConfig {
-    pub fn validate(config: &toml::Table) -> Result<()> {
-        check_config(config, SEPARATE_KEYS)?;
-        check_int(config, "stuck_samples", 2, 1_000_000)
-    }
-    pub fn from_ctx(ctx: &StageContext) -> SeparateConfig {
-        Self::from_table(ctx.config, machine_f64(ctx.run, "probes.sigma_mm", 1e-4))
-    }
-    /// From a checked section; `sigma_mm` is the default reading noise.
-    pub fn from_table(config: &toml::Table, sigma_mm: f64) -> SeparateConfig {
-        let s = |k: &str, d: &'static str| -> String {
-            config
-                .get(k)
-                .and_then(|v| v.as_str())
-                .unwrap_or(d)
-                .to_string()
-        };
-        SeparateConfig {
-            method: Method::parse(&s("method", "lsq")).unwrap_or(Method::Lsq),
-            reference: Reference::parse(&s("reference", "line")).unwrap_or(Reference::Line),
-            input: InputOptions {
-                interpolate: config
-                    .get("interpolate")
-                    .and_then(|v| v.as_bool())
-                    .unwrap_or(false),
-                stuck_samples: int(config, "stuck_samples", 8),
-            },
-            probe_sigma_mm: sparkout_pipeline::cfg_f64(config, "probe_sigma_mm")
-                .unwrap_or(sigma_mm),
+impl Default for SeparateSection {
+    fn default() -> Self {
+        SeparateSection {
+            method: Method::Lsq,
+            reference: Reference::Line,
+            interpolate: false,
+            stuck_samples: 8,
+            probe_sigma_mm: None,
         }
     }
 }
 
-pub const PREDICTOR_KEYS: &[(&str, Check)] = &[
-    ("d", Check::NonNegative),
-    ("p_max", Check::AtLeastOne),
-    ("p0", Check::Positive),
-    ("forgetting", Check::Fraction),
-    ("horizon", Check::AtLeastOne),
-    ("repeatability_mm", Check::Positive),
-    ("warmup", Check::NonNegative),
-    ("criterion", Check::OneOf(Criterion::NAMES)),
-];
+impl Section for SeparateSection {
+    const CHECKS: &'static [(&'static str, Check)] = &[
+        ("method", Check::OneOf(&["lsq", "recursion"])),
+        ("reference", Check::OneOf(&["line", "ends"])),
+        ("probe_sigma_mm", Check::Positive),
+        ("stuck_samples", Check::WholeIn(2, 1_000_000)),
+    ];
+}
+
+impl SeparateSection {
+    /// How the readings are loaded.
+    pub fn input(&self) -> InputOptions {
+        InputOptions {
+            interpolate: self.interpolate,
+            stuck_samples: self.stuck_samples,
+        }
+    }
+}
 
 /// `[guideway.predictor]` (MODELS.md §3.2–3.3).
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone, Copy, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
 pub struct PredictorConfig {
     /// Difference order (source: 2).
     pub d: usize,
@@ -98,52 +68,125 @@ pub struct PredictorConfig {
     pub forgetting: f64,
     /// Forecast steps past the last sample.
     pub horizon: usize,
-    /// Kalman measurement σ (default machine `[table] repeatability_mm`).
-    pub repeatability_mm: f64,
     /// One-step errors of the first `warmup` predictions are left out of
     /// the prediction-error variance (RLS still converging).
     pub warmup: usize,
+    /// Kalman measurement σ. None: the machine's `[table]
+    /// repeatability_mm`, else [`DEFAULT_REPEATABILITY_MM`].
+    pub repeatability_mm: Option<f64>,
 }
 
-impl PredictorConfig {
-    pub fn validate(config: &toml::Table) -> Result<()> {
-        check_config(config, PREDICTOR_KEYS)?;
-        check_int(config, "d", 0, 3)?;
-        check_int(config, "p_max", 1, 50)?;
-        check_int(config, "horizon", 1, 100_000)?;
-        check_int(config, "warmup", 0, 1_000_000)
-    }
-    pub fn from_table(config: &toml::Table, run: Option<&Run>) -> PredictorConfig {
-        let f = |k: &str, d: f64| sparkout_pipeline::cfg_f64(config, k).unwrap_or(d);
+/// Kalman measurement σ when neither the section nor the machine gives one.
+pub const DEFAULT_REPEATABILITY_MM: f64 = 5e-4;
+
+impl Default for PredictorConfig {
+    fn default() -> Self {
         PredictorConfig {
-            d: int(config, "d", 2),
-            p_max: int(config, "p_max", 10),
-            criterion: config
-                .get("criterion")
-                .and_then(|v| v.as_str())
-                .and_then(Criterion::parse)
-                .unwrap_or(Criterion::Fpe),
-            p0: f("p0", 100.0),
-            forgetting: f("forgetting", 1.0),
-            horizon: int(config, "horizon", 20),
-            repeatability_mm: f(
-                "repeatability_mm",
-                run.map(|r| machine_f64(r, "table.repeatability_mm", 5e-4))
-                    .unwrap_or(5e-4),
-            ),
-            warmup: int(config, "warmup", 50),
+            d: 2,
+            p_max: 10,
+            criterion: Criterion::Fpe,
+            p0: 100.0,
+            forgetting: 1.0,
+            horizon: 20,
+            warmup: 50,
+            repeatability_mm: None,
         }
     }
 }
 
-pub const COMPENSATION_KEYS: &[(&str, Check)] = &[
-    ("thermal", Check::OneOf(&["auto", "off"])),
-    ("reversal", Check::OneOf(&["auto", "off"])),
-    ("backlash_mm", Check::NonNegative),
-    ("infeed_mm", Check::NonNegative),
-];
+impl Section for PredictorConfig {
+    const CHECKS: &'static [(&'static str, Check)] = &[
+        ("d", Check::WholeIn(0, 3)),
+        ("p_max", Check::WholeIn(1, 50)),
+        ("p0", Check::Positive),
+        ("forgetting", Check::Fraction),
+        ("horizon", Check::WholeIn(1, 100_000)),
+        ("repeatability_mm", Check::Positive),
+        ("warmup", Check::WholeIn(0, 1_000_000)),
+        ("criterion", Check::OneOf(Criterion::NAMES)),
+    ];
+}
 
-pub const OBSERVE_KEYS: &[(&str, Check)] = &[("sim", Check::OneOf(&["straightness", "model"]))];
+impl PredictorConfig {
+    /// A section (or the run-less flags) read and checked, the machine's
+    /// repeatability filling in when the section gives none.
+    pub fn from_table(config: &toml::Table, run: Option<&Run>) -> Result<PredictorConfig> {
+        let mut c: PredictorConfig = read_section(config)?;
+        c.repeatability_mm = Some(c.repeatability_mm.unwrap_or_else(|| {
+            run.map(|r| machine_f64(r, "table.repeatability_mm", DEFAULT_REPEATABILITY_MM))
+                .unwrap_or(DEFAULT_REPEATABILITY_MM)
+        }));
+        Ok(c)
+    }
+    /// The Kalman measurement σ (mm).
+    pub fn repeatability_mm(&self) -> f64 {
+        self.repeatability_mm.unwrap_or(DEFAULT_REPEATABILITY_MM)
+    }
+}
+
+/// Fit a term when the run has what it needs (`auto`), or never (`off`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum AutoOff {
+    Auto,
+    Off,
+}
+
+/// `[guideway.compensation]`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct CompensationConfig {
+    /// g from the infeed count (and temp_c).
+    pub thermal: AutoOff,
+    /// The table reversal error when both directions occur.
+    pub reversal: AutoOff,
+    /// None: the machine's `[headstock] backlash_mm`.
+    pub backlash_mm: Option<f64>,
+    /// None: run `[process] infeed_mm`, then the machine's `[process]`.
+    pub infeed_mm: Option<f64>,
+}
+
+impl Default for CompensationConfig {
+    fn default() -> Self {
+        CompensationConfig {
+            thermal: AutoOff::Auto,
+            reversal: AutoOff::Auto,
+            backlash_mm: None,
+            infeed_mm: None,
+        }
+    }
+}
+
+impl Section for CompensationConfig {
+    const CHECKS: &'static [(&'static str, Check)] = &[
+        ("thermal", Check::OneOf(&["auto", "off"])),
+        ("reversal", Check::OneOf(&["auto", "off"])),
+        ("backlash_mm", Check::NonNegative),
+        ("infeed_mm", Check::NonNegative),
+    ];
+}
+
+/// `[guideway.observe]`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ObserveConfig {
+    /// motion_error's sim: `straightness` from the other passes, or `model`
+    /// (+ the fitted thermal and reversal terms).
+    pub sim: String,
+}
+
+impl Default for ObserveConfig {
+    fn default() -> Self {
+        ObserveConfig {
+            sim: "straightness".to_string(),
+        }
+    }
+}
+
+impl Section for ObserveConfig {
+    const CHECKS: &'static [(&'static str, Check)] =
+        &[("sim", Check::OneOf(&["straightness", "model"]))];
+}
 
 pub use sparkout_pipeline::config_check::flags_to_table;
 
@@ -161,25 +204,29 @@ mod tests {
 
     #[test]
     fn keys_are_checked() {
+        let separate = read_section::<SeparateSection>;
         let t: toml::Table = "method = \"lsq\"\nstuck_samples = 5".parse().unwrap();
-        assert!(SeparateConfig::validate(&t).is_ok());
+        assert!(separate(&t).is_ok());
         let t: toml::Table = "method = \"fft\"".parse().unwrap();
-        assert!(SeparateConfig::validate(&t).is_err());
+        assert!(separate(&t).is_err());
         let t: toml::Table = "p_max = 2.5".parse().unwrap();
-        let e = PredictorConfig::validate(&t).unwrap_err().to_string();
+        let e = PredictorConfig::from_table(&t, None)
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("whole number"), "{e}");
+        let t: toml::Table = "p_max = 12.0".parse().unwrap();
+        assert_eq!(PredictorConfig::from_table(&t, None).unwrap().p_max, 12);
         let t: toml::Table = "order = 3".parse().unwrap();
-        assert!(PredictorConfig::validate(&t).is_err());
-        let c = PredictorConfig::from_table(&toml::Table::new(), None);
+        assert!(PredictorConfig::from_table(&t, None).is_err());
+        let c = PredictorConfig::from_table(&toml::Table::new(), None).unwrap();
         assert_eq!((c.d, c.p_max, c.p0), (2, 10, 100.0));
         assert_eq!(c.criterion, Criterion::Fpe);
         let t: toml::Table = "criterion = \"bic\"".parse().unwrap();
-        assert!(PredictorConfig::validate(&t).is_ok());
         assert_eq!(
-            PredictorConfig::from_table(&t, None).criterion,
+            PredictorConfig::from_table(&t, None).unwrap().criterion,
             Criterion::Bic
         );
         let t: toml::Table = "criterion = \"aic\"".parse().unwrap();
-        assert!(PredictorConfig::validate(&t).is_err());
+        assert!(PredictorConfig::from_table(&t, None).is_err());
     }
 }

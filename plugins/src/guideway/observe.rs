@@ -25,7 +25,7 @@ use sparkout_pipeline::{Result, Stage, StageContext, StageOutput, StageSpec};
 
 use super::augment::ThermalGrowth;
 use super::compensation::ThermalReversal;
-use super::config::OBSERVE_KEYS;
+use super::config::ObserveConfig;
 use super::separate::SepData;
 
 pub const OBSERVABLE: &str = "motion_error";
@@ -69,7 +69,7 @@ const SPEC: StageSpec = StageSpec {
     writes: &["observations"],
     reads_augmented_model: true,
     about: "paired observations motion_error (measured δz vs the straightness model from the other passes) for the gap diagnosis (docs/formats.md)",
-    config: SectionCheck::Keys(OBSERVE_KEYS),
+    config: SectionCheck::of::<ObserveConfig>(),
 };
 
 impl Stage for ObserveStage {
@@ -78,7 +78,7 @@ impl Stage for ObserveStage {
     }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
         let s = SepData::from_batch(ctx.artifacts.require("separation")?.as_ref())?;
-        let mode = ctx.cfg_str("sim", "straightness").to_string();
+        let mode = ctx.section::<ObserveConfig>()?.sim;
         let model = if mode == "model" {
             ctx.artifacts
                 .summary("compensation")

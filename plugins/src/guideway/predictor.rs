@@ -74,7 +74,8 @@ pub fn predict(dz: &[f64], cfg: &PredictorConfig) -> Result<Prediction> {
     let mut gains = vec![None; len];
     let mut rls = Rls::new(p, cfg.p0, cfg.forgetting);
     let q = search.sigma2_chosen();
-    let r = cfg.repeatability_mm * cfg.repeatability_mm;
+    let sigma_mm = cfg.repeatability_mm();
+    let r = sigma_mm * sigma_mm;
     let mut kal = Kalman::new(q, r);
     let mut x = vec![0.0; p];
     let mut prev = vec![0.0; d];
@@ -201,7 +202,7 @@ const SPEC: StageSpec = StageSpec {
     writes: &["predictor", "ar_fpe", "forecast"],
     reads_augmented_model: false,
     about: "AR order of the d-times differenced δz by FPE (or BIC / HQ), online RLS, one-step prediction, scalar Kalman fusion, forecasts (MODELS.md §3.2–3.3)",
-    config: SectionCheck::Parsed(PredictorConfig::validate),
+    config: SectionCheck::of::<PredictorConfig>(),
 };
 
 impl Stage for PredictorStage {
@@ -209,7 +210,7 @@ impl Stage for PredictorStage {
         &SPEC
     }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
-        let cfg = PredictorConfig::from_table(ctx.config, Some(ctx.run));
+        let cfg = PredictorConfig::from_table(ctx.config, Some(ctx.run))?;
         let s = SepData::from_batch(ctx.artifacts.require("separation")?.as_ref())?;
         let need = min_samples(&cfg);
         if s.len() < need {
@@ -247,8 +248,8 @@ fn standalone(args: &StageArgs) -> Result<Value> {
     let path = std::path::Path::new(path);
     let column = args.get("column").map(|s| s.as_str()).unwrap_or("dz_mm");
     let t = flags_to_table(args, &["series", "column"]);
-    PredictorConfig::validate(&t).map_err(|e| anyhow!("stage predictor: flag {e}"))?;
-    let cfg = PredictorConfig::from_table(&t, None);
+    let cfg =
+        PredictorConfig::from_table(&t, None).map_err(|e| anyhow!("stage predictor: flag {e}"))?;
     let b = read_parquet(path)?;
     let a = b
         .column_by_name(column)
@@ -288,7 +289,7 @@ mod tests {
     fn one_step_prediction_beats_persistence_and_kalman_sits_between() {
         // ARIMA(2,2,0) driven by 1 µm innovations (the source's scale).
         let dz: Vec<f64> = simulate(&[0.5, -0.3], 2, 3000, 1e-3, 4);
-        let cfg = PredictorConfig::from_table(&toml::Table::new(), None);
+        let cfg = PredictorConfig::from_table(&toml::Table::new(), None).unwrap();
         let p = predict(&dz, &cfg).unwrap();
         // FPE is not consistent: it may keep a few extra lags whose FPE is
         // within a hair of the true order's, never fewer than the truth.

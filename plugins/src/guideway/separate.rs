@@ -13,13 +13,13 @@ use anyhow::{anyhow, Context};
 use arrow::array::{Array, Float64Array, Int32Array, Int64Array, Int8Array};
 use arrow::record_batch::RecordBatch;
 use serde_json::{json, Value};
-use sparkout_pipeline::config_check::SectionCheck;
+use sparkout_pipeline::config_check::{read_section, SectionCheck};
 use sparkout_pipeline::contracts::schema::GUIDEWAY;
 use sparkout_pipeline::contracts::{batch_f64, batch_i32, BatchBuilder};
 use sparkout_pipeline::json_f64 as num;
 use sparkout_pipeline::{Result, Stage, StageArgs, StageContext, StageOutput, StageSpec};
 
-use super::config::{flags_to_table, SeparateConfig};
+use super::config::{flags_to_table, machine_f64, SeparateSection};
 use super::input::{self, Geometry, Readings};
 use super::three_probe::{self, straightness_rms, Method, Separation};
 
@@ -188,7 +188,7 @@ const SPEC: StageSpec = StageSpec {
     writes: &["separation"],
     reads_augmented_model: false,
     about: "three-probe error separation: workpiece h, table motion error δz, pitch β — published recursion or one LS solve with uncertainty (MODELS.md §3.1)",
-    config: SectionCheck::Parsed(SeparateConfig::validate),
+    config: SectionCheck::of::<SeparateSection>(),
 };
 
 impl Stage for SeparateStage {
@@ -196,14 +196,17 @@ impl Stage for SeparateStage {
         &SPEC
     }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
-        let cfg = SeparateConfig::from_ctx(ctx);
-        let r = input::load(ctx.run, &cfg.input)?;
-        let s = three_probe::separate(&r, cfg.method, cfg.reference, cfg.probe_sigma_mm)?;
+        let cfg: SeparateSection = ctx.section()?;
+        let sigma_mm = cfg
+            .probe_sigma_mm
+            .unwrap_or_else(|| machine_f64(ctx.run, "probes.sigma_mm", 1e-4));
+        let r = input::load(ctx.run, &cfg.input())?;
+        let s = three_probe::separate(&r, cfg.method, cfg.reference, sigma_mm)?;
         let other_method = match cfg.method {
             Method::Lsq => Method::Recursion,
             Method::Recursion => Method::Lsq,
         };
-        let other = three_probe::separate(&r, other_method, cfg.reference, cfg.probe_sigma_mm).ok();
+        let other = three_probe::separate(&r, other_method, cfg.reference, sigma_mm).ok();
         Ok(StageOutput::new(summary(&r, &s, other.as_ref())).with("separation", batch(&r, &s)))
     }
     fn run_standalone(&self, args: &StageArgs) -> Option<Result<Value>> {
@@ -240,13 +243,14 @@ fn standalone(args: &StageArgs) -> Result<Value> {
         speed_mm_s: num("speed-mm-s")?.unwrap_or(20_000.0 / 60.0),
     };
     let t = flags_to_table(args, INPUTS);
-    SeparateConfig::validate(&t).map_err(|e| anyhow!("stage separate: flag {e}"))?;
-    let cfg = SeparateConfig::from_table(&t, 1e-4);
-    let r = input::load_file(std::path::Path::new(path), &g, &cfg.input)?;
-    let s = three_probe::separate(&r, cfg.method, cfg.reference, cfg.probe_sigma_mm)?;
+    let cfg =
+        read_section::<SeparateSection>(&t).map_err(|e| anyhow!("stage separate: flag {e}"))?;
+    let sigma_mm = cfg.probe_sigma_mm.unwrap_or(1e-4);
+    let r = input::load_file(std::path::Path::new(path), &g, &cfg.input())?;
+    let s = three_probe::separate(&r, cfg.method, cfg.reference, sigma_mm)?;
     let other = match cfg.method {
         Method::Lsq => three_probe::separate_recursion(&r).ok(),
-        Method::Recursion => three_probe::separate_lsq(&r, cfg.reference, cfg.probe_sigma_mm).ok(),
+        Method::Recursion => three_probe::separate_lsq(&r, cfg.reference, sigma_mm).ok(),
     };
     Ok(summary(&r, &s, other.as_ref()))
 }

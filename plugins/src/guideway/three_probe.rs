@@ -56,7 +56,8 @@ use sparkout_pipeline::{InputError, Result};
 
 use super::input::Readings;
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
 pub enum Method {
     Lsq,
     Recursion,
@@ -79,7 +80,8 @@ impl Method {
 }
 
 /// How the constants the second difference cannot see are fixed.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
 pub enum Reference {
     /// h about its least-squares line (per sub-grid when k > 1).
     Line,

@@ -3,8 +3,8 @@
 //! unknown keys and bad values are errors that say what to do.
 
 use anyhow::{anyhow, bail};
-use serde::Deserialize;
-use sparkout_pipeline::config_check::parse_section;
+use serde::{Deserialize, Serialize};
+use sparkout_pipeline::config_check::{Check, Section};
 use sparkout_pipeline::contracts::MachineConfig;
 use sparkout_pipeline::{ConfigError, InputError, Result};
 
@@ -184,30 +184,19 @@ impl MillMachine {
     }
 }
 
-/// `[mill.kinematics]`.
-#[derive(Debug, Clone, Default, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct KinematicsToml {
-    degree: Option<i64>,
-    holdout_fraction: Option<f64>,
-    seed: Option<i64>,
-    fixed: Option<Vec<String>>,
-    rcond: Option<f64>,
-    max_evaluations: Option<i64>,
-    map_grid: Option<i64>,
-    table_step_mm: Option<f64>,
-}
-
-/// The kinematics stage's settings (machine defaults + stage overrides).
-#[derive(Debug, Clone, PartialEq)]
+/// `[mill.kinematics]`: identification settings that override the
+/// machine's `[identification]` (None: the machine's), and the stage's own.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
 pub struct KinematicsConfig {
-    pub degree: Option<usize>,
+    pub degree: Option<i64>,
     pub holdout_fraction: Option<f64>,
     pub seed: Option<u64>,
-    pub fixed: Option<Vec<usize>>,
+    pub fixed: Option<Vec<String>>,
     /// Smallest reciprocal condition number of the column-scaled Jacobian
     /// accepted as full rank.
     pub rcond: f64,
+    /// Levenberg–Marquardt budget (residual evaluations).
     pub max_evaluations: usize,
     /// Volumetric map: points per axis.
     pub map_grid: usize,
@@ -215,54 +204,47 @@ pub struct KinematicsConfig {
     pub table_step_mm: f64,
 }
 
-impl KinematicsConfig {
-    pub fn parse(t: &toml::Table) -> Result<KinematicsConfig> {
-        let k: KinematicsToml = parse_section(t)?;
-        let rcond = k.rcond.unwrap_or(1e-8);
-        if !(rcond > 0.0 && rcond < 1e-2) {
-            return Err(ConfigError::bad_value("rcond", "in (0, 0.01)", rcond).into());
+impl Default for KinematicsConfig {
+    fn default() -> Self {
+        KinematicsConfig {
+            degree: None,
+            holdout_fraction: None,
+            seed: None,
+            fixed: None,
+            rcond: 1e-8,
+            max_evaluations: 200,
+            map_grid: 7,
+            table_step_mm: 25.0,
         }
-        let max_evaluations = k.max_evaluations.unwrap_or(200);
-        if !(10..=100_000).contains(&max_evaluations) {
-            return Err(ConfigError::bad_value(
-                "max_evaluations",
-                "in 10..=100000",
-                max_evaluations,
-            )
-            .into());
-        }
-        let map_grid = k.map_grid.unwrap_or(7);
-        if !(2..=50).contains(&map_grid) {
-            return Err(
-                ConfigError::bad_value("map_grid", "in 2..=50 points per axis", map_grid).into(),
-            );
-        }
-        let table_step_mm = k.table_step_mm.unwrap_or(25.0);
-        if !(table_step_mm.is_finite() && table_step_mm > 0.0) {
-            return Err(ConfigError::bad_value("table_step_mm", "> 0", table_step_mm).into());
-        }
-        if let Some(s) = k.seed {
-            if s < 0 {
-                return Err(ConfigError::bad_value("seed", "≥ 0", s).into());
-            }
-        }
-        Ok(KinematicsConfig {
-            degree: k.degree.map(check_degree).transpose()?,
-            holdout_fraction: k.holdout_fraction.map(check_holdout).transpose()?,
-            seed: k.seed.map(|s| s as u64),
-            fixed: k.fixed.as_deref().map(parse_fixed).transpose()?,
-            rcond,
-            max_evaluations: max_evaluations as usize,
-            map_grid: map_grid as usize,
-            table_step_mm,
-        })
     }
+}
 
+impl Section for KinematicsConfig {
+    const CHECKS: &'static [(&'static str, Check)] = &[
+        ("seed", Check::WholeIn(0, i64::MAX)),
+        ("max_evaluations", Check::WholeIn(10, 100_000)),
+        ("map_grid", Check::WholeIn(2, 50)),
+        ("table_step_mm", Check::Positive),
+    ];
+    fn validate(&self) -> Result<()> {
+        if !(self.rcond > 0.0 && self.rcond < 1e-2) {
+            return Err(ConfigError::bad_value("rcond", "in (0, 0.01)", self.rcond).into());
+        }
+        // The same checks as the machine's [identification] (messages that
+        // say why the range is what it is).
+        self.degree.map(check_degree).transpose()?;
+        self.holdout_fraction.map(check_holdout).transpose()?;
+        self.fixed.as_deref().map(parse_fixed).transpose()?;
+        Ok(())
+    }
+}
+
+impl KinematicsConfig {
     /// The machine with this section's overrides applied.
-    pub fn apply(&self, m: &MillMachine) -> MillMachine {
+    pub fn apply(&self, m: &MillMachine) -> Result<MillMachine> {
         let mut m = m.clone();
         if let Some(d) = self.degree {
-            m.degree = d;
+            m.degree = check_degree(d)?;
         }
         if let Some(f) = self.holdout_fraction {
             m.holdout_fraction = f;
@@ -271,44 +253,38 @@ impl KinematicsConfig {
             m.seed = s;
         }
         if let Some(f) = &self.fixed {
-            m.fixed = f.clone();
+            m.fixed = parse_fixed(f)?;
         }
-        m
+        Ok(m)
     }
 }
 
 /// `[mill.observe]`.
-#[derive(Debug, Clone, Default, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct ObserveToml {
-    temp_sensor: Option<String>,
-}
-
-#[derive(Debug, Clone, Default, PartialEq)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
 pub struct ObserveConfig {
     /// thermal.parquet sensor whose reading is `temp_c`; `None` = the mean
     /// of all sensors.
     pub temp_sensor: Option<String>,
 }
 
-impl ObserveConfig {
-    pub fn parse(t: &toml::Table) -> Result<ObserveConfig> {
-        let o: ObserveToml = parse_section(t)?;
-        if o.temp_sensor
+impl Section for ObserveConfig {
+    fn validate(&self) -> Result<()> {
+        if self
+            .temp_sensor
             .as_deref()
             .is_some_and(|s| s.trim().is_empty())
         {
             bail!("key `temp_sensor` must name a sensor of thermal.parquet (or be left out for the mean of all sensors)");
         }
-        Ok(ObserveConfig {
-            temp_sensor: o.temp_sensor,
-        })
+        Ok(())
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use sparkout_pipeline::config_check::read_section;
 
     fn machine(text: &str) -> Result<MillMachine, InputError> {
         MillMachine::from_config(&MachineConfig {
@@ -345,13 +321,17 @@ mod tests {
     #[test]
     fn stage_sections_reject_unknown_keys_and_bad_values() {
         let t = |s: &str| s.parse::<toml::Table>().unwrap();
-        assert!(KinematicsConfig::parse(&t("degree = 4\nmap_grid = 5")).is_ok());
-        let e = KinematicsConfig::parse(&t("degre = 4")).unwrap_err();
+        assert!(read_section::<KinematicsConfig>(&t("degree = 4\nmap_grid = 5")).is_ok());
+        let e = read_section::<KinematicsConfig>(&t("degre = 4")).unwrap_err();
         assert!(e.to_string().contains("degre"), "{e}");
-        assert!(KinematicsConfig::parse(&t("holdout_fraction = 0.95")).is_err());
-        assert!(KinematicsConfig::parse(&t("degree = 1")).is_err());
-        assert!(KinematicsConfig::parse(&t("fixed = [\"ez_z\", \"nope\"]")).is_err());
-        assert!(ObserveConfig::parse(&t("temp_sensor = \"spindle\"")).is_ok());
-        assert!(ObserveConfig::parse(&t("sensor = 1")).is_err());
+        assert!(read_section::<KinematicsConfig>(&t("holdout_fraction = 0.95")).is_err());
+        assert!(read_section::<KinematicsConfig>(&t("degree = 1")).is_err());
+        assert!(read_section::<KinematicsConfig>(&t("fixed = [\"ez_z\", \"nope\"]")).is_err());
+        assert!(read_section::<KinematicsConfig>(&t("rcond = 0.5")).is_err());
+        assert!(read_section::<KinematicsConfig>(&t("seed = -1")).is_err());
+        let observe = read_section::<ObserveConfig>;
+        assert!(observe(&t("temp_sensor = \"spindle\"")).is_ok());
+        assert!(observe(&t("temp_sensor = \" \"")).is_err());
+        assert!(observe(&t("sensor = 1")).is_err());
     }
 }

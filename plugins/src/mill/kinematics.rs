@@ -632,7 +632,7 @@ const SPEC: StageSpec = StageSpec {
         ],
     reads_augmented_model: true,
     about: "XFYZ 21-error identification from laser-tracker points (Levenberg–Marquardt, covariance), held-out validation, volumetric error before/after, compensation table (MODELS.md §5)",
-    config: SectionCheck::Parsed(|c| KinematicsConfig::parse(c).map(drop)),
+    config: SectionCheck::of::<KinematicsConfig>(),
 };
 
 impl Stage for KinematicsStage {
@@ -641,8 +641,8 @@ impl Stage for KinematicsStage {
     }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
         let machine = MillMachine::from_config(&ctx.run.machine)?;
-        let cfg = KinematicsConfig::parse(ctx.config)?;
-        let machine = cfg.apply(&machine);
+        let cfg: KinematicsConfig = ctx.section()?;
+        let machine = cfg.apply(&machine)?;
         let data = tracker_points(ctx.run, &machine)?;
         let r = analyse(data, &machine, &cfg)?;
         let mut summary = r.summary;

@@ -89,7 +89,7 @@ const SPEC: StageSpec = StageSpec {
     writes: &["observations"],
     reads_augmented_model: true,
     about: "paired observations tracker_dx/dy/dz (measured vs identified model) for the gap diagnosis (docs/formats.md)",
-    config: SectionCheck::Parsed(|c| ObserveConfig::parse(c).map(drop)),
+    config: SectionCheck::of::<ObserveConfig>(),
 };
 
 impl Stage for ObserveStage {
@@ -97,7 +97,7 @@ impl Stage for ObserveStage {
         &SPEC
     }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
-        let cfg = ObserveConfig::parse(ctx.config)?;
+        let cfg: ObserveConfig = ctx.section()?;
         // The tool offsets come from the machine; identification settings do
         // not matter here (the model is read back from its artifact).
         let machine = MillMachine::from_config(&ctx.run.machine)?;

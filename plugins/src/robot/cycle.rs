@@ -28,14 +28,12 @@ use std::collections::BTreeMap;
 
 use anyhow::{anyhow, bail};
 use serde_json::{json, Value};
-use sparkout_pipeline::config_check::SectionCheck;
+use sparkout_pipeline::config_check::{Check, Section, SectionCheck};
 use sparkout_pipeline::contracts::schema::PASSES;
 use sparkout_pipeline::contracts::BatchBuilder;
 use sparkout_pipeline::{
     InputError, Result, Stage, StageArgs, StageContext, StageOutput, StageSpec,
 };
-
-use super::config::Check;
 
 /// A pass's kind.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
@@ -434,8 +432,8 @@ pub fn read_passes(ctx: &StageContext) -> Result<Option<Vec<Pass>>> {
 
 /// Contact area (mm²) for cumulative removal: stage config, then the run's
 /// `[process]`, then the machine's `process.contact_area_mm2`, else 100.
-pub fn contact_area_mm2(ctx: &StageContext) -> f64 {
-    if let Some(v) = sparkout_pipeline::cfg_f64(ctx.config, "contact_area_mm2") {
+pub fn contact_area_mm2(ctx: &StageContext, cfg: &CycleConfig) -> f64 {
+    if let Some(v) = cfg.contact_area_mm2 {
         return v;
     }
     if let Some(v) = ctx
@@ -455,10 +453,31 @@ pub fn contact_area_mm2(ctx: &StageContext) -> f64 {
 
 pub struct CycleStage;
 
-const KEYS: &[(&str, Check)] = &[
-    ("alpha_max", Check::Positive),
-    ("contact_area_mm2", Check::Positive),
-];
+/// `[robot.cycle]`.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct CycleConfig {
+    /// Upper bound of the least-squares α search (MODELS.md §1.4).
+    pub alpha_max: f64,
+    /// None: the run's `[process]`, then the machine's ([`contact_area_mm2`]).
+    pub contact_area_mm2: Option<f64>,
+}
+
+impl Default for CycleConfig {
+    fn default() -> Self {
+        CycleConfig {
+            alpha_max: 20.0,
+            contact_area_mm2: None,
+        }
+    }
+}
+
+impl Section for CycleConfig {
+    const CHECKS: &'static [(&'static str, Check)] = &[
+        ("alpha_max", Check::Positive),
+        ("contact_area_mm2", Check::Positive),
+    ];
+}
 
 const SPEC: StageSpec = StageSpec {
     name: "cycle",
@@ -468,7 +487,7 @@ const SPEC: StageSpec = StageSpec {
     writes: &["cycle"],
     reads_augmented_model: false,
     about: "compliance model of the grinding cycle: α, predicted vs measured cut per pass, remaining stock, τ (MODELS.md §1.4)",
-    config: SectionCheck::Keys(KEYS),
+    config: SectionCheck::of::<CycleConfig>(),
 };
 
 impl Stage for CycleStage {
@@ -476,8 +495,9 @@ impl Stage for CycleStage {
         &SPEC
     }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
-        let alpha_max = ctx.cfg_f64("alpha_max", 20.0);
-        let area = contact_area_mm2(ctx);
+        let cfg: CycleConfig = ctx.section()?;
+        let alpha_max = cfg.alpha_max;
+        let area = contact_area_mm2(ctx, &cfg);
         let weld = ctx.run.spec.process.get("weld_mm").and_then(toml_f64);
         let Some(passes) = read_passes(ctx)? else {
             // A probing-only run is legal: an empty, valid artifact.

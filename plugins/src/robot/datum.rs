@@ -11,7 +11,7 @@
 use anyhow::{anyhow, bail};
 use nalgebra::{Matrix3, SymmetricEigen, Vector3};
 use serde_json::{json, Value};
-use sparkout_pipeline::config_check::SectionCheck;
+use sparkout_pipeline::config_check::{Check, Section, SectionCheck};
 use sparkout_pipeline::contracts::schema::{AE, PROBE};
 use sparkout_pipeline::contracts::BatchBuilder;
 use sparkout_pipeline::json_f64;
@@ -20,7 +20,6 @@ use sparkout_pipeline::{
 };
 use statrs::distribution::{ChiSquared, ContinuousCDF};
 
-use super::config::Check;
 use super::planes::{
     fit_ols, fit_tls, intersect, max_abs, rms, robust_keep, squareness, Datum, Face, FitError,
     OlsFit, Plane, TlsFit,
@@ -31,11 +30,22 @@ use super::touches::{self, Touch};
 mod output;
 pub use output::*;
 
+/// Which plane fit defines the datum.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum PlaneFit {
+    /// Orthogonal (total least squares): errors in every coordinate.
+    Tls,
+    /// The thesis's ordinary least squares along the face normal's axis.
+    Ols,
+}
+
 /// Datum settings (`[robot.datum]`).
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
 pub struct DatumConfig {
     /// Which fit defines the datum: TLS (default) or the thesis's OLS.
-    pub use_tls: bool,
+    pub fit: PlaneFit,
     pub robust: bool,
     pub reject_k: f64,
     /// Floor of the robust scale (mm), so exact data reject nothing.
@@ -46,12 +56,14 @@ pub struct DatumConfig {
     /// Remove each method's trigger latency (estimated from ≥ 2 approach
     /// speeds, MODELS.md §1.1) from its touches before fitting: p − v·L·dir.
     pub correct_latency: bool,
+    /// Touches the datum is fitted from ([`select_method`]).
+    pub method: String,
 }
 
 impl Default for DatumConfig {
     fn default() -> Self {
         DatumConfig {
-            use_tls: true,
+            fit: PlaneFit::Tls,
             robust: true,
             reject_k: 4.0,
             min_scale_mm: 0.0005,
@@ -59,24 +71,40 @@ impl Default for DatumConfig {
             collinear_ratio: 1e-3,
             confidence: 0.95,
             correct_latency: true,
+            method: "auto".to_string(),
         }
     }
 }
 
-const KEYS: &[(&str, Check)] = &[
-    ("fit", Check::OneOf(&["tls", "ols"])),
-    ("robust", Check::Bool),
-    ("reject_k", Check::Positive),
-    ("min_scale_mm", Check::Positive),
-    ("max_condition", Check::AtLeastOne),
-    ("collinear_ratio", Check::Probability),
-    ("confidence", Check::Probability),
-    ("correct_latency", Check::Bool),
-    (
-        "method",
-        Check::OneOf(&["auto", "all", "ae", "electrical", "mechanical"]),
-    ),
-];
+impl Section for DatumConfig {
+    const CHECKS: &'static [(&'static str, Check)] = &[
+        ("fit", Check::OneOf(&["tls", "ols"])),
+        ("reject_k", Check::Positive),
+        ("min_scale_mm", Check::Positive),
+        ("max_condition", Check::AtLeastOne),
+        ("collinear_ratio", Check::Probability),
+        ("confidence", Check::Probability),
+        (
+            "method",
+            Check::OneOf(&["auto", "all", "ae", "electrical", "mechanical"]),
+        ),
+    ];
+}
+
+impl PlaneFit {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            PlaneFit::Tls => "tls",
+            PlaneFit::Ols => "ols",
+        }
+    }
+}
+
+impl DatumConfig {
+    pub fn use_tls(&self) -> bool {
+        self.fit == PlaneFit::Tls
+    }
+}
 
 /// Precision order of the probing methods (MODELS.md §1.1: AE 25–85 µm,
 /// electrical 163 µm, mechanical 700 µm range): `method = "auto"` fits the
@@ -114,22 +142,6 @@ pub fn select_method(
         .into());
     }
     Ok((picked, chosen.to_string()))
-}
-
-impl DatumConfig {
-    pub fn from_ctx(ctx: &StageContext) -> DatumConfig {
-        let d = DatumConfig::default();
-        DatumConfig {
-            use_tls: ctx.cfg_str("fit", "tls") == "tls",
-            robust: ctx.cfg_bool("robust", d.robust),
-            reject_k: ctx.cfg_f64("reject_k", d.reject_k),
-            min_scale_mm: ctx.cfg_f64("min_scale_mm", d.min_scale_mm),
-            max_condition: ctx.cfg_f64("max_condition", d.max_condition),
-            collinear_ratio: ctx.cfg_f64("collinear_ratio", d.collinear_ratio),
-            confidence: ctx.cfg_f64("confidence", d.confidence),
-            correct_latency: ctx.cfg_bool("correct_latency", d.correct_latency),
-        }
-    }
 }
 
 /// Both fits of one face over one scope of points.
@@ -326,8 +338,8 @@ pub fn analyse(raw: &[Touch], cfg: &DatumConfig, file: &std::path::Path) -> Resu
     }
     let fits: [FaceFit; 3] = fits.try_into().map_err(|_| anyhow!("three faces"))?;
     let planes = |tls: bool| [fits[0].plane(tls), fits[1].plane(tls), fits[2].plane(tls)];
-    let main = datum_of(planes(cfg.use_tls), cfg).map_err(|e| bad(e.0))?;
-    let ols = datum_of(planes(!cfg.use_tls), cfg).ok();
+    let main = datum_of(planes(cfg.use_tls()), cfg).map_err(|e| bad(e.0))?;
+    let ols = datum_of(planes(!cfg.use_tls()), cfg).ok();
     // Per square of the thesis's pattern, when every face has ≥ 3 points in it.
     let mut squares = Vec::new();
     for sq in 0..3 {
@@ -350,9 +362,9 @@ pub fn analyse(raw: &[Touch], cfg: &DatumConfig, file: &std::path::Path) -> Resu
             let sfits: [FaceFit; 3] = sfits.try_into().map_err(|_| anyhow!("three faces"))?;
             let d = datum_of(
                 [
-                    sfits[0].plane(cfg.use_tls),
-                    sfits[1].plane(cfg.use_tls),
-                    sfits[2].plane(cfg.use_tls),
+                    sfits[0].plane(cfg.use_tls()),
+                    sfits[1].plane(cfg.use_tls()),
+                    sfits[2].plane(cfg.use_tls()),
                 ],
                 cfg,
             )
@@ -381,7 +393,7 @@ const SPEC: StageSpec = StageSpec {
     writes: &["planes", "datum"],
     reads_augmented_model: false,
     about: "face planes (thesis OLS + orthogonal TLS, robust), datum = intersection with covariance, squareness, E = A·α (MODELS.md §1.3)",
-    config: SectionCheck::Keys(KEYS),
+    config: SectionCheck::of::<DatumConfig>(),
 };
 
 impl Stage for DatumStage {
@@ -389,16 +401,16 @@ impl Stage for DatumStage {
         &SPEC
     }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
-        let cfg = DatumConfig::from_ctx(ctx);
+        let cfg: DatumConfig = ctx.section()?;
         let every = touches::require(ctx)?;
         let file = source_file(ctx, &every);
-        let (all, method) = select_method(&every, ctx.cfg_str("method", "auto"), &file)?;
+        let (all, method) = select_method(&every, &cfg.method, &file)?;
         let a = analyse(&all, &cfg, &file)?;
         let mut s = summary(&all, &a, &cfg);
         s["touch_method"] = json!(method);
         Ok(StageOutput::new(s)
-            .with("planes", planes_batch(&a, cfg.use_tls))
-            .with("datum", datum_batch(&a, cfg.use_tls)))
+            .with("planes", planes_batch(&a, cfg.use_tls()))
+            .with("datum", datum_batch(&a, cfg.use_tls())))
     }
     fn run_standalone(&self, args: &StageArgs) -> Option<Result<Value>> {
         Some(standalone(args))

@@ -17,16 +17,14 @@ use std::path::Path;
 use anyhow::Context;
 use nalgebra::Vector3;
 use serde_json::{json, Value};
-use sparkout_pipeline::config_check::flags_to_table;
-use sparkout_pipeline::config_check::SectionCheck;
+use sparkout_pipeline::config_check::{flags_to_table, read_section, Check, Section, SectionCheck};
 use sparkout_pipeline::contracts::schema::{AE, MOTION, PLAN, PROBE};
 use sparkout_pipeline::contracts::{AeKind, AeStream, BatchBuilder, Table, TimeOrigin};
 use sparkout_pipeline::{
-    cfg_f64, InputError, Result, Stage, StageArgs, StageContext, StageOutput, StageSpec,
+    InputError, Result, Stage, StageArgs, StageContext, StageOutput, StageSpec,
 };
 
 use super::ae::{gaps, AeDetector, AeEvent, AeParams};
-use super::config::{check_config, Check};
 use super::planes::Face;
 use super::touches::{self, Touch};
 
@@ -37,17 +35,9 @@ use compare::*;
 
 pub struct IngestStage;
 
-const KEYS: &[(&str, Check)] = &[
-    ("window_s", Check::Positive),
-    ("k_sigma", Check::Positive),
-    ("min_dwell_s", Check::Positive),
-    ("hysteresis", Check::Fraction),
-    ("noise_window_s", Check::Positive),
-    ("segment_tolerance_s", Check::NonNegative),
-];
-
-/// Detector settings of a stage config, in seconds (MODELS.md §1.2).
-#[derive(Debug, Clone, Copy)]
+/// `[robot.ingest]`: detector settings, in seconds (MODELS.md §1.2).
+#[derive(Debug, Clone, Copy, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
 pub struct IngestConfig {
     pub window_s: f64,
     pub k_sigma: f64,
@@ -59,21 +49,28 @@ pub struct IngestConfig {
     pub segment_tolerance_s: f64,
 }
 
-impl IngestConfig {
-    pub fn from_ctx(ctx: &StageContext) -> IngestConfig {
-        Self::from_table(ctx.config)
-    }
-    pub fn from_table(t: &toml::Table) -> IngestConfig {
-        let f = |k: &str, default: f64| cfg_f64(t, k).unwrap_or(default);
+impl Default for IngestConfig {
+    fn default() -> Self {
         IngestConfig {
-            window_s: f("window_s", 0.001),
-            k_sigma: f("k_sigma", 8.0),
-            min_dwell_s: f("min_dwell_s", 0.0005),
-            hysteresis: f("hysteresis", 0.5),
-            noise_window_s: f("noise_window_s", 0.005),
-            segment_tolerance_s: f("segment_tolerance_s", 0.005),
+            window_s: 0.001,
+            k_sigma: 8.0,
+            min_dwell_s: 0.0005,
+            hysteresis: 0.5,
+            noise_window_s: 0.005,
+            segment_tolerance_s: 0.005,
         }
     }
+}
+
+impl Section for IngestConfig {
+    const CHECKS: &'static [(&'static str, Check)] = &[
+        ("window_s", Check::Positive),
+        ("k_sigma", Check::Positive),
+        ("min_dwell_s", Check::Positive),
+        ("hysteresis", Check::Fraction),
+        ("noise_window_s", Check::Positive),
+        ("segment_tolerance_s", Check::NonNegative),
+    ];
 }
 
 /// What the AE path found.
@@ -189,15 +186,9 @@ fn standalone(args: &StageArgs) -> Result<Value> {
         .ok_or_else(|| anyhow::anyhow!("stage ingest: --sample-rate-hz must be a number > 0"))?;
     let column = args.get("column").map(|s| s.as_str()).unwrap_or("ae_v");
     let t = flags_to_table(args, &INPUTS);
-    let detector_keys: Vec<(&str, Check)> = KEYS
-        .iter()
-        .copied()
-        .filter(|(k, _)| *k != "segment_tolerance_s")
-        .collect();
-    check_config(&t, &detector_keys).map_err(|e| {
+    let cfg: IngestConfig = read_section(&t).map_err(|e| {
         anyhow::anyhow!("stage ingest: flag {e} (flags: --ae, --sample-rate-hz, --column and the detector keys with dashes)")
     })?;
-    let cfg = IngestConfig::from_table(&t);
     let r = detect_stream(
         AeStream::open_series(path, column, fs_hz)?,
         fs_hz,
@@ -366,7 +357,7 @@ const SPEC: StageSpec = StageSpec {
     writes: &["touches", "contacts", "touch_compare"],
     reads_augmented_model: false,
     about: "touches from probe.parquet or from AE contacts mapped through motion + plan (MODELS.md §1.2)",
-    config: SectionCheck::Keys(KEYS),
+    config: SectionCheck::of::<IngestConfig>(),
 };
 
 impl Stage for IngestStage {
@@ -378,7 +369,7 @@ impl Stage for IngestStage {
     }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
         let run = ctx.run;
-        let cfg = IngestConfig::from_ctx(ctx);
+        let cfg = ctx.section::<IngestConfig>()?;
         let plan = match run.table(&PLAN)? {
             Some(t) => Some(read_plan(&t)?),
             None => None,

@@ -22,7 +22,6 @@ use sparkout_pipeline::diagnose::{catalogue_effect, composite, product, Effect, 
 use sparkout_pipeline::{ArtifactStore, MachinePlugin, ReportSection, Run, Stage};
 
 pub mod ae;
-pub mod config;
 pub mod cycle;
 pub mod datum;
 pub mod ingest;

@@ -54,17 +54,33 @@ use arrow::array::Int32Array;
 use arrow::datatypes::{DataType, Field};
 use nalgebra::Vector3;
 use serde_json::json;
-use sparkout_pipeline::config_check::SectionCheck;
+use sparkout_pipeline::config_check::{Check, Section, SectionCheck};
 use sparkout_pipeline::contracts::{batch_f64, batch_i32, batch_str, BatchBuilder};
 use sparkout_pipeline::{Result, Stage, StageContext, StageOutput, StageSpec};
 
-use super::config::Check;
+use super::datum::PlaneFit;
 use super::planes::{Face, Plane};
 use super::touches::{self, opt_col};
 
 pub struct ObserveStage;
 
-const KEYS: &[(&str, Check)] = &[("fit", Check::OneOf(&["tls", "ols"]))];
+/// `[robot.observe]`.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ObserveConfig {
+    /// The face planes that predict touch_normal's sim.
+    pub fit: PlaneFit,
+}
+
+impl Default for ObserveConfig {
+    fn default() -> Self {
+        ObserveConfig { fit: PlaneFit::Tls }
+    }
+}
+
+impl Section for ObserveConfig {
+    const CHECKS: &'static [(&'static str, Check)] = &[("fit", Check::OneOf(&["tls", "ols"]))];
+}
 
 /// One observation row.
 #[derive(Debug, Clone, Default)]
@@ -166,7 +182,7 @@ const SPEC: StageSpec = StageSpec {
     writes: &["observations"],
     reads_augmented_model: false,
     about: "paired observations touch_normal and cut_depth for the gap diagnosis (docs/formats.md)",
-    config: SectionCheck::Keys(KEYS),
+    config: SectionCheck::of::<ObserveConfig>(),
 };
 
 impl Stage for ObserveStage {
@@ -174,7 +190,7 @@ impl Stage for ObserveStage {
         &SPEC
     }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
-        let fit = ctx.cfg_str("fit", "tls");
+        let fit = ctx.section::<ObserveConfig>()?.fit.as_str();
         let all = touches::require(ctx)?;
         let planes_batch = ctx.artifacts.require("planes")?;
         let planes = face_planes(&planes_batch, fit)?;

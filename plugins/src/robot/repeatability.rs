@@ -13,11 +13,10 @@
 use std::collections::BTreeMap;
 
 use serde_json::{json, Value};
-use sparkout_pipeline::config_check::SectionCheck;
+use sparkout_pipeline::config_check::{Check, Section, SectionCheck};
 use sparkout_pipeline::contracts::BatchBuilder;
 use sparkout_pipeline::{Result, Stage, StageContext, StageOutput, StageSpec};
 
-use super::config::Check;
 use super::planes::Face;
 use super::touches::{self, Touch};
 
@@ -283,10 +282,28 @@ pub fn pooled_std_by_face(all: &[Touch]) -> [Option<f64>; 3] {
 
 pub struct RepeatabilityStage;
 
-const KEYS: &[(&str, Check)] = &[(
-    "latency_method",
-    Check::OneOf(&["auto", "ae", "electrical", "mechanical"]),
-)];
+/// `[robot.repeatability]`.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RepeatabilityConfig {
+    /// Which method's latency is the headline (`auto`: AE first).
+    pub latency_method: String,
+}
+
+impl Default for RepeatabilityConfig {
+    fn default() -> Self {
+        RepeatabilityConfig {
+            latency_method: "auto".to_string(),
+        }
+    }
+}
+
+impl Section for RepeatabilityConfig {
+    const CHECKS: &'static [(&'static str, Check)] = &[(
+        "latency_method",
+        Check::OneOf(&["auto", "ae", "electrical", "mechanical"]),
+    )];
+}
 
 const SPEC: StageSpec = StageSpec {
     name: "repeatability",
@@ -296,7 +313,7 @@ const SPEC: StageSpec = StageSpec {
     writes: &["repeatability"],
     reads_augmented_model: false,
     about: "range and std of the normal coordinate per method × speed × face; bias vs scatter; trigger latency (MODELS.md §1.1)",
-    config: SectionCheck::Keys(KEYS),
+    config: SectionCheck::of::<RepeatabilityConfig>(),
 };
 
 impl Stage for RepeatabilityStage {
@@ -305,7 +322,8 @@ impl Stage for RepeatabilityStage {
     }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
         let t = touches::require(ctx)?;
-        let (summary, batch) = analyse(&t, ctx.cfg_str("latency_method", "auto"));
+        let cfg: RepeatabilityConfig = ctx.section()?;
+        let (summary, batch) = analyse(&t, &cfg.latency_method);
         Ok(StageOutput::new(summary).with("repeatability", batch))
     }
 }

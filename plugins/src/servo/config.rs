@@ -3,8 +3,8 @@
 //! (`[servo.follow]`, `[servo.observe]`), each checked before use: unknown
 //! keys and bad values are errors that name the key (docs/servo.md).
 
-use serde::Deserialize;
-use sparkout_pipeline::config_check::{check_config, Check};
+use serde::{Deserialize, Serialize};
+use sparkout_pipeline::config_check::{Check, Section};
 use sparkout_pipeline::contracts::MachineConfig;
 use sparkout_pipeline::{InputError, Result};
 
@@ -162,25 +162,30 @@ impl ServoMachine {
 }
 
 /// `[servo.observe]`.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
 pub struct ObserveConfig {
     /// Commanded axis speed below which the axis counts as at rest: its
     /// direction is held from the last motion (mm/s).
     pub standstill_mm_s: f64,
 }
 
-impl ObserveConfig {
-    pub fn parse(t: &toml::Table) -> Result<ObserveConfig> {
-        check_config(t, &[("standstill_mm_s", Check::NonNegative)])?;
-        Ok(ObserveConfig {
-            standstill_mm_s: sparkout_pipeline::cfg_f64(t, "standstill_mm_s").unwrap_or(1e-3),
-        })
+impl Default for ObserveConfig {
+    fn default() -> Self {
+        ObserveConfig {
+            standstill_mm_s: 1e-3,
+        }
     }
+}
+
+impl Section for ObserveConfig {
+    const CHECKS: &'static [(&'static str, Check)] = &[("standstill_mm_s", Check::NonNegative)];
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use sparkout_pipeline::config_check::read_section;
 
     fn machine(text: &str) -> Result<ServoMachine, InputError> {
         ServoMachine::from_config(&MachineConfig {
@@ -211,8 +216,10 @@ mod tests {
         assert!(e.message.contains("kv"), "{e}");
         assert!(machine("[logging]\nposition_significant_digits = 0\n").is_err());
         let t = |s: &str| s.parse::<toml::Table>().unwrap();
-        assert!(ObserveConfig::parse(&t("standstill_mm_s = 0.01")).is_ok());
-        assert!(ObserveConfig::parse(&t("standstill = 0.01")).is_err());
+        let observe = read_section::<ObserveConfig>;
+        assert!(observe(&t("standstill_mm_s = 0.01")).is_ok());
+        assert!(observe(&t("standstill = 0.01")).is_err());
+        assert!(observe(&t("standstill_mm_s = -1")).is_err());
     }
 
     #[test]

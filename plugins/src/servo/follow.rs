@@ -10,7 +10,7 @@
 //! cannot show a following error finer than their step.
 
 use serde_json::json;
-use sparkout_pipeline::config_check::SectionCheck;
+use sparkout_pipeline::config_check::{NoKeys, SectionCheck};
 use sparkout_pipeline::contracts::schema::MOTION;
 use sparkout_pipeline::contracts::BatchBuilder;
 use sparkout_pipeline::{Result, Stage, StageContext, StageOutput, StageSpec};
@@ -126,7 +126,7 @@ const SPEC: StageSpec = StageSpec {
     writes: &["following_error"],
     reads_augmented_model: false,
     about: "commanded path through the servo model: simulated vs measured following and velocity error per axis",
-    config: SectionCheck::Keys(&[]),
+    config: SectionCheck::of::<NoKeys>(),
 };
 
 impl Stage for FollowStage {

@@ -41,7 +41,7 @@ const SPEC: StageSpec = StageSpec {
     writes: &["observations"],
     reads_augmented_model: false,
     about: "paired observations following_error_<axis> (mm) and velocity_error_<axis> (mm/s) for the gap diagnosis",
-    config: SectionCheck::Parsed(|c| ObserveConfig::parse(c).map(drop)),
+    config: SectionCheck::of::<ObserveConfig>(),
 };
 
 impl Stage for ObserveStage {
@@ -49,7 +49,7 @@ impl Stage for ObserveStage {
         &SPEC
     }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
-        let cfg = ObserveConfig::parse(ctx.config)?;
+        let cfg: ObserveConfig = ctx.section()?;
         let trace = Trace::read(ctx.run)?;
         let fe = ctx.artifacts.require("following_error")?;
         let n = trace.t_s.len();

@@ -104,7 +104,7 @@ pub fn summary(all: &[Touch], a: &DatumAnalysis, cfg: &DatumConfig) -> Value {
     for f in &a.fits {
         planes.insert(
             f.face.label().into(),
-            plane_json(f, cfg.use_tls, all, &a.face_touches[f.face.index()]),
+            plane_json(f, cfg.use_tls(), all, &a.face_touches[f.face.index()]),
         );
     }
     let b = [a.fits[0].ols.b, a.fits[1].ols.b, a.fits[2].ols.b];
@@ -125,7 +125,7 @@ pub fn summary(all: &[Touch], a: &DatumAnalysis, cfg: &DatumConfig) -> Value {
                 .map(|f| {
                     (
                         f.face.label().to_string(),
-                        json!({"ols": f.ols.b, "residual_rms_mm": json_f64(rms(if cfg.use_tls { &f.tls.residuals } else { &f.ols.residuals })), "n": f.kept.len()}),
+                        json!({"ols": f.ols.b, "residual_rms_mm": json_f64(rms(if cfg.use_tls() { &f.tls.residuals } else { &f.ols.residuals })), "n": f.kept.len()}),
                     )
                 })
                 .collect();
@@ -138,7 +138,7 @@ pub fn summary(all: &[Touch], a: &DatumAnalysis, cfg: &DatumConfig) -> Value {
         })
         .collect();
     json!({
-        "fit": if cfg.use_tls { "tls" } else { "ols" },
+        "fit": if cfg.use_tls() { "tls" } else { "ols" },
         "planes": planes,
         "datum_mm": v3(&m.datum.p),
         "datum_cov_mm2": m3(&m.datum.cov),
