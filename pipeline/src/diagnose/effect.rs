@@ -223,6 +223,20 @@ pub trait LinearForm: Send + Sync {
     /// Writes the shape features of every row of `x` into `out[j][i]`
     /// (`out.len() == n_linear()`, each `x.len()` long).
     fn features(&self, frame: &Frame, x: &EffectData, theta: f64, out: &mut Columns) -> Result<()>;
+    /// The features at every θ of `grid`, in order, each handed to `each`
+    /// (the coarse θ scan). The default computes each θ from scratch
+    /// ([`features_each`]); a form whose features advance cheaply from one
+    /// grid value to the next overrides it (periodic: one rotation per row).
+    fn features_grid(
+        &self,
+        frame: &Frame,
+        x: &EffectData,
+        grid: &[f64],
+        out: &mut Columns,
+        each: &mut dyn FnMut(usize, &Columns) -> Result<()>,
+    ) -> Result<()> {
+        features_each(self, frame, x, grid, out, each)
+    }
     /// Reported parameters (contract units) from θ, the feature
     /// coefficients and the fitted offset; returns the parameters and the
     /// offset in the convention `offset_mm + form(c; params)`.
@@ -234,6 +248,22 @@ pub trait LinearForm: Send + Sync {
     fn factors(&self) -> Vec<(Kind, Vec<String>)> {
         Vec::new()
     }
+}
+
+/// [`LinearForm::features_grid`] by [`LinearForm::features`] at each θ.
+pub fn features_each<F: LinearForm + ?Sized>(
+    form: &F,
+    frame: &Frame,
+    x: &EffectData,
+    grid: &[f64],
+    out: &mut Columns,
+    each: &mut dyn FnMut(usize, &Columns) -> Result<()>,
+) -> Result<()> {
+    for (gi, &theta) in grid.iter().enumerate() {
+        form.features(frame, x, theta, out)?;
+        each(gi, out)?;
+    }
+    Ok(())
 }
 
 /// The linear form of `factors` (as [`LinearForm::factors`] lists them):

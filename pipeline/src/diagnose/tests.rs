@@ -323,3 +323,45 @@ pub(crate) fn normal_rng(seed: u64) -> impl FnMut() -> f64 {
         (-2.0 * a.ln()).sqrt() * (2.0 * std::f64::consts::PI * b).cos()
     }
 }
+
+/// The periodic scan's rotated features (MODELS-free: angle addition) are
+/// the directly computed ones at every grid value, anchors and rotations
+/// alike; a grid that is not uniform in frequency is computed directly.
+#[test]
+fn periodic_grid_features_rotate_to_the_direct_ones() {
+    use super::effect::{features_each, CovStats};
+    let x_mm: Vec<f64> = (0..5000)
+        .map(|i| 0.37 * i as f64 + 0.01 * (i % 7) as f64)
+        .collect();
+    let x = EffectData::new(x_mm.len()).with("x_mm", &x_mm);
+    let form = catalogue_effect(Kind::Periodic, &["x_mm"])
+        .linear_form()
+        .unwrap();
+    let frame = vec![CovStats::from_values(&x_mm)];
+    let tr = form.theta(&frame).unwrap();
+    assert!(tr.grid.len() > 100, "{} grid values", tr.grid.len());
+    let check_grid = |grid: &[f64]| {
+        let mut direct: Vec<Vec<Vec<f64>>> = Vec::new();
+        let mut buf = vec![Vec::new(); 2];
+        features_each(form.as_ref(), &frame, &x, grid, &mut buf, &mut |_, f| {
+            direct.push(f.to_vec());
+            Ok(())
+        })
+        .unwrap();
+        let mut worst = 0.0f64;
+        form.features_grid(&frame, &x, grid, &mut buf, &mut |gi, f| {
+            for (a, b) in f.iter().zip(&direct[gi]) {
+                for (u, v) in a.iter().zip(b) {
+                    worst = worst.max((u - v).abs());
+                }
+            }
+            Ok(())
+        })
+        .unwrap();
+        worst
+    };
+    let worst = check_grid(&tr.grid);
+    assert!(worst < 1e-10, "rotated features off by {worst}");
+    let uneven: Vec<f64> = tr.grid.iter().map(|t| t * t).collect();
+    assert_eq!(check_grid(&uneven[..40]), 0.0);
+}

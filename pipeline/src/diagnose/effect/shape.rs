@@ -10,6 +10,9 @@ pub struct Shape {
     pub covs: Vec<String>,
 }
 
+/// Grid values between exact sin_cos evaluations of the periodic scan.
+const ROTATION_ANCHOR: usize = 256;
+
 pub(super) fn log_grid(lo: f64, hi: f64, n: usize) -> Vec<f64> {
     if hi.is_nan() || lo.is_nan() || hi <= lo || n < 2 {
         return vec![lo];
@@ -158,6 +161,48 @@ impl LinearForm for Shape {
                     *o = a * b * inv;
                 }
             }
+        }
+        Ok(())
+    }
+
+    /// Periodic: the grid is uniform in frequency, so sin/cos of w·c at the
+    /// next grid value are a rotation of the current ones by Δw·c (angle
+    /// addition: 4 products per row instead of a sin_cos, which was 40 % of
+    /// the diagnosis' time). Re-anchored on an exact sin_cos every
+    /// [`ROTATION_ANCHOR`] values, so rounding cannot accumulate.
+    fn features_grid(
+        &self,
+        frame: &Frame,
+        x: &EffectData,
+        grid: &[f64],
+        out: &mut Columns,
+        each: &mut dyn FnMut(usize, &Columns) -> Result<()>,
+    ) -> Result<()> {
+        let w: Vec<f64> = grid.iter().map(|t| 2.0 * PI / t).collect();
+        let dw = match w.as_slice() {
+            [a, b, ..] => b - a,
+            _ => 0.0,
+        };
+        let uniform = dw != 0.0
+            && w.windows(2)
+                .all(|p| ((p[1] - p[0]) - dw).abs() <= 1e-9 * dw.abs());
+        if self.kind != Kind::Periodic || !uniform {
+            return features_each(self, frame, x, grid, out, each);
+        }
+        let c = x.require(&self.covs[0])?;
+        let step: Vec<(f64, f64)> = c.iter().map(|v| (dw * v).sin_cos()).collect();
+        for (gi, &theta) in grid.iter().enumerate() {
+            if gi % ROTATION_ANCHOR == 0 {
+                self.features(frame, x, theta, out)?;
+            } else {
+                let (a, b) = out.split_at_mut(1);
+                for ((sn, cs), (sd, cd)) in a[0].iter_mut().zip(b[0].iter_mut()).zip(&step) {
+                    let (s0, c0) = (*sn, *cs);
+                    *sn = s0 * cd + c0 * sd;
+                    *cs = c0 * cd - s0 * sd;
+                }
+            }
+            each(gi, out)?;
         }
         Ok(())
     }
