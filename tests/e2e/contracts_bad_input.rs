@@ -208,8 +208,8 @@ fn ae_stream_parallel_decode_keeps_file_order() {
         for c in AeStream::open_with(&p, 700, threads).unwrap() {
             let c = c.unwrap();
             firsts.push(c.first_row);
-            t.extend(c.t_s);
-            v.extend(c.ae_v);
+            t.extend_from_slice(&c.t_s);
+            v.extend_from_slice(&c.ae_v);
         }
         (firsts, t, v)
     };

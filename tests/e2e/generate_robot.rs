@@ -68,8 +68,8 @@ fn read_ae(run: &Path) -> (Vec<f64>, Vec<f32>) {
     let mut v = Vec::new();
     for c in AeStream::open(&run.join("ae.parquet")).unwrap() {
         let c = c.unwrap();
-        t.extend(c.t_s);
-        v.extend(c.ae_v);
+        t.extend_from_slice(&c.t_s);
+        v.extend_from_slice(&c.ae_v);
     }
     (t, v)
 }

@@ -245,7 +245,7 @@ fn every_codec_page_version_and_encoding_reads_through_every_contract_reader() {
                         let mut ae_v = Vec::new();
                         for chunk in AeStream::open_with_batch(&p, 9).unwrap() {
                             let chunk = chunk.unwrap_or_else(|e| panic!("{tag}: {e}"));
-                            t_s.extend(chunk.t_s);
+                            t_s.extend_from_slice(&chunk.t_s);
                             ae_v.extend(chunk.ae_v.iter().map(|&x| x as f64));
                         }
                         assert_eq!(Want::F(t_s), want[0].1, "{tag} ae t_s");
