@@ -253,19 +253,23 @@ fn unit_stats_of(buf: &[Vec<f64>], rows: &ScanRows) -> UnitStats {
 /// Lanes of the fused sums (independent accumulators the loop vectorises).
 const LANES: usize = 4;
 
-/// Rows 0..n, row i added to lane l: whole groups of [`LANES`] rows with a
-/// constant lane each (independent sums the compiler keeps in registers),
-/// then the tail in lane 0.
+/// Rows of a column `a` and `F` feature columns (all `a.len()` long), each
+/// handed to `row` with its lane: whole groups of [`LANES`] rows sliced once
+/// (no bounds check per value) with a constant lane each (independent sums
+/// the compiler keeps in registers), then the tail in lane 0.
 #[inline(always)]
-fn in_lanes(n: usize, row: &mut impl FnMut(usize, usize)) {
+fn in_lanes<const F: usize>(a: &[f64], f: [&[f64]; F], mut row: impl FnMut(f64, [f64; F], usize)) {
+    let n = a.len();
     let whole = n / LANES * LANES;
     for c in (0..whole).step_by(LANES) {
+        let a4 = &a[c..c + LANES];
+        let f4: [&[f64]; F] = std::array::from_fn(|j| &f[j][c..c + LANES]);
         for l in 0..LANES {
-            row(c + l, l);
+            row(a4[l], std::array::from_fn(|j| f4[j][l]), l);
         }
     }
     for i in whole..n {
-        row(i, 0);
+        row(a[i], std::array::from_fn(|j| f[j][i]), 0);
     }
 }
 
@@ -287,18 +291,16 @@ fn unit_moments<const F: usize>(
     let mut g = vec![0.0; p * p];
     {
         let (mut sw, mut s1, mut s2) = ([0.0; LANES], [[0.0; LANES]; F], [[[0.0; LANES]; F]; F]);
-        let mut row = |i: usize, l: usize| {
-            let wi = w[i];
+        in_lanes(w, f, |wi, x, l| {
             sw[l] += wi;
             for j in 0..F {
-                let wa = wi * f[j][i];
+                let wa = wi * x[j];
                 s1[j][l] += wa;
                 for k in j..F {
-                    s2[j][k][l] += wa * f[k][i];
+                    s2[j][k][l] += wa * x[k];
                 }
             }
-        };
-        in_lanes(n, &mut row);
+        });
         g[0] = lanes(&sw);
         for j in 0..F {
             let s = lanes(&s1[j]);
@@ -316,10 +318,10 @@ fn unit_moments<const F: usize>(
         .map(|sy| {
             let sy = &sy[r.clone()][..n];
             let (mut s0, mut s1) = ([0.0; LANES], [[0.0; LANES]; F]);
-            in_lanes(n, &mut |i, l| {
-                s0[l] += sy[i];
+            in_lanes(sy, f, |y, x, l| {
+                s0[l] += y;
                 for j in 0..F {
-                    s1[j][l] += f[j][i] * sy[i];
+                    s1[j][l] += x[j] * y;
                 }
             });
             std::iter::once(lanes(&s0))
