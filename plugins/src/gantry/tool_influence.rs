@@ -6,7 +6,7 @@
 use sparkout_pipeline::toml_f64;
 use std::f64::consts::PI;
 use std::path::Path;
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 
 use rayon::prelude::*;
 use realfft::num_complex::Complex;
@@ -193,6 +193,20 @@ pub struct Convolver {
     inv: Arc<dyn rustfft::Fft<f64>>,
     /// Kernel spectrum, column-major, already scaled by 1/(px·py).
     kernel: Vec<Complex<f64>>,
+    /// The three spectrum-sized buffers of [`Convolver::apply`], kept
+    /// between calls: each is tens of MB, above glibc's largest mmap
+    /// threshold, so a fresh one per call was an mmap, page faults and
+    /// zeroing — a third of a 2048² convolution. A call that finds them in
+    /// use (another thread) allocates its own.
+    work: Mutex<Workspace>,
+}
+
+/// Row spectra, the column-major spectrum, and the rows back.
+#[derive(Default)]
+struct Workspace {
+    rows: Vec<Complex<f64>>,
+    spec: Vec<Complex<f64>>,
+    back: Vec<Complex<f64>>,
 }
 
 impl Convolver {
@@ -214,20 +228,26 @@ impl Convolver {
             fwd: cp.plan_fft_forward(py),
             inv: cp.plan_fft_inverse(py),
             kernel: Vec::new(),
+            work: Mutex::new(Workspace::default()),
         };
         let norm = 1.0 / (px * py) as f64;
-        let mut k = c.spectrum(ker, kx, ky);
-        k.iter_mut().for_each(|v| *v *= norm);
-        c.kernel = k;
+        let mut w = Workspace::default();
+        c.spectrum(ker, kx, ky, &mut w);
+        w.spec.iter_mut().for_each(|v| *v *= norm);
+        c.kernel = w.spec;
         c
     }
 
-    /// Spectrum, column-major (cx columns of py) so column FFTs are contiguous.
-    fn spectrum(&self, src: &[f64], w: usize, h: usize) -> Vec<Complex<f64>> {
+    /// Spectrum into `w.spec`, column-major (cx columns of py) so column
+    /// FFTs are contiguous; `w.rows` holds the row spectra on the way.
+    fn spectrum(&self, src: &[f64], w: usize, h: usize, work: &mut Workspace) {
         let cx = self.px / 2 + 1;
         let zero = Complex::new(0.0, 0.0);
         let r2c = &self.r2c;
-        let mut rows = vec![zero; h * cx];
+        // Every element is written below (row spectra, transposed columns
+        // with their zero padding): a kept buffer needs no clearing.
+        work.rows.resize(h * cx, zero);
+        let rows = &mut work.rows;
         rows.par_chunks_mut(cx).enumerate().for_each_init(
             || (r2c.make_input_vec(), r2c.make_scratch_vec()),
             |(buf, scratch), (j, out)| {
@@ -237,10 +257,9 @@ impl Convolver {
                     .expect("fft sizes");
             },
         );
-        let mut spec = vec![zero; cx * self.py];
-        transpose(&rows, h, cx, &mut spec, self.py);
-        process_columns(&self.fwd, &mut spec, self.py);
-        spec
+        work.spec.resize(cx * self.py, zero);
+        transpose(rows, h, cx, &mut work.spec, self.py);
+        process_columns(&self.fwd, &mut work.spec, self.py);
     }
 
     /// The image (nx × ny, row-major) convolved with the kernel, "same".
@@ -249,15 +268,20 @@ impl Convolver {
         assert_eq!(img.len(), nx * ny);
         let cx = px / 2 + 1;
         let zero = Complex::new(0.0, 0.0);
-        let mut a = self.spectrum(img, nx, ny);
+        let mut fresh = Workspace::default();
+        let mut kept = self.work.try_lock().ok();
+        let work = kept.as_deref_mut().unwrap_or(&mut fresh);
+        self.spectrum(img, nx, ny, work);
+        let a = &mut work.spec;
         a.par_iter_mut()
             .zip(self.kernel.par_iter())
             .for_each(|(u, v)| *u *= *v);
-        process_columns(&self.inv, &mut a, py);
+        process_columns(&self.inv, a, py);
         // Back to rows: only the ny rows the crop keeps (offset oy), in
         // blocks of rows on the pool (a copy: results do not depend on it).
         let (ox, oy) = (self.kx / 2, self.ky / 2);
-        let mut rows = vec![zero; ny * cx];
+        work.back.resize(ny * cx, zero);
+        let (a, rows) = (&work.spec, &mut work.back);
         rows.par_chunks_mut(TRANSPOSE_BLOCK * cx)
             .enumerate()
             .for_each(|(b, block)| {
@@ -294,14 +318,18 @@ impl Convolver {
 /// Side of the cache blocks of the transposes.
 const TRANSPOSE_BLOCK: usize = 32;
 
-/// Row-major (h × w) → column-major with column length `ld` (rows ≥ h stay
-/// zero), in cache-sized blocks, blocks of columns on the pool.
+/// Row-major (h × w) → column-major with column length `ld` (rows ≥ h set
+/// to zero: the padding), in cache-sized blocks, blocks of columns on the
+/// pool.
 fn transpose(src: &[Complex<f64>], h: usize, w: usize, dst: &mut [Complex<f64>], ld: usize) {
     const B: usize = TRANSPOSE_BLOCK;
     dst.par_chunks_mut(B * ld)
         .enumerate()
         .for_each(|(b, cols)| {
             let i0 = b * B;
+            for col in cols.chunks_mut(ld) {
+                col[h.min(ld)..].fill(Complex::new(0.0, 0.0));
+            }
             let ncol = (cols.len() / ld).min(w.saturating_sub(i0));
             for j0 in (0..h).step_by(B) {
                 for j in j0..(j0 + B).min(h) {
@@ -632,6 +660,17 @@ pub(crate) mod tests {
         for (u, v) in a.iter().zip(&b) {
             assert!((u - v).abs() < 1e-10, "{u} vs {v}");
         }
+        // A kept Convolver reuses its buffers: the second image's result is
+        // exactly a fresh convolution's (padding re-zeroed, nothing left
+        // from the first image).
+        let conv = Convolver::new(nx, ny, &ker, kx, ky);
+        let first = conv.apply(&img);
+        assert_eq!(first, a);
+        let img2: Vec<f64> = img.iter().map(|v| 3.0 - v * v).collect();
+        assert_eq!(
+            conv.apply(&img2),
+            fft_convolve_same(&img2, nx, ny, &ker, kx, ky)
+        );
     }
 
     #[test]
