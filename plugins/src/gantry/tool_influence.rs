@@ -257,8 +257,11 @@ impl Convolver {
                     .expect("fft sizes");
             },
         );
+        // A kept buffer holds the last spectrum: its padding rows must be
+        // cleared; a fresh one is zero already.
+        let clear_padding = !work.spec.is_empty();
         work.spec.resize(cx * self.py, zero);
-        transpose(rows, h, cx, &mut work.spec, self.py);
+        transpose(rows, h, cx, &mut work.spec, self.py, clear_padding);
         process_columns(&self.fwd, &mut work.spec, self.py);
     }
 
@@ -318,17 +321,26 @@ impl Convolver {
 /// Side of the cache blocks of the transposes.
 const TRANSPOSE_BLOCK: usize = 32;
 
-/// Row-major (h × w) → column-major with column length `ld` (rows ≥ h set
-/// to zero: the padding), in cache-sized blocks, blocks of columns on the
-/// pool.
-fn transpose(src: &[Complex<f64>], h: usize, w: usize, dst: &mut [Complex<f64>], ld: usize) {
+/// Row-major (h × w) → column-major with column length `ld` (rows ≥ h are
+/// the zero padding, set to zero when `clear_padding`), in cache-sized
+/// blocks, blocks of columns on the pool.
+fn transpose(
+    src: &[Complex<f64>],
+    h: usize,
+    w: usize,
+    dst: &mut [Complex<f64>],
+    ld: usize,
+    clear_padding: bool,
+) {
     const B: usize = TRANSPOSE_BLOCK;
     dst.par_chunks_mut(B * ld)
         .enumerate()
         .for_each(|(b, cols)| {
             let i0 = b * B;
-            for col in cols.chunks_mut(ld) {
-                col[h.min(ld)..].fill(Complex::new(0.0, 0.0));
+            if clear_padding {
+                for col in cols.chunks_mut(ld) {
+                    col[h.min(ld)..].fill(Complex::new(0.0, 0.0));
+                }
             }
             let ncol = (cols.len() / ld).min(w.saturating_sub(i0));
             for j0 in (0..h).step_by(B) {
