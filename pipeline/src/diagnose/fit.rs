@@ -241,12 +241,16 @@ fn unit_stats_of(buf: &[Vec<f64>], rows: &ScanRows) -> UnitStats {
                 .collect(),
         ),
     };
-    let (g, h_by_unit): (Vec<Vec<f64>>, Vec<Vec<Vec<f64>>>) =
-        rows.units.iter().map(per_unit).unzip();
-    // h indexed [target][unit].
-    let h = (0..rows.sy.len())
-        .map(|t| h_by_unit.iter().map(|hu| hu[t].clone()).collect())
-        .collect();
+    // g by unit, h by [target][unit]: each unit's vectors moved into place.
+    let mut g = Vec::with_capacity(rows.units.len());
+    let mut h = vec![Vec::with_capacity(rows.units.len()); rows.sy.len()];
+    for u in &rows.units {
+        let (g_u, h_u) = per_unit(u);
+        g.push(g_u);
+        for (h_t, x) in h.iter_mut().zip(h_u) {
+            h_t.push(x);
+        }
+    }
     (g, h)
 }
 
