@@ -318,8 +318,7 @@ impl DecodeJob {
     /// Decode and validate each owned row group in order. Stops at the first
     /// error (after sending it) or when the consumer has gone (send fails).
     fn run(self, tx: &SyncSender<Decoded>) {
-        // One handle (a mapping of a local file) for all owned row groups.
-        let input = match InputFile::open_mapped(&self.path) {
+        let input = match InputFile::open(&self.path) {
             Ok(f) => f,
             Err(e) => {
                 let e = InputError::new(&self.path, format!("cannot open: {e}"));
@@ -329,8 +328,22 @@ impl DecodeJob {
         };
         for &g in &self.groups {
             let mut row = self.first_rows[g];
+            // The bytes of this row group's projected columns, mapped for
+            // the time it is decoded (unmapped when its reader is dropped).
+            let (lo, hi) = self
+                .metadata
+                .metadata()
+                .row_group(g)
+                .columns()
+                .iter()
+                .enumerate()
+                .filter(|(leaf, _)| self.mask.leaf_included(*leaf))
+                .map(|(_, c)| c.byte_range())
+                .fold((u64::MAX, 0u64), |(lo, hi), (start, len)| {
+                    (lo.min(start), hi.max(start.saturating_add(len)))
+                });
             let reader = input
-                .reopen()
+                .window(lo, hi.saturating_sub(lo) as usize)
                 .map_err(|e| InputError::new(&self.path, format!("cannot open: {e}")))
                 .and_then(|file| {
                     ParquetRecordBatchReaderBuilder::new_with_metadata(file, self.metadata.clone())

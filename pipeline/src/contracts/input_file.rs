@@ -22,9 +22,14 @@ const REMOTE_READ_MAX: u64 = 8 << 20;
 
 pub enum InputFile {
     Local(File),
-    /// A local file mapped into memory ([`InputFile::open_mapped`]): page
-    /// reads are slices of the mapping, not copies out of the page cache.
-    Mapped(Bytes),
+    /// A byte range of a local file mapped into memory
+    /// ([`InputFile::window`]): reads inside it are slices of the mapping,
+    /// not copies out of the page cache; reads outside go to the file.
+    Mapped {
+        file: File,
+        start: u64,
+        bytes: Bytes,
+    },
     Remote(RemoteObject),
 }
 
@@ -47,42 +52,62 @@ impl InputFile {
         }
     }
 
-    /// Like [`InputFile::open`], but a local file is mapped into memory
-    /// rather than read: the AE stream's decoder threads read each page of a
-    /// multi-GB log once, and copying it out of the page cache (`read`) was
-    /// a tenth of their time (issue 19). Falls back to reading when the file
-    /// cannot be mapped (an empty file, some special file systems).
+    /// Another handle on the same input whose bytes `start..start + len`
+    /// are mapped into memory when it is a local file. The AE stream's
+    /// decoders read each page of a multi-GB log once; copying it out of the
+    /// page cache (`read`) was a tenth of their time (issue 19). One row
+    /// group is mapped at a time, and unmapped when the handle is dropped,
+    /// so the resident set stays bounded whatever the file size (a mapping
+    /// of the whole file would count every page read as resident). Falls
+    /// back to plain reads when the range cannot be mapped.
     ///
     /// The mapping assumes nobody truncates the file while it is read (a
     /// recorded log is written whole, then read); a file shortened under the
     /// reader would stop the process with SIGBUS instead of an error.
-    pub fn open_mapped(path: &Path) -> std::io::Result<InputFile> {
-        match Self::open(path)? {
-            InputFile::Local(f) => {
-                // SAFETY: read-only mapping of a file we only read; see the
+    pub fn window(&self, start: u64, len: usize) -> std::io::Result<InputFile> {
+        Ok(match self {
+            InputFile::Local(f) | InputFile::Mapped { file: f, .. } => {
+                let file = f.try_clone()?;
+                let in_file = start.saturating_add(len as u64) <= file.metadata()?.len();
+                // SAFETY: a read-only mapping of a file we only read; see the
                 // caveat above on files truncated while mapped.
-                match unsafe { memmap2::Mmap::map(&f) } {
-                    Ok(m) => {
+                let mapped = (len > 0 && in_file)
+                    .then(|| unsafe {
+                        memmap2::MmapOptions::new()
+                            .offset(start)
+                            .len(len)
+                            .map(&file)
+                    })
+                    .and_then(Result::ok);
+                match mapped {
+                    Some(m) => {
                         // Pages are read front to back, each once.
                         #[cfg(unix)]
                         let _ = m.advise(memmap2::Advice::Sequential);
-                        Ok(InputFile::Mapped(Bytes::from_owner(m)))
+                        InputFile::Mapped {
+                            file,
+                            start,
+                            bytes: Bytes::from_owner(m),
+                        }
                     }
-                    Err(_) => Ok(InputFile::Local(f)),
+                    None => InputFile::Local(file),
                 }
             }
-            other => Ok(other),
-        }
-    }
-
-    /// Another handle on the same input (a mapping or remote object is
-    /// shared, a file handle duplicated).
-    pub fn reopen(&self) -> std::io::Result<InputFile> {
-        Ok(match self {
-            InputFile::Local(f) => InputFile::Local(f.try_clone()?),
-            InputFile::Mapped(b) => InputFile::Mapped(b.clone()),
             InputFile::Remote(o) => InputFile::Remote(o.clone()),
         })
+    }
+
+    /// The mapped slice for `start..start + len`, if it lies in the window.
+    fn mapped_slice(&self, start: u64, len: usize) -> Option<Bytes> {
+        match self {
+            InputFile::Mapped {
+                start: w, bytes, ..
+            } => {
+                let lo = usize::try_from(start.checked_sub(*w)?).ok()?;
+                (lo.checked_add(len)? <= bytes.len()).then(|| bytes.slice(lo..lo + len))
+            }
+            _ => None,
+        }
     }
 
     /// Whether `path` is there to read: a file, or a stub standing for one.
@@ -92,18 +117,17 @@ impl InputFile {
 
     /// `len` bytes from `start` (fewer only at the end of the file).
     pub fn read_at(&self, start: u64, len: usize) -> std::io::Result<Bytes> {
+        if let Some(b) = self.mapped_slice(start, len) {
+            return Ok(b);
+        }
         match self {
-            InputFile::Local(f) => {
+            InputFile::Local(f) | InputFile::Mapped { file: f, .. } => {
                 use std::io::{Seek, SeekFrom};
                 let mut f = f.try_clone()?;
                 f.seek(SeekFrom::Start(start))?;
                 let mut buf = Vec::with_capacity(len);
                 f.take(len as u64).read_to_end(&mut buf)?;
                 Ok(buf.into())
-            }
-            InputFile::Mapped(b) => {
-                let lo = (start as usize).min(b.len());
-                Ok(b.slice(lo..(lo + len).min(b.len())))
             }
             InputFile::Remote(o) => o.get_range(start..start + len as u64),
         }
@@ -113,8 +137,7 @@ impl InputFile {
 impl Length for InputFile {
     fn len(&self) -> u64 {
         match self {
-            InputFile::Local(f) => f.len(),
-            InputFile::Mapped(b) => b.len() as u64,
+            InputFile::Local(f) | InputFile::Mapped { file: f, .. } => f.len(),
             InputFile::Remote(o) => o.len(),
         }
     }
@@ -151,8 +174,9 @@ impl ChunkReader for InputFile {
 
     fn get_read(&self, start: u64) -> parquet::errors::Result<Self::T> {
         match self {
-            InputFile::Local(f) => Ok(Box::new(f.get_read(start)?)),
-            InputFile::Mapped(b) => Ok(Box::new(b.get_read(start)?)),
+            InputFile::Local(f) | InputFile::Mapped { file: f, .. } => {
+                Ok(Box::new(f.get_read(start)?))
+            }
             InputFile::Remote(o) => Ok(Box::new(RemoteRead {
                 object: o.clone(),
                 pos: start,
@@ -163,9 +187,11 @@ impl ChunkReader for InputFile {
     }
 
     fn get_bytes(&self, start: u64, length: usize) -> parquet::errors::Result<Bytes> {
+        if let Some(b) = self.mapped_slice(start, length) {
+            return Ok(b);
+        }
         match self {
-            InputFile::Local(f) => f.get_bytes(start, length),
-            InputFile::Mapped(b) => b.get_bytes(start, length),
+            InputFile::Local(f) | InputFile::Mapped { file: f, .. } => f.get_bytes(start, length),
             InputFile::Remote(o) => {
                 let b = o.get_range(start..start + length as u64)?;
                 if b.len() != length {
@@ -255,5 +281,44 @@ mod tests {
         assert!(!InputFile::exists(&p));
         let e = InputFile::open(&p).err().unwrap();
         assert_eq!(e.kind(), std::io::ErrorKind::NotFound);
+    }
+
+    /// A mapped window serves the bytes a plain read would, inside it (as
+    /// slices of the mapping), outside it and straddling its edge (from the
+    /// file), at an offset that is not page-aligned.
+    #[test]
+    fn a_mapped_window_reads_what_the_file_holds() {
+        let d = tempfile::tempdir().unwrap();
+        let p = d.path().join("log.bin");
+        let data: Vec<u8> = (0..100_000u32).map(|i| (i * 7 % 251) as u8).collect();
+        std::fs::write(&p, &data).unwrap();
+        let file = InputFile::open(&p).unwrap();
+        let w = file.window(5_000, 50_000).unwrap();
+        assert!(matches!(w, InputFile::Mapped { .. }), "a local file maps");
+        assert_eq!(w.len(), data.len() as u64);
+        for (start, len) in [
+            (5_000u64, 10usize),
+            (20_001, 4_097),
+            (54_990, 10),
+            (0, 100),
+            (54_990, 100),
+            (99_000, 1_000),
+        ] {
+            let s = start as usize;
+            assert_eq!(
+                &w.get_bytes(start, len).unwrap()[..],
+                &data[s..s + len],
+                "{start}+{len}"
+            );
+            assert_eq!(&w.read_at(start, len).unwrap()[..], &data[s..s + len]);
+        }
+        assert!(w.mapped_slice(4_999, 2).is_none());
+        assert!(w.mapped_slice(54_999, 2).is_none());
+        assert!(w.mapped_slice(54_999, 1).is_some());
+        // Beyond the file: not mapped, read as before.
+        assert!(matches!(
+            file.window(90_000, 20_000).unwrap(),
+            InputFile::Local(_)
+        ));
     }
 }
