@@ -79,7 +79,8 @@ fn main() {
 /// the diagnosis's cost against rows (more runs of one grid: 10⁴ … 10⁶
 /// rows) and against grid density (20 runs of one 100 mm square sampled
 /// ever finer), best of 3 (of 1 above 5·10⁵ rows), with the cost exponent
-/// of each step — printed, not gated.
+/// of each step — printed, not gated. `SPARKOUT_DIAGNOSE_SCALING_RUNS=500`
+/// times that many runs only (no density sweep).
 fn scaling() {
     let dcfg = DiagnoseConfig {
         folds: 5,
@@ -100,7 +101,17 @@ fn scaling() {
         }
     };
     // Rows by runs: 20×20 grid × 5 passes = 2 000 rows per run.
-    let by_runs: Vec<(usize, f64)> = [5usize, 50, 169, 500]
+    // `SPARKOUT_DIAGNOSE_SCALING_RUNS=500` times one size alone (profiling).
+    let runs: Vec<usize> = std::env::var("SPARKOUT_DIAGNOSE_SCALING_RUNS")
+        .unwrap_or_else(|_| "5,50,169,500".into())
+        .split(',')
+        .map(|v| {
+            v.trim()
+                .parse()
+                .expect("SPARKOUT_DIAGNOSE_SCALING_RUNS: integers")
+        })
+        .collect();
+    let by_runs: Vec<(usize, f64)> = runs
         .iter()
         .map(|&runs| {
             let obs = fleet(runs, 20, 20, 5, 5.0);
@@ -108,6 +119,9 @@ fn scaling() {
         })
         .collect();
     report("runs", &by_runs);
+    if std::env::var_os("SPARKOUT_DIAGNOSE_SCALING_RUNS").is_some() {
+        return;
+    }
     // Grid density: 20 runs × 5 passes of a 100 mm square at pitch 100/n mm.
     let by_density: Vec<(usize, f64)> = [10usize, 32, 100]
         .iter()

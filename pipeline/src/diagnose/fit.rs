@@ -150,7 +150,30 @@ pub struct ScanRows<'a> {
     pub w: Option<Vec<f64>>,
     /// Σy per (pseudo-)row for each distinct target.
     pub sy: Vec<Vec<f64>>,
-    pub units: Vec<Range<usize>>,
+    /// The rows of each scan unit (a group of units, [`fold_groups`]).
+    pub units: Vec<Vec<Range<usize>>>,
+}
+
+/// The units grouped by the folds that train on them: units every fold
+/// treats alike are summed together in the θ scan, so its cost depends on
+/// the number of folds, not of runs (a fleet of 500 runs is 6 groups for
+/// 5 folds; with the rows of a group pooled into one set of covariate bins,
+/// the 10⁶-row scan went from 10⁶ rows per grid value to a few thousand
+/// bins). Groups in order of their first unit; members in unit order.
+pub fn fold_groups(train: &[Vec<bool>], n_units: usize) -> Vec<Vec<usize>> {
+    let mut groups: Vec<Vec<usize>> = Vec::new();
+    let mut pattern_of_group: Vec<Vec<bool>> = Vec::new();
+    for u in 0..n_units {
+        let pattern: Vec<bool> = train.iter().map(|m| m[u]).collect();
+        match pattern_of_group.iter().position(|p| *p == pattern) {
+            Some(g) => groups[g].push(u),
+            None => {
+                pattern_of_group.push(pattern);
+                groups.push(vec![u]);
+            }
+        }
+    }
+    groups
 }
 
 /// Pooled covariate, counts, Σy per target, pooled unit ranges.
@@ -159,14 +182,15 @@ pub type Pooled = (Vec<f64>, Vec<f64>, Vec<Vec<f64>>, Vec<Range<usize>>);
 /// Per-unit X'X, and X'y per target per unit.
 type UnitStats = (Vec<Vec<f64>>, Vec<Vec<Vec<f64>>>);
 
-/// Pools the rows of each unit into bins of width `res` of one covariate
-/// (bin value = mean covariate inside). Returns the pooled covariate, the
-/// counts, Σy per target and the pooled unit ranges.
+/// Pools the rows of each unit — a unit being one or more row ranges —
+/// into bins of width `res` of one covariate (bin value = mean covariate
+/// inside). Returns the pooled covariate, the counts, Σy per target and the
+/// pooled unit ranges (one per unit).
 pub fn pool_rows(
     c: &[f64],
     c_min: f64,
     res: f64,
-    units: &[Range<usize>],
+    units: &[Vec<Range<usize>>],
     targets: &[&[f64]],
 ) -> Pooled {
     let span = c.iter().fold(0.0f64, |m, v| m.max(v - c_min));
@@ -181,7 +205,7 @@ pub fn pool_rows(
     let mut touched: Vec<usize> = Vec::new();
     for u in units {
         touched.clear();
-        for i in u.clone() {
+        for i in u.iter().flat_map(Range::clone) {
             let b = (((c[i] - c_min) / res) as usize).min(nb - 1);
             if cnt[b] == 0.0 {
                 touched.push(b);
@@ -230,7 +254,7 @@ fn unit_stats(
 
 /// Per-unit G and per-target, per-unit h of features `buf` of scan rows.
 fn unit_stats_of(buf: &[Vec<f64>], rows: &ScanRows) -> UnitStats {
-    let per_unit = |u: &Range<usize>| match (buf.len(), rows.w.as_deref()) {
+    let per_range = |u: &Range<usize>| match (buf.len(), rows.w.as_deref()) {
         (1, Some(w)) => unit_moments::<1>(buf, w, &rows.sy, u.clone()),
         (2, Some(w)) => unit_moments::<2>(buf, w, &rows.sy, u.clone()),
         (_, w) => (
@@ -240,6 +264,22 @@ fn unit_stats_of(buf: &[Vec<f64>], rows: &ScanRows) -> UnitStats {
                 .map(|sy| design_xy(buf, sy, u.clone()))
                 .collect(),
         ),
+    };
+    // A unit of several ranges (unpooled rows of a group) sums its ranges.
+    let per_unit = |ranges: &[Range<usize>]| {
+        let mut it = ranges.iter();
+        let (mut g, mut h) = match it.next() {
+            Some(r) => per_range(r),
+            None => per_range(&(0..0)),
+        };
+        for r in it {
+            let (g_r, h_r) = per_range(r);
+            add_into(&mut g, &g_r);
+            for (h_t, x) in h.iter_mut().zip(&h_r) {
+                add_into(h_t, x);
+            }
+        }
+        (g, h)
     };
     // g by unit, h by [target][unit]: each unit's vectors moved into place.
     let mut g = Vec::with_capacity(rows.units.len());
@@ -450,13 +490,14 @@ pub fn choose_theta(
 }
 
 /// Builds the scan rows of a form over `x` (pooled when the form has one
-/// covariate and a positive resolution).
+/// covariate and a positive resolution). `units`: the row ranges of each
+/// scan unit (a group of [`fold_groups`]).
 pub fn scan_rows<'a>(
     form: &dyn LinearForm,
     frame: &Frame,
     tr: &ThetaRange,
     x: &EffectData<'a>,
-    units: &[Range<usize>],
+    units: &[Vec<Range<usize>>],
     targets: &[&[f64]],
     pooled_store: &'a mut Vec<f64>,
 ) -> Result<ScanRows<'a>> {
@@ -471,7 +512,7 @@ pub fn scan_rows<'a>(
             x: xd,
             w: Some(w),
             sy,
-            units: pu,
+            units: pu.into_iter().map(|r| vec![r]).collect(),
         })
     } else {
         Ok(ScanRows {
@@ -508,7 +549,7 @@ pub fn fit_form(
     if n < p {
         bail!("fit: {n} observations for {p} parameters");
     }
-    let units: Vec<Range<usize>> = std::iter::once(0..n).collect();
+    let units = vec![vec![0..n]];
     let theta = match form.theta(frame) {
         None => f64::NAN,
         Some(tr) => {
@@ -582,10 +623,34 @@ mod tests {
     fn pooling_keeps_sums() {
         let c: Vec<f64> = (0..100).map(|i| (i % 10) as f64).collect();
         let y: Vec<f64> = (0..100).map(|i| i as f64).collect();
-        let (xc, w, sy, u) = pool_rows(&c, 0.0, 0.5, &[0..50, 50..100], &[&y]);
+        let (xc, w, sy, u) = pool_rows(&c, 0.0, 0.5, &[vec![0..50], vec![50..100]], &[&y]);
         assert_eq!(u.len(), 2);
         assert_eq!(xc.len(), 20);
         assert_eq!(w.iter().sum::<f64>(), 100.0);
         assert!((sy[0].iter().sum::<f64>() - y.iter().sum::<f64>()).abs() < 1e-9);
+        // A unit of two ranges pools them into one set of bins.
+        let (xc, w, sy, u) = pool_rows(&c, 0.0, 0.5, &[vec![0..30, 70..100]], &[&y]);
+        assert_eq!(u, vec![0..10]);
+        assert_eq!(xc, (0..10).map(f64::from).collect::<Vec<_>>());
+        assert_eq!(w, vec![6.0; 10]);
+        let want: f64 = (0..30).chain(70..100).map(f64::from).sum();
+        assert_eq!(sy[0].iter().sum::<f64>(), want);
+    }
+
+    /// Units are grouped by the folds that train on them, in order of first
+    /// appearance; the group of a unit no fold holds out is its own.
+    #[test]
+    fn units_group_by_their_training_folds() {
+        // Unit fold assignment 0 1 0 2 1 0, three folds + the all-runs fit.
+        let unit_fold = [0usize, 1, 0, 2, 1, 0];
+        let mut train: Vec<Vec<bool>> = (0..3)
+            .map(|f| unit_fold.iter().map(|&uf| uf != f).collect())
+            .collect();
+        train.push(vec![true; 6]);
+        assert_eq!(
+            fold_groups(&train, 6),
+            vec![vec![0, 2, 5], vec![1, 4], vec![3]]
+        );
+        assert_eq!(fold_groups(&[vec![true; 3]], 3), vec![vec![0, 1, 2]]);
     }
 }

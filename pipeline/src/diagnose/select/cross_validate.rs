@@ -73,21 +73,43 @@ pub fn evaluate(e: &dyn Effect, prob: &Problem, tg: &Targets) -> Result<CandEval
     let thetas: Vec<f64> = match form.theta(&frame) {
         None => vec![f64::NAN; nf],
         Some(tr) => {
+            // θ is scanned over groups of units that every fold trains on
+            // alike (`fit::fold_groups`): the scan costs folds × bins, not
+            // runs × bins.
+            let groups = fit::fold_groups(&masks, prob.units.len());
+            let group_rows: Vec<Vec<Range<usize>>> = groups
+                .iter()
+                .map(|g| g.iter().map(|&u| prob.units[u].clone()).collect())
+                .collect();
+            let group_train: Vec<Vec<bool>> = masks
+                .iter()
+                .map(|m| groups.iter().map(|g| m[g[0]]).collect())
+                .collect();
+            let group_yy: Vec<Vec<f64>> = tg
+                .yy_u
+                .iter()
+                .map(|yy| {
+                    groups
+                        .iter()
+                        .map(|g| g.iter().map(|&u| yy[u]).sum())
+                        .collect()
+                })
+                .collect();
             let mut store = Vec::new();
             let rows = scan_rows(
                 form.as_ref(),
                 &frame,
                 &tr,
                 &prob.x,
-                &prob.units,
+                &group_rows,
                 &tslices,
                 &mut store,
             )?;
             let spec = FoldSpec {
-                train: &masks,
+                train: &group_train,
                 target_of_fold: &tg.of_fold,
             };
-            choose_theta(form.as_ref(), &frame, &tr, &rows, &tg.yy_u, &spec)?
+            choose_theta(form.as_ref(), &frame, &tr, &rows, &group_yy, &spec)?
         }
     };
     let p = form.n_linear() + 1;
