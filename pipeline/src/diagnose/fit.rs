@@ -623,7 +623,8 @@ mod tests {
     fn pooling_keeps_sums() {
         let c: Vec<f64> = (0..100).map(|i| (i % 10) as f64).collect();
         let y: Vec<f64> = (0..100).map(|i| i as f64).collect();
-        let (xc, w, sy, u) = pool_rows(&c, 0.0, 0.5, &[vec![0..50], vec![50..100]], &[&y]);
+        let unit = |r: Range<usize>| vec![r];
+        let (xc, w, sy, u) = pool_rows(&c, 0.0, 0.5, &[unit(0..50), unit(50..100)], &[&y]);
         assert_eq!(u.len(), 2);
         assert_eq!(xc.len(), 20);
         assert_eq!(w.iter().sum::<f64>(), 100.0);
