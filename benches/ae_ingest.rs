@@ -182,15 +182,7 @@ fn peak_rss_mib() -> f64 {
 /// of 3 (1 at ≥ 10⁹); prints samples/s, the cost exponent of each step and the process's peak RSS
 /// (monotone: sizes run smallest first, so a flat figure means bounded).
 fn scaling() {
-    let sizes: Vec<usize> = std::env::var("SPARKOUT_AE_SCALING_SAMPLES")
-        .unwrap_or_else(|_| "10000000,100000000".into())
-        .split(',')
-        .map(|v| {
-            v.trim()
-                .parse()
-                .expect("SPARKOUT_AE_SCALING_SAMPLES: integers")
-        })
-        .collect();
+    let sizes = common::sizes_from_env("SPARKOUT_AE_SCALING_SAMPLES", "10000000,100000000");
     let cfg = ingest_config();
     let mut prev: Option<(f64, f64)> = None;
     for n in sizes {

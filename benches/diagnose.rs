@@ -102,15 +102,7 @@ fn scaling() {
     };
     // Rows by runs: 20×20 grid × 5 passes = 2 000 rows per run.
     // `SPARKOUT_DIAGNOSE_SCALING_RUNS=500` times one size alone (profiling).
-    let runs: Vec<usize> = std::env::var("SPARKOUT_DIAGNOSE_SCALING_RUNS")
-        .unwrap_or_else(|_| "5,50,169,500".into())
-        .split(',')
-        .map(|v| {
-            v.trim()
-                .parse()
-                .expect("SPARKOUT_DIAGNOSE_SCALING_RUNS: integers")
-        })
-        .collect();
+    let runs = common::sizes_from_env("SPARKOUT_DIAGNOSE_SCALING_RUNS", "5,50,169,500");
     let by_runs: Vec<(usize, f64)> = runs
         .iter()
         .map(|&runs| {

@@ -84,3 +84,17 @@ pub fn run_or_scale(benches: fn(), scaling: fn()) {
     benches();
     Criterion::default().configure_from_args().final_summary();
 }
+
+/// A comma-separated list of sizes from the environment variable `var`
+/// (e.g. `SPARKOUT_AE_SCALING_SAMPLES=10000000,100000000`), or `default`.
+pub fn sizes_from_env(var: &str, default: &str) -> Vec<usize> {
+    std::env::var(var)
+        .unwrap_or_else(|_| default.into())
+        .split(',')
+        .map(|v| {
+            v.trim()
+                .parse()
+                .unwrap_or_else(|_| panic!("{var}: comma-separated integers, got `{v}`"))
+        })
+        .collect()
+}
