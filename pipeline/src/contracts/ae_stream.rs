@@ -5,12 +5,13 @@
 //! Decoding, not detection, is the slow part of AE ingest (the detector runs
 //! at hundreds of M samples/s, one decoder thread at tens), so row groups are
 //! decoded by a few dedicated threads ahead of the consumer: worker `w` of `K`
-//! decodes row groups `w, w+K, …` in order into a channel of depth one, and
-//! the consumer takes group `g` from worker `g mod K`. Chunks therefore arrive
-//! in file order (identical results whatever K), and memory stays bounded at
-//! about two batches per worker. The workers are plain threads, not rayon
-//! tasks: the engine runs stages on rayon's pool, and a pool thread blocked
-//! on a channel fed by tasks of the same pool could deadlock.
+//! decodes row groups `w, w+K, …` in order into a channel a row group's
+//! worth of chunks deep, and the consumer takes group `g` from worker
+//! `g mod K`. Chunks therefore arrive in file order (identical results
+//! whatever K), and memory stays bounded at a few batches per worker. The
+//! workers are plain threads, not rayon tasks: the engine runs stages on
+//! rayon's pool, and a pool thread blocked on a channel fed by tasks of the
+//! same pool could deadlock.
 //!
 //! The same reader streams any single signal column of any Parquet file
 //! (`sparkout stage ingest --ae FILE --column C`), with or without a time
@@ -438,10 +439,7 @@ fn to_chunk(
             let t: Vec<f64> = (0..ae_v.len())
                 .map(|i| (first_row + i) as f64 / hz)
                 .collect();
-            let max_step_s = t
-                .windows(2)
-                .map(|w| w[1] - w[0])
-                .fold(f64::NEG_INFINITY, f64::max);
+            let max_step_s = largest_step(&t);
             (t.into(), max_step_s)
         }
         Clock::Column(name, origin) => {
@@ -477,10 +475,7 @@ fn to_chunk(
                     }
                     // Unreachable while the fused scan and the separate
                     // checks agree; measured plainly if they ever do not.
-                    t_s.values()
-                        .windows(2)
-                        .map(|w| w[1] - w[0])
-                        .fold(f64::NEG_INFINITY, f64::max)
+                    largest_step(t_s.values())
                 }
             };
             (t_s.values().clone(), max_step_s)
@@ -492,6 +487,13 @@ fn to_chunk(
         ae_v,
         max_step_s,
     })
+}
+
+/// The largest step between neighbouring stamps (−∞ for fewer than two).
+fn largest_step(t: &[f64]) -> f64 {
+    t.windows(2)
+        .map(|w| w[1] - w[0])
+        .fold(f64::NEG_INFINITY, f64::max)
 }
 
 fn decrease_error(path: &Path, row: usize, t: f64, prev: f64) -> InputError {

@@ -638,8 +638,9 @@ mod tests {
         assert_eq!(sy[0].iter().sum::<f64>(), want);
     }
 
-    /// Units are grouped by the folds that train on them, in order of first
-    /// appearance; the group of a unit no fold holds out is its own.
+    /// Units are grouped by the folds that train on them (here: the units
+    /// one fold holds out form a group), groups in order of first
+    /// appearance; with one all-units fit, every unit is in one group.
     #[test]
     fn units_group_by_their_training_folds() {
         // Unit fold assignment 0 1 0 2 1 0, three folds + the all-runs fit.
