@@ -24,8 +24,8 @@ pub fn resolver(machines: Option<PathBuf>) -> MachineResolver {
 }
 
 /// The pipeline config from --config (or the built-in nightly.toml) with
-/// every --set applied.
-pub fn config(args: &ConfigArgs) -> anyhow::Result<PipelineConfig> {
+/// every --set applied, unchecked.
+fn load_config(args: &ConfigArgs) -> anyhow::Result<PipelineConfig> {
     let mut c = match &args.config {
         Some(p) => PipelineConfig::load(p)?,
         None => PipelineConfig::builtin(),
@@ -36,7 +36,26 @@ pub fn config(args: &ConfigArgs) -> anyhow::Result<PipelineConfig> {
     Ok(c)
 }
 
+/// The pipeline config, checked as `run` checks it: every command that takes
+/// --config/--set refuses unknown sections and keys the same way, whether or
+/// not it reads them.
+pub fn config(args: &ConfigArgs) -> anyhow::Result<PipelineConfig> {
+    Ok(engine(args)?.config().clone())
+}
+
+/// `--machines` must name a directory of machine configs: a file (or a typo)
+/// would otherwise be ignored and the built-in machines used silently.
+fn machines_dir(args: &ConfigArgs) -> anyhow::Result<Option<PathBuf>> {
+    match &args.machines {
+        Some(d) if !d.is_dir() => anyhow::bail!(
+            "--machines {}: not a directory; pass the directory that holds <machine>.toml files (e.g. configs/machines)",
+            d.display()
+        ),
+        other => Ok(other.clone()),
+    }
+}
+
 /// An engine with the config checked against every plugin and stage.
 pub fn engine(args: &ConfigArgs) -> anyhow::Result<Engine> {
-    Engine::new(plugins(), resolver(args.machines.clone()), config(args)?)
+    Engine::new(plugins(), resolver(machines_dir(args)?), load_config(args)?)
 }

@@ -1,9 +1,10 @@
 //! Any text as a machine config, checked against each built-in machine.
+//! The body is `sparkout_pipeline::fuzz_entry::machine_config`, which the test suite
+//! also replays over this target's corpus.
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
-use sparkout_pipeline::contracts::config_keys::check_machine;
-use sparkout_pipeline::contracts::MachineConfig;
+use sparkout_pipeline::fuzz_entry;
 
 const BUILTINS: [(&str, &str); 5] = [
     ("robot", include_str!("../../configs/machines/kr16-lab.toml")),
@@ -13,22 +14,4 @@ const BUILTINS: [(&str, &str); 5] = [
     ("form", include_str!("../../configs/machines/form-grinder.toml")),
 ];
 
-fuzz_target!(|data: &[u8]| {
-    let Some((&pick, rest)) = data.split_first() else {
-        return;
-    };
-    let Ok(text) = std::str::from_utf8(rest) else {
-        return;
-    };
-    let Ok(table) = text.parse::<toml::Table>() else {
-        return;
-    };
-    let (plugin, builtin) = BUILTINS[pick as usize % BUILTINS.len()];
-    let m = MachineConfig {
-        id: "fuzz".into(),
-        source: "fuzz.toml".into(),
-        table,
-        text: text.to_string(),
-    };
-    let _ = check_machine(&m, plugin, &[builtin]);
-});
+fuzz_target!(|data: &[u8]| fuzz_entry::machine_config(data, &BUILTINS));

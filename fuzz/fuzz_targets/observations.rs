@@ -1,14 +1,9 @@
 //! Any bytes as observations.parquet, the diagnosis input.
+//! The body is `sparkout_pipeline::fuzz_entry::observations`, which the test suite
+//! also replays over this target's corpus.
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
-use sparkout_pipeline::diagnose::observations::read_observations;
+use sparkout_pipeline::fuzz_entry;
 
-fuzz_target!(|data: &[u8]| {
-    let path = std::env::temp_dir().join(format!(
-        "sparkout-fuzz-{}-observations.parquet",
-        std::process::id()
-    ));
-    std::fs::write(&path, data).unwrap();
-    let _ = read_observations(&path);
-});
+fuzz_target!(|data: &[u8]| fuzz_entry::observations(data, &std::env::temp_dir()));

@@ -1,15 +1,9 @@
 //! Any text as run.toml, and its [process] against a plugin's keys.
+//! The body is `sparkout_pipeline::fuzz_entry::run_toml`, which the test suite
+//! also replays over this target's corpus.
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
-use sparkout_pipeline::contracts::config_keys::check_process;
-use sparkout_pipeline::contracts::RunSpec;
+use sparkout_pipeline::fuzz_entry;
 
-fuzz_target!(|data: &[u8]| {
-    let Ok(text) = std::str::from_utf8(data) else {
-        return;
-    };
-    if let Ok(spec) = RunSpec::parse(std::path::Path::new("fuzz"), text) {
-        let _ = check_process(&spec, "guideway", Some(&["probe_spacing_mm", "sample_step_mm"]));
-    }
-});
+fuzz_target!(|data: &[u8]| fuzz_entry::run_toml(data));

@@ -9,6 +9,7 @@ pub mod diagnose;
 pub mod effect_spec;
 pub mod engine;
 pub mod error;
+pub mod fuzz_entry;
 pub mod import;
 pub mod replay;
 pub mod report;

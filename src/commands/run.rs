@@ -19,6 +19,7 @@ pub struct Places {
 
 impl Places {
     pub fn resolve(input: &Path, out: &Path, work: Option<&Path>) -> anyhow::Result<Places> {
+        storage::check_remote_apart(input, out)?;
         let out = Output::resolve(out, work)?;
         let input = storage::resolve_input(input, work, "input", true)?;
         Ok(Places { input, out })

@@ -124,13 +124,14 @@ fn directory_without_run_toml_is_listed_as_skipped() {
     let v = sparkout(&["validate-input", root.to_str().unwrap()]);
     assert_eq!(v.status.code(), Some(2), "{}", text(&v));
     assert!(String::from_utf8_lossy(&v.stdout).contains("no run.toml"));
-    // An --out inside --input is not mistaken for runs without run.toml.
+    // An --out inside --input is refused before any work (a rejected run's
+    // clean-up must never reach the input), and nothing is written there.
     let inner = root.join("out");
     std::fs::remove_dir_all(&orphan).unwrap();
     let o = run(&root, &inner, &[]);
-    assert_eq!(o.status.code(), Some(0), "{}", text(&o));
-    let o = run(&root, &inner, &[]);
-    assert_eq!(o.status.code(), Some(0), "{}", text(&o));
+    assert_eq!(o.status.code(), Some(1), "{}", text(&o));
+    assert!(text(&o).contains("is inside --input"), "{}", text(&o));
+    assert!(!inner.exists());
 }
 
 #[test]
@@ -233,14 +234,12 @@ fn jobs_is_clamped_to_the_cores() {
 
 #[test]
 fn one_batch_per_out_and_stale_locks_are_taken_over() {
-    use sparkout_pipeline::engine::lock::{host_name, LOCK_FILE};
+    use sparkout_pipeline::engine::lock::{host_name, BatchLock, LOCK_FILE};
     let d = tempfile::tempdir().unwrap();
     let root = fleet(d.path(), 1);
     let out = d.path().join("out");
-    std::fs::create_dir_all(&out).unwrap();
-    // A live batch: this test process, on this host.
-    let live = format!("pid={}\nhost={}\n", std::process::id(), host_name());
-    std::fs::write(out.join(LOCK_FILE), &live).unwrap();
+    // A live batch: this test process holds the lock.
+    let held = BatchLock::acquire(&out).unwrap();
     let o = run(&root, &out, &[]);
     assert_eq!(o.status.code(), Some(1), "{}", text(&o));
     let e = String::from_utf8_lossy(&o.stderr);
@@ -249,16 +248,51 @@ fn one_batch_per_out_and_stale_locks_are_taken_over() {
         "{e}"
     );
     assert!(!out.join("manifest.json").exists());
-    // A killed batch's lock: no such process.
+    drop(held);
+    // A killed batch's lock file (nobody holds the lock): taken over.
     std::fs::write(
         out.join(LOCK_FILE),
-        format!("pid=4294967295\nhost={}\n", host_name()),
+        format!(
+            "pid=4294967295
+host={}
+",
+            host_name()
+        ),
     )
     .unwrap();
     let o = run(&root, &out, &[]);
     assert_eq!(o.status.code(), Some(0), "{}", text(&o));
-    assert!(String::from_utf8_lossy(&o.stderr).contains("stale lock"));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("no longer running"));
     assert!(!out.join(LOCK_FILE).exists(), "lock released at the end");
+    // A holder killed with SIGKILL and not yet reaped (a zombie): its lock
+    // is free at once, no waiting for the reaper.
+    let mut holder = std::process::Command::new("flock")
+        .args([
+            "-x",
+            "-o",
+            out.join(LOCK_FILE).to_str().unwrap(),
+            "sleep",
+            "60",
+        ])
+        .spawn()
+        .unwrap();
+    std::thread::sleep(std::time::Duration::from_millis(300));
+    let o = run(&root, &out, &[]);
+    assert_eq!(o.status.code(), Some(1), "held by flock: {}", text(&o));
+    holder.kill().unwrap(); // SIGKILL; not waited for: a zombie
+    std::thread::sleep(std::time::Duration::from_millis(100));
+    let o = run(&root, &out, &[]);
+    assert_eq!(o.status.code(), Some(0), "{}", text(&o));
+    holder.wait().unwrap();
+    // A lock written on another host is never taken over automatically.
+    std::fs::write(out.join(LOCK_FILE), "pid=1\nhost=elsewhere.example\n").unwrap();
+    let o = run(&root, &out, &[]);
+    assert_eq!(o.status.code(), Some(1), "{}", text(&o));
+    assert!(
+        text(&o).contains("never taken over automatically"),
+        "{}",
+        text(&o)
+    );
 }
 
 #[test]

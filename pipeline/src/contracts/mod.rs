@@ -7,6 +7,7 @@ pub mod config_keys;
 pub mod convert;
 pub mod input_file;
 pub mod motion;
+pub mod names;
 pub mod parquet_file;
 pub mod plausible;
 pub mod run;
@@ -21,6 +22,7 @@ pub use motion::MotionColumns;
 pub use parquet_file::open_parquet;
 pub use run::{
     discover, discover_runs, AeKind, AeSpec, Discovery, MachineConfig, MachineResolver, RunSpec,
+    Skipped,
 };
 pub use schema::{table_schema, ColumnKind, ColumnSpec, TableSchema, ALL_TABLES};
 pub use table::Table;

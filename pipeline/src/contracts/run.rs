@@ -135,6 +135,12 @@ impl RunSpec {
         let id = req_str(&path, run, "id")?;
         let machine = req_str(&path, run, "machine")?;
         let plugin = req_str(&path, run, "plugin")?;
+        // Names become output path components (`<out>/<machine>/<id>`) and
+        // machine config file names: checked here, at the edge.
+        for (key, value) in [("id", &id), ("machine", &machine), ("plugin", &plugin)] {
+            super::names::check_name(&format!("[run].{key}"), value)
+                .map_err(|m| InputError::new(&path, m).column(format!("run.{key}")))?;
+        }
         let started = match run.get("started") {
             None => None,
             Some(v) => Some(parse_started(&path, v)?),
@@ -334,8 +340,17 @@ impl MachineResolver {
 #[derive(Debug, Clone, Default)]
 pub struct Discovery {
     pub runs: Vec<PathBuf>,
-    /// (directory, why it was skipped)
-    pub skipped: Vec<(PathBuf, String)>,
+    pub skipped: Vec<Skipped>,
+}
+
+/// A directory (or link) found under the input and not processed.
+#[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord)]
+pub struct Skipped {
+    pub dir: PathBuf,
+    /// The file the message is about (a missing run.toml, a link, the
+    /// directory itself).
+    pub file: PathBuf,
+    pub why: String,
 }
 
 /// Whether `dir` is something sparkout wrote (a run's output or an output
@@ -346,44 +361,167 @@ fn is_sparkout_output(dir: &Path) -> bool {
         || dir.join(crate::engine::lock::LOCK_FILE).is_file()
 }
 
-/// Every run directory under `root` (`<root>/<machine>/<run>/run.toml`; a
-/// root that is itself a run, or holds runs directly, works too), sorted;
-/// and the directories with tables but no run.toml.
+/// How deep a walk goes below the input root: far deeper than any real
+/// layout (`<root>/<site>/<line>/<machine>/<run>`), and a bound on a
+/// hostile tree.
+pub const MAX_DISCOVER_DEPTH: usize = 32;
+
+/// Every run directory under `root`, at any depth (a root that is itself a
+/// run works too), sorted; and, listed by name so the batch can go on
+/// without them: directories with tables but no run.toml, a run directory
+/// inside another run's directory, directories that cannot be read, and
+/// symbolic links that lead outside `root` (not followed).
 pub fn discover(root: &Path) -> std::io::Result<Discovery> {
-    fn walk(dir: &Path, depth: usize, out: &mut Discovery) -> std::io::Result<()> {
-        if dir.join(RunSpec::FILE).is_file() {
-            out.runs.push(dir.to_path_buf());
-            return Ok(());
+    struct Walk {
+        root: PathBuf,
+        /// Canonical directories entered (a link loop is entered once).
+        seen: std::collections::BTreeSet<PathBuf>,
+        out: Discovery,
+    }
+    impl Walk {
+        fn skip(&mut self, dir: &Path, file: &Path, why: String) {
+            self.out.skipped.push(Skipped {
+                dir: dir.to_path_buf(),
+                file: file.to_path_buf(),
+                why,
+            });
         }
-        if is_sparkout_output(dir) {
-            return Ok(());
+        /// A link (or anything) under `dir` that resolves outside the root.
+        fn escapes(&self, p: &Path) -> Option<PathBuf> {
+            let c = p.canonicalize().ok()?;
+            (!c.starts_with(&self.root)).then_some(c)
         }
-        let mut entries: Vec<PathBuf> = std::fs::read_dir(dir)?
-            .filter_map(|e| e.ok().map(|e| e.path()))
-            .collect();
-        entries.sort();
-        let tables: Vec<String> = entries
-            .iter()
-            .filter(|p| p.extension().is_some_and(|e| e == "parquet"))
-            .filter_map(|p| p.file_name().map(|n| n.to_string_lossy().into_owned()))
-            .collect();
-        if !tables.is_empty() {
-            out.skipped.push((
-                dir.to_path_buf(),
-                format!(
-                    "skipped: holds {} but no run.toml, so it cannot be processed (docs/formats.md: every run directory needs a run.toml with [run] id, machine, plugin)",
-                    tables.join(", ")
-                ),
-            ));
-            return Ok(());
+        fn entries(&mut self, dir: &Path) -> Option<Vec<PathBuf>> {
+            match std::fs::read_dir(dir) {
+                Ok(rd) => {
+                    let mut v: Vec<PathBuf> = rd.filter_map(|e| e.ok().map(|e| e.path())).collect();
+                    v.sort();
+                    Some(v)
+                }
+                Err(e) => {
+                    self.skip(
+                        dir,
+                        dir,
+                        format!(
+                            "cannot list directory {} ({e}); its runs, if any, are not processed — fix its permissions",
+                            dir.display()
+                        ),
+                    );
+                    None
+                }
+            }
         }
-        if depth == 0 {
-            return Ok(());
+        /// Run directories below the run `outer` (they are errors).
+        fn nested(&mut self, outer: &Path, dir: &Path, depth: usize) {
+            if depth == 0 {
+                return;
+            }
+            let Some(entries) = self.entries(dir) else {
+                return;
+            };
+            for e in entries
+                .into_iter()
+                .filter(|p| p.is_dir() && !p.is_symlink())
+            {
+                if e.join(RunSpec::FILE).is_file() {
+                    self.skip(
+                        &e,
+                        &e.join(RunSpec::FILE),
+                        format!(
+                            "run directory {} is inside run directory {}; a run's directory may not hold another run — move it out (the outer run is processed without it)",
+                            e.display(),
+                            outer.display()
+                        ),
+                    );
+                }
+                self.nested(outer, &e, depth - 1);
+            }
         }
-        for e in entries.into_iter().filter(|p| p.is_dir()) {
-            walk(&e, depth - 1, out)?;
+        fn walk(&mut self, dir: &Path, depth: usize) {
+            if let Ok(c) = dir.canonicalize() {
+                if !self.seen.insert(c) {
+                    return;
+                }
+            }
+            if dir.join(RunSpec::FILE).is_file() {
+                // A run's own files must not lead outside the input either
+                // (a run.toml or table linked to /etc or another fleet).
+                if let Some(entries) = self.entries(dir) {
+                    if let Some((link, to)) = entries
+                        .iter()
+                        .filter(|p| p.is_symlink())
+                        .find_map(|p| self.escapes(p).map(|c| (p.clone(), c)))
+                    {
+                        self.skip(
+                            dir,
+                            &link,
+                            format!(
+                                "{} is a symbolic link to {}, outside the input {}; links out of the input are not followed — copy the file into the run",
+                                link.display(),
+                                to.display(),
+                                self.root.display()
+                            ),
+                        );
+                        return;
+                    }
+                }
+                self.out.runs.push(dir.to_path_buf());
+                self.nested(dir, dir, MAX_DISCOVER_DEPTH);
+                return;
+            }
+            if is_sparkout_output(dir) {
+                return;
+            }
+            let Some(entries) = self.entries(dir) else {
+                return;
+            };
+            let tables: Vec<String> = entries
+                .iter()
+                .filter(|p| p.extension().is_some_and(|e| e == "parquet"))
+                .filter_map(|p| p.file_name().map(|n| n.to_string_lossy().into_owned()))
+                .collect();
+            if !tables.is_empty() {
+                self.skip(
+                    dir,
+                    &dir.join(RunSpec::FILE),
+                    format!(
+                        "skipped: holds {} but no run.toml, so it cannot be processed (docs/formats.md: every run directory needs a run.toml with [run] id, machine, plugin)",
+                        tables.join(", ")
+                    ),
+                );
+                return;
+            }
+            if depth == 0 {
+                self.skip(
+                    dir,
+                    dir,
+                    format!(
+                        "not searched: deeper than {MAX_DISCOVER_DEPTH} directories below the input"
+                    ),
+                );
+                return;
+            }
+            for e in entries {
+                if e.is_symlink() {
+                    if let Some(to) = self.escapes(&e) {
+                        self.skip(
+                            &e,
+                            &e,
+                            format!(
+                                "{} is a symbolic link to {}, outside the input {}; not followed",
+                                e.display(),
+                                to.display(),
+                                self.root.display()
+                            ),
+                        );
+                        continue;
+                    }
+                }
+                if e.is_dir() {
+                    self.walk(&e, depth - 1);
+                }
+            }
         }
-        Ok(())
     }
     if !root.is_dir() {
         return Err(std::io::Error::new(
@@ -391,9 +529,22 @@ pub fn discover(root: &Path) -> std::io::Result<Discovery> {
             format!("input root {} is not a directory", root.display()),
         ));
     }
-    let mut out = Discovery::default();
-    walk(root, 3, &mut out)?;
-    Ok(out)
+    // The root itself must be readable: otherwise nothing can be said.
+    std::fs::read_dir(root).map_err(|e| {
+        std::io::Error::new(
+            e.kind(),
+            format!("cannot list the input {} ({e})", root.display()),
+        )
+    })?;
+    let mut w = Walk {
+        root: root.canonicalize()?,
+        seen: Default::default(),
+        out: Discovery::default(),
+    };
+    w.walk(root, MAX_DISCOVER_DEPTH);
+    w.out.runs.sort();
+    w.out.skipped.sort();
+    Ok(w.out)
 }
 
 /// The run directories of [`discover`] only.

@@ -100,3 +100,86 @@ pub fn record_valid(dir: &Path, rec: &StageRecord, key: &str) -> bool {
                 .unwrap_or(false)
         })
 }
+
+/// Remove what sparkout wrote for one run under `run_dir`: the files its
+/// cache file lists (each a plain file name in that directory), then the
+/// cache file, then the directory and its machine directory if that left
+/// them empty. Nothing else is touched: a file sparkout did not list — a
+/// user's, or anything a hostile name could point at — stays. Returns the
+/// files removed.
+pub fn remove_run_outputs(run_dir: &Path) -> usize {
+    let cache = run_dir.join(RUN_CACHE_FILE);
+    let Ok(bytes) = std::fs::read(&cache) else {
+        return 0;
+    };
+    let Ok(records) = serde_json::from_slice::<Vec<StageRecord>>(&bytes) else {
+        tracing::warn!(
+            "{} is not a sparkout cache file; nothing under {} was removed",
+            cache.display(),
+            run_dir.display()
+        );
+        return 0;
+    };
+    let mut removed = 0;
+    for name in records.iter().flat_map(|r| r.files.keys()) {
+        if crate::contracts::names::is_plain_file_name(name)
+            && name != RUN_CACHE_FILE
+            && std::fs::remove_file(run_dir.join(name)).is_ok()
+        {
+            removed += 1;
+        }
+    }
+    if std::fs::remove_file(&cache).is_ok() {
+        removed += 1;
+    }
+    // remove_dir only removes an empty directory.
+    if std::fs::remove_dir(run_dir).is_ok() {
+        if let Some(machine_dir) = run_dir.parent() {
+            let _ = std::fs::remove_dir(machine_dir);
+        }
+    }
+    removed
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn removes_only_listed_files() {
+        let d = tempfile::tempdir().unwrap();
+        let machine = d.path().join("m1");
+        let run = machine.join("r1");
+        std::fs::create_dir_all(&run).unwrap();
+        std::fs::write(run.join("a.parquet"), b"x").unwrap();
+        std::fs::write(run.join("users-notes.txt"), b"mine").unwrap();
+        std::fs::write(d.path().join("outside.txt"), b"keep").unwrap();
+        let rec = StageRecord {
+            stage: "s".into(),
+            version: 1,
+            key: "k".into(),
+            files: [
+                ("a.parquet".to_string(), String::new()),
+                ("../../outside.txt".to_string(), String::new()),
+                ("/etc/hostname".to_string(), String::new()),
+            ]
+            .into(),
+            cached: false,
+        };
+        std::fs::write(
+            run.join(RUN_CACHE_FILE),
+            serde_json::to_vec(&vec![rec]).unwrap(),
+        )
+        .unwrap();
+        assert_eq!(remove_run_outputs(&run), 2);
+        assert!(!run.join("a.parquet").exists());
+        assert!(run.join("users-notes.txt").exists());
+        assert!(d.path().join("outside.txt").exists());
+        // Only the user's file is left: the directory stays.
+        assert!(run.is_dir());
+        std::fs::remove_file(run.join("users-notes.txt")).unwrap();
+        std::fs::write(run.join(RUN_CACHE_FILE), b"[]").unwrap();
+        remove_run_outputs(&run);
+        assert!(!run.exists() && !machine.exists());
+    }
+}

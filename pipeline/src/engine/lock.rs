@@ -1,11 +1,20 @@
-//! One batch per output directory: `<out>/.sparkout.lock` holds the pid and
-//! host of the batch writing there. Two batches on one `--out` would mix
-//! their artifacts under one manifest, so the second refuses. A lock whose
-//! process is gone (same host, no such pid — a kill -9 or a power cut) is
-//! stale and taken over with a warning.
+//! One batch per output directory: `<out>/.sparkout.lock`. Two batches on
+//! one `--out` would mix their artifacts under one manifest, so the second
+//! refuses.
+//!
+//! The lock is an exclusive `flock` on that file, held by the open file for
+//! the whole batch: the kernel releases it the moment its process ends — a
+//! kill -9, a crash, a zombie not yet reaped — so a dead holder is known at
+//! once and its lock taken over atomically (there is no "remove the stale
+//! file, then create mine" window in which two batches could both get in).
+//! The file also says who holds it (pid, host, the process's start time and
+//! the boot it started in), for the messages and for one rule the kernel
+//! cannot give: a lock written on another host (an output directory shared
+//! over NFS, where flock may not reach across hosts) is never taken over
+//! automatically; the message says how to clear it.
 
-use std::fs::OpenOptions;
-use std::io::Write;
+use std::fs::{File, OpenOptions};
+use std::io::{Read, Seek, Write};
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context};
@@ -18,6 +27,8 @@ pub const LOCK_FILE: &str = ".sparkout.lock";
 #[derive(Debug)]
 pub struct BatchLock {
     path: PathBuf,
+    /// The locked file: closing it releases the lock.
+    file: Option<File>,
 }
 
 /// This machine's name (the lock says where its batch runs: a pid means
@@ -32,27 +43,107 @@ pub fn host_name() -> String {
         .unwrap_or_else(|| "unknown-host".to_string())
 }
 
-/// Whether a process of this pid runs on this host. Without /proc (not
-/// Linux) we cannot tell and assume it does: refusing is the safe side.
-fn pid_alive(pid: u32) -> bool {
-    if !Path::new("/proc/self").exists() {
-        return true;
-    }
-    Path::new(&format!("/proc/{pid}")).exists()
+/// The start time of a process (clock ticks since boot, field 22 of
+/// /proc/PID/stat) and whether it is a zombie; `None` when there is no such
+/// process (or no /proc).
+fn proc_start(pid: u32) -> Option<(u64, bool)> {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
+    // The command name (field 2) is in parentheses and may hold spaces.
+    let rest = &stat[stat.rfind(')')? + 1..];
+    let fields: Vec<&str> = rest.split_whitespace().collect();
+    // rest starts at field 3 (state); field 22 is index 19 here.
+    let zombie = fields.first().is_some_and(|s| *s == "Z" || *s == "X");
+    Some((fields.get(19)?.parse().ok()?, zombie))
 }
 
-/// What a lock file says: (pid, host).
-fn parse_lock(text: &str) -> Option<(u32, String)> {
-    let mut pid = None;
-    let mut host = None;
-    for line in text.lines() {
-        if let Some(v) = line.strip_prefix("pid=") {
-            pid = v.trim().parse().ok();
-        } else if let Some(v) = line.strip_prefix("host=") {
-            host = Some(v.trim().to_string());
+fn boot_id() -> String {
+    std::fs::read_to_string("/proc/sys/kernel/random/boot_id")
+        .map(|s| s.trim().to_string())
+        .unwrap_or_default()
+}
+
+/// Who holds (or held) a lock.
+#[derive(Debug, Clone, PartialEq)]
+struct Holder {
+    pid: u32,
+    host: String,
+    start_ticks: Option<u64>,
+    boot: String,
+}
+
+impl Holder {
+    fn me() -> Holder {
+        let pid = std::process::id();
+        Holder {
+            pid,
+            host: host_name(),
+            start_ticks: proc_start(pid).map(|(t, _)| t),
+            boot: boot_id(),
         }
     }
-    Some((pid?, host?))
+
+    fn parse(text: &str) -> Option<Holder> {
+        let mut h = Holder {
+            pid: 0,
+            host: String::new(),
+            start_ticks: None,
+            boot: String::new(),
+        };
+        let (mut pid, mut host) = (false, false);
+        for line in text.lines() {
+            let Some((k, v)) = line.split_once('=') else {
+                continue;
+            };
+            let v = v.trim();
+            match k.trim() {
+                "pid" => {
+                    h.pid = v.parse().ok()?;
+                    pid = true;
+                }
+                "host" => {
+                    h.host = v.to_string();
+                    host = true;
+                }
+                "start_ticks" => h.start_ticks = v.parse().ok(),
+                "boot_id" => h.boot = v.to_string(),
+                _ => {}
+            }
+        }
+        (pid && host).then_some(h)
+    }
+
+    fn text(&self) -> String {
+        format!(
+            "pid={}\nhost={}\nstart_ticks={}\nboot_id={}\n",
+            self.pid,
+            self.host,
+            self.start_ticks.map(|t| t.to_string()).unwrap_or_default(),
+            self.boot
+        )
+    }
+
+    /// On this host, whether that very process still runs (not a zombie, not
+    /// a later process that reused the pid, not a process of an earlier
+    /// boot). Used where the file system cannot lock.
+    fn alive_here(&self) -> bool {
+        if !Path::new("/proc/self").exists() {
+            return true; // cannot tell: refusing is the safe side
+        }
+        if !self.boot.is_empty() && self.boot != boot_id() {
+            return false;
+        }
+        match proc_start(self.pid) {
+            None => false,
+            Some((_, true)) => false,
+            Some((t, false)) => self.start_ticks.is_none_or(|s| s == t),
+        }
+    }
+}
+
+/// The device and inode a path or an open file refers to.
+fn identity(m: &std::fs::Metadata) -> (u64, u64) {
+    use std::os::unix::fs::MetadataExt;
+    (m.dev(), m.ino())
 }
 
 impl BatchLock {
@@ -60,58 +151,122 @@ impl BatchLock {
     pub fn acquire(out: &Path) -> Result<BatchLock> {
         std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
         let path = out.join(LOCK_FILE);
-        let me = std::process::id();
-        let host = host_name();
-        // Two attempts: the second after removing a stale lock.
-        for _ in 0..2 {
-            match OpenOptions::new().write(true).create_new(true).open(&path) {
-                Ok(mut f) => {
-                    writeln!(f, "pid={me}\nhost={host}")
-                        .and_then(|_| f.sync_all())
-                        .with_context(|| format!("cannot write {}", path.display()))?;
-                    return Ok(BatchLock { path });
+        let me = Holder::me();
+        // A few attempts: a holder may remove the file between our open and
+        // our lock, leaving us a lock on a file that no longer has the name.
+        for _ in 0..8 {
+            let mut file = OpenOptions::new()
+                .read(true)
+                .write(true)
+                .create(true)
+                .truncate(false)
+                .open(&path)
+                .with_context(|| format!("cannot open {}", path.display()))?;
+            let mut text = String::new();
+            match file.try_lock() {
+                Ok(()) => {}
+                Err(std::fs::TryLockError::WouldBlock) => {
+                    let _ = file.read_to_string(&mut text);
+                    return Err(held_by(out, &path, Holder::parse(&text)));
                 }
-                Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {
-                    let text = std::fs::read_to_string(&path).unwrap_or_default();
-                    match parse_lock(&text) {
-                        Some((pid, h)) if h == host && !pid_alive(pid) => {
-                            tracing::warn!(
-                                "removing the stale lock {} (pid {pid} on {h} is not running: a killed batch)",
-                                path.display()
-                            );
-                            std::fs::remove_file(&path).with_context(|| {
-                                format!("cannot remove stale lock {}", path.display())
-                            })?;
+                Err(std::fs::TryLockError::Error(e)) => {
+                    // A file system without locks: judge by what the file says.
+                    tracing::warn!(
+                        "{} cannot be locked ({e}); judging a holder by its pid and start time",
+                        path.display()
+                    );
+                    let _ = file.read_to_string(&mut text);
+                    if let Some(h) = Holder::parse(&text) {
+                        if h.host != me.host || h.alive_here() {
+                            return Err(held_by(out, &path, Some(h)));
                         }
-                        Some((pid, h)) => bail!(
-                            "another sparkout batch (pid {pid} on host {h}) is writing to {}; \
-                             wait for it to finish or choose another --out. If no batch is running \
-                             there, delete {}",
-                            out.display(),
-                            path.display()
-                        ),
-                        None => bail!(
-                            "{} exists but is not a sparkout lock (expected pid=/host= lines); \
-                             if no batch is running there, delete it",
-                            path.display()
-                        ),
                     }
-                }
-                Err(e) => {
-                    return Err(e).with_context(|| format!("cannot create {}", path.display()))
+                    write_holder(&mut file, &path, &me)?;
+                    return Ok(BatchLock {
+                        path,
+                        file: Some(file),
+                    });
                 }
             }
+            // Locked: is it still the file under that name?
+            let same = match (std::fs::metadata(&path), file.metadata()) {
+                (Ok(a), Ok(b)) => identity(&a) == identity(&b),
+                _ => false,
+            };
+            if !same {
+                continue;
+            }
+            file.read_to_string(&mut text)
+                .with_context(|| format!("cannot read {}", path.display()))?;
+            if !text.trim().is_empty() {
+                match Holder::parse(&text) {
+                    None => bail!(
+                        "{} exists but is not a sparkout lock (expected pid=/host= lines); if no batch is running there, delete it",
+                        path.display()
+                    ),
+                    // Written on another host: its batch may hold an flock
+                    // that does not reach us. Never taken over automatically.
+                    Some(h) if h.host != me.host => return Err(held_by(out, &path, Some(h))),
+                    Some(h) => tracing::warn!(
+                        "taking over the lock {} of a batch that is no longer running (pid {} on {})",
+                        path.display(),
+                        h.pid,
+                        h.host
+                    ),
+                }
+            }
+            write_holder(&mut file, &path, &me)?;
+            return Ok(BatchLock {
+                path,
+                file: Some(file),
+            });
         }
         bail!(
-            "cannot take the lock {} (another batch took it meanwhile)",
+            "cannot take the lock {} (other batches keep replacing it)",
             path.display()
         )
     }
 }
 
+fn write_holder(file: &mut File, path: &Path, me: &Holder) -> Result<()> {
+    file.set_len(0)
+        .and_then(|_| file.rewind())
+        .and_then(|_| file.write_all(me.text().as_bytes()))
+        .and_then(|_| file.sync_all())
+        .with_context(|| format!("cannot write {}", path.display()))?;
+    Ok(())
+}
+
+fn held_by(out: &Path, path: &Path, h: Option<Holder>) -> anyhow::Error {
+    match h {
+        Some(h) if h.host != host_name() => anyhow::anyhow!(
+            "another sparkout batch (pid {} on host {}) holds {}; a lock written on another host is never taken over automatically. Wait for that batch or choose another --out; if you know no batch runs on {} any more, delete {}",
+            h.pid,
+            h.host,
+            out.display(),
+            h.host,
+            path.display()
+        ),
+        Some(h) => anyhow::anyhow!(
+            "another sparkout batch (pid {} on host {}) is writing to {}; wait for it to finish or choose another --out",
+            h.pid,
+            h.host,
+            out.display()
+        ),
+        None => anyhow::anyhow!(
+            "another sparkout batch is writing to {} (it holds {}); wait for it to finish or choose another --out",
+            out.display(),
+            path.display()
+        ),
+    }
+}
+
 impl Drop for BatchLock {
     fn drop(&mut self) {
+        // Remove the name first, then release: a batch that opened the old
+        // file meanwhile finds it unnamed and tries again.
         let _ = std::fs::remove_file(&self.path);
+        drop(self.file.take());
     }
 }
 
@@ -120,24 +275,48 @@ mod tests {
     use super::*;
 
     #[test]
-    fn second_lock_refused_stale_lock_taken_over() {
+    fn second_lock_refused_dead_holder_taken_over() {
         let d = tempfile::tempdir().unwrap();
         let a = BatchLock::acquire(d.path()).unwrap();
+        let text = std::fs::read_to_string(d.path().join(LOCK_FILE)).unwrap();
+        let h = Holder::parse(&text).unwrap();
+        assert_eq!(h.pid, std::process::id());
+        assert!(h.start_ticks.is_some() && h.alive_here(), "{text}");
         let e = BatchLock::acquire(d.path()).unwrap_err().to_string();
         assert!(e.contains("another sparkout batch"), "{e}");
         assert!(e.contains(&format!("pid {}", std::process::id())), "{e}");
         drop(a);
         assert!(!d.path().join(LOCK_FILE).exists());
-        // A pid above the kernel's pid_max cannot be running.
+        // A lock file of a batch that died (nobody holds the flock): taken
+        // over at once, whatever its pid.
         std::fs::write(
             d.path().join(LOCK_FILE),
-            format!("pid=4294967295\nhost={}\n", host_name()),
+            format!("pid={}\nhost={}\n", std::process::id(), host_name()),
         )
         .unwrap();
         let b = BatchLock::acquire(d.path()).unwrap();
         drop(b);
-        // Another host: we cannot know, so refuse.
+        // Another host: we cannot know, so refuse, and say how to clear it.
         std::fs::write(d.path().join(LOCK_FILE), "pid=1\nhost=elsewhere.example\n").unwrap();
+        let e = BatchLock::acquire(d.path()).unwrap_err().to_string();
+        assert!(e.contains("never taken over automatically"), "{e}");
+        assert!(e.contains("delete"), "{e}");
+        // Not a lock at all.
+        std::fs::write(d.path().join(LOCK_FILE), "hello\n").unwrap();
         assert!(BatchLock::acquire(d.path()).is_err());
+    }
+
+    #[test]
+    fn pid_reuse_and_other_boots_are_not_alive() {
+        let mut h = Holder::me();
+        assert!(h.alive_here());
+        h.start_ticks = h.start_ticks.map(|t| t + 1);
+        assert!(!h.alive_here(), "a later process with the same pid");
+        let mut h = Holder::me();
+        h.boot = "another-boot".into();
+        assert!(!h.alive_here());
+        let mut h = Holder::me();
+        h.pid = u32::MAX;
+        assert!(!h.alive_here());
     }
 }

@@ -26,8 +26,8 @@ use arrow::record_batch::RecordBatch;
 use serde::{Deserialize, Serialize};
 
 use crate::contracts::{
-    config_keys, discover, remove_orphaned_temps, table_schema, write_atomic, write_json_atomic,
-    AeStream, MachineResolver, RunSpec, Table,
+    config_keys, discover, names, remove_orphaned_temps, table_schema, write_atomic,
+    write_json_atomic, AeStream, MachineResolver, RunSpec, Table,
 };
 use crate::diagnose::{self, DiagnoseConfig, Effect};
 use crate::error::{InputError, Result};
@@ -266,6 +266,7 @@ impl Engine {
         shard: Option<&shard::ShardSpec>,
         progress: &dyn Progress,
     ) -> Result<FleetOutcome> {
+        names::check_out_apart(input_root, out, "--input").map_err(|e| anyhow!(e))?;
         let found = discover(input_root)
             .with_context(|| format!("cannot list runs under {}", input_root.display()))?;
         if found.runs.is_empty() && found.skipped.is_empty() {
@@ -293,8 +294,11 @@ impl Engine {
         }
         for f in &early_failures {
             if let (Some(m), Some(r)) = (&f.machine, &f.run) {
-                // CONTRACTS.md: nothing of a rejected run stays in the output.
-                let _ = std::fs::remove_dir_all(out.join(m).join(r));
+                // Nothing of a rejected run stays in the output (only what
+                // sparkout's own cache file lists is removed).
+                if let Ok(run_out) = run_out_dir(out, m, r) {
+                    cache::remove_run_outputs(&run_out);
+                }
             }
             tracing::warn!("{}: {}", f.run_dir, f.error);
         }
@@ -380,15 +384,23 @@ impl Engine {
                 shard_dirs[0].display()
             );
         }
-        let _lock = lock::BatchLock::acquire(out)?;
         let input_root = PathBuf::from(&manifests[0].input_root);
+        if input_root.is_dir() {
+            names::check_out_apart(&input_root, out, "the shards' input")
+                .map_err(|e| anyhow!(e))?;
+        }
+        let _lock = lock::BatchLock::acquire(out)?;
         let mut runs = Vec::new();
         let mut failures = Vec::new();
         progress.message(&format!("gathering {} shard(s)", manifests.len()));
         for (dir, m) in shard_dirs.iter().zip(manifests) {
             for mut r in m.runs {
-                let from = dir.join(&r.machine).join(&r.run);
-                let to = out.join(&r.machine).join(&r.run);
+                // Names in a shard manifest are input like any other.
+                let shard_file = dir.join(shard::SHARD_FILE);
+                let from = run_out_dir(dir, &r.machine, &r.run)
+                    .map_err(|e| anyhow!("{}: {e}", shard_file.display()))?;
+                let to = run_out_dir(out, &r.machine, &r.run)
+                    .map_err(|e| anyhow!("{}: {e}", shard_file.display()))?;
                 shard::copy_run_dir(&from, &to)?;
                 r.out_dir = to.display().to_string();
                 r.observations = Some(to.join("observations.parquet")).filter(|o| o.is_file());
@@ -416,15 +428,15 @@ impl Engine {
         let mut failures: Vec<Failure> = found
             .skipped
             .iter()
-            .map(|(dir, why)| Failure {
-                run_dir: dir.display().to_string(),
+            .map(|s| Failure {
+                run_dir: s.dir.display().to_string(),
                 machine: None,
                 run: None,
                 stage: Some("discover".into()),
-                file: Some(dir.join(RunSpec::FILE).display().to_string()),
+                file: Some(s.file.display().to_string()),
                 column: None,
                 row: None,
-                error: why.clone(),
+                error: s.why.clone(),
             })
             .collect();
         let mut by_id: BTreeMap<(String, String), Vec<(&PathBuf, RunSpec)>> = BTreeMap::new();
@@ -473,6 +485,12 @@ impl Engine {
             .flat_map(|p| p.stages())
             .find(|s| s.name() == name)
     }
+}
+
+/// `<out>/<machine>/<id>`, checked: both are plain names and the path
+/// stays inside `out` (symbolic links resolved).
+pub fn run_out_dir(out: &Path, machine: &str, id: &str) -> std::result::Result<PathBuf, String> {
+    names::inside(out, &[("[run].machine", machine), ("[run].id", id)])
 }
 
 /// A stage's files, then the run's cache file listing every stage done so

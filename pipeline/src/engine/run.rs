@@ -32,7 +32,14 @@ impl Engine {
                 return None;
             }
         }
-        let run_out = out.map(|o| o.join(&spec.machine).join(&spec.id));
+        let run_out = match out.map(|o| run_out_dir(o, &spec.machine, &spec.id)) {
+            None => None,
+            Some(Ok(d)) => Some(d),
+            Some(Err(e)) => {
+                let e = InputError::new(spec.run_toml_path(), e).column("run.machine");
+                return Some(Err(Failure::from_error(dir, Some(&spec), None, &e.into())));
+            }
+        };
         let mut failed_stage: Option<String> = None;
         // A panic in a stage is a bug, but it must not take the batch down:
         // the run is rejected like any other failure.
@@ -50,10 +57,11 @@ impl Engine {
             ))
         });
         Some(result.map_err(|e| {
-            // CONTRACTS.md: nothing of a rejected run is written — drop any
-            // artifacts an earlier batch (or its earlier stages) left too.
+            // Nothing of a rejected run stays in the output: drop the
+            // artifacts an earlier batch (or its earlier stages) wrote —
+            // only the files its own cache file lists.
             if let Some(run_out) = &run_out {
-                let _ = std::fs::remove_dir_all(run_out);
+                cache::remove_run_outputs(run_out);
                 tracing::warn!("run {} rejected: {e:#}", dir.display());
             }
             Failure::from_error(dir, Some(&spec), failed_stage.as_deref(), &e)

@@ -285,8 +285,15 @@ pub fn copy_run_dir(from: &Path, to: &Path) -> Result<()> {
     let _ = std::fs::remove_dir_all(&tmp);
     copy_tree(from, &tmp)
         .with_context(|| format!("cannot copy {} to {}", from.display(), to.display()))?;
-    let _ = std::fs::remove_dir_all(to);
-    std::fs::rename(&tmp, to)?;
+    // Only what sparkout wrote there before; a directory still holding
+    // other files is not replaced (the rename fails and says so).
+    super::cache::remove_run_outputs(to);
+    std::fs::rename(&tmp, to).with_context(|| {
+        format!(
+            "cannot put the shard's run at {} (a directory with files sparkout did not write is in the way?)",
+            to.display()
+        )
+    })?;
     Ok(())
 }
 

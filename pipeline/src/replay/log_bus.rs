@@ -127,7 +127,16 @@ pub struct LogWriter {
 }
 
 impl LogWriter {
+    /// A new log at `path`; an existing file there is never overwritten (a
+    /// recorded bus log is evidence: refuse, and say how to proceed).
     pub fn create(path: &Path) -> Result<LogWriter> {
+        if path.exists() || path.is_symlink() {
+            anyhow::bail!(
+                "{} already exists; a bus log is never overwritten — name a new file (e.g. {}) or move the old one away",
+                path.display(),
+                path.with_extension("2.log").display()
+            );
+        }
         if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
             std::fs::create_dir_all(dir)
                 .with_context(|| format!("cannot create {}", dir.display()))?;
@@ -160,8 +169,28 @@ impl LogWriter {
                 .into_inner()
                 .map_err(|e| anyhow::anyhow!("cannot flush {}: {e}", self.tmp.display()))?;
             file.sync_all()?;
-            std::fs::rename(&self.tmp, &self.path)
-                .with_context(|| format!("cannot write {}", self.path.display()))?;
+            // A hard link fails where a file appeared meanwhile: never
+            // clobbered, even by a race.
+            match std::fs::hard_link(&self.tmp, &self.path) {
+                Ok(()) => {
+                    let _ = std::fs::remove_file(&self.tmp);
+                }
+                Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {
+                    return Err(e).with_context(|| {
+                        format!(
+                            "{} appeared while the replay ran; not overwritten (the new log is kept as {})",
+                            self.path.display(),
+                            self.tmp.display()
+                        )
+                    });
+                }
+                // A file system without hard links.
+                Err(_) if !self.path.exists() => std::fs::rename(&self.tmp, &self.path)
+                    .with_context(|| format!("cannot write {}", self.path.display()))?,
+                Err(e) => {
+                    return Err(e).with_context(|| format!("cannot write {}", self.path.display()))
+                }
+            }
         }
         Ok(())
     }

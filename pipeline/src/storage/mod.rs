@@ -70,6 +70,51 @@ pub fn is_url(arg: &Path) -> bool {
         .is_some_and(|(scheme, _)| scheme == "file" || SCHEMES.contains(&scheme))
 }
 
+/// An object-storage URL as `scheme://bucket/key/prefix` with its empty
+/// segments (`//`, a trailing `/`) and `.` segments dropped; `None` for a
+/// local path or a URL with a `..` segment (which object stores do not
+/// resolve, so it can be compared with nothing).
+fn url_segments(arg: &Path) -> Option<(String, Vec<String>)> {
+    let s = arg.to_str()?;
+    let (scheme, rest) = s.split_once("://")?;
+    if scheme == "file" || !SCHEMES.contains(&scheme) {
+        return None;
+    }
+    let segs: Vec<String> = rest
+        .split('/')
+        .filter(|p| !p.is_empty() && *p != ".")
+        .map(str::to_string)
+        .collect();
+    (!segs.iter().any(|p| p == "..")).then(|| (scheme.to_string(), segs))
+}
+
+/// `--out` and `--input` as bucket URLs must be apart like local paths: an
+/// output prefix equal to, inside or containing the input prefix is
+/// refused (a publish would write among — or a clean-up delete — the
+/// inputs). Local paths are checked by the engine.
+pub fn check_remote_apart(input: &Path, out: &Path) -> Result<()> {
+    let (Some((si, i)), Some((so, o))) = (url_segments(input), url_segments(out)) else {
+        return Ok(());
+    };
+    if si != so {
+        return Ok(());
+    }
+    let why = if i == o {
+        "is the same prefix as"
+    } else if o.starts_with(&i) {
+        "is inside"
+    } else if i.starts_with(&o) {
+        "contains"
+    } else {
+        return Ok(());
+    };
+    bail!(
+        "--out {} {why} --input {}: sparkout writes and removes its own objects under --out, never among its inputs; choose an output prefix outside the input",
+        out.display(),
+        input.display()
+    )
+}
+
 impl Location {
     /// A path, `file://PATH` or a bucket URL. An unknown `scheme://` is an
     /// error rather than a directory of that name.
@@ -254,5 +299,22 @@ impl Output {
             );
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod apart_tests {
+    use super::*;
+
+    #[test]
+    fn remote_prefixes_apart() {
+        let p = |s: &str| PathBuf::from(s);
+        assert!(check_remote_apart(&p("s3://b/fleet"), &p("s3://b/fleet/")).is_err());
+        assert!(check_remote_apart(&p("s3://b/fleet"), &p("s3://b/fleet/out")).is_err());
+        assert!(check_remote_apart(&p("s3://b/fleet/in"), &p("s3://b//fleet")).is_err());
+        assert!(check_remote_apart(&p("s3://b/fleet"), &p("s3://b/fleet-out")).is_ok());
+        assert!(check_remote_apart(&p("s3://b/fleet"), &p("s3://c/fleet")).is_ok());
+        assert!(check_remote_apart(&p("s3://b/fleet"), &p("gs://b/fleet")).is_ok());
+        assert!(check_remote_apart(&p("s3://b/fleet"), &p("/tmp/out")).is_ok());
     }
 }

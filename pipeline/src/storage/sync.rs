@@ -59,9 +59,21 @@ fn list(remote: &RemotePrefix) -> Result<Vec<ObjectMeta>> {
     Ok(all)
 }
 
-fn local_path(root: &Path, rel: &str) -> PathBuf {
-    rel.split('/')
-        .fold(root.to_path_buf(), |p, part| p.join(part))
+/// An object key below a prefix as a local path below `root`; a key with an
+/// empty, `.` or `..` segment (or a separator of this system inside a
+/// segment) would leave `root` and is refused.
+fn local_path(root: &Path, rel: &str) -> Result<PathBuf> {
+    let mut p = root.to_path_buf();
+    for part in rel.split('/') {
+        if !crate::contracts::names::is_plain_file_name(part) {
+            anyhow::bail!(
+                "object key `{rel}` has a segment `{part}` that is not a plain name; it would be written outside {} — not transferred",
+                root.display()
+            );
+        }
+        p.push(part);
+    }
+    Ok(p)
 }
 
 /// Mirror `remote` into `local`. Parquet objects of at least
@@ -108,7 +120,7 @@ pub fn stage_down(
             e_tag: meta.e_tag.clone(),
             streamed,
         };
-        let path = local_path(local, &rel);
+        let path = local_path(local, &rel)?;
         let stub_path = RemoteStub::path_for(&path);
         let target = if streamed { &stub_path } else { &path };
         if before.get(&rel) == Some(&version) && target.is_file() {
@@ -143,7 +155,9 @@ pub fn stage_down(
     }
     for (rel, v) in &before {
         if !after.contains_key(rel) {
-            let path = local_path(local, rel);
+            let Ok(path) = local_path(local, rel) else {
+                continue;
+            };
             let gone = if v.streamed {
                 RemoteStub::path_for(&path)
             } else {
@@ -217,7 +231,7 @@ pub fn publish(local: &Path, remote: &RemotePrefix) -> Result<PublishReport> {
     let mut report = PublishReport::default();
     let tmp_root = format!("{TMP_PREFIX}/{}", std::process::id());
     for rel in files {
-        let path = local_path(local, &rel);
+        let path = local_path(local, &rel)?;
         let bytes =
             std::fs::read(&path).with_context(|| format!("cannot read {}", path.display()))?;
         let hash = blake3::hash(&bytes).to_hex().to_string();
