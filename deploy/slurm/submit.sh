@@ -15,7 +15,10 @@ mkdir -p "$work"
 export SPARKOUT_INPUT="$input" SPARKOUT_WORK="$work" SPARKOUT_OUT="$out" SPARKOUT_SHARDS="$n"
 array=$(sbatch --parsable --export=ALL --chdir="$work" --array="0-$((n - 1))" "$@" "$here/nightly.sbatch")
 array=${array%%;*}
-agg=$(sbatch --parsable --export=ALL --chdir="$work" --dependency="afterok:$array" "$@" "$here/aggregate.sbatch")
+# --kill-on-invalid-dep: a failed shard makes the dependency unsatisfiable;
+# without it the aggregate job would stay pending forever instead of failing
+# the night.
+agg=$(sbatch --parsable --export=ALL --chdir="$work" --dependency="afterok:$array" --kill-on-invalid-dep=yes "$@" "$here/aggregate.sbatch")
 agg=${agg%%;*}
 echo "shards: job $array (array 0-$((n - 1))); aggregate: job $agg (afterok)"
 echo "$agg"

@@ -127,6 +127,30 @@ fn traversal_names_are_refused_and_nothing_outside_out_is_touched() {
 }
 
 #[test]
+fn markup_quoted_by_an_error_is_escaped_on_the_index_page() {
+    let d = tempfile::tempdir().unwrap();
+    let root = fleet(d.path(), "guideway", 2);
+    let runs = sparkout_pipeline::contracts::discover_runs(&root).unwrap();
+    let evil = "<img src=x onerror=alert(1)>";
+    let t = std::fs::read_to_string(runs[0].join("run.toml")).unwrap();
+    let t = t.replacen("plugin = \"guideway\"", &format!("plugin = \"{evil}\""), 1);
+    std::fs::write(runs[0].join("run.toml"), t).unwrap();
+    let out = d.path().join("out");
+    let o = run(&root, &out);
+    assert_eq!(o.status.code(), Some(2), "{}", text(&o));
+    assert!(failures(&out)[0]["error"].as_str().unwrap().contains(evil));
+    let index = std::fs::read_to_string(out.join("index.html")).unwrap();
+    assert!(
+        !index.contains("<img src=x"),
+        "unescaped markup on the index"
+    );
+    assert!(
+        index.contains("&lt;img src=x"),
+        "the error is shown, escaped"
+    );
+}
+
+#[test]
 fn out_equal_to_inside_or_containing_input_is_refused_before_any_work() {
     let d = tempfile::tempdir().unwrap();
     let root = fleet(d.path(), "guideway", 2);

@@ -194,3 +194,71 @@ fn incomplete_or_mixed_shard_sets_are_refused() {
     assert!(e.contains("0 ≤ i < n"), "{e}");
     assert!(!out.join("manifest.json").exists());
 }
+
+#[test]
+fn shards_that_would_lose_or_double_a_run_are_refused() {
+    let d = tempfile::tempdir().unwrap();
+    let root = fleet(d.path());
+    let out = d.path().join("out");
+    let err = |o: Output| {
+        assert!(!o.status.success());
+        String::from_utf8_lossy(&o.stderr).to_string()
+    };
+    // Mixed balance: each split on its own is whole, together they are not.
+    let (h0, s1) = (d.path().join("h0"), d.path().join("s1"));
+    ok(shard(&root, &h0, "0/2", &["--balance", "hash"]));
+    ok(shard(&root, &s1, "1/2", &["--balance", "size"]));
+    let e = err(aggregate(&[h0.clone(), s1.clone()], &out));
+    assert!(e.contains("--balance"), "{e}");
+    // A stale shard: last night's shard 1, then a run arrives, tonight's
+    // re-run of shard 1 is killed before it finishes.
+    let s1 = d.path().join("n1");
+    ok(shard(&root, &s1, "1/2", &[]));
+    let first = root.join("xfyz-mill/r0000");
+    let late = root.join("xfyz-mill/r0099");
+    std::fs::create_dir_all(&late).unwrap();
+    for e in std::fs::read_dir(&first).unwrap() {
+        let e = e.unwrap().path();
+        std::fs::copy(&e, late.join(e.file_name().unwrap())).unwrap();
+    }
+    let t = std::fs::read_to_string(late.join("run.toml")).unwrap();
+    std::fs::write(late.join("run.toml"), t.replace("\"r0000\"", "\"r0099\"")).unwrap();
+    let h0 = d.path().join("n0");
+    ok(shard(&root, &h0, "0/2", &[]));
+    let e = err(aggregate(&[h0.clone(), s1.clone()], &out));
+    assert!(
+        e.contains("saw different inputs") && e.contains("stale"),
+        "{e}"
+    );
+    // The re-run removes the stale shard.json first: a kill leaves none.
+    let killed = std::process::Command::new(env!("CARGO_BIN_EXE_sparkout"))
+        .args(["run", "--input", root.to_str().unwrap(), "--out"])
+        .arg(&s1)
+        .args(["--shard", "1/2", "--jobs", "1"])
+        .env("SPARKOUT_LOG", "warn")
+        .env("SPARKOUT_FAULT_ABORT_AFTER_STAGE", "follow")
+        .output()
+        .unwrap();
+    // Killed (by the fault injection) when this shard holds a servo run.
+    if killed.status.code().is_none() {
+        assert!(
+            !s1.join("shard.json").exists(),
+            "a stale shard.json survived"
+        );
+        let e = err(aggregate(&[h0.clone(), s1.clone()], &out));
+        assert!(e.contains("is not a finished shard"), "{e}");
+    }
+    // Different machine configs between shards.
+    let machines = d.path().join("machines");
+    std::fs::create_dir_all(&machines).unwrap();
+    let m1 = d.path().join("m1");
+    ok(shard(
+        &root,
+        &m1,
+        "1/2",
+        &["--machines", machines.to_str().unwrap()],
+    ));
+    let e = err(aggregate(&[h0.clone(), m1.clone()], &out));
+    assert!(e.contains("different machine configs"), "{e}");
+    assert!(!out.join("manifest.json").exists());
+}

@@ -252,6 +252,26 @@ pub struct MachineConfig {
 }
 
 impl MachineConfig {
+    /// Where the config came from, without any directory (a per-run output
+    /// must not depend on the working directory or where a shard ran): the
+    /// file name or "built-in" or "inline", and a hash of the text.
+    pub fn provenance(&self) -> String {
+        let hash = blake3::hash(self.text.as_bytes()).to_hex();
+        let short = &hash.as_str()[..12];
+        let from = if self.source.starts_with("built-in") {
+            format!("built-in machine `{}`", self.id)
+        } else if self.source.ends_with("[machine]") {
+            "the run's inline [machine] table".to_string()
+        } else {
+            let name = Path::new(&self.source)
+                .file_name()
+                .map(|n| n.to_string_lossy().into_owned())
+                .unwrap_or_else(|| format!("{}.toml", self.id));
+            format!("`{name}`")
+        };
+        format!("{from}, blake3 {short}")
+    }
+
     /// The value at a dotted path, e.g. `wheel.radius_mm`.
     pub fn get(&self, dotted: &str) -> Option<&toml::Value> {
         let mut parts = dotted.split('.');
@@ -288,6 +308,42 @@ impl MachineResolver {
         }
         dirs.push(PathBuf::from("configs/machines"));
         MachineResolver { dirs, builtins }
+    }
+
+    /// blake3 over every machine config this resolver can find: each
+    /// directory's `*.toml` files (name and bytes; the directory's own path
+    /// left out, so the same configs from another working directory agree)
+    /// and the built-in machines. Shards of one night must agree on it.
+    pub fn fingerprint(&self) -> String {
+        let mut h = blake3::Hasher::new();
+        let mut part = |label: &str, bytes: &[u8]| {
+            h.update(&(label.len() as u64).to_le_bytes());
+            h.update(label.as_bytes());
+            h.update(&(bytes.len() as u64).to_le_bytes());
+            h.update(bytes);
+        };
+        for (i, dir) in self.dirs.iter().enumerate() {
+            part("dir", i.to_string().as_bytes());
+            let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
+                .map(|rd| {
+                    rd.filter_map(|e| e.ok().map(|e| e.path()))
+                        .filter(|p| p.extension().is_some_and(|e| e == "toml"))
+                        .collect()
+                })
+                .unwrap_or_default();
+            files.sort();
+            for f in files {
+                let name = f.file_name().map(|n| n.to_string_lossy().into_owned());
+                part(
+                    &name.unwrap_or_default(),
+                    &std::fs::read(&f).unwrap_or_default(),
+                );
+            }
+        }
+        for (id, text) in &self.builtins {
+            part(&format!("builtin {id}"), text.as_bytes());
+        }
+        h.finalize().to_hex().to_string()
     }
 
     pub fn resolve(&self, spec: &RunSpec) -> Result<MachineConfig, InputError> {

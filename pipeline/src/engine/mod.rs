@@ -288,10 +288,25 @@ impl Engine {
             );
         }
         let (mut run_dirs, mut early_failures) = self.account_for_runs(&found);
+        let night_items = run_dirs.len() + early_failures.len();
         if let Some(sh) = shard {
+            // A shard.json left by an earlier batch must not outlive this
+            // one: if this run is killed, aggregate finds no finished shard.
+            match std::fs::remove_file(out.join(shard::SHARD_FILE)) {
+                Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+                    return Err(e).with_context(|| {
+                        format!(
+                            "cannot remove the earlier {}",
+                            out.join(shard::SHARD_FILE).display()
+                        )
+                    })
+                }
+                _ => {}
+            }
             run_dirs = shard::select_runs(&run_dirs, sh);
             early_failures.retain(|f| shard::owns_failure(f, sh));
         }
+        let assigned_items = run_dirs.len() + early_failures.len();
         for f in &early_failures {
             if let (Some(m), Some(r)) = (&f.machine, &f.run) {
                 // Nothing of a rejected run stays in the output (only what
@@ -350,6 +365,10 @@ impl Engine {
                     config: serde_json::to_value(&self.config.table)
                         .unwrap_or(serde_json::Value::Null),
                     config_source: self.config.source.clone(),
+                    input_fingerprint: shard::input_fingerprint(input_root, &found),
+                    night_items,
+                    assigned_items,
+                    machines_fingerprint: self.resolver.fingerprint(),
                     runs: outcome.runs.clone(),
                     failures: outcome.failures.clone(),
                 },

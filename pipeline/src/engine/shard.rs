@@ -18,8 +18,9 @@ use super::{Failure, RunResult};
 use crate::contracts::{write_json_atomic, RunSpec};
 use crate::error::Result;
 
-/// Version of shard.json.
-pub const SHARD_VERSION: u32 = 1;
+/// Version of shard.json (2: the night's input and machine configs are
+/// fingerprinted, and each shard says how many items it was assigned).
+pub const SHARD_VERSION: u32 = 2;
 
 /// The file a shard writes in its output directory.
 pub const SHARD_FILE: &str = "shard.json";
@@ -179,8 +180,38 @@ pub struct ShardManifest {
     /// The batch's whole config: every shard of one night must agree.
     pub config: serde_json::Value,
     pub config_source: String,
+    /// blake3 over every run directory and listed directory the shard's
+    /// discovery found (paths relative to the input): shards of one night
+    /// saw the same input, or a stale shard from another night is refused.
+    pub input_fingerprint: String,
+    /// How many items (runs and listed directories) the whole night has,
+    /// and how many of them this shard was assigned: the shards' assigned
+    /// counts must add up to the night's.
+    pub night_items: usize,
+    pub assigned_items: usize,
+    /// [`crate::contracts::MachineResolver::fingerprint`]: every shard must
+    /// have resolved machines from the same configs.
+    pub machines_fingerprint: String,
     pub runs: Vec<RunResult>,
     pub failures: Vec<Failure>,
+}
+
+/// The fingerprint of what discovery found under `root`.
+pub fn input_fingerprint(root: &Path, found: &crate::contracts::Discovery) -> String {
+    let rel = |p: &Path| {
+        p.strip_prefix(root)
+            .unwrap_or(p)
+            .to_string_lossy()
+            .into_owned()
+    };
+    let mut key = super::cache::KeyBuilder::new("shard-input");
+    for r in &found.runs {
+        key.part("run", &rel(r));
+    }
+    for s in &found.skipped {
+        key.part("listed", &rel(&s.dir));
+    }
+    key.finish()
 }
 
 impl ShardManifest {
@@ -219,6 +250,40 @@ pub fn check_shards(dirs: &[PathBuf], manifests: &[ShardManifest]) -> Result<()>
     };
     let mut seen: Vec<Option<&PathBuf>> = vec![None; first.shards];
     for (dir, m) in dirs.iter().zip(manifests) {
+        if m.shard >= m.shards {
+            bail!(
+                "{}: shard {}/{} is not a shard index (0 ≤ i < n)",
+                dir.join(SHARD_FILE).display(),
+                m.shard,
+                m.shards
+            );
+        }
+        if m.balance != first.balance {
+            bail!(
+                "{} was split with --balance {:?} but {} with --balance {:?}: the two splits assign runs differently, so runs would be lost or doubled — re-run every shard with one --balance",
+                dir.display(),
+                m.balance,
+                dirs[0].display(),
+                first.balance
+            );
+        }
+        if m.input_fingerprint != first.input_fingerprint || m.night_items != first.night_items {
+            bail!(
+                "{} and {} saw different inputs ({} vs {} runs and listed directories under {}): one of them is stale (another night's, or its input changed since) — re-run it",
+                dirs[0].display(),
+                dir.display(),
+                first.night_items,
+                m.night_items,
+                m.input_root
+            );
+        }
+        if m.machines_fingerprint != first.machines_fingerprint {
+            bail!(
+                "{} and {} resolved machines from different machine configs (--machines, ./configs/machines or SPARKOUT_MACHINES differ): shards of one night must use the same ones",
+                dirs[0].display(),
+                dir.display()
+            );
+        }
         if m.shards != first.shards {
             bail!(
                 "{} is shard {}/{} but {} is shard {}/{}: shards of different splits cannot be aggregated",
@@ -265,6 +330,27 @@ pub fn check_shards(dirs: &[PathBuf], manifests: &[ShardManifest]) -> Result<()>
             missing.join(", "),
             first.shards
         );
+    }
+    let assigned: usize = manifests.iter().map(|m| m.assigned_items).sum();
+    if assigned != first.night_items {
+        bail!(
+            "the shards were assigned {assigned} items in all, but the night has {}: runs would be lost or doubled — re-run every shard with the same sparkout, input and --balance",
+            first.night_items
+        );
+    }
+    let mut ids = std::collections::BTreeMap::new();
+    for (dir, m) in dirs.iter().zip(manifests) {
+        for r in &m.runs {
+            if let Some(other) = ids.insert((r.machine.clone(), r.run.clone()), dir) {
+                bail!(
+                    "run {}/{} is in two shards ({} and {})",
+                    r.machine,
+                    r.run,
+                    other.display(),
+                    dir.display()
+                );
+            }
+        }
     }
     Ok(())
 }

@@ -17,7 +17,7 @@ use std::fmt::Write;
 use crate::traits::{ReportSection, Run};
 
 /// Bump when the report layout changes (cache key of report steps).
-pub const REPORT_VERSION: u32 = 3;
+pub const REPORT_VERSION: u32 = 4;
 
 /// HTML-escape text.
 pub fn esc(s: &str) -> String {
@@ -139,7 +139,7 @@ pub fn run_page(
         esc(&run.spec.id),
         esc(&run.spec.machine),
         esc(&run.spec.plugin),
-        esc(&run.machine.source),
+        esc(&run.machine.provenance()),
         run.spec
             .started
             .as_ref()
