@@ -298,6 +298,9 @@ pub enum Command {
     )]
     #[command(allow_negative_numbers = true)]
     Replay(ReplayArgs),
+    /// CAN tools for commissioning: decode a recorded bus log.
+    #[command(subcommand)]
+    Can(CanCommand),
     /// Check the diagnosis on generated fleets whose effect is known (withheld from sim).
     #[command(after_help = "Example: sparkout validate --quick --out validation/")]
     #[command(allow_negative_numbers = true)]
@@ -315,6 +318,28 @@ pub enum Command {
         // The diagnosis settings: [diagnose] of --config, --set diagnose.KEY=VALUE.
         #[command(flatten)]
         config: ConfigArgs,
+    },
+}
+
+/// `sparkout can …`.
+#[derive(Subcommand, Debug)]
+pub enum CanCommand {
+    /// A candump log (`candump -l`/`-L` log format, or the screen format with
+    /// or without -ta/-td/-tz timestamps) as CiA 301/402 events: NMT and
+    /// boot-ups, heartbeats, SYNC, EMCY by name, SDO reads, writes and aborts
+    /// by name, PDO1 as controlword/statusword with CiA 402 state transitions.
+    #[command(after_help = "Example: sparkout can decode drive-startup.log
+                               sparkout can decode drive-startup.log --format jsonl --out events.jsonl
+                      Exit codes: 0 decoded, 1 the log cannot be read (the message names file and line).")]
+    Decode {
+        /// The log file.
+        log: PathBuf,
+        /// `text` (a readable listing) or `jsonl` (one JSON object per frame).
+        #[arg(long, default_value = "text", value_parser = ["text", "jsonl"])]
+        format: String,
+        /// Write there instead of standard output (never over an existing file).
+        #[arg(long, value_name = "FILE")]
+        out: Option<PathBuf>,
     },
 }
 

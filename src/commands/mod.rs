@@ -1,5 +1,6 @@
 //! One file per subcommand.
 
+mod can;
 mod demo;
 mod diagnose;
 mod generate;
@@ -122,5 +123,8 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<u8> {
             config,
         } => validate::validate(quick, out, seed, json, &config),
         Command::Replay(args) => replay::replay(&args),
+        Command::Can(crate::cli::CanCommand::Decode { log, format, out }) => {
+            can::decode(&log, &format, out.as_deref())
+        }
     }
 }

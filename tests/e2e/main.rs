@@ -5,6 +5,7 @@
 
 mod augment;
 mod bad_input_matrix;
+mod can_decode;
 mod cli_fleet;
 mod cli_stage_diagnose;
 mod common;

@@ -11,6 +11,7 @@
 
 pub mod bus;
 pub mod canopen;
+pub mod decode;
 pub mod envelope;
 pub mod log_bus;
 pub mod record;
