@@ -331,6 +331,21 @@ pub enum CanCommand {
     #[command(after_help = "Example: sparkout can decode drive-startup.log
                                sparkout can decode drive-startup.log --format jsonl --out events.jsonl
                       Exit codes: 0 decoded, 1 the log cannot be read (the message names file and line).")]
+    /// A drive's EDS or DCF (CiA 306) as the replay reads it: identity, the
+    /// CiA 402 objects of each axis with their types and access, and the
+    /// default PDO mappings. A file missing an object the master needs is
+    /// refused naming it; a standard object of another width is a warning.
+    #[command(after_help = "Example: sparkout can describe vendor-drive.eds --node 3")]
+    Describe {
+        /// The EDS or DCF file.
+        file: PathBuf,
+        /// The node id `$NODEID` stands for (a DCF's own NodeID wins).
+        #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u8).range(1..=127))]
+        node: u8,
+        /// Print the description as JSON.
+        #[arg(long)]
+        json: bool,
+    },
     Decode {
         /// The log file.
         log: PathBuf,

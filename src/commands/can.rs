@@ -1,10 +1,22 @@
-//! `sparkout can decode LOG`: a recorded bus log as CiA 301/402 events.
+//! `sparkout can decode LOG`: a recorded bus log as CiA 301/402 events;
+//! `sparkout can describe FILE`: a drive's EDS or DCF as the replay reads it.
 
 use std::path::Path;
 
 use anyhow::{bail, Context};
 use sparkout_pipeline::contracts::write_atomic;
 use sparkout_pipeline::replay::decode::decode_log;
+use sparkout_pipeline::replay::eds::DeviceDescription;
+
+pub fn describe(file: &Path, node: u8, json: bool) -> anyhow::Result<u8> {
+    let d = DeviceDescription::load(file, node)?;
+    if json {
+        println!("{}", serde_json::to_string_pretty(&d)?);
+    } else {
+        print!("{}", d.describe());
+    }
+    Ok(0)
+}
 
 pub fn decode(log: &Path, format: &str, out: Option<&Path>) -> anyhow::Result<u8> {
     if let Some(o) = out {

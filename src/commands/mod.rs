@@ -126,5 +126,8 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<u8> {
         Command::Can(crate::cli::CanCommand::Decode { log, format, out }) => {
             can::decode(&log, &format, out.as_deref())
         }
+        Command::Can(crate::cli::CanCommand::Describe { file, node, json }) => {
+            can::describe(&file, node, json)
+        }
     }
 }

@@ -12,6 +12,7 @@
 pub mod bus;
 pub mod canopen;
 pub mod decode;
+pub mod eds;
 pub mod envelope;
 pub mod log_bus;
 pub mod record;
