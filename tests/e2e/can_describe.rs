@@ -21,6 +21,16 @@ fn vendor_eds() -> String {
     s += "[1018sub0]\nParameterName=Count\nObjectType=0x7\nDataType=0x0005\nAccessType=ro\nDefaultValue=2\n\n";
     s += "[1018sub1]\nParameterName=Vendor-ID\nObjectType=0x7\nDataType=0x0007\nAccessType=ro\nDefaultValue=0x000000AB\n\n";
     s += "[1018sub2]\nParameterName=Product code\nObjectType=0x7\nDataType=0x0007\nAccessType=ro\nDefaultValue=010\n\n";
+    for (index, name, subs) in [
+        ("1400", "RPDO1 communication", 3),
+        ("1600", "RPDO1 mapping", 2),
+        ("1800", "TPDO1 communication", 2),
+        ("1A00", "TPDO1 mapping", 4),
+    ] {
+        s += &format!("[{index}]\nParameterName={name}\nObjectType=0x9\nSubNumber={subs}\n\n");
+    }
+    s += "[1400sub0]\nParameterName=Highest sub-index\nObjectType=0x7\nDataType=0x0005\nAccessType=ro\nDefaultValue=2\n\n";
+    s += "[1800sub0]\nParameterName=Highest sub-index\nObjectType=0x7\nDataType=0x0005\nAccessType=ro\nDefaultValue=1\n\n";
     // RPDO1: COB-ID with spaces, one object mapped.
     s += "[1400sub1]\nParameterName=COB-ID\nObjectType=0x7\nDataType=0x0007\nAccessType=rw\nDefaultValue=$NODEID + 0x200\n\n";
     s += "[1400sub2]\nParameterName=Type\nObjectType=0x7\nDataType=0x0005\nAccessType=rw\nDefaultValue=0xFF\n\n";
@@ -138,7 +148,7 @@ fn a_vendor_eds_with_every_quirk_is_read_as_written() {
         .filter(|e| e["index"] == 0x2000)
         .collect();
     assert_eq!(gains.len(), 4, "sub 0 and three compact entries");
-    assert_eq!(gains[1]["value"], 0x10);
+    assert_eq!(gains[1]["value"], 7, "[2000Value] is a DCF's, not an EDS's");
     assert_eq!(gains[2]["name"], "Kv");
     assert_eq!(gains[3]["value"], 7, "the object's DefaultValue");
     // The readable listing.
@@ -181,6 +191,13 @@ fn a_dcf_value_and_node_win() {
         .find(|p| p["pdo"] == "TPDO1")
         .unwrap();
     assert_eq!(tpdo1["cob_id"], 0x190, "ParameterValue over DefaultValue");
+    let gain1 = v["entries"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|e| e["index"] == 0x2000 && e["sub"] == 1)
+        .unwrap();
+    assert_eq!(gain1["value"], 0x10, "a DCF's [2000Value]");
 }
 
 #[test]
@@ -213,4 +230,87 @@ fn bad_files_are_refused_naming_where() {
     }
     let e = String::from_utf8_lossy(&describe(&d.path().join("bad2.eds"), &[]).stderr).to_string();
     assert!(e.contains("line "), "the line is named: {e}");
+}
+
+/// The same file through the Python `canopen` package (an independent
+/// implementation of CiA 306): every object and sub-object agrees in name,
+/// data type and evaluated default value. Skipped with a message where
+/// python3 or `canopen` is absent (`pip install canopen`).
+#[test]
+fn the_python_canopen_package_reads_the_same_dictionary() {
+    const SCRIPT: &str = r#"
+import json, sys
+import canopen
+od = canopen.import_od(sys.argv[1], node_id=int(sys.argv[2]))
+out = []
+for obj in od.values():
+    subs = [obj] if isinstance(obj, canopen.objectdictionary.ODVariable) else list(obj.values())
+    for v in subs:
+        val = v.value if getattr(v, "value", None) is not None else v.default
+        out.append([v.index, v.subindex, v.name, v.data_type, val if isinstance(val, int) else None])
+print(json.dumps(out))
+"#;
+    let have = std::process::Command::new("python3")
+        .args(["-c", "import canopen"])
+        .output();
+    if !have.is_ok_and(|o| o.status.success()) {
+        eprintln!(
+            "SKIPPED: python3 with the canopen package is not available (pip install canopen)"
+        );
+        return;
+    }
+    let d = tempfile::tempdir().unwrap();
+    let eds = d.path().join("vendor.eds");
+    // Octal (`010`) is left out: CiA 306 reads a leading zero as octal,
+    // the Python package as decimal.
+    // The package also wants every sub-index named in [XXXXName] when the
+    // section is there (CiA 306 lets a file name only some).
+    let text = vendor_eds()
+        .replace("DefaultValue=010", "DefaultValue=0x8")
+        .replace(
+            "[2000Name]\nNrOfEntries=1\n2=Kv",
+            "[2000Name]\nNrOfEntries=3\n1=Kp\n2=Kv\n3=Ki",
+        );
+    std::fs::write(&eds, text).unwrap();
+    let py = std::process::Command::new("python3")
+        .args(["-c", SCRIPT, eds.to_str().unwrap(), "3"])
+        .output()
+        .unwrap();
+    assert!(
+        py.status.success(),
+        "{}",
+        String::from_utf8_lossy(&py.stderr)
+    );
+    let theirs: Vec<(u64, u64, String, u64, Option<i64>)> =
+        serde_json::from_slice(&py.stdout).unwrap();
+    let o = describe(&eds, &["--node", "3", "--json"]);
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let ours: Vec<(u64, u64, String, u64, Option<i64>)> = v["entries"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|e| {
+            (
+                e["index"].as_u64().unwrap(),
+                e["sub"].as_u64().unwrap(),
+                e["name"].as_str().unwrap().to_string(),
+                e["data_type"]["code"].as_u64().unwrap_or(0),
+                e["value"].as_i64(),
+            )
+        })
+        .collect();
+    let mut theirs = theirs;
+    theirs.sort_by_key(|t| (t.0, t.1));
+    let key = |t: &(u64, u64, String, u64, Option<i64>)| (t.0, t.1);
+    let mine: std::collections::BTreeMap<_, _> = ours.iter().map(|t| (key(t), t)).collect();
+    for t in &theirs {
+        let m = mine
+            .get(&key(t))
+            .unwrap_or_else(|| panic!("0x{:04X}:{} missing from sparkout's reading", t.0, t.1));
+        assert_eq!(m.3, t.3, "data type of 0x{:04X}:{}", t.0, t.1);
+        if let (Some(a), Some(b)) = (m.4, t.4) {
+            assert_eq!(a, b, "value of 0x{:04X}:{}", t.0, t.1);
+        }
+    }
+    assert_eq!(theirs.len(), ours.len(), "{theirs:?}\n{ours:?}");
 }

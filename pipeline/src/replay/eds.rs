@@ -326,7 +326,11 @@ impl DeviceDescription {
                 });
                 for s in 1..=n {
                     let key = s.to_string();
-                    let value_text = get(&values, &key).or_else(|| base.value_text.clone());
+                    // [XXXXValue] holds a configured device's values: a
+                    // DCF's, like ParameterValue.
+                    let value_text = get(&values, &key)
+                        .filter(|_| is_dcf)
+                        .or_else(|| base.value_text.clone());
                     entries.push(Entry {
                         sub: s,
                         name: get(&names, &key).unwrap_or_else(|| format!("{}{s}", base.name)),
