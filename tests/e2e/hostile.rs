@@ -63,6 +63,25 @@ fn snapshot(dir: &Path) -> BTreeMap<PathBuf, (u64, u64)> {
     out
 }
 
+/// A generated paired-observations table with a drift effect.
+fn observations(dir: &Path, runs: &str) -> PathBuf {
+    let obs = dir.join("obs.parquet");
+    let g = sparkout(&[
+        "generate",
+        "observations",
+        "--runs",
+        runs,
+        "--seed",
+        "3",
+        "--out",
+        p(&obs),
+        "--effect",
+        "drift:t_s=amplitude_mm=0.02,tau_s=600",
+    ]);
+    assert!(g.status.success(), "{}", text(&g));
+    obs
+}
+
 fn run(input: &Path, out: &Path) -> Output {
     sparkout(&["run", "--input", p(input), "--out", p(out)])
 }
@@ -336,18 +355,7 @@ fn an_unreadable_directory_is_listed_and_the_batch_goes_on() {
 #[test]
 fn unknown_config_keys_and_a_machines_file_are_refused_everywhere() {
     let d = tempfile::tempdir().unwrap();
-    let obs = d.path().join("obs.parquet");
-    let g = sparkout(&[
-        "generate",
-        "observations",
-        "--runs",
-        "4",
-        "--seed",
-        "3",
-        "--out",
-        p(&obs),
-    ]);
-    assert!(g.status.success(), "{}", text(&g));
+    let obs = observations(d.path(), "4");
     let diag_out = d.path().join("diag");
     let o = sparkout(&[
         "diagnose",
@@ -392,20 +400,7 @@ fn markup_in_an_observable_name_is_escaped_in_the_report() {
     use arrow::array::{Array, StringArray};
     use std::sync::Arc;
     let d = tempfile::tempdir().unwrap();
-    let obs = d.path().join("obs.parquet");
-    let g = sparkout(&[
-        "generate",
-        "observations",
-        "--runs",
-        "6",
-        "--seed",
-        "3",
-        "--out",
-        p(&obs),
-        "--effect",
-        "drift:t_s=amplitude_mm=0.02,tau_s=600",
-    ]);
-    assert!(g.status.success(), "{}", text(&g));
+    let obs = observations(d.path(), "6");
     let batch = sparkout_pipeline::contracts::read_parquet(&obs).unwrap();
     let idx = batch.schema().index_of("observable").unwrap();
     let n = batch.column(idx).len();

@@ -119,6 +119,21 @@ pub fn inside(root: &Path, parts: &[(&str, &str)]) -> Result<PathBuf, String> {
     Ok(p)
 }
 
+/// How an output (as path segments) overlaps an input: "is the same
+/// directory as", "is inside", "contains", or `None` when apart. One rule
+/// for local paths and bucket prefixes.
+pub fn overlap<T: PartialEq>(input: &[T], out: &[T]) -> Option<&'static str> {
+    if input == out {
+        Some("is the same directory as")
+    } else if out.starts_with(input) {
+        Some("is inside")
+    } else if input.starts_with(out) {
+        Some("contains")
+    } else {
+        None
+    }
+}
+
 /// `--out` must be a directory of its own: equal to, inside or containing
 /// `--input`, a rejected run's clean-up or an output name could reach the
 /// input. Checked before any work, paths resolved through symbolic links.
@@ -130,13 +145,9 @@ pub fn check_out_apart(input: &Path, out: &Path, input_flag: &str) -> Result<(),
             out.display()
         ));
     };
-    let why = if i == o {
-        "is the same directory as"
-    } else if o.starts_with(&i) {
-        "is inside"
-    } else if i.starts_with(&o) {
-        "contains"
-    } else {
+    let (ip, op): (Vec<Component>, Vec<Component>) =
+        (i.components().collect(), o.components().collect());
+    let Some(why) = overlap(&ip, &op) else {
         return Ok(());
     };
     Err(format!(

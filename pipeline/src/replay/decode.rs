@@ -40,7 +40,7 @@ pub struct LoggedFrame {
 const CAN_ERR_FLAG: u32 = 0x2000_0000;
 
 fn hex_bytes(s: &str) -> Result<Vec<u8>, String> {
-    if s.len() % 2 != 0 || !s.bytes().all(|b| b.is_ascii_hexdigit()) {
+    if !s.len().is_multiple_of(2) || !s.bytes().all(|b| b.is_ascii_hexdigit()) {
         return Err(format!("data `{s}` is not pairs of hex digits"));
     }
     if s.len() > 128 {
@@ -137,7 +137,7 @@ pub fn parse_any_line(line: &str) -> Result<Option<LoggedFrame>, String> {
     // Screen format: IFACE ID [LEN] BYTES… | remote request.
     let (id, extended, error) = parse_id(frame)?;
     let len_word = words.get(2).ok_or("missing the length `[n]`")?;
-    let fd = len_word.starts_with("[[") || words.iter().any(|w| *w == "##");
+    let fd = len_word.starts_with("[[") || words.contains(&"##");
     let len: usize = len_word
         .trim_start_matches('[')
         .trim_end_matches(']')
@@ -539,20 +539,31 @@ impl Decoder {
             return;
         }
         match (request, specifier) {
-            (true, 1) => {
+            // A write request and a read response carry the data.
+            (true, 1) | (false, 2) => {
                 e.index = index;
                 e.subindex = sub;
+                let verb = if request { "write" } else { "read" };
                 if cmd & 0x02 != 0 {
                     let n = expedited_len(cmd).min(payload.len());
                     let v = le(&payload[..n]);
                     e.value = Some(v);
-                    e.text = format!("SDO write {dir} node {node} {obj} = {v} (0x{v:X})");
-                    if index == Some(0x6040) {
-                        e.text += &format!(" ({})", controlword_command(v as u16));
+                    e.text = format!("SDO {verb} {dir} node {node} {obj} = {v} (0x{v:X})");
+                    match index {
+                        Some(0x6040) => {
+                            e.text += &format!(" ({})", controlword_command(v as u16));
+                        }
+                        Some(0x6041) => {
+                            let s = DriveState::from_statusword(v as u16);
+                            e.state = Some(state_name(s).into());
+                            e.text += &format!(" ({})", state_name(s));
+                            self.states.insert(node, s);
+                        }
+                        _ => {}
                     }
                 } else {
                     e.text = format!(
-                        "SDO write {dir} node {node} {obj}: segmented, {} bytes",
+                        "SDO {verb} {dir} node {node} {obj}: segmented, {} bytes",
                         le(payload)
                     );
                 }
@@ -566,27 +577,6 @@ impl Decoder {
                 e.index = index;
                 e.subindex = sub;
                 e.text = format!("SDO write {dir} node {node} {obj}: done");
-            }
-            (false, 2) => {
-                e.index = index;
-                e.subindex = sub;
-                if cmd & 0x02 != 0 {
-                    let n = expedited_len(cmd).min(payload.len());
-                    let v = le(&payload[..n]);
-                    e.value = Some(v);
-                    e.text = format!("SDO read {dir} node {node} {obj} = {v} (0x{v:X})");
-                    if index == Some(0x6041) {
-                        let s = DriveState::from_statusword(v as u16);
-                        e.state = Some(state_name(s).into());
-                        e.text += &format!(" ({})", state_name(s));
-                        self.states.insert(node, s);
-                    }
-                } else {
-                    e.text = format!(
-                        "SDO read {dir} node {node} {obj}: segmented, {} bytes follow",
-                        le(payload)
-                    );
-                }
             }
             (_, 0) | (_, 3) | (false, 1) => {
                 e.text = format!(

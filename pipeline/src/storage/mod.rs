@@ -99,13 +99,7 @@ pub fn check_remote_apart(input: &Path, out: &Path) -> Result<()> {
     if si != so {
         return Ok(());
     }
-    let why = if i == o {
-        "is the same prefix as"
-    } else if o.starts_with(&i) {
-        "is inside"
-    } else if i.starts_with(&o) {
-        "contains"
-    } else {
+    let Some(why) = crate::contracts::names::overlap(&i, &o) else {
         return Ok(());
     };
     bail!(
