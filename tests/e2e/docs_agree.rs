@@ -1,8 +1,9 @@
 //! docs/formats.md and the plugins say the same thing: the table of
 //! required tables (section 5) against each plugin's `required_tables()`
 //! and `min_rows()`, the table of run.toml `[process]` keys (section 3)
-//! against each plugin's `process_keys()`. Either side changing alone fails
-//! here.
+//! against each plugin's `process_keys()`, the names of machine-config
+//! sizes, rates and periods (section 3) against `machine_check`'s. Either
+//! side changing alone fails here.
 
 use std::collections::BTreeSet;
 
@@ -126,4 +127,17 @@ fn process_keys_in_the_docs_are_the_plugins_declarations() {
         "docs/formats.md [process] table: missing {missing:?}, not in the code {stale:?}"
     );
     assert_eq!(documented.len(), declared.len(), "a key listed twice");
+}
+
+#[test]
+fn machine_config_ranges_in_the_docs_name_the_codes_positive_names() {
+    use sparkout_pipeline::contracts::config_keys::POSITIVE_NAMES;
+    let doc = formats_md();
+    let row = doc
+        .lines()
+        .find(|l| l.starts_with("| positive, and the name holds"))
+        .expect("docs/formats.md: the machine-config range row of sizes, rates and periods");
+    let documented: BTreeSet<&str> = row.split('`').skip(1).step_by(2).collect();
+    let declared: BTreeSet<&str> = POSITIVE_NAMES.iter().copied().collect();
+    assert_eq!(documented, declared);
 }

@@ -60,9 +60,9 @@ impl Generator for RobotGenerator {
 /// 4.07; zstd packs t_s and the quantised noise well), and the peak RSS of
 /// generating it above the program's own (the AE log is streamed in
 /// batches, so memory does not grow with the rate).
-const RUN_BYTES_BESIDES_AE: u64 = 11_860_000;
-const AE_BYTES_PER_SAMPLE: f64 = 4.1;
-const RUN_MEMORY_BYTES: u64 = 78_000_000;
+pub(super) const RUN_BYTES_BESIDES_AE: u64 = 11_860_000;
+pub(super) const AE_BYTES_PER_SAMPLE: f64 = 4.1;
+pub(super) const RUN_MEMORY_BYTES: u64 = 78_000_000;
 
 /// The fleet config `sparkout generate robot` makes of its options.
 fn fleet_config(opts: &GenerateOptions) -> RobotFleetConfig {

@@ -62,8 +62,9 @@ fn may_be_negative(key: &str) -> bool {
         || leaf.contains("offset")
 }
 
-/// Names of sizes, rates and periods: zero is as impossible as negative.
-const POSITIVE_NAMES: [&str; 13] = [
+/// Names of sizes, rates and periods: zero is as impossible as negative
+/// (docs/formats.md lists them; a test keeps the two alike).
+pub const POSITIVE_NAMES: [&str; 13] = [
     "radius", "period", "feed", "depth", "stock", "_hz", "speed", "spacing", "width", "area",
     "length", "rpm", "step",
 ];
