@@ -10,8 +10,6 @@
 pub const MAX_RUNS: u64 = 100_000;
 /// AE sample rate, Hz (10 MHz: above any AE sensor's band).
 pub const MAX_AE_RATE_HZ: f64 = 1e7;
-/// Worker threads.
-pub const MAX_JOBS: u64 = 1024;
 /// Cross-validation folds (the diagnosis config's own range).
 pub const MAX_FOLDS: u64 = 1000;
 /// Predicted bytes written above which work needs `--force-size`.

@@ -6,7 +6,7 @@ use std::process::ExitCode;
 
 use clap::{Args, Parser, Subcommand};
 
-use crate::bounds::{f64_above_at_most, MAX_AE_RATE_HZ, MAX_FOLDS, MAX_JOBS, MAX_RUNS};
+use crate::bounds::{f64_above_at_most, MAX_AE_RATE_HZ, MAX_FOLDS, MAX_RUNS};
 
 #[derive(Parser, Debug)]
 #[command(
@@ -61,9 +61,10 @@ pub enum Command {
         /// object storage (default: under the system temp dir, per URL).
         #[arg(long, value_name = "DIR")]
         work: Option<PathBuf>,
-        /// Worker threads across runs, 1 to 1024 (default: all cores).
-        #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..=MAX_JOBS))]
-        jobs: Option<u64>,
+        /// Worker threads across runs (default: all cores; more than the
+        /// cores are clamped to them).
+        #[arg(long, value_name = "N")]
+        jobs: Option<usize>,
         /// Process only shard i of n (0-based) and write <out>/shard.json
         /// instead of the fleet steps; join the shards with `sparkout
         /// aggregate` (README "Scale out").

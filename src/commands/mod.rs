@@ -32,8 +32,6 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<u8> {
             augment,
         } => {
             let places = run::Places::resolve(&input, &out, work.as_deref())?;
-            // clap bounds it to 1..=MAX_JOBS.
-            let jobs = jobs.map(|j| j as usize);
             match shard {
                 None => run::run(
                     &config,

@@ -424,6 +424,6 @@ fn numbers_that_size_work_are_bounded_and_large_work_needs_force_size() {
         h.contains("100000") && h.contains("10 MHz") && h.contains("--force-size"),
         "{h}"
     );
-    let h = text(&sparkout(&["run", "--help"]).stdout);
-    assert!(h.contains("1 to 1024"), "{h}");
+    let h = text(&sparkout(&["diagnose", "--help"]).stdout);
+    assert!(h.contains("2 to 1000"), "{h}");
 }
