@@ -152,7 +152,9 @@ pub enum Command {
                       sparkout stage datum --planes \"0,0,1,12.4;1,0,0,-20;0,1,0,-13\" --json\n  \
                       sparkout stage cycle --weld-mm 2.27 --rough 7 --finish 2 --spark 2 --doc-rough 0.3 \
                       --doc-finish 0.1 --first-cut 0.2 --json\n\
-                      Stage-specific flags (--planes, --weld-mm, ...) are passed to the stage."
+                      Stage-specific flags (--planes, --weld-mm, ...) are passed to the stage and checked like \
+                      config keys; stage cycle: --rough/--finish/--spark 0 to 100000 passes, --weld-mm and the \
+                      depths > 0."
     )]
     #[command(allow_negative_numbers = true)]
     Stage {

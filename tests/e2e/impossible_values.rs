@@ -426,4 +426,6 @@ fn numbers_that_size_work_are_bounded_and_large_work_needs_force_size() {
     );
     let h = text(&sparkout(&["diagnose", "--help"]).stdout);
     assert!(h.contains("2 to 1000"), "{h}");
+    let h = text(&sparkout(&["stage", "--help"]).stdout);
+    assert!(h.contains("0 to 100000 passes"), "{h}");
 }
