@@ -6,6 +6,8 @@ use std::process::ExitCode;
 
 use clap::{Args, Parser, Subcommand};
 
+use crate::bounds::{f64_above_at_most, MAX_AE_RATE_HZ, MAX_FOLDS, MAX_RUNS};
+
 #[derive(Parser, Debug)]
 #[command(
     name = "sparkout",
@@ -59,7 +61,8 @@ pub enum Command {
         /// object storage (default: under the system temp dir, per URL).
         #[arg(long, value_name = "DIR")]
         work: Option<PathBuf>,
-        /// Worker threads across runs (default: all cores).
+        /// Worker threads across runs (default: all cores; more than the
+        /// cores are clamped to them).
         #[arg(long, value_name = "N")]
         jobs: Option<usize>,
         /// Process only shard i of n (0-based) and write <out>/shard.json
@@ -149,7 +152,9 @@ pub enum Command {
                       sparkout stage datum --planes \"0,0,1,12.4;1,0,0,-20;0,1,0,-13\" --json\n  \
                       sparkout stage cycle --weld-mm 2.27 --rough 7 --finish 2 --spark 2 --doc-rough 0.3 \
                       --doc-finish 0.1 --first-cut 0.2 --json\n\
-                      Stage-specific flags (--planes, --weld-mm, ...) are passed to the stage."
+                      Stage-specific flags (--planes, --weld-mm, ...) are passed to the stage and checked like \
+                      config keys; stage cycle: --rough/--finish/--spark 0 to 100000 passes, --weld-mm and the \
+                      depths > 0."
     )]
     #[command(allow_negative_numbers = true)]
     Stage {
@@ -233,9 +238,9 @@ pub enum Command {
     Generate {
         /// What to generate: a plugin name (robot, guideway) or `observations`.
         what: String,
-        /// Number of runs.
-        #[arg(long, default_value_t = 4)]
-        runs: usize,
+        /// Number of runs, 1 to 100000.
+        #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u64).range(1..=MAX_RUNS))]
+        runs: u64,
         /// Random seed (same seed → identical bytes).
         #[arg(long, default_value_t = 0)]
         seed: u64,
@@ -245,8 +250,9 @@ pub enum Command {
         /// Inject an effect: NAME[:COVARIATE]=KEY=VALUE,... (repeatable).
         #[arg(long = "effect", value_name = "SPEC")]
         effects: Vec<String>,
-        /// AE sample rate for plugins that record AE (default: the generator's, 1 MHz).
-        #[arg(long, value_name = "HZ")]
+        /// AE sample rate for plugins that record AE, at most 10 MHz
+        /// (default: the generator's, 1 MHz).
+        #[arg(long, value_name = "HZ", value_parser = f64_above_at_most(0.0, MAX_AE_RATE_HZ))]
         ae_rate_hz: Option<f64>,
         /// List the injectable effects and exit.
         #[arg(long)]
@@ -254,6 +260,10 @@ pub enum Command {
         /// Overwrite runs (or an observations file) that already exist at --out.
         #[arg(long)]
         force: bool,
+        /// Generate even when the fleet is predicted to write more than
+        /// 10 GB or to hold more than half of this machine's memory.
+        #[arg(long)]
+        force_size: bool,
     },
     /// Generate a small fleet, run everything, print where the report is.
     #[command(after_help = "Example: sparkout demo --out /tmp/sparkout-demo")]
@@ -363,9 +373,9 @@ pub enum CanCommand {
 pub struct DiagnoseFlags {
     #[command(flatten)]
     pub config: ConfigArgs,
-    /// Cross-validation folds (by machine and run).
-    #[arg(long)]
-    pub folds: Option<usize>,
+    /// Cross-validation folds (by machine and run), 2 to 1000.
+    #[arg(long, value_parser = clap::value_parser!(u64).range(2..=MAX_FOLDS))]
+    pub folds: Option<u64>,
     /// Restrict the catalogue: comma-separated effect names.
     #[arg(long, value_delimiter = ',')]
     pub effects: Option<Vec<String>>,
@@ -391,8 +401,9 @@ pub struct ReplayArgs {
     /// sim | log:FILE (candump -l log, simulated drives) | socketcan:IFACE (Linux hardware).
     #[arg(long, value_name = "BUS")]
     pub bus: String,
-    /// SYNC / setpoint cycle in ms (at least 1).
-    #[arg(long, default_value_t = 4.0, value_name = "MS")]
+    /// SYNC / setpoint cycle in ms, 1 to 1000 (a shorter cycle means more
+    /// setpoints for the same path).
+    #[arg(long, default_value_t = 4.0, value_name = "MS", value_parser = f64_above_at_most(0.0, 1000.0))]
     pub cycle_ms: f64,
     /// Open no hardware and send nothing: simulated drives answer, and the
     /// frames that would be sent are printed (all of them with --bus log:FILE).

@@ -1,6 +1,7 @@
 //! sparkout: a thin main. Parsing lives in `cli`, each subcommand in
 //! `commands/`, the plugin list in `registry`.
 
+mod bounds;
 mod cli;
 mod commands;
 mod progress;

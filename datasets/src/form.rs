@@ -16,7 +16,7 @@
 
 use std::path::{Path, PathBuf};
 
-use crate::generator::{DemoFleet, FleetGenerator};
+use crate::generator::{DemoFleet, FleetGenerator, RunSize};
 use crate::rng::{normal, stream_rng};
 use anyhow::{bail, Context, Result};
 use arrow::array::{ArrayRef, Float64Array, StringArray};
@@ -265,6 +265,10 @@ pub const GENERATOR: FleetGenerator<FormFleetConfig> = FleetGenerator {
         seed: 1,
         effect: "wheel_wear",
     }),
+    run_size: RunSize {
+        disk_bytes: 19_970,
+        memory_bytes: 7_600_000,
+    },
 };
 
 /// Generate the fleet under `root/<machine>/rNNNN/`.

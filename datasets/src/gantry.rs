@@ -21,7 +21,7 @@
 
 use std::path::{Path, PathBuf};
 
-use crate::generator::{DemoFleet, FleetGenerator};
+use crate::generator::{DemoFleet, FleetGenerator, RunSize};
 use crate::rng::{normal, stream_rng};
 use anyhow::{bail, Context, Result};
 use rand::Rng;
@@ -220,6 +220,10 @@ pub const GENERATOR: FleetGenerator<GantryFleetConfig> = FleetGenerator {
         seed: 1,
         effect: "thermal_bow",
     }),
+    run_size: RunSize {
+        disk_bytes: 57_648,
+        memory_bytes: 12_300_000,
+    },
 };
 
 /// Generate the fleet under `<root>/<machine>/r0000 …`.

@@ -38,6 +38,37 @@ pub struct Generated {
     pub summary: String,
 }
 
+/// Predicted size of a generation: `sparkout generate` refuses one that is
+/// too large before writing anything (unless `--force-size`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Predicted {
+    /// Bytes written.
+    pub write_bytes: u64,
+    /// Bytes held in memory at the peak.
+    pub peak_memory_bytes: u64,
+}
+
+/// The size of one generated run at a generator's defaults, measured (a
+/// debug build's `generate NAME --runs 1`: the run directory's bytes, and
+/// the peak RSS above that of a `--list-effects` call).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RunSize {
+    pub disk_bytes: u64,
+    pub memory_bytes: u64,
+}
+
+impl RunSize {
+    /// `runs` runs, each generated whole in memory and written, as many at
+    /// a time as the thread pool has threads.
+    pub fn fleet(self, runs: usize) -> Predicted {
+        let at_once = runs.min(rayon::current_num_threads()).max(1) as u64;
+        Predicted {
+            write_bytes: self.disk_bytes.saturating_mul(runs as u64),
+            peak_memory_bytes: self.memory_bytes.saturating_mul(at_once),
+        }
+    }
+}
+
 /// A synthetic-data generator: a plugin's forward model with injected
 /// effects and noise, seeded and deterministic.
 pub trait Generator: Send + Sync {
@@ -59,6 +90,9 @@ pub trait Generator: Send + Sync {
             .map(|(name, about)| format!("{name:w$} {about}\n"))
             .collect()
     }
+    /// What generating with `opts` would write and hold, predicted from
+    /// the options alone (nothing is generated).
+    fn predicted_size(&self, opts: &GenerateOptions) -> Predicted;
     /// Generate into `out` (a fleet root, or a file for non-fleet data).
     fn generate(
         &self,
@@ -94,6 +128,8 @@ pub struct FleetGenerator<C: 'static> {
     pub config: fn(usize, u64) -> C,
     pub generate_fleet: fn(&Path, &C, &[EffectSpec]) -> Result<Vec<PathBuf>>,
     pub demo: Option<DemoFleet>,
+    /// One run at the defaults (the options change only the run count).
+    pub run_size: RunSize,
 }
 
 impl<C: 'static> Generator for FleetGenerator<C> {
@@ -102,6 +138,9 @@ impl<C: 'static> Generator for FleetGenerator<C> {
     }
     fn known_effects(&self) -> Vec<(&'static str, &'static str)> {
         (self.known_effects)()
+    }
+    fn predicted_size(&self, opts: &GenerateOptions) -> Predicted {
+        self.run_size.fleet(opts.runs)
     }
     fn generate(&self, out: &Path, opts: &GenerateOptions, fx: &[EffectSpec]) -> Result<Generated> {
         no_ae_rate(self.name, opts)?;

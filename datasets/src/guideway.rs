@@ -32,7 +32,7 @@ use std::collections::BTreeMap;
 use std::f64::consts::PI;
 use std::path::{Path, PathBuf};
 
-use crate::generator::{DemoFleet, FleetGenerator};
+use crate::generator::{DemoFleet, FleetGenerator, RunSize};
 use crate::rng::{normal, stream_rng, uniform};
 use anyhow::{bail, Context, Result};
 use arrow::record_batch::RecordBatch;
@@ -539,6 +539,10 @@ pub const GENERATOR: FleetGenerator<GuidewayFleetConfig> = FleetGenerator {
         seed: 1,
         effect: "thermal_infeed",
     }),
+    run_size: RunSize {
+        disk_bytes: 158_019,
+        memory_bytes: 7_400_000,
+    },
 };
 
 /// Generate the fleet under `<root>/<machine>/r0000 …`.

@@ -15,4 +15,5 @@ pub mod validate;
 
 pub use generator::{
     all_generators, generator, DemoFleet, FleetGenerator, GenerateOptions, Generated, Generator,
+    Predicted, RunSize,
 };

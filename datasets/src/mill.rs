@@ -31,7 +31,7 @@
 use std::f64::consts::PI;
 use std::path::{Path, PathBuf};
 
-use crate::generator::{DemoFleet, FleetGenerator};
+use crate::generator::{DemoFleet, FleetGenerator, RunSize};
 use crate::rng::{normal, stream_rng, uniform};
 use anyhow::{bail, Context, Result};
 use nalgebra::Vector3;
@@ -273,6 +273,10 @@ pub const GENERATOR: FleetGenerator<MillFleetConfig> = FleetGenerator {
         seed: 1,
         effect: "thermal_growth",
     }),
+    run_size: RunSize {
+        disk_bytes: 37_667,
+        memory_bytes: 9_100_000,
+    },
 };
 
 /// Generate `<root>/xfyz-mill/r0000 …`; returns the run dirs in order.

@@ -33,7 +33,7 @@ use sparkout_pipeline::contracts::{
 };
 use sparkout_pipeline::EffectSpec;
 
-use crate::{DemoFleet, FleetGenerator};
+use crate::{DemoFleet, FleetGenerator, RunSize};
 use sparkout_plugins::servo::config::ServoMachine;
 use sparkout_plugins::servo::model::{simulate, AxisServo};
 use sparkout_plugins::servo::trace::{derivative, direction};
@@ -376,6 +376,10 @@ pub const GENERATOR: FleetGenerator<ServoFleetConfig> = FleetGenerator {
         seed: 1,
         effect: "servo_lag",
     }),
+    run_size: RunSize {
+        disk_bytes: 175_854,
+        memory_bytes: 9_600_000,
+    },
 };
 
 /// Generate `<root>/servo-mill/r0000 …`; returns the run dirs in order.

@@ -31,6 +31,54 @@ pub enum Check {
     WholeIn(i64, i64),
     /// An odd whole number ≥ lo (a window of points centred on one).
     OddAtLeast(i64),
+    /// Any finite number (a position, which may be negative).
+    Number,
+    /// Any string (a label kept for provenance).
+    Text,
+    /// An array of this many numbers, each > 0 (a block's size per axis).
+    PositiveArray(usize),
+}
+
+impl Check {
+    /// Whether `v` is what this check wants.
+    pub fn accepts(&self, v: &toml::Value) -> bool {
+        let finite = |v: &toml::Value| toml_f64(v).filter(|x| x.is_finite());
+        match self {
+            Check::Positive => finite(v).is_some_and(|x| x > 0.0),
+            Check::NonNegative => finite(v).is_some_and(|x| x >= 0.0),
+            Check::Fraction => toml_f64(v).is_some_and(|x| x > 0.0 && x <= 1.0),
+            Check::Probability => toml_f64(v).is_some_and(|x| x > 0.0 && x < 1.0),
+            Check::AtLeastOne => finite(v).is_some_and(|x| x >= 1.0),
+            Check::WholeIn(lo, hi) => whole_number(v).is_some_and(|i| (*lo..=*hi).contains(&i)),
+            Check::OddAtLeast(lo) => whole_number(v).is_some_and(|i| i >= *lo && i % 2 == 1),
+            Check::Bool => v.is_bool(),
+            Check::OneOf(opts) => v.as_str().is_some_and(|s| opts.contains(&s)),
+            Check::Number => finite(v).is_some(),
+            Check::Text => v.is_str(),
+            Check::PositiveArray(n) => v.as_array().is_some_and(|a| {
+                a.len() == *n && a.iter().all(|x| finite(x).is_some_and(|x| x > 0.0))
+            }),
+        }
+    }
+
+    /// What the check wants, as the error message and docs/formats.md say
+    /// it ("a number > 0").
+    pub fn describe(&self) -> String {
+        match self {
+            Check::Positive => "a number > 0".to_string(),
+            Check::NonNegative => "a number ≥ 0".to_string(),
+            Check::Fraction => "a number in (0, 1]".to_string(),
+            Check::Probability => "a number in (0, 1)".to_string(),
+            Check::AtLeastOne => "a number ≥ 1".to_string(),
+            Check::WholeIn(lo, hi) => format!("a whole number in {lo}..={hi}"),
+            Check::OddAtLeast(lo) => format!("an odd whole number ≥ {lo}"),
+            Check::Bool => "true or false".to_string(),
+            Check::OneOf(opts) => format!("one of {}", opts.join(", ")),
+            Check::Number => "a finite number".to_string(),
+            Check::Text => "a string".to_string(),
+            Check::PositiveArray(n) => format!("an array of {n} numbers > 0"),
+        }
+    }
 }
 
 /// A config section as a serde struct: the one way a stage (and the
@@ -167,32 +215,10 @@ pub fn whole_number(v: &toml::Value) -> Option<i64> {
 
 /// One key's value against what it must be.
 fn check_value(k: &str, v: &toml::Value, check: &Check) -> Result<(), ConfigError> {
-    let ok = match check {
-        Check::Positive => toml_f64(v).is_some_and(|x| x.is_finite() && x > 0.0),
-        Check::NonNegative => toml_f64(v).is_some_and(|x| x.is_finite() && x >= 0.0),
-        Check::Fraction => toml_f64(v).is_some_and(|x| x > 0.0 && x <= 1.0),
-        Check::Probability => toml_f64(v).is_some_and(|x| x > 0.0 && x < 1.0),
-        Check::AtLeastOne => toml_f64(v).is_some_and(|x| x.is_finite() && x >= 1.0),
-        Check::WholeIn(lo, hi) => whole_number(v).is_some_and(|i| (*lo..=*hi).contains(&i)),
-        Check::OddAtLeast(lo) => whole_number(v).is_some_and(|i| i >= *lo && i % 2 == 1),
-        Check::Bool => v.is_bool(),
-        Check::OneOf(opts) => v.as_str().is_some_and(|s| opts.contains(&s)),
-    };
-    if ok {
+    if check.accepts(v) {
         return Ok(());
     }
-    let want = match check {
-        Check::Positive => "a number > 0".to_string(),
-        Check::NonNegative => "a number ≥ 0".to_string(),
-        Check::Fraction => "a number in (0, 1]".to_string(),
-        Check::Probability => "a number in (0, 1)".to_string(),
-        Check::AtLeastOne => "a number ≥ 1".to_string(),
-        Check::WholeIn(lo, hi) => format!("a whole number in {lo}..={hi}"),
-        Check::OddAtLeast(lo) => format!("an odd whole number ≥ {lo}"),
-        Check::Bool => "true or false".to_string(),
-        Check::OneOf(opts) => format!("one of {}", opts.join(", ")),
-    };
-    Err(ConfigError::bad_value(k, want, v))
+    Err(ConfigError::bad_value(k, check.describe(), v))
 }
 
 /// Run-less stage flags (`--p-max 20`) as a config table (`p_max = 20`):
@@ -212,6 +238,42 @@ pub fn flags_to_table(args: &crate::StageArgs, inputs: &[&str]) -> toml::Table {
         t.insert(k.replace('-', "_"), value);
     }
     t
+}
+
+/// A run-less stage's own flags (`stage cycle --weld-mm 2.27 --rough 7`)
+/// checked like config keys: each flag named in `flags` with what its value
+/// must be; an unknown flag or a value outside its [`Check`] is an error
+/// naming the stage and the flag. Returns the values as TOML by flag name
+/// (dashes kept); an absent flag is absent.
+pub fn read_flags(
+    stage: &str,
+    args: &crate::StageArgs,
+    flags: &[(&str, Check)],
+) -> crate::Result<toml::Table> {
+    let table = flags_to_table(args, &[]);
+    let mut out = toml::Table::new();
+    for (k, v) in table {
+        let flag = k.replace('_', "-");
+        let Some((_, check)) = flags.iter().find(|(name, _)| *name == flag) else {
+            anyhow::bail!(
+                "stage {stage}: unknown option --{flag} (known: {})",
+                flags
+                    .iter()
+                    .map(|(f, _)| format!("--{f}"))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            );
+        };
+        if !check.accepts(&v) {
+            anyhow::bail!(
+                "stage {stage}: --{flag} must be {}, got {}",
+                check.describe(),
+                args.get(&flag).map(String::as_str).unwrap_or("?")
+            );
+        }
+        out.insert(flag, v);
+    }
+    Ok(out)
 }
 
 /// Read a config section into its serde struct: a key the struct does not

@@ -16,11 +16,11 @@ pub fn run_toml(data: &[u8]) {
         return;
     };
     if let Ok(spec) = RunSpec::parse(Path::new("fuzz"), text) {
-        let _ = check_process(
-            &spec,
-            "guideway",
-            Some(&["probe_spacing_mm", "sample_step_mm"]),
-        );
+        const KEYS: crate::ProcessKeys = &[
+            ("probe_spacing_mm", crate::config_check::Check::Positive),
+            ("sample_step_mm", crate::config_check::Check::Positive),
+        ];
+        let _ = check_process(&spec, "guideway", Some(KEYS));
     }
 }
 

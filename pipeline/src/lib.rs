@@ -20,7 +20,7 @@ pub mod values;
 pub use effect_spec::EffectSpec;
 pub use error::{ConfigError, InputError, Result};
 pub use traits::{
-    ArtifactStore, MachinePlugin, ReportSection, Run, Stage, StageArgs, StageContext, StageOutput,
-    StageSpec,
+    ArtifactStore, MachinePlugin, ProcessKeys, ReportSection, Run, Stage, StageArgs, StageContext,
+    StageOutput, StageSpec,
 };
 pub use values::{json_f64, json_opt_f64, toml_f64};

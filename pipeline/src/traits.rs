@@ -354,20 +354,33 @@ pub struct ReportSection {
     pub html: String,
 }
 
+/// run.toml `[process]` keys with what each value must be
+/// ([`MachinePlugin::process_keys`]).
+pub type ProcessKeys = &'static [(&'static str, crate::config_check::Check)];
+
 /// One machine type.
 pub trait MachinePlugin: Send + Sync {
     fn name(&self) -> &'static str;
     /// Alternative sets of tables, one of which a run must have
     /// (CONTRACTS.md §3), e.g. robot: `[["probe"], ["ae", "motion", "plan"]]`.
     fn required_tables(&self) -> Vec<Vec<&'static str>>;
+    /// The fewest rows a present table must have for the plugin's methods,
+    /// as (table, rows); fewer rejects the run naming the file before any
+    /// stage runs (`validate-input` says so too).
+    fn min_rows(&self) -> &'static [(&'static str, usize)] {
+        &[]
+    }
     /// The plugin's stages, in any order (the engine sorts them by edges).
     fn stages(&self) -> Vec<Arc<dyn Stage>>;
-    /// Machine configs built into the binary: (machine id, TOML text).
-    /// The keys this plugin reads from run.toml `[process]`; any other key
-    /// there is a typo and rejects the run. `None` leaves them unchecked.
-    fn process_keys(&self) -> Option<&'static [&'static str]> {
+    /// The keys this plugin reads (or the generator records) in run.toml
+    /// `[process]`, each with its valid range: any other key is a typo and
+    /// a value outside its range is impossible; either rejects the run
+    /// naming run.toml and the key. docs/formats.md's table of ranges is
+    /// tested against these. `None` leaves `[process]` unchecked.
+    fn process_keys(&self) -> Option<ProcessKeys> {
         None
     }
+    /// Machine configs built into the binary: (machine id, TOML text).
     fn builtin_machines(&self) -> Vec<(&'static str, &'static str)> {
         Vec::new()
     }

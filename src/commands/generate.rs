@@ -8,6 +8,8 @@ use sparkout_datasets::GenerateOptions;
 use sparkout_pipeline::contracts::{discover_runs, RunSpec};
 use sparkout_pipeline::EffectSpec;
 
+use crate::bounds;
+
 pub fn parse_effects(effects: &[String]) -> anyhow::Result<Vec<EffectSpec>> {
     effects
         .iter()
@@ -50,13 +52,22 @@ fn refuse_overwrite(what: &str, out: &Path) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// What `generate` may do beyond its defaults.
+#[derive(Debug, Clone, Copy)]
+pub struct Overrides {
+    /// Overwrite runs (or an observations file) already at --out.
+    pub force: bool,
+    /// Generate a fleet predicted to be too large (crate::bounds).
+    pub force_size: bool,
+}
+
 pub fn generate(
     what: &str,
     opts: &GenerateOptions,
     out: Option<PathBuf>,
     effects: &[String],
     list_effects: bool,
-    force: bool,
+    overrides: Overrides,
 ) -> anyhow::Result<u8> {
     let effects = parse_effects(effects)?;
     let Some(g) = sparkout_datasets::generator(what) else {
@@ -79,7 +90,19 @@ pub fn generate(
         return Ok(0);
     }
     let out = out.context("--out is required (a fleet root; a .parquet file for observations)")?;
-    if !force {
+    bounds::check_size(
+        &format!(
+            "generate {what} --runs {}{}",
+            opts.runs,
+            opts.ae_rate_hz
+                .map(|r| format!(" --ae-rate-hz {r}"))
+                .unwrap_or_default()
+        ),
+        g.predicted_size(opts),
+        bounds::machine_memory_bytes(),
+        overrides.force_size,
+    )?;
+    if !overrides.force {
         refuse_overwrite(what, &out)?;
     }
     println!("{}", g.generate(&out, opts, &effects)?.summary);

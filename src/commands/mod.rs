@@ -70,13 +70,22 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<u8> {
             ae_rate_hz,
             list_effects,
             force,
+            force_size,
         } => {
             let opts = sparkout_datasets::GenerateOptions {
-                runs,
+                // clap bounds it to 1..=MAX_RUNS.
+                runs: runs as usize,
                 seed,
                 ae_rate_hz,
             };
-            generate::generate(&what, &opts, out, &effects, list_effects, force)
+            generate::generate(
+                &what,
+                &opts,
+                out,
+                &effects,
+                list_effects,
+                generate::Overrides { force, force_size },
+            )
         }
         Command::Import {
             files,

@@ -329,7 +329,7 @@ fn bad_inputs_are_rejected_and_the_batch_goes_on() {
         e["error"]
             .as_str()
             .unwrap()
-            .contains("pressure_pa must be a positive number"),
+            .contains("[process].pressure_pa must be a number > 0"),
         "{e}"
     );
     assert_eq!(e["column"], "process.pressure_pa");
@@ -338,7 +338,7 @@ fn bad_inputs_are_rejected_and_the_batch_goes_on() {
         e["error"]
             .as_str()
             .unwrap()
-            .contains("k_p_per_pa must be a positive number"),
+            .contains("[process].k_p_per_pa must be a number > 0"),
         "{e}"
     );
     // The good run went through.

@@ -87,9 +87,14 @@ proptest! {
         let text = format!("[run]\nid = \"r\"\nmachine = \"m\"\nplugin = \"guideway\"\n[process]\n{key} = {v:?}\n");
         let text = text.replace("NaN", "nan");
         if let Ok(spec) = RunSpec::parse(Path::new("r"), &text) {
-            let known = ["probe_spacing_mm", "sample_step_mm", "infeed_mm", "passes"];
-            let r = check_process(&spec, "guideway", Some(&known));
-            prop_assert_eq!(r.is_ok(), known.contains(&key.as_str()) && v.is_finite());
+            use sparkout_pipeline::MachinePlugin;
+            let known = sparkout_plugins::guideway::GuidewayPlugin.process_keys().unwrap();
+            let r = check_process(&spec, "guideway", Some(known));
+            // Accepted exactly when the key is known and its range holds.
+            let in_range = known
+                .iter()
+                .any(|(k, check)| *k == key && check.accepts(&toml::Value::Float(v)));
+            prop_assert_eq!(r.is_ok(), in_range && v.is_finite());
         }
     }
 

@@ -386,3 +386,90 @@ fn log_backend_is_read_by_python_can_and_decoded_by_cantools() {
     eprintln!("{}", text(&check.stdout).trim());
     assert!(text(&check.stdout).contains("SYNC every 4.000 ms"));
 }
+
+/// What `replay --record` writes is a run `validate-input` and `run` accept,
+/// for every machine type whose runs replay can drive (those with
+/// motion.parquet): a robot run probed by AE (no probe table: ae + motion +
+/// plan), a servo run and a gantry run, as the generators make them.
+#[test]
+fn a_recorded_run_is_accepted_for_every_machine_type_replay_drives() {
+    let tmp = tempfile::tempdir().unwrap();
+    let root = tmp.path().join("runs");
+    for (plugin, extra) in [
+        ("robot", &["--ae-rate-hz", "200000"][..]),
+        ("servo", &[][..]),
+        ("gantry", &[][..]),
+    ] {
+        let mut args = vec!["generate", plugin, "--runs", "2", "--seed", "2"];
+        args.extend(extra);
+        args.extend(["--out", root.to_str().unwrap()]);
+        let g = sparkout(&args);
+        assert!(g.status.success(), "{plugin}: {}", text(&g.stderr));
+    }
+    let runs = sparkout_pipeline::contracts::discover_runs(&root).unwrap();
+    let pick = |plugin: &str, without: Option<&str>| -> PathBuf {
+        runs.iter()
+            .find(|d| {
+                std::fs::read_to_string(d.join("run.toml"))
+                    .unwrap()
+                    .contains(&format!("plugin = \"{plugin}\""))
+                    && without.is_none_or(|t| !d.join(t).exists())
+            })
+            .unwrap_or_else(|| panic!("no {plugin} run"))
+            .clone()
+    };
+    let sources = [
+        ("robot", pick("robot", Some("probe.parquet"))),
+        ("servo", pick("servo", None)),
+        ("gantry", pick("gantry", None)),
+    ];
+    let recorded = tmp.path().join("recorded");
+    for (plugin, src) in &sources {
+        assert!(src.join("motion.parquet").is_file(), "{plugin}");
+        let out = recorded.join(plugin).join("replayed");
+        let o = sparkout(&[
+            "replay",
+            "--run",
+            src.to_str().unwrap(),
+            "--bus",
+            "sim",
+            "--cycle-ms",
+            "1",
+            "--max-step-mm",
+            "50",
+            "--max-step-change-mm",
+            "50",
+            "--max-following-mm",
+            "50",
+            "--sim-max-speed-mm-s",
+            "100000",
+            "--record",
+            out.to_str().unwrap(),
+        ]);
+        assert_eq!(o.status.code(), Some(0), "{plugin}: {}", text(&o.stderr));
+        let v = sparkout(&["validate-input", out.to_str().unwrap()]);
+        assert_eq!(
+            v.status.code(),
+            Some(0),
+            "{plugin}: {}{}",
+            text(&v.stdout),
+            text(&v.stderr)
+        );
+    }
+    // `run` over all of them: none rejected.
+    let o = sparkout(&[
+        "run",
+        "--input",
+        recorded.to_str().unwrap(),
+        "--out",
+        tmp.path().join("out").to_str().unwrap(),
+    ]);
+    let failures = std::fs::read_to_string(tmp.path().join("out/failures.json")).unwrap();
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}{}{failures}",
+        text(&o.stdout),
+        text(&o.stderr)
+    );
+}

@@ -45,7 +45,9 @@ use std::path::{Path, PathBuf};
 use std::str::FromStr;
 use std::sync::Arc;
 
-use crate::generator::{fleet_summary, DemoFleet, GenerateOptions, Generated, Generator};
+use crate::generator::{
+    fleet_summary, DemoFleet, GenerateOptions, Generated, Generator, Predicted, RunSize,
+};
 use crate::rng::{normal, stream_rng, symmetric, uniform};
 use anyhow::{bail, Context, Result};
 use arrow::array::{Float32Array, Float64Array};

@@ -131,3 +131,24 @@ fn config_validation() {
     assert!(bad.validate().is_err());
     assert_eq!("alternate".parse::<ProbeMode>(), Ok(ProbeMode::Alternate));
 }
+
+/// The size `sparkout generate robot` predicts (no generation): one run at
+/// the defaults is what a debug build measured (33.8 MB), the AE log grows
+/// with the rate, and runs add up.
+#[test]
+fn predicted_size_follows_rate_and_runs() {
+    let opts = |runs, rate| GenerateOptions {
+        runs,
+        seed: 0,
+        ae_rate_hz: rate,
+    };
+    let one = RobotGenerator.predicted_size(&opts(1, None)).write_bytes as f64;
+    assert!((one / 33.8e6 - 1.0).abs() < 0.05, "{one}");
+    let fast = RobotGenerator
+        .predicted_size(&opts(1, Some(1e7)))
+        .write_bytes as f64;
+    assert!((fast - 11.86e6) / (one - 11.86e6) > 9.9, "{fast}");
+    let many = RobotGenerator.predicted_size(&opts(100_000, Some(1e7)));
+    assert!(many.write_bytes > 10_000_000_000_000);
+    assert!(many.peak_memory_bytes < 100 * RUN_MEMORY_BYTES);
+}

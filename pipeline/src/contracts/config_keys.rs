@@ -7,7 +7,9 @@
 use std::collections::BTreeMap;
 
 use super::run::{MachineConfig, RunSpec};
+use crate::config_check::Check;
 use crate::error::InputError;
+use crate::{toml_f64, ProcessKeys};
 
 /// Dotted leaf keys of a TOML table with their values.
 fn leaves<'a>(t: &'a toml::Table, prefix: &str, out: &mut BTreeMap<String, &'a toml::Value>) {
@@ -50,8 +52,7 @@ fn kind(v: &toml::Value) -> &'static str {
 const DESCRIPTIVE: [&str; 3] = ["machine.id", "machine.plugin", "machine.description"];
 
 /// Positions and offsets may be negative (latencies are 0 in the
-/// built-in machines, so unconstrained); other scalars the built-in
-/// machines give as positive (radii, speeds, weights, σ, …) may not.
+/// built-in machines, so unconstrained).
 fn may_be_negative(key: &str) -> bool {
     let leaf = key.rsplit('.').next().unwrap_or(key);
     ["x_mm", "y_mm", "z_mm"].contains(&leaf)
@@ -59,6 +60,30 @@ fn may_be_negative(key: &str) -> bool {
             .iter()
             .any(|s| leaf.ends_with(s))
         || leaf.contains("offset")
+}
+
+/// Names of sizes, rates and periods: zero is as impossible as negative
+/// (docs/formats.md lists them; a test keeps the two alike).
+pub const POSITIVE_NAMES: [&str; 13] = [
+    "radius", "period", "feed", "depth", "stock", "_hz", "speed", "spacing", "width", "area",
+    "length", "rpm", "step",
+];
+
+/// The range of a machine-config number, from the built-in machine's value
+/// for the same key (docs/formats.md "Machine configs"): a position or
+/// offset any finite number; a size, rate or period the built-in gives
+/// positive > 0; any other number the built-in gives positive ≥ 0; else
+/// any finite number.
+pub fn machine_check(key: &str, reference: &toml::Value) -> Check {
+    let leaf = key.rsplit('.').next().unwrap_or(key);
+    let positive_reference = toml_f64(reference).is_some_and(|r| r > 0.0);
+    if !positive_reference || may_be_negative(key) {
+        Check::Number
+    } else if POSITIVE_NAMES.iter().any(|n| leaf.contains(n)) {
+        Check::Positive
+    } else {
+        Check::NonNegative
+    }
 }
 
 /// Check a resolved machine config against the built-in machines of the
@@ -144,42 +169,54 @@ pub fn check_machine(m: &MachineConfig, plugin: &str, builtins: &[&str]) -> Resu
                 ),
             ));
         }
-        let as_f = |v: &toml::Value| v.as_float().or_else(|| v.as_integer().map(|i| i as f64));
-        if let (Some(r), Some(x)) = (as_f(reference), as_f(v)) {
-            if r > 0.0 && x < 0.0 && !may_be_negative(key) {
-                return Err(err(key, format!("`{key}` must not be negative, found {x}")));
+        if toml_f64(v).is_some() {
+            let check = machine_check(key, reference);
+            if !check.accepts(v) {
+                return Err(err(
+                    key,
+                    format!("`{key}` must be {}, found {v}", check.describe()),
+                ));
             }
         }
     }
     Ok(())
 }
 
-/// Check run.toml `[process]` against the keys the plugin reads (`None`:
-/// the plugin declares none, unchecked). Numbers must be finite.
+/// Check run.toml `[process]` against the keys the plugin reads and their
+/// ranges (`None`: the plugin declares none, unchecked beyond finiteness):
+/// an unknown key, a wrong type or a value out of range is an error naming
+/// run.toml and the key (as the column `process.<key>`).
 pub fn check_process(
     spec: &RunSpec,
     plugin: &str,
-    known: Option<&[&str]>,
+    known: Option<ProcessKeys>,
 ) -> Result<(), InputError> {
+    let err = |k: &str, msg: String| {
+        InputError::new(spec.run_toml_path(), msg).column(format!("process.{k}"))
+    };
     for (k, v) in &spec.process {
         if !all_finite(v) {
-            return Err(InputError::new(
-                spec.run_toml_path(),
-                format!("[process].{k} must be finite, found {v}"),
-            )
-            .column(format!("process.{k}")));
+            return Err(err(k, format!("[process].{k} must be finite, found {v}")));
         }
-        if let Some(known) = known {
-            if !known.contains(&k.as_str()) {
-                return Err(InputError::new(
-                    spec.run_toml_path(),
-                    format!(
-                        "unknown key [process].{k} for a `{plugin}` run (known: {})",
-                        known.join(", ")
-                    ),
-                )
-                .column(format!("process.{k}")));
-            }
+        let Some(known) = known else { continue };
+        let Some((_, check)) = known.iter().find(|(name, _)| name == k) else {
+            let names: Vec<&str> = known.iter().map(|(n, _)| *n).collect();
+            return Err(err(
+                k,
+                format!(
+                    "unknown key [process].{k} for a `{plugin}` run (known: {})",
+                    names.join(", ")
+                ),
+            ));
+        };
+        if !check.accepts(v) {
+            return Err(err(
+                k,
+                format!(
+                    "[process].{k} must be {}, found {v} (docs/formats.md lists each key's range)",
+                    check.describe()
+                ),
+            ));
         }
     }
     Ok(())
@@ -216,8 +253,10 @@ mod tests {
                 "[table]\nrepeatability_mm = \"0.5 um\"\n",
                 "must be a number",
             ),
-            ("[table]\nrepeatability_mm = -0.5\n", "must not be negative"),
-            ("[table]\nspeed_mm_s = -1\n", "must not be negative"),
+            ("[table]\nrepeatability_mm = -0.5\n", "must be a number ≥ 0"),
+            ("[table]\nspeed_mm_s = -1\n", "must be a number > 0"),
+            ("[table]\nspeed_mm_s = 0\n", "must be a number > 0"),
+            ("[probes]\nspacing_mm = 0.0\n", "must be a number > 0"),
             ("[table]\nrepeatability_mm = nan\n", "must be finite"),
             ("", "is empty"),
             ("[machine]\nplugin = \"robot\"\n", "for plugin"),

@@ -97,6 +97,25 @@ pub(crate) fn first_non_finite(col: &dyn Array) -> Option<(usize, &'static str)>
     None
 }
 
+/// First row of a float column holding NaN in a non-null cell. In an
+/// optional column a value not recorded at a row is null (pandas writes NaN
+/// as null); a NaN there is a failed computation, refused like one in a
+/// required column.
+pub(crate) fn first_nan(col: &dyn Array) -> Option<usize> {
+    let nan_at = |i: usize, v: f64| v.is_nan() && !col.is_null(i);
+    if let Some(a) = col.as_any().downcast_ref::<Float64Array>() {
+        return if col.null_count() == 0 {
+            first_failing(a.values(), |v| !v.is_nan())
+        } else {
+            (0..a.len()).find(|&i| nan_at(i, a.value(i)))
+        };
+    }
+    if let Some(a) = col.as_any().downcast_ref::<Float32Array>() {
+        return (0..a.len()).find(|&i| nan_at(i, a.value(i) as f64));
+    }
+    None
+}
+
 /// The first index whose value fails `ok`. Scans in chunks whose test has
 /// no early exit (so it vectorises), then finds the index inside the first
 /// failing chunk: validating an AE log runs at memory speed, where a
@@ -280,6 +299,13 @@ impl Table {
                             .column(spec.name)
                             .row(row));
                         }
+                    } else if let Some(row) = first_nan(col.as_ref()) {
+                        return Err(InputError::new(
+                            path,
+                            "NaN in an optional column; a value not recorded at a row is null, not NaN (pandas writes NaN as null; polars: fill_nan(None)), or leave the column out",
+                        )
+                        .column(spec.name)
+                        .row(row));
                     }
                     fields.push(Field::new(field.name(), target, !spec.required));
                     columns.push(col);

@@ -206,6 +206,25 @@ impl Engine {
             )
             .into());
         }
+        for &(name, min) in plugin.min_rows() {
+            let Some(schema) = table_schema(name) else {
+                continue;
+            };
+            if let Some(t) = run.table(schema)? {
+                if t.len() < min {
+                    return Err(InputError::new(
+                        t.path(),
+                        format!(
+                            "`{}` has {} row(s); plugin `{}` needs at least {min} (docs/formats.md, section 5)",
+                            schema.file_name(),
+                            t.len(),
+                            plugin.name()
+                        ),
+                    )
+                    .into());
+                }
+            }
+        }
         Ok((run, plugin))
     }
 

@@ -4,11 +4,15 @@
 //! `validate-input` take like any run.
 //!
 //! The recorded run keeps the source's machine, plugin and [process], and a
-//! copy of its other small tables (probe, plan, passes, topography …: what
-//! the plugin needs besides motion), so it can be diagnosed like the source.
-//! ae.parquet is not copied (its timing belongs to the original run; it is
-//! large) and [ae] is dropped with it. A `[replay]` table says where the run
-//! came from and how the replay ended.
+//! copy of every other table (probe, plan, passes, topography, ae …: what
+//! the plugin needs besides motion), so it passes the plugin's table
+//! requirements and can be diagnosed like the source: a robot run probed by
+//! AE has no probe table, only ae + motion + plan. The recorded motion keeps
+//! the source's time base, so the AE log (with `[ae]` and its clock offset)
+//! still lines up; being large, it is hard-linked where the file system
+//! allows (sparkout replaces files, never writes into them, so the source is
+//! never changed through the link) and copied otherwise. A `[replay]` table
+//! says where the run came from and how the replay ended.
 
 use std::path::{Path, PathBuf};
 
@@ -79,20 +83,28 @@ pub fn write_recorded_run(
     // The other tables the plugin may need, byte for byte.
     let mut copied = Vec::new();
     for schema in ALL_TABLES {
-        if matches!(schema.name, "motion" | "ae") {
+        if schema.name == "motion" {
             continue;
         }
         let src = source.dir.join(schema.file_name());
-        if src.is_file() {
+        if !src.is_file() {
+            continue;
+        }
+        let dst = out.join(schema.file_name());
+        if schema.name == "ae" {
+            link_or_copy(&src, &dst)?;
+        } else {
             let bytes =
                 std::fs::read(&src).with_context(|| format!("cannot read {}", src.display()))?;
-            write_atomic(&out.join(schema.file_name()), &bytes)?;
-            copied.push(schema.name.to_string());
+            write_atomic(&dst, &bytes)?;
         }
+        copied.push(schema.name.to_string());
     }
 
     let mut doc: toml::Table = source.text.parse().context("source run.toml")?;
-    doc.remove("ae");
+    if !copied.iter().any(|t| t == "ae") {
+        doc.remove("ae");
+    }
     if let Some(run) = doc.get_mut("run").and_then(|v| v.as_table_mut()) {
         run.insert("id".into(), format!("{}-replay", source.id).into());
     }
@@ -122,4 +134,22 @@ pub fn write_recorded_run(
     );
     write_atomic(&out.join(RunSpec::FILE), text.as_bytes())?;
     Ok(rows)
+}
+
+/// `dst` as a hard link to `src`, or a copy where links do not work (another
+/// file system); either way under a temporary name renamed into place, so a
+/// killed replay leaves no partial table under the final name.
+fn link_or_copy(src: &Path, dst: &Path) -> Result<()> {
+    let name = dst
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let tmp = dst.with_file_name(format!(".{name}.{}.tmp", std::process::id()));
+    let _ = std::fs::remove_file(&tmp);
+    if std::fs::hard_link(src, &tmp).is_err() {
+        std::fs::copy(src, &tmp)
+            .with_context(|| format!("cannot copy {} to {}", src.display(), tmp.display()))?;
+    }
+    std::fs::rename(&tmp, dst).with_context(|| format!("cannot write {}", dst.display()))?;
+    Ok(())
 }

@@ -16,8 +16,9 @@
 
 use std::sync::Arc;
 
+use sparkout_pipeline::config_check::Check;
 use sparkout_pipeline::diagnose::{catalogue_effect, composite, Effect, Kind};
-use sparkout_pipeline::{ArtifactStore, MachinePlugin, ReportSection, Run, Stage};
+use sparkout_pipeline::{ArtifactStore, MachinePlugin, ProcessKeys, ReportSection, Run, Stage};
 
 pub mod augment;
 pub mod cldata;
@@ -54,18 +55,18 @@ impl MachinePlugin for FormPlugin {
     }
     /// What the stages read from run.toml `[process]` (and what the
     /// generator writes there, for provenance).
-    fn process_keys(&self) -> Option<&'static [&'static str]> {
+    fn process_keys(&self) -> Option<ProcessKeys> {
         Some(&[
-            "shape",
-            "z_mm",
-            "dressing",
-            "part_in_dressing",
-            "wheel_radius_mm",
-            "nominal_wheel_radius_mm",
-            "removed_before_mm3",
-            "stock_mm",
-            "feed_mm_s",
-            "width_mm",
+            ("shape", Check::Text),
+            ("z_mm", Check::Number),
+            ("dressing", Check::WholeIn(0, 1_000_000)),
+            ("part_in_dressing", Check::WholeIn(0, 1_000_000)),
+            ("wheel_radius_mm", Check::Positive),
+            ("nominal_wheel_radius_mm", Check::Positive),
+            ("removed_before_mm3", Check::NonNegative),
+            ("stock_mm", Check::Positive),
+            ("feed_mm_s", Check::Positive),
+            ("width_mm", Check::Positive),
         ])
     }
     fn builtin_machines(&self) -> Vec<(&'static str, &'static str)> {

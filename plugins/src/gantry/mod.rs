@@ -16,9 +16,10 @@
 
 use std::sync::Arc;
 
+use sparkout_pipeline::config_check::Check;
 use sparkout_pipeline::contracts::MachineConfig;
 use sparkout_pipeline::diagnose::{catalogue_effect, composite, product, Effect, Kind};
-use sparkout_pipeline::{ArtifactStore, MachinePlugin, ReportSection, Run, Stage};
+use sparkout_pipeline::{ArtifactStore, MachinePlugin, ProcessKeys, ReportSection, Run, Stage};
 
 pub mod augment;
 pub mod beam;
@@ -71,23 +72,23 @@ impl MachinePlugin for GantryPlugin {
     }
     /// What the stages read from run.toml `[process]` (and what the
     /// generator writes there, for provenance).
-    fn process_keys(&self) -> Option<&'static [&'static str]> {
+    fn process_keys(&self) -> Option<ProcessKeys> {
         Some(&[
             // grinding (the machine's [grinding] otherwise)
-            "grind_feed_mm_s",
-            "depth_of_cut_mm",
+            ("grind_feed_mm_s", Check::Positive),
+            ("depth_of_cut_mm", Check::Positive),
             // polishing: any key of the machine's [polishing] table
-            "k_p_per_pa",
-            "pressure_pa",
-            "tool_radius_mm",
-            "tool_area_mm2",
-            "spring_compression_mm",
-            "spring_rate_n_mm",
-            "rev_per_s",
-            "linear_speed_mm_s",
-            "feed_mm_s",
-            "accel_mm_s2",
-            "step_over_mm",
+            ("k_p_per_pa", Check::Positive),
+            ("pressure_pa", Check::Positive),
+            ("tool_radius_mm", Check::Positive),
+            ("tool_area_mm2", Check::Positive),
+            ("spring_compression_mm", Check::Positive),
+            ("spring_rate_n_mm", Check::Positive),
+            ("rev_per_s", Check::Positive),
+            ("linear_speed_mm_s", Check::Positive),
+            ("feed_mm_s", Check::Positive),
+            ("accel_mm_s2", Check::Positive),
+            ("step_over_mm", Check::Positive),
         ])
     }
     fn builtin_machines(&self) -> Vec<(&'static str, &'static str)> {

@@ -16,8 +16,9 @@
 
 use std::sync::Arc;
 
+use sparkout_pipeline::config_check::Check;
 use sparkout_pipeline::diagnose::{catalogue_effect, composite, Effect, Kind};
-use sparkout_pipeline::{ArtifactStore, MachinePlugin, ReportSection, Run, Stage};
+use sparkout_pipeline::{ArtifactStore, MachinePlugin, ProcessKeys, ReportSection, Run, Stage};
 
 pub mod ar_fpe;
 pub mod augment;
@@ -56,8 +57,13 @@ impl MachinePlugin for GuidewayPlugin {
     }
     /// What the stages read from run.toml `[process]` (and what the
     /// generator writes there, for provenance).
-    fn process_keys(&self) -> Option<&'static [&'static str]> {
-        Some(&["probe_spacing_mm", "sample_step_mm", "infeed_mm", "passes"])
+    fn process_keys(&self) -> Option<ProcessKeys> {
+        Some(&[
+            ("probe_spacing_mm", Check::Positive),
+            ("sample_step_mm", Check::Positive),
+            ("infeed_mm", Check::Positive),
+            ("passes", Check::WholeIn(1, 100_000)),
+        ])
     }
     fn builtin_machines(&self) -> Vec<(&'static str, &'static str)> {
         vec![("guideway-grinder", GUIDEWAY_GRINDER_TOML)]

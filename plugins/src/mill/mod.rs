@@ -17,8 +17,9 @@
 
 use std::sync::Arc;
 
+use sparkout_pipeline::config_check::Check;
 use sparkout_pipeline::diagnose::{catalogue_effect, composite, Effect, Kind};
-use sparkout_pipeline::{ArtifactStore, MachinePlugin, ReportSection, Run, Stage};
+use sparkout_pipeline::{ArtifactStore, MachinePlugin, ProcessKeys, ReportSection, Run, Stage};
 
 pub mod augment;
 pub mod chain;
@@ -49,8 +50,12 @@ impl MachinePlugin for MillPlugin {
     }
     /// What the stages read from run.toml `[process]` (and what the
     /// generator writes there, for provenance).
-    fn process_keys(&self) -> Option<&'static [&'static str]> {
-        Some(&["points", "point_period_s", "axes"])
+    fn process_keys(&self) -> Option<ProcessKeys> {
+        Some(&[
+            ("points", Check::WholeIn(1, 10_000_000)),
+            ("point_period_s", Check::Positive),
+            ("axes", Check::Text),
+        ])
     }
     fn builtin_machines(&self) -> Vec<(&'static str, &'static str)> {
         vec![("xfyz-mill", XFYZ_MILL_TOML)]

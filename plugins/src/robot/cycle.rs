@@ -28,7 +28,7 @@ use std::collections::BTreeMap;
 
 use anyhow::{anyhow, bail};
 use serde_json::{json, Value};
-use sparkout_pipeline::config_check::{Check, Section, SectionCheck};
+use sparkout_pipeline::config_check::{read_flags, whole_number, Check, Section, SectionCheck};
 use sparkout_pipeline::contracts::schema::PASSES;
 use sparkout_pipeline::contracts::BatchBuilder;
 use sparkout_pipeline::{
@@ -574,61 +574,38 @@ pub fn cycle_batch(
         .build()
 }
 
+/// Largest pass count of a cycle (run.toml `[process]` and `stage cycle`
+/// flags): far beyond any real cycle, small enough that the schedule's
+/// memory stays in megabytes.
+pub const MAX_PASSES: i64 = 100_000;
+
+/// The run-less form's flags and what each must be.
+const FLAGS: &[(&str, Check)] = &[
+    ("weld-mm", Check::Positive),
+    ("rough", Check::WholeIn(0, MAX_PASSES)),
+    ("finish", Check::WholeIn(0, MAX_PASSES)),
+    ("spark", Check::WholeIn(0, MAX_PASSES)),
+    ("doc-rough", Check::Positive),
+    ("doc-finish", Check::Positive),
+    ("first-cut", Check::Positive),
+    ("alpha", Check::NonNegative),
+];
+
 /// `sparkout stage cycle --weld-mm 2.27 --rough 7 --finish 2 --spark 2
 /// --doc-rough 0.3 --doc-finish 0.1 --first-cut 0.2` (or `--alpha`).
 fn standalone(args: &StageArgs) -> Result<Value> {
-    const KNOWN: &[&str] = &[
-        "weld-mm",
-        "rough",
-        "finish",
-        "spark",
-        "doc-rough",
-        "doc-finish",
-        "first-cut",
-        "alpha",
-    ];
-    for k in args.keys() {
-        if !KNOWN.contains(&k.as_str()) {
-            bail!(
-                "stage cycle: unknown option --{k} (known: {})",
-                KNOWN
-                    .iter()
-                    .map(|s| format!("--{s}"))
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            );
-        }
-    }
-    let num = |k: &str| -> Result<Option<f64>> {
-        match args.get(k) {
-            None => Ok(None),
-            Some(s) => s
-                .trim()
-                .parse::<f64>()
-                .ok()
-                .filter(|v| v.is_finite())
-                .map(Some)
-                .ok_or_else(|| anyhow!("stage cycle: --{k} must be a number, got `{s}`")),
-        }
-    };
-    let count = |k: &str| -> Result<usize> {
-        match args.get(k) {
-            None => Ok(0),
-            Some(s) => s.trim().parse::<usize>().map_err(|_| {
-                anyhow!("stage cycle: --{k} must be a non-negative integer, got `{s}`")
-            }),
-        }
-    };
-    let (nr, nf, ns) = (count("rough")?, count("finish")?, count("spark")?);
+    let flags = read_flags("cycle", args, FLAGS)?;
+    let num = |k: &str| flags.get(k).and_then(toml_f64);
+    let count = |k: &str| flags.get(k).and_then(whole_number).unwrap_or(0) as usize;
+    let (nr, nf, ns) = (count("rough"), count("finish"), count("spark"));
     if nr + nf == 0 {
         bail!("stage cycle: give at least one infeed pass (--rough N and/or --finish N)");
     }
-    let doc_r = num("doc-rough")?;
-    let doc_f = num("doc-finish")?;
+    let doc_r = num("doc-rough");
+    let doc_f = num("doc-finish");
     let need = |v: Option<f64>, k: &str, n: usize| -> Result<f64> {
         match v {
-            Some(x) if x > 0.0 => Ok(x),
-            Some(x) => bail!("stage cycle: --{k} must be > 0, got {x}"),
+            Some(x) => Ok(x),
             None if n == 0 => Ok(0.0),
             None => bail!("stage cycle: --{k} is required with {n} pass(es)"),
         }
@@ -651,19 +628,18 @@ fn standalone(args: &StageArgs) -> Result<Value> {
     (0..nf).for_each(|_| push(PassStage::Finish, doc_f));
     (0..ns).for_each(|_| push(PassStage::Spark, 0.0));
     let first_doc = passes[0].nominal_doc_mm;
-    let alpha = match (num("first-cut")?, num("alpha")?) {
+    let alpha = match (num("first-cut"), num("alpha")) {
         (Some(c), None) => {
             passes[0].measured_cut_mm = Some(c);
             alpha_from_first_cut(first_doc, c)?
         }
-        (None, Some(a)) if a >= 0.0 => a,
-        (None, Some(a)) => bail!("stage cycle: --alpha must be ≥ 0, got {a}"),
+        (None, Some(a)) => a,
         (Some(_), Some(_)) => bail!("stage cycle: give --first-cut or --alpha, not both"),
         (None, None) => {
             bail!("stage cycle: give --first-cut (the measured first cut, mm) or --alpha")
         }
     };
-    let weld = num("weld-mm")?;
+    let weld = num("weld-mm");
     let docs: Vec<f64> = passes.iter().map(|p| p.nominal_doc_mm).collect();
     let predicted = predict_cuts(alpha, &docs);
     let remaining_pred = weld.map(|w| stock_left(w, &predicted));

@@ -18,8 +18,9 @@
 
 use std::sync::Arc;
 
+use sparkout_pipeline::config_check::Check;
 use sparkout_pipeline::diagnose::{catalogue_effect, composite, product, Effect, Kind};
-use sparkout_pipeline::{ArtifactStore, MachinePlugin, ReportSection, Run, Stage};
+use sparkout_pipeline::{ArtifactStore, MachinePlugin, ProcessKeys, ReportSection, Run, Stage};
 
 pub mod ae;
 pub mod cycle;
@@ -56,20 +57,20 @@ impl MachinePlugin for RobotPlugin {
     }
     /// What the stages read from run.toml `[process]` (and what the
     /// generator writes there, for provenance).
-    fn process_keys(&self) -> Option<&'static [&'static str]> {
+    fn process_keys(&self) -> Option<ProcessKeys> {
         Some(&[
-            "weld_mm",
-            "contact_area_mm2",
-            "doc_rough_mm",
-            "doc_finish_mm",
-            "rough_passes",
-            "finish_passes",
-            "spark_passes",
-            "feed_mm_s",
-            "pass_length_mm",
-            "standoff_mm",
-            "motion_rate_hz",
-            "block_size_mm",
+            ("weld_mm", Check::Positive),
+            ("contact_area_mm2", Check::Positive),
+            ("doc_rough_mm", Check::Positive),
+            ("doc_finish_mm", Check::Positive),
+            ("rough_passes", Check::WholeIn(0, cycle::MAX_PASSES)),
+            ("finish_passes", Check::WholeIn(0, cycle::MAX_PASSES)),
+            ("spark_passes", Check::WholeIn(0, cycle::MAX_PASSES)),
+            ("feed_mm_s", Check::Positive),
+            ("pass_length_mm", Check::Positive),
+            ("standoff_mm", Check::Positive),
+            ("motion_rate_hz", Check::Positive),
+            ("block_size_mm", Check::PositiveArray(3)),
         ])
     }
     fn builtin_machines(&self) -> Vec<(&'static str, &'static str)> {

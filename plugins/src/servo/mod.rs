@@ -50,6 +50,11 @@ impl MachinePlugin for ServoPlugin {
     fn required_tables(&self) -> Vec<Vec<&'static str>> {
         vec![vec!["motion"]]
     }
+    /// Velocities and accelerations come from central differences (a
+    /// sample on either side), so a trace needs three rows.
+    fn min_rows(&self) -> &'static [(&'static str, usize)] {
+        &[("motion", 3)]
+    }
     fn stages(&self) -> Vec<Arc<dyn Stage>> {
         vec![
             Arc::new(follow::FollowStage),
