@@ -468,3 +468,27 @@ fn hostile_names_in_a_shard_manifest_are_refused() {
     assert!(text(&o).contains("[run].machine `..`"), "{}", text(&o));
     assert_eq!(snapshot(d.path().join("runs").as_path()), beside);
 }
+
+#[test]
+fn a_table_declaring_a_huge_footer_is_refused_not_allocated() {
+    let d = tempfile::tempdir().unwrap();
+    let root = fleet(d.path(), "guideway", 2);
+    let runs = sparkout_pipeline::contracts::discover_runs(&root).unwrap();
+    let table = std::fs::read_dir(&runs[0])
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .find(|p| p.extension().is_some_and(|e| e == "parquet"))
+        .unwrap();
+    // The footer length (the 4 bytes before the closing magic) claims
+    // almost 2 GiB of metadata in a file of a few kB.
+    let mut bytes = std::fs::read(&table).unwrap();
+    let n = bytes.len();
+    bytes[n - 8..n - 4].copy_from_slice(&0x7FFF_FFF0u32.to_le_bytes());
+    std::fs::write(&table, &bytes).unwrap();
+    let out = d.path().join("out");
+    let o = run(&root, &out);
+    assert_eq!(o.status.code(), Some(2), "{}", text(&o));
+    let f = failures(&out);
+    assert_eq!(f.len(), 1, "{f:?}");
+    assert_eq!(f[0]["file"].as_str(), Some(p(&table)), "{f:?}");
+}
