@@ -432,7 +432,7 @@ mod tests {
         assert_eq!(run(&rows, &[]).alerts.len(), 1);
         let dressing =
             parse_event("night=2026-11-05,machine=form-1,kind=wheel_change", None).unwrap();
-        let t = run(&rows, &[dressing.clone()]);
+        let t = run(&rows, std::slice::from_ref(&dressing));
         assert!(t.alerts.is_empty(), "{:#?}", t.alerts);
         assert_eq!(t.events, [dressing]);
         // Another machine's event leaves this one's baseline alone.

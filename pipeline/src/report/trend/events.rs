@@ -57,7 +57,7 @@ impl Event {
     pub fn resets(&self, machine: &str, machines: &[String]) -> bool {
         self.machine.is_empty()
             || self.machine == machine
-            || (machine.is_empty() && machines.iter().any(|m| *m == self.machine))
+            || (machine.is_empty() && machines.contains(&self.machine))
     }
 }
 

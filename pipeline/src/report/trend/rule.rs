@@ -367,7 +367,7 @@ pub fn trend(
                     .map(|p| if p.se.is_finite() { p.se * p.se } else { 0.0 })
                     .sum();
                 let var = se2 / (rf * rf) + b.tau2 / rf + b.var_mean;
-                if !(var > 0.0) {
+                if var.is_nan() || var <= 0.0 {
                     continue;
                 }
                 let z = (xbar - b.mean) / var.sqrt();
