@@ -158,13 +158,39 @@ fn run_history_dates_the_night_from_the_runs_and_writes_the_trend_page() {
         out.to_str().unwrap(),
         "--history",
         history.to_str().unwrap(),
+        "--event",
+        "machine=servo-mill,kind=repair,note=new encoder",
     ]));
     let nights: Vec<String> = std::fs::read_dir(&history)
         .unwrap()
         .map(|e| e.unwrap().file_name().to_string_lossy().to_string())
+        .filter(|n| n.starts_with("night="))
         .collect();
     assert_eq!(nights.len(), 1, "{nights:?}");
     assert!(nights[0].starts_with("night=20"), "{nights:?}");
+    // The event is kept with the history, dated the night that was run.
+    let events = std::fs::read_to_string(history.join("events.toml")).unwrap();
+    assert!(
+        events.contains(&format!("night = \"{}\"", &nights[0][6..]))
+            && events.contains("servo-mill")
+            && events.contains("new encoder"),
+        "{events}"
+    );
+    // A bad event is refused before any run is processed.
+    let o = sparkout(&[
+        "run",
+        "--input",
+        root.to_str().unwrap(),
+        "--out",
+        d.path().join("out2").to_str().unwrap(),
+        "--history",
+        history.to_str().unwrap(),
+        "--event",
+        "machine=servo-mill,kind=lunch",
+    ]);
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("wheel_change"));
+    assert!(!d.path().join("out2/manifest.json").exists());
     assert!(out.join("trend/trend.html").is_file(), "{text}");
     assert!(out.join("trend/trend.json").is_file());
     // Written before the index, so the night's index links it.
