@@ -93,6 +93,9 @@ pub struct Alert {
     pub effect: String,
     /// null: the fleet-wide fit.
     pub machine: Option<String>,
+    /// The machines the change is on: `machine`, or for a fleet-wide fit
+    /// every machine the observable was measured on.
+    pub machines: Vec<String>,
     pub param: Option<String>,
     /// The night the alert is raised on.
     pub night: String,
@@ -376,6 +379,10 @@ mod tests {
             (a.kind.as_str(), a.night.as_str(), a.rank),
             ("moved", "2026-11-07", 1)
         );
+        // The fleet-wide fit of an observable one machine measures: on it.
+        assert_eq!(a.machine, None);
+        assert_eq!(a.machines, ["form-1"]);
+        assert!(a.message.contains("on machine form-1"), "{}", a.message);
         // Size: 40 % of what wear explains (√(0.01² − 0.003²) mm).
         let explained = (0.01f64.powi(2) - 0.003f64.powi(2)).sqrt();
         assert!(

@@ -202,6 +202,8 @@ struct Test {
     unit: String,
     effect: String,
     machine: String,
+    /// The machines the change is on.
+    machines: Vec<String>,
     param: Option<String>,
     /// Series index (moved) — one alert per series and night.
     series: Option<usize>,
@@ -303,6 +305,13 @@ pub fn trend(
             .max()
     };
 
+    let on_machines = |obs: &str, machine: &str| -> Vec<String> {
+        if machine.is_empty() {
+            machines_of.get(obs).cloned().unwrap_or_default()
+        } else {
+            vec![machine.to_string()]
+        }
+    };
     let keys: Vec<&Key> = series.keys().collect();
     // Per series: the first night of its current baseline after an alert.
     let mut alert_start: Vec<Option<String>> = vec![None; keys.len()];
@@ -386,6 +395,7 @@ pub fn trend(
                     unit: unit.clone(),
                     effect: effect.clone(),
                     machine: machine.clone(),
+                    machines: on_machines(obs, machine),
                     param: Some(param.clone()),
                     series: Some(si),
                     from: recent[0].night.clone(),
@@ -465,6 +475,7 @@ pub fn trend(
                         unit,
                         effect: effect.to_string(),
                         machine: String::new(),
+                        machines: on_machines(obs, ""),
                         param: None,
                         series: None,
                         from: first.clone(),
@@ -583,10 +594,9 @@ fn alert_of(t: &Test, night: &str, p_adj: f64, m: usize, cfg: &TrendConfig) -> A
         1.0
     };
     let score = fraction.unwrap_or(0.0) * weight;
-    let who = if t.machine.is_empty() {
-        String::new()
-    } else {
-        format!(" on machine {}", t.machine)
+    let who = match t.machines.as_slice() {
+        [m] => format!(" on machine {m}"),
+        _ => String::new(),
     };
     let size_text = match (t.size, fraction) {
         (Some(s), Some(f)) => format!("{s:.4} {} = {:.0} % of the gap", t.unit, 100.0 * f),
@@ -611,7 +621,7 @@ fn alert_of(t: &Test, night: &str, p_adj: f64, m: usize, cfg: &TrendConfig) -> A
             )
         }
         kind => format!(
-            "{} on {} {kind} (held {} nights from {}): {size_text}; Holm p = {:.2e} over {m} tests",
+            "{} on {}{who} {kind} (held {} nights from {}): {size_text}; Holm p = {:.2e} over {m} tests",
             t.effect, t.obs, t.nights, t.from, p_adj
         ),
     };
@@ -622,6 +632,7 @@ fn alert_of(t: &Test, night: &str, p_adj: f64, m: usize, cfg: &TrendConfig) -> A
         unit: t.unit.clone(),
         effect: t.effect.clone(),
         machine: (!t.machine.is_empty()).then(|| t.machine.clone()),
+        machines: t.machines.clone(),
         param: t.param.clone(),
         night: night.into(),
         from_night: t.from.clone(),
