@@ -87,6 +87,13 @@ pub enum Command {
         /// of the batch's runs).
         #[arg(long, value_name = "YYYY-MM-DD", requires = "history")]
         night: Option<String>,
+        /// A deliberate change the trend starts a new baseline at instead
+        /// of alerting (repeatable): machine=ID,kind=KIND[,note=TEXT][,night=D]
+        /// with KIND one of wheel_change, dressing, repair, config, other
+        /// (no machine: the whole fleet; night: this one). Kept in
+        /// <history>/events.toml.
+        #[arg(long = "event", value_name = "SPEC", requires = "history")]
+        events: Vec<String>,
         /// Add the effects of an earlier diagnosis (its
         /// fleet/augmented_model.json) to the sim side and report the plain
         /// vs augmented gap on the runs it was not fitted on
@@ -95,10 +102,21 @@ pub enum Command {
         augment: Option<PathBuf>,
     },
     /// Each diagnosed effect over nights, from a fleet history: trend.html and
-    /// trend.json (alerts when an effect appears, disappears or moves beyond
-    /// its interval).
-    #[command(after_help = "Example: sparkout trend --history history/ --out trend/")]
+    /// trend.json (ranked alerts when a material effect appears, disappears
+    /// or moves beyond its night-to-night spread; docs/diagnosis.md "History
+    /// and trend").
+    #[command(
+        after_help = "Example: sparkout trend --history history/ --out trend/ \\\n                          --event night=2026-11-20,machine=form-1,kind=wheel_change,note=\"new wheel\"\n\
+                      Events in <history>/events.toml ([[event]] night, machine, kind, note) apply too. \
+                      Settings: [trend] of --config, --set trend.KEY=VALUE."
+    )]
     Trend {
+        #[command(flatten)]
+        config: ConfigArgs,
+        /// A deliberate change for this report (repeatable):
+        /// night=D,machine=ID,kind=KIND[,note=TEXT]; see `run --event`.
+        #[arg(long = "event", value_name = "SPEC")]
+        events: Vec<String>,
         /// The history written by `sparkout run --history DIR`.
         #[arg(long, value_name = "DIR")]
         history: PathBuf,
@@ -295,6 +313,9 @@ pub enum Command {
         /// The night's date for --history.
         #[arg(long, value_name = "YYYY-MM-DD", requires = "history")]
         night: Option<String>,
+        /// A deliberate change, kept in the history (repeatable); see `run --event`.
+        #[arg(long = "event", value_name = "SPEC", requires = "history")]
+        events: Vec<String>,
     },
     /// Stream a run's (compensated) commanded path to CiA 402 drives over CANopen,
     /// inside a safety envelope; record what the drives did as a new run.
@@ -308,16 +329,25 @@ pub enum Command {
     )]
     #[command(allow_negative_numbers = true)]
     Replay(ReplayArgs),
-    /// CAN tools for commissioning: decode a recorded bus log.
+    /// CAN tools for commissioning: describe a drive's EDS/DCF, decode a bus log.
     #[command(subcommand)]
     Can(CanCommand),
-    /// Check the diagnosis on generated fleets whose effect is known (withheld from sim).
-    #[command(after_help = "Example: sparkout validate --quick --out validation/")]
+    /// Check the diagnosis on generated fleets whose effect is known (withheld from sim);
+    /// with --nights, the trend's alert rule on generated sequences of nights.
+    #[command(
+        after_help = "Examples:\n  sparkout validate --quick --out validation/\n  \
+                      sparkout validate --nights --out validation/   (false alerts per 100 stationary \
+                      night-fleets, detection delay of 20/40/100 % steps, a drift, an event)"
+    )]
     #[command(allow_negative_numbers = true)]
     Validate {
         /// A smaller grid of fleets (under 30 s in release).
         #[arg(long)]
         quick: bool,
+        /// Validate the trend across nights instead (writes nights.txt and
+        /// nights.json with --out); settings from [diagnose] and [trend].
+        #[arg(long)]
+        nights: bool,
         #[arg(long, value_name = "DIR")]
         out: Option<PathBuf>,
         #[arg(long, default_value_t = 0)]

@@ -26,6 +26,7 @@ mod score;
 use score::*;
 mod summary;
 pub use summary::*;
+pub mod nights;
 
 /// Catalogue effects validated, on the covariate the generator gives each.
 pub const CATALOGUE_CASES: [&str; 15] = [

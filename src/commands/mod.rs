@@ -30,6 +30,7 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<u8> {
             balance,
             history,
             night,
+            events,
             augment,
         } => {
             let places = run::Places::resolve(&input, &out, work.as_deref())?;
@@ -38,13 +39,19 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<u8> {
                     &config,
                     &places,
                     jobs,
-                    history.map(|h| (h, night)),
+                    history.map(|h| (h, night, events)),
                     augment.as_deref(),
                 ),
                 Some(s) => run::run_shard(&config, &places, jobs, &s, &balance),
             }
         }
-        Command::Trend { history, out, json } => trend::trend(&history, &out, json),
+        Command::Trend {
+            config,
+            events,
+            history,
+            out,
+            json,
+        } => trend::trend(&config, &history, &out, &events, json),
         Command::Aggregate {
             config,
             shards,
@@ -115,21 +122,38 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<u8> {
             flags,
             history,
             night,
+            events,
         } => diagnose::diagnose(&observations, &out, &flags).and_then(|code| {
             match (history, night) {
-                (Some(h), Some(n)) => {
-                    trend::append(&h, &n, &out.join("diagnosis.json"), &out.join("trend"))
-                        .map(|()| code)
-                }
+                (Some(h), Some(n)) => trend::append(
+                    &flags,
+                    &trend::Night {
+                        history: &h,
+                        night: &n,
+                        events: &events,
+                    },
+                    &out.join("diagnosis.json"),
+                    &out.join("trend"),
+                )
+                .map(|()| code),
                 _ => Ok(code),
             }
         }),
+        Command::Validate {
+            quick,
+            nights,
+            out,
+            seed,
+            json,
+            config,
+        } if nights => validate::validate_nights(quick, out, seed, json, &config),
         Command::Validate {
             quick,
             out,
             seed,
             json,
             config,
+            ..
         } => validate::validate(quick, out, seed, json, &config),
         Command::Replay(args) => replay::replay(&args),
         Command::Can(crate::cli::CanCommand::Decode { log, format, out }) => {

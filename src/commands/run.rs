@@ -30,21 +30,21 @@ pub fn run(
     config: &ConfigArgs,
     places: &Places,
     jobs: Option<usize>,
-    history: Option<(std::path::PathBuf, Option<String>)>,
+    history: Option<(std::path::PathBuf, Option<String>, Vec<String>)>,
     augment: Option<&Path>,
 ) -> anyhow::Result<u8> {
     if jobs == Some(0) {
         anyhow::bail!("--jobs must be at least 1");
     }
     let mut engine = registry::engine(config)?;
-    if let Some((dir, night)) = history {
+    if let Some((dir, night, events)) = history {
         if storage::is_url(&dir) {
             anyhow::bail!(
                 "--history {}: the fleet history must be a local or shared directory (object storage is supported for --input, --out and --shards only); sync it with `sparkout sync`",
                 dir.display()
             );
         }
-        engine.set_history(dir, night)?;
+        engine.set_history(dir, night, events)?;
     }
     if let Some(model) = augment {
         engine.set_augment(model)?;

@@ -5,6 +5,7 @@ use std::path::PathBuf;
 use anyhow::Context;
 use sparkout_pipeline::contracts::{write_atomic, write_json_atomic};
 use sparkout_pipeline::diagnose::DiagnoseConfig;
+use sparkout_pipeline::report::trend::TrendConfig;
 
 use crate::cli::ConfigArgs;
 use crate::registry;
@@ -29,6 +30,40 @@ pub fn validate(
     if let Some(out) = &out {
         write_atomic(&out.join("validation.txt"), text.as_bytes())?;
         write_json_atomic(&out.join("validation.json"), &report)?;
+    }
+    if json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    } else {
+        print!("{text}");
+    }
+    Ok(0)
+}
+
+/// `sparkout validate --nights`: the trend's alert rule on generated nights
+/// (false alerts per 100 stationary night-fleets, detection delays).
+pub fn validate_nights(
+    quick: bool,
+    out: Option<PathBuf>,
+    seed: u64,
+    json: bool,
+    config: &ConfigArgs,
+) -> anyhow::Result<u8> {
+    let pc = registry::config(config)?;
+    let diagnose = DiagnoseConfig::from_toml(&pc.section("diagnose"))
+        .with_context(|| format!("config {}: [diagnose]", pc.source))?;
+    let trend = TrendConfig::from_toml(&pc.section("trend"))
+        .with_context(|| format!("config {}: [trend]", pc.source))?;
+    use sparkout_datasets::validate::nights;
+    let cfg = nights::NightsConfig {
+        diagnose,
+        trend,
+        ..nights::NightsConfig::new(quick, seed)
+    };
+    let report = nights::run(&cfg)?;
+    let text = nights::render_text(&report);
+    if let Some(out) = &out {
+        write_atomic(&out.join("nights.txt"), text.as_bytes())?;
+        write_json_atomic(&out.join("nights.json"), &report)?;
     }
     if json {
         println!("{}", serde_json::to_string_pretty(&report)?);

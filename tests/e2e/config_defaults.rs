@@ -222,7 +222,7 @@ fn section_disagreements(
     bad
 }
 
-/// Every registered stage's section struct and `[diagnose]` against
+/// Every registered stage's section struct, `[diagnose]` and `[trend]` against
 /// configs/nightly.toml: each value written is the struct's default, every
 /// default is written, every key without one is documented in a comment,
 /// and nothing else is (so the shipped config cannot disagree with the code
@@ -236,6 +236,11 @@ fn nightly_toml_sections_are_the_section_structs() {
         text,
         &SectionCheck::of::<sparkout_pipeline::diagnose::DiagnoseConfig>(),
     );
+    bad.extend(section_disagreements(
+        "trend",
+        text,
+        &SectionCheck::of::<sparkout_pipeline::report::trend::TrendConfig>(),
+    ));
     let mut stages = 0;
     for p in sparkout_plugins::all_plugins() {
         for s in p.stages() {

@@ -13,7 +13,7 @@ impl Engine {
         let src = &self.config.source;
         // A typo'd plugin (`--set guidewy.separate.method=...`, `[robotx.ingest]`)
         // would otherwise configure nothing, silently.
-        let mut sections: Vec<&str> = vec!["pipeline", "diagnose", "report"];
+        let mut sections: Vec<&str> = vec!["pipeline", "diagnose", "report", "trend"];
         sections.extend(self.plugin_names());
         for (key, value) in &self.config.table {
             if !sections.contains(&key.as_str()) {
@@ -85,6 +85,7 @@ impl Engine {
             }
         }
         self.diagnose_config()?;
+        self.trend_config()?;
         Ok(())
     }
 

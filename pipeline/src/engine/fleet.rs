@@ -87,8 +87,8 @@ impl Engine {
         }
         self.fleet_augment(&fleet_dir, progress)?;
         let rkey = self.fleet_report(&mut cache, &fleet_dir, outcome, &diagnosis)?;
-        if let (Some((dir, night)), Some(d)) = (&self.history, diagnosis.0.as_ref()) {
-            self.append_history(dir, night.as_deref(), d, outcome, out, progress)?;
+        if let (Some(h), Some(d)) = (&self.history, diagnosis.0.as_ref()) {
+            self.append_history(h, d, outcome, out, progress)?;
         }
         self.fleet_index(&mut cache, out, outcome, &rkey)?;
         let records: Vec<&StageRecord> = cache.records.iter().collect();
@@ -336,14 +336,14 @@ impl Engine {
     /// report into `<out>/trend/`.
     fn append_history(
         &self,
-        dir: &Path,
-        night: Option<&str>,
+        h: &super::History,
         diagnosis: &serde_json::Value,
         outcome: &FleetOutcome,
         out: &Path,
         progress: &dyn Progress,
     ) -> Result<()> {
-        let night = match night {
+        let dir = &h.dir;
+        let night = match h.night.as_deref() {
             Some(n) => n.to_string(),
             None => outcome
                 .runs
@@ -356,11 +356,29 @@ impl Engine {
                     anyhow!("--history: no run states [run].started, so the night is unknown — give --night YYYY-MM-DD")
                 })?,
         };
-        let file = report::trend::append_night(dir, &night, diagnosis)?;
+        let events = h
+            .events
+            .iter()
+            .map(|e| report::trend::parse_event(e, Some(&night)))
+            .collect::<Result<Vec<_>>>()?;
+        // What the night's results depend on: every section but the
+        // report's title and the trend's own settings.
+        let mut settings = self.config.table.clone();
+        settings.remove("report");
+        settings.remove("trend");
+        let config = report::trend::fingerprint(&super::config_text(&settings));
+        let file = report::trend::append_night(dir, &night, diagnosis, &config)?;
+        report::trend::append_events(dir, &events)?;
         progress.message(&format!("history: {}", file.display()));
-        let t = report::trend::write_trend(dir, &out.join("trend"))?;
-        for a in &t.alerts {
-            tracing::warn!("trend alert {} {}: {}", a.night, a.kind, a.message);
+        let t = report::trend::write_trend(dir, &out.join("trend"), &[], &self.trend_config()?)?;
+        for a in t.alerts_on(&night) {
+            tracing::warn!(
+                "trend alert {} #{} {}: {}",
+                a.night,
+                a.rank,
+                a.kind,
+                a.message
+            );
         }
         Ok(())
     }

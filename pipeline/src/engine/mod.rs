@@ -47,12 +47,20 @@ pub type PluginEffects = (&'static str, Vec<Box<dyn Effect>>);
 /// Version of the manifest/failures layout.
 pub const MANIFEST_VERSION: u32 = 1;
 
+/// Where `run --history` appends the night, and the events it records.
+pub struct History {
+    pub dir: PathBuf,
+    pub night: Option<String>,
+    /// `--event` specs, parsed once the night is known.
+    pub events: Vec<String>,
+}
+
 pub struct Engine {
     plugins: Vec<Arc<dyn MachinePlugin>>,
     resolver: MachineResolver,
     config: PipelineConfig,
-    /// `run --history DIR [--night D]` (issue 13 item 5).
-    history: Option<(PathBuf, Option<String>)>,
+    /// `run --history DIR [--night D] [--event ...]`.
+    history: Option<History>,
     /// `run --augment augmented_model.json` (issue 13 item 4).
     augment: Option<crate::diagnose::augment::AugmentedModel>,
 }
@@ -86,13 +94,39 @@ impl Engine {
 
     /// Append each batch's diagnosis to a fleet history and write the trend
     /// report to `<out>/trend/` (before the index, which links it). `night`
-    /// defaults to the latest `[run].started` of the batch's runs.
-    pub fn set_history(&mut self, dir: PathBuf, night: Option<String>) -> Result<()> {
+    /// defaults to the latest `[run].started` of the batch's runs; `events`
+    /// (`--event` specs: a wheel change, dressing, repair or config change)
+    /// are added to the history's events.toml, dated that night unless they
+    /// say otherwise. Everything is checked here, before any run.
+    pub fn set_history(
+        &mut self,
+        dir: PathBuf,
+        night: Option<String>,
+        events: Vec<String>,
+    ) -> Result<()> {
         if let Some(n) = &night {
             report::trend::check_night(n)?;
         }
-        self.history = Some((dir, night));
+        if night.is_none() {
+            // Dated later, from the runs; checked now with a stand-in night.
+            for e in &events {
+                report::trend::parse_event(e, Some("2000-01-01"))?;
+            }
+        } else {
+            for e in &events {
+                report::trend::parse_event(e, night.as_deref())?;
+            }
+        }
+        report::trend::read_events(&dir)?;
+        self.trend_config()?;
+        self.history = Some(History { dir, night, events });
         Ok(())
+    }
+
+    /// `[trend]` as the trend takes it.
+    pub fn trend_config(&self) -> Result<report::trend::TrendConfig> {
+        report::trend::TrendConfig::from_toml(&self.config.section("trend"))
+            .with_context(|| format!("config {}: [trend]", self.config.source))
     }
 
     /// Add a previous diagnosis's effects to the sim side of the fleet's

@@ -1,57 +1,41 @@
-//! The trend across nights (issue 13 item 5): each night's diagnosis is
-//! appended to a fleet history — a Parquet dataset partitioned by night,
-//! `<history>/night=YYYY-MM-DD/diagnosis.parquet` — and `sparkout trend`
-//! reads it back: each selected effect's parameters over nights with their
-//! 95 % intervals, per machine where the diagnosis fitted one, and alerts
-//! for a monitoring system (trend.json) when an effect appears, disappears
-//! or moves beyond its interval.
-//!
-//! Alert rule (docs/diagnosis.md "History and trend"): a parameter moved
-//! between nights a and b when |p_b − p_a| > 1.96·√(se_a² + se_b²) — the two
-//! estimates' 95 % intervals of the difference exclude zero. It is tested
-//! against the previous night and against the first night of the history
-//! (a slow drift that no single night shows).
+//! The trend across nights: each night's diagnosis is appended to a fleet
+//! history — a Parquet dataset partitioned by night,
+//! `<history>/night=YYYY-MM-DD/diagnosis.parquet` (history.rs) — and
+//! `sparkout trend` reads it back: each selected effect's parameters over
+//! nights with their 95 % intervals, per machine where the diagnosis fitted
+//! one, and ranked alerts for a monitoring system (trend.json) when a
+//! material effect appears, disappears or moves beyond its night-to-night
+//! spread (rule.rs). Deliberate changes (events.rs) start a new baseline.
 
-use std::collections::{BTreeMap, BTreeSet};
-use std::path::{Path, PathBuf};
-use std::sync::Arc;
+use std::collections::BTreeMap;
+use std::path::Path;
 
 use anyhow::{bail, Context};
-use arrow::array::{Array, AsArray, Float64Array, RecordBatch, StringArray};
-use arrow::datatypes::{DataType, Field, Float64Type, Schema};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use super::{esc, page, svg};
-use crate::contracts::{write_atomic, write_json_atomic, write_parquet_atomic};
+use crate::contracts::{write_atomic, write_json_atomic};
 use crate::error::Result;
 
-/// Version of trend.json.
-pub const TREND_VERSION: u32 = 1;
+pub mod events;
+pub mod history;
+pub mod rule;
+
+pub use events::{append_events, parse_event, read_events, Event, EVENTS_FILE, EVENT_KINDS};
+pub use history::{append_night, read_history, rows_of, write_night, HistoryRow, HISTORY_VERSION};
+pub use rule::{holm, trend, TrendConfig};
+
+/// Version of trend.json. 2: ranked alerts with size, fraction of the gap,
+/// significance; events, settings, notes, tests per night.
+pub const TREND_VERSION: u32 = 2;
 
 /// z of a two-sided 95 % interval.
 const Z95: f64 = 1.96;
 
-/// One history row: a parameter of a selected effect on one night, or — with
-/// an empty `effect` — the observable itself (so a night that diagnosed an
-/// observable and selected nothing tells "disappeared" from "not measured").
-#[derive(Debug, Clone, PartialEq)]
-pub struct HistoryRow {
-    pub night: String,
-    pub observable: String,
-    pub unit: String,
-    /// `name:covariate`, or "" for the observable row.
-    pub effect: String,
-    /// A machine's own fit, or "" for the fleet-wide fit.
-    pub machine: String,
-    pub param: String,
-    pub value: f64,
-    pub se: f64,
-    pub lo95: f64,
-    pub hi95: f64,
-    pub shrink: f64,
-    pub gap_rms: f64,
-    pub noise_floor: f64,
-    pub n_runs: f64,
+/// A short fingerprint of the settings a night ran with: nights that differ
+/// in it are separated by a `config` event.
+pub fn fingerprint(settings: &str) -> String {
+    blake3::hash(settings.as_bytes()).to_hex()[..16].to_string()
 }
 
 /// `YYYY-MM-DD`, checked.
@@ -71,254 +55,20 @@ pub fn check_night(night: &str) -> Result<()> {
     Ok(())
 }
 
-fn f(v: &serde_json::Value, k: &str) -> f64 {
-    v.get(k).and_then(|x| x.as_f64()).unwrap_or(f64::NAN)
-}
-
-/// The rows of one night's diagnosis.json.
-pub fn rows_of(diagnosis: &serde_json::Value, night: &str) -> Vec<HistoryRow> {
-    let mut rows = Vec::new();
-    let per: BTreeMap<&str, &serde_json::Value> = diagnosis
-        .get("per_observable")
-        .and_then(|p| p.as_array())
-        .into_iter()
-        .flatten()
-        .filter_map(|o| Some((o.get("observable")?.as_str()?, o)))
-        .collect();
-    let unit_of = |o: &str| -> String {
-        per.get(o)
-            .and_then(|p| p.get("unit"))
-            .and_then(|u| u.as_str())
-            .unwrap_or("mm")
-            .to_string()
-    };
-    for (o, p) in &per {
-        rows.push(HistoryRow {
-            night: night.into(),
-            observable: o.to_string(),
-            unit: unit_of(o),
-            effect: String::new(),
-            machine: String::new(),
-            param: String::new(),
-            value: f64::NAN,
-            se: f64::NAN,
-            lo95: f64::NAN,
-            hi95: f64::NAN,
-            shrink: f(p, "shrink"),
-            gap_rms: f(p, "rms_mm"),
-            noise_floor: f(p, "noise_floor_mm"),
-            n_runs: f(p, "runs"),
-        });
-    }
-    let effects = diagnosis.get("effects").and_then(|e| e.as_array());
-    for e in effects.into_iter().flatten() {
-        if e.get("selected").and_then(|s| s.as_bool()) != Some(true) {
-            continue;
-        }
-        let obs = e.get("observable").and_then(|x| x.as_str()).unwrap_or("");
-        let name = e.get("name").and_then(|x| x.as_str()).unwrap_or("");
-        let key = match e.get("covariate").and_then(|c| c.as_str()) {
-            Some(c) => format!("{name}:{c}"),
-            None => name.to_string(),
-        };
-        let p = per.get(obs);
-        let base =
-            |machine: &str, param: &str, value: f64, iv: Option<&serde_json::Value>| HistoryRow {
-                night: night.into(),
-                observable: obs.into(),
-                unit: unit_of(obs),
-                effect: key.clone(),
-                machine: machine.into(),
-                param: param.into(),
-                value,
-                se: iv.map_or(f64::NAN, |i| f(i, "se")),
-                lo95: iv.map_or(f64::NAN, |i| f(i, "lo")),
-                hi95: iv.map_or(f64::NAN, |i| f(i, "hi")),
-                shrink: f(e, "shrink"),
-                gap_rms: p.map_or(f64::NAN, |p| f(p, "rms_mm")),
-                noise_floor: p.map_or(f64::NAN, |p| f(p, "noise_floor_mm")),
-                n_runs: p.map_or(f64::NAN, |p| f(p, "runs")),
-            };
-        let params = e.get("params").and_then(|p| p.as_object());
-        let intervals = e.get("intervals");
-        for (k, v) in params.into_iter().flatten() {
-            let iv = intervals.and_then(|i| i.get(k));
-            rows.push(base("", k, v.as_f64().unwrap_or(f64::NAN), iv));
-        }
-        // A machine's own fit, where the diagnosis reports one.
-        let per_machine = e.get("per_machine").and_then(|m| m.as_array());
-        for m in per_machine.into_iter().flatten() {
-            let machine = m.get("machine").and_then(|x| x.as_str()).unwrap_or("");
-            let mparams = m.get("params").and_then(|p| p.as_object());
-            for (k, v) in mparams.into_iter().flatten() {
-                let se = m
-                    .get("se")
-                    .and_then(|s| s.get(k))
-                    .and_then(|s| s.as_f64())
-                    .unwrap_or(f64::NAN);
-                let value = v.as_f64().unwrap_or(f64::NAN);
-                let mut r = base(machine, k, value, None);
-                r.se = se;
-                r.lo95 = value - Z95 * se;
-                r.hi95 = value + Z95 * se;
-                rows.push(r);
-            }
-        }
-    }
-    rows
-}
-
-fn batch_of(rows: &[HistoryRow]) -> Result<RecordBatch> {
-    let text = |g: fn(&HistoryRow) -> &str| -> Arc<dyn Array> {
-        Arc::new(StringArray::from_iter_values(rows.iter().map(g)))
-    };
-    let num = |g: fn(&HistoryRow) -> f64| -> Arc<dyn Array> {
-        // NaN is "no value": null in the file (no non-finite number is
-        // ever written, issue 15).
-        Arc::new(Float64Array::from_iter(rows.iter().map(|r| {
-            let v = g(r);
-            v.is_finite().then_some(v)
-        })))
-    };
-    let columns: Vec<(&str, Arc<dyn Array>)> = vec![
-        ("night", text(|r| &r.night)),
-        ("observable", text(|r| &r.observable)),
-        ("unit", text(|r| &r.unit)),
-        ("effect", text(|r| &r.effect)),
-        ("machine", text(|r| &r.machine)),
-        ("param", text(|r| &r.param)),
-        ("value", num(|r| r.value)),
-        ("se", num(|r| r.se)),
-        ("lo95", num(|r| r.lo95)),
-        ("hi95", num(|r| r.hi95)),
-        ("shrink", num(|r| r.shrink)),
-        ("gap_rms", num(|r| r.gap_rms)),
-        ("noise_floor", num(|r| r.noise_floor)),
-        ("n_runs", num(|r| r.n_runs)),
-    ];
-    let schema = Schema::new(
-        columns
-            .iter()
-            .map(|(n, a)| {
-                Field::new(
-                    *n,
-                    a.data_type().clone(),
-                    a.data_type() == &DataType::Float64,
-                )
-            })
-            .collect::<Vec<_>>(),
-    );
-    Ok(RecordBatch::try_new(
-        Arc::new(schema),
-        columns.into_iter().map(|(_, a)| a).collect(),
-    )?)
-}
-
-/// Appends (or replaces, atomically) one night's partition.
-pub fn append_night(history: &Path, night: &str, diagnosis: &serde_json::Value) -> Result<PathBuf> {
-    check_night(night)?;
-    let dir = history.join(format!("night={night}"));
-    std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
-    let path = dir.join("diagnosis.parquet");
-    write_parquet_atomic(&path, &batch_of(&rows_of(diagnosis, night))?)?;
-    Ok(path)
-}
-
-/// Every night of a history, oldest first.
-pub fn read_history(history: &Path) -> Result<Vec<HistoryRow>> {
-    let mut nights: Vec<(String, PathBuf)> = Vec::new();
-    let entries = std::fs::read_dir(history).with_context(|| {
-        format!(
-            "cannot read the history {} (written by `sparkout run --history DIR`)",
-            history.display()
-        )
-    })?;
-    for e in entries.flatten() {
-        let name = e.file_name().to_string_lossy().to_string();
-        if let Some(night) = name.strip_prefix("night=") {
-            if check_night(night).is_ok() {
-                nights.push((night.to_string(), e.path().join("diagnosis.parquet")));
-            }
-        }
-    }
-    nights.sort();
-    if nights.is_empty() {
-        bail!(
-            "{} holds no night=YYYY-MM-DD/diagnosis.parquet: append nights with `sparkout run --history {}`",
-            history.display(),
-            history.display()
-        );
-    }
-    let mut rows = Vec::new();
-    for (night, path) in nights {
-        let batch = crate::contracts::parquet_file::open_parquet(&path)
-            .and_then(|b| crate::contracts::parquet_file::read_all(&path, b))?;
-        let text = |name: &str| -> Result<Vec<String>> {
-            let a = batch.column_by_name(name).ok_or_else(|| {
-                crate::InputError::new(&path, "missing history column").column(name)
-            })?;
-            let a = arrow::compute::cast(a, &DataType::Utf8)?;
-            Ok(a.as_string::<i32>()
-                .iter()
-                .map(|s| s.unwrap_or("").to_string())
-                .collect())
-        };
-        let num = |name: &str| -> Result<Vec<f64>> {
-            let a = batch.column_by_name(name).ok_or_else(|| {
-                crate::InputError::new(&path, "missing history column").column(name)
-            })?;
-            let a = arrow::compute::cast(a, &DataType::Float64)?;
-            Ok(a.as_primitive::<Float64Type>()
-                .iter()
-                .map(|v| v.unwrap_or(f64::NAN))
-                .collect())
-        };
-        let (obs, unit, effect, machine, param) = (
-            text("observable")?,
-            text("unit")?,
-            text("effect")?,
-            text("machine")?,
-            text("param")?,
-        );
-        let (value, se, lo, hi) = (num("value")?, num("se")?, num("lo95")?, num("hi95")?);
-        let (shrink, gap, floor, runs) = (
-            num("shrink")?,
-            num("gap_rms")?,
-            num("noise_floor")?,
-            num("n_runs")?,
-        );
-        for i in 0..batch.num_rows() {
-            rows.push(HistoryRow {
-                night: night.clone(),
-                observable: obs[i].clone(),
-                unit: unit[i].clone(),
-                effect: effect[i].clone(),
-                machine: machine[i].clone(),
-                param: param[i].clone(),
-                value: value[i],
-                se: se[i],
-                lo95: lo[i],
-                hi95: hi[i],
-                shrink: shrink[i],
-                gap_rms: gap[i],
-                noise_floor: floor[i],
-                n_runs: runs[i],
-            });
-        }
-    }
-    Ok(rows)
-}
-
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Point {
     pub night: String,
     pub value: f64,
     pub se: Option<f64>,
     pub lo95: Option<f64>,
     pub hi95: Option<f64>,
+    /// The effect was material that night (only such nights are tested).
+    pub material: bool,
 }
 
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct TrendSeries {
     pub observable: String,
     pub unit: String,
@@ -329,181 +79,104 @@ pub struct TrendSeries {
     pub points: Vec<Point>,
 }
 
-#[derive(Debug, Clone, Serialize)]
+/// One alert, ranked within its night (rule.rs "Rank").
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Alert {
+    /// 1 = the night's biggest change.
+    pub rank: usize,
     /// "appeared", "disappeared" or "moved".
     pub kind: String,
     pub observable: String,
+    /// The observable's unit (of `size`, `gap_rms`).
+    pub unit: String,
     pub effect: String,
+    /// null: the fleet-wide fit.
     pub machine: Option<String>,
+    /// The machines the change is on: `machine`, or for a fleet-wide fit
+    /// every machine the observable was measured on.
+    pub machines: Vec<String>,
     pub param: Option<String>,
+    /// The night the alert is raised on.
     pub night: String,
-    /// The night compared with (previous or first).
+    /// First night of the change: of the tested window (moved) or of the
+    /// run of nights that confirmed it (appeared/disappeared).
+    pub from_night: String,
+    /// Nights in that window or run.
+    pub nights: usize,
+    /// Moved: first night of the baseline compared with.
     pub since: Option<String>,
+    /// Moved: the window's mean, the baseline level, the night-to-night
+    /// spread τ (parameter units).
     pub value: Option<f64>,
-    pub since_value: Option<f64>,
-    /// |Δ| / √(se_a² + se_b²).
+    pub baseline: Option<f64>,
+    pub spread: Option<f64>,
+    /// How much of the observable's gap the change moves (its unit).
+    pub size: Option<f64>,
+    /// The observable's held-out gap RMS that night.
+    pub gap_rms: Option<f64>,
+    /// size / gap_rms.
+    pub fraction_of_gap: Option<f64>,
     pub z: Option<f64>,
+    pub p_value: Option<f64>,
+    /// Holm-adjusted over the night's tests.
+    pub p_holm: Option<f64>,
+    /// The night's tests (Holm's family).
+    pub tests: usize,
+    /// fraction_of_gap · min(1, |z| / z_full): the order within a night.
+    pub score: f64,
     pub message: String,
 }
 
-#[derive(Debug, Clone, Serialize)]
+/// trend.json.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Trend {
     pub version: u32,
     pub kind: String,
     pub nights: Vec<String>,
     pub rule: String,
+    pub settings: TrendConfig,
+    /// Deliberate changes: each starts a new baseline.
+    pub events: Vec<Event>,
+    /// What the reader should know: nights upgraded from an older history.
+    pub notes: Vec<String>,
+    /// Tests made on each night (the family Holm controls).
+    pub tests_per_night: BTreeMap<String, usize>,
     pub series: Vec<TrendSeries>,
+    /// Newest night first, each night's alerts by rank.
     pub alerts: Vec<Alert>,
+}
+
+impl Trend {
+    /// The alerts raised on `night`, by rank.
+    pub fn alerts_on<'a>(&'a self, night: &'a str) -> impl Iterator<Item = &'a Alert> + 'a {
+        self.alerts.iter().filter(move |a| a.night == night)
+    }
+}
+
+/// Reads a trend.json written by this version (another is refused).
+pub fn read_trend(path: &Path) -> Result<Trend> {
+    let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let v: serde_json::Value = serde_json::from_slice(&bytes)
+        .map_err(|e| crate::InputError::new(path, format!("not JSON: {e}")))?;
+    let version = v.get("version").and_then(|x| x.as_u64());
+    if version != Some(TREND_VERSION as u64) {
+        return Err(crate::InputError::new(
+            path,
+            format!(
+                "trend.json version {}: this sparkout reads version {TREND_VERSION}; rewrite it with `sparkout trend`",
+                version.map_or("missing".into(), |v| v.to_string())
+            ),
+        )
+        .column("version")
+        .into());
+    }
+    Ok(serde_json::from_value(v).map_err(|e| crate::InputError::new(path, e.to_string()))?)
 }
 
 fn opt(v: f64) -> Option<f64> {
     v.is_finite().then_some(v)
-}
-
-/// Series and alerts of a history.
-pub fn trend(rows: &[HistoryRow]) -> Trend {
-    let nights: Vec<String> = rows
-        .iter()
-        .map(|r| r.night.clone())
-        .collect::<BTreeSet<_>>()
-        .into_iter()
-        .collect();
-    // Which observables each night diagnosed, and which effects it selected.
-    let mut diagnosed: BTreeMap<&str, BTreeSet<&str>> = BTreeMap::new();
-    let mut selected: BTreeMap<(&str, &str), BTreeSet<&str>> = BTreeMap::new();
-    type Key = (String, String, String, String);
-    let mut series: BTreeMap<Key, (String, Vec<&HistoryRow>)> = BTreeMap::new();
-    for r in rows {
-        if r.effect.is_empty() {
-            diagnosed.entry(&r.night).or_default().insert(&r.observable);
-            continue;
-        }
-        selected
-            .entry((&r.observable, &r.effect))
-            .or_default()
-            .insert(&r.night);
-        series
-            .entry((
-                r.observable.clone(),
-                r.effect.clone(),
-                r.machine.clone(),
-                r.param.clone(),
-            ))
-            .or_insert_with(|| (r.unit.clone(), Vec::new()))
-            .1
-            .push(r);
-    }
-    let mut alerts = Vec::new();
-    // Appeared / disappeared: between consecutive nights that both
-    // diagnosed the observable.
-    for ((obs, effect), on) in &selected {
-        for w in nights.windows(2) {
-            let (a, b) = (w[0].as_str(), w[1].as_str());
-            let both = diagnosed.get(a).is_some_and(|s| s.contains(obs))
-                && diagnosed.get(b).is_some_and(|s| s.contains(obs));
-            if !both {
-                continue;
-            }
-            let (was, is) = (on.contains(a), on.contains(b));
-            if was != is {
-                let kind = if is { "appeared" } else { "disappeared" };
-                alerts.push(Alert {
-                    kind: kind.into(),
-                    observable: obs.to_string(),
-                    effect: effect.to_string(),
-                    machine: None,
-                    param: None,
-                    night: b.into(),
-                    since: Some(a.into()),
-                    value: None,
-                    since_value: None,
-                    z: None,
-                    message: format!("{effect} on {obs} {kind} on {b} (not so on {a})"),
-                });
-            }
-        }
-    }
-    let mut out_series = Vec::new();
-    for ((obs, effect, machine, param), (unit, pts)) in &series {
-        let points: Vec<Point> = pts
-            .iter()
-            .map(|r| Point {
-                night: r.night.clone(),
-                value: r.value,
-                se: opt(r.se),
-                lo95: opt(r.lo95),
-                hi95: opt(r.hi95),
-            })
-            .collect();
-        // Moved: each night against the previous one and the first one.
-        for (i, p) in points.iter().enumerate().skip(1) {
-            let mut compare = vec![&points[i - 1]];
-            if i > 1 {
-                compare.push(&points[0]);
-            }
-            for q in compare {
-                let (Some(sa), Some(sb)) = (q.se, p.se) else {
-                    continue;
-                };
-                let scale = (sa * sa + sb * sb).sqrt();
-                if scale.is_nan() || scale <= 0.0 || !p.value.is_finite() || !q.value.is_finite() {
-                    continue;
-                }
-                let z = (p.value - q.value).abs() / scale;
-                if z > Z95 {
-                    let who = if machine.is_empty() {
-                        String::new()
-                    } else {
-                        format!(" on machine {machine}")
-                    };
-                    alerts.push(Alert {
-                        kind: "moved".into(),
-                        observable: obs.clone(),
-                        effect: effect.clone(),
-                        machine: (!machine.is_empty()).then(|| machine.clone()),
-                        param: Some(param.clone()),
-                        night: p.night.clone(),
-                        since: Some(q.night.clone()),
-                        value: Some(p.value),
-                        since_value: Some(q.value),
-                        z: Some(z),
-                        message: format!(
-                            "{effect} {param} on {obs}{who} moved from {:.4e} ({}) to {:.4e} ({}): {z:.1} standard errors of the difference",
-                            q.value, q.night, p.value, p.night
-                        ),
-                    });
-                }
-            }
-        }
-        out_series.push(TrendSeries {
-            observable: obs.clone(),
-            unit: unit.clone(),
-            effect: effect.clone(),
-            machine: (!machine.is_empty()).then(|| machine.clone()),
-            param: param.clone(),
-            points,
-        });
-    }
-    alerts.sort_by(|a, b| {
-        (&a.night, &a.kind, &a.observable, &a.effect, &a.since).cmp(&(
-            &b.night,
-            &b.kind,
-            &b.observable,
-            &b.effect,
-            &b.since,
-        ))
-    });
-    Trend {
-        version: TREND_VERSION,
-        kind: "sparkout.trend".into(),
-        nights,
-        rule: format!(
-            "moved: |p_b − p_a| > {Z95}·√(se_a² + se_b²) against the previous and the first night; appeared/disappeared: selected on one of two consecutive nights that both diagnosed the observable"
-        ),
-        series: out_series,
-        alerts,
-    }
 }
 
 /// trend.html: alerts first, then each parameter over nights with its 95 %
@@ -519,19 +192,40 @@ pub fn trend_page(t: &Trend) -> String {
     body.push_str("<h2>Alerts</h2>\n");
     if t.alerts.is_empty() {
         body.push_str(
-            "<p>None: no effect appeared, disappeared or moved beyond its interval.</p>\n",
+            "<p>None: no material effect appeared, disappeared or moved beyond its night-to-night spread.</p>\n",
         );
     } else {
         body.push_str("<ul class=\"alerts\">\n");
         for a in &t.alerts {
             body.push_str(&format!(
-                "<li><b>{}</b> {}: {}</li>\n",
+                "<li><b>{} #{}</b> {}: {}</li>\n",
                 esc(&a.night),
+                a.rank,
                 esc(&a.kind),
                 esc(&a.message)
             ));
         }
         body.push_str("</ul>\n");
+    }
+    if !t.events.is_empty() {
+        body.push_str("<h2>Events (each starts a new baseline)</h2>\n<ul>\n");
+        for e in &t.events {
+            body.push_str(&format!(
+                "<li><b>{}</b> {} {}: {}</li>\n",
+                esc(&e.night),
+                esc(&e.kind),
+                esc(if e.machine.is_empty() {
+                    "fleet"
+                } else {
+                    &e.machine
+                }),
+                esc(&e.note)
+            ));
+        }
+        body.push_str("</ul>\n");
+    }
+    for n in &t.notes {
+        body.push_str(&format!("<p class=\"note\">{}</p>\n", esc(n)));
     }
     body.push_str(&format!("<p><small>Rule: {}</small></p>\n", esc(&t.rule)));
     body.push_str("<h2>Parameters over nights</h2>\n");
@@ -584,9 +278,18 @@ pub fn trend_page(t: &Trend) -> String {
     page("sparkout trend across nights", &body)
 }
 
-/// Reads a history, writes `out/trend.json` and `out/trend.html`.
-pub fn write_trend(history: &Path, out: &Path) -> Result<Trend> {
-    let t = trend(&read_history(history)?);
+/// Reads a history and its events (plus `extra` events), writes
+/// `out/trend.json` and `out/trend.html`.
+pub fn write_trend(
+    history: &Path,
+    out: &Path,
+    extra: &[Event],
+    cfg: &TrendConfig,
+) -> Result<Trend> {
+    let (rows, notes) = read_history(history)?;
+    let mut events = read_events(history)?;
+    events.extend(extra.iter().cloned());
+    let t = trend(&rows, &events, notes, cfg);
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
     write_atomic(&out.join("trend.html"), trend_page(&t).as_bytes())?;
     write_json_atomic(&out.join("trend.json"), &t)?;
@@ -597,15 +300,48 @@ pub fn write_trend(history: &Path, out: &Path) -> Result<Trend> {
 mod tests {
     use super::*;
 
-    fn night(n: &str, k: f64, se: f64) -> serde_json::Value {
+    /// One night's diagnosis.json: wear (dominant, k) and, when `extra`,
+    /// a secondary offset on the same observable.
+    fn night(k: f64, se: f64, extra: Option<f64>) -> serde_json::Value {
+        let mut effects = vec![serde_json::json!({
+            "name": "wear", "covariate": "removed_mm3", "observable": "cut_depth",
+            "selected": true, "shrink": 0.7, "params": {"k": k}, "p_value": 1e-9,
+            "cv_rms_before_mm": 0.01, "cv_rms_after_mm": 0.003,
+            "intervals": {"k": {"se": se, "lo": k - 1.96 * se, "hi": k + 1.96 * se}}})];
+        if let Some(a) = extra {
+            effects.push(serde_json::json!({
+                "name": "offset", "observable": "cut_depth", "selected": true, "shrink": 0.3,
+                "params": {"a": a}, "p_value": 1e-4,
+                "cv_rms_before_mm": 0.003, "cv_rms_after_mm": 0.0022,
+                "intervals": {"a": {"se": 1e-5, "lo": a - 2e-5, "hi": a + 2e-5}}}));
+        }
         serde_json::json!({
             "per_observable": [{"observable": "cut_depth", "unit": "mm", "rms_mm": 0.01,
-                                "noise_floor_mm": 0.002, "runs": 8, "shrink": 0.7}],
-            "effects": [{"name": "wear", "covariate": "removed_mm3", "observable": "cut_depth",
-                         "selected": true, "shrink": 0.7, "params": {"k": k},
-                         "intervals": {"k": {"se": se, "lo": k - 1.96 * se, "hi": k + 1.96 * se}}}],
-            "night": n
+                                "noise_floor_mm": 0.002, "runs": 8, "shrink": 0.7,
+                                "machines": ["form-1"]}],
+            "effects": effects,
         })
+    }
+
+    fn date(i: usize) -> String {
+        format!("2026-11-{:02}", i + 1)
+    }
+
+    fn history(ks: &[f64], extra: &[Option<f64>]) -> Vec<HistoryRow> {
+        ks.iter()
+            .enumerate()
+            .flat_map(|(i, k)| {
+                rows_of(
+                    &night(*k, 0.002e-5, extra.get(i).copied().flatten()),
+                    &date(i),
+                    "c1",
+                )
+            })
+            .collect()
+    }
+
+    fn run(rows: &[HistoryRow], events: &[Event]) -> Trend {
+        trend(rows, events, Vec::new(), &TrendConfig::default())
     }
 
     #[test]
@@ -623,28 +359,220 @@ mod tests {
     }
 
     #[test]
-    fn a_drift_beyond_the_interval_alerts_and_noise_does_not() {
-        let mut rows = Vec::new();
-        for (i, k) in [1.0e-5, 1.01e-5, 0.99e-5].iter().enumerate() {
-            rows.extend(rows_of(
-                &night("", *k, 0.05e-5),
-                &format!("2026-11-0{}", i + 1),
-            ));
-        }
-        assert!(trend(&rows).alerts.is_empty(), "{:?}", trend(&rows).alerts);
-        rows.extend(rows_of(&night("", 1.5e-5, 0.05e-5), "2026-11-04"));
-        let t = trend(&rows);
-        let moved: Vec<&Alert> = t.alerts.iter().filter(|a| a.kind == "moved").collect();
-        assert!(!moved.is_empty(), "{:?}", t.alerts);
-        assert!(moved.iter().all(|a| a.night == "2026-11-04"));
-        // The effect vanishing from a night that still diagnosed it.
-        let mut gone = night("", 1.0e-5, 0.05e-5);
-        gone["effects"][0]["selected"] = serde_json::json!(false);
-        rows.extend(rows_of(&gone, "2026-11-05"));
-        let t = trend(&rows);
-        assert!(t
+    fn a_process_wandering_a_few_per_cent_does_not_alert_but_a_40_per_cent_step_does_once() {
+        // A 2 % wander at 10 within-night standard errors: the old rule's
+        // false alarm; the floor on the night-to-night spread absorbs it.
+        let steady = [1.0e-5, 1.02e-5, 0.99e-5, 1.01e-5, 0.98e-5, 1.0e-5];
+        let t = run(&history(&steady, &[]), &[]);
+        assert!(t.alerts.is_empty(), "{:#?}", t.alerts);
+        let mut ks = steady.to_vec();
+        ks.extend([1.4e-5, 1.41e-5, 1.39e-5]);
+        let t = run(&history(&ks, &[]), &[]);
+        assert_eq!(
+            t.alerts.len(),
+            1,
+            "one alert, then the new level: {:#?}",
+            t.alerts
+        );
+        let a = &t.alerts[0];
+        assert_eq!(
+            (a.kind.as_str(), a.night.as_str(), a.rank),
+            ("moved", "2026-11-07", 1)
+        );
+        // The fleet-wide fit of an observable one machine measures: on it.
+        assert_eq!(a.machine, None);
+        assert_eq!(a.machines, ["form-1"]);
+        assert!(a.message.contains("on machine form-1"), "{}", a.message);
+        // Size: 40 % of what wear explains (√(0.01² − 0.003²) mm).
+        let explained = (0.01f64.powi(2) - 0.003f64.powi(2)).sqrt();
+        assert!(
+            (a.size.unwrap() / (0.4 * explained) - 1.0).abs() < 0.02,
+            "{a:?}"
+        );
+        assert!((a.fraction_of_gap.unwrap() - a.size.unwrap() / 0.01).abs() < 1e-12);
+        assert!(a.p_holm.unwrap() <= 0.01 && a.tests >= 1);
+    }
+
+    #[test]
+    fn a_20_per_cent_step_is_raised_within_three_nights() {
+        let mut ks = vec![1.0e-5, 1.02e-5, 0.99e-5, 1.01e-5, 0.98e-5];
+        ks.extend([1.2e-5, 1.21e-5, 1.19e-5]);
+        let t = run(&history(&ks, &[]), &[]);
+        assert_eq!(t.alerts.len(), 1, "{:#?}", t.alerts);
+        assert!(
+            t.alerts[0].night.as_str() <= "2026-11-08",
+            "{:?}",
+            t.alerts[0]
+        );
+        assert_eq!(t.alerts[0].from_night, "2026-11-06");
+    }
+
+    #[test]
+    fn flickering_effects_do_not_alert_and_persistent_ones_do() {
+        let ks = [1.0e-5; 8];
+        let flicker: Vec<Option<f64>> = (0..8).map(|i| (i % 2 == 0).then_some(0.002)).collect();
+        let t = run(&history(&ks, &flicker), &[]);
+        assert!(t.alerts.is_empty(), "{:#?}", t.alerts);
+        // Absent four nights, then present: appeared on the second night.
+        let late: Vec<Option<f64>> = (0..8).map(|i| (i >= 4).then_some(0.002)).collect();
+        let t = run(&history(&ks, &late), &[]);
+        let kinds: Vec<(&str, &str)> = t
             .alerts
             .iter()
-            .any(|a| a.kind == "disappeared" && a.night == "2026-11-05"));
+            .map(|a| (a.kind.as_str(), a.night.as_str()))
+            .collect();
+        assert_eq!(kinds, [("appeared", "2026-11-06")], "{:#?}", t.alerts);
+        assert_eq!(t.alerts[0].from_night, "2026-11-05");
+        // A minor effect is never present.
+        let mut rows = history(&ks, &late);
+        for r in rows.iter_mut().filter(|r| r.effect == "offset") {
+            r.minor = true;
+        }
+        assert!(run(&rows, &[]).alerts.is_empty());
+    }
+
+    #[test]
+    fn an_event_starts_a_new_baseline_and_a_config_change_is_one() {
+        let mut ks = vec![1.0e-5, 1.02e-5, 0.99e-5, 1.01e-5];
+        ks.extend([2.0e-5, 2.01e-5, 1.99e-5]);
+        let rows = history(&ks, &[]);
+        assert_eq!(run(&rows, &[]).alerts.len(), 1);
+        let dressing =
+            parse_event("night=2026-11-05,machine=form-1,kind=wheel_change", None).unwrap();
+        let t = run(&rows, std::slice::from_ref(&dressing));
+        assert!(t.alerts.is_empty(), "{:#?}", t.alerts);
+        assert_eq!(t.events, [dressing]);
+        // Another machine's event leaves this one's baseline alone.
+        let other = parse_event("night=2026-11-05,machine=gantry-2,kind=repair", None).unwrap();
+        assert_eq!(run(&rows, &[other]).alerts.len(), 1);
+        // The settings changed on night 5: marked, and no alert.
+        let mut rows = rows;
+        for r in rows.iter_mut().filter(|r| r.night.as_str() >= "2026-11-05") {
+            r.config = "c2".into();
+        }
+        let t = run(&rows, &[]);
+        assert!(t.alerts.is_empty(), "{:#?}", t.alerts);
+        assert_eq!(t.events.len(), 1);
+        assert_eq!(
+            (t.events[0].kind.as_str(), t.events[0].night.as_str()),
+            ("config", "2026-11-05")
+        );
+    }
+
+    #[test]
+    fn alerts_of_a_night_are_ranked_by_the_share_of_the_gap_they_move() {
+        // Two observables in different units; the small-unit one moves
+        // more of its gap.
+        let mut rows = Vec::new();
+        for (i, (k, g)) in [
+            (1.0, 1.0),
+            (1.01, 0.99),
+            (0.99, 1.0),
+            (1.0, 1.01),
+            (1.3, 2.0),
+        ]
+        .iter()
+        .enumerate()
+        {
+            let d = serde_json::json!({
+                "per_observable": [
+                    {"observable": "a_um", "unit": "um", "rms_mm": 10.0, "runs": 4},
+                    {"observable": "b_deg", "unit": "deg", "rms_mm": 0.1, "runs": 4}],
+                "effects": [
+                    {"name": "wear", "covariate": "removed_mm3", "observable": "a_um",
+                     "selected": true, "params": {"k": k}, "p_value": 1e-9,
+                     "cv_rms_before_mm": 10.0, "cv_rms_after_mm": 2.0,
+                     "intervals": {"k": {"se": 0.001}}},
+                    {"name": "drift", "covariate": "t_s", "observable": "b_deg",
+                     "selected": true, "params": {"a": g}, "p_value": 1e-9,
+                     "cv_rms_before_mm": 0.1, "cv_rms_after_mm": 0.02,
+                     "intervals": {"a": {"se": 0.001}}}]});
+            rows.extend(rows_of(&d, &date(i), ""));
+        }
+        let t = run(&rows, &[]);
+        let on: Vec<&Alert> = t.alerts_on("2026-11-05").collect();
+        assert_eq!(on.len(), 2, "{:#?}", t.alerts);
+        assert_eq!((on[0].observable.as_str(), on[0].rank), ("b_deg", 1));
+        assert_eq!((on[1].observable.as_str(), on[1].rank), ("a_um", 2));
+        assert!(on[0].fraction_of_gap > on[1].fraction_of_gap);
+        assert_eq!(on[0].unit, "deg");
+    }
+
+    #[test]
+    fn histories_round_trip_old_versions_upgrade_and_newer_ones_are_refused() {
+        let d = tempfile::tempdir().unwrap();
+        let h = d.path();
+        let rows = history(&[1.0e-5, 1.0e-5], &[]);
+        write_night(h, "2026-11-02", &rows[rows.len() / 2..]).unwrap();
+        // Night 1 as version 1 wrote it: no version column, no new columns.
+        let old: Vec<HistoryRow> = rows[..rows.len() / 2].to_vec();
+        let b = history::tests_support::v1_batch(&old);
+        crate::contracts::write_parquet_atomic(&h.join("night=2026-11-01/diagnosis.parquet"), &b)
+            .unwrap();
+        let (back, notes) = read_history(h).unwrap();
+        assert_eq!(back.len(), rows.len());
+        assert_eq!(notes.len(), 1, "{notes:?}");
+        assert!(notes[0].contains("version 1") && notes[0].contains("2026-11-01"));
+        let wear = back
+            .iter()
+            .find(|r| r.night == "2026-11-01" && r.effect == "wear:removed_mm3")
+            .unwrap();
+        assert!(wear.explained_rms > 0.0 && wear.config.is_empty());
+        // (NaN ≠ NaN: compared as printed.)
+        assert_eq!(
+            format!("{:?}", &back[back.len() / 2..]),
+            format!("{:?}", &rows[rows.len() / 2..])
+        );
+        // A night of a newer history version.
+        let mut newer = batch_with_version(&rows[..1], HISTORY_VERSION + 1);
+        crate::contracts::write_parquet_atomic(
+            &h.join("night=2026-11-03/diagnosis.parquet"),
+            &newer,
+        )
+        .unwrap();
+        let err = read_history(h).unwrap_err().to_string();
+        assert!(
+            err.contains("night=2026-11-03")
+                && err.contains("history_version")
+                && err.contains("update sparkout"),
+            "{err}"
+        );
+        newer = batch_with_version(&rows[..1], HISTORY_VERSION);
+        crate::contracts::write_parquet_atomic(
+            &h.join("night=2026-11-03/diagnosis.parquet"),
+            &newer,
+        )
+        .unwrap();
+        // trend.json is written and read through the same types.
+        let t = write_trend(h, &d.path().join("t"), &[], &TrendConfig::default()).unwrap();
+        // (serde_json parses floats to within an ulp: the numbers are
+        // compared apart.)
+        let back = read_trend(&d.path().join("t/trend.json")).unwrap();
+        assert_eq!(
+            (
+                &back.nights,
+                &back.events,
+                &back.notes,
+                &back.alerts,
+                &back.settings
+            ),
+            (&t.nights, &t.events, &t.notes, &t.alerts, &t.settings)
+        );
+        assert_eq!(back.series.len(), t.series.len());
+        for (a, b) in back.series[0].points.iter().zip(&t.series[0].points) {
+            assert!((a.lo95.unwrap() / b.lo95.unwrap() - 1.0).abs() < 1e-12);
+        }
+        std::fs::write(d.path().join("t/trend.json"), b"{\"version\": 1}").unwrap();
+        let err = read_trend(&d.path().join("t/trend.json"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("version 1") && err.contains("sparkout trend"),
+            "{err}"
+        );
+    }
+
+    fn batch_with_version(rows: &[HistoryRow], v: u32) -> arrow::array::RecordBatch {
+        history::tests_support::with_version(rows, v)
     }
 }
