@@ -127,7 +127,7 @@ pub fn diagnose(observations: &Path, out: &Path, flags: &Flags) -> anyhow::Resul
                     o.minor.join(", ")
                 );
             }
-            for c in &o.collinear {
+            for c in o.collinear.iter().filter(|c| !c.confounds.is_empty()) {
                 println!("  {}: note: {}", o.observable, c.advice);
             }
         }

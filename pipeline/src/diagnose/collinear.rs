@@ -30,6 +30,30 @@ pub struct Collinearity {
     pub vif: f64,
     /// What an engineer can change so the next runs tell the effects apart.
     pub advice: String,
+    /// Candidates indistinguishable from the selected effect on these runs
+    /// whose covariates are among those it moves with: the collinearity is
+    /// why they cannot be told apart. Printed only when not empty — a
+    /// collinearity that the held-out scores see through is no news.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub confounds: Vec<String>,
+}
+
+impl Collinearity {
+    /// Names the rivals (`key`, its covariates) this collinearity explains:
+    /// those using a covariate it moves with, or — when only its VIF is
+    /// high — any covariate other than its own.
+    pub fn add_confounds(&mut self, rivals: &[(String, Vec<String>)]) {
+        for (key, covs) in rivals {
+            let hit = if self.moves_with.is_empty() {
+                covs.iter().any(|c| *c != self.covariate)
+            } else {
+                covs.iter().any(|c| self.moves_with.contains_key(c))
+            };
+            if hit && !self.confounds.contains(key) {
+                self.confounds.push(key.clone());
+            }
+        }
+    }
 }
 
 /// Largest VIF reported (a covariate that is an exact combination).
@@ -117,6 +141,7 @@ pub fn collinear(
             ),
             moves_with,
             vif,
+            confounds: Vec::new(),
         });
     }
     out

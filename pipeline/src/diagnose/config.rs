@@ -59,7 +59,7 @@ impl Default for DiagnoseConfig {
             noise_margin: 1.1,
             max_effects: 4,
             min_gain: 0.01,
-            min_selection_frequency: 0.6,
+            min_selection_frequency: 0.8,
             min_gap_share: 0.03,
             collinear_r: 0.95,
             collinear_vif: 10.0,

@@ -325,13 +325,24 @@ fn analyse(
         .iter()
         .map(|c| (c.name.as_str(), c.v.as_slice()))
         .collect();
-    let collinear = collinear::collinear(
+    let mut collinear = collinear::collinear(
         &cov_cols,
         &o.run_ranges,
         &selected_covs,
         cfg.collinear_r,
         cfg.collinear_vif,
     );
+    for r in sel.records.iter().filter(|r| r.selected) {
+        let own = cands[r.idx].covariates();
+        let rivals: Vec<(String, Vec<String>)> = r
+            .indistinguishable
+            .iter()
+            .map(|&i| (cands[i].key(), cands[i].covariates()))
+            .collect();
+        for c in collinear.iter_mut().filter(|c| own.contains(&c.covariate)) {
+            c.add_confounds(&rivals);
+        }
+    }
     let minor: Vec<String> = sel
         .records
         .iter()

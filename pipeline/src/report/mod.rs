@@ -242,6 +242,10 @@ fn explained_by(diagnosis: &serde_json::Value, o: &serde_json::Value, sel: &[&st
         .into_iter()
         .flatten()
     {
+        // News only where it is why rivals cannot be told apart.
+        if c.get("confounds").is_none() {
+            continue;
+        }
         if let Some(a) = c.get("advice").and_then(|x| x.as_str()) {
             text.push_str(&format!(". Note: {a}"));
         }

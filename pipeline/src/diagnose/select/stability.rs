@@ -175,7 +175,7 @@ mod tests {
             sigma_mm: 1.0,
             max_effects: 4,
             min_gain: 0.01,
-            min_frequency: 0.6,
+            min_frequency: 0.8,
             min_gap_share: 0.05,
             seed: 0,
             allow_selection: true,
