@@ -737,6 +737,56 @@ mod tests {
         }
     }
 
+    /// Within-run correlation of x_mm and temp_c, pooled over runs.
+    fn within_run_r(l: &ObsLayout) -> f64 {
+        let (x, t) = (l.col("x_mm").unwrap(), l.col("temp_c").unwrap());
+        let (mut sxy, mut sxx, mut syy) = (0.0, 0.0, 0.0);
+        let mut s = 0;
+        for i in 1..=l.len() {
+            if i == l.len() || l.run[i] != l.run[s] {
+                let m = (i - s) as f64;
+                let mx = x[s..i].iter().sum::<f64>() / m;
+                let mt = t[s..i].iter().sum::<f64>() / m;
+                for j in s..i {
+                    sxy += (x[j] - mx) * (t[j] - mt);
+                    sxx += (x[j] - mx).powi(2);
+                    syy += (t[j] - mt).powi(2);
+                }
+                s = i;
+            }
+        }
+        sxy / (sxx * syy).sqrt()
+    }
+
+    #[test]
+    fn raster_moves_position_with_temperature_unless_runs_vary() {
+        let cfg = ObsFleetConfig {
+            runs: 4,
+            seed: 9,
+            ..Default::default()
+        };
+        let same = raster_layout(&cfg, false).unwrap();
+        assert_eq!(same.cols.keys().collect::<Vec<_>>(), ["temp_c", "x_mm"]);
+        assert!(within_run_r(&same) > 0.99, "{}", within_run_r(&same));
+        let varied = raster_layout(&cfg, true).unwrap();
+        assert!(
+            within_run_r(&varied).abs() < 0.5,
+            "{}",
+            within_run_r(&varied)
+        );
+        // Deterministic, and every run measures every line.
+        assert_eq!(varied.cols, raster_layout(&cfg, true).unwrap().cols);
+        for r in ["r0001", "r0004"] {
+            let n = varied
+                .run
+                .iter()
+                .zip(&varied.trial)
+                .filter(|(x, t)| *x == r && **t == 0)
+                .count();
+            assert_eq!(n, RASTER_LINES);
+        }
+    }
+
     #[test]
     fn snr_scaling_hits_target() {
         let l = layout(&ObsFleetConfig::default()).unwrap();

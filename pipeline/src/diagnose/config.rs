@@ -31,9 +31,10 @@ pub struct DiagnoseConfig {
     /// held-out units): selection needs it, and a more complex candidate
     /// must beat a simpler one by it (parsimony).
     pub min_gain: f64,
-    /// Stability: an effect is selected only when it passes the selection
-    /// test on at least this share of half-subsamples of the held-out runs
-    /// (its `selection_frequency`); below it the effect is "minor".
+    /// Stability: an effect is selected only when its held-out gain holds
+    /// (mean log RMS ratio ≥ `min_gain`) on at least this share of
+    /// half-subsamples of the runs (its `selection_frequency`); below it
+    /// the effect is "minor".
     pub min_selection_frequency: f64,
     /// Materiality: an effect is selected only when its held-out
     /// improvement removes at least this share of the observable's

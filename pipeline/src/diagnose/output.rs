@@ -72,8 +72,8 @@ pub struct EffectEntry {
     /// Mean over held-out units of ln(rms_before/rms_after): the ranking score.
     pub mean_log_ratio: Option<f64>,
     pub selected: bool,
-    /// Share of half-subsamples of the runs on which it passes its round's
-    /// selection test (stability; `diagnose.min_selection_frequency`).
+    /// Share of half-subsamples of the runs on whose held-out units its
+    /// gain holds (stability; `diagnose.min_selection_frequency`).
     pub selection_frequency: Option<f64>,
     /// Held-out SSE it removes over the observable's explainable SSE (gap
     /// SSE above the noise floor; materiality; `diagnose.min_gap_share`).

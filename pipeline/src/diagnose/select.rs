@@ -23,7 +23,7 @@
 //! a practical margin: a mean log RMS ratio of at least `min_gain` (1 %).
 //!
 //! A round's choice is then held to stability and materiality
-//! (`stability.rs`): selected on at least `min_frequency` of
+//! (`stability.rs`): its gain holding on at least `min_frequency` of
 //! half-subsamples of the runs, and removing at least `min_gap_share` of
 //! the explainable gap. A choice that fails is "minor" (kept in `effects`
 //! with its figures, not selected) and the round's next choice is tried.
@@ -305,8 +305,8 @@ pub struct Record {
     pub params: BTreeMap<String, f64>,
     pub offset_mm: f64,
     pub selected: bool,
-    /// Share of half-subsamples of runs on which it passes the round's
-    /// selection test (`stability.rs`).
+    /// Share of half-subsamples of runs on whose held-out units its gain
+    /// holds (`stability.rs`).
     pub selection_frequency: f64,
     /// Held-out SSE it removes over the observable's explainable SSE.
     pub gap_share: f64,
