@@ -579,7 +579,7 @@ pub const RASTER_LINES: usize = 40;
 ///
 /// `sim` is a smooth form of x; replicates as in [`layout`].
 pub fn raster_layout(cfg: &ObsFleetConfig, varied: bool) -> Result<ObsLayout> {
-    if cfg.runs == 0 || !(cfg.spacing_mm > 0.0) {
+    if cfg.runs == 0 || cfg.spacing_mm.is_nan() || cfg.spacing_mm <= 0.0 {
         bail!("a raster fleet needs ≥ 1 run and spacing_mm > 0");
     }
     let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed ^ 0x7A57_E125_CA11);

@@ -480,7 +480,8 @@ pub fn select(prob: &Problem, cands: &[&dyn Effect], opt: &SelectOptions) -> Res
                 break None;
             };
             // NaN frequency (a single unit: no subsample) does not block.
-            let stable = !(r.selection_frequency < opt.min_frequency);
+            let stable =
+                r.selection_frequency.is_nan() || r.selection_frequency >= opt.min_frequency;
             if stable && r.gap_share >= opt.min_gap_share {
                 break Some(b);
             }
