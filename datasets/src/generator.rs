@@ -100,6 +100,11 @@ pub trait Generator: Send + Sync {
         opts: &GenerateOptions,
         effects: &[EffectSpec],
     ) -> Result<Generated>;
+    /// Writes one table (a .parquet file) rather than a fleet of run
+    /// directories: `generate` then refuses an existing file.
+    fn writes_file(&self) -> bool {
+        false
+    }
     /// Its fleet in `sparkout demo`; `None` keeps it out of the demo.
     fn demo(&self) -> Option<DemoFleet> {
         None
@@ -162,6 +167,8 @@ pub fn all_generators() -> Vec<Arc<dyn Generator>> {
         Arc::new(crate::form::GENERATOR),
         Arc::new(crate::servo::GENERATOR),
         Arc::new(crate::observations::ObservationsGenerator),
+        Arc::new(crate::observations::RasterGenerator { varied: false }),
+        Arc::new(crate::observations::RasterGenerator { varied: true }),
     ]
 }
 

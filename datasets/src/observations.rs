@@ -508,6 +508,9 @@ impl Generator for ObservationsGenerator {
     fn name(&self) -> &'static str {
         "observations"
     }
+    fn writes_file(&self) -> bool {
+        true
+    }
     fn known_effects(&self) -> Vec<(&'static str, &'static str)> {
         Kind::all()
             .into_iter()
@@ -521,14 +524,8 @@ impl Generator for ObservationsGenerator {
             names.join(", ")
         )
     }
-    /// One table of every run's rows, built whole in memory: both sizes
-    /// grow with the run count (bytes per run measured at the defaults).
     fn predicted_size(&self, opts: &GenerateOptions) -> Predicted {
-        let runs = opts.runs as u64;
-        Predicted {
-            write_bytes: runs.saturating_mul(DISK_BYTES_PER_RUN),
-            peak_memory_bytes: runs.saturating_mul(MEMORY_BYTES_PER_RUN),
-        }
+        table_size(opts)
     }
     fn generate(&self, out: &Path, opts: &GenerateOptions, fx: &[EffectSpec]) -> Result<Generated> {
         no_ae_rate(self.name(), opts)?;
@@ -553,10 +550,14 @@ impl Generator for ObservationsGenerator {
 
 /// A whole fleet: layout, `real` = sim + Σ effects + noise.
 pub fn generate(cfg: &ObsFleetConfig, effects: &[EffectSpec]) -> Result<RecordBatch> {
-    let l = layout(cfg)?;
+    compose(cfg, &layout(cfg)?, effects)
+}
+
+/// `real` = sim + Σ effects + noise on a layout, as the table.
+pub fn compose(cfg: &ObsFleetConfig, l: &ObsLayout, effects: &[EffectSpec]) -> Result<RecordBatch> {
     let mut real: Vec<f64> = l.sim.clone();
     for e in effects {
-        let v = apply_effect(e, &l).with_context(|| format!("effect {}", e.key()))?;
+        let v = apply_effect(e, l).with_context(|| format!("effect {}", e.key()))?;
         for (r, x) in real.iter_mut().zip(v) {
             *r += x;
         }
@@ -564,7 +565,143 @@ pub fn generate(cfg: &ObsFleetConfig, effects: &[EffectSpec]) -> Result<RecordBa
     for (r, e) in real.iter_mut().zip(noise(cfg, l.len())) {
         *r += e;
     }
-    to_batch(&l, &real, &cfg.observable)
+    to_batch(l, &real, &cfg.observable)
+}
+
+/// Lines of a raster run ([`raster_layout`]).
+pub const RASTER_LINES: usize = 40;
+
+/// Line-start heights of raster scans on a sample that warms while it is
+/// scanned: each run steps `RASTER_LINES` lines across x (`spacing_mm`
+/// apart), measuring the height where each line starts, so the line's
+/// position `x_mm` advances with time while `temp_c` rises (warm-up
+/// 1 − exp(−t/τ), τ = 4000 s, plus a small wander). Like the scans it
+/// models the table has no clock column: position and temperature are
+/// what the diagnosis can tell apart, or not.
+///
+/// - `varied = false`: every run starts cold at the first line and scans
+///   the same way, so within every run x_mm and temp_c move together — a
+///   thermal effect and an effect of position fit these runs equally.
+/// - `varied = true`: odd runs scan the lines in reverse, and every run
+///   starts at its own point of the warm-up (0–1500 s in) and its own
+///   start temperature, so the runs decorrelate position and temperature.
+///
+/// `sim` is a smooth form of x; replicates as in [`layout`].
+pub fn raster_layout(cfg: &ObsFleetConfig, varied: bool) -> Result<ObsLayout> {
+    if cfg.runs == 0 || cfg.spacing_mm.is_nan() || cfg.spacing_mm <= 0.0 {
+        bail!("a raster fleet needs ≥ 1 run and spacing_mm > 0");
+    }
+    let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed ^ 0x7A57_E125_CA11);
+    let (mut run, mut trial, mut point) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut xs, mut temps) = (Vec::new(), Vec::new());
+    let line_s = 13.0; // scan one line, return, step to the next
+    let (tau_s, rise_c) = (4000.0, 16.0);
+    for r in 0..cfg.runs {
+        let run_id = format!("r{:04}", r + 1);
+        let reverse = varied && r % 2 == 1;
+        let (t0, temp0) = if varied {
+            (rng.random_range(0.0..1500.0), rng.random_range(19.5..20.5))
+        } else {
+            (0.0, 20.0 + rng.random_range(-0.02..0.02))
+        };
+        let mut wander = 0.0;
+        for line in 0..RASTER_LINES {
+            let ix = if reverse {
+                RASTER_LINES - 1 - line
+            } else {
+                line
+            };
+            let t = t0 + line as f64 * line_s;
+            wander += rng.random_range(-1.0..1.0) * 0.001;
+            let temp = temp0 + rise_c * (1.0 - (-t / tau_s).exp()) + wander;
+            let repeats = if rng.random_bool(cfg.replicate_fraction.clamp(0.0, 1.0)) {
+                2
+            } else {
+                1
+            };
+            for k in 0..repeats {
+                run.push(run_id.clone());
+                trial.push(k);
+                point.push(ix as i32);
+                xs.push(ix as f64 * cfg.spacing_mm);
+                temps.push(temp);
+            }
+        }
+    }
+    let sim = xs.iter().map(|x| 0.01 * (x / 40.0).sin()).collect();
+    let mut cols = BTreeMap::new();
+    cols.insert("x_mm".to_string(), xs);
+    cols.insert("temp_c".to_string(), temps);
+    Ok(ObsLayout {
+        run,
+        trial,
+        point,
+        cols,
+        sim,
+    })
+}
+
+/// `sparkout generate raster` / `raster-varied`: line-start heights of
+/// raster scans ([`raster_layout`]) with the effects given, for `sparkout
+/// diagnose` — the one where position and temperature move together, and
+/// the one whose runs vary direction and start time.
+pub struct RasterGenerator {
+    pub varied: bool,
+}
+
+/// One table of every run's rows, built whole in memory: both sizes grow
+/// with the run count (bytes per run measured at the observation
+/// generator's defaults; a raster run has fewer rows, so this bounds it).
+fn table_size(opts: &GenerateOptions) -> Predicted {
+    let runs = opts.runs as u64;
+    Predicted {
+        write_bytes: runs.saturating_mul(DISK_BYTES_PER_RUN),
+        peak_memory_bytes: runs.saturating_mul(MEMORY_BYTES_PER_RUN),
+    }
+}
+
+impl Generator for RasterGenerator {
+    fn predicted_size(&self, opts: &GenerateOptions) -> Predicted {
+        table_size(opts)
+    }
+    fn name(&self) -> &'static str {
+        if self.varied {
+            "raster-varied"
+        } else {
+            "raster"
+        }
+    }
+    fn writes_file(&self) -> bool {
+        true
+    }
+    fn known_effects(&self) -> Vec<(&'static str, &'static str)> {
+        vec![
+            ("thermal:temp_c", "k·(temp_c − t0_c): the sample's warm-up"),
+            ("scale:x_mm", "k·x_mm: a position error along the lines"),
+            ("bow:x_mm", "a bow across the lines"),
+        ]
+    }
+    fn generate(&self, out: &Path, opts: &GenerateOptions, fx: &[EffectSpec]) -> Result<Generated> {
+        no_ae_rate(self.name(), opts)?;
+        let cfg = ObsFleetConfig {
+            runs: opts.runs,
+            seed: opts.seed,
+            observable: "line_start_z".into(),
+            ..Default::default()
+        };
+        let batch = compose(&cfg, &raster_layout(&cfg, self.varied)?, fx)?;
+        write_parquet_atomic(out, &batch)?;
+        Ok(Generated {
+            runs: opts.runs,
+            summary: format!(
+                "generated {} line-start heights over {} {} runs in {}",
+                batch.num_rows(),
+                opts.runs,
+                self.name(),
+                out.display()
+            ),
+        })
+    }
 }
 
 /// Writes a batch as zstd Parquet, atomically (temp file + rename).
@@ -620,6 +757,56 @@ mod tests {
             if l.run[i] == l.run[i - 1] {
                 assert!(t[i] >= t[i - 1]);
             }
+        }
+    }
+
+    /// Within-run correlation of x_mm and temp_c, pooled over runs.
+    fn within_run_r(l: &ObsLayout) -> f64 {
+        let (x, t) = (l.col("x_mm").unwrap(), l.col("temp_c").unwrap());
+        let (mut sxy, mut sxx, mut syy) = (0.0, 0.0, 0.0);
+        let mut s = 0;
+        for i in 1..=l.len() {
+            if i == l.len() || l.run[i] != l.run[s] {
+                let m = (i - s) as f64;
+                let mx = x[s..i].iter().sum::<f64>() / m;
+                let mt = t[s..i].iter().sum::<f64>() / m;
+                for j in s..i {
+                    sxy += (x[j] - mx) * (t[j] - mt);
+                    sxx += (x[j] - mx).powi(2);
+                    syy += (t[j] - mt).powi(2);
+                }
+                s = i;
+            }
+        }
+        sxy / (sxx * syy).sqrt()
+    }
+
+    #[test]
+    fn raster_moves_position_with_temperature_unless_runs_vary() {
+        let cfg = ObsFleetConfig {
+            runs: 4,
+            seed: 9,
+            ..Default::default()
+        };
+        let same = raster_layout(&cfg, false).unwrap();
+        assert_eq!(same.cols.keys().collect::<Vec<_>>(), ["temp_c", "x_mm"]);
+        assert!(within_run_r(&same) > 0.99, "{}", within_run_r(&same));
+        let varied = raster_layout(&cfg, true).unwrap();
+        assert!(
+            within_run_r(&varied).abs() < 0.5,
+            "{}",
+            within_run_r(&varied)
+        );
+        // Deterministic, and every run measures every line.
+        assert_eq!(varied.cols, raster_layout(&cfg, true).unwrap().cols);
+        for r in ["r0001", "r0004"] {
+            let n = varied
+                .run
+                .iter()
+                .zip(&varied.trial)
+                .filter(|(x, t)| *x == r && **t == 0)
+                .count();
+            assert_eq!(n, RASTER_LINES);
         }
     }
 

@@ -112,8 +112,23 @@ pub fn diagnose(observations: &Path, out: &Path, flags: &Flags) -> anyhow::Resul
                 _ => String::new(),
             };
             println!("  {} on {}: {shrink}", e.key(), e.observable);
+            if !e.indistinguishable_from.is_empty() {
+                println!("    {}", e.explained_text());
+            }
             for p in e.params_text() {
                 println!("    {p}");
+            }
+        }
+        for o in &d.diagnosis.per_observable {
+            if !o.minor.is_empty() {
+                println!(
+                    "  {}: minor (not stable or material enough to select): {}",
+                    o.observable,
+                    o.minor.join(", ")
+                );
+            }
+            for c in o.collinear.iter().filter(|c| !c.confounds.is_empty()) {
+                println!("  {}: note: {}", o.observable, c.advice);
             }
         }
         println!("wrote {}", out.join("diagnosis.json").display());

@@ -21,8 +21,8 @@ pub fn parse_effects(effects: &[String]) -> anyhow::Result<Vec<EffectSpec>> {
 /// under the fleet root (their ids would be reused: r0000, r0001, ...) or an
 /// existing observations file need `--force`. Other plugins' runs under the
 /// same root are fine (a mixed fleet is generated one plugin at a time).
-fn refuse_overwrite(what: &str, out: &Path) -> anyhow::Result<()> {
-    if what == "observations" {
+fn refuse_overwrite(what: &str, writes_file: bool, out: &Path) -> anyhow::Result<()> {
+    if writes_file {
         if out.exists() {
             bail!(
                 "{} already exists; pass --force to overwrite it",
@@ -89,7 +89,9 @@ pub fn generate(
         print!("{}", g.effects_listing());
         return Ok(0);
     }
-    let out = out.context("--out is required (a fleet root; a .parquet file for observations)")?;
+    let out = out.context(
+        "--out is required (a fleet root; a .parquet file for observations, raster, raster-varied)",
+    )?;
     bounds::check_size(
         &format!(
             "generate {what} --runs {}{}",
@@ -103,7 +105,7 @@ pub fn generate(
         overrides.force_size,
     )?;
     if !overrides.force {
-        refuse_overwrite(what, &out)?;
+        refuse_overwrite(what, g.writes_file(), &out)?;
     }
     println!("{}", g.generate(&out, opts, &effects)?.summary);
     Ok(0)

@@ -11,6 +11,7 @@ mod cli_fleet;
 mod cli_stage_diagnose;
 mod common;
 mod config_defaults;
+mod confounding;
 mod contracts_bad_input;
 mod demo_artifacts;
 mod diagnose_robust;

@@ -31,6 +31,23 @@ pub struct DiagnoseConfig {
     /// held-out units): selection needs it, and a more complex candidate
     /// must beat a simpler one by it (parsimony).
     pub min_gain: f64,
+    /// Stability: an effect is selected only when its held-out gain holds
+    /// (mean log RMS ratio ≥ `min_gain`) on at least this share of
+    /// half-subsamples of the runs (its `selection_frequency`); below it
+    /// the effect is "minor".
+    pub min_selection_frequency: f64,
+    /// Materiality: an effect is selected only when its held-out
+    /// improvement removes at least this share of the observable's
+    /// explainable gap (held-out mean square of the gap above the noise
+    /// floor σ²; its `gap_share`); below it the effect is "minor".
+    pub min_gap_share: f64,
+    /// Covariates whose within-run correlation reaches |r| ≥ this move
+    /// together on these runs: reported with the selected effect.
+    pub collinear_r: f64,
+    /// A selected effect's covariate with a variance inflation factor
+    /// (within runs, against the other covariates) ≥ this is reported as
+    /// collinear.
+    pub collinear_vif: f64,
 }
 
 impl Default for DiagnoseConfig {
@@ -43,6 +60,10 @@ impl Default for DiagnoseConfig {
             noise_margin: 1.1,
             max_effects: 4,
             min_gain: 0.01,
+            min_selection_frequency: 0.8,
+            min_gap_share: 0.03,
+            collinear_r: 0.95,
+            collinear_vif: 10.0,
         }
     }
 }
@@ -55,6 +76,10 @@ impl Section for DiagnoseConfig {
         ("noise_margin", Check::AtLeastOne),
         ("max_effects", Check::WholeIn(1, 100)),
         ("min_gain", Check::NonNegative),
+        ("min_selection_frequency", Check::Fraction),
+        ("min_gap_share", Check::NonNegative),
+        ("collinear_r", Check::Fraction),
+        ("collinear_vif", Check::AtLeastOne),
     ];
     fn validate(&self) -> Result<()> {
         if let Some(e) = &self.effects {

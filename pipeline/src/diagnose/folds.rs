@@ -19,6 +19,9 @@ pub struct Folds {
     pub units: Vec<Range<usize>>,
     /// The fold that holds each unit out.
     pub unit_fold: Vec<usize>,
+    /// The run (or, for a single run, the block) each unit lies in: the
+    /// stability resamples draw these whole.
+    pub unit_group: Vec<usize>,
     pub k: usize,
     /// A single run: blocks within it instead of runs.
     pub blocked: bool,
@@ -50,6 +53,7 @@ pub fn folds(o: &ObsRows, folds: usize, seed: u64, oi: usize) -> Folds {
     };
     let mut units = Vec::new();
     let mut unit_fold = Vec::new();
+    let mut unit_group = Vec::new();
     for (g, r) in fold_groups.iter().enumerate() {
         let parts = split.min(r.len()).max(1);
         for b in 0..parts {
@@ -57,12 +61,14 @@ pub fn folds(o: &ObsRows, folds: usize, seed: u64, oi: usize) -> Folds {
             if !u.is_empty() {
                 units.push(u);
                 unit_fold.push(group_fold[g]);
+                unit_group.push(g);
             }
         }
     }
     Folds {
         units,
         unit_fold,
+        unit_group,
         k,
         blocked,
     }

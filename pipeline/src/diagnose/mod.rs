@@ -17,6 +17,7 @@
 pub mod augment;
 pub mod candidates;
 pub mod cells;
+pub mod collinear;
 pub mod config;
 pub mod effect;
 pub mod fit;
@@ -265,6 +266,7 @@ fn analyse(
         gap: &o.gap,
         units: fo.units,
         unit_fold: fo.unit_fold,
+        unit_run: fo.unit_group,
         k: fo.k,
         frames: o.cols.iter().map(|c| (c.name.clone(), c.stats)).collect(),
     };
@@ -283,6 +285,9 @@ fn analyse(
         sigma_mm: nf.sigma_mm,
         max_effects: cfg.max_effects,
         min_gain: cfg.min_gain,
+        min_frequency: cfg.min_selection_frequency,
+        min_gap_share: cfg.min_gap_share,
+        seed: cfg.seed ^ (oi as u64).wrapping_mul(0xA24B_AED4_963E_E407),
         allow_selection: above,
     };
     let sel = select::select(&prob, &cands, &opt)?;
@@ -305,6 +310,45 @@ fn analyse(
     let sse_b: f64 = sel.unit_sse_gap.iter().sum();
     let sse_a: f64 = sel.unit_sse_after.iter().sum();
     let (rb, ra) = ((sse_b / n as f64).sqrt(), (sse_a / n as f64).sqrt());
+    let selected_covs: Vec<String> = {
+        let mut v: Vec<String> = sel
+            .chosen
+            .iter()
+            .flat_map(|&ci| cands[ci].covariates())
+            .collect();
+        v.sort();
+        v.dedup();
+        v
+    };
+    let cov_cols: Vec<(&str, &[f64])> = o
+        .cols
+        .iter()
+        .map(|c| (c.name.as_str(), c.v.as_slice()))
+        .collect();
+    let mut collinear = collinear::collinear(
+        &cov_cols,
+        &o.run_ranges,
+        &selected_covs,
+        cfg.collinear_r,
+        cfg.collinear_vif,
+    );
+    for r in sel.records.iter().filter(|r| r.selected) {
+        let own = cands[r.idx].covariates();
+        let rivals: Vec<(String, Vec<String>)> = r
+            .indistinguishable
+            .iter()
+            .map(|&i| (cands[i].key(), cands[i].covariates()))
+            .collect();
+        for c in collinear.iter_mut().filter(|c| own.contains(&c.covariate)) {
+            c.add_confounds(&rivals);
+        }
+    }
+    let minor: Vec<String> = sel
+        .records
+        .iter()
+        .filter(|r| r.minor && !r.selected)
+        .map(|r| cands[r.idx].key())
+        .collect();
     acc.summaries.push(ObservableSummary {
         observable: o.name.clone(),
         unit: table.obs_units[oi].clone(),
@@ -324,6 +368,8 @@ fn analyse(
         gap_above_noise: above,
         p_value: p_gap,
         selected: obs_selected,
+        minor,
+        collinear,
         cv_rms_before_mm: rb,
         cv_rms_after_mm: ra,
         shrink: if rb > 0.0 { 1.0 - ra / rb } else { 0.0 },

@@ -9,6 +9,7 @@ use arrow::array::{ArrayRef, Float64Array, RecordBatch};
 use arrow::datatypes::{DataType, Field, Schema};
 use serde::Serialize;
 
+use super::collinear::Collinearity;
 use super::effect::Effect;
 use super::gather::ObsRows;
 use super::intervals::{ChosenIntervals, ParamInterval};
@@ -71,6 +72,22 @@ pub struct EffectEntry {
     /// Mean over held-out units of ln(rms_before/rms_after): the ranking score.
     pub mean_log_ratio: Option<f64>,
     pub selected: bool,
+    /// Share of half-subsamples of the runs on whose held-out units its
+    /// gain holds (stability; `diagnose.min_selection_frequency`).
+    pub selection_frequency: Option<f64>,
+    /// Held-out SSE it removes over the observable's explainable SSE (gap
+    /// SSE above the noise floor; materiality; `diagnose.min_gap_share`).
+    pub gap_share: Option<f64>,
+    /// Passed the held-out test but is not stable or material enough to
+    /// be selected: listed with its figures as "minor".
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub minor: bool,
+    /// Selected effects: candidates of the same round whose held-out error
+    /// is statistically indistinguishable from this one's (95 % paired
+    /// interval over held-out units containing zero) — on these runs, the
+    /// gap is explained as well by any of them.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub indistinguishable_from: Vec<String>,
     /// Selection round the score belongs to (1 = against the raw gap).
     pub step: usize,
     pub skipped_reason: Option<String>,
@@ -100,6 +117,11 @@ impl EffectEntry {
             None => self.name.clone(),
         }
     }
+    /// "explained by K" plus, when rivals fit these runs as well, "— on
+    /// these runs indistinguishable from R1, R2".
+    pub fn explained_text(&self) -> String {
+        explained_text(&self.key(), &self.indistinguishable_from)
+    }
     /// Each parameter as an engineer reads it: `k = 1.50e-5 ± 0.08e-5
     /// mm/mm³` when it has an interval, else `k = 1.5e-5 mm/mm³`.
     pub fn params_text(&self) -> Vec<String> {
@@ -117,6 +139,24 @@ impl EffectEntry {
                 }
             })
             .collect()
+    }
+}
+
+/// "explained by K — on these runs indistinguishable from R…" (the rivals
+/// part only when there are rivals).
+pub fn explained_text(key: &str, rivals: &[String]) -> String {
+    format!("explained by {}", with_rivals(key, rivals))
+}
+
+/// "K — on these runs indistinguishable from R1, R2", or "K" alone.
+pub fn with_rivals(key: &str, rivals: &[String]) -> String {
+    if rivals.is_empty() {
+        key.to_string()
+    } else {
+        format!(
+            "{key} — on these runs indistinguishable from {}",
+            rivals.join(" and ")
+        )
     }
 }
 
@@ -168,6 +208,14 @@ pub struct ObservableSummary {
     pub gap_above_noise: bool,
     pub p_value: f64,
     pub selected: Vec<String>,
+    /// Effects that passed the held-out test but not the stability or
+    /// materiality threshold (their figures are in `effects`).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub minor: Vec<String>,
+    /// Covariates of selected effects that move with others within runs,
+    /// with advice (collinear.rs).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub collinear: Vec<Collinearity>,
     pub cv_rms_before_mm: f64,
     pub cv_rms_after_mm: f64,
     pub shrink: f64,
@@ -360,6 +408,14 @@ pub fn effect_entries(
                 p_value: fin(r.p_value),
                 mean_log_ratio: fin(r.mean_log_ratio),
                 selected: r.selected,
+                selection_frequency: fin(r.selection_frequency),
+                gap_share: fin(r.gap_share),
+                minor: r.minor,
+                indistinguishable_from: r
+                    .indistinguishable
+                    .iter()
+                    .map(|&i| cands[i].key())
+                    .collect(),
                 step: r.step,
                 skipped_reason: r.skipped.clone(),
                 per_machine: test

@@ -21,6 +21,14 @@
 //! significantly worse than the best (same paired test) is preferred, so
 //! `offset` wins when no shape does better (DESIGN.md). "Better" also needs
 //! a practical margin: a mean log RMS ratio of at least `min_gain` (1 %).
+//!
+//! A round's choice is then held to stability and materiality
+//! (`stability.rs`): its gain holding on at least `min_frequency` of
+//! half-subsamples of the runs, and removing at least `min_gap_share` of
+//! the explainable gap. A choice that fails is "minor" (kept in `effects`
+//! with its figures, not selected) and the round's next choice is tried.
+//! The chosen effect's indistinguishable rivals (same round, 95 % paired
+//! interval over held-out units containing zero) are recorded with it.
 
 use std::collections::BTreeMap;
 use std::ops::Range;
@@ -36,6 +44,7 @@ use crate::Result;
 
 mod cross_validate;
 pub use cross_validate::*;
+pub mod stability;
 
 /// Level of the parsimony comparison (see `select`).
 pub const PARSIMONY_ALPHA: f64 = 0.05;
@@ -48,6 +57,9 @@ pub struct Problem<'a> {
     pub units: Vec<Range<usize>>,
     /// The CV fold that holds each unit out.
     pub unit_fold: Vec<usize>,
+    /// The run (a single run: the block) of each unit; stability
+    /// resamples keep or drop a run's units together.
+    pub unit_run: Vec<usize>,
     /// Number of CV folds k; fold index k is "all runs" (the final fit).
     pub k: usize,
     pub frames: BTreeMap<String, CovStats>,
@@ -135,6 +147,10 @@ fn score_round(
                     params,
                     offset_mm: off,
                     selected: false,
+                    selection_frequency: f64::NAN,
+                    gap_share: f64::NAN,
+                    minor: false,
+                    indistinguishable: Vec::new(),
                 });
                 scored.push((i, ev, mlr, p));
             }
@@ -149,18 +165,20 @@ fn score_round(
 /// passes a t-test but explains nothing — then, for parsimony, a simpler
 /// significant candidate that is not significantly worse. None: nothing is
 /// significant.
+/// Candidates marked in `rejected` (minor ones) are passed over.
 fn pick(
     scored: &[Scored],
     cands: &[&dyn Effect],
     opt: &SelectOptions,
     sse_before: f64,
+    rejected: &[bool],
 ) -> Option<usize> {
     let significant = |s: &Scored| {
         s.3 < opt.alpha && s.2 >= opt.min_gain && s.1.unit_sse.iter().sum::<f64>() < sse_before
     };
     let mut best: Option<usize> = None;
     for (j, s) in scored.iter().enumerate() {
-        if !significant(s) {
+        if rejected[j] || !significant(s) {
             continue;
         }
         best = match best {
@@ -180,7 +198,7 @@ fn pick(
     let np_best = cands[scored[b].0].n_params();
     let mut alt: Option<usize> = None;
     for (j, s) in scored.iter().enumerate() {
-        if j == b || !significant(s) || cands[s.0].n_params() >= np_best {
+        if j == b || rejected[j] || !significant(s) || cands[s.0].n_params() >= np_best {
             continue;
         }
         let (gain, p_worse) = paired_log_test(&s.1.unit_sse, &scored[b].1.unit_sse);
@@ -287,6 +305,17 @@ pub struct Record {
     pub params: BTreeMap<String, f64>,
     pub offset_mm: f64,
     pub selected: bool,
+    /// Share of half-subsamples of runs on whose held-out units its gain
+    /// holds (`stability.rs`).
+    pub selection_frequency: f64,
+    /// Held-out SSE it removes over the observable's explainable SSE.
+    pub gap_share: f64,
+    /// Chosen by the round's test but below `min_frequency` or
+    /// `min_gap_share`: listed, not selected.
+    pub minor: bool,
+    /// Selected: candidates (indices) of the same round whose held-out
+    /// error cannot be told from its own.
+    pub indistinguishable: Vec<usize>,
 }
 
 impl Record {
@@ -303,6 +332,10 @@ impl Record {
             params: BTreeMap::new(),
             offset_mm: f64::NAN,
             selected: false,
+            selection_frequency: f64::NAN,
+            gap_share: f64::NAN,
+            minor: false,
+            indistinguishable: Vec::new(),
         }
     }
 }
@@ -341,6 +374,12 @@ pub struct SelectOptions {
     /// Smallest mean log RMS ratio that counts as a gain (selection and
     /// parsimony).
     pub min_gain: f64,
+    /// Stability: smallest selection frequency over half-subsamples of runs.
+    pub min_frequency: f64,
+    /// Materiality: smallest share of the explainable gap removed.
+    pub min_gap_share: f64,
+    /// Seed of the half-subsamples (when there are too many to list).
+    pub seed: u64,
     /// False: score every candidate but select nothing ("no gap above noise").
     pub allow_selection: bool,
 }
@@ -373,6 +412,8 @@ pub fn select(prob: &Problem, cands: &[&dyn Effect], opt: &SelectOptions) -> Res
         .map(|u| dot(&prob.gap[u.clone()], &prob.gap[u.clone()]))
         .collect();
     let mut before = unit_sse_gap.clone();
+    let explainable = stability::explainable_sse(unit_sse_gap.iter().sum(), n, opt.sigma_mm);
+    let halves = stability::half_samples(&prob.unit_run, opt.seed);
     let mut chosen: Vec<usize> = Vec::new();
     let mut contrib: Vec<Vec<f64>> = Vec::new();
     let mut final_params = Vec::new();
@@ -420,13 +461,57 @@ pub fn select(prob: &Problem, cands: &[&dyn Effect], opt: &SelectOptions) -> Res
             );
             break;
         }
-        let Some(b) = pick(&scored, cands, opt, sse_before) else {
-            stop_reason = format!(
-                "no candidate lowers the held-out gap significantly (p < {})",
-                opt.alpha
-            );
+        for (i, ev, _, _) in &scored {
+            if let Some(r) = records[*i].as_mut() {
+                r.selection_frequency =
+                    stability::selection_frequency(&before, &ev.unit_sse, &halves, opt);
+                r.gap_share =
+                    stability::gap_share(sse_before, ev.unit_sse.iter().sum(), explainable);
+            }
+        }
+        // The round's choice, held to stability and materiality: a choice
+        // that fails either is minor, and the next choice is tried.
+        let mut rejected = vec![false; scored.len()];
+        let chosen_now = loop {
+            let Some(b) = pick(&scored, cands, opt, sse_before, &rejected) else {
+                break None;
+            };
+            let Some(r) = records[scored[b].0].as_mut() else {
+                break None;
+            };
+            // NaN frequency (a single unit: no subsample) does not block.
+            let stable =
+                r.selection_frequency.is_nan() || r.selection_frequency >= opt.min_frequency;
+            if stable && r.gap_share >= opt.min_gap_share {
+                break Some(b);
+            }
+            r.minor = true;
+            rejected[b] = true;
+        };
+        let Some(b) = chosen_now else {
+            stop_reason = if rejected.iter().any(|r| *r) {
+                format!(
+                    "the candidates that pass the held-out test are minor (selection frequency < {} or gap share < {})",
+                    opt.min_frequency, opt.min_gap_share
+                )
+            } else {
+                format!(
+                    "no candidate lowers the held-out gap significantly (p < {})",
+                    opt.alpha
+                )
+            };
             break;
         };
+        let rivals: Vec<usize> = scored
+            .iter()
+            .enumerate()
+            .filter(|(j, s)| {
+                *j != b
+                    && stability::passes(&before, &s.1.unit_sse, opt)
+                    && stability::indistinguishable(&scored[b].1.unit_sse, &s.1.unit_sse)
+            })
+            .map(|(_, s)| s.0)
+            .collect();
         let (ci, ev, _, _) = scored.swap_remove(b);
         let (new_targets, c) = take_out(prob, cands[ci], &ev, &tg)?;
         contrib.push(c);
@@ -434,6 +519,7 @@ pub fn select(prob: &Problem, cands: &[&dyn Effect], opt: &SelectOptions) -> Res
         final_targets.push(tg.per_fold[k].as_ref().clone());
         if let Some(r) = records[ci].as_mut() {
             r.selected = true;
+            r.indistinguishable = rivals;
         }
         chosen_before.push(std::mem::replace(&mut before, ev.unit_sse.clone()));
         chosen_evals.push(ev);
