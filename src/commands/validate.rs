@@ -17,7 +17,7 @@ pub fn validate(
     json: bool,
     config: &ConfigArgs,
 ) -> anyhow::Result<u8> {
-    // The same [diagnose] settings as `run` and `diagnose` (issue 13 item 1).
+    // The same [diagnose] settings as `run` and `diagnose`.
     let pc = registry::config(config)?;
     let diagnose = DiagnoseConfig::from_toml(&pc.section("diagnose"))
         .with_context(|| format!("config {}: [diagnose]", pc.source))?;
@@ -27,12 +27,24 @@ pub fn validate(
     };
     let report = sparkout_datasets::validate::run(&cfg)?;
     let text = sparkout_datasets::validate::render_text(&report);
-    if let Some(out) = &out {
-        write_atomic(&out.join("validation.txt"), text.as_bytes())?;
-        write_json_atomic(&out.join("validation.json"), &report)?;
+    emit(&report, &text, out.as_deref(), "validation", json)
+}
+
+/// A validation report: `<out>/<stem>.txt` and `.json` with --out, the text
+/// (or with --json the JSON) on standard output.
+fn emit(
+    report: &impl serde::Serialize,
+    text: &str,
+    out: Option<&std::path::Path>,
+    stem: &str,
+    json: bool,
+) -> anyhow::Result<u8> {
+    if let Some(out) = out {
+        write_atomic(&out.join(format!("{stem}.txt")), text.as_bytes())?;
+        write_json_atomic(&out.join(format!("{stem}.json")), report)?;
     }
     if json {
-        println!("{}", serde_json::to_string_pretty(&report)?);
+        println!("{}", serde_json::to_string_pretty(report)?);
     } else {
         print!("{text}");
     }
@@ -61,14 +73,5 @@ pub fn validate_nights(
     };
     let report = nights::run(&cfg)?;
     let text = nights::render_text(&report);
-    if let Some(out) = &out {
-        write_atomic(&out.join("nights.txt"), text.as_bytes())?;
-        write_json_atomic(&out.join("nights.json"), &report)?;
-    }
-    if json {
-        println!("{}", serde_json::to_string_pretty(&report)?);
-    } else {
-        print!("{text}");
-    }
-    Ok(0)
+    emit(&report, &text, out.as_deref(), "nights", json)
 }

@@ -88,6 +88,20 @@ fn vendor_eds() -> String {
     s
 }
 
+/// The first element of `v[list]` that `pick` accepts.
+fn find<'a>(
+    v: &'a serde_json::Value,
+    list: &str,
+    pick: impl Fn(&serde_json::Value) -> bool,
+) -> &'a serde_json::Value {
+    v[list]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|e| pick(e))
+        .unwrap_or_else(|| panic!("nothing in {list}"))
+}
+
 fn describe(file: &std::path::Path, extra: &[&str]) -> std::process::Output {
     let mut args = vec!["can", "describe", file.to_str().unwrap()];
     args.extend(extra);
@@ -110,15 +124,7 @@ fn a_vendor_eds_with_every_quirk_is_read_as_written() {
     assert_eq!(v["vendor_name"], "Example Drives");
     assert_eq!(v["identity"]["vendor_id"], 0xAB);
     assert_eq!(v["identity"]["product_code"], 8, "octal 010");
-    let pdo = |name: &str| {
-        v["pdos"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .find(|p| p["pdo"] == name)
-            .unwrap()
-            .clone()
-    };
+    let pdo = |name: &str| find(&v, "pdos", |p| p["pdo"] == name).clone();
     assert_eq!(pdo("RPDO1")["cob_id"], 0x203);
     assert_eq!(pdo("RPDO1")["entries"].as_array().unwrap().len(), 1);
     assert_eq!(pdo("TPDO1")["cob_id"], 0x183);
@@ -177,26 +183,11 @@ fn a_dcf_value_and_node_win() {
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!(v["is_dcf"], true);
     assert_eq!(v["node"], 12);
-    let rpdo1 = v["pdos"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|p| p["pdo"] == "RPDO1")
-        .unwrap();
+    let rpdo1 = find(&v, "pdos", |p| p["pdo"] == "RPDO1");
     assert_eq!(rpdo1["cob_id"], 0x20C, "$NODEID of the DCF");
-    let tpdo1 = v["pdos"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|p| p["pdo"] == "TPDO1")
-        .unwrap();
+    let tpdo1 = find(&v, "pdos", |p| p["pdo"] == "TPDO1");
     assert_eq!(tpdo1["cob_id"], 0x190, "ParameterValue over DefaultValue");
-    let gain1 = v["entries"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|e| e["index"] == 0x2000 && e["sub"] == 1)
-        .unwrap();
+    let gain1 = find(&v, "entries", |e| e["index"] == 0x2000 && e["sub"] == 1);
     assert_eq!(gain1["value"], 0x10, "a DCF's [2000Value]");
 }
 

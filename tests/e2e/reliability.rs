@@ -5,16 +5,7 @@
 use std::path::{Path, PathBuf};
 use std::process::Output;
 
-use crate::common::sparkout;
-
-fn text(o: &Output) -> String {
-    format!(
-        "status {:?}\nstdout:\n{}\nstderr:\n{}",
-        o.status.code(),
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    )
-}
+use crate::common::{sparkout, text};
 
 /// A small guideway fleet (the quickest plugin to generate and run).
 fn fleet(dir: &Path, runs: usize) -> PathBuf {

@@ -94,3 +94,14 @@ pub fn shrink_of(d: &serde_json::Value, key: &str) -> f64 {
         .and_then(|e| e["shrink"].as_f64())
         .unwrap_or(f64::NAN)
 }
+
+/// A command's exit status, standard output and standard error, for an
+/// assertion's message.
+pub fn text(o: &Output) -> String {
+    format!(
+        "status {:?}\nstdout:\n{}\nstderr:\n{}",
+        o.status.code(),
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    )
+}
