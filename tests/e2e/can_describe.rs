@@ -42,6 +42,9 @@ fn vendor_eds() -> String {
     s += "[1A00sub1]\nParameterName=Map 1\nObjectType=0x7\nDataType=0x0007\nAccessType=rw\nDefaultValue=0x60410020\n\n";
     s += "[1A00sub2]\nParameterName=Map 2\nObjectType=0x7\nDataType=0x0007\nAccessType=rw\nDefaultValue=0x60640020\n\n";
     s += "[1A00sub3]\nParameterName=Map 3\nObjectType=0x7\nDataType=0x0007\nAccessType=rw\nDefaultValue=0x60610008\n\n";
+    // A manufacturer's complex data type (defined by the file's own
+    // DEFSTRUCT): read as DOMAIN with a warning.
+    s += "[2010]\nParameterName=Tuning record\nObjectType=0x7\nDataType=0x40\nAccessType=rw\nDefaultValue=0x0\nPDOMapping=0\n\n";
     // An array written compactly.
     s += "[2000]\nParameterName=Gains\nObjectType=0x8\nDataType=0x0006\nAccessType=rw\nCompactSubObj=3\nDefaultValue=7\n\n";
     s += "[2000Name]\nNrOfEntries=1\n2=Kv\n\n[2000Value]\nNrOfEntries=1\n1=0x10\n\n";
@@ -144,6 +147,10 @@ fn a_vendor_eds_with_every_quirk_is_read_as_written() {
     assert_eq!(v["axes"][1][0]["index"], 0x6840);
     let warnings = v["warnings"].to_string();
     assert!(
+        warnings.contains("[2010]") && warnings.contains("DOMAIN"),
+        "{warnings}"
+    );
+    assert!(
         warnings.contains("0x6041") && warnings.contains("UNSIGNED32"),
         "{warnings}"
     );
@@ -199,9 +206,9 @@ fn bad_files_are_refused_naming_where() {
         (
             vendor_eds().replace(
                 "[2000]\nParameterName=Gains\nObjectType=0x8\nDataType=0x0006",
-                "[2000]\nParameterName=Gains\nObjectType=0x8\nDataType=0x0042",
+                "[2000]\nParameterName=Gains\nObjectType=0x8\nDataType=0x0342",
             ),
-            "unknown data type code 0x0042",
+            "unknown data type code 0x0342",
         ),
         (
             vendor_eds().replace("[1018sub1]\n", "[1018sub1]\nthis line is broken\n"),

@@ -32,7 +32,7 @@ pub struct DataType {
     pub bits: u16,
 }
 
-const DATA_TYPES: [(u16, &str, u16); 15] = [
+const DATA_TYPES: [(u16, &str, u16); 25] = [
     (0x0001, "BOOLEAN", 1),
     (0x0002, "INTEGER8", 8),
     (0x0003, "INTEGER16", 16),
@@ -43,12 +43,27 @@ const DATA_TYPES: [(u16, &str, u16); 15] = [
     (0x0008, "REAL32", 32),
     (0x0009, "VISIBLE_STRING", 0),
     (0x000A, "OCTET_STRING", 0),
+    (0x000B, "UNICODE_STRING", 0),
+    (0x000C, "TIME_OF_DAY", 48),
+    (0x000D, "TIME_DIFFERENCE", 48),
     (0x000F, "DOMAIN", 0),
     (0x0010, "INTEGER24", 24),
     (0x0011, "REAL64", 64),
+    (0x0012, "INTEGER40", 40),
+    (0x0013, "INTEGER48", 48),
+    (0x0014, "INTEGER56", 56),
     (0x0015, "INTEGER64", 64),
+    (0x0016, "UNSIGNED24", 24),
+    (0x0018, "UNSIGNED40", 40),
+    (0x0019, "UNSIGNED48", 48),
+    (0x001A, "UNSIGNED56", 56),
     (0x001B, "UNSIGNED64", 64),
 ];
+
+/// Codes of complex, manufacturer- and profile-defined data types
+/// (CiA 301: 0x0020–0x025F), which the file's own DEFTYPE/DEFSTRUCT objects
+/// define: read as DOMAIN (opaque bytes) with a warning.
+const DEFINED_TYPES: std::ops::RangeInclusive<u16> = 0x0020..=0x025F;
 
 pub fn data_type(code: u16) -> Option<DataType> {
     DATA_TYPES
@@ -247,6 +262,7 @@ impl DeviceDescription {
             .filter(|n| (1..=127).contains(n))
             .unwrap_or(node);
         let mut warnings = Vec::new();
+        let defined_types = std::cell::RefCell::new(Vec::new());
         let mut entries = Vec::new();
         let err = |sec: &str, key: &str, msg: String| {
             let line = secs
@@ -265,13 +281,20 @@ impl DeviceDescription {
             let code = eval_value(&v, node)
                 .and_then(|c| u16::try_from(c).ok())
                 .ok_or_else(|| err(sec, "datatype", format!("DataType `{v}` is not a number")))?;
-            data_type(code).map(Some).ok_or_else(|| {
-                err(
-                    sec,
-                    "datatype",
-                    format!("unknown data type code 0x{code:04X} (CiA 301 codes: 0x0001 BOOLEAN … 0x001B UNSIGNED64)"),
-                )
-            })
+            if let Some(t) = data_type(code) {
+                return Ok(Some(t));
+            }
+            if DEFINED_TYPES.contains(&code) {
+                defined_types.borrow_mut().push(format!(
+                    "[{sec}] has the complex or profile-defined data type 0x{code:04X}: read as DOMAIN (opaque bytes)"
+                ));
+                return Ok(data_type(0x000F));
+            }
+            Err(err(
+                sec,
+                "datatype",
+                format!("unknown data type code 0x{code:04X} (CiA 301: 0x0001 BOOLEAN … 0x001B UNSIGNED64 standard, 0x0020–0x025F complex and profile-defined)"),
+            ))
         };
         let entry = |sec: &str, index: u16, sub: u8| -> Result<Entry, InputError> {
             let value_text = get(sec, "parametervalue").or_else(|| get(sec, "defaultvalue"));
@@ -298,7 +321,8 @@ impl DeviceDescription {
             let compact = get(sec, "compactsubobj")
                 .and_then(|v| eval_value(&v, node))
                 .unwrap_or(0);
-            if object_type == 0x7 {
+            // VAR, and DEFTYPE (a data type's size as a variable).
+            if object_type == 0x7 || object_type == 0x5 {
                 entries.push(entry(sec, index, 0)?);
             } else if compact > 0 {
                 // CompactSubObj: sub 0 is the count; subs 1..n share the
@@ -401,6 +425,7 @@ impl DeviceDescription {
             }
             axes.push(objects);
         }
+        warnings.extend(defined_types.take());
         // Default PDO mappings.
         let mut pdos = Vec::new();
         for (kind, comm, map) in [("RPDO", 0x1400u16, 0x1600u16), ("TPDO", 0x1800, 0x1A00)] {
