@@ -319,3 +319,55 @@ fn validate_nights_quick_measures_false_alerts_and_a_40_per_cent_step() {
     // The same step at a recorded wheel change: no alert.
     assert_eq!(r["event_alerts"], 0, "{text}");
 }
+
+/// The index page leads with the night's news: on a quiet night that no
+/// trend alert was raised, on the night a servo's lag doubles that alert,
+/// first.
+#[test]
+fn the_index_page_leads_with_the_nights_news() {
+    let d = tempfile::tempdir().unwrap();
+    let history = d.path().join("history");
+    let index_of = |n: u32, k_s: f64| -> String {
+        let root = d.path().join(format!("runs{n}"));
+        ok(sparkout(&[
+            "generate",
+            "servo",
+            "--runs",
+            "3",
+            "--seed",
+            &(20 + n).to_string(),
+            "--out",
+            root.to_str().unwrap(),
+            "--effect",
+            &format!("servo_lag=k_s={k_s}"),
+        ]));
+        let out = d.path().join(format!("out{n}"));
+        ok(sparkout(&[
+            "run",
+            "--input",
+            root.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--history",
+            history.to_str().unwrap(),
+            "--night",
+            &format!("2026-11-0{n}"),
+        ]));
+        std::fs::read_to_string(out.join("index.html")).unwrap()
+    };
+    for n in 1..=2 {
+        index_of(n, 0.004);
+    }
+    let quiet = index_of(3, 0.004);
+    let news = quiet.find("id=\"news\"").expect("a news section");
+    assert!(news < quiet.find("id=\"failures\"").unwrap(), "news first");
+    assert!(
+        quiet.contains("Night 2026-11-03: no trend alert"),
+        "{quiet}"
+    );
+    let loud = index_of(4, 0.008);
+    assert!(loud.contains("Night 2026-11-04: "), "{loud}");
+    let first = &loud[loud.find("<ol><li>").expect("a ranked list of alerts")..];
+    let first = &first[..first.find("</li>").unwrap()];
+    assert!(first.contains("servo_lag"), "{first}");
+}
