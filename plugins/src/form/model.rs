@@ -51,13 +51,6 @@ pub enum DeltaModel {
 
 impl DeltaModel {
     pub const NAMES: &'static [&'static str] = &["published", "osculating"];
-    pub fn parse(s: &str) -> Option<DeltaModel> {
-        match s {
-            "published" => Some(DeltaModel::Published),
-            "osculating" => Some(DeltaModel::Osculating),
-            _ => None,
-        }
-    }
     pub fn delta(self, kappa: f64, gamma: f64, r_kn: f64, r_k: f64) -> Option<f64> {
         match self {
             DeltaModel::Published => delta_mm(kappa, gamma, r_kn, r_k),

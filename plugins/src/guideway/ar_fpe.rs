@@ -66,9 +66,6 @@ pub enum Criterion {
 impl Criterion {
     pub const ALL: [Criterion; 3] = [Criterion::Fpe, Criterion::Bic, Criterion::Hq];
     pub const NAMES: &'static [&'static str] = &["fpe", "bic", "hq"];
-    pub fn parse(s: &str) -> Option<Criterion> {
-        Self::ALL.into_iter().find(|c| c.as_str() == s)
-    }
     pub fn as_str(self) -> &'static str {
         match self {
             Criterion::Fpe => "fpe",

@@ -64,13 +64,6 @@ pub enum Method {
 }
 
 impl Method {
-    pub fn parse(s: &str) -> Option<Method> {
-        match s {
-            "lsq" => Some(Method::Lsq),
-            "recursion" => Some(Method::Recursion),
-            _ => None,
-        }
-    }
     pub fn as_str(self) -> &'static str {
         match self {
             Method::Lsq => "lsq",
@@ -90,13 +83,6 @@ pub enum Reference {
 }
 
 impl Reference {
-    pub fn parse(s: &str) -> Option<Reference> {
-        match s {
-            "line" => Some(Reference::Line),
-            "ends" => Some(Reference::Ends),
-            _ => None,
-        }
-    }
     pub fn as_str(self) -> &'static str {
         match self {
             Reference::Line => "line",
