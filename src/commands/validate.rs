@@ -10,6 +10,17 @@ use sparkout_pipeline::report::trend::TrendConfig;
 use crate::cli::ConfigArgs;
 use crate::registry;
 
+/// The checked config and its `[diagnose]`: the same settings as `run` and
+/// `diagnose`.
+fn settings(
+    config: &ConfigArgs,
+) -> anyhow::Result<(sparkout_pipeline::engine::PipelineConfig, DiagnoseConfig)> {
+    let pc = registry::config(config)?;
+    let diagnose = DiagnoseConfig::from_toml(&pc.section("diagnose"))
+        .with_context(|| format!("config {}: [diagnose]", pc.source))?;
+    Ok((pc, diagnose))
+}
+
 pub fn validate(
     quick: bool,
     out: Option<PathBuf>,
@@ -17,10 +28,7 @@ pub fn validate(
     json: bool,
     config: &ConfigArgs,
 ) -> anyhow::Result<u8> {
-    // The same [diagnose] settings as `run` and `diagnose`.
-    let pc = registry::config(config)?;
-    let diagnose = DiagnoseConfig::from_toml(&pc.section("diagnose"))
-        .with_context(|| format!("config {}: [diagnose]", pc.source))?;
+    let (_, diagnose) = settings(config)?;
     let cfg = sparkout_datasets::validate::ValidateConfig {
         diagnose,
         ..sparkout_datasets::validate::ValidateConfig::new(quick, seed)
@@ -60,9 +68,7 @@ pub fn validate_nights(
     json: bool,
     config: &ConfigArgs,
 ) -> anyhow::Result<u8> {
-    let pc = registry::config(config)?;
-    let diagnose = DiagnoseConfig::from_toml(&pc.section("diagnose"))
-        .with_context(|| format!("config {}: [diagnose]", pc.source))?;
+    let (pc, diagnose) = settings(config)?;
     let trend = TrendConfig::from_toml(&pc.section("trend"))
         .with_context(|| format!("config {}: [trend]", pc.source))?;
     use sparkout_datasets::validate::nights;

@@ -105,6 +105,20 @@ fn find<'a>(
         .unwrap_or_else(|| panic!("nothing in {list}"))
 }
 
+/// `can describe FILE --json` (must succeed), parsed.
+fn describe_json(file: &std::path::Path, extra: &[&str]) -> serde_json::Value {
+    let mut args = extra.to_vec();
+    args.push("--json");
+    let o = describe(file, &args);
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    serde_json::from_slice(&o.stdout).unwrap()
+}
+
 fn describe(file: &std::path::Path, extra: &[&str]) -> std::process::Output {
     let mut args = vec!["can", "describe", file.to_str().unwrap()];
     args.extend(extra);
@@ -116,14 +130,7 @@ fn a_vendor_eds_with_every_quirk_is_read_as_written() {
     let d = tempfile::tempdir().unwrap();
     let eds = d.path().join("vendor.eds");
     std::fs::write(&eds, vendor_eds()).unwrap();
-    let o = describe(&eds, &["--node", "3", "--json"]);
-    assert_eq!(
-        o.status.code(),
-        Some(0),
-        "{}",
-        String::from_utf8_lossy(&o.stderr)
-    );
-    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let v = describe_json(&eds, &["--node", "3"]);
     assert_eq!(v["vendor_name"], "Example Drives");
     assert_eq!(v["identity"]["vendor_id"], 0xAB);
     assert_eq!(v["identity"]["product_code"], 8, "octal 010");
@@ -180,14 +187,7 @@ fn a_dcf_value_and_node_win() {
         "DefaultValue=0x180+$NODEID\nParameterValue=0x190\n",
     ) + "[DeviceComissioning]\nNodeID=0x0C\nBaudrate=1000\n";
     std::fs::write(&dcf, text).unwrap();
-    let o = describe(&dcf, &["--json"]);
-    assert_eq!(
-        o.status.code(),
-        Some(0),
-        "{}",
-        String::from_utf8_lossy(&o.stderr)
-    );
-    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let v = describe_json(&dcf, &[]);
     assert_eq!(v["is_dcf"], true);
     assert_eq!(v["node"], 12);
     let rpdo1 = find(&v, "pdos", |p| p["pdo"] == "RPDO1");
@@ -281,8 +281,7 @@ print(json.dumps(out))
     );
     let theirs: Vec<(u64, u64, String, u64, Option<i64>)> =
         serde_json::from_slice(&py.stdout).unwrap();
-    let o = describe(&eds, &["--node", "3", "--json"]);
-    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let v = describe_json(&eds, &["--node", "3"]);
     let ours: Vec<(u64, u64, String, u64, Option<i64>)> = v["entries"]
         .as_array()
         .unwrap()
