@@ -15,6 +15,7 @@ pub mod replay;
 pub mod report;
 pub mod storage;
 pub mod traits;
+pub mod units;
 pub mod values;
 
 pub use effect_spec::EffectSpec;
