@@ -32,19 +32,19 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<u8> {
             night,
             events,
             augment,
-        } => {
-            let places = run::Places::resolve(&input, &out, work.as_deref())?;
-            match shard {
-                None => run::run(
+        } => match shard {
+            None => {
+                let places = run::Places::resolve(&input, &out, work.as_deref(), None)?;
+                run::run(
                     &config,
                     &places,
                     jobs,
                     history.map(|h| (h, night, events)),
                     augment.as_deref(),
-                ),
-                Some(s) => run::run_shard(&config, &places, jobs, &s, &balance),
+                )
             }
-        }
+            Some(s) => run::run_shard(&config, (&input, &out, work.as_deref()), jobs, &s, &balance),
+        },
         Command::Trend {
             config,
             events,

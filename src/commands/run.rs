@@ -14,15 +14,30 @@ use crate::registry;
 /// bucket output written locally and published when the batch is done.
 pub struct Places {
     input: PathBuf,
+    /// The bucket URL a staged input came from.
+    input_url: Option<String>,
     out: Output,
 }
 
 impl Places {
-    pub fn resolve(input: &Path, out: &Path, work: Option<&Path>) -> anyhow::Result<Places> {
+    /// Both places; a bucket output is checked for write access first, so
+    /// bad credentials are found before the batch computes. `select` picks
+    /// the runs a staged input fetches (a shard's own).
+    pub fn resolve(
+        input: &Path,
+        out: &Path,
+        work: Option<&Path>,
+        select: Option<storage::RunSelector>,
+    ) -> anyhow::Result<Places> {
         storage::check_remote_apart(input, out)?;
-        let out = Output::resolve(out, work)?;
-        let input = storage::resolve_input(input, work, "input", true)?;
-        Ok(Places { input, out })
+        let mut out = Output::resolve(out, work)?;
+        let local = storage::resolve_input_selected(input, work, "input", true, select)?;
+        out.staged(&local, input);
+        Ok(Places {
+            input: local,
+            input_url: storage::is_url(input).then(|| input.display().to_string()),
+            out,
+        })
     }
 }
 
@@ -57,10 +72,12 @@ pub fn run(
     Ok(outcome.exit_code() as u8)
 }
 
-/// `sparkout run --shard i/n`: this shard's runs, then shard.json.
+/// `sparkout run --shard i/n`: this shard's runs, then shard.json. From a
+/// bucket, only this shard's runs are downloaded (every run.toml is, to
+/// partition the night the same way on every node).
 pub fn run_shard(
     config: &ConfigArgs,
-    places: &Places,
+    (input, out, work): (&Path, &Path, Option<&Path>),
     jobs: Option<usize>,
     shard: &str,
     balance: &str,
@@ -75,7 +92,12 @@ pub fn run_shard(
         other => anyhow::bail!("--balance `{other}`: expected `hash` or `size`"),
     };
     let spec = ShardSpec::parse(shard, balance).map_err(anyhow::Error::msg)?;
-    let engine = registry::engine(config)?;
+    let mut engine = registry::engine(config)?;
+    let select = |root: &Path| engine.shard_runs(root, &spec);
+    let places = Places::resolve(input, out, work, Some(&select))?;
+    if let Some(url) = &places.input_url {
+        engine.set_input_label(url.clone());
+    }
     let progress = BatchProgress::new();
     let outcome = engine.run_shard(&places.input, &places.out.local, jobs, &spec, &progress)?;
     progress.finish();
@@ -102,12 +124,16 @@ pub fn aggregate(
     work: Option<&Path>,
 ) -> anyhow::Result<u8> {
     let engine = registry::engine(config)?;
-    let out = Output::resolve(out, work)?;
+    let mut out = Output::resolve(out, work)?;
     // A shard's artifacts are copied into the fleet output, so a remote
     // shard is downloaded whole (no ranged-read stubs).
     let shards = shards
         .iter()
-        .map(|s| storage::resolve_input(s, work, "shard", false))
+        .map(|s| {
+            let local = storage::resolve_input(s, work, "shard", false)?;
+            out.staged(&local, s);
+            Ok(local)
+        })
         .collect::<anyhow::Result<Vec<_>>>()?;
     let progress = BatchProgress::new();
     let outcome = engine.aggregate(&shards, &out.local, &progress)?;
@@ -124,7 +150,9 @@ pub fn sync(from: &Path, to: &Path) -> anyhow::Result<u8> {
             if !dir.is_dir() {
                 anyhow::bail!("{}: no such directory", dir.display());
             }
+            storage::check_writable(&remote)?;
             Output {
+                stands_for: Vec::new(),
                 local: dir,
                 remote: Some(remote),
             }

@@ -81,9 +81,15 @@ fn start_moto() -> Option<Moto> {
 fn http(port: u16, method: &str, path: &str, body: &[u8]) -> Option<String> {
     let mut s = TcpStream::connect(("127.0.0.1", port)).ok()?;
     s.set_read_timeout(Some(Duration::from_secs(30))).ok()?;
+    // moto refuses an anonymous DELETE; any credentials do.
+    let auth = if method == "DELETE" {
+        "Authorization: AWS test:test\r\n"
+    } else {
+        ""
+    };
     write!(
         s,
-        "{method} {path} HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nContent-Length: {}\r\nConnection: close\r\n\r\n",
+        "{method} {path} HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\n{auth}Content-Length: {}\r\nConnection: close\r\n\r\n",
         body.len()
     )
     .ok()?;
@@ -309,4 +315,230 @@ fn walk(dir: &Path) -> Vec<PathBuf> {
         }
     }
     out
+}
+
+/// Every key under `prefix` in `bucket`, from a ListObjectsV2 response.
+fn keys(port: u16, bucket: &str, prefix: &str) -> Vec<String> {
+    let listing = http(
+        port,
+        "GET",
+        &format!("/{bucket}?list-type=2&prefix={prefix}"),
+        b"",
+    )
+    .unwrap();
+    listing
+        .split("<Key>")
+        .skip(1)
+        .filter_map(|s| s.split("</Key>").next())
+        .map(str::to_string)
+        .collect()
+}
+
+/// Publishing compares with what the bucket holds, not with a state file:
+/// a deleted prefix is published again whole, a second location gets every
+/// file, nothing is written into the folder being synced, objects an
+/// earlier publish wrote and this one no longer has are removed (and
+/// nothing else), the manifest names URLs, bad output credentials stop the
+/// batch before it computes, and shards staged into their own work
+/// directories download only their own runs and are still one night.
+#[test]
+fn publishing_checks_the_bucket_and_shards_fetch_only_their_runs() {
+    let Some(moto) = start_moto() else {
+        return;
+    };
+    let port = moto.port;
+    for b in ["/fleet", "/second"] {
+        let r = http(port, "PUT", b, b"").expect("create bucket");
+        assert!(r.starts_with("HTTP/1.1 200"), "{r}");
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let root = dir.path().join("runs");
+    fleet(&root);
+    let work = dir.path().join("work");
+
+    // A folder synced: nothing of sparkout's is left in it.
+    ok(sparkout_s3(port, &["sync", s(&root), "s3://fleet/in"]));
+    let leftovers: Vec<PathBuf> = walk(&root)
+        .into_iter()
+        .filter(|p| p.to_string_lossy().contains(".sparkout"))
+        .collect();
+    assert!(
+        leftovers.is_empty(),
+        "state written into the source folder: {leftovers:?}"
+    );
+    let n_in = keys(port, "fleet", "in/").len();
+    // The same folder to a second location: every file goes.
+    let text = ok(sparkout_s3(port, &["sync", s(&root), "s3://second/in"]));
+    let n_files = walk(&root).len();
+    assert!(text.contains(&format!("{n_files} uploaded")), "{text}");
+    // Unchanged: nothing sent again.
+    let text = ok(sparkout_s3(port, &["sync", s(&root), "s3://second/in"]));
+    assert!(text.contains("0 uploaded"), "{text}");
+
+    let run_out = |out: &str| {
+        ok(sparkout_s3(
+            port,
+            &[
+                "run",
+                "--input",
+                "s3://fleet/in",
+                "--out",
+                out,
+                "--work",
+                s(&work),
+            ],
+        ))
+    };
+    run_out("s3://fleet/out");
+    let published = keys(port, "fleet", "out/");
+    assert!(
+        published.iter().any(|k| k == "out/manifest.json"),
+        "{published:?}"
+    );
+    // The prefix deleted behind sparkout's back: the next publish sends
+    // everything again although the local work directory is unchanged.
+    for k in &published {
+        http(port, "DELETE", &format!("/fleet/{k}"), b"").unwrap();
+    }
+    assert!(keys(port, "fleet", "out/").is_empty());
+    let text = run_out("s3://fleet/out");
+    assert!(!text.contains(" 0 uploaded"), "{text}");
+    let mut again = keys(port, "fleet", "out/");
+    again.sort();
+    let mut was = published.clone();
+    was.sort();
+    assert_eq!(again, was, "the re-publish did not restore every object");
+
+    // The published manifest names URLs, never the node's work directory.
+    let back = dir.path().join("back");
+    ok(sparkout_s3(port, &["sync", "s3://fleet/out", s(&back)]));
+    let manifest = std::fs::read_to_string(back.join("manifest.json")).unwrap();
+    assert!(manifest.contains("s3://fleet/in"), "{manifest}");
+    assert!(manifest.contains("s3://fleet/out"), "{manifest}");
+    assert!(!manifest.contains(s(&work)), "{manifest}");
+
+    // Stale objects: a file gone from the published folder is removed from
+    // the bucket after the manifest; an object sparkout did not write stays.
+    let pubdir = dir.path().join("pub");
+    std::fs::create_dir_all(pubdir.join("sub")).unwrap();
+    std::fs::write(pubdir.join("a.txt"), "a").unwrap();
+    std::fs::write(pubdir.join("sub/b.txt"), "b").unwrap();
+    ok(sparkout_s3(port, &["sync", s(&pubdir), "s3://second/p"]));
+    http(port, "PUT", "/second/p/users-own.txt", b"mine").unwrap();
+    std::fs::remove_file(pubdir.join("sub/b.txt")).unwrap();
+    let text = ok(sparkout_s3(port, &["sync", s(&pubdir), "s3://second/p"]));
+    assert!(text.contains("1 removed"), "{text}");
+    let left = keys(port, "second", "p/");
+    assert!(left.iter().any(|k| k == "p/a.txt"), "{left:?}");
+    assert!(left.iter().any(|k| k == "p/users-own.txt"), "{left:?}");
+    assert!(!left.iter().any(|k| k == "p/sub/b.txt"), "{left:?}");
+    // Nothing outside the prefix was touched.
+    assert_eq!(keys(port, "second", "in/").len(), n_in);
+
+    // An output bucket that cannot be written: refused before staging or
+    // computing anything.
+    let o = sparkout_s3(
+        port,
+        &[
+            "run",
+            "--input",
+            "s3://fleet/in",
+            "--out",
+            "s3://no-such-bucket/out",
+            "--work",
+            s(&work),
+        ],
+    );
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("cannot write under `s3://no-such-bucket/out`"),
+        "{err}"
+    );
+    assert!(
+        !err.contains("staged"),
+        "staged before checking the output: {err}"
+    );
+
+    // Two shards, each with its own work directory (two nodes).
+    for i in 0..2 {
+        let w = dir.path().join(format!("node{i}"));
+        let text = ok(sparkout_s3(
+            port,
+            &[
+                "run",
+                "--input",
+                "s3://fleet/in",
+                "--out",
+                &format!("s3://fleet/sh/{i}"),
+                "--shard",
+                &format!("{i}/2"),
+                "--work",
+                s(&w),
+            ],
+        ));
+        assert!(text.contains("of other shards' runs not fetched"), "{text}");
+        // Only this shard's runs' files were downloaded: every run.toml is
+        // here, but the data of the other shard's runs is a stub.
+        let staged: Vec<PathBuf> = walk(&w)
+            .into_iter()
+            .filter(|p| p.to_string_lossy().contains("/input-"))
+            .collect();
+        let owned: Vec<String> = {
+            let m: serde_json::Value = serde_json::from_slice(
+                &std::fs::read(
+                    w.join(
+                        std::fs::read_dir(&w)
+                            .unwrap()
+                            .flatten()
+                            .find(|e| e.file_name().to_string_lossy().starts_with("out-"))
+                            .unwrap()
+                            .path()
+                            .join("shard.json"),
+                    ),
+                )
+                .unwrap(),
+            )
+            .unwrap();
+            assert_eq!(
+                m["input_root"], "s3://fleet/in",
+                "shard.json records the input URL"
+            );
+            m["runs"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|r| r["run_dir"].as_str().unwrap().to_string())
+                .collect()
+        };
+        assert!(!owned.is_empty() && owned.len() < 6, "{owned:?}");
+        for p in &staged {
+            let name = p.file_name().unwrap().to_string_lossy();
+            if name == "run.toml" || name.starts_with(".sparkout") || name.ends_with(".remote.json")
+            {
+                continue;
+            }
+            assert!(
+                owned.iter().any(|d| p.starts_with(d)),
+                "{} was downloaded by shard {i} but belongs to another shard",
+                p.display()
+            );
+        }
+    }
+    ok(sparkout_s3(
+        port,
+        &[
+            "aggregate",
+            "--shards",
+            "s3://fleet/sh/0",
+            "s3://fleet/sh/1",
+            "--out",
+            "s3://fleet/agg2",
+            "--work",
+            s(&work),
+        ],
+    ));
+    let agg = dir.path().join("agg2");
+    ok(sparkout_s3(port, &["sync", "s3://fleet/agg2", s(&agg)]));
+    assert_same(&back, &agg, "2 shards on their own nodes, aggregated");
 }

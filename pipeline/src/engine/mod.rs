@@ -63,6 +63,11 @@ pub struct Engine {
     history: Option<History>,
     /// `run --augment augmented_model.json` (issue 13 item 4).
     augment: Option<crate::diagnose::augment::AugmentedModel>,
+    /// What the input is called in shard.json when it is not the local
+    /// directory the engine reads: the bucket URL a staged input came
+    /// from, so shards staged into different work directories are still
+    /// of one input.
+    input_label: Option<String>,
 }
 
 fn config_text(t: &toml::Table) -> String {
@@ -87,6 +92,7 @@ impl Engine {
             config,
             history: None,
             augment: None,
+            input_label: None,
         };
         engine.validate_config()?;
         Ok(engine)
@@ -133,6 +139,21 @@ impl Engine {
     /// observations and report the plain vs augmented gap
     /// (`fleet/augment.json`). The model is read and checked here, before
     /// any run is processed.
+    /// Name the input by the URL it was staged from (see `input_label`).
+    pub fn set_input_label(&mut self, label: impl Into<String>) {
+        self.input_label = Some(label.into());
+    }
+
+    /// The run directories under `input_root` that `shard` owns, as
+    /// `run --shard` partitions them (discovery, duplicate ids, then the
+    /// balance rule) — for staging only those runs from object storage.
+    pub fn shard_runs(&self, input_root: &Path, shard: &shard::ShardSpec) -> Result<Vec<PathBuf>> {
+        let found = discover(input_root)
+            .with_context(|| format!("cannot list runs under {}", input_root.display()))?;
+        let (run_dirs, _) = self.account_for_runs(&found);
+        Ok(shard::select_runs(&run_dirs, shard))
+    }
+
     pub fn set_augment(&mut self, model: &Path) -> Result<()> {
         self.augment = Some(crate::diagnose::augment::AugmentedModel::load(model)?);
         Ok(())
@@ -414,7 +435,11 @@ impl Engine {
                     shards: sh.count,
                     balance: sh.balance,
                     sparkout_version: env!("CARGO_PKG_VERSION").into(),
-                    input_root: input_root.display().to_string(),
+                    input_root: self
+                        .input_label
+                        .clone()
+                        .unwrap_or_else(|| input_root.display().to_string()),
+                    input_dir: input_root.display().to_string(),
                     config: serde_json::to_value(&self.config.table)
                         .unwrap_or(serde_json::Value::Null),
                     config_source: self.config.source.clone(),
@@ -466,6 +491,7 @@ impl Engine {
         let mut failures = Vec::new();
         progress.message(&format!("gathering {} shard(s)", manifests.len()));
         for (dir, m) in shard_dirs.iter().zip(manifests) {
+            let input_dir = PathBuf::from(&m.input_dir);
             for mut r in m.runs {
                 // Names in a shard manifest are input like any other.
                 let shard_file = dir.join(shard::SHARD_FILE);
@@ -476,12 +502,18 @@ impl Engine {
                 shard::copy_run_dir(&from, &to)?;
                 r.out_dir = to.display().to_string();
                 r.observations = Some(to.join("observations.parquet")).filter(|o| o.is_file());
-                runs.push(r);
+                let rel = PathBuf::from(&r.run_dir)
+                    .strip_prefix(&input_dir)
+                    .map(Path::to_path_buf)
+                    .unwrap_or_else(|_| PathBuf::from(&r.run_dir));
+                runs.push((rel, r));
             }
             failures.extend(m.failures);
         }
-        // The order a single-node batch has: run directories sorted.
-        runs.sort_by(|a, b| PathBuf::from(&a.run_dir).cmp(&PathBuf::from(&b.run_dir)));
+        // The order a single-node batch has: run directories sorted (by
+        // their path below the input, which is the same on every node).
+        runs.sort_by(|a, b| a.0.cmp(&b.0));
+        let runs: Vec<RunResult> = runs.into_iter().map(|(_, r)| r).collect();
         let mut outcome = FleetOutcome::new(out, runs, failures);
         self.run_fleet_stages(out, &mut outcome, progress)?;
         write_json_atomic(&out.join("failures.json"), &outcome.failures)?;

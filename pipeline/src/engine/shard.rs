@@ -177,6 +177,12 @@ pub struct ShardManifest {
     pub balance: Balance,
     pub sparkout_version: String,
     pub input_root: String,
+    /// The local directory this shard read the input from (the input
+    /// itself, or where it was staged): the runs' directories are below it,
+    /// and `aggregate` orders runs by their path relative to it, as one
+    /// node orders them, whatever directory each node staged into.
+    #[serde(default)]
+    pub input_dir: String,
     /// The batch's whole config: every shard of one night must agree.
     pub config: serde_json::Value,
     pub config_source: String,

@@ -29,7 +29,9 @@ mod remote;
 mod sync;
 
 pub use remote::{RemoteObject, RemoteStub, REMOTE_STUB_SUFFIX};
-pub use sync::{publish, stage_down, PublishReport, StageReport};
+pub use sync::{
+    check_writable, publish, stage_down, stage_down_selected, PublishReport, StageReport,
+};
 
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, OnceLock};
@@ -237,25 +239,71 @@ pub fn work_dir(work: Option<&Path>, url: &str, role: &str) -> PathBuf {
 /// into the work directory first (large Parquet files left remote when
 /// `stream` is set). Prints what staging did to stderr.
 pub fn resolve_input(arg: &Path, work: Option<&Path>, role: &str, stream: bool) -> Result<PathBuf> {
-    match Location::parse(arg)? {
-        Location::Local(p) => Ok(p),
-        Location::Remote(remote) => {
-            let local = work_dir(work, &remote.url, role);
-            let r = stage_down(&remote, &local, stream.then(stream_min_bytes))?;
-            eprintln!(
-                "staged {} into {}: {} downloaded ({:.1} MB), {} unchanged, {} read in place by ranged GETs ({:.1} MB), {} removed",
-                remote.url,
-                local.display(),
-                r.downloaded,
-                r.downloaded_bytes as f64 / 1e6,
-                r.unchanged,
-                r.streamed,
-                r.streamed_bytes as f64 / 1e6,
-                r.removed
-            );
-            Ok(local)
+    resolve_input_selected(arg, work, role, stream, None)
+}
+
+/// Which runs of a staged input a command processes: given the staged
+/// directory with every run's `run.toml` (the rest as stubs), the run
+/// directories to fetch. `sparkout run --shard` passes its partition, so a
+/// shard downloads its own runs only.
+pub type RunSelector<'a> = &'a dyn Fn(&Path) -> Result<Vec<PathBuf>>;
+
+/// [`resolve_input`] that fetches only the runs `select` picks: first every
+/// `run.toml` (and stubs with the size of everything else), then the
+/// selected runs' files.
+pub fn resolve_input_selected(
+    arg: &Path,
+    work: Option<&Path>,
+    role: &str,
+    stream: bool,
+    select: Option<RunSelector>,
+) -> Result<PathBuf> {
+    let remote = match Location::parse(arg)? {
+        Location::Local(p) => return Ok(p),
+        Location::Remote(remote) => remote,
+    };
+    let local = work_dir(work, &remote.url, role);
+    let min = stream.then(stream_min_bytes);
+    let r = match select {
+        None => stage_down(&remote, &local, min)?,
+        Some(select) => {
+            let is_spec = |rel: &str| rel == "run.toml" || rel.ends_with("/run.toml");
+            stage_down_selected(&remote, &local, min, &is_spec)?;
+            let mine: Vec<String> = select(&local)?
+                .iter()
+                .filter_map(|d| d.strip_prefix(&local).ok())
+                .map(|d| {
+                    d.components()
+                        .map(|c| c.as_os_str().to_string_lossy().into_owned())
+                        .collect::<Vec<_>>()
+                        .join("/")
+                })
+                .collect();
+            let in_mine = |rel: &str| {
+                is_spec(rel)
+                    || mine.iter().any(|d| {
+                        d.is_empty()
+                            || rel
+                                .strip_prefix(d.as_str())
+                                .is_some_and(|rest| rest.starts_with('/'))
+                    })
+            };
+            stage_down_selected(&remote, &local, min, &in_mine)?
         }
-    }
+    };
+    eprintln!(
+        "staged {} into {}: {} downloaded ({:.1} MB), {} unchanged, {} read in place by ranged GETs ({:.1} MB), {} of other shards' runs not fetched, {} removed",
+        remote.url,
+        local.display(),
+        r.downloaded,
+        r.downloaded_bytes as f64 / 1e6,
+        r.unchanged,
+        r.streamed,
+        r.streamed_bytes as f64 / 1e6,
+        r.not_fetched,
+        r.removed
+    );
+    Ok(local)
 }
 
 /// Where a command writes: the local directory, and the bucket prefix it is
@@ -263,37 +311,106 @@ pub fn resolve_input(arg: &Path, work: Option<&Path>, role: &str, stream: bool) 
 pub struct Output {
     pub local: PathBuf,
     pub remote: Option<RemotePrefix>,
+    /// Local directories that stand for URLs (the output's work directory,
+    /// staged inputs): the published manifest names the URLs, not paths
+    /// that exist only on the node that ran the batch.
+    pub stands_for: Vec<(PathBuf, String)>,
 }
 
 impl Output {
+    /// The output as a local directory; for a bucket, its work directory,
+    /// after checking that this process may write there (before anything
+    /// is computed).
     pub fn resolve(arg: &Path, work: Option<&Path>) -> Result<Output> {
         Ok(match Location::parse(arg)? {
             Location::Local(local) => Output {
                 local,
                 remote: None,
+                stands_for: Vec::new(),
             },
-            Location::Remote(remote) => Output {
-                local: work_dir(work, &remote.url, "out"),
-                remote: Some(remote),
-            },
+            Location::Remote(remote) => {
+                check_writable(&remote)?;
+                let local = work_dir(work, &remote.url, "out");
+                Output {
+                    stands_for: vec![(local.clone(), remote.url.clone())],
+                    local,
+                    remote: Some(remote),
+                }
+            }
         })
+    }
+
+    /// Another local directory that stands for a URL (a staged input).
+    pub fn staged(&mut self, local: &Path, url: &Path) {
+        if is_url(url) {
+            self.stands_for
+                .push((local.to_path_buf(), url.display().to_string()));
+        }
     }
 
     /// Upload the local directory when the output is remote; prints a line.
     pub fn publish(&self) -> Result<()> {
         if let Some(remote) = &self.remote {
-            let r = publish(&self.local, remote)?;
+            let rewrite = |rel: &str, bytes: &[u8]| -> Option<Vec<u8>> {
+                // The manifest is what a reader of the bucket starts from;
+                // shard.json keeps the node's paths (aggregate reads them).
+                (rel == "manifest.json")
+                    .then(|| paths_to_urls(bytes, &self.stands_for))
+                    .flatten()
+            };
+            let r = publish(&self.local, remote, &rewrite)?;
             eprintln!(
-                "published {} to {}: {} uploaded ({:.1} MB), {} unchanged",
+                "published {} to {}: {} uploaded ({:.1} MB), {} unchanged, {} removed (written by an earlier publish, no longer produced)",
                 self.local.display(),
                 remote.url,
                 r.uploaded,
                 r.uploaded_bytes as f64 / 1e6,
-                r.unchanged
+                r.unchanged,
+                r.removed
             );
         }
         Ok(())
     }
+}
+
+/// A JSON document with every string that is a path under one of
+/// `stands_for`'s directories replaced by the URL below the directory's
+/// URL. `None` when the bytes are not JSON or nothing changes.
+fn paths_to_urls(bytes: &[u8], stands_for: &[(PathBuf, String)]) -> Option<Vec<u8>> {
+    fn walk(v: &mut serde_json::Value, map: &[(String, String)], changed: &mut bool) {
+        match v {
+            serde_json::Value::String(s) => {
+                for (dir, url) in map {
+                    if let Some(rest) = s.strip_prefix(dir.as_str()) {
+                        if rest.is_empty() || rest.starts_with('/') {
+                            *s = format!("{url}{rest}");
+                            *changed = true;
+                            break;
+                        }
+                    }
+                }
+            }
+            serde_json::Value::Array(a) => a.iter_mut().for_each(|x| walk(x, map, changed)),
+            serde_json::Value::Object(o) => o.values_mut().for_each(|x| walk(x, map, changed)),
+            _ => {}
+        }
+    }
+    let mut v: serde_json::Value = serde_json::from_slice(bytes).ok()?;
+    // Longest directory first: a staged input under the work directory is
+    // named by its own URL, not as a path below the output's.
+    let mut map: Vec<(String, String)> = stands_for
+        .iter()
+        .map(|(d, u)| (d.display().to_string(), u.clone()))
+        .collect();
+    map.sort_by_key(|(d, _)| std::cmp::Reverse(d.len()));
+    let mut changed = false;
+    walk(&mut v, &map, &mut changed);
+    if !changed {
+        return None;
+    }
+    let mut out = serde_json::to_vec_pretty(&v).ok()?;
+    out.push(b'\n');
+    Some(out)
 }
 
 #[cfg(test)]

@@ -15,7 +15,8 @@ use crate::contracts::write::{is_temp_name, write_atomic};
 
 /// Staging state: which version of each object the local copy is.
 const STAGED_FILE: &str = ".sparkout-staged.json";
-/// Publishing state: the blake3 of each file as last uploaded.
+/// The publish record (what the last publish to a prefix wrote), an object
+/// under that prefix.
 const PUBLISHED_FILE: &str = ".sparkout-published.json";
 /// Uploads go here first, then are renamed into place.
 const TMP_PREFIX: &str = ".sparkout-tmp";
@@ -37,6 +38,9 @@ pub struct StageReport {
     pub streamed: usize,
     pub streamed_bytes: u64,
     pub removed: usize,
+    /// Objects left out by the selection (another shard's runs): a stub
+    /// records each one's size.
+    pub not_fetched: usize,
 }
 
 /// What [`publish`] did.
@@ -45,6 +49,9 @@ pub struct PublishReport {
     pub uploaded: usize,
     pub uploaded_bytes: u64,
     pub unchanged: usize,
+    /// Objects an earlier publish to the prefix wrote that this one no
+    /// longer has, removed.
+    pub removed: usize,
 }
 
 fn list(remote: &RemotePrefix) -> Result<Vec<ObjectMeta>> {
@@ -86,6 +93,19 @@ pub fn stage_down(
     local: &Path,
     stream_min_bytes: Option<u64>,
 ) -> Result<StageReport> {
+    stage_down_selected(remote, local, stream_min_bytes, &|_| true)
+}
+
+/// [`stage_down`], fetching only the objects `fetch` selects (by path
+/// below the prefix): every other object is staged as a stub that records
+/// its size and ETag, so a shard sees the whole input's runs (to partition
+/// them, by id or by size) but downloads only its own.
+pub fn stage_down_selected(
+    remote: &RemotePrefix,
+    local: &Path,
+    stream_min_bytes: Option<u64>,
+    fetch: &dyn Fn(&str) -> bool,
+) -> Result<StageReport> {
     std::fs::create_dir_all(local)
         .with_context(|| format!("cannot create the staging directory {}", local.display()))?;
     let state_path = local.join(STAGED_FILE);
@@ -113,8 +133,9 @@ pub fn stage_down(
         {
             continue;
         }
-        let streamed =
-            rel.ends_with(".parquet") && stream_min_bytes.is_some_and(|min| meta.size >= min);
+        let wanted = fetch(&rel);
+        let streamed = !wanted
+            || (rel.ends_with(".parquet") && stream_min_bytes.is_some_and(|min| meta.size >= min));
         let version = ObjectVersion {
             size: meta.size,
             e_tag: meta.e_tag.clone(),
@@ -141,8 +162,12 @@ pub fn stage_down(
             };
             write_atomic(&stub_path, &serde_json::to_vec_pretty(&stub)?)?;
             let _ = std::fs::remove_file(&path);
-            report.streamed += 1;
-            report.streamed_bytes += meta.size;
+            if wanted {
+                report.streamed += 1;
+                report.streamed_bytes += meta.size;
+            } else {
+                report.not_fetched += 1;
+            }
         } else {
             let bytes = block_on(async { remote.store.get(&meta.location).await?.bytes().await })
                 .with_context(|| format!("cannot download `{}/{rel}`", remote.url))?;
@@ -210,16 +235,119 @@ fn local_files(dir: &Path) -> Result<Vec<String>> {
     Ok(out)
 }
 
-/// Upload `local` to `remote`: each changed file under a temporary key,
-/// renamed into place; `manifest.json` (the batch's last word) after all
-/// others. Files unchanged since the last publish from this directory are
-/// not sent again.
-pub fn publish(local: &Path, remote: &RemotePrefix) -> Result<PublishReport> {
-    let state_path = local.join(PUBLISHED_FILE);
-    let before: BTreeMap<String, String> = std::fs::read(&state_path)
+/// What a publish wrote, kept as an object beside what it wrote (so a
+/// fresh node, or a second location, compares with the bucket itself and
+/// never with a state file in the user's folder).
+#[derive(Debug, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct PublishRecord {
+    version: u32,
+    objects: BTreeMap<String, PublishedObject>,
+}
+
+const PUBLISH_RECORD_VERSION: u32 = 1;
+
+/// One object as this publish left it: the local content's blake3 and the
+/// object's size and ETag as the bucket listed them after the upload.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+struct PublishedObject {
+    blake3: String,
+    size: u64,
+    e_tag: Option<String>,
+}
+
+/// The record an earlier publish left under `remote`, if it is there and
+/// readable (an unreadable one is treated as absent: everything is sent
+/// again and nothing is removed).
+fn read_record(remote: &RemotePrefix, listed: &BTreeMap<String, ObjectMeta>) -> PublishRecord {
+    if !listed.contains_key(PUBLISHED_FILE) {
+        return PublishRecord::default();
+    }
+    let key = remote.key(PUBLISHED_FILE);
+    let got = block_on(async { remote.store.get(&key).await?.bytes().await });
+    match got
         .ok()
-        .and_then(|b| serde_json::from_slice(&b).ok())
-        .unwrap_or_default();
+        .and_then(|b| serde_json::from_slice::<PublishRecord>(&b).ok())
+    {
+        Some(r) if r.version == PUBLISH_RECORD_VERSION => r,
+        _ => {
+            tracing::warn!(
+                "{}/{PUBLISHED_FILE} is not a publish record this sparkout reads: every file is uploaded again and no earlier object is removed",
+                remote.url
+            );
+            PublishRecord::default()
+        }
+    }
+}
+
+/// The objects under `remote` by relative path (temporary keys left out).
+fn listing(remote: &RemotePrefix) -> Result<BTreeMap<String, ObjectMeta>> {
+    Ok(list(remote)?
+        .into_iter()
+        .filter_map(|m| {
+            let rel = remote.relative(&m.location)?;
+            (!rel.split('/').any(|p| p.starts_with(TMP_PREFIX))).then_some((rel, m))
+        })
+        .collect())
+}
+
+/// Put `bytes` under a temporary key and rename it to `rel`: the object
+/// appears whole or not at all.
+fn put_whole(remote: &RemotePrefix, tmp_root: &str, rel: &str, bytes: Vec<u8>) -> Result<()> {
+    let tmp = remote.key(&format!("{tmp_root}/{rel}"));
+    let key = remote.key(rel);
+    block_on(async {
+        remote.store.put(&tmp, PutPayload::from(bytes)).await?;
+        remote.store.rename(&tmp, &key).await
+    })
+    .with_context(|| format!("cannot publish `{}/{rel}`", remote.url))?;
+    Ok(())
+}
+
+/// Can this process write under `remote`? A small object is put under the
+/// temporary prefix and removed again, so bad credentials or a read-only
+/// bucket are found before a batch computes for an hour.
+pub fn check_writable(remote: &RemotePrefix) -> Result<()> {
+    let nanos = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_nanos())
+        .unwrap_or(0);
+    let key = remote.key(&format!(
+        "{TMP_PREFIX}/write-check-{}-{nanos}",
+        std::process::id()
+    ));
+    block_on(async {
+        remote
+            .store
+            .put(&key, PutPayload::from(b"sparkout write check".to_vec()))
+            .await?;
+        remote.store.delete(&key).await
+    })
+    .with_context(|| {
+        format!(
+            "cannot write under `{}` (check the bucket, the credentials' write permission and the endpoint: AWS_*/GOOGLE_*/AZURE_* in the environment); nothing was computed",
+            remote.url
+        )
+    })
+}
+
+/// Rewrites a file's bytes before they are published (the manifest's local
+/// paths become URLs); `None` leaves them as they are.
+pub type Rewrite<'a> = &'a dyn Fn(&str, &[u8]) -> Option<Vec<u8>>;
+
+/// Upload `local` to `remote`: each file whose content the bucket does not
+/// already hold under a temporary key, renamed into place; `manifest.json`
+/// (the batch's last word) after all others; then the objects an earlier
+/// publish to this prefix wrote that this one no longer has are removed,
+/// and last the record of what was published. What counts as "already
+/// held" is decided against the bucket's listing (size and ETag of the
+/// object as the record left it), so an object deleted or replaced behind
+/// sparkout's back is sent again. Nothing is written outside `local`'s
+/// own files.
+pub fn publish(local: &Path, remote: &RemotePrefix, rewrite: Rewrite) -> Result<PublishReport> {
+    let listed = listing(remote)?;
+    let before = read_record(remote, &listed);
     let mut files = local_files(local)?;
     // The manifest last: a reader that starts from it never sees a batch
     // whose artifacts are still on their way.
@@ -227,37 +355,71 @@ pub fn publish(local: &Path, remote: &RemotePrefix) -> Result<PublishReport> {
         let m = files.remove(i);
         files.push(m);
     }
-    let mut after = BTreeMap::new();
+    let mut hashes = BTreeMap::new();
     let mut report = PublishReport::default();
     let tmp_root = format!("{TMP_PREFIX}/{}", std::process::id());
-    for rel in files {
-        let path = local_path(local, &rel)?;
+    for rel in &files {
+        let path = local_path(local, rel)?;
         let bytes =
             std::fs::read(&path).with_context(|| format!("cannot read {}", path.display()))?;
+        let bytes = rewrite(rel, &bytes).unwrap_or(bytes);
         let hash = blake3::hash(&bytes).to_hex().to_string();
-        if before.get(&rel) == Some(&hash) {
+        let held = match (before.objects.get(rel), listed.get(rel)) {
+            (Some(was), Some(now)) => {
+                was.blake3 == hash
+                    && was.size == now.size
+                    && (was.e_tag.is_none() || was.e_tag == now.e_tag)
+            }
+            _ => false,
+        };
+        hashes.insert(rel.clone(), hash);
+        if held {
             report.unchanged += 1;
-            after.insert(rel, hash);
             continue;
         }
-        let tmp = remote.key(&format!("{tmp_root}/{rel}"));
-        let key = remote.key(&rel);
         let n = bytes.len() as u64;
-        block_on(async {
-            remote.store.put(&tmp, PutPayload::from(bytes)).await?;
-            remote.store.rename(&tmp, &key).await
-        })
-        .with_context(|| {
-            format!(
-                "cannot publish {} to `{}/{rel}`",
-                path.display(),
-                remote.url
-            )
-        })?;
+        put_whole(remote, &tmp_root, rel, bytes)
+            .with_context(|| format!("publishing {}", path.display()))?;
         report.uploaded += 1;
         report.uploaded_bytes += n;
-        after.insert(rel, hash);
     }
-    write_atomic(&state_path, &serde_json::to_vec_pretty(&after)?)?;
+    // Only what an earlier publish to this very prefix wrote, and only
+    // after the manifest is in place.
+    for rel in before.objects.keys() {
+        if hashes.contains_key(rel) || !listed.contains_key(rel) || rel == PUBLISHED_FILE {
+            continue;
+        }
+        if local_path(local, rel).is_err() {
+            continue;
+        }
+        let key = remote.key(rel);
+        block_on(remote.store.delete(&key))
+            .with_context(|| format!("cannot remove the stale `{}/{rel}`", remote.url))?;
+        report.removed += 1;
+    }
+    let after = listing(remote)?;
+    let record = PublishRecord {
+        version: PUBLISH_RECORD_VERSION,
+        objects: hashes
+            .into_iter()
+            .filter_map(|(rel, blake3)| {
+                let m = after.get(&rel)?;
+                Some((
+                    rel,
+                    PublishedObject {
+                        blake3,
+                        size: m.size,
+                        e_tag: m.e_tag.clone(),
+                    },
+                ))
+            })
+            .collect(),
+    };
+    put_whole(
+        remote,
+        &tmp_root,
+        PUBLISHED_FILE,
+        serde_json::to_vec_pretty(&record)?,
+    )?;
     Ok(report)
 }
