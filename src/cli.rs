@@ -301,7 +301,7 @@ pub enum Command {
     )]
     #[command(allow_negative_numbers = true)]
     Diagnose {
-        /// observations.parquet (CONTRACTS.md §2).
+        /// observations.parquet (docs/formats.md §7).
         observations: PathBuf,
         #[arg(long, value_name = "DIR")]
         out: PathBuf,

@@ -1,4 +1,4 @@
-//! Issue 15: nothing lost, nothing silent — every run accounted for, one
+//! Nothing lost, nothing silent — every run accounted for, one
 //! batch per --out, resumable per stage, bounded --jobs, `generate` that
 //! does not overwrite, checked effect parameters.
 

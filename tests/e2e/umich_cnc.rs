@@ -1,4 +1,4 @@
-//! Issue 12 point 6: the public UMich CNC mill set end to end through the
+//! The public UMich CNC mill set end to end through the
 //! binary — all 18 experiments of the committed sample imported with the
 //! built-in `umich_cnc` mapping, run through the servo plugin and the fleet
 //! diagnosis. Pins what was verified by hand (README "UMich CNC"): which

@@ -167,7 +167,7 @@ const BY_COLUMN: &[(&str, &str, Range)] = &[
     ("profile", "wheel_radius_mm", RADIUS),
 ];
 
-/// The range for a column of a unit-suffixed name (CONTRACTS.md
+/// The range for a column of a unit-suffixed name (docs/formats.md
 /// "Conventions": the unit is in the name).
 pub fn range_by_suffix(column: &str) -> Option<Range> {
     if column.ends_with("_mm_s2") {

@@ -1,4 +1,4 @@
-//! Form grinder (MODELS.md §4): a 4-axis (X, Z, A, C) form grinder grinds a
+//! Form grinder (docs/models.md §4): a 4-axis (X, Z, A, C) form grinder grinds a
 //! profile R(φ) programmed for a nominal wheel radius; dressing shrinks the
 //! wheel and leaves a profile error δ(φ).
 //!
@@ -76,7 +76,7 @@ impl MachinePlugin for FormPlugin {
     /// the wheel loses radius in proportion to the volume it grinds
     /// (grinding ratio), the controller only knows the dressed radius, so
     /// the profile is left proud by k·removed_mm3 along the normal
-    /// (DESIGN.md "Sim-to-real gap diagnosis", point 2).
+    /// (docs/design.md §7, point 2).
     fn effects(&self) -> Vec<Box<dyn Effect>> {
         vec![composite(
             "wheel_wear",

@@ -12,7 +12,7 @@
 //! | `follow` | motion | `following_error` |
 //! | `observe` | motion, `following_error` | `observations` |
 //!
-//! motion.parquet follows CONTRACTS.md §1 with the v1.1 optional per-axis
+//! motion.parquet follows docs/formats.md §4 with the v1.1 optional per-axis
 //! velocity and acceleration columns (`cmd_v_x_mm_s`, `act_v_x_mm_s`,
 //! `cmd_a_x_mm_s2`, ...); an axis needs `act_<axis>_mm` to be compared.
 
