@@ -33,7 +33,7 @@ pub mod shapes;
 
 /// The form grinder of the source (wheel 175 mm, usable range 50 mm), built
 /// into the binary.
-pub const FORM_GRINDER_TOML: &str = include_str!("../../../configs/machines/form-grinder.toml");
+pub const FORM_GRINDER_TOML: &str = include_str!("../../machines/form-grinder.toml");
 
 /// The `form` plugin.
 pub struct FormPlugin;

@@ -39,7 +39,7 @@ pub mod surface;
 pub mod tool_influence;
 
 /// The APLM gantry, built into the binary (docs/formats.md §4).
-pub const APLM_GANTRY_TOML: &str = include_str!("../../../configs/machines/aplm-gantry.toml");
+pub const APLM_GANTRY_TOML: &str = include_str!("../../machines/aplm-gantry.toml");
 
 /// The built-in machine as a resolved config (run-less stage forms).
 pub fn builtin_machine() -> anyhow::Result<MachineConfig> {

@@ -35,7 +35,7 @@ pub mod three_probe;
 
 /// The source's machine, built into the binary.
 pub const GUIDEWAY_GRINDER_TOML: &str =
-    include_str!("../../../configs/machines/guideway-grinder.toml");
+    include_str!("../../machines/guideway-grinder.toml");
 
 /// The `guideway` plugin.
 pub struct GuidewayPlugin;

@@ -30,7 +30,7 @@ pub mod observe;
 pub mod report;
 
 /// The XFYZ mill of the volumetric verification, built into the binary.
-pub const XFYZ_MILL_TOML: &str = include_str!("../../../configs/machines/xfyz-mill.toml");
+pub const XFYZ_MILL_TOML: &str = include_str!("../../machines/xfyz-mill.toml");
 
 /// The `mill` plugin.
 pub struct MillPlugin;

@@ -34,7 +34,7 @@ pub mod touches;
 
 /// The KR16 lab cell, built into the binary (docs/formats.md §3: machine ids
 /// resolve to built-in configs last).
-pub const KR16_LAB_TOML: &str = include_str!("../../../configs/machines/kr16-lab.toml");
+pub const KR16_LAB_TOML: &str = include_str!("../../machines/kr16-lab.toml");
 
 /// The `robot` plugin.
 pub struct RobotPlugin;

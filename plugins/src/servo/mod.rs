@@ -29,9 +29,9 @@ pub mod trace;
 
 /// A three-axis machine with a 30 1/s position loop and a 0.5 µm encoder
 /// (the generator's machine), built into the binary.
-pub const SERVO_MILL_TOML: &str = include_str!("../../../configs/machines/servo-mill.toml");
+pub const SERVO_MILL_TOML: &str = include_str!("../../machines/servo-mill.toml");
 /// The University of Michigan CNC mill of the tool-wear set.
-pub const UMICH_CNC_TOML: &str = include_str!("../../../configs/machines/umich-cnc.toml");
+pub const UMICH_CNC_TOML: &str = include_str!("../../machines/umich-cnc.toml");
 
 pub fn builtin_machines() -> Vec<(&'static str, &'static str)> {
     vec![
