@@ -509,7 +509,7 @@ fn predictor_runs_on_a_30000_sample_trace_with_the_default_method() {
 
 /// How often FPE, BIC and HQ pick the true order of
 /// Φ(B)(1 − B)²δz = ε on 3 000-sample traces, 60 seeds per model (the
-/// README's table: `cargo test --workspace --test e2e order_selection --
+/// docs/guideway.md's table: `cargo test --workspace --test e2e order_selection --
 /// --nocapture`).
 #[test]
 fn order_selection_hit_rates_of_fpe_bic_and_hq() {

@@ -334,7 +334,7 @@ fn killed_batch_resumes_per_stage_and_leaves_no_temp_files() {
         .all(|s| s["cached"] == false));
 }
 
-/// The README's replay example works on generated robot runs (their motion
+/// The replay example of docs/replay.md works on generated robot runs (their motion
 /// stays inside the default envelope), impossible fault specs are refused,
 /// and the default binary says how to get SocketCAN.
 #[test]

@@ -185,7 +185,7 @@ impl RemotePrefix {
 
 fn store_hint(url: &str, env: &str) -> String {
     format!(
-        "cannot configure object storage for `{url}`: set the credentials and endpoint in the environment ({env}; README \"Scale out\")"
+        "cannot configure object storage for `{url}`: set the credentials and endpoint in the environment ({env}; docs/scale.md)"
     )
 }
 
