@@ -23,7 +23,8 @@
 # pyarrow (for step 1). The first `--dev` build instruments every dependency
 # (polars included) and takes long (35 min on 2 cores). New files are named
 # by their SHA-1, as libFuzzer names them; do not commit the grown corpus —
-# commit a finding as one file (and its fix) instead.
+# commit a finding as one file (and its fix) instead. Back to the committed
+# seeds: git checkout fuzz/corpus && git clean -fdq fuzz/corpus
 set -euo pipefail
 
 secs=${1:-600}
