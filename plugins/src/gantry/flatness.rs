@@ -260,7 +260,8 @@ const SPEC: StageSpec = StageSpec {
     reads_artifacts: &[],
     writes: &["flatness"],
     reads_augmented_model: false,
-    about: "least-squares and exact minimum-zone flatness of a topography state (docs/models.md §2.4)",
+    about:
+        "least-squares and exact minimum-zone flatness of a topography state (docs/models.md §2.4)",
     config: SectionCheck::of::<FlatnessConfig>(),
 };
 

@@ -34,8 +34,7 @@ pub mod separate;
 pub mod three_probe;
 
 /// The source's machine, built into the binary.
-pub const GUIDEWAY_GRINDER_TOML: &str =
-    include_str!("../../machines/guideway-grinder.toml");
+pub const GUIDEWAY_GRINDER_TOML: &str = include_str!("../../machines/guideway-grinder.toml");
 
 /// The `guideway` plugin.
 pub struct GuidewayPlugin;
