@@ -1,4 +1,4 @@
-//! End-to-end AE ingest (issue 19, item 2): ae.parquet on disk → decode (row
+//! End-to-end AE ingest: ae.parquet on disk → decode (row
 //! groups in parallel, `AeStream`) → RMS envelope → contact events, through
 //! the robot plugin's `detect_file`, exactly the path of `sparkout stage
 //! ingest`. 50 M float32 samples at 1 MHz in 48 row groups, once zstd and once
@@ -174,8 +174,8 @@ fn peak_rss_mib() -> f64 {
         .map_or(f64::NAN, |kib| kib / 1024.0)
 }
 
-/// `SPARKOUT_BENCH_SCALING=1 cargo bench --bench ae_ingest` (issue 19 item
-/// 3): zstd logs of `SPARKOUT_AE_SCALING_SAMPLES` (comma-separated; default
+/// `SPARKOUT_BENCH_SCALING=1 cargo bench --bench ae_ingest`:
+/// zstd logs of `SPARKOUT_AE_SCALING_SAMPLES` (comma-separated; default
 /// 10⁷ and 10⁸; 10⁹ writes ≈ 9 GB) in row groups of 2²⁰ rows (pyarrow's
 /// default; a fixed group size, so memory is bounded by the group, not
 /// the log), written once to target/bench-data/, ingested from disk best

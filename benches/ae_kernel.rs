@@ -1,4 +1,4 @@
-//! Criterion bench of the AE kernel (issue 3, item 9): RMS envelope + contact
+//! Criterion bench of the AE kernel: RMS envelope + contact
 //! events (threshold, dwell, hysteresis) over a raw 1 MHz signal from memory,
 //! fed in `AeStream`-sized chunks. Target ≥ 300 M samples/s on one core.
 //!

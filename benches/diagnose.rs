@@ -1,4 +1,4 @@
-//! Criterion bench of the gap diagnosis (issue 4, point 8): 10⁶ observations
+//! Criterion bench of the gap diagnosis: 10⁶ observations
 //! × the full catalogue × 5 folds by run, target ≤ 10 s on 2 cores.
 //!
 //! The fleet: 20 runs × 100×100 grid × 5 passes = 10⁶ rows with all eleven
@@ -56,7 +56,7 @@ fn bench_diagnose(c: &mut Criterion) {
 criterion_group!(benches, bench_diagnose);
 
 /// `SPARKOUT_BENCH_VALIDATE=1 cargo bench --bench diagnose` also times
-/// `sparkout validate --quick` and the full validation (issue 4 point 6:
+/// `sparkout validate --quick` and the full validation (targets:
 /// < 30 s and < 5 min in release on 2 cores) in the same release build.
 fn main() {
     if std::env::var_os("SPARKOUT_BENCH_VALIDATE").is_some() {
@@ -75,7 +75,7 @@ fn main() {
     common::run_or_scale(benches, scaling);
 }
 
-/// `SPARKOUT_BENCH_SCALING=1 cargo bench --bench diagnose` (issue 19 item 3):
+/// `SPARKOUT_BENCH_SCALING=1 cargo bench --bench diagnose`:
 /// the diagnosis's cost against rows (more runs of one grid: 10⁴ … 10⁶
 /// rows) and against grid density (20 runs of one 100 mm square sampled
 /// ever finer), best of 3 (of 1 above 5·10⁵ rows), with the cost exponent

@@ -1,4 +1,4 @@
-//! Criterion bench of the Preston removal convolution (issue 5, item 10): a
+//! Criterion bench of the Preston removal convolution: a
 //! 2048 × 2048 dwell map convolved ("same") with the disc tool's influence
 //! function (201 × 201 nodes: a 100 mm radius tool on a 1 mm grid) by FFT
 //! (realfft rows + rustfft columns). Reference: benches/reference/fftconvolve.py
@@ -46,7 +46,7 @@ fn bench(c: &mut Criterion) {
     c.bench_function("fft removal 2048x2048 (201x201 tool)", |b| {
         b.iter(|| black_box(fft_convolve_same(black_box(&dwell), N, N, &ker, kx, ky)))
     });
-    // Steady state (issue 19 item 2): plans and the tool's spectrum kept
+    // Steady state: plans and the tool's spectrum kept
     // across calls, as the dwell solver and repeated removals use them.
     let conv = Convolver::new(N, N, &ker, kx, ky);
     c.bench_function(
@@ -65,8 +65,8 @@ fn main() {
     common::run_or_scale(benches, scaling);
 }
 
-/// `SPARKOUT_BENCH_SCALING=1 cargo bench --bench fft_removal` (issue 19
-/// item 3): the same convolution for N = 512 … 4096 (201² tool), best of 3,
+/// `SPARKOUT_BENCH_SCALING=1 cargo bench --bench fft_removal`:
+/// the same convolution for N = 512 … 4096 (201² tool), best of 3,
 /// with the cost exponent of each doubling (N² log N predicts ≈ 2.1–2.2).
 /// `python3 benches/reference/fftconvolve.py --scaling` times scipy alike.
 fn scaling() {

@@ -1,4 +1,4 @@
-//! Criterion bench of the form plugin's segmentation (issue 7): the
+//! Criterion bench of the form plugin's segmentation: the
 //! curvature of a 2000-point design profile (a tangent cam with straight
 //! flanks) and the segment sweep N = 1…10 over the source's wheel (175 mm,
 //! usable range 50 mm), 11 radii sampled per segment — 55 segments ×

@@ -1,4 +1,4 @@
-//! Criterion bench of the gantry `matrices` kernel (issue 5, item 10): τ_static
+//! Criterion bench of the gantry `matrices` kernel: τ_static
 //! and τ_dynamic (piecewise quadratic straightness, beam deflections, the
 //! moving-load series with adaptive truncation at 1e-10) with each body's
 //! share on a 200 × 160 grid over the aplm-gantry's whole workspace.

@@ -1,9 +1,9 @@
-//! Criterion bench of the guide-way predictor (issue 6 item 8): AR order
+//! Criterion bench of the guide-way predictor: AR order
 //! search by FPE over p = 1..20 on the twice-differenced series, online RLS
 //! of the chosen order, one-step prediction undone to δz, scalar Kalman
 //! fusion and a 20-step forecast — over 10⁶ samples of δz.
 //!
-//! The series: ARIMA(4,2,0) (MODELS.md §3.2's Φ(B)(1 − B)²δz = ε) driven by
+//! The series: ARIMA(4,2,0) (docs/models.md §3.2's Φ(B)(1 − B)²δz = ε) driven by
 //! Irwin–Hall(4) noise from a xorshift64 generator, 1 µm innovations, in mm.
 //! benches/reference/ar_fpe.py builds the identical series and times
 //! statsmodels' AutoReg per order on it (target: ≥ 20× faster here).
@@ -71,7 +71,7 @@ fn bench(c: &mut Criterion) {
             black_box(p.prediction_error_var_mm2)
         })
     });
-    // The two kernels the issue gates separately (issue 19 item 2): the
+    // The two kernels gated separately: the
     // FPE order search p ≤ 20 over the twice-differenced 10⁶ samples (the
     // numpy normal-equations reference in benches/reference/ar_fpe_numpy.py),
     // and RLS of the chosen order over the same samples.

@@ -1,5 +1,5 @@
-//! Criterion bench of the guide-way three-probe separation (issue 17 item
-//! 2): the least-squares solve with its propagated uncertainty band, and
+//! Criterion bench of the guide-way three-probe separation:
+//! the least-squares solve with its propagated uncertainty band, and
 //! the published recursion, on 10⁵ workpiece points in two passes (2·10⁵
 //! samples). Target: well under a second for the LS solve.
 

@@ -1,7 +1,7 @@
-//! Criterion bench of the mill identification (issue 7): the 21 error
+//! Criterion bench of the mill identification: the 21 error
 //! functions (degree 3) and the tracker frame — 60 parameters — identified by
 //! Levenberg–Marquardt from 2000 tracker points measured with three tool
-//! offsets, covariance included (MODELS.md §5).
+//! offsets, covariance included (docs/models.md §5).
 //!
 //! The machine is the generator's (`sparkout_datasets::mill::true_machine`);
 //! points are uniform in the 600 × 400 × 300 mm workspace with 2 µm noise.

@@ -1,4 +1,5 @@
-"""Seed corpora for the cargo-fuzz targets (README "Fuzzing").
+"""Seed corpora for the cargo-fuzz targets (docs/reliability.md "Fuzzing";
+fuzz/regenerate-corpus.sh runs it, then grows the corpora by fuzzing).
 
 Usage: python3 fuzz/make_corpus.py FLEET_ROOT OBSERVATIONS.parquet CANDUMP.log
 where FLEET_ROOT holds one generated run of every plugin

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Issue 18 item 4, reproducible: for each N, a generated servo fleet of N runs
+# Reproducible: for each N, a generated servo fleet of N runs
 # (≈ 14 600 observation rows per run) in 8 shards as local processes
 # (`--jobs 1` each), then `aggregate`; for N = $SINGLE_AT also a single-node
 # `run` (its fleet outputs compared with the aggregate's) and its no-change

@@ -51,7 +51,7 @@ pub enum Command {
         #[command(flatten)]
         config: ConfigArgs,
         /// Root of the recorded runs: <root>/<machine>/<run>/run.toml; a
-        /// directory or s3:// gs:// az:// file:// URL (README "Scale out").
+        /// directory or s3:// gs:// az:// file:// URL (docs/scale.md).
         #[arg(long, value_name = "DIR|URL")]
         input: PathBuf,
         /// Output directory, or a bucket URL the outputs are published to.
@@ -67,7 +67,7 @@ pub enum Command {
         jobs: Option<usize>,
         /// Process only shard i of n (0-based) and write <out>/shard.json
         /// instead of the fleet steps; join the shards with `sparkout
-        /// aggregate` (README "Scale out").
+        /// aggregate` (docs/scale.md).
         #[arg(long, value_name = "I/N")]
         shard: Option<String>,
         /// How --shard splits the runs: `hash` of (machine, run) — stable —
@@ -155,7 +155,7 @@ pub enum Command {
     #[command(
         after_help = "Examples:\n  sparkout sync runs/ s3://fleet-data/2026-11-25/runs\n  \
                       sparkout sync s3://fleet-data/2026-11-25/out out/\n\
-                      Credentials and endpoint from AWS_* / GOOGLE_* / AZURE_* (README \"Scale out\")."
+                      Credentials and endpoint from AWS_* / GOOGLE_* / AZURE_* (docs/scale.md)."
     )]
     Sync {
         /// Source: a directory or a bucket URL.
@@ -176,7 +176,7 @@ pub enum Command {
     )]
     #[command(allow_negative_numbers = true)]
     Stage {
-        /// Stage name (e.g. ingest, repeatability, datum, cycle, observe).
+        /// Stage name (every stage of this build is listed below).
         name: String,
         /// The run directory (holds run.toml).
         #[arg(long, value_name = "DIR")]
@@ -254,7 +254,7 @@ pub enum Command {
     )]
     #[command(allow_negative_numbers = true)]
     Generate {
-        /// What to generate: a plugin name (robot, guideway) or `observations`.
+        /// What to generate: one of the generators listed below.
         what: String,
         /// Number of runs, 1 to 100000.
         #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u64).range(1..=MAX_RUNS))]
@@ -301,7 +301,7 @@ pub enum Command {
     )]
     #[command(allow_negative_numbers = true)]
     Diagnose {
-        /// observations.parquet (CONTRACTS.md §2).
+        /// observations.parquet (docs/formats.md §7).
         observations: PathBuf,
         #[arg(long, value_name = "DIR")]
         out: PathBuf,
@@ -485,7 +485,12 @@ pub struct ReplayArgs {
 
 /// Parse argv; help/version print and exit 0, usage errors exit 1.
 pub fn parse() -> Result<Cli, ExitCode> {
-    match Cli::try_parse() {
+    // The derived command plus the registries' listings in `--help`.
+    let cmd = crate::help::with_registry(<Cli as clap::CommandFactory>::command());
+    let parsed = cmd
+        .try_get_matches()
+        .and_then(|m| <Cli as clap::FromArgMatches>::from_arg_matches(&m));
+    match parsed {
         Ok(c) => Ok(c),
         Err(e) => {
             use clap::error::ErrorKind;

@@ -1,5 +1,5 @@
-//! Reference kernels every gated bench measures in its own process (issue 19,
-//! item 1). The machine's speed drifts (turbo, thermal, a neighbour's build),
+//! Reference kernels every gated bench measures in its own process.
+//! The machine's speed drifts (turbo, thermal, a neighbour's build),
 //! so the gate compares `bench / reference` ratios, not absolute times: a
 //! memory-bound reference for kernels that stream, a compute-bound FFT
 //! reference for kernels that calculate. Both are fixed work, independent of

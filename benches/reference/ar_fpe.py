@@ -1,4 +1,4 @@
-"""Reference for benches/guideway_predictor.rs (issue 6 item 8): the same
+"""Reference for benches/guideway_predictor.rs: the same
 10^6-sample ARIMA(4,2,0) series, differenced twice, AR order by FPE over
 p = 1..20 with statsmodels AutoReg per order (trend="n", hold_back=20, so
 every order is fitted on the same samples, as the Rust code does).

@@ -1,4 +1,4 @@
-"""Reference for `guideway_predictor/fpe_search_p20_1e6` (issue 19 item 2):
+"""Reference for `guideway_predictor/fpe_search_p20_1e6`:
 the FPE order search p = 1..20 over the same twice-differenced 10^6-sample
 series as benches/guideway_predictor.rs, by numpy normal equations — one
 lagged design matrix, its Gram matrix X'X and X'y once, then each order's

@@ -1,6 +1,6 @@
 """Python (numpy/scipy) reference for benches/form_segment.rs: the same
 2000-point tangent cam, curvature by a local cubic (Savitzky-Golay, wrap)
-and the segment sweep N = 1..10 with 11 radii per segment (MODELS.md §4).
+and the segment sweep N = 1..10 with 11 radii per segment (docs/models.md §4).
 Prints the timings and the sweep's maximum errors for comparison with
 `sparkout stage segment`. Run: python3 benches/reference/form_segment.py"""
 import time

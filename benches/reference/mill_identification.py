@@ -1,4 +1,4 @@
-"""Python reference for benches/mill_identification.rs (issue 7).
+"""Python reference for benches/mill_identification.rs.
 
 The same XFYZ 21-error model (plugins/src/mill/chain.rs: Legendre degree 3
 in the identification gauge, 3 squareness terms, tracker frame by Rodrigues

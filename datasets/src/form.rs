@@ -1,4 +1,4 @@
-//! Synthetic form-grinding fleet (MODELS.md §4): one run per ground part.
+//! Synthetic form-grinding fleet (docs/models.md §4): one run per ground part.
 //!
 //! The wheel starts new (the machine's largest radius) and is dressed every
 //! `parts_per_dressing` parts, losing `dressing_mm` of radius each time.

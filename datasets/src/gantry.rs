@@ -1,4 +1,4 @@
-//! Synthetic gantry runs (MODELS.md §2): the gantry plugin's own forward
+//! Synthetic gantry runs (docs/models.md §2): the gantry plugin's own forward
 //! model plus injected effects and measurement noise, seeded and
 //! deterministic.
 //!

@@ -1,4 +1,4 @@
-//! The generator registry (issue 14 item 3): every synthetic-data generator
+//! The generator registry: every synthetic-data generator
 //! implements [`Generator`] and is listed once in [`all_generators`], so
 //! `sparkout generate` and `sparkout demo` name no machine. Adding a machine
 //! type: its plugin folder, its generator file here, one line in

@@ -1,4 +1,4 @@
-//! Synthetic guide-way grinder fleet (MODELS.md §3; tables CONTRACTS.md §1).
+//! Synthetic guide-way grinder fleet (docs/models.md §3; tables docs/formats.md §4).
 //!
 //! Each run grinds one workpiece of `points` grid points (ΔL = 30 mm; 80
 //! points = the source's 2.4 m) in `passes` strokes back and forth, one
@@ -12,7 +12,7 @@
 //! - h: the workpiece shape (bow + waviness, new per run);
 //! - δz = s(x) + u(n) + effects: s the guide-way straightness (a machine
 //!   property: the same in every run), u a trending AR process — AR(4)
-//!   innovations integrated twice with a pole ρ (ρ = 1 is exactly MODELS.md
+//!   innovations integrated twice with a pole ρ (ρ = 1 is exactly docs/models.md
 //!   §3.2's Φ(B)(1 − B)²δz = ε; the default 0.98 keeps the trend bounded
 //!   over a run), scaled to `ar_rms_mm`;
 //! - β: the table pitch, a smooth function of x (machine property);
@@ -161,7 +161,7 @@ pub fn known_effects() -> Vec<(&'static str, &'static str)> {
     vec![
         (
             "thermal_infeed",
-            "workpiece thermal growth with the number of infeeds (MODELS.md §3.4): δz += k_mm·(infeed_count − 1), default k_mm=0.0004 (4.4 µm by pass 12); diagnosis name thermal_infeed:infeed_count",
+            "workpiece thermal growth with the number of infeeds (docs/models.md §3.4): δz += k_mm·(infeed_count − 1), default k_mm=0.0004 (4.4 µm by pass 12); diagnosis name thermal_infeed:infeed_count",
         ),
         (
             "reversal",
@@ -378,7 +378,7 @@ pub fn simulate(
     // Zero offsets: a common and a linear part (indistinguishable from δz
     // and β, harmless) and the residual second difference c = o_A − 2o_B +
     // o_C left after zeroing, which both separations integrate into a
-    // parabola c·j²/2 in h (MODELS.md §3.1's weakness).
+    // parabola c·j²/2 in h (docs/models.md §3.1's weakness).
     let (oa, ob) = (
         uniform(&mut r, -cfg.zero_offset_mm, cfg.zero_offset_mm),
         uniform(&mut r, -cfg.zero_offset_mm, cfg.zero_offset_mm) / 2.0,

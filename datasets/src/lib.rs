@@ -1,5 +1,5 @@
 //! sparkout-datasets: synthetic recorded runs (a plugin's forward model +
-//! injected effects from the DESIGN.md catalogue + noise), seeded and
+//! injected effects from the catalogue of docs/models.md §8.4 + noise), seeded and
 //! deterministic, and the `sparkout validate` harness.
 
 pub mod form;

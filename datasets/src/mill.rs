@@ -1,5 +1,5 @@
-//! Synthetic volumetric-verification fleet of an XFYZ mill (MODELS.md §5;
-//! tables CONTRACTS.md §1: tracker, thermal).
+//! Synthetic volumetric-verification fleet of an XFYZ mill (docs/models.md §5;
+//! tables docs/formats.md §4: tracker, thermal).
 //!
 //! One machine (the built-in `xfyz-mill`) with known error functions: 18
 //! Legendre series of the machine's degree in the identification gauge (see

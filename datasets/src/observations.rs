@@ -1,5 +1,5 @@
-//! Synthetic observation fleets (CONTRACTS.md §2) for the gap diagnosis and
-//! `sparkout validate` (issue 4, points 6–7): `real` = `sim` + injected
+//! Synthetic observation fleets (docs/formats.md §7) for the gap diagnosis and
+//! `sparkout validate`: `real` = `sim` + injected
 //! effects + noise σ, on a realistic measuring layout:
 //!
 //! - an x/y grid measured along raster paths whose direction changes from
@@ -275,7 +275,7 @@ pub const AMPLITUDE_PARAMS: [&str; 6] = [
 pub const OUT_OF_CATALOGUE: [&str; 3] = ["step", "bump", "product"];
 
 /// The value of one effect on every row of a layout. Catalogue effects use
-/// the CONTRACTS.md forms (defaults filled in from the layout: bow's c0/c1
+/// the docs/formats.md forms (defaults filled in from the layout: bow's c0/c1
 /// are the covariate's range); also `step` (height_mm·[c ≥ at]), `bump`
 /// (amplitude_mm·exp(−r²/2·radius_mm²) around x0,y0) and `product`
 /// (k·c1·c2 of two non-position covariates) — outside the catalogue.
@@ -448,7 +448,7 @@ pub fn scale_to_snr(
     Ok((scale_spec(&base, f), v.iter().map(|x| x * f).collect()))
 }
 
-/// The table of CONTRACTS.md §2 from a layout and the `real` column.
+/// The table of docs/formats.md §7 from a layout and the `real` column.
 pub fn to_batch(l: &ObsLayout, real: &[f64], observable: &str) -> Result<RecordBatch> {
     if real.len() != l.len() {
         bail!("{} real values for {} rows", real.len(), l.len());

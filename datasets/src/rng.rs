@@ -1,5 +1,5 @@
-//! The generators' random numbers, one copy for all of them (issue 14
-//! item 5). Every run draws from its own ChaCha8 stream of the fleet seed, so
+//! The generators' random numbers, one copy for all of them.
+//! Every run draws from its own ChaCha8 stream of the fleet seed, so
 //! runs are generated in parallel and still byte-identical for a seed; each
 //! generator documents which stream number serves what.
 

@@ -1,5 +1,5 @@
-//! `sparkout validate` (issue 4, point 6; DESIGN.md "Checked on data whose
-//! effect is withheld"): fleets whose `real` carries one effect that `sim`
+//! `sparkout validate` (docs/validation.md; checked on data whose
+//! effect is withheld): fleets whose `real` carries one effect that `sim`
 //! lacks — every catalogue effect at several SNRs (effect RMS / noise σ) —
 //! plus effect-free fleets and out-of-catalogue fleets, each diagnosed, then
 //! scored: confusion matrix (true × top-1 named), localisation (share of the
@@ -51,7 +51,7 @@ pub const CATALOGUE_CASES: [&str; 15] = [
 /// product of two non-position covariates.
 pub const OOC_CASES: [&str; 3] = ["step:x_mm", "bump:x_mm,y_mm", "product:feed_mm_s,force_n"];
 
-/// Issue 13 item 6: two effects at once (each at SNR 10/√2, both must be
+/// Two effects at once (each at SNR 10/√2, both must be
 /// named), one effect under 1 % ±30σ spikes (named, its interval holding
 /// the truth, robust shrink near the spike-free oracle), and one effect on
 /// one of three machines only (localised to that machine).
@@ -121,7 +121,7 @@ pub struct FleetResult {
     pub oracle_shrink: f64,
     pub unexplained_over_sigma: f64,
     /// Parameters of the named true effect whose 95 % interval was checked,
-    /// and how many held the true value (issue 13 item 2).
+    /// and how many held the true value.
     pub intervals_checked: usize,
     pub intervals_covered: usize,
     /// Two-effect fleets: both true effects among the selected.

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Smoke test of the Slurm recipe on this machine (issue 18): a single-node
+# Smoke test of the Slurm recipe on this machine: a single-node
 # Slurm (munge + slurmctld + slurmd on localhost, state in a temp dir) runs
 # a 4-shard nightly of a generated fleet through submit.sh, and its fleet
 # outputs are compared byte for byte with a single-node `sparkout run`.

@@ -3,7 +3,7 @@
 //! its own fresh pages and gives freed memory back to the kernel; the AE
 //! stream decodes a few-MiB batch per row group, so each batch paid page
 //! faults and page clearing — a fifth of the CPU of an ingest
-//! (`perf record`, README "Benchmarks"). Keeping allocations up to 32 MiB
+//! (`perf record`, docs/benchmarks.md). Keeping allocations up to 32 MiB
 //! on the heap and freed memory up to 128 MiB for reuse made the ingest
 //! ≈ 30 % faster for a few MiB more resident memory.
 

@@ -4,7 +4,7 @@ use std::fmt;
 use std::path::{Path, PathBuf};
 
 /// A bad input: names the file, the column and (where it applies) the first
-/// offending row, per CONTRACTS.md "Conventions".
+/// offending row, per docs/formats.md §1.
 #[derive(Debug, Clone, PartialEq)]
 pub struct InputError {
     pub file: PathBuf,

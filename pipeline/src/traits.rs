@@ -1,4 +1,4 @@
-//! The traits everything plugs in by (DESIGN.md "Traits"). The engine knows
+//! The traits everything plugs in by (docs/design.md §3). The engine knows
 //! no concrete machine; a plugin knows no other plugin.
 
 use std::collections::{BTreeMap, BTreeSet};
@@ -210,7 +210,7 @@ impl StageOutput {
 /// Options of `sparkout stage <name> --flag value ...` without a run.
 pub type StageArgs = BTreeMap<String, String>;
 
-/// What a stage is, as data (issue 14 item 1): the engine takes the DAG's
+/// What a stage is, as data: the engine takes the DAG's
 /// edges, the cache key and `--help` listings from it and checks it when a
 /// plugin is registered ([`StageSpec::check`]) and while the stage runs (a
 /// table or artifact read that the spec does not declare is an error, so the
@@ -362,7 +362,7 @@ pub type ProcessKeys = &'static [(&'static str, crate::config_check::Check)];
 pub trait MachinePlugin: Send + Sync {
     fn name(&self) -> &'static str;
     /// Alternative sets of tables, one of which a run must have
-    /// (CONTRACTS.md §3), e.g. robot: `[["probe"], ["ae", "motion", "plan"]]`.
+    /// (docs/formats.md §5), e.g. robot: `[["probe"], ["ae", "motion", "plan"]]`.
     fn required_tables(&self) -> Vec<Vec<&'static str>>;
     /// The fewest rows a present table must have for the plugin's methods,
     /// as (table, rows); fewer rejects the run naming the file before any
@@ -385,7 +385,7 @@ pub trait MachinePlugin: Send + Sync {
         Vec::new()
     }
     /// Physically named composite effects for the diagnosis. They apply
-    /// only to the observables this plugin produces (issue 13 item 1).
+    /// only to the observables this plugin produces.
     fn effects(&self) -> Vec<Box<dyn Effect>> {
         Vec::new()
     }

@@ -1,5 +1,5 @@
 //! Conversions every plugin needs between numbers and the TOML/JSON they are
-//! read from or written to, kept in one place (issue 14 item 5).
+//! read from or written to, kept in one place.
 
 use serde_json::Value;
 

@@ -1,4 +1,4 @@
-//! Issue 13 item 4 (the generic part): `sparkout run --augment` adds the
+//! The generic part of `sparkout run --augment`: `sparkout run --augment` adds the
 //! effects of an earlier night's diagnosis to the sim side of tonight's
 //! observations and reports the plain vs augmented gap on runs the model was
 //! not fitted on (fleet/augment.json, fleet page verdicts).

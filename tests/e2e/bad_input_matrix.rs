@@ -1,4 +1,4 @@
-//! Issue 15: the bad-input matrix. One small generated fleet per plugin;
+//! The bad-input matrix. One small generated fleet per plugin;
 //! each case copies a good run under a new id and breaks one thing (a NaN,
 //! a 1e300, metres for mm, degrees for rad, a typo'd key, ...). One
 //! `sparkout run` over all of them must reject exactly the broken runs
@@ -499,7 +499,7 @@ const CASES: &[Case] = &[
         Some("motion.parquet"),
         Some("cmd_x_mm"),
     ),
-    // (CONTRACTS.md §3 lists motion as required for gantry, the plugin
+    // (docs/formats.md §5 lists motion as required for gantry, the plugin
     // requires topography only: a missing motion.parquet is not a case.)
     case(
         "gt-topo-null",

@@ -1,4 +1,4 @@
-//! configs/nightly.toml against the code's defaults (issue 14 item 2): the
+//! configs/nightly.toml against the code's defaults: the
 //! values nightly.toml writes for a stage must be what the stage does with no
 //! section at all, or the two silently disagree. A small fleet of every
 //! generator is run twice — with the built-in nightly.toml and with a config

@@ -1,4 +1,4 @@
-//! One test per bad-input rule of CONTRACTS.md "Conventions": each error names
+//! One test per bad-input rule of docs/formats.md §1: each error names
 //! the file, the column and (where it applies) the first offending row.
 
 use std::path::Path;

@@ -1,4 +1,4 @@
-//! Issue 15 item 1: a non-finite number never reaches an artifact or a fleet
+//! A non-finite number never reaches an artifact or a fleet
 //! summary. `sparkout demo` runs every plugin and the fleet diagnosis; every
 //! file it writes is scanned: floating-point Parquet columns must hold only
 //! finite values (null is the contract's "no value"), JSON must not carry

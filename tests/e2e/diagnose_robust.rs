@@ -1,4 +1,4 @@
-//! Issue 13 items 1–3 on generated observation tables: composites scoped to
+//! The diagnosis's robustness on generated observation tables: composites scoped to
 //! their plugin's observables, an interval on every selected parameter,
 //! and spikes that do not move the diagnosis.
 

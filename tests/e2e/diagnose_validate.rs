@@ -1,4 +1,4 @@
-//! Gap diagnosis on fleets whose effect is withheld (issue 4): a subset of
+//! Gap diagnosis on fleets whose effect is withheld: a subset of
 //! `sparkout validate` small enough for the debug test suite, and the bad
 //! input / determinism cases. Library APIs only (no CLI binary).
 
@@ -49,7 +49,7 @@ fn validation_subset_meets_the_bar() {
         "shrink / oracle {}",
         r.shrink_over_oracle_snr_ge3
     );
-    // Issue 13 item 6, measured on this seed (docs/diagnosis.md
+    // Measured on this seed (docs/diagnosis.md
     // "Validation"): spikes do not change the verdict, the robust shrink
     // matches the spike-free oracle, and an effect on one of three machines
     // is localised to it.

@@ -1,4 +1,4 @@
-//! Issue 7 (form), end to end through the binary: a generated form fleet
+//! End to end through the binary: a generated form fleet
 //! with one injected effect, run through `sparkout run`, gets that effect
 //! named first in out/fleet/diagnosis.json with a positive held-out shrink;
 //! an effect-free fleet gets no effect named.

@@ -1,4 +1,4 @@
-//! Form plugin through the binary (issue 7, `form` half): `stage segment
+//! Form plugin through the binary (`form` half): `stage segment
 //! --run … --json` and its sweep, the tool-path artifacts, the run-less
 //! CLDATA programs, and bad inputs that name file, column and row while the
 //! rest of a batch goes on.

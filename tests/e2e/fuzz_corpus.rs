@@ -1,6 +1,6 @@
 //! Every file of the fuzz corpora (`fuzz/corpus/TARGET/`) replayed through
 //! the fuzz targets' own bodies (`sparkout_pipeline::fuzz_entry`): the
-//! instrumented fuzz runs stay a documented script (README "Fuzzing"), but
+//! instrumented fuzz runs stay a documented script (docs/reliability.md "Fuzzing"), but
 //! what they found — every finding becomes a corpus file — is checked on
 //! every test run. A panic fails the test and names the file.
 

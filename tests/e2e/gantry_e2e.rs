@@ -1,4 +1,4 @@
-//! Issue 5 item 8, end to end through the binary: a generated gantry fleet
+//! End to end through the binary: a generated gantry fleet
 //! with one injected (unmodelled) effect, run through `sparkout run`, gets
 //! that effect named first in the fleet's diagnosis.json with a held-out
 //! shrink; an effect-free fleet gets no effect named.

@@ -1,6 +1,6 @@
-//! Issue 5 through the binary: the gantry stages on a generated run (with
+//! Through the binary: the gantry stages on a generated run (with
 //! --run and run-less), the compensation path for replay, and every bad
-//! input named in the issue rejected with a clear error while the batch goes
+//! input the plugin documents rejected with a clear error while the batch goes
 //! on.
 
 use crate::common;
@@ -389,7 +389,7 @@ fn bad_inputs_are_rejected_and_the_batch_goes_on() {
     assert!(err.contains("no [bridge] table"), "{err}");
 }
 
-/// Issue 17 item 1: on generated runs (the demo's fleet: seed 1) the
+/// On generated runs (the demo's fleet: seed 1) the
 /// selective plan halves the minimum-zone flatness of the ground surface
 /// in less time than a raster of the same removal, and says so.
 #[test]

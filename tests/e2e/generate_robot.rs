@@ -596,7 +596,7 @@ fn catalogue_shapes_apply_directly_to_the_observables() {
     }
 }
 
-/// Issue 3 item 6 + MODELS.md §1.1: the comparison methods. Through the
+/// docs/models.md §1.1: the comparison methods. Through the
 /// CLI on a generated run: repeatability per (method, speed) orders AE <
 /// electrical < mechanical near the thesis's ranges; the datum is fitted
 /// from the most precise method (`auto`), and pooling every method

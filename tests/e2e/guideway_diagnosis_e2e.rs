@@ -1,4 +1,4 @@
-//! Issue 6 item 6, end to end through the binary: a generated guide-way
+//! End to end through the binary: a generated guide-way
 //! fleet with one injected effect (thermal deformation growing with the
 //! infeed count; a table reversal error), run through `sparkout run`, gets
 //! that effect named first in the fleet's diagnosis.json, with a held-out

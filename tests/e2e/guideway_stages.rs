@@ -1,4 +1,4 @@
-//! Issue 6: the guideway plugin's numerics on generated data (item 9), its
+//! The guideway plugin's numerics on generated data (item 9), its
 //! stages through the binary (items 1–4), and bad inputs (each a clear
 //! error naming file, column and row; the batch goes on).
 
@@ -457,7 +457,7 @@ fn bad_inputs_are_named_and_the_batch_goes_on() {
     assert_eq!(s["resampled"], true);
 }
 
-/// Issue 17 item 2: the default (least-squares) separation and the
+/// The default (least-squares) separation and the
 /// predictor on a 30 000-sample trace (10 000 grid points, 3 passes).
 #[test]
 fn predictor_runs_on_a_30000_sample_trace_with_the_default_method() {
@@ -507,9 +507,9 @@ fn predictor_runs_on_a_30000_sample_trace_with_the_default_method() {
     );
 }
 
-/// Issue 17 item 3: how often FPE, BIC and HQ pick the true order of
+/// How often FPE, BIC and HQ pick the true order of
 /// Φ(B)(1 − B)²δz = ε on 3 000-sample traces, 60 seeds per model (the
-/// README's table: `cargo test --workspace --test e2e order_selection --
+/// docs/guideway.md's table: `cargo test --workspace --test e2e order_selection --
 /// --nocapture`).
 #[test]
 fn order_selection_hit_rates_of_fpe_bic_and_hq() {

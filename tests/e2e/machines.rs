@@ -1,4 +1,4 @@
-//! Issue 12 item 3, end to end through the binary: two machines of one type
+//! End to end through the binary: two machines of one type
 //! whose runs carry identical ids (`r0000`…) stay apart in every output —
 //! observations.parquet (a `machine` column), diagnosis.json (folds by
 //! machine and run, `machine` cells, per-machine fits), diagnosis.parquet,
@@ -204,7 +204,7 @@ fn two_machines_with_identical_run_ids_stay_apart() {
         page.contains("This machine alone"),
         "machine effect not on the fleet page"
     );
-    // The fleet report groups by machine type, then machine (issue 16: the
+    // The fleet report groups by machine type, then machine (the
     // per-run gap table gave way to a section per machine).
     let html = std::fs::read_to_string(out.join("fleet/report.html")).unwrap();
     assert!(

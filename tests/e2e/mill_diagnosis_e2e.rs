@@ -1,4 +1,4 @@
-//! Issue 7, end to end through the binary: a generated mill fleet with one
+//! End to end through the binary: a generated mill fleet with one
 //! injected effect outside the identified 21-error model, run through
 //! `sparkout run`, gets that effect named first in the fleet's
 //! diagnosis.json with a held-out shrink; an effect-free fleet gets none.

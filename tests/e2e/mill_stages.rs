@@ -1,4 +1,4 @@
-//! Issue 7 (`mill`), through the binary: the `kinematics` stage identifies
+//! The `mill` plugin through the binary: the `kinematics` stage identifies
 //! the generated machine's errors within their reported uncertainty with a
 //! held-out residual at the noise; unidentifiable configurations and bad
 //! tracker points are errors that say what is wrong and where.
@@ -306,7 +306,7 @@ fn observations_pair_measured_and_modelled_deviations_and_leave_absent_covariate
     );
     // sim carries the machine's volumetric error, not zero.
     assert!(sim.iter().map(|s| s.abs()).fold(0.0, f64::max) > 0.005);
-    // No thermal log: temp_c is left out (CONTRACTS.md §2), t_s stays.
+    // No thermal log: temp_c is left out (docs/formats.md §7), t_s stays.
     std::fs::remove_file(run.join("thermal.parquet")).unwrap();
     let without = observe(&d.path().join("without"));
     assert!(without.column_by_name("temp_c").is_none());

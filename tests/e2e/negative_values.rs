@@ -1,4 +1,4 @@
-//! CLI values that begin with `-` are values (issue 12 item 8): engineers
+//! CLI values that begin with `-` are values: engineers
 //! type negative numbers, and a plane list that starts with one must not be
 //! taken for a flag.
 

@@ -1,4 +1,4 @@
-//! Issue 18 item 2: `--input`, `--out` and `--shards` on object storage,
+//! `--input`, `--out` and `--shards` on object storage,
 //! against a real S3-compatible server (moto's server mode, from PyPI)
 //! started on 127.0.0.1 by the test. Skipped with a message where
 //! `moto_server` is not installed; `.ci/run` installs it.

@@ -1,5 +1,5 @@
 //! "A directory of runs whose Parquet files were written by pandas with
-//! default settings runs end to end" (issue 12): datasets/fixtures/
+//! default settings runs end to end": datasets/fixtures/
 //! pandas_fleet holds form-grinder and mill runs whose every table pandas
 //! wrote back with its defaults (snappy, int64 ids, large_string text,
 //! the mill's thermal log as wall-clock timestamps); made by

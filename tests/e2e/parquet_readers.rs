@@ -1,4 +1,4 @@
-//! Parquet that users have (issue 12 item 1, docs/formats.md "Parquet"):
+//! Parquet that users have (docs/formats.md "Parquet"):
 //! every codec × data page v1/v2 × dictionary/plain, written by arrow-rs
 //! with the column types other tools use, read through every contract
 //! reader; files written by pyarrow, pandas, polars and DuckDB with their
@@ -551,7 +551,7 @@ fn unsupported_codec_is_called_an_unsupported_codec() {
     assert!(e.message.contains("the file is intact"), "{e}");
 }
 
-/// Found by `cargo fuzz run observations` (issue 15 item 7): a corrupt page
+/// Found by `cargo fuzz run observations`: a corrupt page
 /// on which the parquet crate's decoder panics (division by zero in its
 /// plain byte-array dictionary decoder). It must be an error naming the file
 /// and the row group, with exit code 1 like any bad input — not a crash.

@@ -1,4 +1,4 @@
-//! Issue 15 item 7, on stable: property tests of every parser a user's file
+//! On stable: property tests of every parser a user's file
 //! reaches — run.toml, machine configs, the contract tables (Parquet bytes
 //! and values), observations, the candump log reader and the EDS check.
 //! Each must answer with a value or an error, never a panic, and accept or

@@ -1,4 +1,4 @@
-//! Issue 15: nothing lost, nothing silent — every run accounted for, one
+//! Nothing lost, nothing silent — every run accounted for, one
 //! batch per --out, resumable per stage, bounded --jobs, `generate` that
 //! does not overwrite, checked effect parameters.
 
@@ -334,7 +334,7 @@ fn killed_batch_resumes_per_stage_and_leaves_no_temp_files() {
         .all(|s| s["cached"] == false));
 }
 
-/// The README's replay example works on generated robot runs (their motion
+/// The replay example of docs/replay.md works on generated robot runs (their motion
 /// stays inside the default envelope), impossible fault specs are refused,
 /// and the default binary says how to get SocketCAN.
 #[test]

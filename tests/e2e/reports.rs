@@ -1,4 +1,4 @@
-//! Issue 16: the demo's pages are self-contained, linked from the index,
+//! The demo's pages are self-contained, linked from the index,
 //! answer "where, which, how far" per observable, and render in headless
 //! Chromium (screenshot not blank, no element wider than the viewport).
 //! The render check is skipped, with a message, when Chromium is absent;
@@ -177,7 +177,7 @@ fn demo_pages_are_linked_self_contained_and_answer_per_observable() {
     );
     // A per-run RMS chart per explained observable.
     assert!(fleet.contains("RMS per run, before and held-out after"));
-    // Above the fold (issue 16 "done when"): the at-a-glance table answers
+    // Above the fold : the at-a-glance table answers
     // where (a gap-map thumbnail), which (the gap against the named
     // effect's covariate) and how far (bars) for the explained observables.
     let glance = fleet

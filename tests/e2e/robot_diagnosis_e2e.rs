@@ -1,4 +1,4 @@
-//! Issue 3 item 8, end to end through the binary: a generated robot fleet
+//! End to end through the binary: a generated robot fleet
 //! with one injected (unmodelled) effect, run through `sparkout run`, gets
 //! that effect named first in the fleet's diagnosis.json with a held-out
 //! shrink; an effect-free fleet gets no effect named.
@@ -18,7 +18,7 @@ fn wheel_wear_is_named_first() {
     let diag = diagnose_fleet(d.path(), 31, Some("wheel_wear"));
     let first = first_selected(&diag);
     // The catalogue's name: the form plugin's `wheel_wear` composite is
-    // scoped to the form grinder's observables (issue 13 item 1).
+    // scoped to the form grinder's observables.
     assert!(
         first == "wear:removed_mm3",
         "expected wear first, got {first:?}; selected {}",

@@ -2,7 +2,7 @@
 //! generator): AE contact detection against known contact times, the datum
 //! against the known block pose, the trigger latency from two approach
 //! speeds, recorded vs AE-derived touches, the cycle model, observations,
-//! report sections, and every bad input of issue 3.
+//! report sections, and every bad input docs/formats.md names for it.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -335,7 +335,7 @@ fn write_run(root: &Path, id: &str, s: &Spec) -> (PathBuf, Truth) {
     }
     std::fs::write(dir.join("run.toml"), toml).unwrap();
     if s.with_passes {
-        // MODELS.md §1.4 with α = 0.5, heights measured to ±1 µm.
+        // docs/models.md §1.4 with α = 0.5, heights measured to ±1 µm.
         let docs = [0.3, 0.3, 0.3, 0.3, 0.3, 0.3, 0.3, 0.1, 0.1, 0.0, 0.0];
         let stages = [
             "rough", "rough", "rough", "rough", "rough", "rough", "rough", "finish", "finish",

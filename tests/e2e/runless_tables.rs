@@ -1,4 +1,4 @@
-//! Run-less forms for a single table (issue 12 item 7):
+//! Run-less forms for a single table:
 //! `stage flatness --surface FILE` and `stage ingest --ae FILE`, on
 //! fixtures written by pyarrow and pandas (datasets/fixtures/adhoc, made by
 //! datasets/fixtures/make_fixtures.py). The expected flatness comes from

@@ -1,4 +1,4 @@
-//! Issue 12 point 5, end to end through the binary: generated servo fleets
+//! End to end through the binary: generated servo fleets
 //! (`sparkout generate servo`) whose machine has one effect the first-order
 //! servo model lacks get that effect named per axis by the fleet diagnosis,
 //! with its parameter recovered; an effect-free fleet gets none.
@@ -59,7 +59,7 @@ fn servo_lag_is_named_on_every_axis_with_its_lag() {
             "mm/s"
         );
     }
-    // Issue 12: a run's own observations.parquet names its machine.
+    // A run's own observations.parquet names its machine.
     let out = d.path().join("out");
     let machine_dir = std::fs::read_dir(&out)
         .unwrap()

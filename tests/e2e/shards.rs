@@ -1,4 +1,4 @@
-//! Issue 18 item 1: `sparkout run --shard i/n` + `sparkout aggregate` give
+//! `sparkout run --shard i/n` + `sparkout aggregate` give
 //! the same fleet outputs, byte for byte, as one `sparkout run`; a killed
 //! shard resumes from its cache; bad shard sets are refused by name.
 

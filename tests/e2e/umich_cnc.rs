@@ -1,7 +1,7 @@
-//! Issue 12 point 6: the public UMich CNC mill set end to end through the
+//! The public UMich CNC mill set end to end through the
 //! binary — all 18 experiments of the committed sample imported with the
 //! built-in `umich_cnc` mapping, run through the servo plugin and the fleet
-//! diagnosis. Pins what was verified by hand (README "UMich CNC"): which
+//! diagnosis. Pins what was verified by hand (docs/servo.md "UMich CNC"): which
 //! effect is named per axis and the range of its parameter — not exact
 //! floats, so the diagnosis stays free to improve.
 

@@ -1,4 +1,4 @@
-//! `cargo xtask bench-gate` — the criterion performance gate (issue 19).
+//! `cargo xtask bench-gate` — the criterion performance gate.
 //!
 //! Every gated bench is compared as a *ratio* to a reference kernel measured
 //! in the same bench process (benches/common/mod.rs): the machine's absolute
@@ -400,7 +400,7 @@ fn round_sig(x: f64, digits: i32) -> f64 {
 }
 
 fn write_gate(path: &Path, gate: &GateFile) -> Result<()> {
-    let header = "# The criterion performance gate's baseline (issue 19). Written by\n\
+    let header = "# The criterion performance gate's baseline. Written by\n\
                   # `cargo xtask bench-gate --calibrate --runs 5`; checked by `cargo xtask bench-gate`.\n\
                   # ratio = median over the calibration runs of bench time / reference time,\n\
                   # both measured in one bench process; threshold = max(10 %, 4 x rsd).\n\n";

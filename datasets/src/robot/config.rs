@@ -41,13 +41,13 @@ impl FromStr for ProbeMode {
     }
 }
 
-/// A comparison probing method (MODELS.md §1.1): its touches are registered
+/// A comparison probing method (docs/models.md §1.1): its touches are registered
 /// by the controller (probe.parquet) from the method's own signal, probed in
 /// a second program after the AE program. They are not in plan.parquet (the
 /// AE program) and the AE recorder is not armed for them.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct ProbeMethod {
-    /// `mechanical` or `electrical` (CONTRACTS.md probe.method).
+    /// `mechanical` or `electrical` (docs/formats.md probe.method).
     pub name: String,
     pub speed_mm_s: f64,
 }

@@ -13,7 +13,7 @@ pub(super) const BLOCK_X_MM: f64 = 80.0;
 pub(super) const BLOCK_Y_MM: f64 = 80.0;
 pub(super) const BLOCK_H_MM: f64 = 60.0;
 /// Half sides of the thesis's three concentric squares (outer, middle,
-/// inner), 4 points each (MODELS.md §1.3), mm.
+/// inner), 4 points each (docs/models.md §1.3), mm.
 pub(super) const SQUARE_HALF_MM: [f64; 3] = [24.0, 16.0, 8.0];
 /// Transit speed between probe points, mm/s.
 pub(super) const TRANSIT_MM_S: f64 = 100.0;
@@ -44,10 +44,10 @@ pub(super) const CONTACT_SCATTER_MM: f64 = 0.002;
 /// Encoder/servo noise of the measured TCP (`act_*`), mm per axis.
 pub(super) const ACT_NOISE_MM: f64 = 0.0003;
 /// Thesis repeatability of the AE method (range of N repeated touches),
-/// MODELS.md §1.1: 25 µm at 5 mm/s, 85 µm at 10 mm/s.
+/// docs/models.md §1.1: 25 µm at 5 mm/s, 85 µm at 10 mm/s.
 pub(super) const AE_RANGE_5_MM: f64 = 0.025;
 pub(super) const AE_RANGE_10_MM: f64 = 0.085;
-/// Thesis repeatability of the comparison methods (MODELS.md §1.1): 700 µm
+/// Thesis repeatability of the comparison methods (docs/models.md §1.1): 700 µm
 /// for the mechanical dial gauge at 100 mm/s, 163 µm for the electrical
 /// contact circuit at 10 mm/s (ranges; σ = range/d2(12)). Scaled linearly
 /// with speed around those points: a method probed at another speed

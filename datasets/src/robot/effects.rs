@@ -239,7 +239,7 @@ pub(super) fn resolve_effects(
                         );
                     }
                 }
-                // The kind must apply to that covariate (CONTRACTS.md table).
+                // The kind must apply to that covariate (docs/formats.md §7 table).
                 if kind != Kind::Offset
                     && kind != Kind::Squareness
                     && !sparkout_pipeline::diagnose::effect::kinds_for(&c1).contains(&kind)

@@ -1,8 +1,8 @@
-//! Synthetic robotic-grinding fleet (MODELS.md §1; the data layout is
-//! docs/robot_data_spec.md, the tables CONTRACTS.md §1).
+//! Synthetic robotic-grinding fleet (docs/models.md §1; the data layout is
+//! docs/robot_data_spec.md, the tables docs/formats.md §4).
 //!
 //! Each run is a KUKA-KR16-like cell probing a block with the grinding wheel
-//! (acoustic-emission touch detection, MODELS.md §1.1–1.2) in the thesis's
+//! (acoustic-emission touch detection, docs/models.md §1.1–1.2) in the thesis's
 //! pattern (3 faces × 3 concentric squares × 4 points, §1.3), followed by a
 //! weld-repair grinding cycle (rough, finish, spark-out, §1.4).
 //!

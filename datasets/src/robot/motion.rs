@@ -42,7 +42,7 @@ impl CmdPath {
         // program without blending does: without it the commanded velocity
         // jumps (up then straight down at transit speed is 0.8 mm per 4 ms
         // cycle), beyond the replay's default envelope (0.5 mm change of
-        // step per cycle, README "replay over CAN").
+        // step per cycle, docs/replay.md).
         if let Some(last) = self.pieces.last() {
             let moving = last.a == V3::zeros() && last.v0 != V3::zeros();
             if moving && (last.v0 - v0).norm() > 1e-9 {

@@ -129,7 +129,7 @@ pub(super) fn touch_sigma_mm(method: &str, v_mm_s: f64) -> f64 {
 }
 
 /// σ of the AE method's registered touches at an approach speed: the
-/// thesis's ranges (MODELS.md §1.1) as σ = range/d2(12), interpolated
+/// thesis's ranges (docs/models.md §1.1) as σ = range/d2(12), interpolated
 /// log-log in speed (25 µm @ 5 → 85 µm @ 10 mm/s: σ ∝ v^1.77).
 pub(super) fn ae_touch_sigma_mm(v_mm_s: f64) -> f64 {
     let s5 = AE_RANGE_5_MM / D2_N12;

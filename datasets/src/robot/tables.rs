@@ -73,7 +73,7 @@ pub(super) fn probe_batch(plan: &[PlanRow], touches: &[Touch]) -> RecordBatch {
         .build()
 }
 
-/// The weld-repair cycle (MODELS.md §1.4). The compliance model as a
+/// The weld-repair cycle (docs/models.md §1.4). The compliance model as a
 /// recursion on the carried deflection: the interference of pass i is the
 /// new infeed δ′ᵢ plus the deflection α·δᵢ₋₁ left by the previous pass, and
 /// splits into cut and deflection, δᵢ = Iᵢ/(1+α). With a constant δ′ this is

@@ -32,7 +32,7 @@ fn plan_has_the_thesis_pattern() {
 
 #[test]
 fn compliance_recursion_matches_the_thesis_sequence() {
-    // MODELS.md §1.4: α = 0.5, δ′ = 0.3 → 0.200, 0.2667, 0.2889, ...
+    // docs/models.md §1.4: α = 0.5, δ′ = 0.3 → 0.200, 0.2667, 0.2889, ...
     let cfg = RobotFleetConfig {
         height_noise_mm: 0.0,
         ..RobotFleetConfig::default()

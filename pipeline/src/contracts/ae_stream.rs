@@ -1,4 +1,4 @@
-//! Streaming reader of ae.parquet (CONTRACTS.md §1: 10⁶–10⁸ rows per run, read
+//! Streaming reader of ae.parquet (docs/formats.md §4: 10⁶–10⁸ rows per run, read
 //! row group by row group with bounded memory). Each chunk is validated as it
 //! arrives: NaN/inf and non-monotonic `t_s` are reported with their global row.
 //!
@@ -386,7 +386,7 @@ impl DecodeJob {
 /// Each column is first checked in one fused pass ([`all_within`],
 /// [`time_column_scan`]); the separate checks run only on a column that
 /// fails it, so errors name the same first failure as before while a valid
-/// log is read once per column, not three times (issue 19).
+/// log is read once per column, not three times.
 fn to_chunk(
     path: &Path,
     batch: &RecordBatch,

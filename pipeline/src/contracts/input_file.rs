@@ -1,5 +1,5 @@
 //! An input file on disk, or an object in a bucket read by ranged GETs
-//! (issue 18 item 2). Staging a remote fleet leaves each large Parquet input
+//!. Staging a remote fleet leaves each large Parquet input
 //! in its bucket with a `<name>.remote.json` stub beside where the file would
 //! be; every reader opens inputs through [`InputFile::open`], so a remote AE
 //! log streams row group by row group with the same bounded memory as a
@@ -55,7 +55,7 @@ impl InputFile {
     /// Another handle on the same input whose bytes `start..start + len`
     /// are mapped into memory when it is a local file. The AE stream's
     /// decoders read each page of a multi-GB log once; copying it out of the
-    /// page cache (`read`) was a tenth of their time (issue 19). One row
+    /// page cache (`read`) was a tenth of their time. One row
     /// group is mapped at a time, and unmapped when the handle is dropped,
     /// so the resident set stays bounded whatever the file size (a mapping
     /// of the whole file would count every page read as resident). Falls

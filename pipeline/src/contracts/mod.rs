@@ -1,4 +1,4 @@
-//! Data contracts v1 (CONTRACTS.md): schemas, validated readers, atomic
+//! Data contracts v1 (docs/formats.md): schemas, validated readers, atomic
 //! writers, run.toml and machine configs.
 
 pub mod ae_stream;

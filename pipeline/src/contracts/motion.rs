@@ -1,4 +1,4 @@
-//! motion.parquet (CONTRACTS.md §1) as typed columns: the one place that
+//! motion.parquet (docs/formats.md §4) as typed columns: the one place that
 //! names its columns for a writer, shared by the generators and the replay's
 //! record-back.
 

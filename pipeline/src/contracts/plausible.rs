@@ -167,7 +167,7 @@ const BY_COLUMN: &[(&str, &str, Range)] = &[
     ("profile", "wheel_radius_mm", RADIUS),
 ];
 
-/// The range for a column of a unit-suffixed name (CONTRACTS.md
+/// The range for a column of a unit-suffixed name (docs/formats.md
 /// "Conventions": the unit is in the name).
 pub fn range_by_suffix(column: &str) -> Option<Range> {
     if column.ends_with("_mm_s2") {
@@ -379,7 +379,11 @@ mod tests {
 
     #[test]
     fn ranges_are_documented() {
-        let doc = include_str!("../../../docs/validation.md");
+        // Read at run time, not `include_str!`: the docs live outside this
+        // crate, so a packaged crate could not build its tests otherwise.
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../docs/validation.md");
+        let doc = std::fs::read_to_string(path).unwrap();
+        let doc = doc.as_str();
         for (t, c, r) in all_ranges() {
             let row = format!("| {t} | {c} | {} | {} |", r.lo, r.hi);
             assert!(

@@ -1,4 +1,4 @@
-//! run.toml (CONTRACTS.md §1) and machine configs.
+//! run.toml (docs/formats.md §3) and machine configs.
 
 use crate::values::toml_f64;
 use std::collections::BTreeMap;
@@ -84,7 +84,7 @@ fn parse_started(path: &Path, v: &toml::Value) -> Result<String, InputError> {
     Ok(dt.to_string())
 }
 
-/// The sections of run.toml (CONTRACTS.md §1).
+/// The sections of run.toml (docs/formats.md §3).
 /// `[replay]` is the provenance `sparkout replay --record` writes.
 pub const RUN_TOML_SECTIONS: [&str; 5] = ["run", "process", "ae", "machine", "replay"];
 
@@ -224,7 +224,7 @@ impl RunSpec {
     }
 
     /// What timestamps in this run's tables count from: `[run].started`
-    /// (CONTRACTS.md: `t_s` is seconds since the run's start).
+    /// (docs/formats.md: `t_s` is seconds since the run's start).
     pub fn time_origin(&self) -> super::TimeOrigin {
         match self
             .started
@@ -287,7 +287,7 @@ impl MachineConfig {
     }
 }
 
-/// Resolves machine ids in the order CONTRACTS.md §1 gives: `--machines DIR`
+/// Resolves machine ids in the order docs/formats.md §3 gives: `--machines DIR`
 /// (or SPARKOUT_MACHINES), ./configs/machines/, the run's inline [machine],
 /// then the configs built into the binary.
 #[derive(Debug, Clone, Default)]

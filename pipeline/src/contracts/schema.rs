@@ -1,4 +1,4 @@
-//! The v1 table schemas of CONTRACTS.md §1, as data: one place that says which
+//! The v1 table schemas of docs/formats.md §4, as data: one place that says which
 //! columns each table has, their types and whether they are required.
 
 /// Logical column type. Readers accept wider physical types where the
@@ -54,7 +54,7 @@ const fn opt(name: &'static str, kind: ColumnKind) -> ColumnSpec {
 pub struct TableSchema {
     pub name: &'static str,
     pub columns: &'static [ColumnSpec],
-    /// CONTRACTS.md: `t_s` is monotonic non-decreasing within a table — for
+    /// docs/formats.md: `t_s` is monotonic non-decreasing within a table — for
     /// the time-series tables. Tables keyed by state (topography) or by
     /// probe point may be measured in any order and are not checked.
     pub monotonic_t_s: bool,

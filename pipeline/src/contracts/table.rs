@@ -1,7 +1,7 @@
 //! Validated, in-memory tables (everything but the AE log, which streams: see
 //! `ae_stream`). A `Table` is an arrow `RecordBatch` whose contract columns
 //! have been checked and normalised to their v1 types; extra columns are kept
-//! untouched (CONTRACTS.md: "extra columns are kept and passed through").
+//! untouched (docs/formats.md: "extra columns are kept and passed through").
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;

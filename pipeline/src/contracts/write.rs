@@ -1,5 +1,5 @@
 //! Atomic writers: every file goes to a temporary name beside its final name
-//! and is renamed into place when complete (CONTRACTS.md §4), so a crash never
+//! and is renamed into place when complete (docs/formats.md §8), so a crash never
 //! leaves a truncated artifact under a final name.
 
 use std::fs::{self, File};

@@ -1,4 +1,4 @@
-//! `sparkout run --augment augmented_model.json` (issue 13 item 4, the
+//! `sparkout run --augment augmented_model.json` (the
 //! generic part): the effects a previous diagnosis selected are added to
 //! the sim side of tonight's observations, and per observable and machine
 //! the gap of the plain and of the augmented simulator is reported on the

@@ -1,5 +1,5 @@
 //! Step 4, candidates: the catalogue on the observable's varying covariates,
-//! plus the composites of the plugins *in scope* for it (issue 13 item 1):
+//! plus the composites of the plugins *in scope* for it:
 //! a plugin's physically named effects apply only to the observables that
 //! plugin produces; the catalogue applies everywhere.
 

@@ -1,4 +1,4 @@
-//! "Where is the gap?" (DESIGN.md point 1, issue 4 point 3): cells of
+//! "Where is the gap?" (docs/design.md §7 point 1): cells of
 //! covariate space per observable — quantile bins per covariate (one cell
 //! per value for covariates with at most 8 values: `dir`, `pass`), 4×4
 //! quantile tiles over (x_mm, y_mm) — each with its Σgap², RMS and a test
@@ -13,7 +13,7 @@
 //!
 //! Binning and the per-cell sums run in polars (group-by over the cell id).
 //!
-//! `machine` is a where-dimension too (issue 12): with two or more machines
+//! `machine` is a where-dimension too: with two or more machines
 //! an observable gets one cell per machine, tested the same way, so a gap
 //! present on one machine of a type is localised to that machine.
 

@@ -1,4 +1,4 @@
-//! `[diagnose]`: the one settings struct of the diagnosis (issue 13 item 1),
+//! `[diagnose]`: the one settings struct of the diagnosis,
 //! parsed in one place for `sparkout run`, `sparkout diagnose` and
 //! `sparkout validate` — a [`Section`] like every stage's: defaults here
 //! only, ranges as data, checked before anything runs.

@@ -1,6 +1,6 @@
 //! Candidate effects: the `Effect` trait (fit → fitted → predict, linfa
-//! style), the v1 catalogue of CONTRACTS.md ("Candidate effect names") and
-//! the composites plugins register (DESIGN.md "Sim-to-real gap diagnosis",
+//! style), the v1 catalogue of docs/formats.md §7, "Candidate effects" and
+//! the composites plugins register (docs/design.md §7,
 //! point 2).
 //!
 //! Every catalogue effect is *linear in its amplitudes once its (at most one)
@@ -75,7 +75,7 @@ impl<'a> EffectData<'a> {
 }
 
 /// A candidate unmodelled effect. `fit` must fit the shape *together with a
-/// free offset* (DESIGN.md: "every shape is fitted together with an offset,
+/// free offset* (docs/design.md §7: "every shape is fitted together with an offset,
 /// so it is judged on its shape").
 pub trait Effect: Send + Sync {
     /// Catalogue or composite name, e.g. `drift`, `thermal_bow`.
@@ -120,7 +120,7 @@ pub trait FittedEffect: Send + Sync {
 /// Data-dependent constants of one covariate, computed from covariate values
 /// only (never from the gap), over all rows of an observable: the range that
 /// bounds `bow` and `periodic`, and the typical sample step (the smallest
-/// admissible wavelength is 3 sample steps, CONTRACTS.md catalogue table).
+/// admissible wavelength is 3 sample steps, docs/formats.md §7 catalogue table).
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct CovStats {
     pub min: f64,
@@ -280,7 +280,7 @@ pub fn rebuild_linear_form(factors: &[(Kind, Vec<String>)]) -> Option<Arc<dyn Li
     }
 }
 
-/// The v1 catalogue kinds (CONTRACTS.md table).
+/// The v1 catalogue kinds (docs/formats.md §7 table).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Kind {
     Offset,
@@ -366,7 +366,7 @@ pub const DRIFT_TAU_MIN_FRAC: f64 = 1.0 / 200.0;
 pub const PERIODIC_MAX_CYCLES: f64 = 64.0;
 
 /// Periodic λ bounds: from max(3 sample steps, range/64) to the covariate
-/// range (CONTRACTS.md: at least one whole cycle inside the data, so
+/// range (docs/formats.md: at least one whole cycle inside the data, so
 /// periodic cannot impersonate scale or bow).
 pub fn periodic_lambda_bounds(s: &CovStats) -> (f64, f64) {
     let range = s.range();

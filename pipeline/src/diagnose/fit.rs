@@ -6,7 +6,7 @@
 //! y'y once per *unit* (a run, or a block of a run) lets every fold of the
 //! leave-runs-out cross-validation fit from the sum over its training units
 //! and score each held-out unit exactly as y'y − 2β'X'y + β'X'Xβ — no row is
-//! touched per fold (issue 4, "Speed"). For the θ scan of a one-covariate
+//! touched per fold ("Speed"). For the θ scan of a one-covariate
 //! form, rows are first pooled into bins of the covariate finer than θ's
 //! resolution (`ThetaRange::resolution`), so each grid value costs a pass over
 //! bins, not rows; the chosen θ is then refined by golden section and the

@@ -1,4 +1,4 @@
-//! Step 3, folds: run units — (machine, run) pairs, issue 12 — are dealt
+//! Step 3, folds: run units — (machine, run) pairs — are dealt
 //! to k folds by a seeded shuffle; with fewer than [`MIN_UNITS`] units the
 //! held-out runs are scored in contiguous blocks so the paired test has
 //! enough pairs; a single run is cut into k blocks (select.rs explains why

@@ -1,5 +1,5 @@
 //! Step 1, gather: the rows of one observable, sorted by run unit — a
-//! (machine, run) pair (issue 12) — then time, with the covariates that
+//! (machine, run) pair — then time, with the covariates that
 //! apply to it.
 
 use std::ops::Range;

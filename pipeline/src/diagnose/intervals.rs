@@ -1,4 +1,4 @@
-//! An interval on every number (issue 13 item 2).
+//! An interval on every number.
 //!
 //! Parameters: the selected effect's all-runs fit is a least-squares fit
 //! in z = (offset, amplitudes…, θ). Its covariance is taken two ways from

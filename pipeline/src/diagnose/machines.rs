@@ -1,4 +1,4 @@
-//! Machines kept apart (issue 12 item 3): does one selected effect hold for
+//! Machines kept apart: does one selected effect hold for
 //! every machine of an observable, or does each machine need its own?
 //!
 //! Test (a Chow test): the restricted model is one shape for all machines

@@ -1,11 +1,11 @@
-//! Sim-to-real gap diagnosis (DESIGN.md "Sim-to-real gap diagnosis";
-//! CONTRACTS.md §2 and "diagnosis.json (v1)"; issues 4, 12, 13).
+//! Sim-to-real gap diagnosis (docs/design.md §7;
+//! docs/formats.md §7 and "diagnosis.json (v1)"; the statistics: docs/models.md §8).
 //!
 //! [`diagnose`] answers, per observable: where the gap lies (cells of
 //! covariate space and machines tested against the noise floor, `cells`),
 //! which catalogue or plugin effect explains it (leave-runs-out CV +
 //! forward selection, `select`), and how far it shrinks on held-out runs.
-//! A run is a (machine, run) pair throughout (issue 12).
+//! A run is a (machine, run) pair throughout.
 //!
 //! The steps, one file each: gather → noise → folds → candidates → select
 //! → intervals → machines → cells → report (`output` assembles
@@ -151,7 +151,7 @@ pub fn diagnose(
 }
 
 /// Diagnoses paired observations; each plugin's composites apply only to
-/// the observables of its scope (issue 13 item 1), the catalogue to all.
+/// the observables of its scope, the catalogue to all.
 pub fn diagnose_scoped(
     obs: &arrow::array::RecordBatch,
     cfg: &DiagnoseConfig,

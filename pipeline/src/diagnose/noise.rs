@@ -1,5 +1,5 @@
-//! The noise floor σ of one observable (issue 4, point 2; DESIGN.md
-//! "Where is the gap?"): the repeatability of replicate observations where
+//! The noise floor σ of one observable (docs/design.md §7 point 1,
+//! "Where is the gap?"; docs/models.md §8.2): the repeatability of replicate observations where
 //! the table has them, else a robust estimate of point-to-point scatter.
 
 use std::collections::BTreeMap;

@@ -1,4 +1,4 @@
-//! observations.parquet (CONTRACTS.md §2): validated reading, and the
+//! observations.parquet (docs/formats.md §7): validated reading, and the
 //! column-major table the diagnosis works on.
 
 use std::path::Path;
@@ -14,8 +14,8 @@ use crate::{InputError, Result};
 /// wrong unit (µm, nm) or corrupt — and a 1e300 would make the gap RMS inf.
 pub const MAX_OBSERVED_MM: f64 = 1e4;
 
-/// Columns that are never covariates (CONTRACTS.md §2, last paragraph;
-/// `machine` from issue 12: a run is identified by machine and run;
+/// Columns that are never covariates (docs/formats.md §7, last paragraph;
+/// `machine` (v1.1): a run is identified by machine and run;
 /// `real_u` is the optional standard uncertainty of `real`, v1.1; `unit`
 /// the optional unit of `sim`/`real`/`real_u` per observable, v1.1;
 /// `sim_augmented` the sim side re-simulated with an augmented model's
@@ -33,12 +33,12 @@ pub const RESERVED: [&str; 10] = [
     "sim_augmented",
 ];
 
-/// The unit of an observable whose table has no `unit` column (CONTRACTS.md
+/// The unit of an observable whose table has no `unit` column (docs/formats.md
 /// §2: observations are in mm unless a `unit` column says otherwise).
 pub const DEFAULT_UNIT: &str = "mm";
 
 /// Reads observations.parquet (all row groups, concatenated) and validates it
-/// per CONTRACTS.md §2: `run`/`observable` text (and `machine` when
+/// per docs/formats.md §7: `run`/`observable` text (and `machine` when
 /// present: optional, so a v1 table without it still diagnoses), `sim`/`real` float64
 /// (float32 accepted and widened), no NaN/±inf in sim/real (the first bad row
 /// is named), not empty. Extra columns are kept.
@@ -200,7 +200,7 @@ pub fn is_covariate(name: &str, t: &DataType) -> bool {
 /// covariates widened to f64, sorted names (deterministic order).
 pub struct Table {
     pub n: usize,
-    /// The run *units* (issue 12): one per (machine, run), so `r0000` of two
+    /// The run *units*: one per (machine, run), so `r0000` of two
     /// machines are two runs. Named `machine/run` when the table has a
     /// `machine` column, else by the bare run id.
     pub run_names: Vec<String>,

@@ -1,4 +1,4 @@
-//! Robust to spikes (issue 13 item 3): a real surface map or probe log has
+//! Robust to spikes: a real surface map or probe log has
 //! isolated wild values (a chip under the probe, a dropout) that dominate
 //! every sum of squares — the fit, the held-out score and the shrink.
 //!

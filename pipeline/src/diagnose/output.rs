@@ -1,5 +1,5 @@
-//! What the diagnosis returns: diagnosis.json v1 (CONTRACTS.md
-//! "diagnosis.json (v1)") plus the fields later issues added — every v1
+//! What the diagnosis returns: diagnosis.json v1 (docs/formats.md
+//! "diagnosis.json (v1)") plus the fields later versions added — every v1
 //! field unchanged — and the per-row diagnosis.parquet.
 
 use std::collections::{BTreeMap, BTreeSet};
@@ -36,7 +36,7 @@ pub struct GapSummary {
 }
 
 /// A cell of `where` / `unexplained.where`. `lo`/`hi` are numbers for a
-/// 1-D cell and `[x, y]` arrays for an x/y tile (CONTRACTS.md).
+/// 1-D cell and `[x, y]` arrays for an x/y tile (docs/formats.md).
 #[derive(Debug, Clone, Serialize)]
 pub struct WhereCell {
     pub covariate: String,
@@ -92,15 +92,15 @@ pub struct EffectEntry {
     pub step: usize,
     pub skipped_reason: Option<String>,
     /// The effect fitted on each machine's runs alone, present when the
-    /// machines of this observable disagree significantly (issue 12;
-    /// `machines.rs`): the pooled `params` are then a compromise.
+    /// machines of this observable disagree significantly
+    /// (`machines.rs`): the pooled `params` are then a compromise.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub per_machine: Option<Vec<MachineFit>>,
     /// p-value of "one effect for all machines" against "one per machine".
     #[serde(skip_serializing_if = "Option::is_none")]
     pub machines_differ_p: Option<f64>,
     /// Selected effects: standard error and 95 % interval of every
-    /// parameter and of `offset_mm` (issue 13 item 2; intervals.rs).
+    /// parameter and of `offset_mm` (intervals.rs).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub intervals: Option<BTreeMap<String, ParamInterval>>,
     /// Selected effects: 95 % bootstrap interval of `shrink` over held-out
@@ -222,7 +222,7 @@ pub struct ObservableSummary {
     /// 95 % bootstrap interval of `shrink` over held-out runs.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub shrink_interval: Option<[f64; 2]>,
-    /// With outliers trimmed (issue 13 item 3): `shrink` and the CV RMS
+    /// With outliers trimmed: `shrink` and the CV RMS
     /// are over the kept rows (robust); this is over every row.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub shrink_plain: Option<f64>,
@@ -236,7 +236,7 @@ pub struct ObservableSummary {
 pub struct Diagnosis {
     pub version: u32,
     pub observables: Vec<String>,
-    /// Machine ids of the table (issue 12; empty without a `machine`
+    /// Machine ids of the table (empty without a `machine`
     /// column — a v1 table).
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub machines: Vec<String>,
@@ -252,7 +252,7 @@ pub struct Diagnosis {
     pub per_observable: Vec<ObservableSummary>,
     pub notes: Vec<String>,
     /// Effects named on one machine's rows alone, where a `where` cell over
-    /// `machine` localised the gap to that machine (issues 12 item 3, 13
+    /// `machine` localised the gap to that machine (13
     /// item 6): the fleet-wide fit dilutes an effect only one machine has.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub machine_effects: Vec<MachineEffect>,

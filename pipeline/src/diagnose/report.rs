@@ -1,4 +1,4 @@
-//! The diagnosis section of the fleet report (DESIGN.md "Reports"):
+//! The diagnosis section of the fleet report (docs/design.md §10):
 //! self-contained HTML, inline SVG, no script, no network.
 
 use std::fmt::Write;
@@ -88,8 +88,7 @@ fn ranking_svg(d: &Diagnosis) -> String {
 pub fn section(d: &Diagnosis) -> String {
     let mut s = String::from(r#"<section class="diagnosis"><h2>Sim-to-real gap diagnosis</h2>"#);
     // No pooled gap or "share unexplained" across observables: their
-    // scales differ (a touch probe's noise would swamp every real gap;
-    // issue 16). Each observable against its own floor, in its own row.
+    // scales differ (a touch probe's noise would swamp every real gap). Each observable against its own floor, in its own row.
     s.push_str("<table><tr><th>observable</th><th>n</th><th>gap RMS mm</th><th>noise floor mm</th><th>held-out RMS after mm</th><th>shrink</th><th>selected or why not</th></tr>");
     for o in &d.per_observable {
         let _ = write!(

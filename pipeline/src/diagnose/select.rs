@@ -1,4 +1,4 @@
-//! "Which unmodelled effect causes it?" (DESIGN.md point 2, issue 4 point 4):
+//! "Which unmodelled effect causes it?" (docs/design.md §7 point 2):
 //! leave-runs-out cross-validation of every candidate, the paired run-by-run
 //! test, and forward selection.
 //!
@@ -10,7 +10,7 @@
 //!
 //! Test: one-sided paired t-test on d_u = ln(rms_before_u / rms_after_u)
 //! over the units (H0: mean d ≤ 0). Runs differ a lot in scale (feeds,
-//! loads), so a ratio per unit is compared, not pooled sums (DESIGN.md).
+//! loads), so a ratio per unit is compared, not pooled sums (docs/design.md §7).
 //!
 //! Forward selection is stagewise: after an effect is chosen, each fold's
 //! target becomes its residual after that effect (fitted on the fold's
@@ -19,7 +19,7 @@
 //! noise floor (≤ `noise_margin`·σ), or `max_effects` are chosen. Parsimony:
 //! a candidate with fewer parameters that is itself significant and not
 //! significantly worse than the best (same paired test) is preferred, so
-//! `offset` wins when no shape does better (DESIGN.md). "Better" also needs
+//! `offset` wins when no shape does better (docs/design.md §7). "Better" also needs
 //! a practical margin: a mean log RMS ratio of at least `min_gain` (1 %).
 //!
 //! A round's choice is then held to stability and materiality

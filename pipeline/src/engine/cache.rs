@@ -1,4 +1,4 @@
-//! Content-hash cache (DESIGN.md "Caching"): a stage's key is blake3 over its
+//! Content-hash cache (docs/design.md §2.2): a stage's key is blake3 over its
 //! name and version, its config section, the run's run.toml and machine
 //! config, the hashes of the raw tables it reads and the keys of the stages
 //! that produced the artifacts it reads.

@@ -162,7 +162,7 @@ impl Engine {
     }
 }
 
-/// A non-finite number never reaches an artifact (issue 15): NaN or inf out
+/// A non-finite number never reaches an artifact: NaN or inf out
 /// of a stage means an input the checks let through or a bug, and either way
 /// the run is rejected rather than written (null is how an artifact says
 /// "not applicable").

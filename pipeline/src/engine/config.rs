@@ -8,7 +8,7 @@ use crate::error::Result;
 
 /// The default DAG, built into the binary so `sparkout run` works from any
 /// directory without `--config`.
-pub const NIGHTLY_TOML: &str = include_str!("../../../configs/nightly.toml");
+pub const NIGHTLY_TOML: &str = include_str!("../../configs/nightly.toml");
 
 #[derive(Debug, Clone)]
 pub struct PipelineConfig {

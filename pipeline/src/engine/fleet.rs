@@ -98,8 +98,8 @@ impl Engine {
     }
 
     /// Every run's observations with a `machine` column beside `run`
-    /// (issue 12), and the observables each plugin produced — what its
-    /// composites apply to (issue 13 item 1).
+    ///, and the observables each plugin produced — what its
+    /// composites apply to.
     fn join_observations(&self, outcome: &FleetOutcome, progress: &dyn Progress) -> Result<Joined> {
         let runs: Vec<&RunResult> = outcome
             .runs
@@ -125,7 +125,7 @@ impl Engine {
     /// run's observations file (whose blake3 its observe stage recorded),
     /// machine and plugin, in order: keyed on those, a no-change night
     /// decides "cached" without reading or re-encoding millions of rows
-    /// (issue 18 item 4: the cached re-run of 1 000 runs in ≤ 2 s). Returns
+    /// (the cached re-run of 1 000 runs in ≤ 2 s). Returns
     /// the key and the joined table when it was built.
     fn fleet_observations(
         &self,
@@ -238,7 +238,7 @@ impl Engine {
         Ok((serde_json::to_value(&d.diagnosis).ok(), Some(d.report_html)))
     }
 
-    /// The augmented simulator (issue 13 item 4): written before the
+    /// The augmented simulator: written before the
     /// report, whose key covers it; a batch without --augment removes a
     /// previous one so the page never shows a stale comparison.
     fn fleet_augment(&self, fleet_dir: &Path, progress: &dyn Progress) -> Result<()> {
@@ -304,7 +304,7 @@ impl Engine {
         Ok(rkey)
     }
 
-    /// out/index.html (issue 16 item 2): cached like the report, on its key
+    /// out/index.html: cached like the report, on its key
     /// and the trend page's presence.
     fn fleet_index(
         &self,
@@ -427,7 +427,7 @@ pub(super) fn json_bytes(v: &impl Serialize) -> Result<Vec<u8>> {
 }
 
 /// A run's observations with a `machine` column (before `run`) when the
-/// plugin did not write one (issue 12: runs are (machine, run) pairs).
+/// plugin did not write one (runs are (machine, run) pairs).
 pub fn with_machine_column(batch: RecordBatch, machine: &str) -> Result<RecordBatch> {
     use arrow::array::{ArrayRef, StringArray};
     use arrow::datatypes::{DataType, Field, Schema};

@@ -61,7 +61,7 @@ pub struct Engine {
     config: PipelineConfig,
     /// `run --history DIR [--night D] [--event ...]`.
     history: Option<History>,
-    /// `run --augment augmented_model.json` (issue 13 item 4).
+    /// `run --augment augmented_model.json`.
     augment: Option<crate::diagnose::augment::AugmentedModel>,
     /// What the input is called in shard.json when it is not the local
     /// directory the engine reads: the bucket URL a staged input came

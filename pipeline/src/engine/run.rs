@@ -185,7 +185,7 @@ impl Engine {
             let mut pending: Vec<(String, Vec<u8>)> = Vec::new();
             for (name, batch) in &output.artifacts {
                 check_finite(stage.name(), name, batch)?;
-                // Issue 12: a run's observations name their machine too, so a
+                // A run's observations name their machine too, so a
                 // per-run file read alone cannot be mistaken for another
                 // machine's run with the same id.
                 let batch = if name == "observations" {

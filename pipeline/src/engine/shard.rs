@@ -1,4 +1,4 @@
-//! Scale-out (issue 18, DESIGN.md "Scale"): runs are independent until the
+//! Scale-out (docs/design.md §8): runs are independent until the
 //! fleet diagnosis, so a nightly batch splits into `n` shards by run —
 //! `sparkout run --shard i/n` processes its share of the runs exactly as a
 //! single-node `run` would and writes `shard.json` instead of the fleet

@@ -66,7 +66,7 @@ pub enum RunSplit {
 /// A checked mapping.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Mapping {
-    /// Contract table the rows become (CONTRACTS.md §1), e.g. `motion`.
+    /// Contract table the rows become (docs/formats.md §4), e.g. `motion`.
     pub table: String,
     pub machine: String,
     pub plugin: String,

@@ -1,6 +1,6 @@
 //! `sparkout import`: foreign tables (a controller's CSV export, a Parquet
 //! file with other column names) → recorded runs that follow the data
-//! contracts (CONTRACTS.md §1). A [`Mapping`] says which source column
+//! contracts (docs/formats.md §4). A [`Mapping`] says which source column
 //! becomes which contract column with what unit factor, how rows split into
 //! runs and which machine and plugin the runs belong to. Every value is
 //! parsed and every run validated exactly as any input is read; a cell that
@@ -327,7 +327,7 @@ pub struct ImportOutcome {
 }
 
 /// Import every file; duplicate run ids across files are refused (a run is
-/// unique within its machine, CONTRACTS.md §1).
+/// unique within its machine, docs/formats.md §4).
 pub fn import_files(paths: &[PathBuf], m: &Mapping, out: &Path) -> Result<ImportOutcome> {
     m.validate()?;
     let mut outcome = ImportOutcome::default();

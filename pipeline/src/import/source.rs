@@ -3,7 +3,7 @@
 //! parser in `csv.rs` (the `csv` crate turns on serde's default feature,
 //! which rebuilds polars and arrow for a few lines of parsing). Cells are kept as text
 //! with the file line they came from, so a value that does not parse is
-//! reported by file, column and row like any bad input (CONTRACTS.md
+//! reported by file, column and row like any bad input (docs/formats.md
 //! "Conventions").
 
 use std::fs::File;

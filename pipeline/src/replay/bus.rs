@@ -1,4 +1,4 @@
-//! The `CanBus` trait (DESIGN.md "Traits": send/receive frames with
+//! The `CanBus` trait (docs/design.md §3: send/receive frames with
 //! timestamps) and the frame type shared by every backend.
 //!
 //! Time is integer microseconds since the start of the replay, so the

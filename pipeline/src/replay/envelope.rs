@@ -1,5 +1,5 @@
 //! The safety envelope, checked before a setpoint frame is built: a frame
-//! that fails any check is never sent (DESIGN.md "Bad input, faults":
+//! that fails any check is never sent (docs/design.md §11:
 //! "Replay never sends a frame outside the envelope, whatever the input").
 
 use anyhow::{bail, Result};

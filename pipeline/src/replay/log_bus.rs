@@ -6,7 +6,7 @@
 //! A log has no drives on the other end, so `LogBus` wraps another bus (the
 //! simulated drives) and records its traffic: the file is what a `candump -l`
 //! on the real bus would have shown. It is written to a temporary name and
-//! renamed into place by `finish` (CONTRACTS.md §4: never a partial file
+//! renamed into place by `finish` (docs/formats.md §8: never a partial file
 //! under a final name).
 
 use std::fs::File;

@@ -1,6 +1,6 @@
 //! `sparkout replay`: stream a run's (compensated) commanded path to the
 //! drives over CANopen / CiA 402, inside a safety envelope, and record what
-//! the drives did as a new run (DESIGN.md "Replay over CAN").
+//! the drives did as a new run (docs/design.md §9).
 //!
 //! Pieces: [`bus`] (the `CanBus` trait), backends [`sim`], [`log_bus`] and
 //! `socketcan_bus` (Linux, feature `socketcan`), the master in [`canopen`],

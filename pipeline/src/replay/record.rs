@@ -1,4 +1,4 @@
-//! Record-back: what the drives reported becomes a recorded run (CONTRACTS.md
+//! Record-back: what the drives reported becomes a recorded run (docs/formats.md
 //! §1) — motion.parquet with cmd_* (the setpoints sent) and act_* (the TPDO
 //! actual positions), and a run.toml — that `sparkout run` and
 //! `validate-input` take like any run.

@@ -1,5 +1,5 @@
 //! The replay source: a run's commanded path (motion.parquet, cmd_* per
-//! CONTRACTS.md §1) plus an optional compensation Parquet (`t_s` and any of
+//! docs/formats.md §4) plus an optional compensation Parquet (`t_s` and any of
 //! `dx_mm`, `dy_mm`, `dz_mm`: the gantry's Γ sampled along the path, the
 //! guide-way compensation curve, or anyone's offsets), both resampled to the
 //! replay cycle.

@@ -399,7 +399,7 @@ fn shipped_eds_matches_the_master_and_a_changed_one_is_refused() {
 
 #[test]
 fn shipped_dbc_describes_the_pdo_frames_the_master_sends() {
-    let dbc = include_str!("../../../configs/can/cia402_pdo.dbc");
+    let dbc = include_str!("../../configs/can/cia402_pdo.dbc");
     for n in NODES {
         let r = format!(
             "BO_ {} RPDO1_node{n}: 6 Master",

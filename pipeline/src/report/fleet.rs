@@ -1,4 +1,4 @@
-//! The fleet page (issue 16 item 1): machine type → machine → observable.
+//! The fleet page: machine type → machine → observable.
 //! Per observable one verdict line — gap against its own noise floor in
 //! its own unit, the named effect with its parameter and interval, the
 //! held-out shrink — then the pictures: the gap map over x/y before and

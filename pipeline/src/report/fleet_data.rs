@@ -1,8 +1,8 @@
 //! What the fleet page draws, read from fleet/observations.parquet and the
-//! row-aligned fleet/diagnosis.parquet (CONTRACTS.md §4: one diagnosis row
+//! row-aligned fleet/diagnosis.parquet (docs/formats.md §8: one diagnosis row
 //! per observation, in input order), reduced to aggregates — grid cells,
 //! covariate bins, per-run RMS — so the page's size does not grow with the
-//! number of rows (issue 16: < 2 MB for a 1000-run fleet).
+//! number of rows (< 2 MB for a 1000-run fleet).
 
 use std::collections::BTreeMap;
 use std::path::Path;

@@ -1,4 +1,4 @@
-//! out/index.html (issue 16 item 2): the night's failures first, then the
+//! out/index.html: the night's failures first, then the
 //! fleet page, the trend page when the history exists, every run page and
 //! every JSON/Parquet output — a new user finds everything in one click.
 //! Links are relative, so the output directory can be copied or served.

@@ -70,7 +70,7 @@ pub fn table(header: &[&str], rows: &[Vec<String>]) -> String {
 
 /// One stylesheet for every page: readable at 100 % zoom, charts scaled
 /// to the column (nothing wider than the viewport), wide tables scroll in
-/// their own box, and an A4 print layout (issue 16 item 4).
+/// their own box, and an A4 print layout.
 const STYLE: &str = "body{font-family:system-ui,sans-serif;margin:1.5em auto;max-width:1200px;padding:0 1em;color:#222;line-height:1.4}\
 h1{font-size:1.5em}h2{font-size:1.25em;border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:2em}h3{font-size:1.1em;margin-top:1.5em}h4{font-size:1em;margin:1em 0 .3em}\
 table{border-collapse:collapse;margin:.5em 0;display:block;max-width:100%;overflow-x:auto}td,th{border:1px solid #ccc;padding:.25em .6em;text-align:right;font-variant-numeric:tabular-nums}\

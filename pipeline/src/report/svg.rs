@@ -1,7 +1,7 @@
 //! Inline SVG charts (plotters' SVG backend): no network, no JavaScript.
 //! Every chart carries `class="chart"` so the page's stylesheet can scale
 //! it down to the column width (no element wider than the viewport);
-//! axis text is 14 px so it reads at 100 % zoom (issue 16 item 3).
+//! axis text is 14 px so it reads at 100 % zoom.
 
 use std::fmt::Write;
 

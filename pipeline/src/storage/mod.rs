@@ -1,5 +1,5 @@
-//! Object storage for `--input`, `--out` and `--shards` (issue 18 item 2,
-//! README "Scale out"): `s3://`, `gs://`, `az://` (also `abfs://`,
+//! Object storage for `--input`, `--out` and `--shards` (docs/scale.md
+//! "Object storage"): `s3://`, `gs://`, `az://` (also `abfs://`,
 //! `azure://`) through the `object_store` crate that arrow-rs and polars use;
 //! `file://` is a local path.
 //!
@@ -187,7 +187,7 @@ impl RemotePrefix {
 
 fn store_hint(url: &str, env: &str) -> String {
     format!(
-        "cannot configure object storage for `{url}`: set the credentials and endpoint in the environment ({env}; README \"Scale out\")"
+        "cannot configure object storage for `{url}`: set the credentials and endpoint in the environment ({env}; docs/scale.md)"
     )
 }
 

@@ -1,5 +1,5 @@
-//! An augmented model's wheel wear in the form grinder's physics (issue 13
-//! item 4; `sparkout run --augment MODEL`). The diagnosis names a wheel
+//! An augmented model's wheel wear in the form grinder's physics
+//! (`sparkout run --augment MODEL`). The diagnosis names a wheel
 //! that wears with the volume it removes — `wheel_wear:removed_mm3` (this
 //! plugin's composite) or the catalogue's `wear:removed_mm3` — on
 //! `profile_error`, the gap along the profile normal. Its physical home is
@@ -8,7 +8,7 @@
 //!
 //! - `observe` re-simulates each point for a wheel the controller places
 //!   as radius r_k whose surface is w smaller (model::delta_at: δ + w,
-//!   exact in the osculating-circle geometry of MODELS.md §4) into
+//!   exact in the osculating-circle geometry of docs/models.md §4) into
 //!   `sim_augmented`, listing the effect in `sim_augmented_effects` so the
 //!   fleet step does not add it again;
 //! - `profile_error` computes the compensation that replay sends for the

@@ -1,5 +1,5 @@
 //! `form_cldata`: the segments' tool paths as CLDATA-like text, one program
-//! per segment (MODELS.md §4: "one tool-path program per segment … switch
+//! per segment (docs/models.md §4: "one tool-path program per segment … switch
 //! programs as dressing shrinks the wheel").
 //!
 //! In the DAG it turns the `toolpath` artifact into a `cldata` artifact
@@ -47,7 +47,7 @@ pub fn programs(toolpath: &RecordBatch) -> Result<BTreeMap<i32, String>> {
             let _ = writeln!(h, "UNITS / MM");
             let _ = writeln!(
                 h,
-                "$$ wheel-centre path for a wheel of radius {:.4} mm (MODELS.md §4)",
+                "$$ wheel-centre path for a wheel of radius {:.4} mm (docs/models.md §4)",
                 nom[i]
             );
             let _ = writeln!(

@@ -1,7 +1,7 @@
 //! The design profile R(φ) as a plane curve: derivatives by local
 //! polynomial regression (a regularised differentiation, robust to the
 //! rounding noise of exported profiles), the profile normal, the pressure
-//! angle γ0 and the curvature κ = 1/ρ (MODELS.md §4).
+//! angle γ0 and the curvature κ = 1/ρ (docs/models.md §4).
 //!
 //! The curvature is carried as κ, not ρ: a straight part of the profile has
 //! κ = 0 and ρ = ∞, and every formula downstream is written in κ so that a
@@ -91,7 +91,7 @@ pub struct Profile {
     /// Outward unit normal (x, y).
     pub normal: Vec<[f64; 2]>,
     /// Pressure angle γ0 = atan(R′/R): between the radius vector and the
-    /// profile normal (MODELS.md §4).
+    /// profile normal (docs/models.md §4).
     pub gamma0_rad: Vec<f64>,
     /// Whether the profile is a whole turn (derivative windows wrap).
     pub closed: bool,

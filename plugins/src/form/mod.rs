@@ -1,4 +1,4 @@
-//! Form grinder (MODELS.md §4): a 4-axis (X, Z, A, C) form grinder grinds a
+//! Form grinder (docs/models.md §4): a 4-axis (X, Z, A, C) form grinder grinds a
 //! profile R(φ) programmed for a nominal wheel radius; dressing shrinks the
 //! wheel and leaves a profile error δ(φ).
 //!
@@ -33,7 +33,7 @@ pub mod shapes;
 
 /// The form grinder of the source (wheel 175 mm, usable range 50 mm), built
 /// into the binary.
-pub const FORM_GRINDER_TOML: &str = include_str!("../../../configs/machines/form-grinder.toml");
+pub const FORM_GRINDER_TOML: &str = include_str!("../../machines/form-grinder.toml");
 
 /// The `form` plugin.
 pub struct FormPlugin;
@@ -76,7 +76,7 @@ impl MachinePlugin for FormPlugin {
     /// the wheel loses radius in proportion to the volume it grinds
     /// (grinding ratio), the controller only knows the dressed radius, so
     /// the profile is left proud by k·removed_mm3 along the normal
-    /// (DESIGN.md "Sim-to-real gap diagnosis", point 2).
+    /// (docs/design.md §7, point 2).
     fn effects(&self) -> Vec<Box<dyn Effect>> {
         vec![composite(
             "wheel_wear",

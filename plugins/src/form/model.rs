@@ -1,4 +1,4 @@
-//! The form grinder's model (MODELS.md §4): the wheel-centre equidistant
+//! The form grinder's model (docs/models.md §4): the wheel-centre equidistant
 //! programmed for a nominal wheel radius R_kn, and the profile error δ(φ)
 //! left when the wheel actually has radius R_k after dressing. Also the
 //! run-side plumbing every stage shares: the machine's usable wheel-radius
@@ -15,7 +15,7 @@ use sparkout_pipeline::{InputError, Result, Run};
 use super::curvature::{CurvatureConfig, Profile};
 
 /// The wheel-centre path programmed for one nominal radius, per profile
-/// point. Machine axes (MODELS.md §4, a 4-axis X, Z, A, C form grinder):
+/// point. Machine axes (docs/models.md §4, a 4-axis X, Z, A, C form grinder):
 /// C turns the work so the wheel centre lies on the X axis, X is the wheel
 /// centre's distance from the work axis (R_e), Z the section's position
 /// along the work axis, A the angle γ between the centre's radius vector
@@ -24,7 +24,7 @@ use super::curvature::{CurvatureConfig, Profile};
 #[derive(Debug, Clone)]
 pub struct CentrePath {
     pub nominal_mm: f64,
-    /// R_e(φ) = |P + R_kn·n| (the law-of-cosines form of MODELS.md §4).
+    /// R_e(φ) = |P + R_kn·n| (the law-of-cosines form of docs/models.md §4).
     pub x_mm: Vec<f64>,
     /// Polar angle of the wheel centre, unwrapped (continuous).
     pub c_rad: Vec<f64>,
@@ -40,7 +40,7 @@ pub struct CentrePath {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum DeltaModel {
-    /// MODELS.md §4 as published ([`delta_mm`]).
+    /// docs/models.md §4 as published ([`delta_mm`]).
     #[default]
     Published,
     /// The wheel against the profile's osculating circle, without the
@@ -105,7 +105,7 @@ pub fn centre_path(p: &Profile, r_kn: f64) -> CentrePath {
     }
 }
 
-/// δ at one point (MODELS.md §4), positive = material left along the
+/// δ at one point (docs/models.md §4), positive = material left along the
 /// normal:
 ///
 ///   δ = (R_kn − R_k)·[1 − cos γ] − [ρ − R_k]·[1 − cos ε],
@@ -169,7 +169,7 @@ pub fn profile_error(p: &Profile, path: &CentrePath, r_k: f64) -> Result<Vec<f64
 /// by `wear_mm` since (unknown to the controller): the model at the two
 /// design points around φ, interpolated as [`Profile::value_at`]
 /// interpolates a per-point δ, so a per-row wear agrees with δ computed on
-/// the grid. The controller places the centre for `r_k` (MODELS.md §4:
+/// the grid. The controller places the centre for `r_k` (docs/models.md §4:
 /// radially in by R_kn − R_k); the worn wheel's surface then stands
 /// `wear_mm` further off the profile along the normal — exactly so in the
 /// osculating-circle geometry (δ = L − ρ − R with L fixed by the
@@ -200,7 +200,7 @@ pub fn wheel_usage(run: &Run) -> Option<(f64, f64)> {
 
 /// The machine's usable wheel-radius range (`[wheel]` of the machine
 /// config): a new wheel has `radius_max_mm`, dressing may take it down by
-/// `usable_range_mm` (MODELS.md §4: 175 mm, 50 mm in the source).
+/// `usable_range_mm` (docs/models.md §4: 175 mm, 50 mm in the source).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct WheelRange {
     pub r_max_mm: f64,
@@ -504,7 +504,7 @@ pub(crate) mod tests {
     }
 
     /// First order: δ ≈ (R_kn − R_k)(1 − cos γ), close to linear in the
-    /// radius deviation (MODELS.md §4), and finite on a straight part.
+    /// radius deviation (docs/models.md §4), and finite on a straight part.
     #[test]
     fn delta_is_close_to_linear_in_the_radius_deviation() {
         let p = ellipse(720, 60.0, 40.0);

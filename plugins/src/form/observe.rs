@@ -1,10 +1,10 @@
-//! `observe`: paired observations (CONTRACTS.md §2) for the gap diagnosis.
+//! `observe`: paired observations (docs/formats.md §7) for the gap diagnosis.
 //!
 //! `profile_error`, one row per measured profile point: real = the measured
 //! deviation from the design profile along the profile normal,
 //! (r_measured − R_design(φ))·cos γ0(φ); sim = the model's δ(φ) for the
 //! wheel radius that point was ground with (its `wheel_radius_mm`) against
-//! the programmed nominal (MODELS.md §4). What is left is what the model
+//! the programmed nominal (docs/models.md §4). What is left is what the model
 //! lacks: wheel wear since the last dressing, run-out, thermal growth …
 //!
 //! Covariates: phi_rad, wheel_radius_mm, t_s (the profile's own `t_s`

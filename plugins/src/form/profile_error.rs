@@ -1,6 +1,6 @@
 //! `profile_error`: δ(φ) of the design profile for the wheel radius the
 //! run was actually ground with, against the nominal the program was made
-//! for (MODELS.md §4), with the profile's curvature κ(φ) (κ, not ρ, so a
+//! for (docs/models.md §4), with the profile's curvature κ(φ) (κ, not ρ, so a
 //! straight part stays finite).
 
 use std::collections::BTreeSet;
@@ -154,7 +154,7 @@ const SPEC: StageSpec = StageSpec {
     reads_artifacts: &[],
     writes: &["profile_error", "compensation"],
     reads_augmented_model: true,
-    about: "profile error δ(φ) of the design profile for the actual wheel radius vs the programmed nominal, with curvature κ(φ) (MODELS.md §4)",
+    about: "profile error δ(φ) of the design profile for the actual wheel radius vs the programmed nominal, with curvature κ(φ) (docs/models.md §4)",
     config: SectionCheck::of::<ProfileErrorConfig>(),
 };
 

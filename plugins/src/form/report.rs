@@ -1,5 +1,5 @@
 //! Report sections of a form-grinding run: profile error against φ per
-//! segment (the segmentation of MODELS.md §4), the run's own δ(φ) for the
+//! segment (the segmentation of docs/models.md §4), the run's own δ(φ) for the
 //! radius it was ground with, and measured against predicted error.
 
 use serde_json::Value;

@@ -1,7 +1,7 @@
 //! `segment`: split the wheel's usable radius range into N segments, one
 //! tool-path program per segment made for the segment's mean radius, and
 //! the largest profile error a wheel anywhere in the segment leaves
-//! (MODELS.md §4: the error is close to linear in R_kn − R_k, so N segments
+//! (docs/models.md §4: the error is close to linear in R_kn − R_k, so N segments
 //! cut it about N-fold). Also a sweep over N and the tool paths (X, Z, A, C
 //! per profile point) of each segment's nominal.
 
@@ -306,7 +306,7 @@ const SPEC: StageSpec = StageSpec {
     reads_artifacts: &[],
     writes: &["segments", "segment_error", "segment_sweep", "toolpath"],
     reads_augmented_model: false,
-    about: "split the usable wheel-radius range into N segments: nominal, range and max profile error per segment, tool paths (X, Z, A, C), sweep over N (MODELS.md §4)",
+    about: "split the usable wheel-radius range into N segments: nominal, range and max profile error per segment, tool paths (X, Z, A, C), sweep over N (docs/models.md §4)",
     config: SectionCheck::of::<SegmentSection>(),
 };
 

@@ -1,4 +1,4 @@
-//! Design profiles R(φ) of the shapes the source grinds (MODELS.md §4):
+//! Design profiles R(φ) of the shapes the source grinds (docs/models.md §4):
 //! ellipses (placed on a cylinder: one elliptical section per axial
 //! position) and a tangent cam — base circle, nose circle and the two
 //! straight flanks tangent to both (so it has straight parts with κ = 0 and

@@ -1,10 +1,10 @@
-//! An augmented model's thermal bow in the gantry's physics (issue 13 item
-//! 4; `sparkout run --augment MODEL`). The diagnosis names the bridge's
+//! An augmented model's thermal bow in the gantry's physics
+//! (`sparkout run --augment MODEL`). The diagnosis names the bridge's
 //! thermal bow — `thermal_bow:y_mm,t_s` = bow(y)·drift(t), this plugin's
 //! composite — on `surface_z`, as the material left on the polished
 //! surface. Its physical home is the bridge: as it warms it lifts the tool
 //! by b(y, t), the spring-loaded disc loses pressure b/compression, and
-//! Preston removal falls by that share (MODELS.md §2.5). On a surface
+//! Preston removal falls by that share (docs/models.md §2.5). On a surface
 //! polished to a mean depth R̄ the material left is R̄·b/compression, so
 //! the fitted growth G(y, t) = effect(y, t) − effect(y, 0) (the part that
 //! grows while polishing; the rest is the effect's constant offset) reads

@@ -1,5 +1,5 @@
 //! Simply supported Euler–Bernoulli beam, span l: static deflections under a
-//! uniform load, a point load and a concentrated moment (MODELS.md §2.1).
+//! uniform load, a point load and a concentrated moment (docs/models.md §2.1).
 //! Deflections are returned as downward magnitudes (mm) for positive loads;
 //! callers put the sign on (a sag is a negative Z error).
 
@@ -12,7 +12,7 @@ pub struct Beam {
     /// Flexural rigidity E·I, N·mm².
     pub ei_n_mm2: f64,
     /// Mass per length ρ·A, t/mm (N·s²/mm per mm), for the natural
-    /// frequencies of the moving-load solution (MODELS.md §2.3).
+    /// frequencies of the moving-load solution (docs/models.md §2.3).
     pub mass_t_per_mm: f64,
 }
 
@@ -52,7 +52,7 @@ impl Beam {
         b * x * (l * l - b * b - x * x) / (6.0 * self.ei_n_mm2 * l)
     }
     /// Deflection at x under a unit moment at a, the static (v → 0) limit of
-    /// MODELS.md §2.3's moment series: (2l²/(EIπ³)) Σ n⁻³ sin(nπx/l)
+    /// docs/models.md §2.3's moment series: (2l²/(EIπ³)) Σ n⁻³ sin(nπx/l)
     /// cos(nπa/l) = (l²/(EIπ³))·[S₃(π(x+a)/l) + S₃(π(x−a)/l)].
     pub fn moment(&self, x: f64, a: f64) -> f64 {
         let l = self.span_mm;

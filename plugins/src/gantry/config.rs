@@ -7,7 +7,7 @@ use serde::{Deserialize, Serialize};
 pub use sparkout_pipeline::config_check::{Check, Section};
 
 /// Topography states in the order a workpiece goes through them
-/// (CONTRACTS.md §1, topography.parquet).
+/// (docs/formats.md §4, topography.parquet).
 pub const STATES: [&str; 5] = ["pattern", "before", "after_grind", "after_polish", "final"];
 
 /// Where the polishing path comes from: the run's motion log (a planned

@@ -1,10 +1,10 @@
-//! Dwell-time optimisation for selective polishing (issue 17 item 1;
-//! MODELS.md §2.5: removal = dwell map ⊛ tool influence function).
+//! Dwell-time optimisation for selective polishing
+//! (docs/models.md §2.6; removal = dwell map ⊛ tool influence function).
 //!
 //! The tool centre may stop on a lattice: the measurement grid extended by
 //! `overhang_nodes` on every side (the disc may run partly off the measured
 //! area — the measured grid sits inside the stone by an edge margin,
-//! MODELS.md §2.4 — which is what lets it lower the grid's edges as much as
+//! docs/models.md §2.4 — which is what lets it lower the grid's edges as much as
 //! its interior). A dwell map d (s per lattice node) removes K·d on the grid,
 //! K the "same" FFT convolution with the sampled influence function. K is
 //! symmetric (radial kernel), so Kᵀ is the same convolution of the grid

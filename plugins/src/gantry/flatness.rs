@@ -1,5 +1,5 @@
 //! `flatness`: least-squares reference plane (peak-to-valley of the
-//! residuals) and exact minimum-zone flatness (MODELS.md §2.4) of any
+//! residuals) and exact minimum-zone flatness (docs/models.md §2.4) of any
 //! topography state (`state` key, default the last state in the order
 //! pattern → before → after_grind → after_polish → final).
 //!
@@ -260,7 +260,8 @@ const SPEC: StageSpec = StageSpec {
     reads_artifacts: &[],
     writes: &["flatness"],
     reads_augmented_model: false,
-    about: "least-squares and exact minimum-zone flatness of a topography state (MODELS.md §2.4)",
+    about:
+        "least-squares and exact minimum-zone flatness of a topography state (docs/models.md §2.4)",
     config: SectionCheck::of::<FlatnessConfig>(),
 };
 

@@ -1,4 +1,4 @@
-//! The measurement grid (MODELS.md §2.4): a topography state's points must
+//! The measurement grid (docs/models.md §2.4): a topography state's points must
 //! form a regular rectangular grid, each node exactly once. Bad grids are
 //! errors that name the file, the column and the offending row.
 
@@ -170,7 +170,7 @@ pub fn surface(table: &Table, state: &str) -> Result<Surface, InputError> {
                 let mut e = InputError::new(
                     path,
                     format!(
-                        "state `{state}`: irregular grid — {col} spacing {:.6} between {} and {} differs from the mean step {:.6} (value {} of {}); the grid must be regular (MODELS.md §2.4)",
+                        "state `{state}`: irregular grid — {col} spacing {:.6} between {} and {} differs from the mean step {:.6} (value {} of {}); the grid must be regular (docs/models.md §2.4)",
                         w[1] - w[0],
                         w[0],
                         w[1],
@@ -237,7 +237,7 @@ pub fn surface(table: &Table, state: &str) -> Result<Surface, InputError> {
 }
 
 /// The pattern state, which the compensation matrices are referred to
-/// (MODELS.md §2.1): a topography without one is a bad input.
+/// (docs/models.md §2.1): a topography without one is a bad input.
 /// What every surface stage starts from: the run's gantry, its
 /// topography table and the `pattern` state's surface (which fixes the
 /// grid every other state must share).
@@ -258,7 +258,7 @@ pub fn pattern(table: &Table) -> Result<Surface, InputError> {
         return Err(InputError::new(
             table.path(),
             format!(
-                "no `pattern` state (states present: {}); the gantry's compensation matrices are Γ = τ − τ_pattern, so the reference (pattern) surface must be measured (MODELS.md §2.1)",
+                "no `pattern` state (states present: {}); the gantry's compensation matrices are Γ = τ − τ_pattern, so the reference (pattern) surface must be measured (docs/models.md §2.1)",
                 have.join(", ")
             ),
         )

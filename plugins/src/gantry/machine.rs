@@ -2,7 +2,7 @@
 //! three bodies that carry the Z error — stringer 1, stringer 2 (the X
 //! guides) and the bridge (Y) — their section properties and measured
 //! straightness, the spindle, the grinding process (Qin's cutting force) and
-//! the polishing tool (Preston). MODELS.md §2.
+//! the polishing tool (Preston). docs/models.md §2.
 //!
 //! Machine frame: x along the stringers (supports at x = 0 and x = span),
 //! y along the bridge; stringer k runs at y = `stringerk.y_mm`, so the
@@ -59,7 +59,7 @@ pub struct Gantry {
     pub spindle_rpm: f64,
     pub tool_diameter_mm: f64,
     /// Lever of the cutting force about the beam's neutral axis (tool
-    /// attack): the travelling moment is M = F_cut·arm (MODELS.md §2.3).
+    /// attack): the travelling moment is M = F_cut·arm (docs/models.md §2.3).
     pub cut_moment_arm_mm: f64,
     pub path_velocity_mm_s: f64,
     pub k_r_mpa: f64,
@@ -264,7 +264,7 @@ impl Gantry {
         PI * self.tool_diameter_mm * self.spindle_rpm / 60.0
     }
 
-    /// Qin's radial grinding force (MODELS.md §2.2): F_r = K_r·Q_i·b with the
+    /// Qin's radial grinding force (docs/models.md §2.2): F_r = K_r·Q_i·b with the
     /// equivalent chip thickness Q_i = a_d·v_a/v_r. K_r (N/mm²) times a
     /// thickness (mm) is a force per unit width; b is the contact width.
     pub fn cut_force_n(&self) -> f64 {

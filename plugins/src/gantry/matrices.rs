@@ -1,5 +1,5 @@
 //! `matrices`: the static and dynamic compensation matrices on the
-//! machining grid (the pattern state's grid), MODELS.md §2.1–2.3.
+//! machining grid (the pattern state's grid), docs/models.md §2.1–2.3.
 //!
 //! Per grid node (x, y) — bridge at x, spindle at y:
 //! - stringer k: its straightness P_k(x) (piecewise quadratic Lagrange)
@@ -270,7 +270,7 @@ const SPEC: StageSpec = StageSpec {
             "compensation_path",
         ],
     reads_augmented_model: true,
-    about: "static and dynamic compensation matrices Γ = τ − τ_pattern with each body's share (MODELS.md §2.1–2.3)",
+    about: "static and dynamic compensation matrices Γ = τ − τ_pattern with each body's share (docs/models.md §2.1–2.3)",
     config: SectionCheck::of::<NoKeys>(),
 };
 

@@ -1,4 +1,4 @@
-//! Lightweight stone gantry (MODELS.md §2): two stringers and a movable
+//! Lightweight stone gantry (docs/models.md §2): two stringers and a movable
 //! bridge grinding and polishing slate.
 //!
 //! Stages (edges from the artifacts they read and write):
@@ -38,8 +38,8 @@ pub mod straightness;
 pub mod surface;
 pub mod tool_influence;
 
-/// The APLM gantry, built into the binary (CONTRACTS.md §1).
-pub const APLM_GANTRY_TOML: &str = include_str!("../../../configs/machines/aplm-gantry.toml");
+/// The APLM gantry, built into the binary (docs/formats.md §4).
+pub const APLM_GANTRY_TOML: &str = include_str!("../../machines/aplm-gantry.toml");
 
 /// The built-in machine as a resolved config (run-less stage forms).
 pub fn builtin_machine() -> anyhow::Result<MachineConfig> {
@@ -94,12 +94,12 @@ impl MachinePlugin for GantryPlugin {
     fn builtin_machines(&self) -> Vec<(&'static str, &'static str)> {
         vec![("aplm-gantry", APLM_GANTRY_TOML)]
     }
-    /// Physically named effects of the polished surface (DESIGN.md point 2):
+    /// Physically named effects of the polished surface (docs/design.md §7 point 2):
     /// - `thermal_bow` = bow(y_mm)·drift(t_s): the bridge bows as it
     ///   warms; the spring-loaded disc turns the height change into a
-    ///   pressure, hence removal, change (MODELS.md §2.5);
+    ///   pressure, hence removal, change (docs/models.md §2.5);
     /// - `raster_end_pressure` = edge(path_end_mm): acceleration and
-    ///   deceleration at raster ends raise the pressure (MODELS.md §2.6);
+    ///   deceleration at raster ends raise the pressure (docs/models.md §2.6);
     /// - `tool_wear` = wear(tool_removed_mm3): the pad's Preston coefficient
     ///   falls with the volume it has removed.
     fn effects(&self) -> Vec<Box<dyn Effect>> {

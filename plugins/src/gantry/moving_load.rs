@@ -1,6 +1,6 @@
 //! Dynamic deflection of a simply supported beam crossed at speed v by a
 //! force F and a moment M travelling with it, entering at x = 0 at t = 0
-//! (MODELS.md §2.3, the standard moving-load solution):
+//! (docs/models.md §2.3, the standard moving-load solution):
 //!
 //!   W_F = −(2Fl³/(EIπ⁴)) Σ n⁻⁴ /(1 − α_n²) sin(nπx/l)[sin(nπvt/l) − α_n sin(ω_n t)]
 //!   W_M = −(2Ml²/(EIπ³)) Σ n⁻³ /(1 − α_n²) sin(nπx/l)[cos(nπvt/l) − α_n cos(ω_n t)]
@@ -77,7 +77,7 @@ pub struct MovingLoad {
     pub moment_n_mm: f64,
 }
 
-/// The two series' scales, 2|F|l³/(EIπ⁴) and 2|M|l²/(EIπ³) (MODELS.md §2.3).
+/// The two series' scales, 2|F|l³/(EIπ⁴) and 2|M|l²/(EIπ³) (docs/models.md §2.3).
 fn series_scales(beam: &Beam, load: &MovingLoad) -> (f64, f64) {
     let (l, ei) = (beam.span_mm, beam.ei_n_mm2);
     (
@@ -92,7 +92,7 @@ fn mode(beam: &Beam, a1: f64, n: usize) -> (f64, f64, f64, f64) {
     (nf, nf * PI / beam.span_mm, a1 / nf, beam.omega(n))
 }
 
-/// The series exactly as MODELS.md §2.3 writes it; `tol_mm` bounds the
+/// The series exactly as docs/models.md §2.3 writes it; `tol_mm` bounds the
 /// truncation error of W_F + W_M. Kept beside [`series`] as its check: the
 /// tests require both to agree (to 1e-11 of the static deflection).
 pub fn series_direct(

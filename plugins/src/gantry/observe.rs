@@ -1,4 +1,4 @@
-//! `observe`: paired observations `surface_z` (CONTRACTS.md §2), one row per
+//! `observe`: paired observations `surface_z` (docs/formats.md §7), one row per
 //! grid node: real = the measured polished state (default `after_polish`),
 //! sim = the `removal` stage's predicted final topography (the measured
 //! ground surface minus the Preston removal of the path that was run).
@@ -10,7 +10,7 @@
 //! had removed before then: contact time × the disc's volume rate). y_mm is
 //! the spindle's position along the bridge in this machine's frame, which
 //! the gantry's `thermal_bow` composite reads (composites apply only to
-//! their plugin's observables, issue 13 item 1).
+//! their plugin's observables).
 
 use anyhow::anyhow;
 use serde_json::json;
@@ -54,7 +54,7 @@ pub fn nearest_samples(grid: &Grid, path: &[PathSample]) -> Vec<usize> {
 
 const SPEC: StageSpec = StageSpec {
     name: "observe",
-    // 2: no bridge_y_mm column (thermal_bow reads y_mm, issue 13 item 1).
+    // 2: no bridge_y_mm column (thermal_bow reads y_mm).
     // 3: `sim_augmented` from the removal's thermal-bow re-simulation.
     version: 3,
     reads: &[&TOPOGRAPHY, &MOTION],

@@ -1,8 +1,8 @@
-//! `polish_plan`: selective polishing (MODELS.md §2.6) as a dwell-time
-//! optimisation (issue 17 item 1; dwell.rs): the dwell per tool-centre
+//! `polish_plan`: selective polishing (docs/models.md §2.6) as a dwell-time
+//! optimisation (dwell.rs): the dwell per tool-centre
 //! position that leaves the surface flattest about its best plane — two
 //! sided, over the whole surface — given the Preston influence function
-//! (MODELS.md §2.5), the machine's feed limits (a node is skipped or dwelt
+//! (docs/models.md §2.5), the machine's feed limits (a node is skipped or dwelt
 //! on between pitch/max feed and pitch/min feed) and a small weight on the
 //! polishing time. The published method (cover the points above tolerance
 //! with placements, dwell until each zone's top is in tolerance) only looks
@@ -22,7 +22,7 @@
 //! would leave the surface less flat than it found it, the summary carries
 //! `"verdict": "WORSE"` and a warning, and the report says so in red.
 //!
-//! The sweep (MODELS.md §2.6's breakeven area): a zone of the highest
+//! The sweep (docs/models.md §2.6's breakeven area): a zone of the highest
 //! fraction f of the points needing the same depth, the dwell solved for
 //! that removal, selective time over raster time against f.
 
@@ -447,7 +447,7 @@ const SPEC: StageSpec = StageSpec {
     reads_artifacts: &[],
     writes: &["polish_plan", "polish_surface"],
     reads_augmented_model: false,
-    about: "selective polishing by dwell-time optimisation: flattest surface about the best plane within feed limits, flatness and time vs raster, breakeven area (MODELS.md §2.5–2.6)",
+    about: "selective polishing by dwell-time optimisation: flattest surface about the best plane within feed limits, flatness and time vs raster, breakeven area (docs/models.md §2.5–2.6)",
     config: SectionCheck::of::<PlanConfig>(),
 };
 

@@ -1,7 +1,7 @@
 //! `removal`: Preston removal of the polishing path actually run (motion.parquet,
 //! or a planned raster when the run has none) from the ground surface: the
 //! dwell-time map of the path convolved by FFT with the disc tool's
-//! influence function, and the predicted final topography (MODELS.md §2.5).
+//! influence function, and the predicted final topography (docs/models.md §2.5).
 
 use anyhow::Context;
 use serde_json::json;
@@ -163,7 +163,7 @@ const SPEC: StageSpec = StageSpec {
     reads_artifacts: &[],
     writes: &["removal"],
     reads_augmented_model: true,
-    about: "Preston removal of the polishing path (dwell ⊛ tool influence, FFT) and the predicted final topography (MODELS.md §2.5)",
+    about: "Preston removal of the polishing path (dwell ⊛ tool influence, FFT) and the predicted final topography (docs/models.md §2.5)",
     config: SectionCheck::of::<RemovalConfig>(),
 };
 

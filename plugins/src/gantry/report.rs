@@ -1,4 +1,4 @@
-//! Report sections of a gantry run (issue 5 item 9): heat maps of Γ_static,
+//! Report sections of a gantry run: heat maps of Γ_static,
 //! Γ_dynamic and each body's share; flatness before and after; the polish
 //! plan (dwell map, predicted flatness, loud warning when it would make the
 //! surface worse); selective against raster time.

@@ -1,6 +1,6 @@
 //! Each body's geometric straightness: piecewise second-order Lagrange
 //! interpolation through its measured points, P(g) = Σ_{i=1..3} W_i(g)·z_i
-//! over each 3-point section (MODELS.md §2.1).
+//! over each 3-point section (docs/models.md §2.1).
 
 /// A body's measured straightness, ready to interpolate.
 #[derive(Debug, Clone, PartialEq)]

@@ -4,7 +4,7 @@
 //! names) or a gridded height map (an interferometer export: one column per
 //! x position, one row per y position).
 //!
-//! Flatness (MODELS.md §2.4) is invariant to how x and y are scaled, so a
+//! Flatness (docs/models.md §2.4) is invariant to how x and y are scaled, so a
 //! grid without coordinates (x = column index, y = row index) gives the
 //! right answer as long as its steps are uniform.
 

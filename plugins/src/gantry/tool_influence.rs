@@ -1,4 +1,4 @@
-//! Preston removal with a disc polishing tool on springs (MODELS.md §2.5):
+//! Preston removal with a disc polishing tool on springs (docs/models.md §2.5):
 //! the tool influence function (removal depth rate around the tool centre),
 //! dwell-time maps of tool paths (raster, Archimedean spiral), and their
 //! convolution by FFT (realfft along rows, rustfft along columns).
@@ -16,7 +16,7 @@ use sparkout_pipeline::InputError;
 
 use super::grid::Grid;
 
-/// The polishing tool: a disc pressed by springs (MODELS.md §2.5).
+/// The polishing tool: a disc pressed by springs (docs/models.md §2.5).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PolishTool {
     /// Preston coefficient, Pa⁻¹ (= m²/N).
@@ -84,7 +84,7 @@ impl PolishTool {
         let pressure_pa = match process.get("pressure_pa").or(t.get("pressure_pa")) {
             Some(_) => get("pressure_pa", None)?,
             None => {
-                // p = k_s·(l_f − l_i)/area (MODELS.md §2.5), N/mm² → Pa.
+                // p = k_s·(l_f − l_i)/area (docs/models.md §2.5), N/mm² → Pa.
                 let k_s = get("spring_rate_n_mm", None)?;
                 k_s * spring_compression_mm / (PI * radius_mm * radius_mm) * 1e6
             }
@@ -103,7 +103,7 @@ impl PolishTool {
     }
 
     /// Preston removal depth rate at distance ρ from the tool centre, mm/s:
-    /// dz/dt = k_p·p·v (MODELS.md §2.5) with the relative speed of the
+    /// dz/dt = k_p·p·v (docs/models.md §2.5) with the relative speed of the
     /// spinning, translating disc v(ρ) = sqrt(v_lin² + (2π·n·ρ)²); zero
     /// outside the disc. k_p [1/Pa]·p [Pa] is dimensionless.
     pub fn rate_mm_s(&self, rho_mm: f64) -> f64 {
@@ -432,7 +432,7 @@ pub fn dwell_map(grid: &Grid, path: &[PathSample], weight: impl Fn(usize) -> f64
 }
 
 /// Removal depth (mm) of a dwell map: the dwell convolved with the
-/// influence function (MODELS.md §2.5), by FFT.
+/// influence function (docs/models.md §2.5), by FFT.
 pub fn removal_of_dwell(grid: &Grid, tool: &PolishTool, dwell: &[f64]) -> Vec<f64> {
     let (ker, kx, ky) = tool.kernel(grid.dx, grid.dy);
     fft_convolve_same(dwell, grid.nx(), grid.ny(), &ker, kx, ky)
@@ -643,7 +643,7 @@ pub(crate) mod tests {
     use super::*;
 
     /// The aplm-gantry's polishing tool (k_p, pressure and speeds of
-    /// MODELS.md §2.5's example) at a given disc radius and step-over; the
+    /// docs/models.md §2.5's example) at a given disc radius and step-over; the
     /// gantry plugin's tests share it.
     pub(crate) fn aplm_tool(radius_mm: f64, step_over_mm: f64) -> PolishTool {
         PolishTool {

@@ -1,7 +1,7 @@
-//! The time-series model of δz (MODELS.md §3.2): difference d times, fit
+//! The time-series model of δz (docs/models.md §3.2): difference d times, fit
 //! AR(p) for p = 1..p_max by least squares, choose p by the Final
 //! Prediction Error FPE(p) = σ̂²_p·(N + p + 1)/(N − p − 1) (the default,
-//! as published), or by one of the consistent criteria (issue 17 item 3):
+//! as published), or by one of the consistent criteria:
 //! BIC(p) = N·ln σ̂²_p + p·ln N (Schwarz) and HQ(p) = N·ln σ̂²_p +
 //! 2p·ln ln N (Hannan–Quinn). FPE is asymptotically AIC and keeps a
 //! positive probability of overfitting however long the series; BIC and
@@ -48,7 +48,7 @@ pub fn difference(x: &[f64], d: usize) -> Vec<f64> {
 }
 
 /// x(t) from its difference y(t) and the d previous values of x:
-/// x(t) = y(t) − Σ_{i≥1} c_i x(t − i) (MODELS.md §3.3: δ̂z(n) = ŷ(n) +
+/// x(t) = y(t) − Σ_{i≥1} c_i x(t − i) (docs/models.md §3.3: δ̂z(n) = ŷ(n) +
 /// 2δz(n−1) − δz(n−2) for d = 2). `prev[0]` is x(t−1).
 pub fn undifference(y: f64, prev: &[f64], c: &[f64]) -> f64 {
     y - c[1..].iter().zip(prev).map(|(ci, x)| ci * x).sum::<f64>()

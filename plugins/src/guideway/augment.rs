@@ -1,9 +1,9 @@
 //! An augmented model's thermal growth in the guide-way grinder's physics
-//! (issue 13 item 4; `sparkout run --augment MODEL`). The diagnosis names
+//! (`sparkout run --augment MODEL`). The diagnosis names
 //! the workpiece's thermal growth with the number of infeeds —
 //! `thermal_infeed:infeed_count` (this plugin's composite) or the
 //! catalogue's `wear:infeed_count` — on `motion_error`. Its physical home
-//! is g, the thermal term of the compensation F = f + g + δ̂z (MODELS.md
+//! is g, the thermal term of the compensation F = f + g + δ̂z (docs/models.md
 //! §3.4): g = κ·(infeed_count − 1). The fitted effect is linear in the
 //! count, so κ is its value at count 2 less its value at count 1. Then
 //!

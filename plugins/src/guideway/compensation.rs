@@ -1,4 +1,4 @@
-//! `compensation`: the headstock command for the next sample (MODELS.md
+//! `compensation`: the headstock command for the next sample (docs/models.md
 //! §3.4)
 //!
 //! ```text
@@ -21,7 +21,7 @@
 //! - table reversal: (C_t/2)·dir(n+1), known from the program;
 //!   headstock reversal: + (C/2)·sign(ΔF) with C = `backlash_mm` (machine
 //!   `[headstock] backlash_mm`), so the command jumps by C whenever F
-//!   changes direction relative to F(n), as MODELS.md §3.4 says.
+//!   changes direction relative to F(n), as docs/models.md §3.4 says.
 //!
 //! Artifact `compensation` (one row per predicted sample): n, t_s, x_mm,
 //! dir, f_mm, g_mm, dz_pred_mm, reversal_mm, backlash_mm, F_mm, and dz_mm =
@@ -265,7 +265,7 @@ const SPEC: StageSpec = StageSpec {
     reads_artifacts: &["separation", "predictor"],
     writes: &["compensation"],
     reads_augmented_model: true,
-    about: "headstock path F(n+1) = f + g + δ̂z + reversal, thermal g fitted from infeed count/temperature (MODELS.md §3.4); dz_mm offsets with t_s for CAN replay",
+    about: "headstock path F(n+1) = f + g + δ̂z + reversal, thermal g fitted from infeed count/temperature (docs/models.md §3.4); dz_mm offsets with t_s for CAN replay",
     config: SectionCheck::of::<CompensationConfig>(),
 };
 

@@ -1,7 +1,7 @@
 //! `[guideway.<stage>]` config sections, one serde struct each (defaults
 //! here only, each key's range as data, read by the pipeline's shared
 //! `config_check::read_section`), and the settings each stage resolves from
-//! them with defaults from the machine config where MODELS.md gives one.
+//! them with defaults from the machine config where the source (docs/models.md §3) gives one.
 
 use serde::{Deserialize, Serialize};
 use sparkout_pipeline::config_check::{read_section, Check, Section};
@@ -11,7 +11,7 @@ use super::ar_fpe::Criterion;
 use super::input::InputOptions;
 use super::three_probe::{Method, Reference};
 
-/// `[guideway.separate]` (MODELS.md §3.1).
+/// `[guideway.separate]` (docs/models.md §3.1).
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct SeparateSection {
@@ -54,14 +54,14 @@ impl SeparateSection {
     }
 }
 
-/// `[guideway.predictor]` (MODELS.md §3.2–3.3).
+/// `[guideway.predictor]` (docs/models.md §3.2–3.3).
 #[derive(Debug, Clone, Copy, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct PredictorConfig {
     /// Difference order (source: 2).
     pub d: usize,
     pub p_max: usize,
-    /// AR order criterion (MODELS.md §3.2: FPE; BIC, HQ: issue 17).
+    /// AR order criterion (docs/models.md §3.2: FPE; BIC and HQ are consistent alternatives).
     pub criterion: Criterion,
     /// RLS P(0) = p0·I with δz in µm (source: 100).
     pub p0: f64,

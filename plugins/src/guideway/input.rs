@@ -1,5 +1,5 @@
-//! Reading and checking a run's guideway.parquet (CONTRACTS.md §1) into the
-//! sample series the three-probe separation needs (MODELS.md §3.1): sample
+//! Reading and checking a run's guideway.parquet (docs/formats.md §4) into the
+//! sample series the three-probe separation needs (docs/models.md §3.1): sample
 //! index n without gaps or repeats, the grid index of the workpiece point
 //! under probe A, direction, pass and infeed count, time.
 //!
@@ -61,7 +61,7 @@ pub struct RawReadings {
     pub dir: Option<Vec<i8>>,
     pub t_s: Option<Vec<f64>>,
     pub temp_c: Option<Vec<f64>>,
-    /// Extra column `infeed_count` (CONTRACTS.md: extra columns pass
+    /// Extra column `infeed_count` (docs/formats.md: extra columns pass
     /// through); when absent every pass is one infeed.
     pub infeed_count: Option<Vec<i64>>,
 }
@@ -248,12 +248,12 @@ pub fn raw_from_table(table: &Table) -> Result<RawReadings> {
     })
 }
 
-/// The samples' own checks: `n` consecutive (MODELS.md §3.1 indexes the
+/// The samples' own checks: `n` consecutive (docs/models.md §3.1 indexes the
 /// recursion by n), and no probe stuck on one reading for
 /// `stuck_samples` samples in a row.
 fn check_samples(path: &Path, raw: &RawReadings, opt: &InputOptions) -> Result<()> {
     let len = raw.n.len();
-    // n: consecutive samples, no gaps, no repeats (MODELS.md §3.1 indexes
+    // n: consecutive samples, no gaps, no repeats (docs/models.md §3.1 indexes
     // the recursion by n).
     for i in 1..len {
         let (a, b) = (raw.n[i - 1], raw.n[i]);
@@ -450,7 +450,7 @@ fn interp(xs: &[f64], v: &[f64], x: f64) -> f64 {
 }
 
 /// Resample every pass onto a grid of step ΔL' = L / round(L/ΔL), so the
-/// probe spacing is a whole number of steps (MODELS.md §3.1 needs L = k·ΔL).
+/// probe spacing is a whole number of steps (docs/models.md §3.1 needs L = k·ΔL).
 fn resample(r: Readings) -> Result<Readings> {
     let k = (r.spacing_mm / r.step_mm).round().max(1.0);
     let step = r.spacing_mm / k;

@@ -1,5 +1,5 @@
 //! Scalar Kalman filter fusing the AR one-step prediction with the
-//! measurement (MODELS.md §3.3): process variance q = the prediction-error
+//! measurement (docs/models.md §3.3): process variance q = the prediction-error
 //! variance, measurement variance r = table repeatability²:
 //!
 //! ```text

@@ -1,4 +1,4 @@
-//! Guide-way grinder (MODELS.md §3; Xu, Tao & Gao 2012): three displacement
+//! Guide-way grinder (docs/models.md §3; Xu, Tao & Gao 2012): three displacement
 //! probes on the headstock, error separation, a time-series predictor of
 //! the table's motion error, and the headstock compensation curve.
 //!
@@ -34,8 +34,7 @@ pub mod separate;
 pub mod three_probe;
 
 /// The source's machine, built into the binary.
-pub const GUIDEWAY_GRINDER_TOML: &str =
-    include_str!("../../../configs/machines/guideway-grinder.toml");
+pub const GUIDEWAY_GRINDER_TOML: &str = include_str!("../../machines/guideway-grinder.toml");
 
 /// The `guideway` plugin.
 pub struct GuidewayPlugin;
@@ -68,7 +67,7 @@ impl MachinePlugin for GuidewayPlugin {
     fn builtin_machines(&self) -> Vec<(&'static str, &'static str)> {
         vec![("guideway-grinder", GUIDEWAY_GRINDER_TOML)]
     }
-    /// `thermal_infeed` = wear on `infeed_count`: the source (MODELS.md
+    /// `thermal_infeed` = wear on `infeed_count`: the source (docs/models.md
     /// §3.4) says the workpiece's thermal deformation grows mainly with the
     /// number of infeeds, so a gap linear in the infeed count is named for
     /// that cause. (A table reversal error is the catalogue's

@@ -1,4 +1,4 @@
-//! `observe`: paired observations (CONTRACTS.md §2) for the gap diagnosis.
+//! `observe`: paired observations (docs/formats.md §7) for the gap diagnosis.
 //!
 //! `motion_error`, one row per sample: real = the measured table motion
 //! error δz (separation); sim = what the plugin's motion-error model

@@ -1,7 +1,7 @@
 //! `predictor` — the DAG's "train predictor" stage for the guide-way
-//! grinder (MODELS.md §3.2–3.3): difference δz d times (default 2), choose
+//! grinder (docs/models.md §3.2–3.3): difference δz d times (default 2), choose
 //! the AR order over p = 1..p_max by FPE (default) or BIC / HQ
-//! (`criterion`, issue 17; all three reported), identify the chosen model online
+//! (`criterion`; all three reported), identify the chosen model online
 //! by RLS (Â(0) = 0, P(0) = 100·I, δz in µm as in the source), predict one
 //! step ahead, undo the differencing, fuse with the measurement by a scalar
 //! Kalman filter, and forecast past the last sample.
@@ -29,7 +29,7 @@ use super::kalman::Kalman;
 use super::rls::Rls;
 use super::separate::SepData;
 
-/// The RLS runs on δz in µm (MODELS.md §3.3's P(0) = 100·I is in the
+/// The RLS runs on δz in µm (docs/models.md §3.3's P(0) = 100·I is in the
 /// source's unit; see rls.rs).
 const UM_PER_MM: f64 = 1000.0;
 
@@ -125,7 +125,7 @@ pub fn predict(dz: &[f64], cfg: &PredictorConfig) -> Result<Prediction> {
     })
 }
 
-/// `--json` of the stage (issue 6 item 2 plus the online model and Kalman).
+/// `--json` of the stage (method summary plus the online model and Kalman).
 pub fn summary(p: &Prediction, cfg: &PredictorConfig, n: usize) -> Value {
     json!({
         "d": p.d,
@@ -201,7 +201,7 @@ const SPEC: StageSpec = StageSpec {
     reads_artifacts: &["separation"],
     writes: &["predictor", "ar_fpe", "forecast"],
     reads_augmented_model: false,
-    about: "AR order of the d-times differenced δz by FPE (or BIC / HQ), online RLS, one-step prediction, scalar Kalman fusion, forecasts (MODELS.md §3.2–3.3)",
+    about: "AR order of the d-times differenced δz by FPE (or BIC / HQ), online RLS, one-step prediction, scalar Kalman fusion, forecasts (docs/models.md §3.2–3.3)",
     config: SectionCheck::of::<PredictorConfig>(),
 };
 

@@ -1,4 +1,4 @@
-//! Report sections of a guide-way run (issue 6 item 7): h, δz and β with
+//! Report sections of a guide-way run: h, δz and β with
 //! their uncertainty bands, FPE against the AR order, one-step prediction
 //! and Kalman estimate against the measurement, the compensation curve.
 
@@ -325,7 +325,7 @@ pub fn sections(_run: &Run, a: &ArtifactStore) -> Vec<ReportSection> {
     if let (Some(s), Ok(Some(b))) = (a.summary("compensation"), a.get("compensation")) {
         let mut sec = compensation(&s, &b);
         // The compensation's predictor should reach the reading noise of
-        // the separation (MODELS.md §3); far above it, the offsets it
+        // the separation (docs/models.md §3); far above it, the offsets it
         // writes carry a systematic error.
         let floor = a
             .summary("separate")

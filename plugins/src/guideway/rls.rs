@@ -1,4 +1,4 @@
-//! Recursive least squares for the AR parameters (MODELS.md §3.3):
+//! Recursive least squares for the AR parameters (docs/models.md §3.3):
 //!
 //! ```text
 //! Â(n) = Â(n−1) + P(n)X(n)[y(n) − X(n)ᵀÂ(n−1)]

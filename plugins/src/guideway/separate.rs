@@ -1,4 +1,4 @@
-//! `separate`: three-probe error separation of a run (MODELS.md §3.1), the
+//! `separate`: three-probe error separation of a run (docs/models.md §3.1), the
 //! published recursion or one least-squares solve over the whole travel
 //! (`[guideway.separate] method`, default `lsq`; see three_probe.rs).
 //!
@@ -137,7 +137,7 @@ impl SepData {
     }
 }
 
-/// The stage's JSON summary (issue 6 item 1: method, n, h_rms_mm,
+/// The stage's JSON summary (method, n, h_rms_mm,
 /// dz_rms_mm; plus geometry, noise and the other method's figures).
 pub fn summary(r: &Readings, s: &Separation, other: Option<&Separation>) -> Value {
     let max = |v: &Option<Vec<f64>>| {
@@ -187,7 +187,7 @@ const SPEC: StageSpec = StageSpec {
     reads_artifacts: &[],
     writes: &["separation"],
     reads_augmented_model: false,
-    about: "three-probe error separation: workpiece h, table motion error δz, pitch β — published recursion or one LS solve with uncertainty (MODELS.md §3.1)",
+    about: "three-probe error separation: workpiece h, table motion error δz, pitch β — published recursion or one LS solve with uncertainty (docs/models.md §3.1)",
     config: SectionCheck::of::<SeparateSection>(),
 };
 

@@ -1,4 +1,4 @@
-//! Three-probe error separation (MODELS.md §3.1): workpiece shape h, table
+//! Three-probe error separation (docs/models.md §3.1): workpiece shape h, table
 //! straightness motion error δz and pitch β from probes A, B, C spaced
 //! L = k·ΔL apart along the travel:
 //!
@@ -25,8 +25,7 @@
 //!   the averaged D̄(j) weighted by its count; with every j present it is
 //!   square up to the null space and its solution reproduces D̄ exactly —
 //!   computed by the recursion on D̄ as compensated cumulative sums, then
-//!   referenced (no normal equations: their condition number grows as m⁴,
-//!   issue 17). O(samples + m) with the covariance band, any length. Given
+//!   referenced (no normal equations: their condition number grows as m⁴). O(samples + m) with the covariance band, any length. Given
 //!   h, δz and β are the local LS line through the three residual readings
 //!   (intercept (5a + 2b − c)/6, slope (c − a)/2L), which is orthogonal to
 //!   D, so its noise is independent of ĥ.
@@ -47,7 +46,7 @@
 //! configured probe noise is used (one pass with k = 1 is exactly
 //! determined: no residual degrees of freedom).
 //!
-//! Not curable by either method (MODELS.md weakness, see README): a probe
+//! Not curable by either method (docs/models.md §3.1, weak points): a probe
 //! zero offset o_A − 2o_B + o_C adds a constant to D, which is exactly a
 //! parabola in h — indistinguishable from a curved workpiece in one setup.
 
@@ -157,7 +156,7 @@ fn second_difference(r: &Readings, i: usize) -> f64 {
 }
 
 /// δz and β of one sample from h (local LS line through the three
-/// residual readings; with exact data the same as MODELS.md's formulas).
+/// residual readings; with exact data the same as the recursion of docs/models.md §3.1).
 fn local(r: &Readings, i: usize, h: &[f64]) -> (f64, f64) {
     let [a, b, c] = stencil(r, i);
     let ra = r.z_mm[0][i] - h[a];
@@ -226,7 +225,7 @@ pub fn separate_recursion(r: &Readings) -> Result<Separation> {
 
 /// Running sum with Neumaier's compensation: the particular solution is a
 /// double cumulative sum over up to 10⁵ points, where plain summation
-/// loses digits in proportion to the length (issue 17: exact to 1e-9 mm
+/// loses digits in proportion to the length (exact to 1e-9 mm
 /// at 30 000 points).
 #[derive(Debug, Default, Clone, Copy)]
 struct Sum {
@@ -251,7 +250,7 @@ impl Sum {
 
 /// `G·d` of the module doc: h(t), t = 0..len, of one sub-grid with
 /// h(0) = h(1) = 0 and h(t+2) − 2h(t+1) + h(t) = d(t) — the published
-/// recursion (MODELS.md §3.1) written as two compensated cumulative sums
+/// recursion (docs/models.md §3.1) written as two compensated cumulative sums
 /// (slope, then height), so rounding does not grow with the travel.
 fn double_sum(d: &[f64], len: usize) -> Vec<f64> {
     let mut h = vec![0.0; len];
@@ -376,7 +375,7 @@ fn solve_chain(dbar: &[f64], w: &[f64], len: usize, reference: Reference) -> Cha
 /// count(j); with every j = 0..m−2k present the system in h is square up
 /// to the 2k-dimensional null space, and its LS solution reproduces D̄
 /// exactly: the recursion on D̄ (no normal equations, whose condition
-/// number grows as m⁴ — issue 17 saw 3.7e-6 mm errors at 2 900 points),
+/// number grows as m⁴ — the dense solve gave 3.7e-6 mm errors at 2 900 points),
 /// then the reference. O(samples + m), any length.
 pub fn separate_lsq(r: &Readings, reference: Reference, sigma_cfg_mm: f64) -> Result<Separation> {
     let m = r.positions();

@@ -1,11 +1,11 @@
-//! An augmented model's spindle growth in the mill's physics (issue 13 item
-//! 4; `sparkout run --augment MODEL`). The diagnosis names the warm-up
+//! An augmented model's spindle growth in the mill's physics
+//! (`sparkout run --augment MODEL`). The diagnosis names the warm-up
 //! growth on `tracker_dz` either in time — `thermal_growth:t_s` (this
 //! plugin's composite) or `drift:t_s` — or, where thermal.parquet logs the
 //! spindle, as `thermal:temp_c` (growth ∝ the spindle's warming, the
 //! physically direct form). Its physical home is the spindle: the tool
 //! point moves by g along machine z while the static geometric model holds
-//! still (MODELS.md §5), g the effect's change since the first tracker
+//! still (docs/models.md §5), g the effect's change since the first tracker
 //! point (the rest is its constant offset). Then
 //!
 //! - `observe` re-simulates tracker_dz as the model's deviation plus g and

@@ -1,5 +1,5 @@
 //! The XFYZ kinematic chain with 21 error functions and the tracker frame
-//! (MODELS.md §5).
+//! (docs/models.md §5).
 //!
 //! Frames and conventions:
 //! - `x_mm, y_mm, z_mm` are the commanded axis positions. X moves the table
@@ -9,7 +9,7 @@
 //!   spindle frame.
 //! - Each axis k has six error functions of its own position q_k: three
 //!   translations δ_x,k, δ_y,k, δ_z,k (mm) and three small rotations ε_x,k,
-//!   ε_y,k, ε_z,k (rad), with R_k = I + [ε_k]× exactly as MODELS.md §5
+//!   ε_y,k, ε_z,k (rad), with R_k = I + [ε_k]× exactly as docs/models.md §5
 //!   writes it. Squareness: the Y axis moves along (s_xy, 1, 0) and the Z
 //!   axis along (s_xz, s_yz, 1) in the frame defined by X (ISO 230-1 style:
 //!   X is the reference direction).
@@ -228,7 +228,7 @@ fn skew(v: &V3) -> Matrix3<f64> {
     Matrix3::new(0.0, -v.z, v.y, v.z, 0.0, -v.x, -v.y, v.x, 0.0)
 }
 
-/// MODELS.md §5: R_k = [[1, −ε_z, ε_y], [ε_z, 1, −ε_x], [−ε_y, ε_x, 1]].
+/// docs/models.md §5: R_k = [[1, −ε_z, ε_y], [ε_z, 1, −ε_x], [−ε_y, ε_x, 1]].
 fn small_rotation(e: &[f64; 3]) -> Matrix3<f64> {
     Matrix3::identity() + skew(&V3::new(e[0], e[1], e[2]))
 }

@@ -1,5 +1,5 @@
 //! Identification of the 21 error functions and the tracker frame from
-//! tracker points (MODELS.md §5): nonlinear least squares by
+//! tracker points (docs/models.md §5): nonlinear least squares by
 //! Levenberg–Marquardt (the `levenberg-marquardt` crate) on measured minus
 //! modelled tracker points, the parameters' covariance from JᵀJ and the
 //! residual variance, and the checks that refuse an unidentifiable

@@ -1,5 +1,5 @@
 //! `kinematics`: the 21 error functions and the tracker frame identified
-//! from tracker.parquet (MODELS.md §5), validated on held-out points, the
+//! from tracker.parquet (docs/models.md §5), validated on held-out points, the
 //! volumetric error before and after compensation, and the compensation
 //! table a controller would load.
 //!
@@ -52,7 +52,7 @@ pub struct TrackerData {
     pub t_s: Option<Vec<f64>>,
 }
 
-/// Read tracker.parquet (CONTRACTS.md §1; NaN in required columns is
+/// Read tracker.parquet (docs/formats.md §4; NaN in required columns is
 /// rejected by the contract reader) and check what the contract does not:
 /// unique (point, trial), finite optional t_s, and the optional `tool`
 /// (index into the machine's [tool] offsets_mm) and `trial` columns (0 when
@@ -313,7 +313,7 @@ pub fn analyse(
         ("volumetric_map".to_string(), map_batch),
         ("tracker_residuals".to_string(), resid_batch),
     ];
-    // For CAN replay (HELPERS.md, issue 8): the correction along the
+    // For CAN replay (docs/design.md §9): the correction along the
     // measured sequence, when its time stamps are strictly increasing.
     let path_written = match &data.t_s {
         Some(t) if t.windows(2).all(|w| w[1] > w[0]) => {
@@ -631,7 +631,7 @@ const SPEC: StageSpec = StageSpec {
             "compensation_path",
         ],
     reads_augmented_model: true,
-    about: "XFYZ 21-error identification from laser-tracker points (Levenberg–Marquardt, covariance), held-out validation, volumetric error before/after, compensation table (MODELS.md §5)",
+    about: "XFYZ 21-error identification from laser-tracker points (Levenberg–Marquardt, covariance), held-out validation, volumetric error before/after, compensation table (docs/models.md §5)",
     config: SectionCheck::of::<KinematicsConfig>(),
 };
 

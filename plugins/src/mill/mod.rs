@@ -1,5 +1,5 @@
 //! Three-axis XFYZ mill, volumetric verification with a laser tracker
-//! (MODELS.md §5): 21 error functions (18 per-axis translations and
+//! (docs/models.md §5): 21 error functions (18 per-axis translations and
 //! rotations as Legendre series of configurable degree, 3 squareness terms)
 //! and the tracker frame identified by Levenberg–Marquardt.
 //!
@@ -10,7 +10,7 @@
 //! | `kinematics` | tracker | `kinematic_params`, `kinematic_covariance`, `compensation_table`, `volumetric_map`, `tracker_residuals`, `compensation_path` |
 //! | `observe` | tracker, thermal, `kinematic_params` | `observations` |
 //!
-//! tracker.parquet follows CONTRACTS.md §1; an optional integer column
+//! tracker.parquet follows docs/formats.md §4; an optional integer column
 //! `tool` (an extra column, which the contract passes through) says which of
 //! the machine's `[tool] offsets_mm` each point was measured with — several
 //! offsets are what makes the spindle carriage's rotations identifiable.
@@ -30,7 +30,7 @@ pub mod observe;
 pub mod report;
 
 /// The XFYZ mill of the volumetric verification, built into the binary.
-pub const XFYZ_MILL_TOML: &str = include_str!("../../../configs/machines/xfyz-mill.toml");
+pub const XFYZ_MILL_TOML: &str = include_str!("../../machines/xfyz-mill.toml");
 
 /// The `mill` plugin.
 pub struct MillPlugin;
@@ -60,11 +60,11 @@ impl MachinePlugin for MillPlugin {
     fn builtin_machines(&self) -> Vec<(&'static str, &'static str)> {
         vec![("xfyz-mill", XFYZ_MILL_TOML)]
     }
-    /// `thermal_growth` = drift in time (DESIGN.md: warm-up): the spindle
+    /// `thermal_growth` = drift in time (warm-up): the spindle
     /// and column grow towards a steady state as A·(1 − e^(−t/τ)) while the
     /// tracker points are taken; the identified geometric model is static,
     /// so the growth is left in the tracker gap. It applies only to the
-    /// mill's tracker observables (issue 13 item 1: composites are scoped
+    /// mill's tracker observables (composites are scoped
     /// to their plugin's observables), so other machines keep `drift:t_s`.
     fn effects(&self) -> Vec<Box<dyn Effect>> {
         vec![composite(

@@ -1,17 +1,17 @@
-//! `observe`: paired observations (CONTRACTS.md §2) for the gap diagnosis.
+//! `observe`: paired observations (docs/formats.md §7) for the gap diagnosis.
 //!
 //! One row per tracker point and machine axis: `tracker_dx`, `tracker_dy`,
 //! `tracker_dz`. real = the measured deviation of the tool point from its
 //! nominal position along that machine axis (the tracker measurement rotated
 //! back by the identified tracker frame); sim = the deviation the identified
-//! 21-error model predicts there (MODELS.md §5). What the polynomial model
+//! 21-error model predicts there (docs/models.md §5). What the polynomial model
 //! cannot hold — thermal growth during the measurement, error shapes beyond
 //! its degree — is the gap.
 //!
 //! Covariates: x_mm, y_mm, z_mm (commanded axis positions), t_s (when
 //! tracker.parquet has it) and temp_c (the thermal.parquet reading
 //! interpolated at t_s: one named sensor, or the mean of all). A covariate
-//! the run cannot provide is left out of its table (CONTRACTS.md §2: an
+//! the run cannot provide is left out of its table (docs/formats.md §7: an
 //! absent covariate makes the effects that need it inapplicable); in a
 //! fleet table those rows are null. `point` identifies the measurement
 //! (reserved, never a covariate), with `trial` for re-measured

@@ -1,6 +1,6 @@
 //! Report sections of a mill run: the identification (numbers, squareness,
 //! tracker frame), the identified error functions, the volumetric error map
-//! before and after compensation, and the residuals (MODELS.md §5).
+//! before and after compensation, and the residuals (docs/models.md §5).
 
 use serde_json::Value;
 use sparkout_pipeline::contracts::{batch_f64, batch_i32};

@@ -1,4 +1,4 @@
-//! The AE contact detector (MODELS.md §1.2): RMS envelope over a window of
+//! The AE contact detector (docs/models.md §1.2): RMS envelope over a window of
 //! `w` samples, then contact events where the envelope exceeds
 //! `mean + k·σ` of the pre-contact noise floor for a minimum dwell, with
 //! hysteresis so one contact gives one event.
@@ -41,7 +41,7 @@ pub struct AeParams {
 }
 
 impl AeParams {
-    /// From seconds and a sample rate (MODELS.md §1.2 uses e.g. a 1 ms window).
+    /// From seconds and a sample rate (docs/models.md §1.2 uses e.g. a 1 ms window).
     pub fn from_seconds(
         sample_rate_hz: f64,
         window_s: f64,

@@ -1,4 +1,4 @@
-//! `cycle`: the grinding-cycle compliance model of MODELS.md §1.4.
+//! `cycle`: the grinding-cycle compliance model of docs/models.md §1.4.
 //!
 //! The loop robot–wheel–workpiece deflects by ε = α·δ (δ the real cut). The
 //! wheel's programmed position advances δ′ per pass, so the real cut of pass
@@ -8,7 +8,7 @@
 //! δ_i = (δ′_i + α·δ_{i−1}) / (1 + α),   δ_0 = 0.
 //! ```
 //!
-//! With constant δ′ this is MODELS.md's closed form δ_i = [1 − r^i]·δ′,
+//! With constant δ′ this is the closed form of docs/models.md §1.4, δ_i = [1 − r^i]·δ′,
 //! r = α/(1+α) (δ_1 = δ′/(1+α)); a spark-out pass (δ′ = 0) removes
 //! δ = r·δ_{i−1}, so spark-out cuts decay geometrically. The recurrence is
 //! used for every pass, so a change of δ′ between roughing and finishing
@@ -158,7 +158,7 @@ pub fn fit_alpha(docs: &[f64], measured: &[Option<f64>], alpha_max: f64) -> Opti
     Some(0.5 * (a + b))
 }
 
-/// τ per feed speed from the spark-out decay (MODELS.md §1.4): for each feed,
+/// τ per feed speed from the spark-out decay (docs/models.md §1.4): for each feed,
 /// the spark-out passes at that feed — with the pass right before the first
 /// of them when it ran at the same feed — give ln(cut) = a − t/τ; τ from the
 /// least-squares slope. `None` for a feed without ≥ 2 timed, positive cuts
@@ -290,7 +290,7 @@ fn remaining_after(passes: &[Pass], remaining: Option<&[f64]>) -> Value {
     Value::Object(m)
 }
 
-/// The `--json` summary of the issue (plus extra fields).
+/// The `--json` summary of the stage.
 pub fn summary(passes: &[Pass], r: &CycleResult, weld_mm: Option<f64>) -> Value {
     let rows: Vec<Value> = passes
         .iter()
@@ -407,7 +407,7 @@ pub fn read_passes(ctx: &StageContext) -> Result<Option<Vec<Pass>>> {
         return Err(InputError::new(
             &path,
             format!(
-                "the first pass (pass {}) has nominal depth {} mm: α is estimated from the first infeed pass (MODELS.md §1.4)",
+                "the first pass (pass {}) has nominal depth {} mm: α is estimated from the first infeed pass (docs/models.md §1.4)",
                 out[0].pass, out[0].nominal_doc_mm
             ),
         )
@@ -457,7 +457,7 @@ pub struct CycleStage;
 #[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct CycleConfig {
-    /// Upper bound of the least-squares α search (MODELS.md §1.4).
+    /// Upper bound of the least-squares α search (docs/models.md §1.4).
     pub alpha_max: f64,
     /// None: the run's `[process]`, then the machine's ([`contact_area_mm2`]).
     pub contact_area_mm2: Option<f64>,
@@ -486,7 +486,7 @@ const SPEC: StageSpec = StageSpec {
     reads_artifacts: &[],
     writes: &["cycle"],
     reads_augmented_model: false,
-    about: "compliance model of the grinding cycle: α, predicted vs measured cut per pass, remaining stock, τ (MODELS.md §1.4)",
+    about: "compliance model of the grinding cycle: α, predicted vs measured cut per pass, remaining stock, τ (docs/models.md §1.4)",
     config: SectionCheck::of::<CycleConfig>(),
 };
 

@@ -3,7 +3,7 @@
 //! over all points; the datum (the intersection of the three planes) with
 //! its covariance propagated from the planes', the inter-face squareness,
 //! and the thesis's error vector E = A·α and transition angles
-//! (MODELS.md §1.3).
+//! (docs/models.md §1.3).
 //!
 //! planes.rs holds the plane algebra; datum/output.rs what the stage
 //! writes (summary JSON and the `planes`/`datum` artifacts).
@@ -54,7 +54,7 @@ pub struct DatumConfig {
     pub collinear_ratio: f64,
     pub confidence: f64,
     /// Remove each method's trigger latency (estimated from ≥ 2 approach
-    /// speeds, MODELS.md §1.1) from its touches before fitting: p − v·L·dir.
+    /// speeds, docs/models.md §1.1) from its touches before fitting: p − v·L·dir.
     pub correct_latency: bool,
     /// Touches the datum is fitted from ([`select_method`]).
     pub method: String,
@@ -106,7 +106,7 @@ impl DatumConfig {
     }
 }
 
-/// Precision order of the probing methods (MODELS.md §1.1: AE 25–85 µm,
+/// Precision order of the probing methods (docs/models.md §1.1: AE 25–85 µm,
 /// electrical 163 µm, mechanical 700 µm range): `method = "auto"` fits the
 /// datum with the most precise method a run has.
 const METHOD_PRECISION_ORDER: [&str; 3] = ["ae", "electrical", "mechanical"];
@@ -241,7 +241,7 @@ pub fn ellipsoid(cov: &Matrix3<f64>, p: f64) -> ([f64; 3], [Vector3<f64>; 3]) {
     ([ax(0), ax(1), ax(2)], [v(0), v(1), v(2)])
 }
 
-/// The thesis's matrix A (MODELS.md §1.3): rows are the planes' OLS
+/// The thesis's matrix A (docs/models.md §1.3): rows are the planes' OLS
 /// coefficients ordered so the normal coordinate's coefficient −1 is on the
 /// diagonal (yz → x, zx → y, xy → z).
 pub fn thesis_a(b: [[f64; 3]; 3]) -> Matrix3<f64> {
@@ -283,7 +283,7 @@ pub struct DatumAnalysis {
 }
 
 /// The touches with each method's estimated trigger latency removed
-/// (MODELS.md §1.1: a touch registered L after contact at speed v overshoots
+/// (docs/models.md §1.1: a touch registered L after contact at speed v overshoots
 /// by v·L along the approach direction). Methods touched at one speed only
 /// are left as they are.
 pub fn latency_corrected(all: &[Touch]) -> (Vec<Touch>, std::collections::BTreeMap<String, f64>) {
@@ -392,7 +392,7 @@ const SPEC: StageSpec = StageSpec {
     reads_artifacts: &["touches"],
     writes: &["planes", "datum"],
     reads_augmented_model: false,
-    about: "face planes (thesis OLS + orthogonal TLS, robust), datum = intersection with covariance, squareness, E = A·α (MODELS.md §1.3)",
+    about: "face planes (thesis OLS + orthogonal TLS, robust), datum = intersection with covariance, squareness, E = A·α (docs/models.md §1.3)",
     config: SectionCheck::of::<DatumConfig>(),
 };
 

@@ -1,4 +1,4 @@
-//! Robot grinder (MODELS.md §1): KUKA KR16, the wheel is the probe, acoustic
+//! Robot grinder (docs/models.md §1): KUKA KR16, the wheel is the probe, acoustic
 //! emission detects contact.
 //!
 //! Stages (edges from the artifacts they read and write):
@@ -11,7 +11,7 @@
 //! | `cycle` | passes | `cycle` |
 //! | `observe` | `touches`, `planes`, `cycle` | `observations` |
 //!
-//! The data the stages read follow CONTRACTS.md §1 and docs/robot_data_spec.md.
+//! The data the stages read follow docs/formats.md §4 and docs/robot_data_spec.md.
 
 // `!(x > 0.0)` is deliberate throughout: it rejects NaN as well.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
@@ -32,9 +32,9 @@ pub mod repeatability;
 pub mod report;
 pub mod touches;
 
-/// The KR16 lab cell, built into the binary (CONTRACTS.md §1: machine ids
+/// The KR16 lab cell, built into the binary (docs/formats.md §3: machine ids
 /// resolve to built-in configs last).
-pub const KR16_LAB_TOML: &str = include_str!("../../../configs/machines/kr16-lab.toml");
+pub const KR16_LAB_TOML: &str = include_str!("../../machines/kr16-lab.toml");
 
 /// The `robot` plugin.
 pub struct RobotPlugin;
@@ -76,8 +76,8 @@ impl MachinePlugin for RobotPlugin {
     fn builtin_machines(&self) -> Vec<(&'static str, &'static str)> {
         vec![("kr16-lab", KR16_LAB_TOML)]
     }
-    /// `trigger_latency` = lag on the signed normal approach speed (DESIGN.md
-    /// "Sim-to-real gap diagnosis", point 2): a touch registered L seconds
+    /// `trigger_latency` = lag on the signed normal approach speed (docs/design.md
+    /// §7, point 2): a touch registered L seconds
     /// after contact overshoots by v·L along the approach direction, so the
     /// `touch_normal` gap is L·approach_normal_mm_s (k = L, in s).
     ///
@@ -87,7 +87,7 @@ impl MachinePlugin for RobotPlugin {
     /// A·(1 − e^(−t/τ)).
     ///
     /// `depth_compliance` = compliance(nominal_doc_mm)·nominal_doc_mm: a
-    /// compliance α that grows with the depth of cut (MODELS.md §1.4 takes α
+    /// compliance α that grows with the depth of cut (docs/models.md §1.4 takes α
     /// constant) loses a cut ∝ δ′², which neither the constant-α model nor
     /// the catalogue's linear `compliance` has.
     fn effects(&self) -> Vec<Box<dyn Effect>> {

@@ -1,4 +1,4 @@
-//! `observe`: paired observations (CONTRACTS.md §2) for the gap diagnosis.
+//! `observe`: paired observations (docs/formats.md §7) for the gap diagnosis.
 //!
 //! - `touch_normal` (touches the controller registered, probe.parquet) and
 //!   `touch_normal_ae` (touches derived from the AE signal by `ingest`),
@@ -16,7 +16,7 @@
 //!   0: a vertical TCP displacement such as the column's thermal growth
 //!   moves only those touches' normal coordinate).
 //! - `cut_depth`, one row per pass: real = measured cut, sim = the
-//!   compliance model's cut with α from the first pass (MODELS.md §1.4).
+//!   compliance model's cut with α from the first pass (docs/models.md §1.4).
 //!   Covariates: pass, t_s, feed_mm_s, nominal_doc_mm, removed_mm3
 //!   (cumulative removal before the pass).
 //!
@@ -35,7 +35,7 @@ const TOUCH_AE: &str = "touch_normal_ae";
 
 /// The observable of a touch: AE-derived touches are `touch_normal_ae`;
 /// registered touches of the AE method are `touch_normal`; the comparison
-/// methods (MODELS.md §1.1: mechanical 700 µm, electrical 163 µm range) get
+/// methods (docs/models.md §1.1: mechanical 700 µm, electrical 163 µm range) get
 /// their own `touch_normal_<method>` — pooled with AE touches, their scatter
 /// would bury a trigger latency of the AE method.
 fn touch_observable(source: &str, method: &str) -> String {

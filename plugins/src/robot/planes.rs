@@ -1,4 +1,4 @@
-//! Plane fits of touch points and the datum (MODELS.md §1.3).
+//! Plane fits of touch points and the datum (docs/models.md §1.3).
 //!
 //! - The thesis's fit: OLS of the coordinate normal to the face on the other
 //!   two (`z = b0 + b1·x + b2·y` on `xy`, `x = b0 + b1·y + b2·z` on `yz`,
@@ -398,7 +398,7 @@ pub struct Datum {
     pub condition: f64,
 }
 
-/// Solve `N p = D` for three planes (MODELS.md §1.3). Covariance by
+/// Solve `N p = D` for three planes (docs/models.md §1.3). Covariance by
 /// linearising the solve: for plane k, δp = N⁻¹ e_k (δd_k − δn_k·p), so
 /// J_k = N⁻¹ e_k [−pᵀ, 1] and Cov(p) = Σ_k J_k Cov_k J_kᵀ (planes are fitted
 /// from different touches, hence independent). An ill-conditioned system
@@ -453,7 +453,7 @@ pub fn squareness(a: &Plane, b: &Plane) -> f64 {
 pub(crate) mod tests {
     use super::*;
 
-    /// MODELS.md §1.3, the thesis's worked numbers: face with normal Z,
+    /// docs/models.md §1.3, the thesis's worked numbers: face with normal Z,
     /// outer square, points 1, 6, 7, 12.
     pub fn thesis_points() -> Vec<Vector3<f64>> {
         vec![

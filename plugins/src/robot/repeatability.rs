@@ -1,4 +1,4 @@
-//! `repeatability`: the thesis's "accuracy error" (MODELS.md §1.1) — per
+//! `repeatability`: the thesis's "accuracy error" (docs/models.md §1.1) — per
 //! (method, approach speed, face), over the trials of each nominal point, the
 //! range (max − min) and the standard deviation of the coordinate normal to
 //! the face; per (method, speed) the mean range over the faces.
@@ -258,7 +258,7 @@ pub fn analyse(all: &[Touch], latency_method: &str) -> (Value, arrow::record_bat
 }
 
 /// Pooled within-point standard deviation of each face over every touch
-/// (the thesis's α vector of the error vector E = A·α, MODELS.md §1.3),
+/// (the thesis's α vector of the error vector E = A·α, docs/models.md §1.3),
 /// pooled over (method, speed, point) groups.
 pub fn pooled_std_by_face(all: &[Touch]) -> [Option<f64>; 3] {
     let mut out = [None; 3];
@@ -312,7 +312,7 @@ const SPEC: StageSpec = StageSpec {
     reads_artifacts: &["touches"],
     writes: &["repeatability"],
     reads_augmented_model: false,
-    about: "range and std of the normal coordinate per method × speed × face; bias vs scatter; trigger latency (MODELS.md §1.1)",
+    about: "range and std of the normal coordinate per method × speed × face; bias vs scatter; trigger latency (docs/models.md §1.1)",
     config: SectionCheck::of::<RepeatabilityConfig>(),
 };
 

@@ -1,4 +1,4 @@
-//! Report sections of a robot run (issue 3 item 7): repeatability by
+//! Report sections of a robot run: repeatability by
 //! method × speed, the fitted planes' residuals, the datum with its
 //! uncertainty, predicted vs measured cuts per pass, and how far recorded
 //! and AE-derived touches disagree.

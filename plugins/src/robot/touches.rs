@@ -1,4 +1,4 @@
-//! The `touches` artifact: probe.parquet's columns (CONTRACTS.md §1) plus
+//! The `touches` artifact: probe.parquet's columns (docs/formats.md §4) plus
 //! what later stages need — the plan `seq`, the unit approach direction and
 //! the sign of the move that preceded the approach along the face normal.
 

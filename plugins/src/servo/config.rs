@@ -10,7 +10,7 @@ use sparkout_pipeline::{InputError, Result};
 
 use super::model::AxisServo;
 
-/// The axes a servo trace may have (CONTRACTS.md §1 motion.parquet).
+/// The axes a servo trace may have (docs/formats.md §4 motion.parquet).
 pub const AXES: [&str; 3] = ["x", "y", "z"];
 
 /// `[servo]` and `[servo.<axis>]`.

@@ -12,7 +12,7 @@
 //! | `follow` | motion | `following_error` |
 //! | `observe` | motion, `following_error` | `observations` |
 //!
-//! motion.parquet follows CONTRACTS.md §1 with the v1.1 optional per-axis
+//! motion.parquet follows docs/formats.md §4 with the v1.1 optional per-axis
 //! velocity and acceleration columns (`cmd_v_x_mm_s`, `act_v_x_mm_s`,
 //! `cmd_a_x_mm_s2`, ...); an axis needs `act_<axis>_mm` to be compared.
 
@@ -29,9 +29,9 @@ pub mod trace;
 
 /// A three-axis machine with a 30 1/s position loop and a 0.5 µm encoder
 /// (the generator's machine), built into the binary.
-pub const SERVO_MILL_TOML: &str = include_str!("../../../configs/machines/servo-mill.toml");
+pub const SERVO_MILL_TOML: &str = include_str!("../../machines/servo-mill.toml");
 /// The University of Michigan CNC mill of the tool-wear set.
-pub const UMICH_CNC_TOML: &str = include_str!("../../../configs/machines/umich-cnc.toml");
+pub const UMICH_CNC_TOML: &str = include_str!("../../machines/umich-cnc.toml");
 
 pub fn builtin_machines() -> Vec<(&'static str, &'static str)> {
     vec![

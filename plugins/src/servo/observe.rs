@@ -1,4 +1,4 @@
-//! `observe`: paired observations (CONTRACTS.md §2) for the gap diagnosis.
+//! `observe`: paired observations (docs/formats.md §7) for the gap diagnosis.
 //!
 //! Per sample and axis with actual positions: `following_error_<axis>`
 //! (mm) and `velocity_error_<axis>` (mm/s — the one observable whose state

@@ -1,6 +1,6 @@
 //! The servo trace of a run: per axis, commanded and actual position, and
 //! commanded/actual velocity and commanded acceleration — logged where the
-//! controller logs them (motion.parquet v1.1 columns, CONTRACTS.md §1 and
+//! controller logs them (motion.parquet v1.1 columns, docs/formats.md §4 and
 //! docs/servo.md), else by central differences of the logged positions.
 
 use arrow::array::Array;

@@ -104,7 +104,7 @@ pub fn catalogue_effect(kind: Kind, covs: &[&str]) -> Box<dyn Effect> {
     ))
 }
 
-/// Covariate kinds as CONTRACTS.md reads them from names.
+/// Covariate kinds as docs/formats.md reads them from names.
 pub(super) fn is_position(c: &str) -> bool {
     matches!(c, "x_mm" | "y_mm" | "z_mm" | "phi_rad")
 }
@@ -158,7 +158,7 @@ pub fn kinds_for(c: &str) -> Vec<Kind> {
 }
 
 /// Every applicable catalogue candidate for the given covariate names
-/// (CONTRACTS.md "Candidate effect names"): `offset`, then each covariate's
+/// (docs/formats.md §7 "Candidate effects"): `offset`, then each covariate's
 /// kinds in the order given, then `squareness` on every pair of positions.
 pub fn catalogue(covariates: &[String]) -> Vec<Box<dyn Effect>> {
     let mut out = vec![catalogue_effect(Kind::Offset, &[])];

@@ -1,10 +1,10 @@
 //! Plugin composites: a catalogue effect under a physical name, and the
-//! product of two effects (DESIGN.md "Sim-to-real gap diagnosis", point 2).
+//! product of two effects (docs/design.md §7, point 2).
 
 use super::*;
 
 /// A catalogue (or any) effect under a physical name, e.g. the robot's
-/// `trigger_latency` = `lag` on `approach_mm_s` (DESIGN.md point 2).
+/// `trigger_latency` = `lag` on `approach_mm_s` (docs/design.md §7 point 2).
 pub fn composite(name: &str, base: Box<dyn Effect>) -> Box<dyn Effect> {
     Box::new(Renamed {
         name: name.to_string(),

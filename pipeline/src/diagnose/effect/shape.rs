@@ -1,4 +1,4 @@
-//! The catalogue's shapes (CONTRACTS.md "Candidate effect names") as
+//! The catalogue's shapes (docs/formats.md §7 "Candidate effects") as
 //! linear forms: features per θ, the θ grid, parameters in contract units.
 
 use super::*;

@@ -342,7 +342,7 @@ impl Master {
                 self.phase = Phase::Finish(0);
                 return Ok(());
             }
-            // The path must start where the axes are (MODELS.md has no model
+            // The path must start where the axes are (no machine model covers
             // for a jump: the envelope's step limit applies from the hold).
             let first = plan.cmd_mm[0];
             for a in 0..3 {

@@ -301,7 +301,7 @@ impl SdoResponse {
 }
 
 /// The shipped EDS of the drive profile.
-pub const DRIVE_EDS: &str = include_str!("../../../../configs/can/cia402_drive.eds");
+pub const DRIVE_EDS: &str = include_str!("../../../configs/can/cia402_drive.eds");
 
 /// Check that an EDS maps the PDOs exactly as this master encodes them:
 /// RPDO1 = 0x6040 (16 bit) + 0x607A (32 bit) on COB-ID $NODEID+0x200,

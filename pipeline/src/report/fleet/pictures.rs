@@ -275,8 +275,8 @@ pub(super) const MINI_MAP_BINS: usize = 8;
 /// Bins of the at-a-glance curve thumbnail.
 pub(super) const MINI_CURVE_BINS: usize = 16;
 
-/// "Where" and "which" as thumbnails for the at-a-glance table (issue 16:
-/// the answers above the fold): the gap map over x/y when the rows have
+/// "Where" and "which" as thumbnails for the at-a-glance table (the
+/// answers above the fold): the gap map over x/y when the rows have
 /// positions, and the gap against the named effect's covariate.
 pub(super) fn glance_pictures(
     rows: Option<&FleetRows>,

@@ -5,7 +5,7 @@
 use super::*;
 
 /// An observable's unit and how it is shown: gaps in mm are shown in µm;
-/// `velocity_error_*` is a velocity (mm/s, MODELS.md servo §), shown in
+/// `velocity_error_*` is a velocity (mm/s, docs/models.md §7), shown in
 /// mm/s.
 pub struct Unit {
     /// The unit of the data (`mm` or `mm/s`).

@@ -92,7 +92,7 @@ fn single_pass_lsq_uses_the_configured_sigma() {
     assert!(hs[0] > hs[15]);
 }
 
-/// Issue 17: no length limit, exact to 1e-9 mm at 3 000 and 30 000
+/// No length limit, exact to 1e-9 mm at 3 000 and 30 000
 /// points with both methods, one pass and several, k = 1 and 2.
 #[test]
 fn both_methods_are_exact_at_3000_and_30000_points() {

@@ -2,7 +2,7 @@ use super::*;
 
 #[test]
 fn thesis_roughing_sequence() {
-    // MODELS.md §1.4: δ′ = 0.3, first cut 0.200 ⇒ α = 0.5.
+    // docs/models.md §1.4: δ′ = 0.3, first cut 0.200 ⇒ α = 0.5.
     let alpha = alpha_from_first_cut(0.3, 0.2).unwrap();
     assert!((alpha - 0.5).abs() < 1e-12);
     let cuts = predict_cuts(alpha, &[0.3; 7]);
@@ -30,12 +30,12 @@ fn spark_out_cuts_decay_by_the_ratio() {
     assert!((cuts[7] - (0.1 + 0.5 * cuts[6]) / 1.5).abs() < 1e-12);
     assert!((cuts[9] - cuts[8] / 3.0).abs() < 1e-12);
     assert!((cuts[10] - cuts[9] / 3.0).abs() < 1e-12);
-    // What the recurrence gives (MODELS.md lists 0.0473 and 0.0157, see
+    // What the recurrence gives (docs/models.md §1.4 quotes the thesis's 0.0473 and 0.0157, see
     // `thesis_spark_out_numbers_come_from_remaining_stock`).
     assert!((cuts[9] - 0.04074).abs() < 1e-5 && (cuts[10] - 0.01358).abs() < 1e-5);
 }
 
-/// MODELS.md's spark-out cuts (0.0473, 0.0157) do not follow from its
+/// The thesis's spark-out cuts (0.0473, 0.0157) do not follow from its
 /// own recurrence; they are r^n × the *stock* left after finishing when
 /// both finishing cuts are taken as [1 − r²]·δ′ = 0.0889 mm.
 #[test]

@@ -26,7 +26,7 @@ pub(super) fn sq_json(sq: &[f64; 3]) -> Value {
     json!({"xy_yz": json_f64(sq[0]), "yz_zx": json_f64(sq[1]), "zx_xy": json_f64(sq[2])})
 }
 
-/// Transition angles (MODELS.md §1.3: ±(atan(ΔY/Lx) + atan(ΔZ/Lx))), read as:
+/// Transition angles (docs/models.md §1.3: ±(atan(ΔY/Lx) + atan(ΔZ/Lx))), read as:
 /// for each face, the two other faces' repeatability σ over the spacing L of
 /// the detection points on this face (the side of its outer square of
 /// nominal points).
