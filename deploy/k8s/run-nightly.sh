@@ -1,11 +1,62 @@
 #!/usr/bin/env bash
 # Runs one night on Kubernetes: the Indexed Job of shards, then — once every
-# shard completed — the aggregate Job. Not tested here (no cluster in CI);
-# the same flow is tested on Slurm by deploy/slurm/smoke.sh.
-#   deploy/k8s/run-nightly.sh [namespace]
+# shard completed — the aggregate Job. The one place the night is set up:
+#   BUCKET=s3://fleet-data IMAGE=registry.example.com/sparkout:1.2 \
+#   SHARDS=4 NIGHT=2026-11-27 deploy/k8s/run-nightly.sh [namespace]
+# SHARDS defaults to 4, NIGHT to today's UTC date; outputs go to
+# $BUCKET/nights/$NIGHT/{shards/<i>,out}, so nights never overwrite each other.
+#   deploy/k8s/run-nightly.sh --render DIR   writes the filled manifests to DIR
+#                                            and applies nothing (used by the
+#                                            tests; `kubectl apply -f DIR` works)
+# Not run against a cluster here (none in CI); the manifests are rendered and
+# checked by tests/e2e/deploy_recipes.rs, and the same flow is tested on Slurm
+# by deploy/slurm/smoke.sh.
 set -euo pipefail
-ns=${1:-default}
 here=$(cd "$(dirname "$0")" && pwd)
+render_only=""
+if [ "${1:-}" = "--render" ]; then
+    render_only=${2:?--render needs a directory}
+    shift 2
+fi
+ns=${1:-default}
+: "${BUCKET:?set BUCKET to the bucket URL holding runs/ (e.g. s3://fleet-data)}"
+: "${IMAGE:?set IMAGE to the sparkout image (built from deploy/docker/Dockerfile)}"
+SHARDS=${SHARDS:-4}
+NIGHT=${NIGHT:-$(date -u +%Y-%m-%d)}
+case "$SHARDS" in
+    '' | *[!0-9]* | 0) echo "SHARDS must be a whole number ≥ 1, not '$SHARDS'" >&2; exit 2 ;;
+esac
+case "$NIGHT" in
+    [0-9][0-9][0-9][0-9]-[0-9][0-9]-[0-9][0-9]) ;;
+    *) echo "NIGHT must be YYYY-MM-DD, not '$NIGHT'" >&2; exit 2 ;;
+esac
+BUCKET=${BUCKET%/}
+export BUCKET IMAGE SHARDS NIGHT
+
+# Per-index retries need Kubernetes ≥ 1.29 (beta, on by default; GA in 1.33).
+# On an older cluster they become one Job-wide retry budget.
+per_index=yes
+if [ -z "$render_only" ]; then
+    minor=$(kubectl version -o json 2>/dev/null |
+        python3 -c 'import json,sys; print(int("".join(c for c in json.load(sys.stdin)["serverVersion"]["minor"] if c.isdigit())))' 2>/dev/null || echo 0)
+    [ "$minor" -ge 29 ] || per_index=no
+fi
+render() { # TEMPLATE → stdout; only our four variables are filled (the pod
+    # scripts' own $i, $? and $JOB_COMPLETION_INDEX stay as they are).
+    envsubst '${BUCKET} ${IMAGE} ${SHARDS} ${NIGHT}' <"$1" |
+        if [ "$per_index" = yes ]; then cat; else
+            sed -e 's/^  backoffLimitPerIndex: .*/  backoffLimit: '"$((2 * SHARDS))"'/' -e '/^  maxFailedIndexes:/d'
+        fi
+}
+dir=${render_only:-$(mktemp -d)}
+mkdir -p "$dir"
+render "$here/shards-job.yaml" >"$dir/shards-job.yaml"
+render "$here/aggregate-job.yaml" >"$dir/aggregate-job.yaml"
+if [ -n "$render_only" ]; then
+    echo "rendered $dir/shards-job.yaml and $dir/aggregate-job.yaml ($SHARDS shards, night $NIGHT)"
+    exit 0
+fi
+
 # Wait for a Job to complete, and stop at once when it failed (waiting only
 # for "complete" would sit out the whole timeout on a failed shard).
 wait_job() { # JOB TIMEOUT_S
@@ -15,7 +66,7 @@ wait_job() { # JOB TIMEOUT_S
             return 0
         fi
         if kubectl -n "$ns" wait --for=condition=failed --timeout=1s "job/$job" >/dev/null 2>&1; then
-            echo "job $job failed; the night is not published:" >&2
+            echo "job $job failed; the night $NIGHT is not published:" >&2
             kubectl -n "$ns" describe "job/$job" | tail -n 20 >&2
             return 1
         fi
@@ -26,8 +77,8 @@ wait_job() { # JOB TIMEOUT_S
     done
 }
 kubectl -n "$ns" delete job sparkout-shards sparkout-aggregate --ignore-not-found
-kubectl -n "$ns" apply -f "$here/shards-job.yaml"
+kubectl -n "$ns" apply -f "$dir/shards-job.yaml"
 wait_job sparkout-shards $((12 * 3600))
-kubectl -n "$ns" apply -f "$here/aggregate-job.yaml"
+kubectl -n "$ns" apply -f "$dir/aggregate-job.yaml"
 wait_job sparkout-aggregate $((2 * 3600))
-echo "night published to \$BUCKET/out (see BUCKET in the two Job manifests)"
+echo "night $NIGHT published to $BUCKET/nights/$NIGHT/out"

@@ -14,6 +14,7 @@ mod config_defaults;
 mod confounding;
 mod contracts_bad_input;
 mod demo_artifacts;
+mod deploy_recipes;
 mod diagnose_robust;
 mod diagnose_validate;
 mod docs_agree;
