@@ -79,7 +79,8 @@ pub enum Command {
             requires = "shard"
         )]
         balance: String,
-        /// Append the night's diagnosis to this fleet history
+        /// Append the night's diagnosis to this fleet history, a directory or
+        /// a bucket URL (staged into --work, published back after the night)
         /// (DIR/night=YYYY-MM-DD/diagnosis.parquet) and write <out>/trend/.
         #[arg(long, value_name = "DIR", conflicts_with = "shard")]
         history: Option<PathBuf>,

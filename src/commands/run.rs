@@ -17,6 +17,8 @@ pub struct Places {
     /// The bucket URL a staged input came from.
     input_url: Option<String>,
     out: Output,
+    /// `--work`: where bucket locations are staged.
+    work: Option<PathBuf>,
 }
 
 impl Places {
@@ -37,6 +39,7 @@ impl Places {
             input: local,
             input_url: storage::is_url(input).then(|| input.display().to_string()),
             out,
+            work: work.map(Path::to_path_buf),
         })
     }
 }
@@ -52,14 +55,11 @@ pub fn run(
         anyhow::bail!("--jobs must be at least 1");
     }
     let mut engine = registry::engine(config)?;
+    let mut history_out = None;
     if let Some((dir, night, events)) = history {
-        if storage::is_url(&dir) {
-            anyhow::bail!(
-                "--history {}: the fleet history must be a local or shared directory (object storage is supported for --input, --out and --shards only); sync it with `sparkout sync`",
-                dir.display()
-            );
-        }
-        engine.set_history(dir, night, events)?;
+        let (local, publish) = storage::resolve_history(&dir, places.work.as_deref())?;
+        history_out = publish;
+        engine.set_history(local, night, events)?;
     }
     if let Some(model) = augment {
         engine.set_augment(model)?;
@@ -69,6 +69,11 @@ pub fn run(
     progress.finish();
     print_outcome(&outcome);
     places.out.publish()?;
+    // The history after the night's outputs: a history that names a night
+    // whose outputs were not published would mislead the next night's trend.
+    if let Some(h) = history_out {
+        h.publish()?;
+    }
     Ok(outcome.exit_code() as u8)
 }
 

@@ -541,4 +541,33 @@ fn publishing_checks_the_bucket_and_shards_fetch_only_their_runs() {
     let agg = dir.path().join("agg2");
     ok(sparkout_s3(port, &["sync", "s3://fleet/agg2", s(&agg)]));
     assert_same(&back, &agg, "2 shards on their own nodes, aggregated");
+
+    // A fleet history in the bucket: each night staged from it (the first
+    // from an empty prefix) and published back grown by one night, also
+    // from a fresh work directory.
+    for (night, w) in [("2026-11-20", "h1"), ("2026-11-21", "h2")] {
+        let text = ok(sparkout_s3(
+            port,
+            &[
+                "run", "--input", "s3://fleet/in", "--out", &format!("s3://fleet/n/{night}"),
+                "--history", "s3://fleet/history", "--night", night,
+                "--work", s(&dir.path().join(w)),
+            ],
+        ));
+        assert!(text.contains("published"), "{text}");
+    }
+    let hist = keys(port, "fleet", "history/");
+    for night in ["2026-11-20", "2026-11-21"] {
+        assert!(
+            hist.iter().any(|k| k.contains(&format!("night={night}/"))),
+            "night {night} missing from the bucket history: {hist:?}"
+        );
+    }
+    let n2 = dir.path().join("n2");
+    ok(sparkout_s3(port, &["sync", "s3://fleet/n/2026-11-21", s(&n2)]));
+    let trend = std::fs::read_to_string(n2.join("trend/trend.json")).unwrap();
+    assert!(
+        trend.contains("2026-11-20") && trend.contains("2026-11-21"),
+        "the second night's trend did not see the first night from the bucket: {trend}"
+    );
 }

@@ -306,6 +306,47 @@ pub fn resolve_input_selected(
     Ok(local)
 }
 
+/// `run --history` as a local directory: a bucket prefix is staged into
+/// the work directory (an empty prefix is a first night: nothing to stage)
+/// and returned with the [`Output`] that publishes the grown history back
+/// after the night. Write access is checked before anything is computed.
+/// One writer per history prefix: object storage has no lock, so two
+/// nights appending to one bucket history at once would lose one's rows.
+pub fn resolve_history(arg: &Path, work: Option<&Path>) -> Result<(PathBuf, Option<Output>)> {
+    let remote = match Location::parse(arg)? {
+        Location::Local(p) => return Ok((p, None)),
+        Location::Remote(remote) => remote,
+    };
+    check_writable(&remote)?;
+    let local = work_dir(work, &remote.url, "history");
+    let listed: Vec<object_store::ObjectMeta> = block_on(
+        futures::TryStreamExt::try_collect(remote.store.list(Some(&remote.prefix))),
+    )
+    .with_context(|| format!("cannot list the history `{}`", remote.url))?;
+    if listed.is_empty() {
+        std::fs::create_dir_all(&local)
+            .with_context(|| format!("cannot create {}", local.display()))?;
+        eprintln!("history {} is empty: this is its first night", remote.url);
+    } else {
+        let r = stage_down(&remote, &local, None)?;
+        eprintln!(
+            "staged the history {} into {}: {} downloaded, {} unchanged",
+            remote.url,
+            local.display(),
+            r.downloaded,
+            r.unchanged
+        );
+    }
+    Ok((
+        local.clone(),
+        Some(Output {
+            stands_for: vec![(local.clone(), remote.url.clone())],
+            local,
+            remote: Some(remote),
+        }),
+    ))
+}
+
 /// Where a command writes: the local directory, and the bucket prefix it is
 /// published to afterwards ([`Output::publish`]).
 pub struct Output {
