@@ -28,6 +28,7 @@ mod guideway_stages;
 mod hostile;
 mod impossible_values;
 mod machines;
+mod metrology;
 mod mill_diagnosis_e2e;
 mod mill_stages;
 mod negative_values;

@@ -327,7 +327,7 @@ fn surface_flatness(args: &StageArgs) -> Result<Value> {
         "n": p.z_mm.len(),
     });
     // ISO 25178-2 heights, spikes and the evaluation area (docs/metrology.md).
-    out["areal"] = crate::metrology::areal::surface_report(&p.x_mm, &p.y_mm, &p.z_mm)
+    out["areal"] = crate::metrology::areal::report_read_points(&p.x_mm, &p.y_mm, &p.z_mm)
         .with_context(|| path.display().to_string())?;
     Ok(out)
 }

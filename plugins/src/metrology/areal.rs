@@ -149,6 +149,18 @@ fn scale_of(z: &[f64]) -> f64 {
     z.iter().fold(0.0_f64, |a, v| a.max(v.abs()))
 }
 
+/// [`surface_report`] of points a reader has already cleared of unmeasured
+/// cells (the Parquet surface reader leaves null/NaN grid cells out): the
+/// count of those is not known here, and the output says so.
+pub fn report_read_points(x: &[f64], y: &[f64], z: &[f64]) -> Result<Value> {
+    let mut v = surface_report(x, y, z)?;
+    let area = &mut v["evaluation_area"];
+    area["n_not_measured"] = Value::Null;
+    area["not_measured"] =
+        "null or NaN cells of a gridded map are left out by the surface reader before these figures; their count is not known here".into();
+    Ok(v)
+}
+
 /// The `areal` object of `flatness --surface`: evaluation area, heights
 /// after both forms, the spike report. Points with a non-finite z are not
 /// measured: counted and left out; a non-finite x or y is an error.
@@ -194,11 +206,14 @@ pub fn console(a: &Value) -> String {
     let mut s = String::new();
     let area = &a["evaluation_area"];
     s += &format!(
-        "evaluation area {} × {}, {} valid points ({} not measured); filter: none (form removal only); plain means\n",
+        "evaluation area {} × {}, {} valid points{}; filter: none (form removal only); plain means\n",
         console_length(value_of(&area["x_extent"])),
         console_length(value_of(&area["y_extent"])),
         area["n_valid"],
-        area["n_not_measured"],
+        match area["n_not_measured"].as_u64() {
+            Some(k) => format!(" ({k} not measured, left out)"),
+            None => " (unmeasured cells left out by the reader)".into(),
+        },
     );
     for (key, title) in [
         ("least_squares_plane", "after LS plane  "),

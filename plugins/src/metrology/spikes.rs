@@ -149,16 +149,12 @@ pub fn console(s: &Value) -> String {
             .into_iter()
             .flatten()
             .map(|p| {
-                format!(
-                    "({}, {}) {}",
-                    p["x_mm"],
-                    p["y_mm"],
-                    console_length(p["residual_mm"].as_f64().unwrap_or(f64::NAN))
-                )
+                let l = |k: &str| console_length(p[k].as_f64().unwrap_or(f64::NAN));
+                format!("({}, {}) {}", l("x_mm"), l("y_mm"), l("residual_mm"))
             })
             .collect();
         out += &format!(
-            "  at x, y (mm) and residual: {}{}\n",
+            "  at (x, y) and residual: {}{}\n",
             shown.join("; "),
             if count as usize > shown.len() {
                 format!("; … {} more in the JSON count", count as usize - shown.len())
