@@ -265,7 +265,9 @@ mod tests {
                 let u = -2.0 + 4.0 * (i as f64 + 0.5) / n as f64;
                 x.push(u);
                 y.push(j as f64);
-                z.push(0.2 + 0.01 * u - 0.003 * j as f64 + a * (2.0 * std::f64::consts::PI * u).cos());
+                z.push(
+                    0.2 + 0.01 * u - 0.003 * j as f64 + a * (2.0 * std::f64::consts::PI * u).cos(),
+                );
             }
         }
         let r = residuals(&x, &y, &z, Form::Plane).unwrap();
@@ -292,7 +294,10 @@ mod tests {
         let r = residuals(&x, &y, &z, Form::SecondOrder).unwrap();
         let h = heights(&r, scale_of(&z));
         assert!(h.sq < 1e-14, "{}", h.sq);
-        assert!(h.ssk.is_nan(), "the shape of rounding noise is not reported");
+        assert!(
+            h.ssk.is_nan(),
+            "the shape of rounding noise is not reported"
+        );
         // The plane leaves the curvature.
         let p = heights(&residuals(&x, &y, &z, Form::Plane).unwrap(), 1.0);
         assert!(p.sq > 1e-3);
@@ -311,7 +316,11 @@ mod tests {
             for j in 0..6 {
                 x.push(i as f64);
                 y.push(j as f64);
-                z.push(if (i + j) % 7 == 3 { f64::NAN } else { ((i * 7 + j * 3) % 5) as f64 * 1e-4 });
+                z.push(if (i + j) % 7 == 3 {
+                    f64::NAN
+                } else {
+                    ((i * 7 + j * 3) % 5) as f64 * 1e-4
+                });
             }
         }
         let a = surface_report(&x, &y, &z).unwrap();

@@ -155,7 +155,9 @@ pub fn analyse(x: &[f64], z: &[f64], s: Settings) -> Result<Value> {
         }),
     };
     out["roughness"] = match s.lambda_c {
-        None => json!({"not_computed": "no cut-off: give --lambda-c MM (standard cut-offs 0.08, 0.25, 0.8, 2.5, 8 mm) for the R figures"}),
+        None => {
+            json!({"not_computed": "no cut-off: give --lambda-c MM (standard cut-offs 0.08, 0.25, 0.8, 2.5, 8 mm) for the R figures"})
+        }
         Some(lc) => roughness(x, &p, lc, s.sampling_lengths)?,
     };
     Ok(out)
@@ -317,9 +319,7 @@ mod tests {
         // exactly piecewise linear: Rq = A/√3, Ra = A/2, Rku = 9/5.
         let a = 2e-3;
         let x: Vec<f64> = (0..=40).map(|i| i as f64 * 0.5).collect();
-        let z: Vec<f64> = (0..=40)
-            .map(|i| if i % 2 == 0 { -a } else { a })
-            .collect();
+        let z: Vec<f64> = (0..=40).map(|i| if i % 2 == 0 { -a } else { a }).collect();
         let m = moments(&x, &z);
         assert!(m.mean.abs() < 1e-18);
         assert!((m.q - a / 3f64.sqrt()).abs() < 1e-15, "{}", m.q);

@@ -222,13 +222,12 @@ fn finish(
         }
         if !c.z[i].is_finite() {
             if c.z[i].is_infinite() {
-                return Err(InputError::new(
-                    path,
-                    format!("{} {at}: an infinite height", c.place),
-                )
-                .column(&z.column)
-                .row(at)
-                .into());
+                return Err(
+                    InputError::new(path, format!("{} {at}: an infinite height", c.place))
+                        .column(&z.column)
+                        .row(at)
+                        .into(),
+                );
             }
             not_measured += 1;
             continue;
@@ -278,7 +277,10 @@ fn numeric(path: &Path, b: &RecordBatch, name: &str) -> Result<Vec<f64>> {
     {
         return Err(InputError::new(
             path,
-            format!("wrong type {} (a profile column is a number)", col.data_type()),
+            format!(
+                "wrong type {} (a profile column is a number)",
+                col.data_type()
+            ),
         )
         .column(name)
         .into());
@@ -459,7 +461,10 @@ fn text_profile(path: &Path, spec: &ProfileSpec) -> Result<ProfileData> {
     let mut line_units: Option<(usize, Vec<Unit>)> = None;
     let f0 = fields(&first.1);
     let units: Vec<Option<Unit>> = f0.iter().map(|t| Unit::parse(t)).collect();
-    if units.iter().all(|u| u.is_some_and(|u| u.kind == Kind::Length)) {
+    if units
+        .iter()
+        .all(|u| u.is_some_and(|u| u.kind == Kind::Length))
+    {
         line_units = Some((first.0, units.into_iter().flatten().collect()));
         body = &body[1..];
         // An optional count line, e.g. `23`.
@@ -487,7 +492,10 @@ fn text_profile(path: &Path, spec: &ProfileSpec) -> Result<ProfileData> {
     };
     let width = fields(&data0.1).len();
     let col_name = |i: usize| match &header {
-        Some(h) => h.get(i).cloned().unwrap_or_else(|| format!("column {}", i + 1)),
+        Some(h) => h
+            .get(i)
+            .cloned()
+            .unwrap_or_else(|| format!("column {}", i + 1)),
         None => format!("column {}", i + 1),
     };
     // Pick a column by header name or 1-based number.
@@ -537,7 +545,11 @@ fn text_profile(path: &Path, spec: &ProfileSpec) -> Result<ProfileData> {
                 None => {
                     return Err(InputError::new(
                         path,
-                        format!("line {n}: the units line has {} unit(s), but column {} is read", u.len(), i + 1),
+                        format!(
+                            "line {n}: the units line has {} unit(s), but column {} is read",
+                            u.len(),
+                            i + 1
+                        ),
                     )
                     .column(name)
                     .into())
@@ -551,9 +563,14 @@ fn text_profile(path: &Path, spec: &ProfileSpec) -> Result<ProfileData> {
         }
         if is_z {
             if let Some((n, _, v)) = keys.iter().find(|(_, k, _)| k == "value units") {
-                let u = Unit::parse(v).filter(|u| u.kind == Kind::Length).ok_or_else(|| {
-                    InputError::new(path, format!("line {n}: `Value units: {v}` is not a length unit"))
-                })?;
+                let u = Unit::parse(v)
+                    .filter(|u| u.kind == Kind::Length)
+                    .ok_or_else(|| {
+                        InputError::new(
+                            path,
+                            format!("line {n}: `Value units: {v}` is not a length unit"),
+                        )
+                    })?;
                 s.push((u, format!("line {n} (`Value units`)")));
             }
         }
@@ -594,13 +611,12 @@ fn text_profile(path: &Path, spec: &ProfileSpec) -> Result<ProfileData> {
         }
         for (i, name) in [(xi, &xn), (zi, &zn)] {
             if number(f[i]).is_none() {
-                return Err(InputError::new(
-                    path,
-                    format!("line {n}: `{}` is not a number", f[i]),
-                )
-                .column(name.as_str())
-                .row(*n)
-                .into());
+                return Err(
+                    InputError::new(path, format!("line {n}: `{}` is not a number", f[i]))
+                        .column(name.as_str())
+                        .row(*n)
+                        .into(),
+                );
             }
         }
         c.x.push(number(f[xi]).unwrap_or(f64::NAN));
@@ -677,12 +693,18 @@ pub fn read_matrix(
         let Some((n, _, v)) = keys.iter().find(|(_, k, _)| k == key) else {
             return Err(InputError::new(
                 path,
-                format!("no `# {}: <length> <unit>` header line; the pixel size comes from it", capital(key)),
+                format!(
+                    "no `# {}: <length> <unit>` header line; the pixel size comes from it",
+                    capital(key)
+                ),
             )
             .into());
         };
         let (len, unit) = length_with_unit(v).ok_or_else(|| {
-            InputError::new(path, format!("line {n}: `{v}` is not a length with a unit (e.g. `10 µm`)"))
+            InputError::new(
+                path,
+                format!("line {n}: `{v}` is not a length with a unit (e.g. `10 µm`)"),
+            )
         })?;
         if !(len.is_finite() && len > 0.0) {
             return Err(InputError::new(path, format!("line {n}: the {key} must be > 0")).into());
@@ -700,9 +722,14 @@ pub fn read_matrix(
     let (height, ay) = size("height", "y-unit", y_unit)?;
     let zs = match keys.iter().find(|(_, k, _)| k == "value units") {
         Some((n, _, v)) => Some((
-            Unit::parse(v).filter(|u| u.kind == Kind::Length).ok_or_else(|| {
-                InputError::new(path, format!("line {n}: `Value units: {v}` is not a length unit"))
-            })?,
+            Unit::parse(v)
+                .filter(|u| u.kind == Kind::Length)
+                .ok_or_else(|| {
+                    InputError::new(
+                        path,
+                        format!("line {n}: `Value units: {v}` is not a length unit"),
+                    )
+                })?,
             format!("line {n} (`Value units`)"),
         )),
         None => None,
@@ -816,21 +843,39 @@ mod tests {
         assert_eq!(p.z.unit, Unit::UM);
 
         let f = file("X_(microns),y1\n1,5\n2,6\n3,7\n", ".csv");
-        let e = read_profile(f.path(), &ProfileSpec::default()).unwrap_err().to_string();
+        let e = read_profile(f.path(), &ProfileSpec::default())
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("`y1`") && e.contains("--z-unit"), "{e}");
-        let spec = ProfileSpec { z_unit: Some("nm"), ..Default::default() };
+        let spec = ProfileSpec {
+            z_unit: Some("nm"),
+            ..Default::default()
+        };
         let p = read_profile(f.path(), &spec).unwrap();
         assert_eq!(p.x.unit, Unit::UM);
         assert_eq!(p.z_mm[0], 5e-6);
         // A flag that contradicts the file is refused.
-        let spec = ProfileSpec { x_unit: Some("mm"), z_unit: Some("nm"), ..Default::default() };
+        let spec = ProfileSpec {
+            x_unit: Some("mm"),
+            z_unit: Some("nm"),
+            ..Default::default()
+        };
         let e = read_profile(f.path(), &spec).unwrap_err().to_string();
-        assert!(e.contains("column name states `µm`") && e.contains("--x-unit"), "{e}");
+        assert!(
+            e.contains("column name states `µm`") && e.contains("--x-unit"),
+            "{e}"
+        );
 
         let f = file("0 1e-9\n1e-6 2e-9\n2e-6 NaN\n3e-6 1e-9\n", ".txt");
-        let e = read_profile(f.path(), &ProfileSpec::default()).unwrap_err().to_string();
+        let e = read_profile(f.path(), &ProfileSpec::default())
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("--x-unit"), "{e}");
-        let spec = ProfileSpec { x_unit: Some("m"), z_unit: Some("m"), ..Default::default() };
+        let spec = ProfileSpec {
+            x_unit: Some("m"),
+            z_unit: Some("m"),
+            ..Default::default()
+        };
         let p = read_profile(f.path(), &spec).unwrap();
         assert_eq!(p.not_measured, 1);
         assert_eq!(p.x_mm, [0.0, 0.001, 0.003]);
@@ -839,13 +884,22 @@ mod tests {
     #[test]
     fn bad_lines_are_named() {
         let f = file("x_mm,z_um\n0,1\n1,oops\n", ".csv");
-        let e = read_profile(f.path(), &ProfileSpec::default()).unwrap_err().to_string();
+        let e = read_profile(f.path(), &ProfileSpec::default())
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("`z_um`") && e.contains("line 3"), "{e}");
         let f = file("x_mm,z_um\n0,1\n2,1\n1,1\n", ".csv");
-        let e = read_profile(f.path(), &ProfileSpec::default()).unwrap_err().to_string();
-        assert!(e.contains("`x_mm`") && e.contains("line 4") && e.contains("increase"), "{e}");
+        let e = read_profile(f.path(), &ProfileSpec::default())
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("`x_mm`") && e.contains("line 4") && e.contains("increase"),
+            "{e}"
+        );
         let f = file("x_mm,z_um\n0,1\n2\n", ".csv");
-        let e = read_profile(f.path(), &ProfileSpec::default()).unwrap_err().to_string();
+        let e = read_profile(f.path(), &ProfileSpec::default())
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("line 3"), "{e}");
     }
 
@@ -862,10 +916,14 @@ mod tests {
         assert_eq!(m.y_mm[4], 0.01);
         assert_eq!(m.z_mm[0], 1e-6);
         assert!(m.z_mm[5].is_nan());
-        let e = read_matrix(f.path(), None, None, Some("um")).unwrap_err().to_string();
+        let e = read_matrix(f.path(), None, None, Some("um"))
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("--z-unit"), "{e}");
         let f = file("# Width: 4\n# Height: 20 µm\n1 2\n3 4\n", ".txt");
-        let e = read_matrix(f.path(), None, None, None).unwrap_err().to_string();
+        let e = read_matrix(f.path(), None, None, None)
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("--x-unit"), "{e}");
     }
 }

@@ -157,7 +157,10 @@ pub fn console(s: &Value) -> String {
             "  at (x, y) and residual: {}{}\n",
             shown.join("; "),
             if count as usize > shown.len() {
-                format!("; … {} more in the JSON count", count as usize - shown.len())
+                format!(
+                    "; … {} more in the JSON count",
+                    count as usize - shown.len()
+                )
             } else {
                 String::new()
             }

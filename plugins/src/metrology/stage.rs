@@ -67,9 +67,9 @@ fn profile_standalone(args: &StageArgs) -> Result<Value> {
             "unknown flag --{k} for `profile` (known: --profile FILE, --lambda-c MM, --sampling-lengths N, --x COL, --z COL, --x-unit U, --z-unit U)"
         );
     }
-    let file = args
-        .get("profile")
-        .ok_or_else(|| anyhow!("stage `profile` needs --profile FILE (a Parquet, CSV or instrument text profile)"))?;
+    let file = args.get("profile").ok_or_else(|| {
+        anyhow!("stage `profile` needs --profile FILE (a Parquet, CSV or instrument text profile)")
+    })?;
     let number = |flag: &str| -> Result<Option<f64>> {
         args.get(flag)
             .map(|s| {

@@ -205,7 +205,11 @@ mod tests {
                 .collect();
             let mz = min_zone(&x, &z).unwrap();
             let b = brute(&x, &z);
-            assert!((mz.width - b).abs() < 1e-12, "case {case}: {} vs {b}", mz.width);
+            assert!(
+                (mz.width - b).abs() < 1e-12,
+                "case {case}: {} vs {b}",
+                mz.width
+            );
             assert!(mz.width <= least_squares(&x, &z).unwrap().width);
         }
     }
