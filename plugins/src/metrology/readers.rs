@@ -211,23 +211,28 @@ fn finish(
     let mut not_measured = 0;
     for i in 0..c.x.len() {
         let at = c.at[i];
+        // Parquet rows go in the error's row; text lines in its message.
+        let (pre, row) = match c.place {
+            "line" => (format!("line {at}: "), None),
+            _ => (String::new(), Some(at)),
+        };
+        let locate = |e: InputError| match row {
+            Some(r) => e.row(r),
+            None => e,
+        };
         if !c.x[i].is_finite() {
-            return Err(InputError::new(
-                path,
-                format!("{} {at}: the position is not a finite number", c.place),
+            return Err(locate(
+                InputError::new(path, format!("{pre}the position is not a finite number"))
+                    .column(&x.column),
             )
-            .column(&x.column)
-            .row(at)
             .into());
         }
         if !c.z[i].is_finite() {
             if c.z[i].is_infinite() {
-                return Err(
-                    InputError::new(path, format!("{} {at}: an infinite height", c.place))
-                        .column(&z.column)
-                        .row(at)
-                        .into(),
-                );
+                return Err(locate(
+                    InputError::new(path, format!("{pre}an infinite height")).column(&z.column),
+                )
+                .into());
             }
             not_measured += 1;
             continue;
@@ -235,15 +240,14 @@ fn finish(
         let xv = x.unit.to_canonical(c.x[i]);
         if let Some(&prev) = xs.last() {
             if xv <= prev {
-                return Err(InputError::new(
+                return Err(locate(InputError::new(
                     path,
                     format!(
-                        "{} {at}: x = {} does not increase (the previous point, {} {}, is at {}); a profile's positions must increase strictly",
-                        c.place, c.x[i], c.place, ats.last().unwrap(), x.unit.from_canonical(prev)
+                        "{pre}x = {} does not increase (the previous point, {} {}, is at {}); a profile's positions must increase strictly",
+                        c.x[i], c.place, ats.last().unwrap(), x.unit.from_canonical(prev)
                     ),
                 )
-                .column(&x.column)
-                .row(at)
+                .column(&x.column))
                 .into());
             }
         }
@@ -352,7 +356,8 @@ fn parquet_profile(path: &Path, spec: &ProfileSpec) -> Result<ProfileData> {
                 source: Source::FieldMetadata,
             });
         }
-        let unit_err = |e: UnitError| InputError::new(path, e.to_string()).column(col);
+        // A UnitError names its column itself.
+        let unit_err = |e: UnitError| InputError::new(path, e.to_string());
         match resolve(col, Kind::Length, &stated).map_err(unit_err)? {
             Some((unit, source)) => Ok(Axis {
                 column: col.into(),
@@ -606,7 +611,6 @@ fn text_profile(path: &Path, spec: &ProfileSpec) -> Result<ProfileData> {
                     data0.0
                 ),
             )
-            .row(*n)
             .into());
         }
         for (i, name) in [(xi, &xn), (zi, &zn)] {
@@ -614,7 +618,6 @@ fn text_profile(path: &Path, spec: &ProfileSpec) -> Result<ProfileData> {
                 return Err(
                     InputError::new(path, format!("line {n}: `{}` is not a number", f[i]))
                         .column(name.as_str())
-                        .row(*n)
                         .into(),
                 );
             }
@@ -749,7 +752,6 @@ pub fn read_matrix(
                 s.parse::<f64>().map_err(|_| {
                     InputError::new(path, format!("line {n}: `{s}` is not a number"))
                         .column(format!("column {}", j + 1))
-                        .row(*n)
                 })
             })
             .collect::<Result<_, _>>()?;
@@ -763,7 +765,6 @@ pub fn read_matrix(
                         r0.len()
                     ),
                 )
-                .row(*n)
                 .into());
             }
         } else {
