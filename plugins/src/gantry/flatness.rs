@@ -300,7 +300,7 @@ impl Stage for FlatnessStage {
     }
 }
 
-/// `{"least_squares_mm", "min_zone_mm", "n"}` of any surface file.
+/// `{"least_squares_mm", "min_zone_mm", "n", "areal"}` of any surface file.
 fn surface_flatness(args: &StageArgs) -> Result<Value> {
     const KNOWN: [&str; 5] = ["surface", "x", "y", "z", "unit-scale"];
     if let Some(k) = args.keys().find(|k| !KNOWN.contains(&k.as_str())) {
