@@ -326,6 +326,11 @@ pub trait Stage: Send + Sync {
     fn run_standalone(&self, _args: &StageArgs) -> Option<Result<serde_json::Value>> {
         None
     }
+    /// Human-readable text of a run-less result, printed instead of the
+    /// JSON when `--json` is not given; `None`: the JSON is the output.
+    fn console(&self, _result: &serde_json::Value) -> Option<String> {
+        None
+    }
 }
 
 /// Shorthands for the spec's fields (callers hold `Arc<dyn Stage>`).
@@ -372,6 +377,11 @@ pub trait MachinePlugin: Send + Sync {
     }
     /// The plugin's stages, in any order (the engine sorts them by edges).
     fn stages(&self) -> Vec<Arc<dyn Stage>>;
+    /// Stages with only a run-less form (`sparkout stage NAME --flags`):
+    /// found by name like the others but never part of a run's DAG.
+    fn standalone_stages(&self) -> Vec<Arc<dyn Stage>> {
+        Vec::new()
+    }
     /// The keys this plugin reads (or the generator records) in run.toml
     /// `[process]`, each with its valid range: any other key is a typo and
     /// a value outside its range is impossible; either rejects the run

@@ -8,6 +8,7 @@ use sparkout_pipeline::MachinePlugin;
 pub mod form;
 pub mod gantry;
 pub mod guideway;
+pub mod metrology;
 pub mod mill;
 pub mod robot;
 pub mod servo;

@@ -126,8 +126,12 @@ pub fn stage(
             if let Some(out) = &out {
                 write_json_atomic(&out.join(format!("{name}.json")), &result)?;
             }
-            if json || out.is_none() {
-                println!("{}", serde_json::to_string_pretty(&result)?);
+            match stage.console(&result).filter(|_| !json) {
+                Some(text) => print!("{text}"),
+                None if json || out.is_none() => {
+                    println!("{}", serde_json::to_string_pretty(&result)?)
+                }
+                None => {}
             }
             Ok(0)
         }

@@ -30,6 +30,7 @@ mod help_lists_registry;
 mod hostile;
 mod impossible_values;
 mod machines;
+mod metrology;
 mod mill_diagnosis_e2e;
 mod mill_stages;
 mod negative_values;

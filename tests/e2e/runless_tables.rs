@@ -37,7 +37,8 @@ fn assert_flatness(got: &serde_json::Value, want: &serde_json::Value) {
     }
     assert!(got["min_zone_mm"].as_f64() <= got["least_squares_mm"].as_f64());
     let keys: Vec<&String> = got.as_object().unwrap().keys().collect();
-    assert_eq!(keys, ["least_squares_mm", "min_zone_mm", "n"]);
+    // `areal`: ISO 25178-2 heights and spikes (tests/e2e/metrology.rs).
+    assert_eq!(keys, ["areal", "least_squares_mm", "min_zone_mm", "n"]);
 }
 
 #[test]

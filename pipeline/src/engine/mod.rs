@@ -586,7 +586,7 @@ impl Engine {
     pub fn find_stage(&self, name: &str) -> Option<Arc<dyn Stage>> {
         self.plugins
             .iter()
-            .flat_map(|p| p.stages())
+            .flat_map(|p| p.stages().into_iter().chain(p.standalone_stages()))
             .find(|s| s.name() == name)
     }
 }

@@ -279,6 +279,9 @@ impl Stage for FlatnessStage {
     /// (a topography table), or `--surface FILE [--x COL --y COL --z COL]
     /// [--unit-scale F] --json` (any x/y/z table or gridded map).
     fn run_standalone(&self, args: &StageArgs) -> Option<Result<Value>> {
+        if let Some(r) = crate::metrology::stage::matrix_flatness(args) {
+            return Some(r);
+        }
         if args.contains_key("surface") {
             return Some(surface_flatness(args));
         }
@@ -293,9 +296,12 @@ impl Stage for FlatnessStage {
             Ok(analyse(&t, args.get("state").map(|s| s.as_str()))?.1)
         })())
     }
+    fn console(&self, result: &Value) -> Option<String> {
+        crate::metrology::stage::surface_console(result)
+    }
 }
 
-/// `{"least_squares_mm", "min_zone_mm", "n"}` of any surface file.
+/// `{"least_squares_mm", "min_zone_mm", "n", "areal"}` of any surface file.
 fn surface_flatness(args: &StageArgs) -> Result<Value> {
     const KNOWN: [&str; 5] = ["surface", "x", "y", "z", "unit-scale"];
     if let Some(k) = args.keys().find(|k| !KNOWN.contains(&k.as_str())) {
@@ -316,11 +322,15 @@ fn surface_flatness(args: &StageArgs) -> Result<Value> {
     let path = std::path::Path::new(&args["surface"]);
     let p = read_surface(path, &spec)?;
     let f = flatness(&p.x_mm, &p.y_mm, &p.z_mm).with_context(|| path.display().to_string())?;
-    Ok(json!({
+    let mut out = json!({
         "least_squares_mm": f.least_squares.width_mm,
         "min_zone_mm": f.min_zone.width_mm,
         "n": p.z_mm.len(),
-    }))
+    });
+    // ISO 25178-2 heights, spikes and the evaluation area (docs/metrology.md).
+    out["areal"] = crate::metrology::areal::report_read_points(&p.x_mm, &p.y_mm, &p.z_mm)
+        .with_context(|| path.display().to_string())?;
+    Ok(out)
 }
 
 fn batch(all: &[(String, Flatness)]) -> arrow::record_batch::RecordBatch {

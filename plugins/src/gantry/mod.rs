@@ -70,6 +70,11 @@ impl MachinePlugin for GantryPlugin {
             Arc::new(observe::ObserveStage),
         ]
     }
+    /// Line-profile metrology (`sparkout stage profile --profile FILE`):
+    /// a gantry's straightness traces are its users, no run table is.
+    fn standalone_stages(&self) -> Vec<Arc<dyn Stage>> {
+        vec![Arc::new(crate::metrology::ProfileStage)]
+    }
     /// What the stages read from run.toml `[process]` (and what the
     /// generator writes there, for provenance).
     fn process_keys(&self) -> Option<ProcessKeys> {
