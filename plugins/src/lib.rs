@@ -12,6 +12,8 @@ pub mod metrology;
 pub mod mill;
 pub mod robot;
 pub mod servo;
+#[cfg(test)]
+mod toy;
 
 /// Every plugin this build knows, in a fixed order.
 pub fn all_plugins() -> Vec<Arc<dyn MachinePlugin>> {
