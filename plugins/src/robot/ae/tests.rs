@@ -71,8 +71,8 @@ fn events_within_one_window_of_burst_onsets_one_per_burst() {
     }
     let f = det.floors()[0];
     // Noise floor ≈ σ of the noise (5 mV); threshold a bit above it.
-    assert!((f.mean_v - 0.005).abs() < 5e-4, "{f:?}");
-    assert!(f.threshold_v > f.mean_v && f.release_v < f.threshold_v);
+    assert!((f.centre_v - 0.005).abs() < 5e-4, "{f:?}");
+    assert!(f.threshold_v > f.centre_v && f.release_v < f.threshold_v);
 }
 
 #[test]
@@ -153,12 +153,22 @@ fn reference(t: &[f64], v: &[f32], p: AeParams) -> Vec<(u64, f64, f64)> {
     let cal: Vec<f64> = (w..w + p.noise_window)
         .map(|i| (sums[i] / w as f64).sqrt())
         .collect();
-    let n = cal.len() as f64;
-    let mean = cal.iter().sum::<f64>() / n;
-    let var = cal.iter().map(|e| (e - mean).powi(2)).sum::<f64>() / (n - 1.0);
-    let sigma = var.sqrt().max(1e-3 * mean).max(1e-12);
-    let on = w as f64 * (mean + p.k_sigma * sigma).powi(2);
-    let off = w as f64 * (mean + p.hysteresis * p.k_sigma * sigma).powi(2);
+    // Median and MAD by sorting (the detector selects in place).
+    let median = |v: &[f64]| {
+        let mut s = v.to_vec();
+        s.sort_by(f64::total_cmp);
+        let n = s.len();
+        if n % 2 == 1 {
+            s[n / 2]
+        } else {
+            0.5 * (s[n / 2 - 1] + s[n / 2])
+        }
+    };
+    let centre = median(&cal);
+    let dev: Vec<f64> = cal.iter().map(|e| (e - centre).abs()).collect();
+    let sigma = (1.4826 * median(&dev)).max(1e-3 * centre).max(1e-12);
+    let on = w as f64 * (centre + p.k_sigma * sigma).powi(2);
+    let off = w as f64 * (centre + p.hysteresis * p.k_sigma * sigma).powi(2);
     let mut out = Vec::new();
     let mut i = w + p.noise_window;
     while i < v.len() {
@@ -236,6 +246,6 @@ fn gaps_restart_window_and_noise_floor() {
     assert!((ev[0].onset_t_s - 0.012).abs() < 1e-3);
     assert!((ev[1].onset_t_s - 1.013).abs() < 1e-3);
     assert_eq!(det.floors().len(), 2);
-    assert!(det.floors()[1].mean_v > 1.5 * det.floors()[0].mean_v);
+    assert!(det.floors()[1].centre_v > 1.5 * det.floors()[0].centre_v);
     assert_eq!(gaps(&t, None, 1.5 / fs), vec![20_000]);
 }
