@@ -302,6 +302,19 @@ pub struct AeDetector {
     pending: Option<AeEvent>,
     /// Threshold crossings that fell back before the minimum dwell.
     short_crossings: u64,
+    /// The latest of them (with the ones chained before it), while a merge
+    /// gap is in force.
+    dropped: Option<Dropped>,
+}
+
+/// A run of dropped threshold crossings, each within the merge gap of the
+/// next (global sample indices).
+#[derive(Debug, Clone, Copy)]
+struct Dropped {
+    start: u64,
+    start_t: f64,
+    end: u64,
+    peak_sum: f64,
 }
 
 impl AeDetector {
@@ -328,6 +341,7 @@ impl AeDetector {
             max_sum_armed: 0.0,
             pending: None,
             short_crossings: 0,
+            dropped: None,
         }
     }
 
@@ -367,6 +381,7 @@ impl AeDetector {
         self.sum = 0.0;
         self.phase = Phase::Warmup;
         self.cal.clear();
+        self.dropped = None;
         self.floor = None;
         self.on_sum = f64::INFINITY;
         self.off_sum = f64::INFINITY;
@@ -486,7 +501,7 @@ impl AeDetector {
                         // The crossing sample (j − 1) starts a candidate.
                         self.start_candidate(t_s, j - 1);
                         if self.dwell >= self.p.min_dwell {
-                            self.phase = Phase::Active;
+                            self.confirm();
                         }
                     }
                     j
@@ -522,6 +537,44 @@ impl AeDetector {
         self.block_seen += n as u64;
         self.global += n as u64;
         self.last_t = t_s[n - 1];
+    }
+
+    /// A candidate that fell back before the dwell, at global index `end`.
+    /// With a merge gap it is remembered (chained to the previous dropped
+    /// one when that ended within the gap), so a contact confirmed soon
+    /// after can start where the first of them did.
+    fn drop_candidate(&mut self, end: u64) {
+        self.short_crossings += 1;
+        if self.p.merge_gap == 0 {
+            return;
+        }
+        let (start, start_t, peak) = match self.dropped {
+            Some(d) if self.start_index.saturating_sub(d.end) <= self.p.merge_gap as u64 => {
+                (d.start, d.start_t, d.peak_sum.max(self.peak_sum))
+            }
+            _ => (self.start_index, self.start_t, self.peak_sum),
+        };
+        self.dropped = Some(Dropped {
+            start,
+            start_t,
+            end,
+            peak_sum: peak,
+        });
+    }
+
+    /// The candidate has lasted the dwell: a contact. Its onset is the
+    /// first of the dropped crossings chained to it within the merge gap: a
+    /// contact whose level dips during its first samples (a cut's entry, a
+    /// slow RMS log) starts when it first crossed, not after its last dip.
+    fn confirm(&mut self) {
+        self.phase = Phase::Active;
+        if let Some(d) = self.dropped.take() {
+            if self.start_index.saturating_sub(d.end) <= self.p.merge_gap as u64 {
+                self.start_index = d.start;
+                self.start_t = d.start_t;
+                self.peak_sum = self.peak_sum.max(d.peak_sum);
+            }
+        }
     }
 
     fn start_candidate(&mut self, t_s: &[f64], i: usize) {
@@ -699,7 +752,7 @@ impl AeDetector {
                     if self.sum > self.on_sum {
                         self.start_candidate(t_s, i);
                         if self.dwell >= self.p.min_dwell {
-                            self.phase = Phase::Active;
+                            self.confirm();
                         }
                     } else {
                         return i + 1;
@@ -710,11 +763,11 @@ impl AeDetector {
                         self.dwell += 1;
                         self.peak_sum = self.peak_sum.max(self.sum);
                         if self.dwell >= self.p.min_dwell {
-                            self.phase = Phase::Active;
+                            self.confirm();
                         }
                     } else {
-                        // Too short: not a contact.
-                        self.short_crossings += 1;
+                        // Too short: not a contact (yet: see `confirm`).
+                        self.drop_candidate(self.global + i as u64);
                         self.phase = Phase::Idle;
                         return i + 1;
                     }
