@@ -315,6 +315,8 @@ struct Dropped {
     start_t: f64,
     end: u64,
     peak_sum: f64,
+    /// Samples above the threshold over the whole chain.
+    dwell: usize,
 }
 
 impl AeDetector {
@@ -548,6 +550,7 @@ impl AeDetector {
         if self.p.merge_gap == 0 {
             return;
         }
+        // `self.dwell` already counts the chain's samples (start_candidate).
         let (start, start_t, peak) = match self.dropped {
             Some(d) if self.start_index.saturating_sub(d.end) <= self.p.merge_gap as u64 => {
                 (d.start, d.start_t, d.peak_sum.max(self.peak_sum))
@@ -559,13 +562,15 @@ impl AeDetector {
             start_t,
             end,
             peak_sum: peak,
+            dwell: self.dwell,
         });
     }
 
-    /// The candidate has lasted the dwell: a contact. Its onset is the
-    /// first of the dropped crossings chained to it within the merge gap: a
-    /// contact whose level dips during its first samples (a cut's entry, a
-    /// slow RMS log) starts when it first crossed, not after its last dip.
+    /// The candidate has lasted the dwell — its own samples above the
+    /// threshold plus those of the dropped crossings chained to it within
+    /// the merge gap: a contact. Its onset is the first of those crossings:
+    /// a contact whose level dips during its first samples (a cut's entry,
+    /// a slow RMS log) starts when it first crossed, not after its last dip.
     fn confirm(&mut self) {
         self.phase = Phase::Active;
         if let Some(d) = self.dropped.take() {
@@ -581,7 +586,14 @@ impl AeDetector {
         self.phase = Phase::Candidate;
         self.start_index = self.global + i as u64;
         self.start_t = t_s[i];
-        self.dwell = 1;
+        // Samples above the threshold of the dropped crossings just before
+        // (within the merge gap) count towards the dwell.
+        self.dwell = 1 + match self.dropped {
+            Some(d) if self.start_index.saturating_sub(d.end) <= self.p.merge_gap as u64 => {
+                d.dwell
+            }
+            _ => 0,
+        };
         self.peak_sum = self.sum;
     }
 

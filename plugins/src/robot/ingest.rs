@@ -32,6 +32,8 @@ mod plan_motion;
 pub use plan_motion::*;
 mod compare;
 use compare::*;
+#[cfg(test)]
+mod tests;
 
 pub struct IngestStage;
 
