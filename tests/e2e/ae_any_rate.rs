@@ -125,6 +125,55 @@ fn rms_250_hz_run_one_contact_per_touch_with_the_defaults() {
     assert_eq!(p["window_samples"], 1, "{p}");
     assert_eq!(p["min_dwell_samples"], 3, "{p}");
     assert_eq!(s["ae"]["recording_blocks"], 1, "{}", s["ae"]);
+    // The log is an RMS: never negative, one continuous recording.
+    let mut n = 0usize;
+    for c in sparkout_pipeline::contracts::AeStream::open(&run.join("ae.parquet")).unwrap() {
+        let c = c.unwrap();
+        assert!(c.ae_v.iter().all(|&x| x > 0.0));
+        n += c.ae_v.len();
+    }
+    assert_eq!(s["ae"]["samples"].as_u64(), Some(n as u64));
+    // Same seed, same bytes.
+    let again = generate(&tmp.path().join("again"), &["--ae-signal", "rms"]);
+    for f in ["ae.parquet", "truth.json", "run.toml", "motion.parquet"] {
+        assert!(
+            std::fs::read(run.join(f)).unwrap() == std::fs::read(again.join(f)).unwrap(),
+            "{f} differs between two generations with one seed"
+        );
+    }
+}
+
+#[test]
+fn ae_signal_flag_is_checked() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("runs");
+    let gen = |what: &str, extra: &[&str]| {
+        let mut args = vec![
+            "generate",
+            what,
+            "--runs",
+            "1",
+            "--out",
+            out.to_str().unwrap(),
+        ];
+        args.extend(extra);
+        sparkout(&args)
+    };
+    // An RMS logger below 100 Hz cannot see a 55 ms touch.
+    let o = gen("robot", &["--ae-signal", "rms", "--ae-rate-hz", "20"]);
+    assert!(!o.status.success());
+    assert!(text(&o).contains("100 Hz"), "{}", text(&o));
+    // A raw log needs a carrier: 250 Hz is refused for raw.
+    let o = gen("robot", &["--ae-signal", "raw", "--ae-rate-hz", "250"]);
+    assert!(!o.status.success());
+    assert!(text(&o).contains("20 kHz"), "{}", text(&o));
+    let o = gen("robot", &["--ae-signal", "envelope"]);
+    assert!(!o.status.success());
+    assert!(text(&o).contains("rms"), "{}", text(&o));
+    // A machine without an AE log refuses the flag.
+    let o = gen("mill", &["--ae-signal", "rms"]);
+    assert!(!o.status.success());
+    assert!(text(&o).contains("--ae-signal"), "{}", text(&o));
 }
 
 #[test]
@@ -145,7 +194,14 @@ fn hand_tuned_settings_that_fragment_contacts_raise_the_warning() {
     let (s, _) = ingest(
         &run,
         &tmp.path().join("out"),
-        &["--k-sigma", "1", "--min-dwell-s", "0.004", "--merge-gap-s", "0"],
+        &[
+            "--k-sigma",
+            "1",
+            "--min-dwell-s",
+            "0.004",
+            "--merge-gap-s",
+            "0",
+        ],
     );
     let ae = &s["ae"];
     assert!(ae["events"].as_u64().unwrap() > 2 * planned as u64, "{ae}");
@@ -206,7 +262,14 @@ fn a_flickering_signal_file_says_so_in_its_json() {
     assert!((start - 1000.0 / 250.0).abs() < 1e-9, "{start}");
     assert_eq!(d["warnings"].as_array().unwrap().len(), 1, "{d}");
     // A one-sample dwell without merging: 167 contacts, and the warning.
-    let d = run(&["--signal", "rms", "--min-dwell-s", "0.004", "--merge-gap-s", "0"]);
+    let d = run(&[
+        "--signal",
+        "rms",
+        "--min-dwell-s",
+        "0.004",
+        "--merge-gap-s",
+        "0",
+    ]);
     assert_eq!(d["contacts"].as_array().unwrap().len(), 167, "{d}");
     let w = d["warnings"].as_array().unwrap();
     assert!(

@@ -95,7 +95,10 @@ impl RmsContact {
             (rise, dt >= AE_RMS_ENTRY_S)
         } else {
             let rise = 1.0 - (-(self.leave_s - self.onset_s) / AE_RMS_TAU_RISE_S).exp();
-            (rise * (-(t - self.leave_s) / AE_RMS_TAU_EXIT_S).exp(), false)
+            (
+                rise * (-(t - self.leave_s) / AE_RMS_TAU_EXIT_S).exp(),
+                false,
+            )
         }
     }
 }
@@ -143,7 +146,8 @@ impl Iterator for RmsBatches {
             let z = normal(&mut self.rng);
             let u: f64 = self.rng.random();
             let sigma = AE_RMS_SCATTER_AIR + (AE_RMS_SCATTER_CUT - AE_RMS_SCATTER_AIR) * share;
-            let mut x = (self.air_v + (level - self.air_v) * share) * (sigma * z - 0.5 * sigma * sigma).exp();
+            let mut x = (self.air_v + (level - self.air_v) * share)
+                * (sigma * z - 0.5 * sigma * sigma).exp();
             if in_cut && u < AE_RMS_DROPOUT_P {
                 x *= AE_RMS_DROPOUT_FACTOR;
             }

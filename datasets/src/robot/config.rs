@@ -104,9 +104,7 @@ impl FromStr for AeSignal {
         match s.trim().to_ascii_lowercase().as_str() {
             "raw" => Ok(AeSignal::Raw),
             "rms" => Ok(AeSignal::Rms),
-            other => Err(format!(
-                "unknown AE signal `{other}` (known: raw, rms)"
-            )),
+            other => Err(format!("unknown AE signal `{other}` (known: raw, rms)")),
         }
     }
 }

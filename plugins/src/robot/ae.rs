@@ -589,9 +589,7 @@ impl AeDetector {
         // Samples above the threshold of the dropped crossings just before
         // (within the merge gap) count towards the dwell.
         self.dwell = 1 + match self.dropped {
-            Some(d) if self.start_index.saturating_sub(d.end) <= self.p.merge_gap as u64 => {
-                d.dwell
-            }
+            Some(d) if self.start_index.saturating_sub(d.end) <= self.p.merge_gap as u64 => d.dwell,
             _ => 0,
         };
         self.peak_sum = self.sum;

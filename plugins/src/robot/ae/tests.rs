@@ -317,7 +317,9 @@ fn robust_floor_ignores_a_contact_in_the_calibration_span() {
     assert!(s > 0.03 && s < 0.2, "scale {s}");
     // A quantised, perfectly flat floor with a few one-step readings: the
     // MAD is 0, the mean absolute deviation stands in.
-    let mut q: Vec<f64> = (0..64).map(|i| if i % 16 == 0 { 0.0013 } else { 0.0012 }).collect();
+    let mut q: Vec<f64> = (0..64)
+        .map(|i| if i % 16 == 0 { 0.0013 } else { 0.0012 })
+        .collect();
     let (c, s) = robust_floor(&mut q);
     assert_eq!(c, 0.0012);
     let expect = 1.2533 * 4.0 * 0.0001 / 64.0;
@@ -363,7 +365,11 @@ fn hand_made_raw_signal_one_contact_each_with_the_defaults() {
             "onset {} vs {on}",
             e.onset_t_s
         );
-        assert!(e.end_t_s > off && e.end_t_s < off + 1.1e-3, "end {}", e.end_t_s);
+        assert!(
+            e.end_t_s > off && e.end_t_s < off + 1.1e-3,
+            "end {}",
+            e.end_t_s
+        );
     }
     assert_eq!(det.short_crossings(), 0);
 }
@@ -413,7 +419,11 @@ fn hand_made_rms_signal_one_contact_each_with_the_defaults() {
             e.onset_t_s
         );
         // The exit tail takes a few samples to fall below the release.
-        assert!(e.end_t_s >= off && e.end_t_s < off + 0.1, "end {} vs {off}", e.end_t_s);
+        assert!(
+            e.end_t_s >= off && e.end_t_s < off + 0.1,
+            "end {} vs {off}",
+            e.end_t_s
+        );
     }
     let f = det.floors()[0];
     assert!((f.centre_v - 0.01).abs() < 0.001, "{f:?}");
@@ -450,4 +460,25 @@ fn a_flickering_cut_is_one_contact_and_its_crossings_are_counted() {
     };
     let (ev, _) = detect_events(&t, &v, AeParams::derive(fs, SignalKind::Rms, &s), 1.5 / fs);
     assert_eq!(ev.len(), 125);
+}
+
+#[test]
+fn merging_and_chaining_do_not_depend_on_the_chunking() {
+    // The hand-made RMS log: drop-outs end contacts that the merge gap
+    // joins, and chained crossings; fed whole or in any chunks, the same.
+    let fs = 250.0;
+    let (t, v) = hand_made_rms(&[(2.01, 4.0), (7.5, 8.3), (12.01, 16.0)]);
+    let p = AeParams::derive(fs, SignalKind::Rms, &defaults());
+    let (whole, det) = detect_events(&t, &v, p, 1.5 / fs);
+    assert_eq!(whole.len(), 3);
+    for chunk in [1usize, 2, 7, 64, 1000] {
+        let mut d = AeDetector::new(p);
+        let mut out = Vec::new();
+        for (tc, vc) in t.chunks(chunk).zip(v.chunks(chunk)) {
+            d.feed(tc, vc, &mut out);
+        }
+        d.finish(&mut out);
+        assert_eq!(out, whole, "chunk {chunk}");
+        assert_eq!(d.short_crossings(), det.short_crossings(), "chunk {chunk}");
+    }
 }

@@ -61,7 +61,10 @@ fn fragmenting_contacts_raise_the_warning() {
     assert!(r.events.len() > 100, "{}", r.events.len());
     let w = r.fragmentation_warnings(None);
     assert_eq!(w.len(), 1, "{w:?}");
-    assert!(w[0].contains("fragmented") && w[0].contains("--signal"), "{w:?}");
+    assert!(
+        w[0].contains("fragmented") && w[0].contains("--signal"),
+        "{w:?}"
+    );
     // With the plan's four touches the count says so too.
     let w = r.fragmentation_warnings(Some(4));
     assert_eq!(w.len(), 2, "{w:?}");
