@@ -76,9 +76,12 @@ pub const RAW_WINDOW_S: f64 = 1e-3;
 pub const MIN_DWELL_S: f64 = 0.5e-3;
 pub const MIN_DWELL_SAMPLES: usize = 3;
 /// Default merge gap: contacts closer than this many envelope windows (raw)
-/// — and never closer than `MERGE_GAP_SAMPLES` samples — are one contact
-/// (a cut whose level dips below the release for an instant).
+/// or this many seconds (rms: the signal has no window of ours, and an RMS
+/// converter's output wanders about the threshold for tens of ms as a cut
+/// ends) — and never closer than `MERGE_GAP_SAMPLES` samples — are one
+/// contact (a cut whose level dips below the release for an instant).
 pub const MERGE_GAP_WINDOWS: f64 = 2.0;
+pub const RMS_MERGE_GAP_S: f64 = 0.05;
 pub const MERGE_GAP_SAMPLES: usize = 10;
 /// Default noise-calibration span, and its floor in samples: the MAD of
 /// fewer than a few dozen samples is too rough a scale for k = 8.
@@ -115,6 +118,12 @@ pub struct AeParams {
     /// A contact starting at most this many samples after the previous one
     /// ended (same block) extends it instead (0: never merge).
     pub merge_gap: usize,
+    /// Threshold crossings too short for the dwell, each starting at most
+    /// this many samples after the previous one ended, add up towards the
+    /// dwell (0: never). Derived only for a signal without an envelope
+    /// window: an RMS window already bridges dips shorter than itself,
+    /// and chaining noise crossings there would move onsets early.
+    pub chain_gap: usize,
 }
 
 impl AeParams {
@@ -135,14 +144,17 @@ impl AeParams {
             hysteresis,
             noise_window: ((noise_window_s * sample_rate_hz).round() as usize).max(2),
             merge_gap: 0,
+            chain_gap: 0,
         }
     }
 
     /// The parameters for a signal of `kind` sampled at `fs` Hz: each
     /// setting the user gave is converted as it is; each one left out is
     /// derived — window 1 ms (raw) or 1 sample (rms: no envelope), dwell
-    /// max(0.5 ms, 3 samples), merge gap max(2 windows, 10 samples),
-    /// noise window max(5 ms, 64 samples).
+    /// max(0.5 ms, 3 samples), merge gap max(2 windows (raw) or 50 ms
+    /// (rms), 10 samples), noise window max(5 ms, 64 samples); crossings
+    /// chain within the dwell (capped by the merge gap) when the window is
+    /// one sample.
     pub fn derive(fs: f64, kind: SignalKind, s: &AeSettings) -> AeParams {
         let samples = |sec: f64| sec * fs;
         let window = match (s.window_s, kind) {
@@ -154,9 +166,19 @@ impl AeParams {
             Some(d) => (samples(d).ceil() as usize).max(1),
             None => Self::default_min_dwell(fs),
         };
-        let merge_gap = match s.merge_gap_s {
-            Some(g) => samples(g).round() as usize,
-            None => ((MERGE_GAP_WINDOWS * window as f64).round() as usize).max(MERGE_GAP_SAMPLES),
+        let merge_gap = match (s.merge_gap_s, kind) {
+            (Some(g), _) => samples(g).round() as usize,
+            (None, SignalKind::Raw) => {
+                ((MERGE_GAP_WINDOWS * window as f64).round() as usize).max(MERGE_GAP_SAMPLES)
+            }
+            (None, SignalKind::Rms) => {
+                (samples(RMS_MERGE_GAP_S).round() as usize).max(MERGE_GAP_SAMPLES)
+            }
+        };
+        let chain_gap = if window == 1 {
+            min_dwell.min(merge_gap)
+        } else {
+            0
         };
         let noise_window = match s.noise_window_s {
             Some(n) => (samples(n).round() as usize).max(2),
@@ -169,6 +191,7 @@ impl AeParams {
             hysteresis: s.hysteresis,
             noise_window,
             merge_gap,
+            chain_gap,
         }
     }
 
@@ -302,12 +325,21 @@ pub struct AeDetector {
     pending: Option<AeEvent>,
     /// Threshold crossings that fell back before the minimum dwell.
     short_crossings: u64,
-    /// The latest of them (with the ones chained before it), while a merge
+    /// Those of them farther than the merge gap from every contact of
+    /// their block (not the ripple at a contact's start or end).
+    stray_crossings: u64,
+    /// End indices of dropped crossings not within the merge gap after the
+    /// block's last contact, until a contact starting within the merge gap
+    /// absorbs them or the block ends.
+    unresolved: std::collections::VecDeque<u64>,
+    /// End index of the block's last contact.
+    last_end: Option<u64>,
+    /// The latest of them (with the ones chained before it), while a chain
     /// gap is in force.
     dropped: Option<Dropped>,
 }
 
-/// A run of dropped threshold crossings, each within the merge gap of the
+/// A run of dropped threshold crossings, each within the chain gap of the
 /// next (global sample indices).
 #[derive(Debug, Clone, Copy)]
 struct Dropped {
@@ -343,6 +375,9 @@ impl AeDetector {
             max_sum_armed: 0.0,
             pending: None,
             short_crossings: 0,
+            stray_crossings: 0,
+            unresolved: std::collections::VecDeque::new(),
+            last_end: None,
             dropped: None,
         }
     }
@@ -373,6 +408,14 @@ impl AeDetector {
         self.short_crossings
     }
 
+    /// Dropped crossings farther than the merge gap from every contact of
+    /// their block: the ones that say the threshold sits in the noise (the
+    /// rest are a contact's own ripple as it starts or ends). Counted when
+    /// resolved: complete after [`AeDetector::finish`].
+    pub fn stray_crossings(&self) -> u64 {
+        self.stray_crossings
+    }
+
     /// A gap in the recording: close any open event at the last sample seen,
     /// restart the window and the noise-floor estimate.
     pub fn reset(&mut self, out: &mut Vec<AeEvent>) {
@@ -384,6 +427,7 @@ impl AeDetector {
         self.phase = Phase::Warmup;
         self.cal.clear();
         self.dropped = None;
+        self.last_end = None;
         self.floor = None;
         self.on_sum = f64::INFINITY;
         self.off_sum = f64::INFINITY;
@@ -402,9 +446,15 @@ impl AeDetector {
                 let e = self.event(self.last_t, self.global.saturating_sub(1));
                 self.emit(e, out);
             }
-            Phase::Candidate => self.short_crossings += 1,
+            Phase::Candidate => {
+                self.short_crossings += 1;
+                self.stray_crossings += 1;
+            }
             _ => {}
         }
+        // The block ends: no contact will absorb what is left.
+        self.stray_crossings += self.unresolved.len() as u64;
+        self.unresolved.clear();
         if matches!(self.phase, Phase::Active | Phase::Candidate) {
             self.phase = Phase::Idle;
         }
@@ -426,6 +476,7 @@ impl AeDetector {
     /// merge gap of its end, else the held one is released and this one
     /// held. Without a merge gap events go straight out.
     fn emit(&mut self, e: AeEvent, out: &mut Vec<AeEvent>) {
+        self.last_end = Some(e.end_index);
         if self.p.merge_gap == 0 {
             out.push(e);
             return;
@@ -542,17 +593,33 @@ impl AeDetector {
     }
 
     /// A candidate that fell back before the dwell, at global index `end`.
-    /// With a merge gap it is remembered (chained to the previous dropped
+    /// With a chain gap it is remembered (chained to the previous dropped
     /// one when that ended within the gap), so a contact confirmed soon
     /// after can start where the first of them did.
     fn drop_candidate(&mut self, end: u64) {
         self.short_crossings += 1;
-        if self.p.merge_gap == 0 {
+        let gap = self.p.merge_gap as u64;
+        // Any contact still to come starts after this crossing: the ones
+        // more than the gap before it can no longer be absorbed (this also
+        // bounds the queue to the crossings of one merge gap).
+        while let Some(&e) = self.unresolved.front() {
+            if self.start_index.saturating_sub(e) <= gap {
+                break;
+            }
+            self.unresolved.pop_front();
+            self.stray_crossings += 1;
+        }
+        match self.last_end {
+            // The ripple as the block's last contact ends.
+            Some(le) if self.start_index.saturating_sub(le) <= gap => {}
+            _ => self.unresolved.push_back(end),
+        }
+        if self.p.chain_gap == 0 {
             return;
         }
         // `self.dwell` already counts the chain's samples (start_candidate).
         let (start, start_t, peak) = match self.dropped {
-            Some(d) if self.start_index.saturating_sub(d.end) <= self.p.merge_gap as u64 => {
+            Some(d) if self.start_index.saturating_sub(d.end) <= self.p.chain_gap as u64 => {
                 (d.start, d.start_t, d.peak_sum.max(self.peak_sum))
             }
             _ => (self.start_index, self.start_t, self.peak_sum),
@@ -568,13 +635,22 @@ impl AeDetector {
 
     /// The candidate has lasted the dwell — its own samples above the
     /// threshold plus those of the dropped crossings chained to it within
-    /// the merge gap: a contact. Its onset is the first of those crossings:
+    /// the chain gap: a contact. Its onset is the first of those crossings:
     /// a contact whose level dips during its first samples (a cut's entry,
     /// a slow RMS log) starts when it first crossed, not after its last dip.
     fn confirm(&mut self) {
         self.phase = Phase::Active;
+        // Dropped crossings within the merge gap before this contact are
+        // its ripple as it starts (taking the chained ones' onset into
+        // account below makes no difference: they are within the gap).
+        let gap = self.p.merge_gap as u64;
+        for e in self.unresolved.drain(..) {
+            if self.start_index.saturating_sub(e) > gap {
+                self.stray_crossings += 1;
+            }
+        }
         if let Some(d) = self.dropped.take() {
-            if self.start_index.saturating_sub(d.end) <= self.p.merge_gap as u64 {
+            if self.start_index.saturating_sub(d.end) <= self.p.chain_gap as u64 {
                 self.start_index = d.start;
                 self.start_t = d.start_t;
                 self.peak_sum = self.peak_sum.max(d.peak_sum);
@@ -587,9 +663,9 @@ impl AeDetector {
         self.start_index = self.global + i as u64;
         self.start_t = t_s[i];
         // Samples above the threshold of the dropped crossings just before
-        // (within the merge gap) count towards the dwell.
+        // (within the chain gap) count towards the dwell.
         self.dwell = 1 + match self.dropped {
-            Some(d) if self.start_index.saturating_sub(d.end) <= self.p.merge_gap as u64 => d.dwell,
+            Some(d) if self.start_index.saturating_sub(d.end) <= self.p.chain_gap as u64 => d.dwell,
             _ => 0,
         };
         self.peak_sum = self.sum;

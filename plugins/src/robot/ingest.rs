@@ -170,10 +170,12 @@ impl AeResult {
 
     /// Warnings that the contacts look fragmented: one contact broken into
     /// many. Two signs: (1) many would-be contacts shorter than the minimum
-    /// dwell the defaults give at this rate — crossings the detector dropped
-    /// plus contacts it kept only because a shorter dwell was set — at
-    /// least as many as the contacts and at least 5; (2) with a plan, at
-    /// least twice as many contacts as planned touches (and 3 more).
+    /// dwell the defaults give at this rate — contacts kept only because a
+    /// shorter dwell was set, plus dropped crossings away from any contact
+    /// (a contact's own ripple as it starts and ends, merged into it, does
+    /// not count) — at least as many as the contacts and at least 5; (2)
+    /// with a plan, at least twice as many contacts as planned touches (and
+    /// 3 more).
     pub fn fragmentation_warnings(&self, planned: Option<usize>) -> Vec<String> {
         let mut out = Vec::new();
         let p = self.detector.params();
@@ -185,11 +187,11 @@ impl AeResult {
             .iter()
             .filter(|e| ((e.end_index - e.onset_index) as usize) < default_dwell)
             .count();
-        let dropped = self.detector.short_crossings() as usize;
-        let short = short_kept + dropped;
+        let stray = self.detector.stray_crossings() as usize;
+        let short = short_kept + stray;
         if short >= n.max(5) {
             out.push(format!(
-                "contacts look fragmented: {short} threshold crossings lasted less than {:.3} ms ({default_dwell} samples at {} Hz; {short_kept} kept as contacts with the minimum dwell of {} samples, {dropped} dropped) against {n} contacts. The envelope hovers about the threshold: check the signal kind (--signal raw|rms, now {}), and leave window_s, min_dwell_s and noise_window_s to their defaults or raise them",
+                "contacts look fragmented: {short} threshold crossings lasted less than {:.3} ms ({default_dwell} samples at {} Hz; {short_kept} kept as contacts with the minimum dwell of {} samples, {stray} dropped away from any contact) against {n} contacts. The envelope hovers about the threshold: check the signal kind (--signal raw|rms, now {}), and leave window_s, min_dwell_s, merge_gap_s and noise_window_s to their defaults or raise them",
                 floor_s * 1e3,
                 self.fs_hz,
                 p.min_dwell,
@@ -592,6 +594,7 @@ impl Stage for IngestStage {
                 "params": r.params_json(),
                 "events": r.events.len(),
                 "short_crossings": r.detector.short_crossings(),
+                "stray_crossings": r.detector.stray_crossings(),
                 "warnings": warnings,
                 "touches": count(Role::Touch),
                 "extra_events": count(Role::Extra),

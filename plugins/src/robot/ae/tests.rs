@@ -263,18 +263,35 @@ pub fn defaults() -> AeSettings {
 
 #[test]
 fn lengths_derive_from_the_rate_and_the_kind_and_settings_override() {
-    // 250 Hz conditioned RMS: no envelope, every length at its floor in
-    // samples (0.5 ms would be a fraction of one).
+    // 250 Hz conditioned RMS: no envelope, dwell and noise window at their
+    // floors in samples (0.5 ms, 5 ms would be a fraction of one), the
+    // merge gap 50 ms, crossings chained within the dwell.
     let p = AeParams::derive(250.0, SignalKind::Rms, &defaults());
     assert_eq!(
-        (p.window, p.min_dwell, p.merge_gap, p.noise_window),
-        (1, 3, 10, 64)
+        (
+            p.window,
+            p.min_dwell,
+            p.merge_gap,
+            p.noise_window,
+            p.chain_gap
+        ),
+        (1, 3, 13, 64, 3)
     );
-    // 1 MHz raw: the physical lengths in seconds (1 ms, 0.5 ms, 2 ms, 5 ms).
+    // 10 kHz RMS: the merge gap in time (50 ms), the dwell in time (0.5 ms).
+    let p = AeParams::derive(1e4, SignalKind::Rms, &defaults());
+    assert_eq!((p.min_dwell, p.merge_gap, p.chain_gap), (5, 500, 5));
+    // 1 MHz raw: the physical lengths in seconds (1 ms, 0.5 ms, 2 ms, 5 ms);
+    // the envelope bridges short dips, so nothing is chained.
     let p = AeParams::derive(1e6, SignalKind::Raw, &defaults());
     assert_eq!(
-        (p.window, p.min_dwell, p.merge_gap, p.noise_window),
-        (1000, 500, 2000, 5000)
+        (
+            p.window,
+            p.min_dwell,
+            p.merge_gap,
+            p.noise_window,
+            p.chain_gap
+        ),
+        (1000, 500, 2000, 5000, 0)
     );
     // A raw signal at a low rate falls back to the floors too.
     let p = AeParams::derive(250.0, SignalKind::Raw, &defaults());
@@ -289,8 +306,14 @@ fn lengths_derive_from_the_rate_and_the_kind_and_settings_override() {
     };
     let p = AeParams::derive(250.0, SignalKind::Rms, &s);
     assert_eq!(
-        (p.window, p.min_dwell, p.merge_gap, p.noise_window),
-        (5, 1, 0, 250)
+        (
+            p.window,
+            p.min_dwell,
+            p.merge_gap,
+            p.noise_window,
+            p.chain_gap
+        ),
+        (5, 1, 0, 250, 0)
     );
     assert_eq!(AeParams::default_min_dwell(250.0), 3);
     assert_eq!(AeParams::default_min_dwell(1e6), 500);
@@ -452,6 +475,8 @@ fn a_flickering_cut_is_one_contact_and_its_crossings_are_counted() {
     assert_eq!(ev.len(), 1, "{ev:?}");
     assert_eq!(ev[0].onset_index, 1000);
     assert!(det.short_crossings() > 50, "{}", det.short_crossings());
+    // All of them the contact's own ripple.
+    assert_eq!(det.stray_crossings(), 0);
     // With a 1-sample dwell and no merging it is 125 contacts.
     let s = AeSettings {
         min_dwell_s: Some(0.004),
@@ -480,5 +505,6 @@ fn merging_and_chaining_do_not_depend_on_the_chunking() {
         d.finish(&mut out);
         assert_eq!(out, whole, "chunk {chunk}");
         assert_eq!(d.short_crossings(), det.short_crossings(), "chunk {chunk}");
+        assert_eq!(d.stray_crossings(), det.stray_crossings(), "chunk {chunk}");
     }
 }

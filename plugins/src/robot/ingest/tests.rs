@@ -69,10 +69,31 @@ fn fragmenting_contacts_raise_the_warning() {
     let w = r.fragmentation_warnings(Some(4));
     assert_eq!(w.len(), 2, "{w:?}");
     assert!(w[1].contains("for 4 planned touches"), "{w:?}");
-    // The defaults chain the flickers into one contact per cut, and still
-    // say that the signal hovers about the threshold.
+    // The defaults chain the flickers into one contact per cut: the
+    // dropped crossings are that contact's ripple, not a warning.
     let r = result(&t, &v, 250.0, SignalKind::Rms, &IngestConfig::default());
     assert_eq!(r.events.len(), 4, "{:?}", r.events);
     assert!(r.detector.short_crossings() > 100);
-    assert_eq!(r.fragmentation_warnings(Some(4)).len(), 1);
+    assert_eq!(r.detector.stray_crossings(), 0);
+    assert!(r.fragmentation_warnings(Some(4)).is_empty());
+}
+
+#[test]
+fn a_threshold_in_the_noise_raises_the_warning() {
+    // The clean cuts, with the threshold at the median + 1·σ of the air:
+    // the air's own scatter crosses it again and again.
+    let (t, v) = cuts(false);
+    let cfg = IngestConfig {
+        k_sigma: 1.0,
+        ..IngestConfig::default()
+    };
+    let r = result(&t, &v, 250.0, SignalKind::Rms, &cfg);
+    assert!(
+        r.detector.stray_crossings() > 100,
+        "{}",
+        r.detector.stray_crossings()
+    );
+    let w = r.fragmentation_warnings(None);
+    assert!(!w.is_empty(), "{} contacts", r.events.len());
+    assert!(w[0].contains("dropped away from any contact"), "{w:?}");
 }
