@@ -30,9 +30,10 @@
 //! Comparisons are done on the sum of squares (`sum > w·T²`), so the hot
 //! loop has no square root.
 //!
-//! Length (over 900 lines with its tests): the envelope and the event
-//! detector are one streaming kernel (a deliberate hot loop, see
-//! benches/ae_kernel.rs); the tests pin it against a plain reference.
+//! Length (~970 lines of code, ~510 of tests beside it): the envelope and
+//! the event detector are one streaming kernel (a deliberate hot loop, see
+//! benches/ae_kernel.rs) with the parameter derivation and the robust noise
+//! floor it needs; the tests pin it against a plain reference.
 
 /// Exact recomputation period of the running sum (samples of the stream).
 pub const RECOMPUTE_EVERY: u64 = 1 << 16;
