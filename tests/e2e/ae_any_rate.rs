@@ -233,7 +233,16 @@ fn a_flickering_signal_file_says_so_in_its_json() {
             _ => 0.01 * (1.0 + 0.1 * ((i * 7 % 13) as f64 - 6.0) / 6.0),
         })
         .collect();
-    write_parquet_atomic(&f, &BatchBuilder::new().f64("rms_v", v).build()).unwrap();
+    // Beside it a raw-looking column (a sine: negative from sample 4 on).
+    let raw: Vec<f64> = (0..2000).map(|i| 0.01 * (i as f64).sin()).collect();
+    write_parquet_atomic(
+        &f,
+        &BatchBuilder::new()
+            .f64("rms_v", v)
+            .f64("raw_v", raw)
+            .build(),
+    )
+    .unwrap();
     let run = |flags: &[&str]| -> serde_json::Value {
         let mut args = vec![
             "stage",
@@ -274,6 +283,26 @@ fn a_flickering_signal_file_says_so_in_its_json() {
     let w = d["warnings"].as_array().unwrap();
     assert!(
         w.len() == 1 && w[0].as_str().unwrap().contains("fragmented"),
+        "{d}"
+    );
+    // A column said to be an RMS that goes negative: the warning names the
+    // file, the column and the first negative row.
+    let mut args = vec!["stage", "ingest", "--ae", f.to_str().unwrap()];
+    args.extend([
+        "--sample-rate-hz",
+        "250",
+        "--column",
+        "raw_v",
+        "--signal",
+        "rms",
+        "--json",
+    ]);
+    let o = sparkout(&args);
+    assert!(o.status.success(), "{}", text(&o));
+    let d: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let w = d["warnings"][0].as_str().unwrap_or_default();
+    assert!(
+        w.contains("flicker.parquet") && w.contains("`raw_v`") && w.contains("row 4"),
         "{d}"
     );
     // A bad --signal names the flag and what it may be.

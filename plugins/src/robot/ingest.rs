@@ -144,6 +144,9 @@ pub struct AeResult {
     pub fs_hz: f64,
     pub kind: SignalKind,
     pub kind_source: KindSource,
+    /// The first negative sample of a signal read as an RMS: (file row,
+    /// value). An RMS is never negative, so the log is probably raw.
+    pub first_negative: Option<(usize, f32)>,
 }
 
 impl AeResult {
@@ -166,6 +169,26 @@ impl AeResult {
             "k_sigma": p.k_sigma,
             "hysteresis": p.hysteresis,
         })
+    }
+
+    /// A signal read as an RMS that goes negative: the warning names the
+    /// file, the column and the first such row.
+    pub fn signal_warnings(&self, path: &Path, column: &str) -> Vec<String> {
+        self.first_negative
+            .map(|(row, v)| {
+                InputError::new(
+                    path,
+                    format!(
+                        "the signal is read as a conditioned RMS ({}) but this sample is negative ({v}): an RMS never is. If it is the raw sensor voltage, say --signal raw (or [ae].kind = \"raw\")",
+                        self.kind_source.label()
+                    ),
+                )
+                .column(column)
+                .row(row)
+                .to_string()
+            })
+            .into_iter()
+            .collect()
     }
 
     /// Warnings that the contacts look fragmented: one contact broken into
@@ -281,8 +304,16 @@ pub fn detect_stream(
     let mut events = Vec::new();
     let mut prev_t: Option<f64> = None;
     let mut blocks = 1usize;
+    let mut first_negative = None;
     for chunk in stream {
         let chunk = chunk?;
+        if kind == SignalKind::Rms && first_negative.is_none() {
+            first_negative = chunk
+                .ae_v
+                .iter()
+                .position(|&x| x < 0.0)
+                .map(|i| (chunk.first_row + i, chunk.ae_v[i]));
+        }
         let mut lo = 0;
         // The decoder measured the chunk's largest step while validating
         // it: without a gap inside, only the step from the previous chunk
@@ -312,6 +343,7 @@ pub fn detect_stream(
         fs_hz,
         kind,
         kind_source,
+        first_negative,
     })
 }
 
@@ -354,7 +386,8 @@ fn standalone(args: &StageArgs) -> Result<Value> {
         .iter()
         .map(|e| json!({"start_s": e.onset_t_s, "end_s": e.end_t_s, "peak": e.peak_v}))
         .collect();
-    let warnings = r.fragmentation_warnings(None);
+    let mut warnings = r.signal_warnings(path, column);
+    warnings.extend(r.fragmentation_warnings(None));
     for w in &warnings {
         tracing::warn!("{}: {w}", path.display());
     }
@@ -581,7 +614,8 @@ impl Stage for IngestStage {
                 .iter()
                 .filter(|p| motion.segment_span_s(p.seq).is_some())
                 .count();
-            let warnings = r.fragmentation_warnings(Some(planned));
+            let mut warnings = r.signal_warnings(&ae_path, "ae_v");
+            warnings.extend(r.fragmentation_warnings(Some(planned)));
             for w in &warnings {
                 tracing::warn!("{}: {w}", ae_path.display());
             }

@@ -128,6 +128,7 @@ pub(super) fn empty_contacts() -> arrow::record_batch::RecordBatch {
         fs_hz: 1.0,
         kind: SignalKind::Raw,
         kind_source: KindSource::Config,
+        first_negative: None,
     };
     contacts_batch(&r, &[])
 }

@@ -14,6 +14,7 @@ fn result(t: &[f64], v: &[f32], fs: f64, kind: SignalKind, cfg: &IngestConfig) -
         fs_hz: fs,
         kind,
         kind_source: KindSource::Config,
+        first_negative: None,
     }
 }
 
