@@ -1,4 +1,4 @@
-//! The AE contact detector (MODELS.md §1.2): an envelope (RMS over a window
+//! The AE contact detector: an envelope (RMS over a window
 //! of `w` samples — or the signal itself when it is already a conditioned
 //! RMS), then contact events where the envelope exceeds `centre + k·σ` of
 //! the block's quiet start for a minimum dwell, with hysteresis and a merge
@@ -128,7 +128,7 @@ pub struct AeParams {
 }
 
 impl AeParams {
-    /// From seconds and a sample rate (MODELS.md §1.2 uses e.g. a 1 ms
+    /// From seconds and a sample rate (e.g. a 1 ms
     /// window), exactly as given: no floors, no merging.
     pub fn from_seconds(
         sample_rate_hz: f64,

@@ -37,7 +37,7 @@ mod tests;
 
 pub struct IngestStage;
 
-/// `[robot.ingest]`: detector settings, in seconds (MODELS.md §1.2). The
+/// `[robot.ingest]`: detector settings, in seconds. The
 /// lengths left out are derived from the sample rate and the signal kind
 /// ([`AeParams::derive`]), so one config serves a 250 Hz conditioned RMS
 /// and a 1 MHz raw signal alike.
