@@ -1,6 +1,6 @@
-//! The AE contact detector: an envelope (RMS over a window
-//! of `w` samples — or the signal itself when it is already a conditioned
-//! RMS), then contact events where the envelope exceeds `centre + k·σ` of
+//! The AE contact detector: an envelope (RMS over a window of `w` samples
+//! — or the signal itself when it is already a conditioned RMS), then
+//! contact events where the envelope exceeds `centre + k·σ` of
 //! the block's quiet start for a minimum dwell, with hysteresis and a merge
 //! gap so one contact gives one event.
 //!
@@ -128,8 +128,8 @@ pub struct AeParams {
 }
 
 impl AeParams {
-    /// From seconds and a sample rate (e.g. a 1 ms
-    /// window), exactly as given: no floors, no merging.
+    /// From seconds and a sample rate (e.g. a 1 ms window), exactly as
+    /// given: no floors, no merging, no chaining.
     pub fn from_seconds(
         sample_rate_hz: f64,
         window_s: f64,

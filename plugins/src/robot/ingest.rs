@@ -37,8 +37,8 @@ mod tests;
 
 pub struct IngestStage;
 
-/// `[robot.ingest]`: detector settings, in seconds. The
-/// lengths left out are derived from the sample rate and the signal kind
+/// `[robot.ingest]`: detector settings, in seconds. The lengths left out
+/// are derived from the sample rate and the signal kind
 /// ([`AeParams::derive`]), so one config serves a 250 Hz conditioned RMS
 /// and a 1 MHz raw signal alike.
 #[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
