@@ -133,7 +133,7 @@ fn bench(c: &mut Criterion) {
                 let r = detect_file(
                     black_box(&path),
                     FS,
-                    AeKind::Raw,
+                    Some(AeKind::Raw),
                     &cfg,
                     0.0,
                     &TimeOrigin::TableStart,
@@ -198,8 +198,15 @@ fn scaling() {
         }
         let reps = if n >= 1_000_000_000 { 1 } else { 3 };
         let secs = common::best_of(reps, || {
-            let r =
-                detect_file(&path, FS, AeKind::Raw, &cfg, 0.0, &TimeOrigin::TableStart).unwrap();
+            let r = detect_file(
+                &path,
+                FS,
+                Some(AeKind::Raw),
+                &cfg,
+                0.0,
+                &TimeOrigin::TableStart,
+            )
+            .unwrap();
             black_box(r.events.len());
         });
         let exponent = common::exponent_text(prev, n as f64, secs);

@@ -273,6 +273,11 @@ pub enum Command {
         /// (default: the generator's, 1 MHz).
         #[arg(long, value_name = "HZ", value_parser = f64_above_at_most(0.0, MAX_AE_RATE_HZ))]
         ae_rate_hz: Option<f64>,
+        /// What the AE log holds, for plugins that record AE: `raw` (the
+        /// sensor voltage, triggered windows) or `rms` (a conditioned RMS,
+        /// recorded continuously at 250 Hz unless --ae-rate-hz says).
+        #[arg(long, value_name = "KIND", value_parser = ["raw", "rms"])]
+        ae_signal: Option<String>,
         /// List the injectable effects and exit.
         #[arg(long)]
         list_effects: bool,

@@ -17,6 +17,9 @@ pub struct GenerateOptions {
     pub seed: u64,
     /// AE sample rate, for generators whose runs carry an AE log.
     pub ae_rate_hz: Option<f64>,
+    /// `raw` or `rms` (a conditioned RMS log), for generators whose runs
+    /// carry an AE log.
+    pub ae_signal: Option<String>,
 }
 
 /// The fleet `sparkout demo` makes of one machine type: small enough to run
@@ -118,6 +121,7 @@ pub trait Generator: Send + Sync {
             runs: d.runs,
             seed: d.seed,
             ae_rate_hz: None,
+            ae_signal: None,
         };
         self.generate(root, &opts, effects)
     }
@@ -181,6 +185,9 @@ pub fn generator(name: &str) -> Option<Arc<dyn Generator>> {
 pub fn no_ae_rate(name: &str, opts: &GenerateOptions) -> Result<()> {
     if opts.ae_rate_hz.is_some() {
         bail!("--ae-rate-hz applies to runs with an AE log only (a {name} run has none)");
+    }
+    if opts.ae_signal.is_some() {
+        bail!("--ae-signal applies to runs with an AE log only (a {name} run has none)");
     }
     Ok(())
 }

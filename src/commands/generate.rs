@@ -99,6 +99,11 @@ pub fn generate(
             opts.ae_rate_hz
                 .map(|r| format!(" --ae-rate-hz {r}"))
                 .unwrap_or_default()
+                + &opts
+                    .ae_signal
+                    .as_ref()
+                    .map(|s| format!(" --ae-signal {s}"))
+                    .unwrap_or_default()
         ),
         g.predicted_size(opts),
         bounds::machine_memory_bytes(),

@@ -75,6 +75,7 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<u8> {
             out,
             effects,
             ae_rate_hz,
+            ae_signal,
             list_effects,
             force,
             force_size,
@@ -84,6 +85,7 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<u8> {
                 runs: runs as usize,
                 seed,
                 ae_rate_hz,
+                ae_signal,
             };
             generate::generate(
                 &what,

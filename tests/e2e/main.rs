@@ -3,6 +3,7 @@
 //! file: ~8 GB of test executables and most of the link time saved).
 //! Run one group with `cargo test --test e2e gantry_stages::`.
 
+mod ae_any_rate;
 mod augment;
 mod bad_input_matrix;
 mod can_decode;

@@ -650,6 +650,12 @@ fn cycle_observe_and_report_sections() {
     assert!(titles.iter().any(|t| t.contains("planes")));
     assert!(titles.iter().any(|t| t.contains("Datum")));
     assert!(titles.iter().any(|t| t.contains("cycle")));
+    // The run was probed by AE: how the contacts were found, without warning.
+    let ae = sections
+        .iter()
+        .find(|s| s.title == "AE contact detection")
+        .unwrap_or_else(|| panic!("{titles:?}"));
+    assert!(ae.html.contains("raw AE signal") && !ae.html.contains("fragmented"));
     assert!(sections.iter().all(|s| !s.html.is_empty()));
     assert!(sections.iter().any(|s| s.html.contains("<svg")));
 }

@@ -129,7 +129,15 @@ fn ingest_finds_the_bursts_of_any_signal_column() {
         "--json",
     ]);
     let keys: Vec<&String> = got.as_object().unwrap().keys().collect();
-    assert_eq!(keys, ["contacts", "threshold"]);
+    assert_eq!(keys, ["contacts", "params", "threshold", "warnings"]);
+    // A raw voltage (it goes negative): an RMS envelope over 1 ms, no warning.
+    assert_eq!(got["params"]["signal"], "raw", "{got}");
+    assert_eq!(got["params"]["signal_from"], "guessed from the signal");
+    assert_eq!(
+        got["warnings"].as_array().map(|w| w.len()),
+        Some(0),
+        "{got}"
+    );
     let threshold = got["threshold"].as_f64().unwrap();
     let contacts = got["contacts"].as_array().unwrap();
     let onsets: Vec<f64> = want["onsets_s"]

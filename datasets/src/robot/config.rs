@@ -76,6 +76,39 @@ impl ProbeMethod {
     }
 }
 
+/// What the AE recorder writes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum AeSignal {
+    /// The sensor voltage at 20 kHz – 10 MHz: noise plus a decaying carrier
+    /// burst at each contact, recorded in a triggered window per touch.
+    Raw,
+    /// A conditioned RMS at 100 Hz – 50 kHz (an RMS converter in front of a
+    /// slow logger), recorded continuously: air → entry → cut → exit at
+    /// each contact ([`AE_RMS_DEFAULT_RATE_HZ`] by default).
+    Rms,
+}
+
+impl AeSignal {
+    pub fn label(self) -> &'static str {
+        match self {
+            AeSignal::Raw => "raw",
+            AeSignal::Rms => "rms",
+        }
+    }
+}
+
+impl FromStr for AeSignal {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s.trim().to_ascii_lowercase().as_str() {
+            "raw" => Ok(AeSignal::Raw),
+            "rms" => Ok(AeSignal::Rms),
+            other => Err(format!("unknown AE signal `{other}` (known: raw, rms)")),
+        }
+    }
+}
+
 /// Settings of a generated robot fleet.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct RobotFleetConfig {
@@ -83,8 +116,11 @@ pub struct RobotFleetConfig {
     pub seed: u64,
     /// Machine id written to run.toml and used as the fleet subdirectory.
     pub machine: String,
-    /// Raw AE sample rate, Hz (1 MHz default, as in the thesis's 100 kHz–2 MHz band).
+    /// AE sample rate, Hz (raw: 1 MHz default, as in the thesis's
+    /// 100 kHz–2 MHz band; rms: 250 Hz is what `--ae-signal rms` picks).
     pub ae_sample_rate_hz: f64,
+    /// Raw sensor voltage or conditioned RMS.
+    pub ae_signal: AeSignal,
     /// Repeats of every nominal point at every speed.
     pub trials: usize,
     /// Approach speeds, mm/s (the thesis used 100, 10 and 5 mm/s).
@@ -138,6 +174,7 @@ impl Default for RobotFleetConfig {
             seed: 0,
             machine: "kr16-lab".into(),
             ae_sample_rate_hz: 1e6,
+            ae_signal: AeSignal::Raw,
             trials: 3,
             speeds_mm_s: vec![5.0, 10.0],
             with_probe: ProbeMode::Alternate,
@@ -199,11 +236,28 @@ impl RobotFleetConfig {
                 self.machine
             );
         }
-        if !(self.ae_sample_rate_hz.is_finite() && self.ae_sample_rate_hz >= 20e3) {
-            bail!(
-                "robot generator: ae_sample_rate_hz must be at least 20 kHz (the burst needs a carrier), got {}",
-                self.ae_sample_rate_hz
-            );
+        match self.ae_signal {
+            AeSignal::Raw => {
+                if !(self.ae_sample_rate_hz.is_finite() && self.ae_sample_rate_hz >= 20e3) {
+                    bail!(
+                        "robot generator: ae_sample_rate_hz must be at least 20 kHz for a raw AE signal (the burst needs a carrier), got {}",
+                        self.ae_sample_rate_hz
+                    );
+                }
+            }
+            AeSignal::Rms => {
+                // A touch's contact lasts ~55 ms: at 100 Hz that is five
+                // samples; the recording is continuous, so the rate is
+                // capped where a run's log would outgrow the raw one.
+                if !(self.ae_sample_rate_hz.is_finite()
+                    && (100.0..=50e3).contains(&self.ae_sample_rate_hz))
+                {
+                    bail!(
+                        "robot generator: ae_sample_rate_hz must be 100 Hz – 50 kHz for a conditioned RMS signal (recorded continuously), got {}",
+                        self.ae_sample_rate_hz
+                    );
+                }
+            }
         }
         if self.trials == 0 {
             bail!("robot generator: trials must be at least 1");

@@ -62,6 +62,26 @@ pub(super) const AE_TAU_RISE_S: f64 = 20e-6;
 pub(super) const AE_TAU_DECAY_S: f64 = 2.5e-3;
 /// Carrier kept below 0.3 × sample rate (no aliasing at low demo rates).
 pub(super) const AE_CARRIER_MAX_FRAC: f64 = 0.3;
+/// Conditioned RMS AE (`--ae-signal rms`): the logger's default rate, Hz.
+pub const AE_RMS_DEFAULT_RATE_HZ: f64 = 250.0;
+/// RMS: entry (the wheel engages: the level rises with this time constant,
+/// s, over `AE_RMS_ENTRY_S`), then the cut until the wheel leaves the
+/// surface, then the exit (the RMS converter decays with this constant).
+pub const AE_RMS_TAU_RISE_S: f64 = 0.004;
+pub const AE_RMS_ENTRY_S: f64 = 0.012;
+pub const AE_RMS_TAU_EXIT_S: f64 = 0.025;
+/// RMS: multiplicative (log-normal) scatter of the level in air and in the
+/// cut, and the cut's drop-outs (a grain losing contact for a moment):
+/// probability per sample and the level's factor during one.
+pub const AE_RMS_SCATTER_AIR: f64 = 0.15;
+pub const AE_RMS_SCATTER_CUT: f64 = 0.3;
+pub const AE_RMS_DROPOUT_P: f64 = 0.05;
+pub const AE_RMS_DROPOUT_FACTOR: f64 = 0.05;
+/// RMS: continuous recording goes on this long after the last AE contact, s.
+pub const AE_RMS_TAIL_S: f64 = 1.0;
+/// RMS: recording seconds per planned touch, for the size prediction
+/// (measured: a default run's AE program lasts ~2.6 s per touch).
+pub const AE_RMS_SECONDS_PER_TOUCH: f64 = 3.0;
 /// AE recorder clock offset range (controller t = AE t + offset), s.
 pub(super) const CLOCK_OFFSET_RANGE_S: (f64, f64) = (0.02, 0.2);
 /// Grinding: pass length over the block and pause between passes (the

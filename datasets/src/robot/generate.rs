@@ -24,9 +24,13 @@ impl Generator for RobotGenerator {
     /// The AE log grows with the sample rate (one window per AE touch of
     /// the plan); the rest of a run is measured at the defaults.
     fn predicted_size(&self, opts: &GenerateOptions) -> Predicted {
-        let cfg = fleet_config(opts);
-        let ae_samples =
-            build_plan(&cfg).len() as f64 * (cfg.ae_pre_s + cfg.ae_post_s) * cfg.ae_sample_rate_hz;
+        // An unknown --ae-signal is refused by `generate`; size it as raw.
+        let cfg = fleet_config(opts).unwrap_or_default();
+        let seconds_per_touch = match cfg.ae_signal {
+            AeSignal::Raw => cfg.ae_pre_s + cfg.ae_post_s,
+            AeSignal::Rms => AE_RMS_SECONDS_PER_TOUCH,
+        };
+        let ae_samples = build_plan(&cfg).len() as f64 * seconds_per_touch * cfg.ae_sample_rate_hz;
         RunSize {
             disk_bytes: RUN_BYTES_BESIDES_AE + (ae_samples * AE_BYTES_PER_SAMPLE) as u64,
             memory_bytes: RUN_MEMORY_BYTES,
@@ -34,7 +38,7 @@ impl Generator for RobotGenerator {
         .fleet(opts.runs)
     }
     fn generate(&self, out: &Path, opts: &GenerateOptions, fx: &[EffectSpec]) -> Result<Generated> {
-        let cfg = fleet_config(opts);
+        let cfg = fleet_config(opts)?;
         let dirs = generate_fleet(out, &cfg, fx)?;
         Ok(fleet_summary(self.name(), dirs.len(), out))
     }
@@ -64,17 +68,26 @@ pub(super) const RUN_BYTES_BESIDES_AE: u64 = 11_860_000;
 pub(super) const AE_BYTES_PER_SAMPLE: f64 = 4.1;
 pub(super) const RUN_MEMORY_BYTES: u64 = 78_000_000;
 
-/// The fleet config `sparkout generate robot` makes of its options.
-fn fleet_config(opts: &GenerateOptions) -> RobotFleetConfig {
+/// The fleet config `sparkout generate robot` makes of its options
+/// (`--ae-signal rms` records at 250 Hz unless `--ae-rate-hz` says).
+fn fleet_config(opts: &GenerateOptions) -> Result<RobotFleetConfig> {
     let mut cfg = RobotFleetConfig {
         runs: opts.runs,
         seed: opts.seed,
         ..Default::default()
     };
+    if let Some(s) = &opts.ae_signal {
+        cfg.ae_signal = s
+            .parse()
+            .map_err(|e: String| anyhow::anyhow!("--ae-signal: {e}"))?;
+        if cfg.ae_signal == AeSignal::Rms {
+            cfg.ae_sample_rate_hz = AE_RMS_DEFAULT_RATE_HZ;
+        }
+    }
     if let Some(r) = opts.ae_rate_hz {
         cfg.ae_sample_rate_hz = r;
     }
-    cfg
+    Ok(cfg)
 }
 
 /// Generate the fleet under `<root>/<machine>/r0000 …`; returns the run dirs
@@ -202,19 +215,45 @@ pub(super) fn generate_run(
         Field::new("t_s", DataType::Float64, false),
         Field::new("ae_v", DataType::Float32, false),
     ]));
-    write_parquet_batches_atomic(
-        &dir.join("ae.parquet"),
-        ae_schema.clone(),
-        AeBatches {
-            windows,
-            wi: 0,
-            n: 0,
-            fs,
-            noise_v: cfg.ae_noise_v,
-            rng: run_rng(cfg.seed, index, 1),
-            schema: ae_schema,
-        },
-    )?;
+    let ae_rng = run_rng(cfg.seed, index, 1);
+    let mut contacts = contacts;
+    match cfg.ae_signal {
+        AeSignal::Raw => write_parquet_batches_atomic(
+            &dir.join("ae.parquet"),
+            ae_schema.clone(),
+            AeBatches {
+                windows,
+                wi: 0,
+                n: 0,
+                fs,
+                noise_v: cfg.ae_noise_v,
+                rng: ae_rng,
+                schema: ae_schema,
+            },
+        )?,
+        AeSignal::Rms => {
+            let rms = rms_contacts(&program, &touches, clock_offset_s, &mut contacts);
+            // From the recorder's start to a while after the last contact.
+            let n_end = rms
+                .last()
+                .map(|c| ((c.leave_s + AE_RMS_TAIL_S) * fs).ceil() as u64)
+                .unwrap_or((AE_RMS_TAIL_S * fs) as u64);
+            write_parquet_batches_atomic(
+                &dir.join("ae.parquet"),
+                ae_schema.clone(),
+                RmsBatches {
+                    contacts: rms,
+                    ci: 0,
+                    n: 0,
+                    n_end,
+                    fs,
+                    air_v: cfg.ae_noise_v,
+                    rng: ae_rng,
+                    schema: ae_schema,
+                },
+            )?
+        }
+    };
 
     let faces = Face::ALL
         .iter()
@@ -257,6 +296,7 @@ pub(super) fn generate_run(
         },
         ae_clock_offset_s: clock_offset_s,
         ae_sample_rate_hz: fs,
+        ae_signal: (cfg.ae_signal == AeSignal::Rms).then_some("rms"),
         ae_carrier_hz: carrier,
         ae_noise_v: cfg.ae_noise_v,
         has_probe,
@@ -505,9 +545,38 @@ fn ae_windows(
             surface_z_mm: tc.surface.z,
             dir: tc.dir_b * row.face.normal()[row.face.axis()] as i32,
             ae_amplitude_v: amp,
+            ae_leave_t_s: None,
         });
     }
     (windows, contacts)
+}
+
+/// The contacts of a conditioned RMS log (recorder clock), in time order:
+/// from the wheel meeting the surface to the retract taking it off again
+/// (registration, stop, dwell, then the retract back over the overshoot),
+/// at the RMS of the raw burst's amplitude (A/√2). Fills each truth
+/// record's `ae_leave_t_s`.
+fn rms_contacts(
+    program: &[PlanRow],
+    touches: &[Touch],
+    clock_offset_s: f64,
+    truth: &mut [ContactTruth],
+) -> Vec<RmsContact> {
+    let ae = touches.iter().filter(|t| program[t.row].method == "ae");
+    ae.zip(truth.iter_mut())
+        .map(|(tc, ct)| {
+            let v = program[tc.row].speed_mm_s;
+            let t_stop = v / STOP_DECEL_MM_S2;
+            let overshoot = v * (tc.t_r - tc.t_c) + 0.5 * v * t_stop;
+            let leave = tc.t_r + t_stop + DWELL_S + overshoot / LEG_MM_S;
+            ct.ae_leave_t_s = Some(leave - clock_offset_s);
+            RmsContact {
+                onset_s: tc.t_c - clock_offset_s,
+                leave_s: leave - clock_offset_s,
+                level_v: ct.ae_amplitude_v / std::f64::consts::SQRT_2,
+            }
+        })
+        .collect()
 }
 
 /// act − physical at a touch: what the encoders cannot see (thermal drift of

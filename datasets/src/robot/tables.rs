@@ -239,7 +239,7 @@ block_size_mm = [{bx:?}, {by:?}, {bh:?}]
 
 [ae]
 sample_rate_hz = {fs:?}
-kind = "raw"
+kind = "{kind}"
 clock_offset_s = {off:?}
 "#,
         seed = cfg.seed,
@@ -260,6 +260,7 @@ clock_offset_s = {off:?}
         by = BLOCK_Y_MM,
         bh = BLOCK_H_MM,
         fs = cfg.ae_sample_rate_hz,
+        kind = cfg.ae_signal.label(),
         off = clock_offset_s,
     )
 }

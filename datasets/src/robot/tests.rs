@@ -141,6 +141,7 @@ fn predicted_size_follows_rate_and_runs() {
         runs,
         seed: 0,
         ae_rate_hz: rate,
+        ae_signal: None,
     };
     let one = RobotGenerator.predicted_size(&opts(1, None)).write_bytes as f64;
     assert!((one / 33.8e6 - 1.0).abs() < 0.05, "{one}");

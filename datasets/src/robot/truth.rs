@@ -35,8 +35,13 @@ pub(super) struct ContactTruth {
     /// approach (the plugin's `dir` covariate; a move outward of the block
     /// is a reversal before the inward approach).
     pub(super) dir: i32,
-    /// Burst peak amplitude, V.
+    /// Burst peak amplitude, V (a conditioned RMS log's cut level is
+    /// this / √2).
     pub(super) ae_amplitude_v: f64,
+    /// Conditioned RMS logs only: recorder time the wheel leaves the
+    /// surface (the cut's end; the exit decays after it), s.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub(super) ae_leave_t_s: Option<f64>,
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -66,6 +71,10 @@ pub(super) struct RunTruth {
     pub(super) other_method_sigma_mm: BTreeMap<String, f64>,
     pub(super) ae_clock_offset_s: f64,
     pub(super) ae_sample_rate_hz: f64,
+    /// `rms` for a conditioned RMS log; absent for raw (the files of raw
+    /// fleets stay as they were).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub(super) ae_signal: Option<&'static str>,
     pub(super) ae_carrier_hz: f64,
     pub(super) ae_noise_v: f64,
     pub(super) has_probe: bool,

@@ -17,7 +17,12 @@ pub enum AeKind {
 #[derive(Debug, Clone, serde::Serialize)]
 pub struct AeSpec {
     pub sample_rate_hz: f64,
+    /// `[ae].kind`, `raw` when the file does not say.
     pub kind: AeKind,
+    /// Whether run.toml wrote `kind` (a reader may then guess it from the
+    /// signal instead of taking the default).
+    #[serde(skip)]
+    pub kind_given: bool,
     pub clock_offset_s: f64,
 }
 
@@ -201,6 +206,7 @@ impl RunSpec {
                 Some(AeSpec {
                     sample_rate_hz,
                     kind,
+                    kind_given: t.contains_key("kind"),
                     clock_offset_s,
                 })
             }

@@ -1,4 +1,4 @@
-//! `ingest`: touches from probe.parquet, or from the AE signal (docs/models.md
+//! `ingest`: touches from probe.parquet, or from the AE signal (MODELS.md
 //! §1.2): stream ae.parquet through the envelope/event detector, map each
 //! contact's time (+ `[ae].clock_offset_s`) to a position by interpolating
 //! motion.parquet and to its face/point/trial through plan.parquet (the
@@ -24,7 +24,7 @@ use sparkout_pipeline::{
     InputError, Result, Stage, StageArgs, StageContext, StageOutput, StageSpec,
 };
 
-use super::ae::{gaps, AeDetector, AeEvent, AeParams};
+use super::ae::{gaps, AeDetector, AeEvent, AeParams, AeSettings, SignalKind};
 use super::planes::Face;
 use super::touches::{self, Touch};
 
@@ -32,45 +32,106 @@ mod plan_motion;
 pub use plan_motion::*;
 mod compare;
 use compare::*;
+#[cfg(test)]
+mod tests;
 
 pub struct IngestStage;
 
-/// `[robot.ingest]`: detector settings, in seconds (docs/models.md §1.2).
-#[derive(Debug, Clone, Copy, serde::Serialize, serde::Deserialize)]
+/// `[robot.ingest]`: detector settings, in seconds. The lengths left out
+/// are derived from the sample rate and the signal kind
+/// ([`AeParams::derive`]), so one config serves a 250 Hz conditioned RMS
+/// and a 1 MHz raw signal alike.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct IngestConfig {
-    pub window_s: f64,
+    /// `raw`, `rms`, or `auto`: run.toml's `[ae].kind` when it says, else a
+    /// signal without a negative sample in its first batch is an RMS.
+    pub signal: String,
+    pub window_s: Option<f64>,
     pub k_sigma: f64,
-    pub min_dwell_s: f64,
+    pub min_dwell_s: Option<f64>,
     pub hysteresis: f64,
-    pub noise_window_s: f64,
+    pub noise_window_s: Option<f64>,
+    pub merge_gap_s: Option<f64>,
     /// How far (s) from an approach segment a contact may fall and still be
-    /// assigned to it (the robot may already be stopping when AE fires).
-    pub segment_tolerance_s: f64,
+    /// assigned to it (the robot may already be stopping when AE fires);
+    /// default max(5 ms, 2 sample periods): a 250 Hz onset is only known
+    /// to a sample or two.
+    pub segment_tolerance_s: Option<f64>,
 }
 
 impl Default for IngestConfig {
     fn default() -> Self {
         IngestConfig {
-            window_s: 0.001,
+            signal: "auto".into(),
+            window_s: None,
             k_sigma: 8.0,
-            min_dwell_s: 0.0005,
+            min_dwell_s: None,
             hysteresis: 0.5,
-            noise_window_s: 0.005,
-            segment_tolerance_s: 0.005,
+            noise_window_s: None,
+            merge_gap_s: None,
+            segment_tolerance_s: None,
         }
     }
 }
 
 impl Section for IngestConfig {
     const CHECKS: &'static [(&'static str, Check)] = &[
+        ("signal", Check::OneOf(&["auto", "raw", "rms"])),
         ("window_s", Check::Positive),
         ("k_sigma", Check::Positive),
         ("min_dwell_s", Check::Positive),
         ("hysteresis", Check::Fraction),
         ("noise_window_s", Check::Positive),
+        ("merge_gap_s", Check::NonNegative),
         ("segment_tolerance_s", Check::NonNegative),
     ];
+}
+
+/// Default segment tolerance floor, s.
+const SEGMENT_TOLERANCE_S: f64 = 0.005;
+
+impl IngestConfig {
+    fn settings(&self) -> AeSettings {
+        AeSettings {
+            window_s: self.window_s,
+            k_sigma: self.k_sigma,
+            min_dwell_s: self.min_dwell_s,
+            hysteresis: self.hysteresis,
+            noise_window_s: self.noise_window_s,
+            merge_gap_s: self.merge_gap_s,
+        }
+    }
+    /// The signal kind the user asked for (`None`: auto).
+    fn signal_kind(&self) -> Option<SignalKind> {
+        match self.signal.as_str() {
+            "raw" => Some(SignalKind::Raw),
+            "rms" => Some(SignalKind::Rms),
+            _ => None,
+        }
+    }
+    fn segment_tolerance_s(&self, fs_hz: f64) -> f64 {
+        self.segment_tolerance_s
+            .unwrap_or_else(|| SEGMENT_TOLERANCE_S.max(2.0 / fs_hz))
+    }
+}
+
+/// Where the signal kind came from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum KindSource {
+    Config,
+    RunToml,
+    Guessed,
+}
+
+impl KindSource {
+    fn label(self) -> &'static str {
+        match self {
+            KindSource::Config => "config",
+            KindSource::RunToml => "run.toml",
+            KindSource::Guessed => "guessed from the signal",
+        }
+    }
 }
 
 /// What the AE path found.
@@ -80,6 +141,94 @@ pub struct AeResult {
     pub samples: u64,
     pub blocks: usize,
     pub clock_offset_s: f64,
+    pub fs_hz: f64,
+    pub kind: SignalKind,
+    pub kind_source: KindSource,
+    /// The first negative sample of a signal read as an RMS: (file row,
+    /// value). An RMS is never negative, so the log is probably raw.
+    pub first_negative: Option<(usize, f32)>,
+}
+
+impl AeResult {
+    /// The parameters in force, in samples and seconds (summaries, JSON).
+    pub fn params_json(&self) -> Value {
+        let p = self.detector.params();
+        let s = |n: usize| n as f64 / self.fs_hz;
+        json!({
+            "signal": self.kind.label(),
+            "signal_from": self.kind_source.label(),
+            "sample_rate_hz": self.fs_hz,
+            "window_samples": p.window,
+            "window_s": s(p.window),
+            "min_dwell_samples": p.min_dwell,
+            "min_dwell_s": s(p.min_dwell),
+            "merge_gap_samples": p.merge_gap,
+            "merge_gap_s": s(p.merge_gap),
+            "noise_window_samples": p.noise_window,
+            "noise_window_s": s(p.noise_window),
+            "k_sigma": p.k_sigma,
+            "hysteresis": p.hysteresis,
+        })
+    }
+
+    /// A signal read as an RMS that goes negative: the warning names the
+    /// file, the column and the first such row.
+    pub fn signal_warnings(&self, path: &Path, column: &str) -> Vec<String> {
+        self.first_negative
+            .map(|(row, v)| {
+                InputError::new(
+                    path,
+                    format!(
+                        "the signal is read as a conditioned RMS ({}) but this sample is negative ({v}): an RMS never is. If it is the raw sensor voltage, say --signal raw (or [ae].kind = \"raw\")",
+                        self.kind_source.label()
+                    ),
+                )
+                .column(column)
+                .row(row)
+                .to_string()
+            })
+            .into_iter()
+            .collect()
+    }
+
+    /// Warnings that the contacts look fragmented: one contact broken into
+    /// many. Two signs: (1) many would-be contacts shorter than the minimum
+    /// dwell the defaults give at this rate — contacts kept only because a
+    /// shorter dwell was set, plus dropped crossings away from any contact
+    /// (a contact's own ripple as it starts and ends, merged into it, does
+    /// not count) — at least as many as the contacts and at least 5; (2)
+    /// with a plan, at least twice as many contacts as planned touches (and
+    /// 3 more).
+    pub fn fragmentation_warnings(&self, planned: Option<usize>) -> Vec<String> {
+        let mut out = Vec::new();
+        let p = self.detector.params();
+        let default_dwell = AeParams::default_min_dwell(self.fs_hz);
+        let floor_s = default_dwell as f64 / self.fs_hz;
+        let n = self.events.len();
+        let short_kept = self
+            .events
+            .iter()
+            .filter(|e| ((e.end_index - e.onset_index) as usize) < default_dwell)
+            .count();
+        let stray = self.detector.stray_crossings() as usize;
+        let short = short_kept + stray;
+        if short >= n.max(5) {
+            out.push(format!(
+                "contacts look fragmented: {short} threshold crossings lasted less than {:.3} ms ({default_dwell} samples at {} Hz; {short_kept} kept as contacts with the minimum dwell of {} samples, {stray} dropped away from any contact) against {n} contacts. The envelope hovers about the threshold: check the signal kind (--signal raw|rms, now {}), and leave window_s, min_dwell_s, merge_gap_s and noise_window_s to their defaults or raise them",
+                floor_s * 1e3,
+                self.fs_hz,
+                p.min_dwell,
+                self.kind.label()
+            ));
+        }
+        if let Some(k) = planned.filter(|&k| n >= 2 * k && n >= k + 3) {
+            out.push(format!(
+                "contacts look fragmented: {n} contacts for {k} planned touches. Check the signal kind (--signal raw|rms, now {}), min_dwell_s and merge_gap_s",
+                self.kind.label()
+            ));
+        }
+        out
+    }
 }
 
 /// Stream a run's ae.parquet through the detector with bounded memory; a
@@ -87,32 +236,39 @@ pub struct AeResult {
 pub fn detect_file(
     path: &Path,
     fs_hz: f64,
-    kind: AeKind,
+    run_kind: Option<AeKind>,
     cfg: &IngestConfig,
     clock_offset_s: f64,
     origin: &TimeOrigin,
 ) -> Result<AeResult> {
-    // An RMS log (kind = "rms") goes through the same envelope: the RMS of
-    // an RMS signal over a short window is a smoothed RMS.
-    let _ = kind;
     let stream = AeStream::open_at(path, origin, AeStream::DEFAULT_BATCH_ROWS)?;
-    let r = detect_stream(stream, fs_hz, cfg, clock_offset_s)?;
+    // The user's setting, else what run.toml says, else a guess.
+    let kind = match (cfg.signal_kind(), run_kind) {
+        (Some(k), _) => Some((k, KindSource::Config)),
+        (None, Some(AeKind::Raw)) => Some((SignalKind::Raw, KindSource::RunToml)),
+        (None, Some(AeKind::Rms)) => Some((SignalKind::Rms, KindSource::RunToml)),
+        (None, None) => None,
+    };
+    let r = detect_stream(stream, fs_hz, kind, cfg, clock_offset_s)?;
     if r.events.is_empty() {
         let p = r.detector.params();
         let (samples, blocks) = (r.samples, r.blocks);
+        let envelope = match p.window {
+            1 => format!("the {} signal itself", r.kind.label()),
+            w => format!("RMS envelope over {:.3} ms", w as f64 / fs_hz * 1e3),
+        };
         let msg = match r.detector.floors().first() {
             None => format!(
                 "no contact found: no recording block was long enough to estimate the noise floor ({} samples of window + {} samples of noise window at {fs_hz} Hz; {samples} samples in {blocks} block(s))",
                 p.window, p.noise_window
             ),
             Some(f) => format!(
-                "no contact found in {samples} samples ({blocks} recording block(s)): noise floor (RMS envelope over {:.3} ms) mean {:.6e} V, σ {:.6e} V; threshold {:.6e} V (mean + {}·σ) held for {:.3} ms; the largest envelope seen was {:.6e} V",
-                cfg.window_s * 1e3,
-                f.mean_v,
+                "no contact found in {samples} samples ({blocks} recording block(s)): noise floor ({envelope}) median {:.6e} V, σ (1.4826·MAD) {:.6e} V; threshold {:.6e} V (median + {}·σ) held for {:.3} ms; the largest envelope seen was {:.6e} V",
+                f.centre_v,
                 f.sigma_v,
                 f.threshold_v,
-                cfg.k_sigma,
-                cfg.min_dwell_s * 1e3,
+                p.k_sigma,
+                p.min_dwell as f64 / fs_hz * 1e3,
                 r.detector.max_envelope_armed_v()
             ),
         };
@@ -123,27 +279,41 @@ pub fn detect_file(
 
 /// The detector over any validated signal stream (a gap in the time stamps
 /// starts a new recording block with its own noise floor).
+/// `kind` `None` guesses it from the first batch ([`SignalKind::guess`]).
 pub fn detect_stream(
     stream: AeStream,
     fs_hz: f64,
+    kind: Option<(SignalKind, KindSource)>,
     cfg: &IngestConfig,
     clock_offset_s: f64,
 ) -> Result<AeResult> {
-    let p = AeParams::from_seconds(
-        fs_hz,
-        cfg.window_s,
-        cfg.k_sigma,
-        cfg.min_dwell_s,
-        cfg.hysteresis,
-        cfg.noise_window_s,
-    );
     let max_step = 1.5 / fs_hz;
+    let mut stream = stream.peekable();
+    let (kind, kind_source) = match kind {
+        Some(k) => k,
+        None => {
+            let first = match stream.peek() {
+                Some(Ok(c)) => SignalKind::guess(&c.ae_v),
+                _ => SignalKind::Raw,
+            };
+            (first, KindSource::Guessed)
+        }
+    };
+    let p = AeParams::derive(fs_hz, kind, &cfg.settings());
     let mut det = AeDetector::new(p);
     let mut events = Vec::new();
     let mut prev_t: Option<f64> = None;
     let mut blocks = 1usize;
+    let mut first_negative = None;
     for chunk in stream {
         let chunk = chunk?;
+        if kind == SignalKind::Rms && first_negative.is_none() {
+            first_negative = chunk
+                .ae_v
+                .iter()
+                .position(|&x| x < 0.0)
+                .map(|i| (chunk.first_row + i, chunk.ae_v[i]));
+        }
         let mut lo = 0;
         // The decoder measured the chunk's largest step while validating
         // it: without a gap inside, only the step from the previous chunk
@@ -170,14 +340,20 @@ pub fn detect_stream(
         samples,
         blocks,
         clock_offset_s,
+        fs_hz,
+        kind,
+        kind_source,
+        first_negative,
     })
 }
 
 /// `sparkout stage ingest --ae FILE --sample-rate-hz F [--column C]
-/// [--window-s S --k-sigma K --min-dwell-s S --hysteresis H
-/// --noise-window-s S] --json`: contact events of any signal column
-/// (default `ae_v`) of any Parquet file, time from its `t_s` column or
-/// from the sample rate. No contact is an empty list, not an error.
+/// [--signal raw|rms|auto --window-s S --k-sigma K --min-dwell-s S
+/// --hysteresis H --noise-window-s S --merge-gap-s S] --json`: contact
+/// events of any signal column (default `ae_v`) of any Parquet file, time
+/// from its `t_s` column or from the sample rate. No contact is an empty
+/// list, not an error; the parameters in force and any fragmentation
+/// warning are printed beside them.
 fn standalone(args: &StageArgs) -> Result<Value> {
     const INPUTS: [&str; 3] = ["ae", "sample-rate-hz", "column"];
     let path = Path::new(args.get("ae").ok_or_else(|| {
@@ -197,9 +373,11 @@ fn standalone(args: &StageArgs) -> Result<Value> {
     let cfg: IngestConfig = read_section(&t).map_err(|e| {
         anyhow::anyhow!("stage ingest: flag {e} (flags: --ae, --sample-rate-hz, --column and the detector keys with dashes)")
     })?;
+    let kind = cfg.signal_kind().map(|k| (k, KindSource::Config));
     let r = detect_stream(
         AeStream::open_series(path, column, fs_hz)?,
         fs_hz,
+        kind,
         &cfg,
         0.0,
     )?;
@@ -208,9 +386,16 @@ fn standalone(args: &StageArgs) -> Result<Value> {
         .iter()
         .map(|e| json!({"start_s": e.onset_t_s, "end_s": e.end_t_s, "peak": e.peak_v}))
         .collect();
+    let mut warnings = r.signal_warnings(path, column);
+    warnings.extend(r.fragmentation_warnings(None));
+    for w in &warnings {
+        tracing::warn!("{}: {w}", path.display());
+    }
     Ok(json!({
         "contacts": contacts,
         "threshold": r.detector.floors().first().map(|f| f.threshold_v),
+        "params": r.params_json(),
+        "warnings": warnings,
     }))
 }
 
@@ -359,12 +544,14 @@ fn probe_touches(
 
 const SPEC: StageSpec = StageSpec {
     name: "ingest",
-    version: 1,
+    // 2: noise floor from median/MAD, lengths derived from the sample
+    // rate and signal kind, merge gap (contacts may move by a sample).
+    version: 2,
     reads: &[&PROBE, &AE, &MOTION, &PLAN],
     reads_artifacts: &[],
     writes: &["touches", "contacts", "touch_compare"],
     reads_augmented_model: false,
-    about: "touches from probe.parquet or from AE contacts mapped through motion + plan (docs/models.md §1.2)",
+    about: "touches from probe.parquet or from AE contacts mapped through motion + plan (MODELS.md §1.2)",
     config: SectionCheck::of::<IngestConfig>(),
 };
 
@@ -413,27 +600,42 @@ impl Stage for IngestStage {
             let r = detect_file(
                 &ae_path,
                 spec.sample_rate_hz,
-                spec.kind,
+                spec.kind_given.then_some(spec.kind),
                 &cfg,
                 spec.clock_offset_s,
                 &run.spec.time_origin(),
             )
             .context("AE contact detection")?;
-            let (touches, roles, missed) =
-                ae_touches(&r, motion, plan, cfg.segment_tolerance_s, &ae_path)?;
+            let tol = cfg.segment_tolerance_s(spec.sample_rate_hz);
+            let (touches, roles, missed) = ae_touches(&r, motion, plan, tol, &ae_path)?;
+            // Planned touches the recorder could see: rows the motion log
+            // approaches (what `missed` is counted against).
+            let planned = plan
+                .iter()
+                .filter(|p| motion.segment_span_s(p.seq).is_some())
+                .count();
+            let mut warnings = r.signal_warnings(&ae_path, "ae_v");
+            warnings.extend(r.fragmentation_warnings(Some(planned)));
+            for w in &warnings {
+                tracing::warn!("{}: {w}", ae_path.display());
+            }
             let f0 = r.detector.floors()[0];
             let count = |role: Role| roles.iter().filter(|x| x.1 == role).count();
             ae_summary = json!({
                 "samples": r.samples,
                 "recording_blocks": r.blocks,
                 "window_samples": r.detector.params().window,
+                "params": r.params_json(),
                 "events": r.events.len(),
+                "short_crossings": r.detector.short_crossings(),
+                "stray_crossings": r.detector.stray_crossings(),
+                "warnings": warnings,
                 "touches": count(Role::Touch),
                 "extra_events": count(Role::Extra),
                 "unassigned_events": count(Role::Unassigned),
                 "missed_seq": missed.iter().take(100).collect::<Vec<_>>(),
                 "n_missed": missed.len(),
-                "noise_floor_v": f0.mean_v,
+                "noise_floor_v": f0.centre_v,
                 "noise_sigma_v": f0.sigma_v,
                 "threshold_v": f0.threshold_v,
                 "k_sigma": cfg.k_sigma,

@@ -386,6 +386,56 @@ fn compare(s: &Value) -> Option<ReportSection> {
     })
 }
 
+/// How the AE contacts were found: the signal kind and the parameters in
+/// force (derived or set), what they found, and any fragmentation warning.
+fn ae_detection(s: &Value) -> Option<ReportSection> {
+    let ae = s.get("ae").filter(|a| !a.is_null())?;
+    let p = &ae["params"];
+    let ms = |k: &str| {
+        p[k].as_f64()
+            .map(|x| format!("{:.3} ms", x * 1e3))
+            .unwrap_or_else(|| "—".into())
+    };
+    let mut html = format!(
+        "<p>{} AE signal ({}) at {} Hz: {} contacts, {} of them touches of the plan, {} extra, {} outside any approach; {} planned touches without one.</p>",
+        esc(p["signal"].as_str().unwrap_or("?")),
+        esc(p["signal_from"].as_str().unwrap_or("?")),
+        p["sample_rate_hz"],
+        ae["events"],
+        ae["touches"],
+        ae["extra_events"],
+        ae["unassigned_events"],
+        ae["n_missed"],
+    );
+    let rows: Vec<Vec<String>> = [
+        ("envelope window", "window_samples", ms("window_s")),
+        ("minimum dwell", "min_dwell_samples", ms("min_dwell_s")),
+        ("merge gap", "merge_gap_samples", ms("merge_gap_s")),
+        ("noise window", "noise_window_samples", ms("noise_window_s")),
+    ]
+    .into_iter()
+    .map(|(name, k, secs)| vec![name.to_string(), p[k].to_string(), secs])
+    .collect();
+    html.push_str(&table(&["parameter", "samples", "time"], &rows));
+    html.push_str(&format!(
+        "<p>Threshold {} V = noise median {} V + {}·σ (σ = 1.4826·MAD {} V); {} threshold crossings shorter than the dwell were dropped.</p>",
+        num(&ae["threshold_v"], 6),
+        num(&ae["noise_floor_v"], 6),
+        p["k_sigma"],
+        num(&ae["noise_sigma_v"], 6),
+        ae["short_crossings"],
+    ));
+    for w in ae["warnings"].as_array().into_iter().flatten() {
+        if let Some(w) = w.as_str() {
+            html.push_str(&warning(w));
+        }
+    }
+    Some(ReportSection {
+        title: "AE contact detection".into(),
+        html,
+    })
+}
+
 pub fn sections(_run: &Run, a: &ArtifactStore) -> Vec<ReportSection> {
     let mut out = Vec::new();
     if let Some(s) = a.summary("repeatability") {
@@ -399,6 +449,7 @@ pub fn sections(_run: &Run, a: &ArtifactStore) -> Vec<ReportSection> {
         out.extend(cycle(&s));
     }
     if let Some(s) = a.summary("ingest") {
+        out.extend(ae_detection(&s));
         out.extend(compare(&s));
     }
     out

@@ -108,7 +108,7 @@ pub(super) fn contacts_batch(
             e.iter().map(|x| x.floor.threshold_v).collect(),
         )
         .f64("release_v", e.iter().map(|x| x.floor.release_v).collect())
-        .f64("noise_mean_v", e.iter().map(|x| x.floor.mean_v).collect())
+        .f64("noise_mean_v", e.iter().map(|x| x.floor.centre_v).collect())
         .f64("noise_sigma_v", e.iter().map(|x| x.floor.sigma_v).collect())
         .i32("seq", roles.iter().map(|r| r.0).collect())
         .str(
@@ -125,6 +125,10 @@ pub(super) fn empty_contacts() -> arrow::record_batch::RecordBatch {
         samples: 0,
         blocks: 0,
         clock_offset_s: 0.0,
+        fs_hz: 1.0,
+        kind: SignalKind::Raw,
+        kind_source: KindSource::Config,
+        first_negative: None,
     };
     contacts_batch(&r, &[])
 }
