@@ -92,16 +92,31 @@ pub fn diagnose(observations: &Path, out: &Path, flags: &Flags) -> anyhow::Resul
             .as_array()
             .map(|a| a.iter().filter_map(|x| x.as_str()).collect())
             .unwrap_or_default();
+        // The pooled gap is in the observables' unit when they share one
+        // (each is in its contract unit: mm, or mm/s for a velocity).
+        let units: std::collections::BTreeSet<&str> = d
+            .diagnosis
+            .per_observable
+            .iter()
+            .map(|o| o.unit.as_str())
+            .collect();
+        let unit = match units.len() {
+            1 => units.first().copied().unwrap_or("mm"),
+            _ => "mm",
+        };
+        let show = |v: &serde_json::Value| {
+            sparkout_pipeline::units::format::show_in(v.as_f64().unwrap_or(f64::NAN), unit)
+        };
         println!(
-            "gap RMS {:.4} mm, noise floor {:.4} mm; selected: {}; held-out RMS after {:.4} mm",
-            v["gap"]["rms_mm"].as_f64().unwrap_or(f64::NAN),
-            v["gap"]["noise_floor_mm"].as_f64().unwrap_or(f64::NAN),
+            "gap RMS {}, noise floor {}; selected: {}; held-out RMS after {}",
+            show(&v["gap"]["rms_mm"]),
+            show(&v["gap"]["noise_floor_mm"]),
             if sel.is_empty() {
                 "none (no effect explains the gap)".to_string()
             } else {
                 sel.join(", ")
             },
-            v["unexplained"]["rms_mm"].as_f64().unwrap_or(f64::NAN),
+            show(&v["unexplained"]["rms_mm"]),
         );
         for e in d.diagnosis.effects.iter().filter(|e| e.selected) {
             let shrink = match (e.shrink, e.shrink_interval) {

@@ -151,6 +151,7 @@ pub fn sync(from: &Path, to: &Path) -> anyhow::Result<u8> {
 
 /// The end-of-batch summary an engineer reads first.
 pub fn print_outcome(o: &FleetOutcome) {
+    use sparkout_pipeline::units::format::{param_unit, show, show_in};
     let computed = o.stages_computed();
     let cached = o.stages_cached();
     println!(
@@ -192,8 +193,15 @@ pub fn print_outcome(o: &FleetOutcome) {
                     // nothing; the per-observable lines below do.
                     println!("  effects named (most signal explained first): {named}");
                 } else if let (Some(b), Some(a), Some(n)) = (before, after, noise) {
+                    let unit = v
+                        .pointer("/per_observable/0/unit")
+                        .and_then(|u| u.as_str())
+                        .unwrap_or("mm");
                     println!(
-                        "  gap RMS {b:.4} mm (noise floor {n:.4} mm) → held-out {a:.4} mm after: {named}"
+                        "  gap RMS {} (noise floor {}) → held-out {} after: {named}",
+                        show_in(b, unit),
+                        show_in(n, unit),
+                        show_in(a, unit)
                     );
                 }
                 // Per observable: each has its own noise floor and effects,
@@ -201,22 +209,41 @@ pub fn print_outcome(o: &FleetOutcome) {
                 for o in sparkout_pipeline::report::observable_summaries(&v) {
                     let u = &o.unit;
                     println!(
-                        "  {}: gap RMS {:.4} {u} (noise {:.4} {u}) → held-out {:.4} {u}, {:.0} % shrink; {}",
+                        "  {}: gap RMS {} (noise {}) → held-out {}, {:.0} % shrink; {}",
                         o.observable,
-                        o.rms_mm,
-                        o.noise_floor_mm,
-                        o.after_mm,
+                        show_in(o.rms_mm, u),
+                        show_in(o.noise_floor_mm, u),
+                        show_in(o.after_mm, u),
                         100.0 * o.shrink,
                         o.explained_by
                     );
                 }
                 // Effects only one machine has (diagnosis.json machine_effects).
                 for e in v["machine_effects"].as_array().into_iter().flatten() {
+                    let cov = e["effect"]
+                        .as_str()
+                        .and_then(|k| k.split_once(':'))
+                        .map(|k| k.1);
+                    let gap_unit = v["per_observable"]
+                        .as_array()
+                        .into_iter()
+                        .flatten()
+                        .find(|o| o["observable"] == e["observable"])
+                        .and_then(|o| o["unit"].as_str())
+                        .unwrap_or("mm");
                     let params: Vec<String> = e["params"]
                         .as_object()
                         .into_iter()
                         .flatten()
-                        .map(|(k, p)| format!("{k} = {:.3e}", p.as_f64().unwrap_or(f64::NAN)))
+                        .map(|(k, p)| {
+                            format!(
+                                "{k} = {}",
+                                show(
+                                    p.as_f64().unwrap_or(f64::NAN),
+                                    &param_unit(k, cov, gap_unit)
+                                )
+                            )
+                        })
                         .collect();
                     println!(
                         "  {} on machine {} only: {} ({}), held-out shrink {:.0} % over its {} runs",

@@ -16,6 +16,8 @@
 
 use std::fmt;
 
+pub mod format;
+
 /// What a unit measures.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub enum Kind {
@@ -390,6 +392,9 @@ mod tests {
         let e = resolve("z_nm", Kind::Length, &[st("um", Source::Flag)])
             .unwrap_err()
             .to_string();
-        assert!(e.contains("z_nm") && e.contains("um") && e.contains("nm"), "{e}");
+        assert!(
+            e.contains("z_nm") && e.contains("um") && e.contains("nm"),
+            "{e}"
+        );
     }
 }
