@@ -45,3 +45,4 @@ mod servo_e2e;
 mod shards;
 mod trend;
 mod umich_cnc;
+mod units;
