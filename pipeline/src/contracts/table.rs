@@ -420,6 +420,25 @@ impl Table {
     }
 }
 
+/// A contract column's name states its unit (`cmd_x_mm`); Parquet field
+/// metadata `unit` that says otherwise is a conflict (docs/formats.md
+/// "Units"), not a value to trust or ignore.
+fn check_stated_unit(path: &Path, field: &Field) -> Result<(), InputError> {
+    let Some(text) = field.metadata().get("unit") else {
+        return Ok(());
+    };
+    let Some(kind) = crate::units::Unit::from_suffix(field.name()).map(|u| u.kind) else {
+        return Ok(());
+    };
+    let stated = [crate::units::Stated {
+        text: text.clone(),
+        source: crate::units::Source::FieldMetadata,
+    }];
+    crate::units::resolve(field.name(), kind, &stated)
+        .map(|_| ())
+        .map_err(|e| InputError::new(path, e.to_string()))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -527,23 +546,4 @@ mod tests {
         }
         assert_eq!(time_column_scan(&[], lo, hi), None);
     }
-}
-
-/// A contract column's name states its unit (`cmd_x_mm`); Parquet field
-/// metadata `unit` that says otherwise is a conflict (docs/formats.md
-/// "Units"), not a value to trust or ignore.
-fn check_stated_unit(path: &Path, field: &Field) -> Result<(), InputError> {
-    let Some(text) = field.metadata().get("unit") else {
-        return Ok(());
-    };
-    let Some(kind) = crate::units::Unit::from_suffix(field.name()).map(|u| u.kind) else {
-        return Ok(());
-    };
-    let stated = [crate::units::Stated {
-        text: text.clone(),
-        source: crate::units::Source::FieldMetadata,
-    }];
-    crate::units::resolve(field.name(), kind, &stated)
-        .map(|_| ())
-        .map_err(|e| InputError::new(path, e.to_string()))
 }

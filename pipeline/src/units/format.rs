@@ -207,8 +207,11 @@ impl ParamUnit {
                 (1, 0) => return cands(&lengths, ""),
                 (0, 1) => return cands(&[("µs", 1e6), ("ms", 1e3), ("s", 1.0)], ""),
                 (0, 2) => return cands(&[("µs²", 1e12), ("ms²", 1e6), ("s²", 1.0)], ""),
-                (1, -1) => return cands(&[("µm/s", 1e3), ("mm/s", 1.0)], ""),
-                (1, -2) => return cands(&[("µm/s²", 1e3), ("mm/s²", 1.0)], ""),
+                // Speeds stay in mm/s, the unit every velocity figure of the
+                // reports is in (a velocity error beside one in µm/s would
+                // read as a thousand times off).
+                (1, -1) => return vec![("mm/s".into(), 1.0)],
+                (1, -2) => return vec![("mm/s²".into(), 1.0)],
                 (0, -1) => return vec![("Hz".into(), 1.0)],
                 // A length per length: a slope, read in µm/m.
                 (0, 0) if self.num.mm == 1 => {
@@ -235,7 +238,7 @@ impl ParamUnit {
             return cands(&lengths, &den);
         }
         if self.num.mm == 1 && rest.s == -1 && rest.other.is_empty() {
-            return cands(&[("µm/s", 1e3), ("mm/s", 1.0)], &den);
+            return cands(&[("mm/s", 1.0)], &den);
         }
         vec![(self.canonical(), 1.0)]
     }
@@ -364,7 +367,8 @@ pub fn show_pm(value: f64, se: f64, unit: &ParamUnit) -> String {
     let size = if value.abs() >= se.abs() { value } else { se };
     let (name, f) = pick(&unit.candidates(), size);
     let (v, e) = (value * f, se * f);
-    if !plain(v) && !(v == 0.0 && plain(e)) {
+    // Scientific unless the value (or, for a zero, its error) reads plainly.
+    if !(plain(v) || (v == 0.0 && plain(e))) {
         let p = crate::diagnose::intervals::format_pm(value, se);
         return with_unit(p, &unit.canonical());
     }
@@ -394,7 +398,7 @@ pub fn show_interval(value: f64, se: Option<f64>, lo: f64, hi: f64, unit: &Param
     };
     let (name, f) = pick(&unit.candidates(), size);
     let (v, l, h) = (value * f, lo * f, hi * f);
-    if !plain(v) && !(v == 0.0 && plain(h)) {
+    if !(plain(v) || (v == 0.0 && plain(h))) {
         let head = match se {
             Some(se) => crate::diagnose::intervals::format_pm(value, se),
             None => format!("{value:.2e}"),
