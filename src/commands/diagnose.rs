@@ -104,19 +104,24 @@ pub fn diagnose(observations: &Path, out: &Path, flags: &Flags) -> anyhow::Resul
             1 => units.first().copied().unwrap_or("mm"),
             _ => "mm",
         };
-        let show = |v: &serde_json::Value| {
-            sparkout_pipeline::units::format::show_in(v.as_f64().unwrap_or(f64::NAN), unit)
-        };
+        let f = |p: &str| v.pointer(p).and_then(|x| x.as_f64()).unwrap_or(f64::NAN);
+        let [gap, noise, after] =
+            <[String; 3]>::try_from(sparkout_pipeline::units::format::show_group(
+                &[
+                    f("/gap/rms_mm"),
+                    f("/gap/noise_floor_mm"),
+                    f("/unexplained/rms_mm"),
+                ],
+                unit,
+            ))
+            .expect("three figures");
         println!(
-            "gap RMS {}, noise floor {}; selected: {}; held-out RMS after {}",
-            show(&v["gap"]["rms_mm"]),
-            show(&v["gap"]["noise_floor_mm"]),
+            "gap RMS {gap}, noise floor {noise}; selected: {}; held-out RMS after {after}",
             if sel.is_empty() {
                 "none (no effect explains the gap)".to_string()
             } else {
                 sel.join(", ")
             },
-            show(&v["unexplained"]["rms_mm"]),
         );
         for e in d.diagnosis.effects.iter().filter(|e| e.selected) {
             let shrink = match (e.shrink, e.shrink_interval) {

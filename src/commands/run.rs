@@ -151,7 +151,7 @@ pub fn sync(from: &Path, to: &Path) -> anyhow::Result<u8> {
 
 /// The end-of-batch summary an engineer reads first.
 pub fn print_outcome(o: &FleetOutcome) {
-    use sparkout_pipeline::units::format::{param_unit, show, show_in};
+    use sparkout_pipeline::units::format::{param_unit, show, show_group};
     let computed = o.stages_computed();
     let cached = o.stages_cached();
     println!(
@@ -197,23 +197,21 @@ pub fn print_outcome(o: &FleetOutcome) {
                         .pointer("/per_observable/0/unit")
                         .and_then(|u| u.as_str())
                         .unwrap_or("mm");
-                    println!(
-                        "  gap RMS {} (noise floor {}) → held-out {} after: {named}",
-                        show_in(b, unit),
-                        show_in(n, unit),
-                        show_in(a, unit)
-                    );
+                    let [b, n, a] = <[String; 3]>::try_from(show_group(&[b, n, a], unit))
+                        .expect("three figures");
+                    println!("  gap RMS {b} (noise floor {n}) → held-out {a} after: {named}");
                 }
                 // Per observable: each has its own noise floor and effects,
                 // and a small observable's shrink is invisible in the total.
                 for o in sparkout_pipeline::report::observable_summaries(&v) {
-                    let u = &o.unit;
+                    let [b, n, a] = <[String; 3]>::try_from(show_group(
+                        &[o.rms_mm, o.noise_floor_mm, o.after_mm],
+                        &o.unit,
+                    ))
+                    .expect("three figures");
                     println!(
-                        "  {}: gap RMS {} (noise {}) → held-out {}, {:.0} % shrink; {}",
+                        "  {}: gap RMS {b} (noise {n}) → held-out {a}, {:.0} % shrink; {}",
                         o.observable,
-                        show_in(o.rms_mm, u),
-                        show_in(o.noise_floor_mm, u),
-                        show_in(o.after_mm, u),
                         100.0 * o.shrink,
                         o.explained_by
                     );

@@ -294,6 +294,9 @@ pub struct MachineEffect {
     /// `name:covariate`, as `selected` spells it.
     pub effect: String,
     pub params: BTreeMap<String, f64>,
+    /// As `EffectEntry::param_units`: the canonical unit of each parameter
+    /// and of the offset.
+    pub param_units: BTreeMap<String, String>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub intervals: Option<BTreeMap<String, ParamInterval>>,
     pub shrink: Option<f64>,

@@ -333,6 +333,39 @@ pub fn show_in(value: f64, unit: &str) -> String {
     show(value, &ParamUnit::of(Dims::of_unit(unit)))
 }
 
+/// Values read side by side (a gap RMS, its noise floor, the RMS after)
+/// in one unit: the smallest in which the largest of them stays below
+/// 1000 — `106 µm (noise 0.951 µm) → 15.2 µm`, not `0.106 mm (noise
+/// 0.951 µm)` — each with three significant digits.
+pub fn show_group(values: &[f64], unit: &str) -> Vec<String> {
+    let u = ParamUnit::of(Dims::of_unit(unit));
+    let c = u.candidates();
+    let max = values
+        .iter()
+        .filter(|v| v.is_finite())
+        .fold(0.0f64, |m, v| m.max(v.abs()));
+    let (name, f) = c
+        .iter()
+        .find(|(_, f)| max * f < 999.5)
+        .or(c.last())
+        .cloned()
+        .unwrap_or_default();
+    values
+        .iter()
+        .map(|&v| {
+            if !v.is_finite() {
+                return "—".into();
+            }
+            let x = v * f;
+            if plain(x) {
+                with_unit(num(x, decimals_for(x, 3)), &name)
+            } else {
+                with_unit(format!("{v:.2e}"), &u.canonical())
+            }
+        })
+        .collect()
+}
+
 /// A length in mm shown in nm, µm or mm by magnitude.
 pub fn show_length(mm: f64) -> String {
     show(mm, &ParamUnit::of(Dims::length()))
@@ -541,6 +574,20 @@ mod tests {
             "mm/s"
         );
         assert_eq!(param_unit("k", Some("a_mm_s2"), "mm/s").canonical(), "s");
+    }
+
+    #[test]
+    fn figures_side_by_side_share_one_unit() {
+        assert_eq!(
+            show_group(&[0.106, 0.000951, 0.0152], "mm"),
+            ["106 µm", "0.951 µm", "15.2 µm"]
+        );
+        assert_eq!(show_group(&[2.84e-5, 1e-7], "mm"), ["28.4 nm", "0.100 nm"]);
+        assert_eq!(
+            show_group(&[0.246, 0.00211], "mm/s"),
+            ["0.246 mm/s", "0.00211 mm/s"]
+        );
+        assert_eq!(show_group(&[f64::NAN, 2.0], "mm"), ["—", "2.00 mm"]);
     }
 
     #[test]
