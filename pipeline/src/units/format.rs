@@ -189,6 +189,10 @@ impl ParamUnit {
         if self.den.is_one() {
             return self.num.canonical();
         }
+        // A ratio of like quantities other than a length slope: a number.
+        if v.is_one() && !(self.num.mm == 1 && self.num.s == 0 && self.den.s == 0) {
+            return "1".into();
+        }
         let d = self.den.canonical();
         let d = if d.contains(['/', '·']) {
             format!("({d})")
@@ -214,9 +218,11 @@ impl ParamUnit {
                 (1, -2) => return vec![("mm/s²".into(), 1.0)],
                 (0, -1) => return vec![("Hz".into(), 1.0)],
                 // A length per length: a slope, read in µm/m.
-                (0, 0) if self.num.mm == 1 => {
+                (0, 0) if self.num.mm == 1 && self.num.s == 0 && self.den.s == 0 => {
                     return vec![("µm/m".into(), 1e6), ("mm/m".into(), 1e3), ("".into(), 1.0)]
                 }
+                // Any other ratio (a speed per speed) is a plain number.
+                (0, 0) => return vec![("".into(), 1.0)],
                 _ => {}
             }
         }
@@ -307,7 +313,8 @@ fn plain(v: f64) -> bool {
 }
 
 fn with_unit(text: String, unit: &str) -> String {
-    if unit.is_empty() {
+    // "1" is the canonical unit of a pure number; it is not written.
+    if unit.is_empty() || unit == "1" {
         text
     } else {
         format!("{text} {unit}")
@@ -574,6 +581,11 @@ mod tests {
             "mm/s"
         );
         assert_eq!(param_unit("k", Some("a_mm_s2"), "mm/s").canonical(), "s");
+        // A speed per speed is a ratio, not a slope.
+        let ratio = param_unit("k", Some("cmd_v_mm_s"), "mm/s");
+        assert_eq!(ratio.canonical(), "1");
+        assert_eq!(show(3.78e-3, &ratio), "0.00378");
+        assert_eq!(pu("k", "x_mm").canonical(), "mm/mm");
     }
 
     #[test]
