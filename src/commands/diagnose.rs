@@ -92,16 +92,36 @@ pub fn diagnose(observations: &Path, out: &Path, flags: &Flags) -> anyhow::Resul
             .as_array()
             .map(|a| a.iter().filter_map(|x| x.as_str()).collect())
             .unwrap_or_default();
+        // The pooled gap is in the observables' unit when they share one
+        // (each is in its contract unit: mm, or mm/s for a velocity).
+        let units: std::collections::BTreeSet<&str> = d
+            .diagnosis
+            .per_observable
+            .iter()
+            .map(|o| o.unit.as_str())
+            .collect();
+        let unit = match units.len() {
+            1 => units.first().copied().unwrap_or("mm"),
+            _ => "mm",
+        };
+        let f = |p: &str| v.pointer(p).and_then(|x| x.as_f64()).unwrap_or(f64::NAN);
+        let [gap, noise, after] =
+            <[String; 3]>::try_from(sparkout_pipeline::units::format::show_group(
+                &[
+                    f("/gap/rms_mm"),
+                    f("/gap/noise_floor_mm"),
+                    f("/unexplained/rms_mm"),
+                ],
+                unit,
+            ))
+            .expect("three figures");
         println!(
-            "gap RMS {:.4} mm, noise floor {:.4} mm; selected: {}; held-out RMS after {:.4} mm",
-            v["gap"]["rms_mm"].as_f64().unwrap_or(f64::NAN),
-            v["gap"]["noise_floor_mm"].as_f64().unwrap_or(f64::NAN),
+            "gap RMS {gap}, noise floor {noise}; selected: {}; held-out RMS after {after}",
             if sel.is_empty() {
                 "none (no effect explains the gap)".to_string()
             } else {
                 sel.join(", ")
             },
-            v["unexplained"]["rms_mm"].as_f64().unwrap_or(f64::NAN),
         );
         for e in d.diagnosis.effects.iter().filter(|e| e.selected) {
             let shrink = match (e.shrink, e.shrink_interval) {

@@ -184,6 +184,7 @@ pub fn sync(from: &Path, to: &Path) -> anyhow::Result<u8> {
 
 /// The end-of-batch summary an engineer reads first.
 pub fn print_outcome(o: &FleetOutcome) {
+    use sparkout_pipeline::units::format::{param_unit, show, show_group};
     let computed = o.stages_computed();
     let cached = o.stages_cached();
     println!(
@@ -225,31 +226,55 @@ pub fn print_outcome(o: &FleetOutcome) {
                     // nothing; the per-observable lines below do.
                     println!("  effects named (most signal explained first): {named}");
                 } else if let (Some(b), Some(a), Some(n)) = (before, after, noise) {
-                    println!(
-                        "  gap RMS {b:.4} mm (noise floor {n:.4} mm) → held-out {a:.4} mm after: {named}"
-                    );
+                    let unit = v
+                        .pointer("/per_observable/0/unit")
+                        .and_then(|u| u.as_str())
+                        .unwrap_or("mm");
+                    let [b, n, a] = <[String; 3]>::try_from(show_group(&[b, n, a], unit))
+                        .expect("three figures");
+                    println!("  gap RMS {b} (noise floor {n}) → held-out {a} after: {named}");
                 }
                 // Per observable: each has its own noise floor and effects,
                 // and a small observable's shrink is invisible in the total.
                 for o in sparkout_pipeline::report::observable_summaries(&v) {
-                    let u = &o.unit;
+                    let [b, n, a] = <[String; 3]>::try_from(show_group(
+                        &[o.rms_mm, o.noise_floor_mm, o.after_mm],
+                        &o.unit,
+                    ))
+                    .expect("three figures");
                     println!(
-                        "  {}: gap RMS {:.4} {u} (noise {:.4} {u}) → held-out {:.4} {u}, {:.0} % shrink; {}",
+                        "  {}: gap RMS {b} (noise {n}) → held-out {a}, {:.0} % shrink; {}",
                         o.observable,
-                        o.rms_mm,
-                        o.noise_floor_mm,
-                        o.after_mm,
                         100.0 * o.shrink,
                         o.explained_by
                     );
                 }
                 // Effects only one machine has (diagnosis.json machine_effects).
                 for e in v["machine_effects"].as_array().into_iter().flatten() {
+                    let cov = e["effect"]
+                        .as_str()
+                        .and_then(|k| k.split_once(':'))
+                        .map(|k| k.1);
+                    let gap_unit = v["per_observable"]
+                        .as_array()
+                        .into_iter()
+                        .flatten()
+                        .find(|o| o["observable"] == e["observable"])
+                        .and_then(|o| o["unit"].as_str())
+                        .unwrap_or("mm");
                     let params: Vec<String> = e["params"]
                         .as_object()
                         .into_iter()
                         .flatten()
-                        .map(|(k, p)| format!("{k} = {:.3e}", p.as_f64().unwrap_or(f64::NAN)))
+                        .map(|(k, p)| {
+                            format!(
+                                "{k} = {}",
+                                show(
+                                    p.as_f64().unwrap_or(f64::NAN),
+                                    &param_unit(k, cov, gap_unit)
+                                )
+                            )
+                        })
                         .collect();
                     println!(
                         "  {} on machine {} only: {} ({}), held-out shrink {:.0} % over its {} runs",

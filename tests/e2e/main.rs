@@ -50,3 +50,4 @@ mod shards;
 mod stands_alone;
 mod trend;
 mod umich_cnc;
+mod units;

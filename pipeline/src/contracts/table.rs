@@ -281,6 +281,7 @@ impl Table {
         for (field, col) in batch.schema().fields().iter().zip(batch.columns()) {
             match schema.column(field.name()) {
                 Some(spec) => {
+                    check_stated_unit(path, field)?;
                     let target = match spec.kind {
                         // Keep f32 signals f32 (memory), everything else canonical.
                         ColumnKind::F32 if col.data_type() == &DataType::Float32 => {
@@ -419,9 +420,45 @@ impl Table {
     }
 }
 
+/// A contract column's name states its unit (`cmd_x_mm`); Parquet field
+/// metadata `unit` that says otherwise is a conflict (docs/formats.md
+/// "Units"), not a value to trust or ignore.
+fn check_stated_unit(path: &Path, field: &Field) -> Result<(), InputError> {
+    let Some(text) = field.metadata().get("unit") else {
+        return Ok(());
+    };
+    let Some(kind) = crate::units::Unit::from_suffix(field.name()).map(|u| u.kind) else {
+        return Ok(());
+    };
+    let stated = [crate::units::Stated {
+        text: text.clone(),
+        source: crate::units::Source::FieldMetadata,
+    }];
+    crate::units::resolve(field.name(), kind, &stated)
+        .map(|_| ())
+        .map_err(|e| InputError::new(path, e.to_string()))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn field_metadata_that_contradicts_the_name_is_refused() {
+        let f = |unit: &str| {
+            Field::new("z_mm", DataType::Float64, false).with_metadata(
+                std::collections::HashMap::from([("unit".to_string(), unit.to_string())]),
+            )
+        };
+        assert!(check_stated_unit(Path::new("t.parquet"), &f("mm")).is_ok());
+        let e = check_stated_unit(Path::new("t.parquet"), &f("um"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("t.parquet") && e.contains("`z_mm`") && e.contains("um"),
+            "{e}"
+        );
+    }
 
     /// The chunked scans find exactly the row a plain scan finds — at chunk
     /// boundaries, with NaN (a decrease only where `<` says so), and none.

@@ -291,7 +291,8 @@ pub fn shrink_interval(before: &[f64], after: &[f64], seed: u64) -> Option<[f64;
     Some([q(0.025), q(0.975)])
 }
 
-/// `1.50e-5 ± 0.08e-5`: value and standard error on the value's exponent.
+/// `1.50e-5 ± 0.08e-5`: value and standard error on the value's exponent
+/// (the units-free form; outputs show parameters through units::format).
 pub fn format_pm(value: f64, se: f64) -> String {
     if !value.is_finite() {
         return format!("{value}");
@@ -323,39 +324,6 @@ pub fn format_pm(value: f64, se: f64) -> String {
     format!("{:.d$}e{e} ± {:.d$}e{e}", value / s, se / s)
 }
 
-/// Unit of a reported parameter, from its name and the effect's covariate
-/// (`k` of wear on removed_mm3 is mm per mm³).
-pub fn unit_of(param: &str, covariate: Option<&str>) -> String {
-    fn suffix_unit(name: &str) -> Option<&'static str> {
-        const UNITS: [(&str, &str); 9] = [
-            ("_mm_s2", "mm/s²"),
-            ("_mm_s", "mm/s"),
-            ("_mm3", "mm³"),
-            ("_mm", "mm"),
-            ("_rad", "rad"),
-            ("_s", "s"),
-            ("_c", "°C"),
-            ("_n", "N"),
-            ("_hz", "Hz"),
-        ];
-        UNITS
-            .iter()
-            .find(|(s, _)| name.ends_with(s))
-            .map(|(_, u)| *u)
-    }
-    if let Some(u) = suffix_unit(param) {
-        return u.to_string();
-    }
-    match covariate
-        .and_then(|c| c.split(',').next())
-        .and_then(suffix_unit)
-    {
-        Some(u) if u.contains('/') => format!("mm/({u})"),
-        Some(u) => format!("mm/{u}"),
-        None => "mm".into(),
-    }
-}
-
 /// Intervals of the chosen effects of one observable, in selection order:
 /// (parameter intervals, held-out shrink interval).
 pub type ChosenIntervals = Vec<(BTreeMap<String, ParamInterval>, Option<[f64; 2]>)>;
@@ -385,16 +353,12 @@ mod tests {
     use super::*;
 
     #[test]
-    fn formats_and_units() {
+    fn formats() {
         assert_eq!(format_pm(1.5e-5, 0.08e-5), "1.50e-5 ± 0.08e-5");
         assert_eq!(format_pm(600.0, 25.0), "600 ± 25");
         assert_eq!(format_pm(0.0123, 0.0004), "0.0123 ± 0.0004");
         assert_eq!(format_pm(1.5e-5, 0.0003e-5), "1.5000e-5 ± 0.0003e-5");
         assert_eq!(format_pm(2.5, 0.0012), "2.500 ± 0.001");
-        assert_eq!(unit_of("k", Some("removed_mm3")), "mm/mm³");
-        assert_eq!(unit_of("tau_s", Some("t_s")), "s");
-        assert_eq!(unit_of("amplitude_mm", Some("t_s")), "mm");
-        assert_eq!(unit_of("k", Some("feed_mm_s")), "mm/(mm/s)");
     }
 
     #[test]

@@ -196,6 +196,7 @@ pub fn localised_effects(
                 observable: observable.clone(),
                 effect: e.key(),
                 params: e.params.clone(),
+                param_units: e.param_units.clone(),
                 intervals: e.intervals.clone(),
                 shrink: e.shrink,
                 shrink_interval: e.shrink_interval,

@@ -295,6 +295,7 @@ fn analyse(
     let ivs = intervals::chosen_intervals(&cands, &prob, &sel, &o.run_ranges, cfg.seed);
     acc.effects.extend(output::effect_entries(
         &o.name,
+        &table.obs_units[oi],
         n,
         &cands,
         &sel,

@@ -8,6 +8,7 @@ use arrow::array::{Array, ArrayRef, AsArray, Float64Array, RecordBatch};
 use arrow::compute::cast;
 use arrow::datatypes::{DataType, Field, Schema};
 
+use crate::units::Unit;
 use crate::{InputError, Result};
 
 /// Largest plausible |sim| or |real|: 10 m. Beyond it the table is in the
@@ -109,16 +110,25 @@ pub fn validate_observations(batch: &RecordBatch, path: &Path) -> Result<RecordB
                 .into());
         }
     }
-    check_units(batch, path)?;
+    let units = check_units(batch, path)?;
     let mut fields: Vec<Arc<Field>> = schema.fields().iter().cloned().collect();
     let mut cols: Vec<ArrayRef> = batch.columns().to_vec();
-    for name in ["sim", "real"] {
-        let (idx, f) = schema
-            .column_with_name(name)
-            .ok_or_else(|| InputError::new(path, "missing required column").column(name))?;
+    for name in ["sim", "real", "real_u", "sim_augmented"] {
+        let optional = matches!(name, "real_u" | "sim_augmented");
+        let (idx, f) = match schema.column_with_name(name) {
+            Some(c) => c,
+            None if optional => continue,
+            None => {
+                return Err(InputError::new(path, "missing required column")
+                    .column(name)
+                    .into())
+            }
+        };
         let a = match f.data_type() {
             DataType::Float64 => cols[idx].clone(),
             DataType::Float32 => cast(&cols[idx], &DataType::Float64)?,
+            // The optional columns keep their own checks downstream.
+            _ if optional => continue,
             t => {
                 return Err(
                     InputError::new(path, format!("expected float64, found {t}"))
@@ -128,8 +138,13 @@ pub fn validate_observations(batch: &RecordBatch, path: &Path) -> Result<RecordB
             }
         };
         let v = a.as_primitive::<arrow::datatypes::Float64Type>();
+        let mut out: Vec<Option<f64>> = Vec::with_capacity(v.len());
         for i in 0..v.len() {
             if v.is_null(i) {
+                if optional {
+                    out.push(None);
+                    continue;
+                }
                 return Err(InputError::new(path, "null value")
                     .column(name)
                     .row(i)
@@ -137,26 +152,68 @@ pub fn validate_observations(batch: &RecordBatch, path: &Path) -> Result<RecordB
             }
             let x = v.value(i);
             if !x.is_finite() {
+                if optional {
+                    out.push(Some(x));
+                    continue;
+                }
                 let what = if x.is_nan() { "NaN" } else { "infinite value" };
                 return Err(InputError::new(path, format!("{what} in {name}"))
                     .column(name)
                     .row(i)
                     .into());
             }
-            if x.abs() > MAX_OBSERVED_MM {
-                return Err(InputError::new(
-                    path,
-                    format!(
-                        "implausible value {x} (plausible for `{name}`: ±{MAX_OBSERVED_MM} mm); values look like µm or nm — the contract's observations are in mm"
+            // Judged in the unit the row states: 5000 nm is 0.005 mm, not
+            // an implausible 5000 mm.
+            let unit = units.as_ref().and_then(|u| u[i]);
+            let c = unit.map_or(x, |u| u.to_canonical(x));
+            if c.abs() > MAX_OBSERVED_MM && !optional {
+                let msg = match unit.filter(|u| *u != u.kind.canonical()) {
+                    Some(u) => format!(
+                        "implausible value {x} {u} (= {c} {}; plausible for `{name}`: ±{MAX_OBSERVED_MM} {})",
+                        u.kind.canonical(),
+                        u.kind.canonical()
                     ),
-                )
-                .column(name)
-                .row(i)
-                .into());
+                    None if units.is_some() => format!(
+                        "implausible value {x} (plausible for `{name}`: ±{MAX_OBSERVED_MM} in the row's `unit`); state the values' unit in the `unit` column (nm, um, mm, …)"
+                    ),
+                    None => format!(
+                        "implausible value {x} (plausible for `{name}`: ±{MAX_OBSERVED_MM} mm); values look like µm or nm — the contract's observations are in mm unless a `unit` column states another (nm, um, …)"
+                    ),
+                };
+                return Err(InputError::new(path, msg).column(name).row(i).into());
             }
+            out.push(Some(c));
+        }
+        let converted = units
+            .as_ref()
+            .is_some_and(|u| u.iter().flatten().any(|u| *u != u.kind.canonical()));
+        if optional && !converted {
+            continue;
         }
         fields[idx] = Arc::new(Field::new(name, DataType::Float64, f.is_nullable()));
-        cols[idx] = a;
+        cols[idx] = if converted {
+            Arc::new(Float64Array::from(out))
+        } else {
+            a
+        };
+    }
+    // The values are now in the contract's units: say so in `unit`, so
+    // every later reader (the gap, augment, the reports) sees mm.
+    if let (Some(units), Some((idx, _))) = (&units, schema.column_with_name("unit")) {
+        if units.iter().flatten().any(|u| *u != u.kind.canonical()) {
+            let text = cast(&cols[idx], &DataType::Utf8)?;
+            let text = text.as_string::<i32>();
+            let canon: arrow::array::StringArray = (0..text.len())
+                .map(|i| match units[i] {
+                    Some(u) if u != u.kind.canonical() => {
+                        Some(u.kind.canonical().symbol.to_string())
+                    }
+                    _ => (!text.is_null(i)).then(|| text.value(i).to_string()),
+                })
+                .collect();
+            fields[idx] = Arc::new(Field::new("unit", DataType::Utf8, true));
+            cols[idx] = Arc::new(canon);
+        }
     }
     // A covariate may be null ("not measured"), never NaN or ±inf: it would
     // poison every fit that uses it.
@@ -259,9 +316,12 @@ fn ids(a: &ArrayRef) -> (Vec<String>, Vec<u32>) {
 
 /// The optional `unit` column: text (null = mm), never empty, and one unit
 /// per observable (a gap RMS over rows in mm and mm/s would mean nothing).
-fn check_units(batch: &RecordBatch, path: &Path) -> Result<()> {
+/// Returns each row's unit when it is one sparkout converts (nm, um, mm,
+/// m; s, ms, us; mm/s, mm/min, um/s — docs/formats.md "Units"); `None` for
+/// a unit it keeps as written (rad, N, …), or no `unit` column at all.
+fn check_units(batch: &RecordBatch, path: &Path) -> Result<Option<Vec<Option<Unit>>>> {
     let Some(u) = batch.column_by_name("unit") else {
-        return Ok(());
+        return Ok(None);
     };
     let u = cast(u, &DataType::Utf8).map_err(|_| {
         InputError::new(path, format!("expected utf8 text, found {}", u.data_type())).column("unit")
@@ -273,6 +333,7 @@ fn check_units(batch: &RecordBatch, path: &Path) -> Result<()> {
     )?;
     let o = o.as_string::<i32>();
     let mut seen: std::collections::BTreeMap<&str, (&str, usize)> = Default::default();
+    let mut parsed = Vec::with_capacity(u.len());
     for i in 0..u.len() {
         // null = the default unit: a fleet table joins plugins that write
         // the column with plugins that do not.
@@ -290,6 +351,7 @@ fn check_units(batch: &RecordBatch, path: &Path) -> Result<()> {
             .row(i)
             .into());
         }
+        parsed.push(Unit::parse(unit));
         let obs = o.value(i);
         match seen.get(obs) {
             Some((first, at)) if *first != unit => {
@@ -309,7 +371,7 @@ fn check_units(batch: &RecordBatch, path: &Path) -> Result<()> {
             }
         }
     }
-    Ok(())
+    Ok(Some(parsed))
 }
 
 /// Each observable's unit (validated by `check_units`), "mm" without a

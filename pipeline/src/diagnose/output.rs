@@ -63,6 +63,10 @@ pub struct EffectEntry {
     pub covariate: Option<String>,
     pub observable: String,
     pub params: BTreeMap<String, f64>,
+    /// The canonical unit of every parameter of `params` and of
+    /// `offset_mm` (`{"k": "s", "offset_mm": "mm"}`; docs/formats.md
+    /// "Units"), so no reader has to guess it from the names.
+    pub param_units: BTreeMap<String, String>,
     pub offset_mm: Option<f64>,
     pub n_params: usize,
     pub cv_rms_before_mm: Option<f64>,
@@ -107,6 +111,29 @@ pub struct EffectEntry {
     /// runs.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub shrink_interval: Option<[f64; 2]>,
+    /// The unit of the observable's gap (`mm`, `mm/s`): the unit of the
+    /// amplitudes and offset, the numerator of a coefficient.
+    #[serde(skip)]
+    pub gap_unit: String,
+}
+
+/// The canonical unit of each parameter and of `offset_mm`.
+pub fn param_units(
+    params: &BTreeMap<String, f64>,
+    covariate: Option<&str>,
+    gap_unit: &str,
+) -> BTreeMap<String, String> {
+    params
+        .keys()
+        .map(String::as_str)
+        .chain(["offset_mm"])
+        .map(|k| {
+            (
+                k.to_string(),
+                crate::units::format::param_unit(k, covariate, gap_unit).canonical(),
+            )
+        })
+        .collect()
 }
 
 impl EffectEntry {
@@ -122,20 +149,21 @@ impl EffectEntry {
     pub fn explained_text(&self) -> String {
         explained_text(&self.key(), &self.indistinguishable_from)
     }
-    /// Each parameter as an engineer reads it: `k = 1.50e-5 ± 0.08e-5
-    /// mm/mm³` when it has an interval, else `k = 1.5e-5 mm/mm³`.
+    /// Each parameter as an engineer reads it, in its unit chosen by
+    /// magnitude: `k = 4.92 ± 0.08 ms` when it has an interval, else
+    /// `k = 4.92 ms`.
     pub fn params_text(&self) -> Vec<String> {
-        use super::intervals::{format_pm, unit_of};
+        use crate::units::format::{param_unit, show, show_pm};
         let mut all: Vec<(&str, f64)> = self.params.iter().map(|(k, v)| (k.as_str(), *v)).collect();
         if let Some(o) = self.offset_mm {
             all.push(("offset_mm", o));
         }
         all.into_iter()
             .map(|(k, v)| {
-                let unit = unit_of(k, self.covariate.as_deref());
+                let unit = param_unit(k, self.covariate.as_deref(), &self.gap_unit);
                 match self.intervals.as_ref().and_then(|i| i.get(k)) {
-                    Some(iv) => format!("{k} = {} {unit}", format_pm(v, iv.se)),
-                    None => format!("{k} = {v:.4e} {unit}"),
+                    Some(iv) => format!("{k} = {}", show_pm(v, iv.se, &unit)),
+                    None => format!("{k} = {}", show(v, &unit)),
                 }
             })
             .collect()
@@ -266,6 +294,9 @@ pub struct MachineEffect {
     /// `name:covariate`, as `selected` spells it.
     pub effect: String,
     pub params: BTreeMap<String, f64>,
+    /// As `EffectEntry::param_units`: the canonical unit of each parameter
+    /// and of the offset.
+    pub param_units: BTreeMap<String, String>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub intervals: Option<BTreeMap<String, ParamInterval>>,
     pub shrink: Option<f64>,
@@ -353,8 +384,10 @@ pub fn machine_tests(
 
 /// The `effects` entries of one observable: selected (in order), then by
 /// score, skipped last.
+#[allow(clippy::too_many_arguments)]
 pub fn effect_entries(
     observable: &str,
+    gap_unit: &str,
     n: usize,
     cands: &[&dyn Effect],
     sel: &Selection,
@@ -390,16 +423,19 @@ pub fn effect_entries(
             let j = sel.chosen.iter().position(|&c| c == r.idx && r.selected);
             let test = j.and_then(|j| tests.get(j)).and_then(|t| t.as_ref());
             let iv = j.and_then(|j| intervals.get(j));
+            let covariate = (!covs.is_empty()).then(|| covs.join(","));
+            let params: BTreeMap<String, f64> = r
+                .params
+                .iter()
+                .filter(|(_, v)| v.is_finite())
+                .map(|(k, v)| (k.clone(), *v))
+                .collect();
             EffectEntry {
                 name: e.name().to_string(),
-                covariate: (!covs.is_empty()).then(|| covs.join(",")),
+                param_units: param_units(&params, covariate.as_deref(), gap_unit),
+                covariate,
                 observable: observable.to_string(),
-                params: r
-                    .params
-                    .iter()
-                    .filter(|(_, v)| v.is_finite())
-                    .map(|(k, v)| (k.clone(), *v))
-                    .collect(),
+                params,
                 offset_mm: fin(r.offset_mm),
                 n_params: e.n_params(),
                 cv_rms_before_mm: fin(before),
@@ -424,6 +460,7 @@ pub fn effect_entries(
                 machines_differ_p: test.and_then(|t| fin(t.p_value)),
                 intervals: iv.map(|i| i.0.clone()),
                 shrink_interval: iv.and_then(|i| i.1),
+                gap_unit: gap_unit.to_string(),
             }
         })
         .collect()

@@ -39,7 +39,7 @@ use cache::{
 pub use config::PipelineConfig;
 
 /// Version of the fleet `diagnose` step (bump when its output changes).
-pub const DIAGNOSE_STAGE_VERSION: u32 = 7;
+pub const DIAGNOSE_STAGE_VERSION: u32 = 8;
 
 /// A plugin's name and the composite effects it adds to the diagnosis.
 pub type PluginEffects = (&'static str, Vec<Box<dyn Effect>>);

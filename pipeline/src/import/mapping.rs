@@ -9,6 +9,7 @@ use anyhow::{anyhow, bail, Context};
 use serde::Deserialize;
 
 use crate::contracts::{table_schema, ColumnKind};
+use crate::units::{resolve, Source, Stated, Unit};
 use crate::Result;
 
 /// Where a contract column's values come from.
@@ -50,6 +51,28 @@ pub struct ColumnMap {
     pub offset: f64,
     /// For a destination outside the contract table: its type (f64 default).
     pub extra_kind: Option<ExtraKind>,
+    /// The source column's unit as the mapping states it (`unit = "um"`).
+    pub unit_text: Option<String>,
+    /// The source's unit when it is not the destination's — from
+    /// `unit_text`, else from a unit suffix of the source header
+    /// (`pos_um` → `cmd_x_mm`) — converted exactly on import
+    /// ([`ColumnMap::convert`]). Set by [`Mapping::settle_units`].
+    pub unit: Option<Unit>,
+}
+
+impl ColumnMap {
+    /// A source value in the destination's unit: the stated unit's exact
+    /// conversion, or the mapping's factor; then the offset.
+    pub fn convert(&self, v: f64) -> f64 {
+        let v = match self.unit {
+            Some(u) => match Unit::from_suffix(&self.dest).filter(|d| d.kind == u.kind) {
+                Some(d) if d != d.kind.canonical() => d.from_canonical(u.to_canonical(v)),
+                _ => u.to_canonical(v),
+            },
+            None => v * self.factor,
+        };
+        v + self.offset
+    }
 }
 
 /// How rows become runs.
@@ -118,6 +141,8 @@ struct ColumnFullToml {
     offset: Option<f64>,
     #[serde(rename = "type")]
     kind: Option<ExtraKind>,
+    /// The source column's unit (docs/formats.md "Units").
+    unit: Option<String>,
 }
 
 /// `#3` → position 3; anything else is a header name.
@@ -142,6 +167,8 @@ impl Mapping {
                     factor: 1.0,
                     offset: 0.0,
                     extra_kind: None,
+                    unit_text: None,
+                    unit: None,
                 },
                 ColumnToml::Full(f) => {
                     let source = match (f.from, f.col) {
@@ -157,6 +184,8 @@ impl Mapping {
                         factor: f.factor.unwrap_or(1.0),
                         offset: f.offset.unwrap_or(0.0),
                         extra_kind: f.kind,
+                        unit_text: f.unit,
+                        unit: None,
                     }
                 }
             };
@@ -183,8 +212,10 @@ impl Mapping {
             columns,
             process: m.process,
         };
+        let mut mapping = mapping;
         mapping
             .validate()
+            .and_then(|_| mapping.settle_units())
             .with_context(|| format!("import mapping {what}"))?;
         Ok(mapping)
     }
@@ -226,7 +257,58 @@ impl Mapping {
             factor,
             offset: 0.0,
             extra_kind: None,
+            unit_text: None,
+            unit: None,
         });
+        self.settle_units()
+    }
+
+    /// Each column's source unit, where it is stated (the mapping's `unit`,
+    /// else a unit suffix of the source header) and differs from the
+    /// destination's: a `pos_um` header mapped to `cmd_x_mm` is converted,
+    /// not copied. A mapping `unit` that contradicts the header's suffix,
+    /// or is of another kind than the destination, is an error; a `unit`
+    /// together with a `factor` is one conversion too many.
+    pub fn settle_units(&mut self) -> Result<()> {
+        for c in &mut self.columns {
+            let dest = Unit::from_suffix(&c.dest);
+            if c.unit_text.is_some() && c.factor != 1.0 {
+                bail!(
+                    "column `{}`: give `unit` or `factor`, not both (`unit` converts exactly)",
+                    c.dest
+                );
+            }
+            let Some(kind) = dest.map(|d| d.kind) else {
+                if let Some(t) = &c.unit_text {
+                    bail!(
+                        "column `{}`: `unit = {t:?}` needs a destination whose name states its unit (`_mm`, `_s`, `_mm_s`)",
+                        c.dest
+                    );
+                }
+                continue;
+            };
+            // An explicit factor is the mapping's own conversion: a header
+            // suffix is not applied on top of it.
+            if c.unit_text.is_none() && c.factor != 1.0 {
+                continue;
+            }
+            let stated: Vec<Stated> = c
+                .unit_text
+                .iter()
+                .map(|t| Stated {
+                    text: t.clone(),
+                    source: Source::Mapping,
+                })
+                .collect();
+            let name = match &c.source {
+                SourceRef::Name(n) => n.clone(),
+                // A position has no name, so no suffix.
+                SourceRef::Index(i) => format!("#{i}"),
+            };
+            let got = resolve(&name, kind, &stated)
+                .map_err(|e| anyhow!("column `{}` (source {}): {e}", c.dest, c.source))?;
+            c.unit = got.map(|(u, _)| u).filter(|u| Some(*u) != dest);
+        }
         Ok(())
     }
 
@@ -364,5 +446,41 @@ act_x_mm = "#4"
         m.apply_flag("feed=feed_mm_s*0.5").unwrap();
         assert_eq!(m.columns[0].factor, 0.5);
         assert!(m.validate().is_err(), "cmd_x_mm etc. unmapped");
+    }
+
+    #[test]
+    fn a_stated_unit_converts_exactly_and_a_conflict_is_an_error() {
+        let with = |cols: &str| {
+            Mapping::from_toml(
+                &TOML.replace("act_x_mm = \"#4\"\n", &format!("act_x_mm = \"#4\"\n{cols}")),
+                "test",
+            )
+        };
+        let m = with("feed_mm_s = { from = \"F\", unit = \"mm/min\" }\nact_y_mm = \"pos_um\"\nact_z_mm = { from = \"Z\", unit = \"nm\" }\n").unwrap();
+        let c = |d: &str| m.columns.iter().find(|c| c.dest == d).unwrap().clone();
+        assert_eq!(c("feed_mm_s").convert(600.0), 10.0);
+        // The header's suffix states µm: converted, not copied.
+        assert_eq!(c("act_y_mm").convert(700.0), 0.7);
+        assert_eq!(c("act_z_mm").convert(13.0), 13.0 / 1e6);
+        // No unit stated: the factor, as before.
+        assert_eq!(c("cmd_y_mm").convert(2.0), 2.0 * 25.4);
+        let e = format!(
+            "{:#}",
+            with("act_y_mm = { from = \"pos_um\", unit = \"nm\" }\n").unwrap_err()
+        );
+        assert!(
+            e.contains("pos_um") && e.contains("nm") && e.contains("um"),
+            "{e}"
+        );
+        let e = format!(
+            "{:#}",
+            with("act_y_mm = { from = \"Y\", unit = \"s\" }\n").unwrap_err()
+        );
+        assert!(e.contains("act_y_mm") && e.contains("time"), "{e}");
+        let e = format!(
+            "{:#}",
+            with("act_y_mm = { from = \"Y\", unit = \"um\", factor = 2.0 }\n").unwrap_err()
+        );
+        assert!(e.contains("not both"), "{e}");
     }
 }

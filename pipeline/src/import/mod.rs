@@ -116,7 +116,8 @@ fn groups(src: &SourceTable, m: &Mapping) -> Result<Vec<Group>, InputError> {
     }
 }
 
-/// Parse one cell as a number, with the mapping's factor and offset.
+/// Parse one cell as a number, in the destination's unit (the mapping's
+/// stated unit, or its factor) plus its offset.
 fn number(src: &SourceTable, cm: &ColumnMap, row: usize, cell: &str) -> Result<f64, InputError> {
     let v: f64 = cell.parse().map_err(|_| {
         InputError::new(
@@ -144,7 +145,7 @@ fn number(src: &SourceTable, cm: &ColumnMap, row: usize, cell: &str) -> Result<f
         .column(cm.dest.clone())
         .row(row));
     }
-    Ok(v * cm.factor + cm.offset)
+    Ok(cm.convert(v))
 }
 
 /// One destination column over a run's rows.

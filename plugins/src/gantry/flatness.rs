@@ -277,7 +277,8 @@ impl Stage for FlatnessStage {
     }
     /// `sparkout stage flatness --topography FILE [--state NAME] --json`
     /// (a topography table), or `--surface FILE [--x COL --y COL --z COL]
-    /// [--unit-scale F] --json` (any x/y/z table or gridded map).
+    /// [--x-unit U --y-unit U --z-unit U] --json` (any x/y/z table or
+    /// gridded map; `--unit-scale F` is a deprecated alias).
     fn run_standalone(&self, args: &StageArgs) -> Option<Result<Value>> {
         if let Some(r) = crate::metrology::stage::matrix_flatness(args) {
             return Some(r);
@@ -289,7 +290,7 @@ impl Stage for FlatnessStage {
         Some((|| {
             for k in args.keys() {
                 if k != "topography" && k != "state" {
-                    anyhow::bail!("unknown flag --{k} for `flatness` (known: --topography FILE, --state NAME; or --surface FILE, --x/--y/--z COL, --unit-scale F)");
+                    anyhow::bail!("unknown flag --{k} for `flatness` (known: --topography FILE, --state NAME; or --surface FILE, --x/--y/--z COL, --x-unit/--y-unit/--z-unit U)");
                 }
             }
             let t = Table::read(std::path::Path::new(file), &TOPOGRAPHY)?;
@@ -303,14 +304,25 @@ impl Stage for FlatnessStage {
 
 /// `{"least_squares_mm", "min_zone_mm", "n", "areal"}` of any surface file.
 fn surface_flatness(args: &StageArgs) -> Result<Value> {
-    const KNOWN: [&str; 5] = ["surface", "x", "y", "z", "unit-scale"];
+    const KNOWN: [&str; 8] = [
+        "surface",
+        "x",
+        "y",
+        "z",
+        "x-unit",
+        "y-unit",
+        "z-unit",
+        "unit-scale",
+    ];
     if let Some(k) = args.keys().find(|k| !KNOWN.contains(&k.as_str())) {
-        anyhow::bail!("unknown flag --{k} for `flatness --surface` (known: --surface FILE, --x COL, --y COL, --z COL, --unit-scale F)");
+        anyhow::bail!("unknown flag --{k} for `flatness --surface` (known: --surface FILE, --x COL, --y COL, --z COL, --x-unit U, --y-unit U, --z-unit U)");
     }
     let unit_scale = match args.get("unit-scale") {
-        Some(s) => s
-            .parse::<f64>()
-            .map_err(|_| anyhow!("--unit-scale `{s}` is not a number"))?,
+        Some(s) => {
+            eprintln!("warning: --unit-scale is deprecated: give each axis its unit (--x-unit um --y-unit um --z-unit nm) or name it in the column (x_um, z_nm)");
+            s.parse::<f64>()
+                .map_err(|_| anyhow!("--unit-scale `{s}` is not a number"))?
+        }
         None => 1.0,
     };
     let spec = SurfaceSpec {
@@ -318,6 +330,9 @@ fn surface_flatness(args: &StageArgs) -> Result<Value> {
         y: args.get("y").map(|s| s.as_str()),
         z: args.get("z").map(|s| s.as_str()),
         unit_scale,
+        x_unit: args.get("x-unit").map(|s| s.as_str()),
+        y_unit: args.get("y-unit").map(|s| s.as_str()),
+        z_unit: args.get("z-unit").map(|s| s.as_str()),
     };
     let path = std::path::Path::new(&args["surface"]);
     let p = read_surface(path, &spec)?;

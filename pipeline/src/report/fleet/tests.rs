@@ -29,7 +29,7 @@ fn selected_parameters_carry_their_interval_and_unit() {
     let p = params_text(&e);
     assert_eq!(p.len(), 1);
     assert!(
-        p[0].contains("±") && p[0].contains("mm/mm³") && p[0].contains("95 %"),
+        p[0].contains("±") && p[0].contains("nm/mm³") && p[0].contains("95 %"),
         "{}",
         p[0]
     );

@@ -51,10 +51,15 @@ pub fn unit_of_observable(observable: &str) -> Unit {
 }
 
 impl Unit {
-    /// A data value shown with three significant digits and its unit.
+    /// A data value shown with three significant digits and its unit; a
+    /// length in nm, µm or mm by its magnitude (a 2 nm gap is not
+    /// "0.00200 µm").
     pub fn show(&self, v: f64) -> String {
         if !v.is_finite() {
             return "—".into();
+        }
+        if self.data == "mm" {
+            return crate::units::format::show_length(v);
         }
         format!("{} {}", super::super::svg::tick(v * self.scale), self.shown)
     }
@@ -75,9 +80,11 @@ pub(super) fn key_of(e: &Value) -> String {
     }
 }
 
-/// `k = 1.50e-5 ± 0.08e-5 mm/mm³ (95 % −… … …)` for each parameter of a
-/// selected effect (diagnosis.json `effects[].intervals`).
+/// `k = 4.92 ± 0.08 ms (95 % 4.76 … 5.07 ms)` for each parameter of a
+/// selected effect (diagnosis.json `effects[].intervals`), in the unit an
+/// engineer reads it in (units::format).
 pub(super) fn params_text(e: &Value) -> Vec<String> {
+    use crate::units::format::{param_unit, show, show_interval};
     // An `effects` entry names its covariate; a `machine_effects` entry
     // spells it inside `effect` (name:covariate).
     let cov = e.get("covariate").and_then(|c| c.as_str()).or_else(|| {
@@ -85,6 +92,12 @@ pub(super) fn params_text(e: &Value) -> Vec<String> {
             .and_then(|x| x.as_str())
             .and_then(|k| k.split_once(':').map(|(_, c)| c))
     });
+    // The offset is in the gap's unit (mm/s for a velocity); a diagnosis
+    // written before `param_units` is in mm.
+    let gap_unit = e
+        .pointer("/param_units/offset_mm")
+        .and_then(|u| u.as_str())
+        .unwrap_or("mm");
     let mut out = Vec::new();
     for (k, v) in e
         .get("params")
@@ -93,7 +106,7 @@ pub(super) fn params_text(e: &Value) -> Vec<String> {
         .flatten()
     {
         let Some(v) = v.as_f64() else { continue };
-        let unit = param_unit(k, cov);
+        let unit = param_unit(k, cov, gap_unit);
         let iv = e.pointer(&format!("/intervals/{k}"));
         // Frame constants of a form (centre, span) come with a zero-width
         // interval: they were not fitted, so they are not a finding.
@@ -107,13 +120,11 @@ pub(super) fn params_text(e: &Value) -> Vec<String> {
                     .all(|x| x.is_finite()) =>
             {
                 out.push(format!(
-                    "{k} = {} {unit} (95 % {:.3e} … {:.3e})",
-                    format_pm(v, f(iv, "se")),
-                    f(iv, "lo"),
-                    f(iv, "hi")
+                    "{k} = {}",
+                    show_interval(v, Some(f(iv, "se")), f(iv, "lo"), f(iv, "hi"), &unit)
                 ))
             }
-            _ if v.is_finite() => out.push(format!("{k} = {v:.3e} {unit}")),
+            _ if v.is_finite() => out.push(format!("{k} = {}", show(v, &unit))),
             _ => {}
         }
     }

@@ -16,6 +16,8 @@
 
 use std::fmt;
 
+pub mod format;
+
 /// What a unit measures.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub enum Kind {

@@ -1,0 +1,630 @@
+//! Engineer units on the way out: a canonical value (mm, s, mm/s and
+//! their products) shown in the unit an engineer reads it in, with two to
+//! three significant digits — a servo lag as `4.92 ms`, not
+//! `4.915e-3 mm/(mm/s)`; a gap of 0.000435 mm as `0.435 µm`.
+//!
+//! Two parts: [`Dims`] is the dimension of a value (powers of mm and s and
+//! of units sparkout does not convert, such as °C, N or rad) with its
+//! canonical spelling for JSON; [`show`], [`show_pm`] and
+//! [`show_interval`] pick the display unit by magnitude and format value,
+//! standard error and interval in that one unit.
+
+use std::collections::BTreeMap;
+use std::fmt::Write;
+
+use super::{Kind, Unit};
+
+/// Powers of mm and s, and of units sparkout keeps as written (°C, N, rad,
+/// …). `mm/(mm/s)` is `s`; `mm/mm³` stays a ratio of a length to a volume
+/// ([`ParamUnit`] keeps the two sides for display).
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct Dims {
+    pub mm: i32,
+    pub s: i32,
+    pub other: BTreeMap<String, i32>,
+}
+
+impl Dims {
+    pub fn length() -> Dims {
+        Dims {
+            mm: 1,
+            ..Dims::default()
+        }
+    }
+    pub fn time() -> Dims {
+        Dims {
+            s: 1,
+            ..Dims::default()
+        }
+    }
+    /// The dimension of a unit as written (`mm/s`, `°C`, `N`, `mm³`, a
+    /// column-name suffix such as `mm_s2`): the canonical unit of a
+    /// convertible one, the text itself otherwise.
+    pub fn of_unit(text: &str) -> Dims {
+        let t = text.trim();
+        match t {
+            "" | "1" => return Dims::default(),
+            "mm3" | "mm³" => {
+                return Dims {
+                    mm: 3,
+                    ..Dims::default()
+                }
+            }
+            "mm2" | "mm²" => {
+                return Dims {
+                    mm: 2,
+                    ..Dims::default()
+                }
+            }
+            "mm_s2" | "mm/s²" | "mm/s2" => {
+                return Dims {
+                    mm: 1,
+                    s: -2,
+                    ..Dims::default()
+                }
+            }
+            "hz" | "Hz" => {
+                return Dims {
+                    s: -1,
+                    ..Dims::default()
+                }
+            }
+            "c" | "°C" | "degC" => return Dims::other("°C"),
+            "n" | "N" => return Dims::other("N"),
+            "rad" => return Dims::other("rad"),
+            _ => {}
+        }
+        match Unit::parse(t) {
+            Some(u) => match u.kind {
+                Kind::Length => Dims::length(),
+                Kind::Time => Dims::time(),
+                Kind::Speed => Dims {
+                    mm: 1,
+                    s: -1,
+                    ..Dims::default()
+                },
+            },
+            None => Dims::other(t),
+        }
+    }
+    fn other(name: &str) -> Dims {
+        Dims {
+            other: [(name.to_string(), 1)].into(),
+            ..Dims::default()
+        }
+    }
+    pub fn mul(&self, o: &Dims) -> Dims {
+        let mut r = self.clone();
+        r.mm += o.mm;
+        r.s += o.s;
+        for (k, v) in &o.other {
+            *r.other.entry(k.clone()).or_insert(0) += v;
+        }
+        r.other.retain(|_, v| *v != 0);
+        r
+    }
+    pub fn inv(&self) -> Dims {
+        Dims {
+            mm: -self.mm,
+            s: -self.s,
+            other: self.other.iter().map(|(k, v)| (k.clone(), -v)).collect(),
+        }
+    }
+    pub fn div(&self, o: &Dims) -> Dims {
+        self.mul(&o.inv())
+    }
+    pub fn is_one(&self) -> bool {
+        self.mm == 0 && self.s == 0 && self.other.is_empty()
+    }
+    /// `mm`, `s²`, `mm/s`, `mm/°C`, `1/mm²`: positive powers, then `/` and
+    /// the negative ones.
+    pub fn canonical(&self) -> String {
+        let mut num: Vec<String> = Vec::new();
+        let mut den: Vec<String> = Vec::new();
+        let mut put = |name: &str, p: i32| {
+            if p > 0 {
+                num.push(power(name, p));
+            } else if p < 0 {
+                den.push(power(name, -p));
+            }
+        };
+        put("mm", self.mm);
+        put("s", self.s);
+        for (k, v) in &self.other {
+            put(k, *v);
+        }
+        join(&num, &den)
+    }
+}
+
+fn power(name: &str, p: i32) -> String {
+    match p {
+        1 => name.to_string(),
+        2 => format!("{name}²"),
+        3 => format!("{name}³"),
+        _ => format!("{name}^{p}"),
+    }
+}
+
+fn join(num: &[String], den: &[String]) -> String {
+    let n = if num.is_empty() {
+        "1".to_string()
+    } else {
+        num.join("·")
+    };
+    match den.len() {
+        0 => n,
+        1 => format!("{n}/{}", den[0]),
+        _ => format!("{n}/({})", den.join("·")),
+    }
+}
+
+/// The unit of a fitted parameter: what it measures over what it is per.
+/// `k` of a lag on `feed_mm_s` is mm per mm/s, a time; `k` of wheel wear
+/// on `removed_mm3` is mm per mm³, shown as a length per volume.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ParamUnit {
+    pub num: Dims,
+    pub den: Dims,
+}
+
+impl ParamUnit {
+    pub fn of(d: Dims) -> ParamUnit {
+        ParamUnit {
+            num: d,
+            den: Dims::default(),
+        }
+    }
+    fn value(&self) -> Dims {
+        self.num.div(&self.den)
+    }
+    /// The canonical unit as JSON names it (`s`, `mm`, `mm/mm³`, `mm/°C`,
+    /// `s²`): a pure length, time, speed or their powers cancel to it;
+    /// anything else keeps its two sides.
+    pub fn canonical(&self) -> String {
+        let v = self.value();
+        if v.other.is_empty() && (v.mm == 0 || v.mm == 1) && self.den.mm <= 1 && !v.is_one() {
+            return v.canonical();
+        }
+        if self.den.is_one() {
+            return self.num.canonical();
+        }
+        // A ratio of like quantities other than a length slope: a number.
+        if v.is_one() && !(self.num.mm == 1 && self.num.s == 0 && self.den.s == 0) {
+            return "1".into();
+        }
+        let d = self.den.canonical();
+        let d = if d.contains(['/', '·']) {
+            format!("({d})")
+        } else {
+            d
+        };
+        format!("{}/{d}", self.num.canonical())
+    }
+    /// Display candidates, smallest unit first: (name, factor from the
+    /// canonical value).
+    fn candidates(&self) -> Vec<(String, f64)> {
+        let v = self.value();
+        let lengths = [("nm", 1e6), ("µm", 1e3), ("mm", 1.0)];
+        if v.other.is_empty() && (v.mm == 0 || v.mm == 1) && self.den.mm <= 1 {
+            match (v.mm, v.s) {
+                (1, 0) => return cands(&lengths, ""),
+                (0, 1) => return cands(&[("µs", 1e6), ("ms", 1e3), ("s", 1.0)], ""),
+                (0, 2) => return cands(&[("µs²", 1e12), ("ms²", 1e6), ("s²", 1.0)], ""),
+                // Speeds stay in mm/s, the unit every velocity figure of the
+                // reports is in (a velocity error beside one in µm/s would
+                // read as a thousand times off).
+                (1, -1) => return vec![("mm/s".into(), 1.0)],
+                (1, -2) => return vec![("mm/s²".into(), 1.0)],
+                (0, -1) => return vec![("Hz".into(), 1.0)],
+                // A length per length: a slope, read in µm/m.
+                (0, 0) if self.num.mm == 1 && self.num.s == 0 && self.den.s == 0 => {
+                    return vec![("µm/m".into(), 1e6), ("mm/m".into(), 1e3), ("".into(), 1.0)]
+                }
+                // Any other ratio (a speed per speed) is a plain number.
+                (0, 0) => return vec![("".into(), 1.0)],
+                _ => {}
+            }
+        }
+        // A gap per something else: the gap's length by magnitude, the rest
+        // as written (°C as K: a coefficient per degree is the same size).
+        let den = self.den.canonical().replace("°C", "K");
+        let den = if den.contains(['/', '·']) {
+            format!("/({den})")
+        } else if self.den.is_one() {
+            String::new()
+        } else {
+            format!("/{den}")
+        };
+        let rest = Dims {
+            mm: 0,
+            ..self.num.clone()
+        };
+        if self.num.mm == 1 && rest.s == 0 && rest.other.is_empty() {
+            return cands(&lengths, &den);
+        }
+        if self.num.mm == 1 && rest.s == -1 && rest.other.is_empty() {
+            return cands(&[("mm/s", 1.0)], &den);
+        }
+        vec![(self.canonical(), 1.0)]
+    }
+}
+
+fn cands(list: &[(&str, f64)], den: &str) -> Vec<(String, f64)> {
+    list.iter()
+        .map(|(n, f)| {
+            let n = if den.is_empty() {
+                n.to_string()
+            } else if n.contains('/') {
+                format!("({n}){den}")
+            } else {
+                format!("{n}{den}")
+            };
+            (n, *f)
+        })
+        .collect()
+}
+
+/// The largest display unit in which `size` (canonical) reads at least
+/// 0.1 (0.435 µm, not 435 nm; 4.92 ms, not 0.00492 s); the smallest when
+/// it is below that in all of them.
+fn pick(c: &[(String, f64)], size: f64) -> (String, f64) {
+    let a = size.abs();
+    c.iter()
+        .rev()
+        .find(|(_, f)| a * f >= 0.09995)
+        .or(c.first())
+        .cloned()
+        .unwrap_or_default()
+}
+
+/// Decimals that give `v` three significant digits (none for ≥ 100).
+fn decimals_for(v: f64, sig: i32) -> i32 {
+    let a = v.abs();
+    if a == 0.0 || !a.is_finite() {
+        return 0;
+    }
+    // Round first so 9.996 counts as 10.0 (two decimals would print 10.00).
+    let e = a.log10().floor() as i32;
+    let e = if (a / 10f64.powi(e) * 10f64.powi(sig - 1)).round() >= 10f64.powi(sig) {
+        e + 1
+    } else {
+        e
+    };
+    (sig - 1 - e).max(0)
+}
+
+fn num(v: f64, d: i32) -> String {
+    let d = d.clamp(0, 12) as usize;
+    let s = format!("{v:.d$}");
+    // "-0.00" is "0.00".
+    if s.starts_with('-') && s[1..].chars().all(|c| c == '0' || c == '.') {
+        s[1..].to_string()
+    } else {
+        s
+    }
+}
+
+/// Whether the scaled value reads in plain notation; else it is written in
+/// scientific notation in the canonical unit.
+fn plain(v: f64) -> bool {
+    let a = v.abs();
+    a == 0.0 || (1e-3..1e6).contains(&a)
+}
+
+fn with_unit(text: String, unit: &str) -> String {
+    // "1" is the canonical unit of a pure number; it is not written.
+    if unit.is_empty() || unit == "1" {
+        text
+    } else {
+        format!("{text} {unit}")
+    }
+}
+
+/// A value in engineer units: `4.92 ms`, `0.435 µm`, `58.9 mm`.
+pub fn show(value: f64, unit: &ParamUnit) -> String {
+    if !value.is_finite() {
+        return "—".into();
+    }
+    let (name, f) = pick(&unit.candidates(), value);
+    let v = value * f;
+    if !plain(v) {
+        return with_unit(format!("{value:.2e}"), &unit.canonical());
+    }
+    with_unit(num(v, decimals_for(v, 3)), &name)
+}
+
+/// A value in a unit as written (`mm`, `mm/s`, `rad`), shown by
+/// magnitude: a gap in mm as nm, µm or mm.
+pub fn show_in(value: f64, unit: &str) -> String {
+    show(value, &ParamUnit::of(Dims::of_unit(unit)))
+}
+
+/// Values read side by side (a gap RMS, its noise floor, the RMS after)
+/// in one unit: the smallest in which the largest of them stays below
+/// 1000 — `106 µm (noise 0.951 µm) → 15.2 µm`, not `0.106 mm (noise
+/// 0.951 µm)` — each with three significant digits.
+pub fn show_group(values: &[f64], unit: &str) -> Vec<String> {
+    let u = ParamUnit::of(Dims::of_unit(unit));
+    let c = u.candidates();
+    let max = values
+        .iter()
+        .filter(|v| v.is_finite())
+        .fold(0.0f64, |m, v| m.max(v.abs()));
+    let (name, f) = c
+        .iter()
+        .find(|(_, f)| max * f < 999.5)
+        .or(c.last())
+        .cloned()
+        .unwrap_or_default();
+    values
+        .iter()
+        .map(|&v| {
+            if !v.is_finite() {
+                return "—".into();
+            }
+            let x = v * f;
+            if plain(x) {
+                with_unit(num(x, decimals_for(x, 3)), &name)
+            } else {
+                with_unit(format!("{v:.2e}"), &u.canonical())
+            }
+        })
+        .collect()
+}
+
+/// A length in mm shown in nm, µm or mm by magnitude.
+pub fn show_length(mm: f64) -> String {
+    show(mm, &ParamUnit::of(Dims::length()))
+}
+
+/// The decimals for a value and its standard error in one notation: three
+/// significant digits of the value, and at least one of the error.
+fn pm_decimals(v: f64, se: f64) -> i32 {
+    let d3 = decimals_for(v, 3);
+    let d_se = if se > 0.0 && se.is_finite() {
+        decimals_for(se, 1)
+    } else {
+        0
+    };
+    let d = d3.max(d_se);
+    // Never more than six significant digits of the value.
+    if v != 0.0 {
+        d.min(decimals_for(v, 6))
+    } else {
+        d
+    }
+}
+
+/// `4.92 ± 0.08 ms`: value and standard error in one unit and notation.
+pub fn show_pm(value: f64, se: f64, unit: &ParamUnit) -> String {
+    if !value.is_finite() {
+        return "—".into();
+    }
+    if !se.is_finite() {
+        return show(value, unit);
+    }
+    let size = if value.abs() >= se.abs() { value } else { se };
+    let (name, f) = pick(&unit.candidates(), size);
+    let (v, e) = (value * f, se * f);
+    // Scientific unless the value (or, for a zero, its error) reads plainly.
+    if !(plain(v) || (v == 0.0 && plain(e))) {
+        let p = crate::diagnose::intervals::format_pm(value, se);
+        return with_unit(p, &unit.canonical());
+    }
+    let d = pm_decimals(v, e);
+    with_unit(format!("{} ± {}", num(v, d), num(e, d)), &name)
+}
+
+/// `194 s (95 % 140 … 249 s)`, or with a standard error
+/// `4.92 ± 0.08 ms (95 % 4.76 … 5.08 ms)`: one unit, one notation.
+pub fn show_interval(value: f64, se: Option<f64>, lo: f64, hi: f64, unit: &ParamUnit) -> String {
+    if !value.is_finite() {
+        return "—".into();
+    }
+    if !(lo.is_finite() && hi.is_finite()) {
+        return match se {
+            Some(se) => show_pm(value, se, unit),
+            None => show(value, unit),
+        };
+    }
+    let size = [value, lo, hi]
+        .into_iter()
+        .fold(0.0f64, |m, x| if x.abs() > m.abs() { x } else { m });
+    let size = if value.abs() * 10.0 >= size.abs() {
+        value
+    } else {
+        size
+    };
+    let (name, f) = pick(&unit.candidates(), size);
+    let (v, l, h) = (value * f, lo * f, hi * f);
+    if !(plain(v) || (v == 0.0 && plain(h))) {
+        let head = match se {
+            Some(se) => crate::diagnose::intervals::format_pm(value, se),
+            None => format!("{value:.2e}"),
+        };
+        let c = unit.canonical();
+        return format!(
+            "{} (95 % {lo:.2e} … {hi:.2e}{})",
+            with_unit(head, &c),
+            if c.is_empty() {
+                String::new()
+            } else {
+                format!(" {c}")
+            }
+        );
+    }
+    let width = (h - l).abs() / 2.0;
+    let d = match se {
+        Some(se) => pm_decimals(v, se * f),
+        None => pm_decimals(v, width / 2.0),
+    };
+    let mut s = num(v, d);
+    if let Some(se) = se {
+        let _ = write!(s, " ± {}", num(se * f, d));
+    }
+    let s = with_unit(s, &name);
+    let tail = with_unit(format!("{} … {}", num(l, d), num(h, d)), &name);
+    format!("{s} (95 % {tail})")
+}
+
+/// The unit of a reported diagnosis parameter, from its name, the effect's
+/// covariate(s) (`x_mm,y_mm` for a 2-D form) and the observable's unit
+/// (the gap's: `mm`, or `mm/s` for a velocity).
+///
+/// Names with a unit suffix are in that unit — except the amplitudes,
+/// offsets and coefficients named `_mm` by the v1 contract, which are in
+/// the gap's unit. A wavelength or decay length (`lambda`, `lambda_mm`)
+/// and a frame bound (`c0`, `c1`) are in the covariate's unit; anything
+/// else is the gap per the product of the covariates' units.
+pub fn param_unit(param: &str, covariate: Option<&str>, gap_unit: &str) -> ParamUnit {
+    let gap = Dims::of_unit(gap_unit);
+    let covs: Vec<Dims> = covariate
+        .map(|c| c.split(',').map(|c| Dims::of_unit(suffix_of(c))).collect())
+        .unwrap_or_default();
+    let first_cov = covs.first().cloned().unwrap_or_default();
+    match param {
+        "offset_mm" | "amplitude_mm" | "k_mm" | "b_mm" | "tolerance_mm" => {
+            return ParamUnit::of(gap)
+        }
+        "lambda" | "lambda_mm" | "c0" | "c1" => return ParamUnit::of(first_cov),
+        _ => {}
+    }
+    let s = suffix_of(param);
+    if !s.is_empty() {
+        return ParamUnit::of(Dims::of_unit(s));
+    }
+    let den = covs.iter().fold(Dims::default(), |a, d| a.mul(d));
+    ParamUnit { num: gap, den }
+}
+
+/// The unit suffix of a name (`feed_mm_s` → `mm_s`, `temp_c` → `c`,
+/// `removed_mm3` → `mm3`), empty when it has none.
+fn suffix_of(name: &str) -> &str {
+    const SUFFIXES: [&str; 18] = [
+        "mm_s2", "mm_min", "mm_s", "um_s", "mm3", "mm2", "mm", "um", "nm", "ms", "us", "rad", "hz",
+        "s", "c", "n", "m", "deg",
+    ];
+    SUFFIXES
+        .iter()
+        .find(|s| {
+            name.len() > s.len() + 1
+                && name.ends_with(*s)
+                && name.as_bytes()[name.len() - s.len() - 1] == b'_'
+        })
+        .copied()
+        .unwrap_or("")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn pu(p: &str, c: &str) -> ParamUnit {
+        param_unit(p, Some(c), "mm")
+    }
+
+    #[test]
+    fn a_lag_is_a_time_in_ms() {
+        let u = pu("k", "feed_mm_s");
+        assert_eq!(u.canonical(), "s");
+        assert_eq!(show(4.915e-3, &u), "4.92 ms");
+        assert_eq!(show_pm(4.915e-3, 0.08e-3, &u), "4.92 ± 0.08 ms");
+    }
+
+    #[test]
+    fn a_wavelength_is_a_length_and_an_accel_lag_is_s_squared() {
+        let u = pu("lambda", "x_mm");
+        assert_eq!(u.canonical(), "mm");
+        assert_eq!(show(58.9, &u), "58.9 mm");
+        let a = pu("k", "a_mm_s2");
+        assert_eq!(a.canonical(), "s²");
+        assert_eq!(show(2.5e-6, &a), "2.50 ms²");
+        // A period over time is a time.
+        assert_eq!(show(0.5, &pu("lambda", "t_s")), "0.500 s");
+        assert_eq!(show(0.05, &pu("lambda", "t_s")), "50.0 ms");
+    }
+
+    #[test]
+    fn lengths_by_magnitude() {
+        assert_eq!(show_length(0.00043467240783783005), "0.435 µm");
+        assert_eq!(show_length(0.0145), "14.5 µm");
+        assert_eq!(show_length(2.3e-6), "2.30 nm");
+        assert_eq!(show_length(1.25), "1.25 mm");
+        assert_eq!(show_length(0.0), "0 nm");
+        assert_eq!(show_length(-0.0009996), "-1.00 µm");
+        assert_eq!(show_length(-0.00009999), "-0.100 µm");
+        assert_eq!(show_length(0.00002), "20.0 nm");
+        assert_eq!(show_length(f64::NAN), "—");
+    }
+
+    #[test]
+    fn thermal_coefficients_in_um_per_k_and_others_keep_their_sides() {
+        let u = pu("k", "temp_c");
+        assert_eq!(u.canonical(), "mm/°C");
+        assert_eq!(show(1.2e-3, &u), "1.20 µm/K");
+        let w = pu("k", "removed_mm3");
+        assert_eq!(w.canonical(), "mm/mm³");
+        assert_eq!(show(-9.35e-5, &w), "-93.5 nm/mm³");
+        let sq = pu("k", "x_mm,y_mm");
+        assert_eq!(sq.canonical(), "mm/mm²");
+        // A slope of a length on a length is µm/m.
+        assert_eq!(show(1.5e-5, &pu("k", "x_mm")), "15.0 µm/m");
+        assert_eq!(pu("tau_s", "t_s").canonical(), "s");
+        assert_eq!(pu("phase_rad", "x_mm").canonical(), "rad");
+        assert_eq!(pu("t0_c", "temp_c").canonical(), "°C");
+        assert_eq!(pu("c0", "x_mm").canonical(), "mm");
+        // On a velocity gap the amplitude is a speed, and a lag on speed
+        // is dimensionless.
+        assert_eq!(
+            param_unit("amplitude_mm", Some("t_s"), "mm/s").canonical(),
+            "mm/s"
+        );
+        assert_eq!(param_unit("k", Some("a_mm_s2"), "mm/s").canonical(), "s");
+        // A speed per speed is a ratio, not a slope.
+        let ratio = param_unit("k", Some("cmd_v_mm_s"), "mm/s");
+        assert_eq!(ratio.canonical(), "1");
+        assert_eq!(show(3.78e-3, &ratio), "0.00378");
+        assert_eq!(pu("k", "x_mm").canonical(), "mm/mm");
+    }
+
+    #[test]
+    fn figures_side_by_side_share_one_unit() {
+        assert_eq!(
+            show_group(&[0.106, 0.000951, 0.0152], "mm"),
+            ["106 µm", "0.951 µm", "15.2 µm"]
+        );
+        assert_eq!(show_group(&[2.84e-5, 1e-7], "mm"), ["28.4 nm", "0.100 nm"]);
+        assert_eq!(
+            show_group(&[0.246, 0.00211], "mm/s"),
+            ["0.246 mm/s", "0.00211 mm/s"]
+        );
+        assert_eq!(show_group(&[f64::NAN, 2.0], "mm"), ["—", "2.00 mm"]);
+    }
+
+    #[test]
+    fn value_and_interval_in_one_notation() {
+        let u = pu("tau_s", "t_s");
+        assert_eq!(
+            show_interval(194.3, None, 140.2, 249.1, &u),
+            "194 s (95 % 140 … 249 s)"
+        );
+        let k = pu("k", "feed_mm_s");
+        assert_eq!(
+            show_interval(4.915e-3, Some(0.08e-3), 4.757e-3, 5.073e-3, &k),
+            "4.92 ± 0.08 ms (95 % 4.76 … 5.07 ms)"
+        );
+        // A standard error smaller than the value's third digit shows.
+        assert_eq!(
+            show_pm(2.5, 0.0012, &ParamUnit::of(Dims::time())),
+            "2.500 ± 0.001 s"
+        );
+        // Zero with an error: the error sets the unit.
+        assert_eq!(
+            show_pm(0.0, 3e-6, &ParamUnit::of(Dims::length())),
+            "0 ± 3 nm"
+        );
+        // Beyond plain notation: scientific, canonical unit.
+        assert_eq!(show(3e-15, &ParamUnit::of(Dims::length())), "3.00e-15 mm");
+    }
+}
