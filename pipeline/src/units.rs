@@ -390,6 +390,9 @@ mod tests {
         let e = resolve("z_nm", Kind::Length, &[st("um", Source::Flag)])
             .unwrap_err()
             .to_string();
-        assert!(e.contains("z_nm") && e.contains("um") && e.contains("nm"), "{e}");
+        assert!(
+            e.contains("z_nm") && e.contains("um") && e.contains("nm"),
+            "{e}"
+        );
     }
 }

@@ -87,6 +87,13 @@ pub struct ReplayOptions {
     pub keep_traffic: bool,
     /// Check the whole plan against the envelope before anything is sent.
     pub preflight: bool,
+    /// Which axis of its node each machine axis is (1, or 2 for a
+    /// two-axis drive's objects at +0x800).
+    pub drive_axes: [u8; 3],
+    /// The EDS/DCF of a node (`--eds NODE=FILE`, `[replay] eds`).
+    pub eds: std::collections::BTreeMap<u8, PathBuf>,
+    /// `--bus log:FILE` may replace an existing file.
+    pub force: bool,
 }
 
 impl ReplayOptions {
@@ -113,6 +120,9 @@ impl ReplayOptions {
             sim_faults: Vec::new(),
             keep_traffic: false,
             preflight: true,
+            drive_axes: [1, 1, 1],
+            eds: Default::default(),
+            force: false,
         }
     }
 
@@ -132,12 +142,29 @@ impl ReplayOptions {
             bail!("--counts-per-mm {} must be > 0", self.counts_per_mm);
         }
         let n = self.nodes;
-        if n.iter().any(|&x| !(1..=127).contains(&x))
-            || n[0] == n[1]
-            || n[1] == n[2]
-            || n[0] == n[2]
-        {
-            bail!("--nodes {n:?}: three distinct CANopen node ids 1–127 (x, y, z)");
+        let same = |a: usize, b: usize| n[a] == n[b] && self.drive_axes[a] == self.drive_axes[b];
+        if n.iter().any(|&x| !(1..=127).contains(&x)) || same(0, 1) || same(1, 2) || same(0, 2) {
+            bail!("--nodes {n:?} (drive axes {:?}): three distinct drive axes, node ids 1–127 (x, y, z)", self.drive_axes);
+        }
+        if self.drive_axes.iter().any(|a| !(1..=4).contains(a)) {
+            bail!("--axis: a drive axis is 1–4, found {:?}", self.drive_axes);
+        }
+        for node in self.eds.keys() {
+            if !n.contains(node) {
+                bail!(
+                    "--eds {node}=…: node {node} drives no axis (nodes {},{},{})",
+                    n[0],
+                    n[1],
+                    n[2]
+                );
+            }
+        }
+        let descriptions = self.descriptions()?;
+        for a in 0..3 {
+            if let Some(d) = descriptions.get(&n[a]) {
+                canopen::pdo::check_description(d, canopen::AxisRef::new(n[a], self.drive_axes[a]))
+                    .map_err(|e| anyhow::anyhow!(e))?;
+            }
         }
         if self.heartbeat_ms == 0 || !(self.heartbeat_timeout_periods >= 1.0) {
             bail!("heartbeat period must be > 0 ms and its timeout ≥ 1 period");
@@ -193,10 +220,21 @@ impl ReplayOptions {
         Ok(())
     }
 
-    fn master_config(&self) -> MasterConfig {
-        MasterConfig {
+    /// Each `--eds` file read for its node (errors name file and line).
+    pub fn descriptions(&self) -> Result<std::collections::BTreeMap<u8, eds::DeviceDescription>> {
+        let mut out = std::collections::BTreeMap::new();
+        for (node, path) in &self.eds {
+            out.insert(*node, eds::DeviceDescription::load(path, *node)?);
+        }
+        Ok(out)
+    }
+
+    fn master_config(&self) -> Result<MasterConfig> {
+        Ok(MasterConfig {
             cycle_us: self.cycle_us(),
             nodes: self.nodes,
+            drive_axes: self.drive_axes,
+            descriptions: self.descriptions()?,
             counts_per_mm: self.counts_per_mm,
             heartbeat_ms: self.heartbeat_ms,
             heartbeat_timeout_us: (self.heartbeat_ms as f64
@@ -207,10 +245,10 @@ impl ReplayOptions {
             transition_timeout_cycles: 25,
             stop_hold_cycles: 3,
             keep_traffic: self.keep_traffic || self.dry_run,
-        }
+        })
     }
 
-    fn sim_config(&self, plan: &Plan) -> SimConfig {
+    fn sim_config(&self, plan: &Plan) -> Result<SimConfig> {
         let start = |a: usize| {
             plan.cmd_mm
                 .first()
@@ -218,7 +256,7 @@ impl ReplayOptions {
                 .filter(|v| v.is_finite() && v.abs() <= i32::MAX as f64)
                 .unwrap_or(0.0) as i32
         };
-        SimConfig {
+        Ok(SimConfig {
             nodes: self.nodes,
             start_counts: [start(0), start(1), start(2)],
             lag_s: self.sim_lag_s,
@@ -226,7 +264,14 @@ impl ReplayOptions {
             counts_per_mm: self.counts_per_mm,
             quick_stop_decel_mm_s2: 5000.0,
             faults: self.sim_faults.clone(),
-        }
+            drive_axes: self.drive_axes,
+            // The simulated drives are what their files declare.
+            profiles: self
+                .descriptions()?
+                .iter()
+                .map(|(n, d)| (*n, sim::SimProfile::from_description(d)))
+                .collect(),
+        })
     }
 }
 
@@ -248,6 +293,13 @@ pub struct ReplayReport {
     pub detected_s: Option<f64>,
     pub quick_stop_s: Option<f64>,
     pub max_following_mm: f64,
+    /// What the start-up found worth saying (a drive's own mapping used,
+    /// optional objects missing, limits wider than the envelope).
+    pub warnings: Vec<String>,
+    /// The PDOs each axis was driven through, and where they came from.
+    pub pdos: Vec<canopen::AxisPdos>,
+    /// 0x1008 of each node that has one.
+    pub device_names: std::collections::BTreeMap<u8, String>,
     pub envelope: Envelope,
     pub log: Option<PathBuf>,
     pub recorded: Option<PathBuf>,
@@ -312,13 +364,14 @@ pub fn run(
     plan: &Plan,
     interrupt: Arc<AtomicBool>,
 ) -> Result<(ReplayReport, Outcome)> {
-    let master = canopen::Master::new(opts.master_config())?;
-    let sim = || SimBus::new(opts.sim_config(plan)).with_interrupt(interrupt.clone());
+    let master = canopen::Master::new(opts.master_config()?)?;
+    let sim_cfg = opts.sim_config(plan)?;
+    let sim = || SimBus::new(sim_cfg.clone()).with_interrupt(interrupt.clone());
     let mut log_path = None;
     let mut bus: Box<dyn CanBus> = match (&opts.bus, opts.dry_run) {
         (BusSpec::Log(p), _) => {
             log_path = Some(p.clone());
-            Box::new(log_bus::LogBus::new(sim(), p)?)
+            Box::new(log_bus::LogBus::create(sim(), p, opts.force)?)
         }
         // A dry run opens no hardware: simulated drives answer in its place.
         (BusSpec::Sim, _) | (BusSpec::SocketCan(_), true) => Box::new(sim()),
@@ -389,6 +442,9 @@ pub fn run(
         detected_s: outcome.detected_us.map(|t| t as f64 * 1e-6),
         quick_stop_s: outcome.quick_stop_us.map(|t| t as f64 * 1e-6),
         max_following_mm: outcome.max_following_mm,
+        warnings: outcome.warnings.clone(),
+        pdos: outcome.pdos.clone(),
+        device_names: outcome.device_names.clone(),
         envelope: opts.envelope,
         log: log_path,
         recorded,
