@@ -246,6 +246,10 @@ impl<B: CanBus> LogBus<B> {
     pub fn path(&self) -> &Path {
         &self.log.path
     }
+    /// The wrapped bus (tests look at the simulated drives' state).
+    pub fn into_inner(self) -> B {
+        self.inner
+    }
 }
 
 impl<B: CanBus> CanBus for LogBus<B> {

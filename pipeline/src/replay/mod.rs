@@ -454,4 +454,6 @@ pub fn run(
 }
 
 #[cfg(test)]
+mod pdo_tests;
+#[cfg(test)]
 mod tests;

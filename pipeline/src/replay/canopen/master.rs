@@ -1378,6 +1378,12 @@ impl Master {
                         )));
                     }
                 }
+                let bits: u32 = rb.entries.iter().map(|e| e.bits as u32).sum();
+                if bits > 64 {
+                    return Some((StopKind::Refused, format!(
+                        "{drive} ({file}): its own {pdo} mapping [{own}] is {bits} bits, more than a CAN frame's 64: no drive is enabled"
+                    )));
+                }
                 let cob = rb.cob.unwrap_or(if tx {
                     drive.tpdo_cob()
                 } else {

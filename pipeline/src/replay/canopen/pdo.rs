@@ -345,7 +345,20 @@ pub fn required_objects(a: AxisRef) -> Vec<(u16, u8, String)> {
 /// Check that a description holds everything the master needs for `a`;
 /// the error names the file and the first missing object.
 pub fn check_description(d: &DeviceDescription, a: AxisRef) -> Result<(), String> {
+    let read_only = |index: u16| {
+        d.entries
+            .iter()
+            .any(|e| e.index == index && e.sub == 0 && (e.access == "ro" || e.access == "const"))
+    };
     for (index, sub, what) in required_objects(a) {
+        // A read-only mapping is not written: its entries need not be
+        // declared (the drive's own mapping is read at start-up).
+        if (0x1600..0x1800).contains(&index) | (0x1A00..0x1C00).contains(&index)
+            && sub > 0
+            && read_only(index)
+        {
+            continue;
+        }
         let present = d.entries.iter().any(|e| e.index == index && e.sub == sub);
         if !present {
             return Err(format!(
