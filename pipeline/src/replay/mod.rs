@@ -11,6 +11,7 @@
 
 pub mod bus;
 pub mod canopen;
+pub mod compare;
 pub mod decode;
 pub mod eds;
 pub mod envelope;
@@ -273,6 +274,92 @@ impl ReplayOptions {
                 .collect(),
         })
     }
+}
+
+/// The `[replay]` table of a machine config: which EDS/DCF describes each
+/// node and which drive axis each machine axis is, e.g.
+///
+/// ```toml
+/// [replay]
+/// eds = { "1" = "drives/xy.eds", "3" = "drives/z.dcf" }   # relative to this file
+/// axes = { x = "1", y = "1:2", z = "3" }                  # NODE or NODE:AXIS
+/// ```
+///
+/// Every file is read and checked here (a missing file or object is an
+/// error naming the config, the key and the file); flags win over it.
+pub fn apply_machine_replay(
+    opts: &mut ReplayOptions,
+    m: &crate::contracts::MachineConfig,
+) -> Result<()> {
+    let Some(t) = m.table.get("replay") else {
+        return Ok(());
+    };
+    let src = &m.source;
+    let Some(t) = t.as_table() else {
+        bail!("{src}: [replay] must be a table");
+    };
+    let base = Path::new(src)
+        .parent()
+        .filter(|p| !src.starts_with("built-in") && !p.as_os_str().is_empty())
+        .map(Path::to_path_buf)
+        .unwrap_or_default();
+    for (key, v) in t {
+        match key.as_str() {
+            "eds" => {
+                let Some(map) = v.as_table() else {
+                    bail!("{src}: replay.eds must be a table of node = \"file\", e.g. eds = {{ \"1\" = \"drive.eds\" }}");
+                };
+                for (node, file) in map {
+                    let n: u8 = node
+                        .parse()
+                        .ok()
+                        .filter(|n| (1..=127).contains(n))
+                        .ok_or_else(|| {
+                            anyhow::anyhow!("{src}: replay.eds key `{node}` is not a node id 1–127")
+                        })?;
+                    let Some(f) = file.as_str() else {
+                        bail!("{src}: replay.eds.\"{node}\" must be a file name (a string)");
+                    };
+                    let path = base.join(f);
+                    if !path.is_file() {
+                        bail!(
+                            "{src}: replay.eds.\"{node}\" = \"{f}\": no file {}",
+                            path.display()
+                        );
+                    }
+                    opts.eds.insert(n, path);
+                }
+            }
+            "axes" => {
+                let Some(map) = v.as_table() else {
+                    bail!("{src}: replay.axes must be a table like axes = {{ x = \"1\", y = \"1:2\" }}");
+                };
+                for (axis, spec) in map {
+                    let a = ["x", "y", "z"]
+                        .iter()
+                        .position(|n| n.eq_ignore_ascii_case(axis))
+                        .ok_or_else(|| {
+                            anyhow::anyhow!("{src}: replay.axes key `{axis}` is not x, y or z")
+                        })?;
+                    let text = match spec {
+                        toml::Value::String(s) => s.clone(),
+                        toml::Value::Integer(i) => i.to_string(),
+                        other => bail!(
+                            "{src}: replay.axes.{axis} = {other}: use \"NODE\" or \"NODE:AXIS\""
+                        ),
+                    };
+                    let r = canopen::AxisRef::parse(&text)
+                        .map_err(|e| anyhow::anyhow!("{src}: replay.axes.{axis} {e}"))?;
+                    opts.nodes[a] = r.node;
+                    opts.drive_axes[a] = r.axis;
+                }
+            }
+            other => {
+                bail!("{src}: unknown key replay.{other} (a machine's [replay] has: eds, axes)")
+            }
+        }
+    }
+    Ok(())
 }
 
 /// What happened, for the CLI (printed and as JSON).
