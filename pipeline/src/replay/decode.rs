@@ -814,6 +814,66 @@ pub fn decode_log_with(
     Ok(out)
 }
 
+/// The events as an Arrow table, one row per frame (for Parquet): the
+/// mapped objects as `name=value` pairs joined by `; `.
+pub fn events_batch(events: &[BusEvent]) -> arrow::record_batch::RecordBatch {
+    use arrow::array::{ArrayRef, Float64Array, Int64Array, StringArray, UInt32Array, UInt64Array};
+    use arrow::datatypes::{DataType, Field, Schema};
+    use std::sync::Arc;
+    let schema = Schema::new(vec![
+        Field::new("line", DataType::UInt64, false),
+        Field::new("t_s", DataType::Float64, true),
+        Field::new("cob_id", DataType::UInt32, false),
+        Field::new("node", DataType::UInt32, true),
+        Field::new("kind", DataType::Utf8, false),
+        Field::new("index", DataType::UInt32, true),
+        Field::new("subindex", DataType::UInt32, true),
+        Field::new("value", DataType::Int64, true),
+        Field::new("state", DataType::Utf8, true),
+        Field::new("objects", DataType::Utf8, true),
+        Field::new("text", DataType::Utf8, false),
+    ]);
+    let cols: Vec<ArrayRef> = vec![
+        Arc::new(UInt64Array::from_iter_values(
+            events.iter().map(|e| e.line as u64),
+        )),
+        Arc::new(Float64Array::from_iter(events.iter().map(|e| e.t_s))),
+        Arc::new(UInt32Array::from_iter_values(
+            events.iter().map(|e| e.cob_id),
+        )),
+        Arc::new(UInt32Array::from_iter(
+            events.iter().map(|e| e.node.map(u32::from)),
+        )),
+        Arc::new(StringArray::from_iter_values(
+            events.iter().map(|e| e.kind.as_str()),
+        )),
+        Arc::new(UInt32Array::from_iter(
+            events.iter().map(|e| e.index.map(u32::from)),
+        )),
+        Arc::new(UInt32Array::from_iter(
+            events.iter().map(|e| e.subindex.map(u32::from)),
+        )),
+        Arc::new(Int64Array::from_iter(events.iter().map(|e| e.value))),
+        Arc::new(StringArray::from_iter(
+            events.iter().map(|e| e.state.as_deref()),
+        )),
+        Arc::new(StringArray::from_iter(events.iter().map(|e| {
+            (!e.objects.is_empty()).then(|| {
+                e.objects
+                    .iter()
+                    .map(|o| format!("{}={}", o.name, o.value))
+                    .collect::<Vec<_>>()
+                    .join("; ")
+            })
+        }))),
+        Arc::new(StringArray::from_iter_values(
+            events.iter().map(|e| e.text.as_str()),
+        )),
+    ];
+    arrow::record_batch::RecordBatch::try_new(Arc::new(schema), cols)
+        .expect("columns match the schema")
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -891,9 +951,7 @@ mod tests {
         let sync = one("can0 080 [0]");
         assert_eq!(sync.kind, "sync");
         // Statusword transitions are followed per node.
-        let mut d = Decoder {
-            states: BTreeMap::new(),
-        };
+        let mut d = Decoder::default();
         let f = |l: &str| parse_any_line(l).unwrap().unwrap();
         let a = d.event(1, &f("can0 185 [2] 40 02"));
         assert_eq!(a.state.as_deref(), Some("switch on disabled"));
@@ -905,64 +963,4 @@ mod tests {
         let c = d.event(3, &f("can0 205 [6] 0F 00 10 27 00 00"));
         assert!(c.text.contains("enable operation") && c.text.contains("target position 10000"));
     }
-}
-
-/// The events as an Arrow table, one row per frame (for Parquet): the
-/// mapped objects as `name=value` pairs joined by `; `.
-pub fn events_batch(events: &[BusEvent]) -> arrow::record_batch::RecordBatch {
-    use arrow::array::{ArrayRef, Float64Array, Int64Array, StringArray, UInt32Array, UInt64Array};
-    use arrow::datatypes::{DataType, Field, Schema};
-    use std::sync::Arc;
-    let schema = Schema::new(vec![
-        Field::new("line", DataType::UInt64, false),
-        Field::new("t_s", DataType::Float64, true),
-        Field::new("cob_id", DataType::UInt32, false),
-        Field::new("node", DataType::UInt32, true),
-        Field::new("kind", DataType::Utf8, false),
-        Field::new("index", DataType::UInt32, true),
-        Field::new("subindex", DataType::UInt32, true),
-        Field::new("value", DataType::Int64, true),
-        Field::new("state", DataType::Utf8, true),
-        Field::new("objects", DataType::Utf8, true),
-        Field::new("text", DataType::Utf8, false),
-    ]);
-    let cols: Vec<ArrayRef> = vec![
-        Arc::new(UInt64Array::from_iter_values(
-            events.iter().map(|e| e.line as u64),
-        )),
-        Arc::new(Float64Array::from_iter(events.iter().map(|e| e.t_s))),
-        Arc::new(UInt32Array::from_iter_values(
-            events.iter().map(|e| e.cob_id),
-        )),
-        Arc::new(UInt32Array::from_iter(
-            events.iter().map(|e| e.node.map(u32::from)),
-        )),
-        Arc::new(StringArray::from_iter_values(
-            events.iter().map(|e| e.kind.as_str()),
-        )),
-        Arc::new(UInt32Array::from_iter(
-            events.iter().map(|e| e.index.map(u32::from)),
-        )),
-        Arc::new(UInt32Array::from_iter(
-            events.iter().map(|e| e.subindex.map(u32::from)),
-        )),
-        Arc::new(Int64Array::from_iter(events.iter().map(|e| e.value))),
-        Arc::new(StringArray::from_iter(
-            events.iter().map(|e| e.state.as_deref()),
-        )),
-        Arc::new(StringArray::from_iter(events.iter().map(|e| {
-            (!e.objects.is_empty()).then(|| {
-                e.objects
-                    .iter()
-                    .map(|o| format!("{}={}", o.name, o.value))
-                    .collect::<Vec<_>>()
-                    .join("; ")
-            })
-        }))),
-        Arc::new(StringArray::from_iter_values(
-            events.iter().map(|e| e.text.as_str()),
-        )),
-    ];
-    arrow::record_batch::RecordBatch::try_new(Arc::new(schema), cols)
-        .expect("columns match the schema")
 }

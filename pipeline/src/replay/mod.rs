@@ -161,9 +161,9 @@ impl ReplayOptions {
             }
         }
         let descriptions = self.descriptions()?;
-        for a in 0..3 {
-            if let Some(d) = descriptions.get(&n[a]) {
-                canopen::pdo::check_description(d, canopen::AxisRef::new(n[a], self.drive_axes[a]))
+        for (node, axis) in n.iter().zip(self.drive_axes) {
+            if let Some(d) = descriptions.get(node) {
+                canopen::pdo::check_description(d, canopen::AxisRef::new(*node, axis))
                     .map_err(|e| anyhow::anyhow!(e))?;
             }
         }

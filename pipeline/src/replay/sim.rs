@@ -624,7 +624,7 @@ impl SimBus {
                         let mut bits = 0u32;
                         for &r in &slots[..n as usize] {
                             self.mappable(a, Mapped::from_raw(r), !tx)?;
-                            bits += (r & 0xFF) as u32;
+                            bits += r & 0xFF;
                         }
                         if bits > 64 {
                             return Err(abort::PDO_LENGTH);

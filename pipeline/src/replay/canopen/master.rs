@@ -344,12 +344,11 @@ impl Master {
         check_eds(DRIVE_EDS)?;
         let mut descriptions = cfg.descriptions.clone();
         let mut nodes = Vec::new();
-        for a in 0..3 {
+        for (a, axis_name) in AXIS_NAMES.iter().enumerate() {
             let drive = AxisRef::new(cfg.nodes[a], cfg.drive_axes[a]);
             if !(1..=4).contains(&drive.axis) {
                 bail!(
-                    "axis {}: drive axis {} of node {} — a drive has axes 1–4 (one RPDO/TPDO pair each)",
-                    AXIS_NAMES[a],
+                    "axis {axis_name}: drive axis {} of node {} — a drive has axes 1–4 (one RPDO/TPDO pair each)",
                     drive.axis,
                     drive.node
                 );
@@ -358,18 +357,16 @@ impl Master {
                 .find(|&b| cfg.nodes[b] == cfg.nodes[a] && cfg.drive_axes[b] == cfg.drive_axes[a])
             {
                 bail!(
-                    "axes {} and {} are both {drive}: each machine axis needs its own drive axis",
-                    AXIS_NAMES[b],
-                    AXIS_NAMES[a]
+                    "axes {} and {axis_name} are both {drive}: each machine axis needs its own drive axis",
+                    AXIS_NAMES[b]
                 );
             }
-            if !descriptions.contains_key(&drive.node) {
-                let shipped = DeviceDescription::parse(
+            if let std::collections::btree_map::Entry::Vacant(e) = descriptions.entry(drive.node) {
+                e.insert(DeviceDescription::parse(
                     "configs/can/cia402_drive.eds (shipped)",
                     DRIVE_EDS,
                     drive.node,
-                )?;
-                descriptions.insert(drive.node, shipped);
+                )?);
             }
             let d = &descriptions[&drive.node];
             check_description(d, drive).map_err(|e| anyhow::anyhow!(e))?;
@@ -1528,7 +1525,7 @@ impl Master {
 pub fn interpolation_period(cycle_us: u64) -> (u8, i8) {
     let mut v = cycle_us;
     let mut exp = -6i8;
-    while v % 10 == 0 && exp < -3 {
+    while v.is_multiple_of(10) && exp < -3 {
         v /= 10;
         exp += 1;
     }
