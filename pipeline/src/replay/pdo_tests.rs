@@ -379,6 +379,11 @@ fn a_default_mapping_that_differs_is_configured_and_read_back() {
             .any(|f| f.id == 0x601 && f.payload()[0] & 0xEF == 0x60),
         "no upload segment request"
     );
+    // The log is in time order, segments and all.
+    assert!(
+        frames.windows(2).all(|w| w[0].t_us <= w[1].t_us),
+        "log out of time order"
+    );
 }
 
 #[test]

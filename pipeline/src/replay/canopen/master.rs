@@ -902,6 +902,10 @@ impl Master {
             }
         };
         let streaming = matches!(self.phase, Phase::Stream(_) | Phase::Finish(_));
+        // Frames answering what was received (the next SDO segment, a
+        // client abort) go out after the whole drain, so the bus log stays
+        // in time order.
+        let mut outbox: Vec<CanFrame> = Vec::new();
         while let Some(f) = bus.recv()? {
             self.out.frames_rx += 1;
             if self.cfg.keep_traffic {
@@ -1036,7 +1040,7 @@ impl Master {
                     match tr.on_response(f.payload()) {
                         SdoStep::Send(p) => {
                             self.sdo[i].pending = Some((step, tr, f.t_us));
-                            self.send(bus, CanFrame::new(0, SDO_RX_BASE + node, &p))?;
+                            outbox.push(CanFrame::new(0, SDO_RX_BASE + node, &p));
                         }
                         SdoStep::Done(done) => {
                             if let Some((k, why)) = self.sdo_done(i, step, Ok(done), f.t_us) {
@@ -1049,14 +1053,11 @@ impl Master {
                             }
                         }
                         SdoStep::Failed(code) => {
-                            self.send(
-                                bus,
-                                CanFrame::new(
-                                    0,
-                                    SDO_RX_BASE + node,
-                                    &sdo_abort_payload(step.index, step.sub, code),
-                                ),
-                            )?;
+                            outbox.push(CanFrame::new(
+                                0,
+                                SDO_RX_BASE + node,
+                                &sdo_abort_payload(step.index, step.sub, code),
+                            ));
                             note(
                                 &mut fault,
                                 StopKind::Sdo,
@@ -1072,6 +1073,9 @@ impl Master {
                 }
                 _ => {}
             }
+        }
+        for f in outbox {
+            self.send(bus, f)?;
         }
         Ok(fault)
     }
