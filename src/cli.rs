@@ -395,12 +395,50 @@ pub enum CanCommand {
     Decode {
         /// The log file.
         log: PathBuf,
-        /// `text` (a readable listing) or `jsonl` (one JSON object per frame).
-        #[arg(long, default_value = "text", value_parser = ["text", "jsonl"])]
+        /// `text` (a readable listing), `jsonl` (one JSON object per frame)
+        /// or `parquet` (one row per frame; needs --out).
+        #[arg(long, default_value = "text", value_parser = ["text", "jsonl", "parquet"])]
         format: String,
         /// Write there instead of standard output (never over an existing file).
         #[arg(long, value_name = "FILE")]
         out: Option<PathBuf>,
+        /// A node's EDS or DCF (repeatable): NODE=FILE. Its PDO mappings
+        /// name what each RPDO/TPDO carries (SDO writes to the mapping in
+        /// the log win from where they happen).
+        #[arg(long = "eds", value_name = "NODE=FILE")]
+        eds: Vec<String>,
+    },
+    /// What a master sent to the drives in a bus log (target positions and
+    /// velocities in RPDOs and SDO writes, per node through its mapping)
+    /// against a safety envelope: every frame outside it is listed.
+    #[command(
+        after_help = "Example: sparkout can compare replay.log --max-step-mm 0.5 --eds 1=drive.eds\n\
+                      Exit codes: 0 every frame inside the envelope, 2 frames outside it (listed), 1 the log cannot be read."
+    )]
+    Compare {
+        /// The log file (candump -l/-L or screen format).
+        log: PathBuf,
+        /// A node's EDS or DCF (repeatable): NODE=FILE.
+        #[arg(long = "eds", value_name = "NODE=FILE")]
+        eds: Vec<String>,
+        /// Which drive axis a machine axis is (repeatable): AXIS=NODE[:N].
+        #[arg(long = "axis", value_name = "AXIS=NODE[:N]")]
+        axes: Vec<String>,
+        /// Envelope: largest setpoint step per cycle per axis (mm).
+        #[arg(long, default_value_t = 1.0, value_name = "MM")]
+        max_step_mm: f64,
+        /// Envelope: largest change of that step between cycles (mm).
+        #[arg(long, default_value_t = 0.5, value_name = "MM")]
+        max_step_change_mm: f64,
+        /// Drive increments per mm.
+        #[arg(long, default_value_t = 10000.0, value_name = "N")]
+        counts_per_mm: f64,
+        /// The SYNC cycle (ms) for velocities; default: the log's SYNC period.
+        #[arg(long, value_name = "MS")]
+        cycle_ms: Option<f64>,
+        /// Print the findings as JSON.
+        #[arg(long)]
+        json: bool,
     },
 }
 
@@ -484,6 +522,24 @@ pub struct ReplayArgs {
     /// emcy@T[:NODE], busoff@T, following@T[:NODE], refuse[:NODE], sigint@T (T like 1.5s or 200ms).
     #[arg(long = "sim-fault", value_name = "SPEC")]
     pub sim_faults: Vec<String>,
+    /// A drive's EDS or DCF (repeatable): NODE=FILE. The master checks it
+    /// holds every object it needs and configures the PDOs it declares;
+    /// over `[replay] eds` of the machine config.
+    #[arg(long = "eds", value_name = "NODE=FILE")]
+    pub eds: Vec<String>,
+    /// Which drive axis a machine axis is (repeatable): AXIS=NODE or
+    /// AXIS=NODE:N, e.g. --axis y=1:2 for the second axis (objects at
+    /// +0x800, RPDO2/TPDO2) of node 1; over --nodes and `[replay] axes`.
+    #[arg(long = "axis", value_name = "AXIS=NODE[:N]")]
+    pub axes: Vec<String>,
+    /// With --bus log:FILE, replace an existing log (written to a temporary
+    /// name and renamed over it at the end); without it an existing file is refused.
+    #[arg(long)]
+    pub force: bool,
+    /// Directory of machine configs (<machine>.toml) whose [replay] table is
+    /// read; also SPARKOUT_MACHINES, then ./configs/machines.
+    #[arg(long, value_name = "DIR")]
+    pub machines: Option<PathBuf>,
     /// Print the replay report as JSON to stdout.
     #[arg(long)]
     pub json: bool,

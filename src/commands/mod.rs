@@ -158,9 +158,31 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<u8> {
             ..
         } => validate::validate(quick, out, seed, json, &config),
         Command::Replay(args) => replay::replay(&args),
-        Command::Can(crate::cli::CanCommand::Decode { log, format, out }) => {
-            can::decode(&log, &format, out.as_deref())
-        }
+        Command::Can(crate::cli::CanCommand::Decode {
+            log,
+            format,
+            out,
+            eds,
+        }) => can::decode(&log, &format, out.as_deref(), &eds),
+        Command::Can(crate::cli::CanCommand::Compare {
+            log,
+            eds,
+            axes,
+            max_step_mm,
+            max_step_change_mm,
+            counts_per_mm,
+            cycle_ms,
+            json,
+        }) => can::compare(&can::CompareArgs {
+            log,
+            eds,
+            axes,
+            max_step_mm,
+            max_step_change_mm,
+            counts_per_mm,
+            cycle_ms,
+            json,
+        }),
         Command::Can(crate::cli::CanCommand::Describe { file, node, json }) => {
             can::describe(&file, node, json)
         }

@@ -33,6 +33,24 @@ pub fn replay(args: &ReplayArgs) -> anyhow::Result<u8> {
     opts.counts_per_mm = args.counts_per_mm;
     opts.nodes = nodes;
     opts.heartbeat_ms = args.heartbeat_ms;
+    opts.force = args.force;
+    // The machine's [replay] table (EDS files, drive axes), then the flags.
+    if let Ok(spec) = sparkout_pipeline::contracts::RunSpec::load(&args.run) {
+        match crate::registry::resolver(args.machines.clone()).resolve(&spec) {
+            Ok(m) => replay::apply_machine_replay(&mut opts, &m)?,
+            Err(e) if args.machines.is_some() => return Err(e.into()),
+            // A run whose machine is not found has no [replay] to read;
+            // the replay itself needs none.
+            Err(_) => {}
+        }
+    }
+    for (node, file) in super::can::eds_flags(&args.eds)? {
+        opts.eds.insert(node, file);
+    }
+    for (a, r) in super::can::axis_flags(&args.axes)? {
+        opts.nodes[a] = r.node;
+        opts.drive_axes[a] = r.axis;
+    }
     opts.sim_lag_s = args.sim_lag_s;
     opts.sim_max_speed_mm_s = args.sim_max_speed_mm_s;
     opts.sim_faults = args
@@ -84,6 +102,32 @@ pub fn replay(args: &ReplayArgs) -> anyhow::Result<u8> {
             if report.reached_operation_enabled { "yes" } else { "no" },
             report.max_following_mm
         );
+        for p in &report.pdos {
+            println!(
+                "axis {} = {}: RPDO 0x{:03X} [{}] ({}), TPDO 0x{:03X} [{}] ({})",
+                p.axis,
+                p.drive,
+                p.rpdo.id(),
+                p.rpdo
+                    .entries
+                    .iter()
+                    .map(|e| e.to_string())
+                    .collect::<Vec<_>>()
+                    .join(", "),
+                source(p.rpdo_source),
+                p.tpdo.id(),
+                p.tpdo
+                    .entries
+                    .iter()
+                    .map(|e| e.to_string())
+                    .collect::<Vec<_>>()
+                    .join(", "),
+                source(p.tpdo_source),
+            );
+        }
+        for w in &report.warnings {
+            println!("warning: {w}");
+        }
         if let Some(p) = &report.log {
             println!("candump log: {}", p.display());
         }
@@ -109,5 +153,12 @@ pub fn replay(args: &ReplayArgs) -> anyhow::Result<u8> {
             );
             Ok(super::SOME_RUNS_FAILED)
         }
+    }
+}
+
+fn source(s: replay::canopen::MapSource) -> &'static str {
+    match s {
+        replay::canopen::MapSource::Configured => "configured, read back",
+        replay::canopen::MapSource::DriveOwn => "the drive's own, read-only",
     }
 }

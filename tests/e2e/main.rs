@@ -8,6 +8,7 @@ mod augment;
 mod bad_input_matrix;
 mod can_decode;
 mod can_describe;
+mod can_pdo;
 mod cli_fleet;
 mod cli_stage_diagnose;
 mod common;

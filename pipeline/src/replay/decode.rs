@@ -11,15 +11,51 @@
 //! PDO1–4, SDO, heartbeat); PDO1 is decoded through the mapping the replay
 //! master uses (RPDO1 controlword + target position, TPDO1 statusword +
 //! actual position), and statuswords are followed per node as CiA 402
-//! state transitions.
+//! state transitions. With a node's EDS/DCF (`--eds NODE=FILE`) every
+//! RPDO/TPDO it declares is decoded into named objects through its
+//! mapping; SDO writes to a PDO's COB-ID or mapping seen in the log (a
+//! master configuring the drive) take over from the frame they are
+//! confirmed on, with or without a file.
 
 use std::collections::BTreeMap;
 use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
+use super::canopen::pdo::{object_name, object_signed, sign_extend, Mapped, PdoMap, COB_INVALID};
 use super::canopen::DriveState;
+use super::eds::DeviceDescription;
 use crate::error::InputError;
+
+/// One mapped object's value in a PDO.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PdoValue {
+    pub name: String,
+    pub index: u16,
+    pub subindex: u8,
+    pub value: i64,
+}
+
+/// One PDO as the decoder currently knows it (CiA 301 parameters).
+#[derive(Debug, Clone, Default)]
+struct LivePdo {
+    cob: u32,
+    count: u8,
+    slots: [u32; 8],
+}
+
+impl LivePdo {
+    fn map(&self) -> PdoMap {
+        PdoMap {
+            cob_id: self.cob,
+            transmission: 1,
+            entries: self.slots[..self.count.min(8) as usize]
+                .iter()
+                .map(|&r| Mapped::from_raw(r))
+                .collect(),
+        }
+    }
+}
 
 /// One frame as a log holds it.
 #[derive(Debug, Clone, PartialEq)]
@@ -200,6 +236,9 @@ pub struct BusEvent {
     pub state: Option<String>,
     /// The event in words.
     pub text: String,
+    /// A PDO's mapped objects by name (when its mapping is known).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub objects: Vec<PdoValue>,
 }
 
 /// What a whole log held.
@@ -211,43 +250,8 @@ pub struct Decoded {
     pub fd_frames: usize,
 }
 
-/// SDO abort codes by name (CiA 301 table 22).
-pub fn abort_name(code: u32) -> &'static str {
-    match code {
-        0x0503_0000 => "toggle bit not alternated",
-        0x0504_0000 => "SDO protocol timed out",
-        0x0504_0001 => "command specifier not valid or unknown",
-        0x0504_0002 => "invalid block size",
-        0x0504_0003 => "invalid sequence number",
-        0x0504_0004 => "CRC error",
-        0x0504_0005 => "out of memory",
-        0x0601_0000 => "unsupported access to an object",
-        0x0601_0001 => "attempt to read a write-only object",
-        0x0601_0002 => "attempt to write a read-only object",
-        0x0602_0000 => "object does not exist in the object dictionary",
-        0x0604_0041 => "object cannot be mapped to the PDO",
-        0x0604_0042 => "number and length of the objects to be mapped would exceed the PDO length",
-        0x0604_0043 => "general parameter incompatibility",
-        0x0604_0047 => "general internal incompatibility in the device",
-        0x0606_0000 => "access failed due to a hardware error",
-        0x0607_0010 => "data type does not match, length of service parameter does not match",
-        0x0607_0012 => "data type does not match, length of service parameter too high",
-        0x0607_0013 => "data type does not match, length of service parameter too low",
-        0x0609_0011 => "sub-index does not exist",
-        0x0609_0030 => "invalid value for parameter (download only)",
-        0x0609_0031 => "value of parameter written too high",
-        0x0609_0032 => "value of parameter written too low",
-        0x0609_0036 => "maximum value is less than minimum value",
-        0x060A_0023 => "resource not available: SDO connection",
-        0x0800_0000 => "general error",
-        0x0800_0020 => "data cannot be transferred or stored to the application",
-        0x0800_0021 => "data cannot be transferred or stored to the application because of local control",
-        0x0800_0022 => "data cannot be transferred or stored to the application because of the present device state",
-        0x0800_0023 => "object dictionary dynamic generation fails or no object dictionary is present",
-        0x0800_0024 => "no data available",
-        _ => "unknown abort code",
-    }
-}
+/// SDO abort codes by name (CiA 301 table 22): the master's table.
+pub use super::canopen::abort_name;
 
 /// An EMCY error code in words (CiA 301 table 21, the families and the
 /// communication codes).
@@ -332,9 +336,117 @@ fn le_signed(bytes: &[u8]) -> i64 {
     }
 }
 
+#[derive(Default)]
 struct Decoder {
     /// Last CiA 402 state per node.
     states: BTreeMap<u8, DriveState>,
+    /// The node's EDS/DCF (names and types of mapped objects).
+    files: BTreeMap<u8, DeviceDescription>,
+    /// PDO parameters per (node, transmit, PDO number − 1).
+    pdos: BTreeMap<(u8, bool, u16), LivePdo>,
+    /// The last expedited SDO write per node, applied once confirmed.
+    pending: BTreeMap<u8, (u16, u8, u32)>,
+}
+
+impl Decoder {
+    fn new(files: &BTreeMap<u8, DeviceDescription>) -> Decoder {
+        let mut d = Decoder {
+            files: files.clone(),
+            ..Default::default()
+        };
+        for (node, f) in files {
+            for p in &f.pdos {
+                let (tx, k) = match (p.pdo.strip_prefix("TPDO"), p.pdo.strip_prefix("RPDO")) {
+                    (Some(k), _) => (true, k),
+                    (_, Some(k)) => (false, k),
+                    _ => continue,
+                };
+                let Some(k) = k.parse::<u16>().ok().and_then(|k| k.checked_sub(1)) else {
+                    continue;
+                };
+                let mut live = LivePdo {
+                    cob: p
+                        .cob_id
+                        .and_then(|c| u32::try_from(c).ok())
+                        .unwrap_or(COB_INVALID),
+                    count: p.entries.len().min(8) as u8,
+                    slots: [0; 8],
+                };
+                for (i, (index, sub, bits, _)) in p.entries.iter().take(8).enumerate() {
+                    live.slots[i] = Mapped::new(*index, *sub, *bits).raw();
+                }
+                d.pdos.insert((*node, tx, k), live);
+            }
+        }
+        d
+    }
+
+    /// A confirmed SDO write: PDO parameters change what later PDOs carry.
+    fn apply_write(&mut self, node: u8, index: u16, sub: u8, v: u32) {
+        let (tx, comm, base) = match index {
+            0x1400..=0x15FF => (false, true, 0x1400),
+            0x1600..=0x17FF => (false, false, 0x1600),
+            0x1800..=0x19FF => (true, true, 0x1800),
+            0x1A00..=0x1BFF => (true, false, 0x1A00),
+            _ => return,
+        };
+        let k = index - base;
+        let p = self.pdos.entry((node, tx, k)).or_insert_with(|| LivePdo {
+            // The pre-defined connection set until told otherwise.
+            cob: if k < 4 {
+                (if tx { 0x180 } else { 0x200 }) + 0x100 * k as u32 + node as u32
+            } else {
+                COB_INVALID
+            },
+            ..Default::default()
+        });
+        match (comm, sub) {
+            (true, 1) => p.cob = v,
+            (false, 0) => p.count = (v as u8).min(8),
+            (false, s @ 1..=8) => p.slots[s as usize - 1] = v,
+            _ => {}
+        }
+    }
+
+    /// The mapping a PDO frame is decoded through, if known.
+    fn pdo_map(&self, node: u8, id: u32) -> Option<PdoMap> {
+        self.pdos
+            .iter()
+            .filter(|((n, _, _), p)| {
+                *n == node && p.cob & COB_INVALID == 0 && p.cob & 0x7FF == id && p.count > 0
+            })
+            .map(|(_, p)| p.map())
+            .next()
+    }
+
+    /// Name and signedness of a mapped object: the file's type and name
+    /// when it declares the object, else the CiA 402 standard.
+    fn describe_object(&self, node: u8, m: &Mapped) -> (String, bool) {
+        let entry = self.files.get(&node).and_then(|f| {
+            f.entries
+                .iter()
+                .find(|e| e.index == m.index && e.sub == m.sub)
+        });
+        let signed = match entry.and_then(|e| e.data_type) {
+            Some(t) => matches!(t.code, 0x02..=0x04 | 0x10 | 0x12..=0x15),
+            None => object_signed(m.index),
+        };
+        let name = object_name(m.index)
+            .filter(|_| m.sub == 0)
+            .or_else(|| {
+                entry.map(|e| {
+                    e.name
+                        .to_ascii_lowercase()
+                        .split(|c: char| !c.is_ascii_alphanumeric())
+                        .filter(|w| !w.is_empty())
+                        .collect::<Vec<_>>()
+                        .join("_")
+                })
+            })
+            .filter(|n| !n.is_empty())
+            .unwrap_or_else(|| format!("0x{:04X}:{:02X}", m.index, m.sub));
+        (name, signed)
+    }
 }
 
 impl Decoder {
@@ -350,6 +462,7 @@ impl Decoder {
             value: None,
             state: None,
             text: String::new(),
+            objects: Vec::new(),
         };
         let d = &f.data;
         if f.error {
@@ -434,7 +547,9 @@ impl Decoder {
                         .collect::<Vec<_>>()
                         .join(" ")
                 );
-                if k == 1 && d.len() >= 2 {
+                if let Some(map) = self.pdo_map(node, f.id) {
+                    self.mapped_pdo(&mut e, &map, node, tx, d);
+                } else if k == 1 && d.len() >= 2 {
                     let word = le(&d[..2]) as u16;
                     if tx {
                         let s = DriveState::from_statusword(word);
@@ -490,6 +605,63 @@ impl Decoder {
             }
         }
         e
+    }
+
+    /// A PDO through a known mapping: each object by name, the controlword's
+    /// command and the statusword's state (followed per node).
+    fn mapped_pdo(&mut self, e: &mut BusEvent, map: &PdoMap, node: u8, tx: bool, d: &[u8]) {
+        let kind = e.kind.to_uppercase();
+        let Some(values) = map.decode(d) else {
+            e.text = format!(
+                "{kind} node {node}: {} bytes, shorter than its mapping ({} bits)",
+                d.len(),
+                map.bits()
+            );
+            return;
+        };
+        let mut parts = Vec::new();
+        for (m, raw) in values {
+            if m.is_dummy() {
+                continue;
+            }
+            let (name, signed) = self.describe_object(node, &m);
+            let v = if signed {
+                sign_extend(raw, m.bits)
+            } else {
+                raw as i64
+            };
+            let base = super::canopen::pdo::split_axis(m.index).1;
+            let mut text = if signed {
+                format!("{name} {v}")
+            } else {
+                format!("{name} 0x{v:04X}")
+            };
+            if base == 0x6040 && !tx {
+                text += &format!(" ({})", controlword_command(v as u16));
+                e.index.get_or_insert(m.index);
+                e.value.get_or_insert(v);
+            }
+            if base == 0x6041 && tx {
+                let s = DriveState::from_statusword(v as u16);
+                let prev = self.states.insert(node, s);
+                let change = match prev {
+                    Some(p) if p != s => format!("{} → {}", state_name(p), state_name(s)),
+                    _ => state_name(s).to_string(),
+                };
+                text += &format!(" ({change})");
+                e.state = Some(change);
+                e.index.get_or_insert(m.index);
+                e.value.get_or_insert(v);
+            }
+            parts.push(text);
+            e.objects.push(PdoValue {
+                name,
+                index: m.index,
+                subindex: m.sub,
+                value: v,
+            });
+        }
+        e.text = format!("{kind} node {node}: {}", parts.join(", "));
     }
 
     fn sdo(&mut self, e: &mut BusEvent, request: bool, node: u8, d: &[u8]) {
@@ -548,6 +720,9 @@ impl Decoder {
                     let n = expedited_len(cmd).min(payload.len());
                     let v = le(&payload[..n]);
                     e.value = Some(v);
+                    if let (true, Some(i), Some(s)) = (request, index, sub) {
+                        self.pending.insert(node, (i, s, v as u32));
+                    }
                     e.text = format!("SDO {verb} {dir} node {node} {obj} = {v} (0x{v:X})");
                     match index {
                         Some(0x6040) => {
@@ -576,6 +751,13 @@ impl Decoder {
             (false, 3) => {
                 e.index = index;
                 e.subindex = sub;
+                if let (Some((i, s, v)), Some(ri), Some(rs)) =
+                    (self.pending.remove(&node), index, sub)
+                {
+                    if (i, s) == (ri, rs) {
+                        self.apply_write(node, i, s, v);
+                    }
+                }
                 e.text = format!("SDO write {dir} node {node} {obj}: done");
             }
             (_, 0) | (_, 3) | (false, 1) => {
@@ -597,13 +779,19 @@ impl Decoder {
 
 /// Decode a whole log. Errors name the file and the line (as the row).
 pub fn decode_log(path: &Path) -> Result<Decoded, InputError> {
+    decode_log_with(path, &BTreeMap::new())
+}
+
+/// Decode a whole log, PDOs through each node's EDS/DCF mapping.
+pub fn decode_log_with(
+    path: &Path,
+    files: &BTreeMap<u8, DeviceDescription>,
+) -> Result<Decoded, InputError> {
     use std::io::BufRead;
     let file = std::fs::File::open(path)
         .map_err(|e| InputError::new(path, format!("cannot open: {e}")))?;
     let mut out = Decoded::default();
-    let mut dec = Decoder {
-        states: BTreeMap::new(),
-    };
+    let mut dec = Decoder::new(files);
     for (i, line) in std::io::BufReader::new(file).lines().enumerate() {
         let line =
             line.map_err(|e| InputError::new(path, format!("cannot read: {e}")).row(i + 1))?;
@@ -626,16 +814,73 @@ pub fn decode_log(path: &Path) -> Result<Decoded, InputError> {
     Ok(out)
 }
 
+/// The events as an Arrow table, one row per frame (for Parquet): the
+/// mapped objects as `name=value` pairs joined by `; `.
+pub fn events_batch(events: &[BusEvent]) -> arrow::record_batch::RecordBatch {
+    use arrow::array::{ArrayRef, Float64Array, Int64Array, StringArray, UInt32Array, UInt64Array};
+    use arrow::datatypes::{DataType, Field, Schema};
+    use std::sync::Arc;
+    let schema = Schema::new(vec![
+        Field::new("line", DataType::UInt64, false),
+        Field::new("t_s", DataType::Float64, true),
+        Field::new("cob_id", DataType::UInt32, false),
+        Field::new("node", DataType::UInt32, true),
+        Field::new("kind", DataType::Utf8, false),
+        Field::new("index", DataType::UInt32, true),
+        Field::new("subindex", DataType::UInt32, true),
+        Field::new("value", DataType::Int64, true),
+        Field::new("state", DataType::Utf8, true),
+        Field::new("objects", DataType::Utf8, true),
+        Field::new("text", DataType::Utf8, false),
+    ]);
+    let cols: Vec<ArrayRef> = vec![
+        Arc::new(UInt64Array::from_iter_values(
+            events.iter().map(|e| e.line as u64),
+        )),
+        Arc::new(Float64Array::from_iter(events.iter().map(|e| e.t_s))),
+        Arc::new(UInt32Array::from_iter_values(
+            events.iter().map(|e| e.cob_id),
+        )),
+        Arc::new(UInt32Array::from_iter(
+            events.iter().map(|e| e.node.map(u32::from)),
+        )),
+        Arc::new(StringArray::from_iter_values(
+            events.iter().map(|e| e.kind.as_str()),
+        )),
+        Arc::new(UInt32Array::from_iter(
+            events.iter().map(|e| e.index.map(u32::from)),
+        )),
+        Arc::new(UInt32Array::from_iter(
+            events.iter().map(|e| e.subindex.map(u32::from)),
+        )),
+        Arc::new(Int64Array::from_iter(events.iter().map(|e| e.value))),
+        Arc::new(StringArray::from_iter(
+            events.iter().map(|e| e.state.as_deref()),
+        )),
+        Arc::new(StringArray::from_iter(events.iter().map(|e| {
+            (!e.objects.is_empty()).then(|| {
+                e.objects
+                    .iter()
+                    .map(|o| format!("{}={}", o.name, o.value))
+                    .collect::<Vec<_>>()
+                    .join("; ")
+            })
+        }))),
+        Arc::new(StringArray::from_iter_values(
+            events.iter().map(|e| e.text.as_str()),
+        )),
+    ];
+    arrow::record_batch::RecordBatch::try_new(Arc::new(schema), cols)
+        .expect("columns match the schema")
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
 
     fn one(line: &str) -> BusEvent {
         let f = parse_any_line(line).unwrap().unwrap();
-        Decoder {
-            states: BTreeMap::new(),
-        }
-        .event(1, &f)
+        Decoder::default().event(1, &f)
     }
 
     #[test]
@@ -706,9 +951,7 @@ mod tests {
         let sync = one("can0 080 [0]");
         assert_eq!(sync.kind, "sync");
         // Statusword transitions are followed per node.
-        let mut d = Decoder {
-            states: BTreeMap::new(),
-        };
+        let mut d = Decoder::default();
         let f = |l: &str| parse_any_line(l).unwrap().unwrap();
         let a = d.event(1, &f("can0 185 [2] 40 02"));
         assert_eq!(a.state.as_deref(), Some("switch on disabled"));

@@ -124,15 +124,29 @@ pub struct LogWriter {
     tmp: PathBuf,
     out: Option<BufWriter<File>>,
     pub frames: u64,
+    /// Replace an existing file (by rename) instead of refusing.
+    force: bool,
 }
 
 impl LogWriter {
     /// A new log at `path`; an existing file there is never overwritten (a
     /// recorded bus log is evidence: refuse, and say how to proceed).
     pub fn create(path: &Path) -> Result<LogWriter> {
-        if path.exists() || path.is_symlink() {
+        Self::create_with(path, false)
+    }
+
+    /// As [`LogWriter::create`]; with `force` an existing regular file is
+    /// replaced at the end (atomically, by rename), never a directory or a link.
+    pub fn create_with(path: &Path, force: bool) -> Result<LogWriter> {
+        if force && (path.is_dir() || path.is_symlink()) {
             anyhow::bail!(
-                "{} already exists; a bus log is never overwritten — name a new file (e.g. {}) or move the old one away",
+                "{}: --force replaces a regular file only, not a directory or a link",
+                path.display()
+            );
+        }
+        if !force && (path.exists() || path.is_symlink()) {
+            anyhow::bail!(
+                "{} already exists; a bus log is never overwritten — name a new file (e.g. {}) or move the old one away (--force replaces it)",
                 path.display(),
                 path.with_extension("2.log").display()
             );
@@ -153,6 +167,7 @@ impl LogWriter {
             tmp,
             out: Some(BufWriter::new(file)),
             frames: 0,
+            force,
         })
     }
     pub fn write(&mut self, f: &CanFrame) -> Result<()> {
@@ -169,6 +184,11 @@ impl LogWriter {
                 .into_inner()
                 .map_err(|e| anyhow::anyhow!("cannot flush {}: {e}", self.tmp.display()))?;
             file.sync_all()?;
+            if self.force {
+                // Asked for: the old log is replaced in one rename.
+                return std::fs::rename(&self.tmp, &self.path)
+                    .with_context(|| format!("cannot write {}", self.path.display()));
+            }
             // A hard link fails where a file appeared meanwhile: never
             // clobbered, even by a race.
             match std::fs::hard_link(&self.tmp, &self.path) {
@@ -214,13 +234,21 @@ pub struct LogBus<B: CanBus> {
 
 impl<B: CanBus> LogBus<B> {
     pub fn new(inner: B, path: &Path) -> Result<LogBus<B>> {
+        Self::create(inner, path, false)
+    }
+    /// With `force`, an existing log file at `path` is replaced at the end.
+    pub fn create(inner: B, path: &Path, force: bool) -> Result<LogBus<B>> {
         Ok(LogBus {
             inner,
-            log: LogWriter::create(path)?,
+            log: LogWriter::create_with(path, force)?,
         })
     }
     pub fn path(&self) -> &Path {
         &self.log.path
+    }
+    /// The wrapped bus (tests look at the simulated drives' state).
+    pub fn into_inner(self) -> B {
+        self.inner
     }
 }
 

@@ -11,6 +11,7 @@
 
 pub mod bus;
 pub mod canopen;
+pub mod compare;
 pub mod decode;
 pub mod eds;
 pub mod envelope;
@@ -87,6 +88,13 @@ pub struct ReplayOptions {
     pub keep_traffic: bool,
     /// Check the whole plan against the envelope before anything is sent.
     pub preflight: bool,
+    /// Which axis of its node each machine axis is (1, or 2 for a
+    /// two-axis drive's objects at +0x800).
+    pub drive_axes: [u8; 3],
+    /// The EDS/DCF of a node (`--eds NODE=FILE`, `[replay] eds`).
+    pub eds: std::collections::BTreeMap<u8, PathBuf>,
+    /// `--bus log:FILE` may replace an existing file.
+    pub force: bool,
 }
 
 impl ReplayOptions {
@@ -113,6 +121,9 @@ impl ReplayOptions {
             sim_faults: Vec::new(),
             keep_traffic: false,
             preflight: true,
+            drive_axes: [1, 1, 1],
+            eds: Default::default(),
+            force: false,
         }
     }
 
@@ -132,12 +143,29 @@ impl ReplayOptions {
             bail!("--counts-per-mm {} must be > 0", self.counts_per_mm);
         }
         let n = self.nodes;
-        if n.iter().any(|&x| !(1..=127).contains(&x))
-            || n[0] == n[1]
-            || n[1] == n[2]
-            || n[0] == n[2]
-        {
-            bail!("--nodes {n:?}: three distinct CANopen node ids 1–127 (x, y, z)");
+        let same = |a: usize, b: usize| n[a] == n[b] && self.drive_axes[a] == self.drive_axes[b];
+        if n.iter().any(|&x| !(1..=127).contains(&x)) || same(0, 1) || same(1, 2) || same(0, 2) {
+            bail!("--nodes {n:?} (drive axes {:?}): three distinct drive axes, node ids 1–127 (x, y, z)", self.drive_axes);
+        }
+        if self.drive_axes.iter().any(|a| !(1..=4).contains(a)) {
+            bail!("--axis: a drive axis is 1–4, found {:?}", self.drive_axes);
+        }
+        for node in self.eds.keys() {
+            if !n.contains(node) {
+                bail!(
+                    "--eds {node}=…: node {node} drives no axis (nodes {},{},{})",
+                    n[0],
+                    n[1],
+                    n[2]
+                );
+            }
+        }
+        let descriptions = self.descriptions()?;
+        for (node, axis) in n.iter().zip(self.drive_axes) {
+            if let Some(d) = descriptions.get(node) {
+                canopen::pdo::check_description(d, canopen::AxisRef::new(*node, axis))
+                    .map_err(|e| anyhow::anyhow!(e))?;
+            }
         }
         if self.heartbeat_ms == 0 || !(self.heartbeat_timeout_periods >= 1.0) {
             bail!("heartbeat period must be > 0 ms and its timeout ≥ 1 period");
@@ -193,10 +221,21 @@ impl ReplayOptions {
         Ok(())
     }
 
-    fn master_config(&self) -> MasterConfig {
-        MasterConfig {
+    /// Each `--eds` file read for its node (errors name file and line).
+    pub fn descriptions(&self) -> Result<std::collections::BTreeMap<u8, eds::DeviceDescription>> {
+        let mut out = std::collections::BTreeMap::new();
+        for (node, path) in &self.eds {
+            out.insert(*node, eds::DeviceDescription::load(path, *node)?);
+        }
+        Ok(out)
+    }
+
+    fn master_config(&self) -> Result<MasterConfig> {
+        Ok(MasterConfig {
             cycle_us: self.cycle_us(),
             nodes: self.nodes,
+            drive_axes: self.drive_axes,
+            descriptions: self.descriptions()?,
             counts_per_mm: self.counts_per_mm,
             heartbeat_ms: self.heartbeat_ms,
             heartbeat_timeout_us: (self.heartbeat_ms as f64
@@ -207,10 +246,10 @@ impl ReplayOptions {
             transition_timeout_cycles: 25,
             stop_hold_cycles: 3,
             keep_traffic: self.keep_traffic || self.dry_run,
-        }
+        })
     }
 
-    fn sim_config(&self, plan: &Plan) -> SimConfig {
+    fn sim_config(&self, plan: &Plan) -> Result<SimConfig> {
         let start = |a: usize| {
             plan.cmd_mm
                 .first()
@@ -218,7 +257,7 @@ impl ReplayOptions {
                 .filter(|v| v.is_finite() && v.abs() <= i32::MAX as f64)
                 .unwrap_or(0.0) as i32
         };
-        SimConfig {
+        Ok(SimConfig {
             nodes: self.nodes,
             start_counts: [start(0), start(1), start(2)],
             lag_s: self.sim_lag_s,
@@ -226,8 +265,101 @@ impl ReplayOptions {
             counts_per_mm: self.counts_per_mm,
             quick_stop_decel_mm_s2: 5000.0,
             faults: self.sim_faults.clone(),
+            drive_axes: self.drive_axes,
+            // The simulated drives are what their files declare.
+            profiles: self
+                .descriptions()?
+                .iter()
+                .map(|(n, d)| (*n, sim::SimProfile::from_description(d)))
+                .collect(),
+        })
+    }
+}
+
+/// The `[replay]` table of a machine config: which EDS/DCF describes each
+/// node and which drive axis each machine axis is, e.g.
+///
+/// ```toml
+/// [replay]
+/// eds = { "1" = "drives/xy.eds", "3" = "drives/z.dcf" }   # relative to this file
+/// axes = { x = "1", y = "1:2", z = "3" }                  # NODE or NODE:AXIS
+/// ```
+///
+/// Every file is read and checked here (a missing file or object is an
+/// error naming the config, the key and the file); flags win over it.
+pub fn apply_machine_replay(
+    opts: &mut ReplayOptions,
+    m: &crate::contracts::MachineConfig,
+) -> Result<()> {
+    let Some(t) = m.table.get("replay") else {
+        return Ok(());
+    };
+    let src = &m.source;
+    let Some(t) = t.as_table() else {
+        bail!("{src}: [replay] must be a table");
+    };
+    let base = Path::new(src)
+        .parent()
+        .filter(|p| !src.starts_with("built-in") && !p.as_os_str().is_empty())
+        .map(Path::to_path_buf)
+        .unwrap_or_default();
+    for (key, v) in t {
+        match key.as_str() {
+            "eds" => {
+                let Some(map) = v.as_table() else {
+                    bail!("{src}: replay.eds must be a table of node = \"file\", e.g. eds = {{ \"1\" = \"drive.eds\" }}");
+                };
+                for (node, file) in map {
+                    let n: u8 = node
+                        .parse()
+                        .ok()
+                        .filter(|n| (1..=127).contains(n))
+                        .ok_or_else(|| {
+                            anyhow::anyhow!("{src}: replay.eds key `{node}` is not a node id 1–127")
+                        })?;
+                    let Some(f) = file.as_str() else {
+                        bail!("{src}: replay.eds.\"{node}\" must be a file name (a string)");
+                    };
+                    let path = base.join(f);
+                    if !path.is_file() {
+                        bail!(
+                            "{src}: replay.eds.\"{node}\" = \"{f}\": no file {}",
+                            path.display()
+                        );
+                    }
+                    opts.eds.insert(n, path);
+                }
+            }
+            "axes" => {
+                let Some(map) = v.as_table() else {
+                    bail!("{src}: replay.axes must be a table like axes = {{ x = \"1\", y = \"1:2\" }}");
+                };
+                for (axis, spec) in map {
+                    let a = ["x", "y", "z"]
+                        .iter()
+                        .position(|n| n.eq_ignore_ascii_case(axis))
+                        .ok_or_else(|| {
+                            anyhow::anyhow!("{src}: replay.axes key `{axis}` is not x, y or z")
+                        })?;
+                    let text = match spec {
+                        toml::Value::String(s) => s.clone(),
+                        toml::Value::Integer(i) => i.to_string(),
+                        other => bail!(
+                            "{src}: replay.axes.{axis} = {other}: use \"NODE\" or \"NODE:AXIS\""
+                        ),
+                    };
+                    let r = canopen::AxisRef::parse(&text)
+                        .map_err(|e| anyhow::anyhow!("{src}: replay.axes.{axis} {e}"))?;
+                    opts.nodes[a] = r.node;
+                    opts.drive_axes[a] = r.axis;
+                }
+            }
+            other => {
+                bail!("{src}: unknown key replay.{other} (a machine's [replay] has: eds, axes)")
+            }
         }
     }
+    Ok(())
 }
 
 /// What happened, for the CLI (printed and as JSON).
@@ -248,6 +380,13 @@ pub struct ReplayReport {
     pub detected_s: Option<f64>,
     pub quick_stop_s: Option<f64>,
     pub max_following_mm: f64,
+    /// What the start-up found worth saying (a drive's own mapping used,
+    /// optional objects missing, limits wider than the envelope).
+    pub warnings: Vec<String>,
+    /// The PDOs each axis was driven through, and where they came from.
+    pub pdos: Vec<canopen::AxisPdos>,
+    /// 0x1008 of each node that has one.
+    pub device_names: std::collections::BTreeMap<u8, String>,
     pub envelope: Envelope,
     pub log: Option<PathBuf>,
     pub recorded: Option<PathBuf>,
@@ -312,13 +451,14 @@ pub fn run(
     plan: &Plan,
     interrupt: Arc<AtomicBool>,
 ) -> Result<(ReplayReport, Outcome)> {
-    let master = canopen::Master::new(opts.master_config())?;
-    let sim = || SimBus::new(opts.sim_config(plan)).with_interrupt(interrupt.clone());
+    let master = canopen::Master::new(opts.master_config()?)?;
+    let sim_cfg = opts.sim_config(plan)?;
+    let sim = || SimBus::new(sim_cfg.clone()).with_interrupt(interrupt.clone());
     let mut log_path = None;
     let mut bus: Box<dyn CanBus> = match (&opts.bus, opts.dry_run) {
         (BusSpec::Log(p), _) => {
             log_path = Some(p.clone());
-            Box::new(log_bus::LogBus::new(sim(), p)?)
+            Box::new(log_bus::LogBus::create(sim(), p, opts.force)?)
         }
         // A dry run opens no hardware: simulated drives answer in its place.
         (BusSpec::Sim, _) | (BusSpec::SocketCan(_), true) => Box::new(sim()),
@@ -389,6 +529,9 @@ pub fn run(
         detected_s: outcome.detected_us.map(|t| t as f64 * 1e-6),
         quick_stop_s: outcome.quick_stop_us.map(|t| t as f64 * 1e-6),
         max_following_mm: outcome.max_following_mm,
+        warnings: outcome.warnings.clone(),
+        pdos: outcome.pdos.clone(),
+        device_names: outcome.device_names.clone(),
         envelope: opts.envelope,
         log: log_path,
         recorded,
@@ -397,5 +540,7 @@ pub fn run(
     Ok((report, outcome))
 }
 
+#[cfg(test)]
+mod pdo_tests;
 #[cfg(test)]
 mod tests;

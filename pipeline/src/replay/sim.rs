@@ -13,7 +13,9 @@ use std::sync::Arc;
 use anyhow::{bail, Result};
 
 use super::bus::{CanBus, CanFrame, CAN_ERR_BUSOFF};
-use super::canopen::{self, nmt, obj, DriveState, SdoRequest, SdoResponse};
+use super::canopen::pdo::{self, split_axis, Mapped, PdoMap, COB_INVALID};
+use super::canopen::{self, abort, nmt, obj, AxisRef, DriveState, SdoServer, ServerAction};
+use super::eds::DeviceDescription;
 
 /// A fault to inject (times in µs on the virtual clock).
 #[derive(Debug, Clone, PartialEq)]
@@ -123,11 +125,139 @@ pub struct SimConfig {
     /// Quick-stop deceleration (mm/s²; 0x6085).
     pub quick_stop_decel_mm_s2: f64,
     pub faults: Vec<SimFault>,
+    /// Which axis of its node each machine axis is (1, or 2 for the
+    /// objects at +0x800 of a two-axis drive).
+    pub drive_axes: [u8; 3],
+    /// The object dictionary of each node; a node without one is the
+    /// shipped profile ([`SimProfile::standard`]).
+    pub profiles: std::collections::BTreeMap<u8, SimProfile>,
+}
+
+/// What a simulated drive's object dictionary holds beyond the CiA 402
+/// basics: its default PDO mappings (per drive axis), whether they can be
+/// written, the vendor quirks the master must cope with.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SimProfile {
+    /// Default RPDOk / TPDOk (index k − 1) after power-on.
+    pub rpdo: Vec<PdoMap>,
+    pub tpdo: Vec<PdoMap>,
+    /// 0x1600… / 0x1A00… refuse writes (abort 0x06010002).
+    pub read_only_mapping: bool,
+    /// Objects (first-axis index) that abort 0x06040041 when mapped.
+    pub unmappable: Vec<u16>,
+    /// 16, or 32 for drives that declare 0x6041 UNSIGNED32.
+    pub statusword_bits: u8,
+    /// 0x1008 (read by segmented SDO when longer than 4 bytes).
+    pub device_name: Option<String>,
+    /// 0x607D sub 1 / 2, counts.
+    pub position_limits: Option<(i32, i32)>,
+    /// 0x607F, counts/s.
+    pub max_profile_velocity: Option<u32>,
+    /// Has 0x60C2.
+    pub interpolation_period: bool,
+}
+
+impl SimProfile {
+    /// The shipped profile: RPDOk = controlword + target position, TPDOk =
+    /// statusword + position actual value, synchronous, writable.
+    pub fn standard(node: u8) -> SimProfile {
+        let d = DeviceDescription::parse("shipped", canopen::DRIVE_EDS, node)
+            .expect("the shipped EDS parses");
+        SimProfile::from_description(&d)
+    }
+
+    /// A drive as its EDS/DCF declares it: default mappings, read-only
+    /// mapping parameters (AccessType ro/const on sub 0), the statusword's
+    /// width, objects with PDOMapping=0, name, limits.
+    pub fn from_description(d: &DeviceDescription) -> SimProfile {
+        let find = |i: u16, s: u8| d.entries.iter().find(|e| e.index == i && e.sub == s);
+        let node = d.node;
+        let mut rpdo = Vec::new();
+        let mut tpdo = Vec::new();
+        for k in 1..=4u16 {
+            let a = AxisRef::new(node, k as u8);
+            let empty = |cob| PdoMap {
+                cob_id: cob,
+                transmission: pdo::SYNC_EVERY,
+                entries: Vec::new(),
+            };
+            rpdo.push(pdo::described_map(d, false, k).unwrap_or_else(|| empty(a.rpdo_cob())));
+            tpdo.push(pdo::described_map(d, true, k).unwrap_or_else(|| empty(a.tpdo_cob())));
+        }
+        let ro = |e: Option<&crate::replay::eds::Entry>| {
+            e.is_some_and(|e| e.access == "ro" || e.access == "const")
+        };
+        SimProfile {
+            rpdo,
+            tpdo,
+            read_only_mapping: ro(find(0x1600, 0)) || ro(find(0x1A00, 0)),
+            unmappable: d
+                .entries
+                .iter()
+                .filter(|e| (0x6000..0x6800).contains(&e.index) && e.sub == 0 && !e.pdo_mapping)
+                .map(|e| e.index)
+                .collect(),
+            statusword_bits: pdo::declared_bits(d, 0x6041, 16),
+            device_name: find(0x1008, 0).and_then(|e| e.value_text.clone()),
+            position_limits: match (find(0x607D, 1), find(0x607D, 2)) {
+                (Some(a), Some(b)) => Some((
+                    a.value.unwrap_or(i32::MIN as i128) as i32,
+                    b.value.unwrap_or(i32::MAX as i128) as i32,
+                )),
+                _ => None,
+            },
+            max_profile_velocity: find(0x607F, 0).and_then(|e| e.value).map(|v| v as u32),
+            interpolation_period: find(0x60C2, 1).is_some(),
+        }
+    }
+}
+
+/// One PDO's parameters in a simulated drive (CiA 301 rules: the mapping
+/// changes only while the PDO is invalid and its count 0).
+#[derive(Debug, Clone)]
+struct SimPdo {
+    cob: u32,
+    tt: u8,
+    count: u8,
+    slots: [u32; 8],
+}
+
+impl SimPdo {
+    fn from_map(m: &PdoMap) -> SimPdo {
+        let mut slots = [0u32; 8];
+        for (i, e) in m.entries.iter().take(8).enumerate() {
+            slots[i] = e.raw();
+        }
+        SimPdo {
+            cob: m.cob_id,
+            tt: m.transmission,
+            count: m.entries.len().min(8) as u8,
+            slots,
+        }
+    }
+    fn map(&self) -> PdoMap {
+        PdoMap {
+            cob_id: self.cob,
+            transmission: self.tt,
+            entries: self.slots[..self.count as usize]
+                .iter()
+                .map(|&r| Mapped::from_raw(r))
+                .collect(),
+        }
+    }
 }
 
 #[derive(Debug, Clone)]
 struct Drive {
     node: u8,
+    /// Axis of its node (1 = objects at 0x6000).
+    axis: u8,
+    /// Produces the node's heartbeat (the node's first axis).
+    hb_producer: bool,
+    rpdo: SimPdo,
+    tpdo: SimPdo,
+    profile: SimProfile,
+    interp: (u8, i8),
     nmt: u8,
     state: DriveState,
     mode: i8,
@@ -152,6 +282,9 @@ pub struct SimBus {
     cycle_us: u64,
     last_sync_us: Option<u64>,
     interrupt: Option<Arc<AtomicBool>>,
+    servers: std::collections::BTreeMap<u8, SdoServer>,
+    /// Every object written over SDO: (node, index, sub, bytes), in order.
+    pub writes: Vec<(u8, u16, u8, Vec<u8>)>,
 }
 
 /// Reply latency of a drive (µs): the frame after the one that caused it.
@@ -160,23 +293,38 @@ const REPLY_US: u64 = 100;
 impl SimBus {
     pub fn new(cfg: SimConfig) -> SimBus {
         let drives = (0..3)
-            .map(|a| Drive {
-                node: cfg.nodes[a],
-                nmt: nmt::HB_PRE_OPERATIONAL,
-                state: DriveState::SwitchOnDisabled,
-                mode: 0,
-                hb_period_us: 0,
-                next_hb_us: 0,
-                hb_dead: false,
-                refuse_enable: cfg
-                    .faults
-                    .iter()
-                    .any(|f| matches!(f, SimFault::RefuseEnable { node } if *node == cfg.nodes[a])),
-                pending_target: cfg.start_counts[a],
-                target: cfg.start_counts[a] as f64,
-                pos: cfg.start_counts[a] as f64,
-                vel: 0.0,
-                slip: 0.0,
+            .map(|a| {
+                let node = cfg.nodes[a];
+                let axis = cfg.drive_axes[a].max(1);
+                let profile = cfg
+                    .profiles
+                    .get(&node)
+                    .cloned()
+                    .unwrap_or_else(|| SimProfile::standard(node));
+                let k = (axis - 1) as usize;
+                Drive {
+                    node,
+                    axis,
+                    hb_producer: !(0..a).any(|b| cfg.nodes[b] == node),
+                    rpdo: SimPdo::from_map(&profile.rpdo[k.min(3)]),
+                    tpdo: SimPdo::from_map(&profile.tpdo[k.min(3)]),
+                    profile,
+                    interp: (1, -3),
+                    nmt: nmt::HB_PRE_OPERATIONAL,
+                    state: DriveState::SwitchOnDisabled,
+                    mode: 0,
+                    hb_period_us: 0,
+                    next_hb_us: 0,
+                    hb_dead: false,
+                    refuse_enable: cfg.faults.iter().any(
+                        |f| matches!(f, SimFault::RefuseEnable { node } if *node == cfg.nodes[a]),
+                    ),
+                    pending_target: cfg.start_counts[a],
+                    target: cfg.start_counts[a] as f64,
+                    pos: cfg.start_counts[a] as f64,
+                    vel: 0.0,
+                    slip: 0.0,
+                }
             })
             .collect();
         let fired = vec![false; cfg.faults.len()];
@@ -189,6 +337,8 @@ impl SimBus {
             cycle_us: 0,
             last_sync_us: None,
             interrupt: None,
+            servers: Default::default(),
+            writes: Vec::new(),
         }
     }
 
@@ -248,9 +398,21 @@ impl SimBus {
             }
             let sw = d.state.statusword();
             let actual = (d.pos + d.slip).round() as i32;
+            let m = d.tpdo.map();
+            if m.cob_id & COB_INVALID != 0 || m.entries.is_empty() {
+                continue;
+            }
+            let (mode, vel) = (d.mode, d.vel.round() as i64);
+            let payload = m.encode(|index, _| match split_axis(index).1 {
+                0x6041 => sw as i64,
+                0x6064 => actual as i64,
+                0x6061 => mode as i64,
+                0x606C => vel,
+                _ => 0,
+            });
             replies.push((
                 t + 2 * REPLY_US + 50 * i as u64,
-                canopen::tpdo1(d.node, sw, actual),
+                CanFrame::new(0, m.cob_id & 0x7FF, &payload),
             ));
         }
         for (t, f) in replies {
@@ -282,57 +444,284 @@ impl SimBus {
         };
     }
 
-    fn on_sdo(&mut self, a: usize, req: SdoRequest, t: u64) {
-        let d = &mut self.drives[a];
-        let resp = match req {
-            SdoRequest::Download { index, sub, data } => match (index, sub) {
-                (obj::PRODUCER_HEARTBEAT_TIME, 0) if data.len() == 2 => {
-                    let ms = u16::from_le_bytes([data[0], data[1]]) as u64;
-                    d.hb_period_us = ms * 1000;
-                    d.next_hb_us = t + d.hb_period_us;
-                    SdoResponse::Downloaded { index, sub }
-                }
-                (obj::MODES_OF_OPERATION, 0) if data.len() == 1 => {
-                    d.mode = data[0] as i8;
-                    SdoResponse::Downloaded { index, sub }
-                }
-                (obj::CONTROLWORD, 0) if data.len() == 2 => {
-                    Self::on_controlword(d, u16::from_le_bytes([data[0], data[1]]));
-                    SdoResponse::Downloaded { index, sub }
-                }
-                // 0x06090011: sub-index does not exist / 0x06020000: object does not exist.
-                _ => SdoResponse::Abort {
-                    index,
-                    sub,
-                    code: 0x0602_0000,
-                },
-            },
-            SdoRequest::Upload { index, sub } => {
-                let (value, len) = match index {
-                    obj::STATUSWORD => (d.state.statusword() as u32, 2),
-                    obj::MODES_OF_OPERATION_DISPLAY => (d.mode as u8 as u32, 1),
-                    obj::POSITION_ACTUAL_VALUE => ((d.pos + d.slip).round() as i32 as u32, 4),
-                    obj::PRODUCER_HEARTBEAT_TIME => ((d.hb_period_us / 1000) as u32, 2),
-                    _ => (0, 0),
-                };
-                if len == 0 {
-                    SdoResponse::Abort {
-                        index,
-                        sub,
-                        code: 0x0602_0000,
-                    }
-                } else {
-                    SdoResponse::Uploaded {
-                        index,
-                        sub,
-                        value,
-                        len,
-                    }
-                }
+    /// The drive that answers for `index` on `node`: PDO parameters and
+    /// CiA 402 objects by their axis, everything else by the node's first axis.
+    fn drive_for(&self, node: u8, index: u16) -> Option<usize> {
+        let axis = match index {
+            0x1400..=0x1403 | 0x1600..=0x1603 | 0x1800..=0x1803 | 0x1A00..=0x1A03 => {
+                (index & 0xFF) as u8 + 1
+            }
+            0x6000..=0x9FFF => split_axis(index).0,
+            _ => {
+                return self
+                    .drives
+                    .iter()
+                    .position(|d| d.node == node && d.hb_producer)
             }
         };
-        let f = resp.frame(d.node);
-        self.push(t + REPLY_US, f);
+        self.drives
+            .iter()
+            .position(|d| d.node == node && d.axis == axis)
+    }
+
+    fn sdo_read(&self, a: usize, index: u16, sub: u8) -> std::result::Result<Vec<u8>, u32> {
+        let d = &self.drives[a];
+        let p = &d.profile;
+        let only0 = |v: Vec<u8>| if sub == 0 { Ok(v) } else { Err(abort::NO_SUB) };
+        let pdo_comm = |q: &SimPdo| match sub {
+            0 => Ok(vec![2]),
+            1 => Ok(q.cob.to_le_bytes().to_vec()),
+            2 => Ok(vec![q.tt]),
+            _ => Err(abort::NO_SUB),
+        };
+        let pdo_map = |q: &SimPdo| match sub {
+            0 => Ok(vec![q.count]),
+            1..=8 => Ok(q.slots[sub as usize - 1].to_le_bytes().to_vec()),
+            _ => Err(abort::NO_SUB),
+        };
+        match index {
+            0x1000 => only0(0x0002_0192u32.to_le_bytes().to_vec()),
+            0x1008 => match &p.device_name {
+                Some(n) => only0(n.as_bytes().to_vec()),
+                None => Err(abort::NO_OBJECT),
+            },
+            obj::PRODUCER_HEARTBEAT_TIME => {
+                only0(((d.hb_period_us / 1000) as u16).to_le_bytes().to_vec())
+            }
+            0x1400..=0x1403 => pdo_comm(&d.rpdo),
+            0x1800..=0x1803 => pdo_comm(&d.tpdo),
+            0x1600..=0x1603 => pdo_map(&d.rpdo),
+            0x1A00..=0x1A03 => pdo_map(&d.tpdo),
+            _ => match split_axis(index).1 {
+                obj::STATUSWORD => {
+                    let sw = d.state.statusword() as u32;
+                    only0(sw.to_le_bytes()[..p.statusword_bits as usize / 8].to_vec())
+                }
+                obj::MODES_OF_OPERATION | obj::MODES_OF_OPERATION_DISPLAY => {
+                    only0(vec![d.mode as u8])
+                }
+                obj::POSITION_ACTUAL_VALUE => {
+                    only0(((d.pos + d.slip).round() as i32).to_le_bytes().to_vec())
+                }
+                obj::TARGET_POSITION => only0(d.pending_target.to_le_bytes().to_vec()),
+                0x607D => match (p.position_limits, sub) {
+                    (None, _) => Err(abort::NO_OBJECT),
+                    (Some(_), 0) => Ok(vec![2]),
+                    (Some((lo, _)), 1) => Ok(lo.to_le_bytes().to_vec()),
+                    (Some((_, hi)), 2) => Ok(hi.to_le_bytes().to_vec()),
+                    _ => Err(abort::NO_SUB),
+                },
+                0x607F => match p.max_profile_velocity {
+                    Some(v) => only0(v.to_le_bytes().to_vec()),
+                    None => Err(abort::NO_OBJECT),
+                },
+                0x60C2 if p.interpolation_period => match sub {
+                    0 => Ok(vec![2]),
+                    1 => Ok(vec![d.interp.0]),
+                    2 => Ok(vec![d.interp.1 as u8]),
+                    _ => Err(abort::NO_SUB),
+                },
+                _ => Err(abort::NO_OBJECT),
+            },
+        }
+    }
+
+    /// Whether `m` may be mapped into an RPDO (`rx`) or TPDO of drive `a`.
+    fn mappable(&self, a: usize, m: Mapped, rx: bool) -> std::result::Result<(), u32> {
+        let d = &self.drives[a];
+        if m.index == 0 && m.raw() == 0 {
+            return Ok(());
+        }
+        if m.is_dummy() {
+            return Ok(());
+        }
+        let (axis, base) = split_axis(m.index);
+        let width = match base {
+            obj::CONTROLWORD => 16,
+            obj::STATUSWORD => d.profile.statusword_bits,
+            obj::MODES_OF_OPERATION | obj::MODES_OF_OPERATION_DISPLAY => 8,
+            obj::POSITION_ACTUAL_VALUE | obj::TARGET_POSITION | 0x606C => 32,
+            _ => return Err(abort::NOT_MAPPABLE),
+        };
+        let writable = matches!(
+            base,
+            obj::CONTROLWORD | obj::TARGET_POSITION | obj::MODES_OF_OPERATION
+        );
+        if axis != d.axis || m.sub != 0 || rx != writable || d.profile.unmappable.contains(&base) {
+            return Err(abort::NOT_MAPPABLE);
+        }
+        if m.bits != width {
+            return Err(abort::LENGTH);
+        }
+        Ok(())
+    }
+
+    fn sdo_write(
+        &mut self,
+        a: usize,
+        index: u16,
+        sub: u8,
+        data: &[u8],
+        t: u64,
+    ) -> std::result::Result<(), u32> {
+        let le = |n: usize| -> std::result::Result<u64, u32> {
+            if data.len() != n {
+                return Err(abort::LENGTH);
+            }
+            let mut b = [0u8; 8];
+            b[..n].copy_from_slice(data);
+            Ok(u64::from_le_bytes(b))
+        };
+        match index {
+            obj::PRODUCER_HEARTBEAT_TIME if sub == 0 => {
+                let d = &mut self.drives[a];
+                d.hb_period_us = le(2)? * 1000;
+                d.next_hb_us = t + d.hb_period_us;
+                Ok(())
+            }
+            0x1400..=0x1403 | 0x1800..=0x1803 => {
+                let tx = index >= 0x1800;
+                let d = &mut self.drives[a];
+                let q = if tx { &mut d.tpdo } else { &mut d.rpdo };
+                match sub {
+                    1 => {
+                        let v = le(4)? as u32;
+                        // CiA 301: the id of a valid PDO is not changed.
+                        if q.cob & COB_INVALID == 0 && v & COB_INVALID == 0 && v != q.cob {
+                            return Err(0x0609_0030);
+                        }
+                        q.cob = v;
+                        Ok(())
+                    }
+                    2 => {
+                        q.tt = le(1)? as u8;
+                        Ok(())
+                    }
+                    0 => Err(abort::READ_ONLY),
+                    _ => Err(abort::NO_SUB),
+                }
+            }
+            0x1600..=0x1603 | 0x1A00..=0x1A03 => {
+                let tx = index >= 0x1A00;
+                if self.drives[a].profile.read_only_mapping {
+                    return Err(abort::READ_ONLY);
+                }
+                let q = if tx {
+                    &self.drives[a].tpdo
+                } else {
+                    &self.drives[a].rpdo
+                };
+                if q.cob & COB_INVALID == 0 {
+                    return Err(abort::DEVICE_STATE);
+                }
+                match sub {
+                    0 => {
+                        let n = le(1)? as u8;
+                        if n > 8 {
+                            return Err(0x0609_0031);
+                        }
+                        let slots = q.slots;
+                        let mut bits = 0u32;
+                        for &r in &slots[..n as usize] {
+                            self.mappable(a, Mapped::from_raw(r), !tx)?;
+                            bits += r & 0xFF;
+                        }
+                        if bits > 64 {
+                            return Err(abort::PDO_LENGTH);
+                        }
+                        let d = &mut self.drives[a];
+                        let q = if tx { &mut d.tpdo } else { &mut d.rpdo };
+                        q.count = n;
+                        Ok(())
+                    }
+                    1..=8 => {
+                        if q.count != 0 {
+                            return Err(abort::DEVICE_STATE);
+                        }
+                        let v = le(4)? as u32;
+                        self.mappable(a, Mapped::from_raw(v), !tx)?;
+                        let d = &mut self.drives[a];
+                        let q = if tx { &mut d.tpdo } else { &mut d.rpdo };
+                        q.slots[sub as usize - 1] = v;
+                        Ok(())
+                    }
+                    _ => Err(abort::NO_SUB),
+                }
+            }
+            0x1000 | 0x1008 | 0x1018 => Err(abort::READ_ONLY),
+            _ => {
+                let d = &mut self.drives[a];
+                match (split_axis(index).1, sub) {
+                    (obj::MODES_OF_OPERATION, 0) => {
+                        d.mode = le(1)? as u8 as i8;
+                        Ok(())
+                    }
+                    (obj::CONTROLWORD, 0) => {
+                        Self::on_controlword(d, le(2)? as u16);
+                        Ok(())
+                    }
+                    (obj::TARGET_POSITION, 0) => {
+                        d.pending_target = le(4)? as u32 as i32;
+                        Ok(())
+                    }
+                    (0x60C2, 1) if d.profile.interpolation_period => {
+                        d.interp.0 = le(1)? as u8;
+                        Ok(())
+                    }
+                    (0x60C2, 2) if d.profile.interpolation_period => {
+                        d.interp.1 = le(1)? as u8 as i8;
+                        Ok(())
+                    }
+                    (
+                        obj::STATUSWORD
+                        | obj::MODES_OF_OPERATION_DISPLAY
+                        | obj::POSITION_ACTUAL_VALUE,
+                        _,
+                    ) => Err(abort::READ_ONLY),
+                    _ => Err(abort::NO_OBJECT),
+                }
+            }
+        }
+    }
+
+    fn on_sdo(&mut self, node: u8, payload: &[u8], t: u64) {
+        let mut server = self.servers.remove(&node).unwrap_or_default();
+        let reply = match server.on_request(payload) {
+            ServerAction::Nothing => None,
+            ServerAction::Reply(r) => Some(r),
+            ServerAction::Read(index, sub) => {
+                let r = match self.drive_for(node, index) {
+                    Some(a) => self.sdo_read(a, index, sub),
+                    None => Err(abort::NO_OBJECT),
+                };
+                Some(server.uploaded(index, sub, r))
+            }
+            ServerAction::Write(index, sub, data) => {
+                let r = match self.drive_for(node, index) {
+                    Some(a) => self.sdo_write(a, index, sub, &data, t),
+                    None => Err(abort::NO_OBJECT),
+                };
+                if r.is_ok() {
+                    self.writes.push((node, index, sub, data));
+                }
+                Some(server.downloaded(index, sub, r))
+            }
+        };
+        self.servers.insert(node, server);
+        if let Some(r) = reply {
+            self.push(
+                t + REPLY_US,
+                CanFrame::new(0, canopen::SDO_TX_BASE + node as u32, &r),
+            );
+        }
+    }
+
+    /// The current mapping of a drive axis' RPDO and TPDO (tests).
+    pub fn pdo_maps(&self, node: u8, axis: u8) -> Option<(PdoMap, PdoMap)> {
+        self.drives
+            .iter()
+            .find(|d| d.node == node && d.axis == axis)
+            .map(|d| (d.rpdo.map(), d.tpdo.map()))
     }
 
     /// Time-driven events up to `t`: heartbeats and injected faults, in time order.
@@ -342,6 +731,7 @@ impl SimBus {
             let mut next: Option<(u64, usize, bool)> = None; // (time, index, is_fault)
             for (i, d) in self.drives.iter().enumerate() {
                 if d.hb_period_us > 0
+                    && d.hb_producer
                     && !d.hb_dead
                     && d.next_hb_us <= t
                     && next.is_none_or(|(nt, _, _)| d.next_hb_us < nt)
@@ -430,29 +820,41 @@ impl CanBus for SimBus {
                 }
             }
             canopen::SYNC_ID => self.on_sync(t),
-            id if id & 0x780 == canopen::RPDO1_BASE => {
-                if let (Some(a), Some((word, target))) = (
-                    self.drives.iter().position(|d| d.node == node_of(&frame)),
-                    canopen::decode_pdo(&frame),
-                ) {
-                    let d = &mut self.drives[a];
-                    if d.nmt == nmt::HB_OPERATIONAL {
-                        Self::on_controlword(d, word);
-                        d.pending_target = target;
-                    }
-                }
-            }
             id if id & 0x780 == canopen::SDO_RX_BASE => {
-                if let (Some(a), Some(req)) = (
-                    self.drives.iter().position(|d| d.node == node_of(&frame)),
-                    SdoRequest::parse(&frame),
-                ) {
-                    if self.drives[a].nmt != nmt::HB_STOPPED {
-                        self.on_sdo(a, req, t);
+                let node = node_of(&frame);
+                if self
+                    .drives
+                    .iter()
+                    .any(|d| d.node == node && d.nmt != nmt::HB_STOPPED)
+                {
+                    self.on_sdo(node, frame.payload(), t);
+                }
+            }
+            id => {
+                // An RPDO, by the COB-ID each drive's mapping listens on.
+                for d in &mut self.drives {
+                    let m = d.rpdo.map();
+                    if m.cob_id & COB_INVALID != 0 || m.id() != id || m.entries.is_empty() {
+                        continue;
+                    }
+                    let Some(values) = m.decode(frame.payload()) else {
+                        continue;
+                    };
+                    if d.nmt != nmt::HB_OPERATIONAL {
+                        continue;
+                    }
+                    for (e, v) in values {
+                        match split_axis(e.index).1 {
+                            obj::CONTROLWORD => Self::on_controlword(d, v as u16),
+                            obj::TARGET_POSITION => {
+                                d.pending_target = pdo::sign_extend(v, e.bits) as i32
+                            }
+                            obj::MODES_OF_OPERATION => d.mode = v as u8 as i8,
+                            _ => {}
+                        }
                     }
                 }
             }
-            _ => {}
         }
         Ok(())
     }
@@ -500,8 +902,15 @@ mod tests {
 
     #[test]
     fn drive_state_machine_reaches_operation_enabled_and_quick_stops() {
+        let profile = SimProfile::standard(1);
         let mut d = Drive {
             node: 1,
+            axis: 1,
+            hb_producer: true,
+            rpdo: SimPdo::from_map(&profile.rpdo[0]),
+            tpdo: SimPdo::from_map(&profile.tpdo[0]),
+            profile,
+            interp: (1, -3),
             nmt: nmt::HB_OPERATIONAL,
             state: DriveState::SwitchOnDisabled,
             mode: 8,

@@ -49,6 +49,8 @@ fn master_cfg() -> MasterConfig {
     MasterConfig {
         cycle_us: CYCLE_US,
         nodes: NODES,
+        drive_axes: [1, 1, 1],
+        descriptions: Default::default(),
         counts_per_mm: CPM,
         heartbeat_ms: 20,
         heartbeat_timeout_us: 60_000,
@@ -69,6 +71,8 @@ fn sim(plan: &Plan, faults: Vec<SimFault>, flag: Arc<AtomicBool>) -> SimBus {
         counts_per_mm: CPM,
         quick_stop_decel_mm_s2: 5000.0,
         faults,
+        drive_axes: [1, 1, 1],
+        profiles: Default::default(),
     })
     .with_interrupt(flag)
 }

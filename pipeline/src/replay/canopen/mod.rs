@@ -10,7 +10,9 @@
 //! state machine of the replay that drives it.
 
 mod master;
+pub mod pdo;
 mod protocol;
 
 pub use master::*;
+pub use pdo::{AxisRef, Mapped, PdoMap};
 pub use protocol::*;

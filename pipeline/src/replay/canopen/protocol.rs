@@ -357,3 +357,427 @@ pub fn check_eds(text: &str) -> Result<()> {
     }
     Ok(())
 }
+
+/// SDO abort codes (CiA 301 table 22), one table for the master's errors,
+/// the simulated drive and `can decode`.
+pub const ABORT_CODES: [(u32, &str); 31] = [
+    (0x0503_0000, "toggle bit not alternated"),
+    (0x0504_0000, "SDO protocol timed out"),
+    (0x0504_0001, "command specifier not valid or unknown"),
+    (0x0504_0002, "invalid block size"),
+    (0x0504_0003, "invalid sequence number"),
+    (0x0504_0004, "CRC error"),
+    (0x0504_0005, "out of memory"),
+    (0x0601_0000, "unsupported access to an object"),
+    (0x0601_0001, "attempt to read a write only object"),
+    (0x0601_0002, "attempt to write a read only object"),
+    (0x0602_0000, "object does not exist in the object dictionary"),
+    (0x0604_0041, "object cannot be mapped to the PDO"),
+    (0x0604_0042, "number and length of the objects to be mapped would exceed the PDO length"),
+    (0x0604_0043, "general parameter incompatibility"),
+    (0x0604_0047, "general internal incompatibility in the device"),
+    (0x0606_0000, "access failed due to a hardware error"),
+    (0x0607_0010, "data type does not match, length of service parameter does not match"),
+    (0x0607_0012, "data type does not match, length of service parameter too high"),
+    (0x0607_0013, "data type does not match, length of service parameter too low"),
+    (0x0609_0011, "sub-index does not exist"),
+    (0x0609_0030, "invalid value for parameter (download only)"),
+    (0x0609_0031, "value of parameter written too high"),
+    (0x0609_0032, "value of parameter written too low"),
+    (0x0609_0036, "maximum value is less than minimum value"),
+    (0x060A_0023, "resource not available: SDO connection"),
+    (0x0800_0000, "general error"),
+    (0x0800_0020, "data cannot be transferred or stored to the application"),
+    (0x0800_0021, "data cannot be transferred or stored to the application because of local control"),
+    (0x0800_0022, "data cannot be transferred or stored to the application because of the present device state"),
+    (0x0800_0023, "object dictionary dynamic generation fails or no object dictionary is present"),
+    (0x0800_0024, "no data available"),
+];
+
+/// An SDO abort code by name.
+pub fn abort_name(code: u32) -> &'static str {
+    ABORT_CODES
+        .iter()
+        .find(|(c, _)| *c == code)
+        .map(|(_, n)| *n)
+        .unwrap_or("unknown abort code")
+}
+
+pub mod abort {
+    pub const TOGGLE: u32 = 0x0503_0000;
+    pub const TIMEOUT: u32 = 0x0504_0000;
+    pub const COMMAND: u32 = 0x0504_0001;
+    pub const READ_ONLY: u32 = 0x0601_0002;
+    pub const NO_OBJECT: u32 = 0x0602_0000;
+    pub const NOT_MAPPABLE: u32 = 0x0604_0041;
+    pub const PDO_LENGTH: u32 = 0x0604_0042;
+    pub const LENGTH: u32 = 0x0607_0010;
+    pub const NO_SUB: u32 = 0x0609_0011;
+    pub const DEVICE_STATE: u32 = 0x0800_0022;
+}
+
+/// What one SDO transfer delivered.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum SdoDone {
+    Downloaded,
+    Uploaded(Vec<u8>),
+}
+
+/// The next move of an SDO client after a response.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum SdoStep {
+    /// Send this request payload (the next segment).
+    Send([u8; 8]),
+    Done(SdoDone),
+    /// The server aborted with this code.
+    Aborted(u32),
+    /// The response broke the protocol: the client aborts with this code
+    /// (send [`sdo_abort_payload`]).
+    Failed(u32),
+}
+
+#[derive(Debug, Clone, PartialEq, Eq)]
+enum ClientState {
+    InitDownload {
+        data: Vec<u8>,
+    },
+    InitUpload,
+    /// Waiting for the confirmation of the segment ending at `sent`.
+    DownloadSegment {
+        data: Vec<u8>,
+        sent: usize,
+        toggle: u8,
+    },
+    UploadSegment {
+        buf: Vec<u8>,
+        size: Option<usize>,
+        toggle: u8,
+    },
+}
+
+/// The client side of one SDO transfer, expedited (≤ 4 bytes) or segmented
+/// (CiA 301 §7.2.4.3: initiate, then 7-byte segments with a toggle bit).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct SdoTransfer {
+    pub index: u16,
+    pub sub: u8,
+    state: ClientState,
+}
+
+fn sdo_head(cmd: u8, index: u16, sub: u8) -> [u8; 8] {
+    let mut d = [0u8; 8];
+    d[0] = cmd;
+    d[1..3].copy_from_slice(&index.to_le_bytes());
+    d[3] = sub;
+    d
+}
+
+/// An abort transfer payload (either direction).
+pub fn sdo_abort_payload(index: u16, sub: u8, code: u32) -> [u8; 8] {
+    let mut d = sdo_head(0x80, index, sub);
+    d[4..8].copy_from_slice(&code.to_le_bytes());
+    d
+}
+
+impl SdoTransfer {
+    /// Write `data`: expedited up to 4 bytes, segmented beyond.
+    pub fn download(index: u16, sub: u8, data: Vec<u8>) -> (SdoTransfer, [u8; 8]) {
+        let d = if (1..=4).contains(&data.len()) {
+            let mut d = sdo_head(0x23 | (((4 - data.len()) as u8) << 2), index, sub);
+            d[4..4 + data.len()].copy_from_slice(&data);
+            d
+        } else {
+            // Segmented, size indicated.
+            let mut d = sdo_head(0x21, index, sub);
+            d[4..8].copy_from_slice(&(data.len() as u32).to_le_bytes());
+            d
+        };
+        let t = SdoTransfer {
+            index,
+            sub,
+            state: ClientState::InitDownload { data },
+        };
+        (t, d)
+    }
+    pub fn upload(index: u16, sub: u8) -> (SdoTransfer, [u8; 8]) {
+        let t = SdoTransfer {
+            index,
+            sub,
+            state: ClientState::InitUpload,
+        };
+        (t, sdo_head(0x40, index, sub))
+    }
+
+    /// Take the server's response payload.
+    pub fn on_response(&mut self, d: &[u8]) -> SdoStep {
+        if d.len() != 8 {
+            return SdoStep::Failed(abort::COMMAND);
+        }
+        let cmd = d[0];
+        if cmd & 0xE0 == 0x80 {
+            return SdoStep::Aborted(u32::from_le_bytes([d[4], d[5], d[6], d[7]]));
+        }
+        let same_object = u16::from_le_bytes([d[1], d[2]]) == self.index && d[3] == self.sub;
+        match &mut self.state {
+            ClientState::InitDownload { data } => {
+                if cmd & 0xE0 != 0x60 || !same_object {
+                    return SdoStep::Failed(abort::COMMAND);
+                }
+                if data.len() <= 4 && !data.is_empty() {
+                    return SdoStep::Done(SdoDone::Downloaded);
+                }
+                let data = std::mem::take(data);
+                self.state = ClientState::DownloadSegment {
+                    data,
+                    sent: 0,
+                    toggle: 0,
+                };
+                self.next_download_segment()
+            }
+            ClientState::DownloadSegment { data, sent, toggle } => {
+                if cmd & 0xE0 != 0x20 {
+                    return SdoStep::Failed(abort::COMMAND);
+                }
+                if (cmd >> 4) & 1 != *toggle {
+                    return SdoStep::Failed(abort::TOGGLE);
+                }
+                *toggle ^= 1;
+                if *sent >= data.len() {
+                    return SdoStep::Done(SdoDone::Downloaded);
+                }
+                self.next_download_segment()
+            }
+            ClientState::InitUpload => {
+                if cmd & 0xE0 != 0x40 || !same_object {
+                    return SdoStep::Failed(abort::COMMAND);
+                }
+                if cmd & 0x02 != 0 {
+                    // Expedited: the size, when indicated, in n.
+                    let len = if cmd & 0x01 != 0 {
+                        4 - ((cmd >> 2) & 0x03) as usize
+                    } else {
+                        4
+                    };
+                    return SdoStep::Done(SdoDone::Uploaded(d[4..4 + len].to_vec()));
+                }
+                let size = (cmd & 0x01 != 0)
+                    .then(|| u32::from_le_bytes([d[4], d[5], d[6], d[7]]) as usize);
+                self.state = ClientState::UploadSegment {
+                    buf: Vec::new(),
+                    size,
+                    toggle: 0,
+                };
+                SdoStep::Send(sdo_head(0x60, 0, 0))
+            }
+            ClientState::UploadSegment { buf, size, toggle } => {
+                if cmd & 0xE0 != 0x00 {
+                    return SdoStep::Failed(abort::COMMAND);
+                }
+                if (cmd >> 4) & 1 != *toggle {
+                    return SdoStep::Failed(abort::TOGGLE);
+                }
+                let n = 7 - ((cmd >> 1) & 0x07) as usize;
+                buf.extend_from_slice(&d[1..1 + n]);
+                if size.is_some_and(|s| buf.len() > s) {
+                    return SdoStep::Failed(abort::LENGTH);
+                }
+                if cmd & 0x01 != 0 {
+                    if size.is_some_and(|s| buf.len() != s) {
+                        return SdoStep::Failed(abort::LENGTH);
+                    }
+                    return SdoStep::Done(SdoDone::Uploaded(std::mem::take(buf)));
+                }
+                *toggle ^= 1;
+                SdoStep::Send(sdo_head(0x60 | (*toggle << 4), 0, 0))
+            }
+        }
+    }
+
+    fn next_download_segment(&mut self) -> SdoStep {
+        let ClientState::DownloadSegment { data, sent, toggle } = &mut self.state else {
+            return SdoStep::Failed(abort::COMMAND);
+        };
+        let n = (data.len() - *sent).min(7);
+        let last = *sent + n >= data.len();
+        let mut d = [0u8; 8];
+        d[0] = (*toggle << 4) | (((7 - n) as u8) << 1) | last as u8;
+        d[1..1 + n].copy_from_slice(&data[*sent..*sent + n]);
+        *sent += n;
+        SdoStep::Send(d)
+    }
+}
+
+/// What an SDO server must do with a request.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum ServerAction {
+    /// Read this object, then call [`SdoServer::uploaded`].
+    Read(u16, u8),
+    /// Write this object, then call [`SdoServer::downloaded`].
+    Write(u16, u8, Vec<u8>),
+    /// Answer with this payload (a segment, or an abort).
+    Reply([u8; 8]),
+    /// Answer nothing (the client aborted).
+    Nothing,
+}
+
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+enum ServerState {
+    #[default]
+    Idle,
+    Downloading {
+        index: u16,
+        sub: u8,
+        buf: Vec<u8>,
+        size: Option<usize>,
+        toggle: u8,
+    },
+    Uploading {
+        data: Vec<u8>,
+        sent: usize,
+        toggle: u8,
+    },
+}
+
+/// The server side of SDO (the drive's), expedited and segmented.
+#[derive(Debug, Clone, Default)]
+pub struct SdoServer {
+    state: ServerState,
+}
+
+impl SdoServer {
+    pub fn on_request(&mut self, d: &[u8]) -> ServerAction {
+        if d.len() != 8 {
+            return ServerAction::Reply(sdo_abort_payload(0, 0, abort::COMMAND));
+        }
+        let cmd = d[0];
+        let index = u16::from_le_bytes([d[1], d[2]]);
+        let sub = d[3];
+        match (cmd >> 5, &mut self.state) {
+            (4, _) => {
+                // The client aborted: forget the transfer, answer nothing.
+                self.state = ServerState::Idle;
+                ServerAction::Nothing
+            }
+            (1, _) => {
+                self.state = ServerState::Idle;
+                if cmd & 0x02 != 0 {
+                    let len = if cmd & 0x01 != 0 {
+                        4 - ((cmd >> 2) & 0x03) as usize
+                    } else {
+                        4
+                    };
+                    ServerAction::Write(index, sub, d[4..4 + len].to_vec())
+                } else {
+                    let size = (cmd & 0x01 != 0)
+                        .then(|| u32::from_le_bytes([d[4], d[5], d[6], d[7]]) as usize);
+                    self.state = ServerState::Downloading {
+                        index,
+                        sub,
+                        buf: Vec::new(),
+                        size,
+                        toggle: 0,
+                    };
+                    ServerAction::Reply(sdo_head(0x60, index, sub))
+                }
+            }
+            (
+                0,
+                ServerState::Downloading {
+                    index,
+                    sub,
+                    buf,
+                    size,
+                    toggle,
+                },
+            ) => {
+                let (index, sub) = (*index, *sub);
+                if (cmd >> 4) & 1 != *toggle {
+                    self.state = ServerState::Idle;
+                    return ServerAction::Reply(sdo_abort_payload(index, sub, abort::TOGGLE));
+                }
+                let n = 7 - ((cmd >> 1) & 0x07) as usize;
+                buf.extend_from_slice(&d[1..1 + n]);
+                let reply = sdo_head(0x20 | (*toggle << 4), 0, 0);
+                *toggle ^= 1;
+                if cmd & 0x01 != 0 {
+                    let data = std::mem::take(buf);
+                    let bad = size.is_some_and(|s| s != data.len());
+                    self.state = ServerState::Idle;
+                    if bad {
+                        return ServerAction::Reply(sdo_abort_payload(index, sub, abort::LENGTH));
+                    }
+                    // The last segment is confirmed once written (see downloaded).
+                    self.state = ServerState::Downloading {
+                        index,
+                        sub,
+                        buf: Vec::new(),
+                        size: None,
+                        toggle: 0xFF ^ (reply[0] >> 4 & 1),
+                    };
+                    return ServerAction::Write(index, sub, data);
+                }
+                ServerAction::Reply(reply)
+            }
+            (2, _) => {
+                self.state = ServerState::Idle;
+                ServerAction::Read(index, sub)
+            }
+            (3, ServerState::Uploading { data, sent, toggle }) => {
+                if (cmd >> 4) & 1 != *toggle {
+                    self.state = ServerState::Idle;
+                    return ServerAction::Reply(sdo_abort_payload(0, 0, abort::TOGGLE));
+                }
+                let n = (data.len() - *sent).min(7);
+                let last = *sent + n >= data.len();
+                let mut r = [0u8; 8];
+                r[0] = (*toggle << 4) | (((7 - n) as u8) << 1) | last as u8;
+                r[1..1 + n].copy_from_slice(&data[*sent..*sent + n]);
+                *sent += n;
+                *toggle ^= 1;
+                if last {
+                    self.state = ServerState::Idle;
+                }
+                ServerAction::Reply(r)
+            }
+            _ => {
+                self.state = ServerState::Idle;
+                ServerAction::Reply(sdo_abort_payload(index, sub, abort::COMMAND))
+            }
+        }
+    }
+
+    /// The answer to a [`ServerAction::Read`].
+    pub fn uploaded(&mut self, index: u16, sub: u8, r: Result<Vec<u8>, u32>) -> [u8; 8] {
+        match r {
+            Err(code) => sdo_abort_payload(index, sub, code),
+            Ok(v) if (1..=4).contains(&v.len()) => {
+                let mut d = sdo_head(0x43 | (((4 - v.len()) as u8) << 2), index, sub);
+                d[4..4 + v.len()].copy_from_slice(&v);
+                d
+            }
+            Ok(v) => {
+                let mut d = sdo_head(0x41, index, sub);
+                d[4..8].copy_from_slice(&(v.len() as u32).to_le_bytes());
+                self.state = ServerState::Uploading {
+                    data: v,
+                    sent: 0,
+                    toggle: 0,
+                };
+                d
+            }
+        }
+    }
+
+    /// The answer to a [`ServerAction::Write`].
+    pub fn downloaded(&mut self, index: u16, sub: u8, r: Result<(), u32>) -> [u8; 8] {
+        let segmented = std::mem::take(&mut self.state);
+        match (r, segmented) {
+            (Err(code), _) => sdo_abort_payload(index, sub, code),
+            // The last download segment: confirm it with its toggle.
+            (Ok(()), ServerState::Downloading { toggle, .. }) => {
+                sdo_head(0x20 | ((toggle ^ 0xFF) << 4), 0, 0)
+            }
+            (Ok(()), _) => sdo_head(0x60, index, sub),
+        }
+    }
+}
