@@ -467,14 +467,21 @@ pub struct DiagnoseFlags {
 #[derive(Args, Debug, Clone)]
 pub struct ReplayArgs {
     /// The recorded run whose commanded path (motion.parquet cmd_*) is replayed.
-    #[arg(long, value_name = "DIR")]
-    pub run: PathBuf,
+    #[arg(long, value_name = "DIR", required_unless_present = "compare")]
+    pub run: Option<PathBuf>,
+    /// Replay nothing: read what a master sent in this recorded bus log
+    /// (targets in RPDOs and SDO writes, per node through its mapping:
+    /// --eds, --axis or --nodes) and list every frame outside this
+    /// command's envelope (--max-step-mm, --max-step-change-mm); the same
+    /// as `sparkout can compare`. Exit 2 when any frame is outside.
+    #[arg(long, value_name = "LOG", conflicts_with_all = ["run", "bus", "record", "compensation", "dry_run"])]
+    pub compare: Option<PathBuf>,
     /// Offsets added to the path: Parquet with t_s and any of dx_mm, dy_mm, dz_mm.
     #[arg(long, value_name = "FILE")]
     pub compensation: Option<PathBuf>,
     /// sim | log:FILE (candump -l log, simulated drives) | socketcan:IFACE (Linux hardware).
-    #[arg(long, value_name = "BUS")]
-    pub bus: String,
+    #[arg(long, value_name = "BUS", required_unless_present = "compare")]
+    pub bus: Option<String>,
     /// SYNC / setpoint cycle in ms, 1 to 1000 (a shorter cycle means more
     /// setpoints for the same path).
     #[arg(long, default_value_t = 4.0, value_name = "MS", value_parser = f64_above_at_most(0.0, 1000.0))]

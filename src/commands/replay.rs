@@ -14,12 +14,18 @@ use crate::cli::ReplayArgs;
 const DRY_RUN_PRINT: usize = 24;
 
 pub fn replay(args: &ReplayArgs) -> anyhow::Result<u8> {
-    let bus = BusSpec::parse(&args.bus)?;
     if args.nodes.len() != 3 {
         bail!("--nodes takes three node ids (x, y, z), e.g. --nodes 1,2,3");
     }
+    if let Some(log) = &args.compare {
+        return compare(args, log);
+    }
+    let (Some(run), Some(bus)) = (&args.run, &args.bus) else {
+        bail!("replay needs --run DIR and --bus BUS (or --compare LOG)");
+    };
+    let bus = BusSpec::parse(bus)?;
     let nodes = [args.nodes[0], args.nodes[1], args.nodes[2]];
-    let mut opts = ReplayOptions::new(&args.run, bus);
+    let mut opts = ReplayOptions::new(run, bus);
     opts.compensation = args.compensation.clone();
     opts.cycle_ms = args.cycle_ms;
     opts.dry_run = args.dry_run;
@@ -35,7 +41,7 @@ pub fn replay(args: &ReplayArgs) -> anyhow::Result<u8> {
     opts.heartbeat_ms = args.heartbeat_ms;
     opts.force = args.force;
     // The machine's [replay] table (EDS files, drive axes), then the flags.
-    if let Ok(spec) = sparkout_pipeline::contracts::RunSpec::load(&args.run) {
+    if let Ok(spec) = sparkout_pipeline::contracts::RunSpec::load(run) {
         match crate::registry::resolver(args.machines.clone()).resolve(&spec) {
             Ok(m) => replay::apply_machine_replay(&mut opts, &m)?,
             Err(e) if args.machines.is_some() => return Err(e.into()),
@@ -161,4 +167,29 @@ fn source(s: replay::canopen::MapSource) -> &'static str {
         replay::canopen::MapSource::Configured => "configured, read back",
         replay::canopen::MapSource::DriveOwn => "the drive's own, read-only",
     }
+}
+
+/// `replay --compare LOG`: the recorded traffic against this command's
+/// envelope, axes from --axis or else --nodes (x, y, z), the cycle from the
+/// log's SYNC period.
+fn compare(args: &ReplayArgs, log: &std::path::Path) -> anyhow::Result<u8> {
+    let axes = if args.axes.is_empty() {
+        ["x", "y", "z"]
+            .iter()
+            .zip(&args.nodes)
+            .map(|(a, n)| format!("{a}={n}"))
+            .collect()
+    } else {
+        args.axes.clone()
+    };
+    super::can::compare(&super::can::CompareArgs {
+        log: log.to_path_buf(),
+        eds: args.eds.clone(),
+        axes,
+        max_step_mm: args.max_step_mm,
+        max_step_change_mm: args.max_step_change_mm,
+        counts_per_mm: args.counts_per_mm,
+        cycle_ms: None,
+        json: args.json,
+    })
 }

@@ -770,6 +770,48 @@ fn compare_flags_a_target_beyond_the_envelope() {
         "3",
     ]);
     assert_eq!(o.status.code(), Some(0), "{}", text(&o.stdout));
+    // `replay --compare` is the same check with replay's own envelope
+    // flags, the x axis on node 5 by --nodes.
+    let o = sparkout(&[
+        "replay",
+        "--compare",
+        path.to_str().unwrap(),
+        "--eds",
+        &eds_arg,
+        "--nodes",
+        "5,6,7",
+        "--max-step-mm",
+        "0.5",
+        "--max-step-change-mm",
+        "0.5",
+        "--json",
+    ]);
+    assert_eq!(o.status.code(), Some(2), "{}", text(&o.stderr));
+    let r: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(r["findings"], c["findings"]);
+    let o = sparkout(&[
+        "replay",
+        "--compare",
+        path.to_str().unwrap(),
+        "--bus",
+        "sim",
+    ]);
+    assert_eq!(
+        o.status.code(),
+        Some(1),
+        "--compare with --bus must be refused"
+    );
+    let o = sparkout(&[
+        "can",
+        "compare",
+        path.to_str().unwrap(),
+        "--eds",
+        &eds_arg,
+        "--max-step-mm",
+        "3",
+        "--max-step-change-mm",
+        "3",
+    ]);
     assert!(
         text(&o.stdout).contains("4 commands checked")
             || text(&o.stdout).contains("5 commands checked"),

@@ -1,4 +1,4 @@
-//! `ingest`: touches from probe.parquet, or from the AE signal (MODELS.md
+//! `ingest`: touches from probe.parquet, or from the AE signal (docs/models.md
 //! §1.2): stream ae.parquet through the envelope/event detector, map each
 //! contact's time (+ `[ae].clock_offset_s`) to a position by interpolating
 //! motion.parquet and to its face/point/trial through plan.parquet (the
@@ -551,7 +551,7 @@ const SPEC: StageSpec = StageSpec {
     reads_artifacts: &[],
     writes: &["touches", "contacts", "touch_compare"],
     reads_augmented_model: false,
-    about: "touches from probe.parquet or from AE contacts mapped through motion + plan (MODELS.md §1.2)",
+    about: "touches from probe.parquet or from AE contacts mapped through motion + plan (docs/models.md §1.2)",
     config: SectionCheck::of::<IngestConfig>(),
 };
 
