@@ -144,7 +144,7 @@ mod tests {
             let my: Vec<f64> = y.iter().map(|y| y + noise()).collect();
             let mz: Vec<f64> = z.iter().map(|z| z + noise()).collect();
             let b = BatchBuilder::new()
-                .i32("point", (0..n as i32).collect())
+                .i32("point", (0..n).collect())
                 .f64("x_mm", x)
                 .f64("y_mm", y)
                 .f64("z_mm", z)
