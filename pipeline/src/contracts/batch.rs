@@ -101,3 +101,51 @@ pub fn read_parquet(path: &std::path::Path) -> anyhow::Result<RecordBatch> {
     let builder = super::parquet_file::open_parquet(path)?;
     Ok(super::parquet_file::read_all(path, builder)?)
 }
+
+/// Column names of a batch, in order (for "columns present: …" messages).
+pub fn column_names(b: &RecordBatch) -> Vec<&str> {
+    b.schema_ref()
+        .fields()
+        .iter()
+        .map(|f| f.name().as_str())
+        .collect()
+}
+
+/// A numeric column of an ad hoc table (a surface, a profile) as float64,
+/// `None` for a null row. A missing column names the columns present; a
+/// non-numeric one (text, a timestamp) is refused naming its type and what
+/// the column should hold (`what`: "a surface column").
+pub fn numeric_column(
+    path: &std::path::Path,
+    b: &RecordBatch,
+    name: &str,
+    what: &str,
+) -> Result<Vec<Option<f64>>, crate::InputError> {
+    use super::convert::{normalise, type_accepted, TimeOrigin};
+    use arrow::array::AsArray;
+    use arrow::datatypes::{DataType, Float64Type};
+    let col = b.column_by_name(name).ok_or_else(|| {
+        crate::InputError::new(
+            path,
+            format!(
+                "no such column (columns present: {})",
+                column_names(b).join(", ")
+            ),
+        )
+        .column(name)
+    })?;
+    if !type_accepted(super::ColumnKind::F64, name, col.data_type())
+        || matches!(col.data_type(), DataType::Timestamp(..))
+    {
+        return Err(crate::InputError::new(
+            path,
+            format!("wrong type {} ({what} is a number)", col.data_type()),
+        )
+        .column(name));
+    }
+    let f = normalise(path, name, col, &DataType::Float64, &TimeOrigin::TableStart)?;
+    let f = f.as_primitive::<Float64Type>();
+    Ok((0..f.len())
+        .map(|i| f.is_valid(i).then(|| f.value(i)))
+        .collect())
+}

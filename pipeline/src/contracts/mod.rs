@@ -16,7 +16,9 @@ pub mod table;
 pub mod write;
 
 pub use ae_stream::{AeChunk, AeStream};
-pub use batch::{batch_f64, batch_i32, batch_str, read_parquet, BatchBuilder};
+pub use batch::{
+    batch_f64, batch_i32, batch_str, column_names, numeric_column, read_parquet, BatchBuilder,
+};
 pub use convert::TimeOrigin;
 pub use motion::MotionColumns;
 pub use parquet_file::open_parquet;

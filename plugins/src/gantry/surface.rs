@@ -13,11 +13,8 @@
 
 use std::path::Path;
 
-use arrow::array::{Array, AsArray};
-use arrow::datatypes::{DataType, Float64Type};
 use arrow::record_batch::RecordBatch;
-use sparkout_pipeline::contracts::convert::{normalise, type_accepted, TimeOrigin};
-use sparkout_pipeline::contracts::{read_parquet, ColumnKind};
+use sparkout_pipeline::contracts::{numeric_column, read_parquet};
 use sparkout_pipeline::units::format::show_length;
 use sparkout_pipeline::units::{resolve, Kind, Source, Stated, Unit, UnitError};
 use sparkout_pipeline::{InputError, Result};
@@ -168,42 +165,6 @@ fn field_unit(b: &RecordBatch, column: &str) -> Option<String> {
         .field_with_name(column)
         .ok()
         .and_then(|f| f.metadata().get("unit").cloned())
-}
-
-/// A numeric column as float64 (`None` for a null row).
-fn column(path: &Path, b: &RecordBatch, name: &str) -> Result<Vec<Option<f64>>, InputError> {
-    let col = b.column_by_name(name).ok_or_else(|| {
-        InputError::new(
-            path,
-            format!("no such column (columns present: {})", names(b).join(", ")),
-        )
-        .column(name)
-    })?;
-    if !type_accepted(ColumnKind::F64, name, col.data_type())
-        || matches!(col.data_type(), DataType::Timestamp(..))
-    {
-        return Err(InputError::new(
-            path,
-            format!(
-                "wrong type {} (a surface column is a number)",
-                col.data_type()
-            ),
-        )
-        .column(name));
-    }
-    let f = normalise(path, name, col, &DataType::Float64, &TimeOrigin::TableStart)?;
-    let f = f.as_primitive::<Float64Type>();
-    Ok((0..f.len())
-        .map(|i| f.is_valid(i).then(|| f.value(i)))
-        .collect())
-}
-
-fn names(b: &RecordBatch) -> Vec<&str> {
-    b.schema_ref()
-        .fields()
-        .iter()
-        .map(|f| f.name().as_str())
-        .collect()
 }
 
 /// Numeric columns that may hold data (pandas' index column is not one).
@@ -444,7 +405,7 @@ impl Points {
 fn xyz(path: &Path, b: &RecordBatch, names: [&str; 3]) -> Result<Points> {
     let mut out: [Vec<f64>; 3] = Default::default();
     for (k, name) in names.iter().enumerate() {
-        let c = column(path, b, name)?;
+        let c = numeric_column(path, b, name, "a surface column")?;
         if let Some(i) = c.iter().position(|v| !v.is_some_and(f64::is_finite)) {
             let what = if c[i].is_none() {
                 "null"
@@ -475,7 +436,7 @@ fn grid(
     units: &Units,
 ) -> Result<(Points, bool)> {
     let mut ys: Vec<f64> = match y_col {
-        Some(name) => column(path, b, name)?
+        Some(name) => numeric_column(path, b, name, "a surface column")?
             .into_iter()
             .enumerate()
             .map(|(i, v)| {
@@ -555,7 +516,10 @@ fn grid(
         } else {
             k as f64
         };
-        for (i, v) in column(path, b, name)?.into_iter().enumerate() {
+        for (i, v) in numeric_column(path, b, name, "a surface column")?
+            .into_iter()
+            .enumerate()
+        {
             if let Some(z) = v.filter(|v| v.is_finite()) {
                 p.x_mm.push(x);
                 p.y_mm.push(ys[i]);

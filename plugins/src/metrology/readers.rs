@@ -29,12 +29,9 @@
 
 use std::path::Path;
 
-use arrow::array::{Array, AsArray};
-use arrow::datatypes::{DataType, Float64Type};
 use arrow::record_batch::RecordBatch;
 use serde_json::{json, Value};
-use sparkout_pipeline::contracts::convert::{normalise, type_accepted, TimeOrigin};
-use sparkout_pipeline::contracts::{read_parquet, ColumnKind};
+use sparkout_pipeline::contracts::{column_names, numeric_column, read_parquet};
 use sparkout_pipeline::units::{resolve, Kind, Source, Stated, Unit, UnitError};
 use sparkout_pipeline::{InputError, Result};
 
@@ -268,44 +265,8 @@ fn finish(
 
 // ---- Parquet ----
 
-fn numeric(path: &Path, b: &RecordBatch, name: &str) -> Result<Vec<f64>> {
-    let col = b.column_by_name(name).ok_or_else(|| {
-        InputError::new(
-            path,
-            format!("no such column (columns present: {})", names(b).join(", ")),
-        )
-        .column(name)
-    })?;
-    if !type_accepted(ColumnKind::F64, name, col.data_type())
-        || matches!(col.data_type(), DataType::Timestamp(..))
-    {
-        return Err(InputError::new(
-            path,
-            format!(
-                "wrong type {} (a profile column is a number)",
-                col.data_type()
-            ),
-        )
-        .column(name)
-        .into());
-    }
-    let f = normalise(path, name, col, &DataType::Float64, &TimeOrigin::TableStart)?;
-    let f = f.as_primitive::<Float64Type>();
-    Ok((0..f.len())
-        .map(|i| if f.is_valid(i) { f.value(i) } else { f64::NAN })
-        .collect())
-}
-
-fn names(b: &RecordBatch) -> Vec<&str> {
-    b.schema_ref()
-        .fields()
-        .iter()
-        .map(|f| f.name().as_str())
-        .collect()
-}
-
 fn find_column(b: &RecordBatch, stems: &[&str]) -> Option<String> {
-    names(b)
+    column_names(b)
         .into_iter()
         .find(|n| {
             let l = n.to_ascii_lowercase();
@@ -327,7 +288,7 @@ fn parquet_profile(path: &Path, spec: &ProfileSpec) -> Result<ProfileData> {
                     format!(
                         "no {flag} column found by name ({}); name it with --{flag} COL (columns present: {})",
                         stems.join("/"),
-                        names(&b).join(", ")
+                        column_names(&b).join(", ")
                     ),
                 )
                 .into()
@@ -373,8 +334,14 @@ fn parquet_profile(path: &Path, spec: &ProfileSpec) -> Result<ProfileData> {
     };
     let x = axis(&xc, "x-unit", spec.x_unit)?;
     let z = axis(&zc, "z-unit", spec.z_unit)?;
-    let xs = numeric(path, &b, &xc)?;
-    let zs = numeric(path, &b, &zc)?;
+    let xs = numeric_column(path, &b, &xc, "a profile column")?
+        .into_iter()
+        .map(|v| v.unwrap_or(f64::NAN))
+        .collect::<Vec<f64>>();
+    let zs = numeric_column(path, &b, &zc, "a profile column")?
+        .into_iter()
+        .map(|v| v.unwrap_or(f64::NAN))
+        .collect::<Vec<f64>>();
     let at = (0..xs.len()).collect();
     finish(
         path,
