@@ -525,6 +525,25 @@ fn publishing_checks_the_bucket_and_shards_fetch_only_their_runs() {
             );
         }
     }
+    // Shard 1 again on a fresh node: it resumes from what its earlier
+    // publish left in the bucket and recomputes nothing.
+    let fresh = dir.path().join("node1-fresh");
+    let text = ok(sparkout_s3(
+        port,
+        &[
+            "run",
+            "--input",
+            "s3://fleet/in",
+            "--out",
+            "s3://fleet/sh/1",
+            "--shard",
+            "1/2",
+            "--work",
+            s(&fresh),
+        ],
+    ));
+    assert!(text.contains("resumed"), "{text}");
+    assert!(text.contains("(everything cached)"), "{text}");
     ok(sparkout_s3(
         port,
         &[

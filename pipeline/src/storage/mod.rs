@@ -372,6 +372,7 @@ impl Output {
             Location::Remote(remote) => {
                 check_writable(&remote)?;
                 let local = work_dir(work, &remote.url, "out");
+                resume_from_bucket(&remote, &local)?;
                 Output {
                     stands_for: vec![(local.clone(), remote.url.clone())],
                     local,
@@ -412,6 +413,33 @@ impl Output {
         }
         Ok(())
     }
+}
+
+/// A fresh node (no work directory for this output yet) starts from what
+/// an earlier publish to the prefix left — the per-run outputs and their
+/// `.sparkout-cache.json` — so a shard re-run on another node resumes from
+/// the cache instead of recomputing. A node that kept its work directory
+/// uses it as it is.
+fn resume_from_bucket(remote: &RemotePrefix, local: &Path) -> Result<()> {
+    if local.exists() {
+        return Ok(());
+    }
+    let listed: Vec<object_store::ObjectMeta> = block_on(futures::TryStreamExt::try_collect(
+        remote.store.list(Some(&remote.prefix)),
+    ))
+    .with_context(|| format!("cannot list `{}`", remote.url))?;
+    if listed.is_empty() {
+        return Ok(());
+    }
+    let r = stage_down(remote, local, None)?;
+    eprintln!(
+        "resumed {} from {}: {} files ({:.1} MB) an earlier publish left (cached stages are not recomputed)",
+        local.display(),
+        remote.url,
+        r.downloaded,
+        r.downloaded_bytes as f64 / 1e6
+    );
+    Ok(())
 }
 
 /// A JSON document with every string that is a path under one of
