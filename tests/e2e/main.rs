@@ -41,6 +41,7 @@ mod proptest_parsers;
 mod reliability;
 mod replay_cli;
 mod reports;
+mod run_verdicts;
 mod robot_diagnosis_e2e;
 mod robot_stages;
 mod runless_tables;

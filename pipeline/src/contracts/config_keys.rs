@@ -121,8 +121,14 @@ pub fn check_machine(m: &MachineConfig, plugin: &str, builtins: &[&str]) -> Resu
     if known.is_empty() {
         return Ok(()); // nothing to compare against
     }
+    // `[tolerance]` is the same table in every machine type: checked by
+    // its own list, not against the built-in machines.
+    if let Some(t) = m.table.get("tolerance") {
+        super::tolerance::check_tolerance(t).map_err(|(key, msg)| err(&key, msg))?;
+    }
     let mut mine = BTreeMap::new();
     leaves(&m.table, "", &mut mine);
+    mine.retain(|k, _| !k.starts_with("tolerance."));
     for (key, v) in &mine {
         if !all_finite(v) {
             return Err(err(key, format!("`{key}` must be finite, found {v}")));
