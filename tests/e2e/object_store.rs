@@ -549,9 +549,17 @@ fn publishing_checks_the_bucket_and_shards_fetch_only_their_runs() {
         let text = ok(sparkout_s3(
             port,
             &[
-                "run", "--input", "s3://fleet/in", "--out", &format!("s3://fleet/n/{night}"),
-                "--history", "s3://fleet/history", "--night", night,
-                "--work", s(&dir.path().join(w)),
+                "run",
+                "--input",
+                "s3://fleet/in",
+                "--out",
+                &format!("s3://fleet/n/{night}"),
+                "--history",
+                "s3://fleet/history",
+                "--night",
+                night,
+                "--work",
+                s(&dir.path().join(w)),
             ],
         ));
         assert!(text.contains("published"), "{text}");
@@ -564,7 +572,10 @@ fn publishing_checks_the_bucket_and_shards_fetch_only_their_runs() {
         );
     }
     let n2 = dir.path().join("n2");
-    ok(sparkout_s3(port, &["sync", "s3://fleet/n/2026-11-21", s(&n2)]));
+    ok(sparkout_s3(
+        port,
+        &["sync", "s3://fleet/n/2026-11-21", s(&n2)],
+    ));
     let trend = std::fs::read_to_string(n2.join("trend/trend.json")).unwrap();
     assert!(
         trend.contains("2026-11-20") && trend.contains("2026-11-21"),

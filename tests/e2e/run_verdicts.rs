@@ -109,7 +109,10 @@ fn every_demo_run_page_opens_with_a_verdict_and_the_known_problems_are_flagged()
     // ~0.1 mm; the form model misses the wheel wear; the servo's lag is
     // not the configured one.
     for m in ["kr16-lab", "form-grinder", "servo-mill"] {
-        assert!(contradicted.contains(m), "{m} flags a contradiction: {contradicted:?}");
+        assert!(
+            contradicted.contains(m),
+            "{m} flags a contradiction: {contradicted:?}"
+        );
     }
 }
 
@@ -145,17 +148,28 @@ fn a_tolerance_in_run_toml_changes_the_status() {
         .iter()
         .find(|p| p.0 == "xfyz-mill" && p.1 == "r0000")
         .expect("demo mill run");
-    assert_eq!(verdict(html).1, "OK", "default tolerance: {}", verdict(html).0);
+    assert_eq!(
+        verdict(html).1,
+        "OK",
+        "default tolerance: {}",
+        verdict(html).0
+    );
     let (log, page) = mill_run_with("tight", "[tolerance]\nvolumetric_um = 5");
     let page = page.unwrap_or_else(|| panic!("no page: {log}"));
     let (v, word) = verdict(&page);
     assert_eq!(word, "FAIL", "{v}");
-    assert!(v.contains("outside tolerance") && v.contains("volumetric_um"), "{v}");
+    assert!(
+        v.contains("outside tolerance") && v.contains("volumetric_um"),
+        "{v}"
+    );
 }
 
 #[test]
 fn an_unknown_tolerance_key_is_refused_by_name() {
     let (log, page) = mill_run_with("typo", "[tolerance]\nvolumetric_mm = 5");
-    assert!(page.is_none(), "a run with a typo'd tolerance is not reported");
+    assert!(
+        page.is_none(),
+        "a run with a typo'd tolerance is not reported"
+    );
     assert!(log.contains("volumetric_mm"), "the key is named: {log}");
 }

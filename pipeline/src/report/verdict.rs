@@ -101,7 +101,9 @@ impl Verdict {
         self
     }
     pub fn model(mut self, predicted: f64, uncertainty: f64) -> Self {
-        self.model = predicted.is_finite().then_some((predicted, uncertainty.abs()));
+        self.model = predicted
+            .is_finite()
+            .then_some((predicted, uncertainty.abs()));
         self
     }
     pub fn model_gap(mut self, gap: f64) -> Self {
@@ -139,13 +141,20 @@ impl Verdict {
             reasons.push((Status::Fail, d.clone()));
         }
         if !after.is_finite() {
-            reasons.push((Status::Check, format!("{} {after_label} could not be computed", self.figure)));
+            reasons.push((
+                Status::Check,
+                format!("{} {after_label} could not be computed", self.figure),
+            ));
         }
         if let Some((label, b)) = &self.before {
             if after > *b {
                 reasons.push((
                     Status::Fail,
-                    format!("worse {after_label}: {} → {} {u} ({label} → {after_label})", n(*b), n(after)),
+                    format!(
+                        "worse {after_label}: {} → {} {u} ({label} → {after_label})",
+                        n(*b),
+                        n(after)
+                    ),
                 ));
             }
         }
@@ -153,7 +162,11 @@ impl Verdict {
             if after > *l {
                 reasons.push((
                     Status::Fail,
-                    format!("outside tolerance: {} {u} > {} {u} ({key})", n(after), n(*l)),
+                    format!(
+                        "outside tolerance: {} {u} > {} {u} ({key})",
+                        n(after),
+                        n(*l)
+                    ),
                 ));
             } else if after > NEAR_LIMIT * l {
                 reasons.push((
@@ -172,13 +185,15 @@ impl Verdict {
         let status = reasons.iter().map(|r| r.0).max().unwrap_or(Status::Ok);
         let reason = if reasons.is_empty() {
             match &self.limit {
-                Some((key, l)) => format!("within tolerance: {} {u} ≤ {} {u} ({key})", n(after), n(*l)),
+                Some((key, l)) => {
+                    format!("within tolerance: {} {u} ≤ {} {u} ({key})", n(after), n(*l))
+                }
                 None => "no tolerance applies; nothing contradicts".into(),
             }
         } else {
             // The worst reasons first: the FAIL is what to read.
             let mut r = reasons;
-            r.sort_by(|a, b| b.0.cmp(&a.0));
+            r.sort_by_key(|x| std::cmp::Reverse(x.0));
             r.into_iter().map(|(_, t)| t).collect::<Vec<_>>().join("; ")
         };
         Judged {
@@ -261,13 +276,21 @@ mod tests {
         let j = v.judge();
         assert_eq!(j.status, Status::Fail);
         assert!(j.reason.contains("worse after polishing"), "{}", j.reason);
-        let ok = Verdict::new("f", "µm", "after", 10.0).limit("k", 100.0).judge();
+        let ok = Verdict::new("f", "µm", "after", 10.0)
+            .limit("k", 100.0)
+            .judge();
         assert_eq!(ok.status, Status::Ok);
-        let near = Verdict::new("f", "µm", "after", 85.0).limit("k", 100.0).judge();
+        let near = Verdict::new("f", "µm", "after", 85.0)
+            .limit("k", 100.0)
+            .judge();
         assert_eq!(near.status, Status::Check);
-        let out = Verdict::new("f", "µm", "after", 101.0).limit("k", 100.0).judge();
+        let out = Verdict::new("f", "µm", "after", 101.0)
+            .limit("k", 100.0)
+            .judge();
         assert_eq!(out.status, Status::Fail);
-        let c = Verdict::new("f", "µm", "after", 102.4).model(-24.8, 5.0).judge();
+        let c = Verdict::new("f", "µm", "after", 102.4)
+            .model(-24.8, 5.0)
+            .judge();
         assert_eq!(c.status, Status::Check);
         assert!(c.contradiction.is_some());
         let opposite = Verdict::new("f", "µm", "after", 20.0)
@@ -275,7 +298,9 @@ mod tests {
             .model_gap(40.0)
             .judge();
         assert!(opposite.contradiction.is_some());
-        let agree = Verdict::new("f", "µm", "after", 10.0).model(12.0, 5.0).judge();
+        let agree = Verdict::new("f", "µm", "after", 10.0)
+            .model(12.0, 5.0)
+            .judge();
         assert!(agree.contradiction.is_none());
         let html = verdict_box(&[v]);
         assert!(html.contains("FAIL") && html.contains("Verdict"));

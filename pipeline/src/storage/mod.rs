@@ -319,9 +319,9 @@ pub fn resolve_history(arg: &Path, work: Option<&Path>) -> Result<(PathBuf, Opti
     };
     check_writable(&remote)?;
     let local = work_dir(work, &remote.url, "history");
-    let listed: Vec<object_store::ObjectMeta> = block_on(
-        futures::TryStreamExt::try_collect(remote.store.list(Some(&remote.prefix))),
-    )
+    let listed: Vec<object_store::ObjectMeta> = block_on(futures::TryStreamExt::try_collect(
+        remote.store.list(Some(&remote.prefix)),
+    ))
     .with_context(|| format!("cannot list the history `{}`", remote.url))?;
     if listed.is_empty() {
         std::fs::create_dir_all(&local)

@@ -331,7 +331,10 @@ pub fn verdicts(run: &Run, a: &ArtifactStore) -> Vec<Verdict> {
         "compensated (prediction residual)",
         after,
     )
-    .limit("guideway_residual_um", run.tolerance("guideway_residual_um"));
+    .limit(
+        "guideway_residual_um",
+        run.tolerance("guideway_residual_um"),
+    );
     if let Some(bf) = before {
         v = v.before("uncompensated F − f", bf);
     }

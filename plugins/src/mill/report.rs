@@ -204,9 +204,7 @@ fn map(a: &ArtifactStore) -> Option<ReportSection> {
     // table leaves behind.
     let measured = measured_after(a);
     let after: Vec<f64> = match &measured {
-        Some(pts) => (0..x.len())
-            .map(|i| idw(pts, [x[i], y[i], z[i]]))
-            .collect(),
+        Some(pts) => (0..x.len()).map(|i| idw(pts, [x[i], y[i], z[i]])).collect(),
         None => vec![f64::NAN; x.len()],
     };
     let mut zs: Vec<f64> = z.to_vec();

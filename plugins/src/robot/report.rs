@@ -415,10 +415,7 @@ pub fn verdicts(run: &Run, a: &ArtifactStore) -> Vec<Verdict> {
         return Vec::new();
     };
     let um_of = |v: &Value| v.as_f64().map(|x| x * 1e3).unwrap_or(f64::NAN);
-    let (pred, meas) = (
-        &s["remaining_after_mm"],
-        &s["remaining_after_measured_mm"],
-    );
+    let (pred, meas) = (&s["remaining_after_mm"], &s["remaining_after_measured_mm"]);
     if meas["spark"].is_null() && pred["spark"].is_null() {
         return Vec::new();
     }

@@ -80,7 +80,10 @@ pub fn verdicts(run: &Run, a: &ArtifactStore) -> Vec<Verdict> {
         let gap: Vec<f64> = e.real.iter().zip(&e.sim).map(|(r, s)| r - s).collect();
         out.push(
             Verdict::new(
-                &format!("following error unexplained by the model, axis {} (RMS)", e.axis),
+                &format!(
+                    "following error unexplained by the model, axis {} (RMS)",
+                    e.axis
+                ),
                 "µm",
                 "measured − model",
                 rms(&gap) * 1e3,
@@ -88,7 +91,8 @@ pub fn verdicts(run: &Run, a: &ArtifactStore) -> Vec<Verdict> {
             .limit("following_error_um", limit),
         );
         let p = &s["axes"][&e.axis];
-        if let (Some(eff), Some(model)) = (p["effective_lag_s"].as_f64(), p["model_lag_s"].as_f64()) {
+        if let (Some(eff), Some(model)) = (p["effective_lag_s"].as_f64(), p["model_lag_s"].as_f64())
+        {
             out.push(
                 Verdict::new(
                     &format!("effective lag, axis {}", e.axis),
@@ -145,8 +149,20 @@ fn traces(run: &Run, t: &[f64], axes: &[AxisErr]) -> String {
     let mut html = String::from("<div class=\"figs\">");
     if let Ok(tr) = Trace::read(run) {
         for a in &tr.axes {
-            let cmd = thin(tr.t_s.iter().copied().zip(a.cmd_mm.iter().copied()).collect());
-            let act = thin(tr.t_s.iter().copied().zip(a.act_mm.iter().copied()).collect());
+            let cmd = thin(
+                tr.t_s
+                    .iter()
+                    .copied()
+                    .zip(a.cmd_mm.iter().copied())
+                    .collect(),
+            );
+            let act = thin(
+                tr.t_s
+                    .iter()
+                    .copied()
+                    .zip(a.act_mm.iter().copied())
+                    .collect(),
+            );
             html.push_str(&xy_chart(
                 &format!("Axis {}: commanded vs actual position", a.axis),
                 "t (s)",
@@ -167,8 +183,18 @@ fn traces(run: &Run, t: &[f64], axes: &[AxisErr]) -> String {
         }
     }
     for e in axes {
-        let real = thin(t.iter().copied().zip(e.real.iter().map(|x| x * 1e3)).collect());
-        let sim = thin(t.iter().copied().zip(e.sim.iter().map(|x| x * 1e3)).collect());
+        let real = thin(
+            t.iter()
+                .copied()
+                .zip(e.real.iter().map(|x| x * 1e3))
+                .collect(),
+        );
+        let sim = thin(
+            t.iter()
+                .copied()
+                .zip(e.sim.iter().map(|x| x * 1e3))
+                .collect(),
+        );
         html.push_str(&xy_chart(
             &format!("Axis {}: following error (actual − commanded)", e.axis),
             "t (s)",
