@@ -224,7 +224,7 @@ pub fn verdict_box(verdicts: &[Verdict]) -> String {
         }
     }
     if !verdicts.is_empty() {
-        s.push_str("<table><thead><tr><th>figure</th><th>before</th><th>after</th><th>model</th><th>tolerance</th><th>status</th><th class=\"why\">reason</th></tr></thead><tbody>");
+        s.push_str("<table class=\"glance\"><thead><tr><th>figure</th><th>status</th><th>before</th><th>after</th><th>model</th><th>tolerance</th><th class=\"why\">reason</th></tr></thead><tbody>");
         for (v, j) in verdicts.iter().zip(&judged) {
             let u = esc(&v.unit);
             let cell = |x: Option<(&str, f64)>| match x {
@@ -233,8 +233,10 @@ pub fn verdict_box(verdicts: &[Verdict]) -> String {
             };
             let _ = write!(
                 s,
-                "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td><b class=\"{}\">{}</b></td><td class=\"why\">{}</td></tr>",
+                "<tr><td>{}</td><td><b class=\"{}\">{}</b></td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td class=\"why\">{}</td></tr>",
                 esc(&v.figure),
+                j.status.class(),
+                j.status.word(),
                 cell(v.before.as_ref().map(|(l, x)| (l.as_str(), *x))),
                 cell(Some((v.after.0.as_str(), v.after.1))),
                 v.model
@@ -244,8 +246,6 @@ pub fn verdict_box(verdicts: &[Verdict]) -> String {
                     .as_ref()
                     .map(|(k, l)| format!("{} {u} <span class=\"note\">{}</span>", n(*l), esc(k)))
                     .unwrap_or_else(|| "—".into()),
-                j.status.class(),
-                j.status.word(),
                 esc(&j.reason)
             );
         }
