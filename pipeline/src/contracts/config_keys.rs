@@ -246,6 +246,9 @@ mod tests {
     #[test]
     fn builtin_passes_typos_do_not() {
         check_machine(&machine(BUILTIN), "guideway", &[BUILTIN]).unwrap();
+        // `[tolerance]` is accepted in any machine, checked by its own list.
+        let with_tol = format!("{BUILTIN}[tolerance]\nguideway_residual_um = 4.0\n");
+        check_machine(&machine(&with_tol), "guideway", &[BUILTIN]).unwrap();
         for (bad, needle) in [
             (
                 "[tabel]\nrepeatability_mm = 0.5\n",
@@ -266,6 +269,10 @@ mod tests {
             ("[table]\nrepeatability_mm = nan\n", "must be finite"),
             ("", "is empty"),
             ("[machine]\nplugin = \"robot\"\n", "for plugin"),
+            (
+                "[table]\nspeed_mm_s = 1.0\n[tolerance]\nflatnes_um = 5\n",
+                "unknown key [tolerance].flatnes_um",
+            ),
         ] {
             let e = check_machine(&machine(bad), "guideway", &[BUILTIN])
                 .unwrap_err()
