@@ -23,6 +23,11 @@ pub struct Run {
 }
 
 impl Run {
+    /// A verdict limit (run.toml `[tolerance]`, else the machine config's,
+    /// else its documented default).
+    pub fn tolerance(&self, key: &str) -> f64 {
+        self.spec.tolerance(&self.machine, key)
+    }
     pub fn new(spec: RunSpec, machine: MachineConfig) -> Self {
         Run {
             spec,
@@ -408,6 +413,11 @@ pub trait MachinePlugin: Send + Sync {
     }
     /// Report sections for one run from its stage summaries and artifacts.
     fn report_sections(&self, _run: &Run, _artifacts: &ArtifactStore) -> Vec<ReportSection> {
+        Vec::new()
+    }
+    /// The run's key figures for the verdict at the top of its page
+    /// (report/verdict.rs judges them; none leaves the page at CHECK).
+    fn verdicts(&self, _run: &Run, _artifacts: &ArtifactStore) -> Vec<crate::report::Verdict> {
         Vec::new()
     }
 }

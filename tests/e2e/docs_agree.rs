@@ -141,3 +141,12 @@ fn machine_config_ranges_in_the_docs_name_the_codes_positive_names() {
     let declared: BTreeSet<&str> = POSITIVE_NAMES.iter().copied().collect();
     assert_eq!(documented, declared);
 }
+
+#[test]
+fn tolerance_keys_and_defaults_in_the_docs_are_the_codes() {
+    let doc = std::fs::read_to_string("docs/reports.md").expect("docs/reports.md");
+    for (key, default, _) in sparkout_pipeline::contracts::tolerance::TOLERANCE_KEYS {
+        let row = format!("| `{key}` | {default} |");
+        assert!(doc.contains(&row), "docs/reports.md lacks the row {row}");
+    }
+}

@@ -45,6 +45,7 @@ mod replay_cli;
 mod reports;
 mod robot_diagnosis_e2e;
 mod robot_stages;
+mod run_verdicts;
 mod runless_tables;
 mod servo_e2e;
 mod shards;

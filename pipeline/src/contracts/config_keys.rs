@@ -121,11 +121,17 @@ pub fn check_machine(m: &MachineConfig, plugin: &str, builtins: &[&str]) -> Resu
     if known.is_empty() {
         return Ok(()); // nothing to compare against
     }
+    // `[tolerance]` is the same table in every machine type: checked by
+    // its own list, not against the built-in machines.
+    if let Some(t) = m.table.get("tolerance") {
+        super::tolerance::check_tolerance(t).map_err(|(key, msg)| err(&key, msg))?;
+    }
     let mut mine = BTreeMap::new();
     leaves(&m.table, "", &mut mine);
     // [replay] (EDS files per node, drive axes) is checked by the replay
-    // that reads it; no plugin's built-in machine has one.
-    mine.retain(|k, _| !k.starts_with("replay."));
+    // that reads it; no plugin's built-in machine has one. [tolerance] was
+    // checked above.
+    mine.retain(|k, _| !k.starts_with("replay.") && !k.starts_with("tolerance."));
     for (key, v) in &mine {
         if !all_finite(v) {
             return Err(err(key, format!("`{key}` must be finite, found {v}")));
@@ -243,6 +249,9 @@ mod tests {
     #[test]
     fn builtin_passes_typos_do_not() {
         check_machine(&machine(BUILTIN), "guideway", &[BUILTIN]).unwrap();
+        // `[tolerance]` is accepted in any machine, checked by its own list.
+        let with_tol = format!("{BUILTIN}[tolerance]\nguideway_residual_um = 4.0\n");
+        check_machine(&machine(&with_tol), "guideway", &[BUILTIN]).unwrap();
         for (bad, needle) in [
             (
                 "[tabel]\nrepeatability_mm = 0.5\n",
@@ -263,6 +272,10 @@ mod tests {
             ("[table]\nrepeatability_mm = nan\n", "must be finite"),
             ("", "is empty"),
             ("[machine]\nplugin = \"robot\"\n", "for plugin"),
+            (
+                "[table]\nspeed_mm_s = 1.0\n[tolerance]\nflatnes_um = 5\n",
+                "unknown key [tolerance].flatnes_um",
+            ),
         ] {
             let e = check_machine(&machine(bad), "guideway", &[BUILTIN])
                 .unwrap_err()

@@ -13,6 +13,7 @@ pub mod plausible;
 pub mod run;
 pub mod schema;
 pub mod table;
+pub mod tolerance;
 pub mod write;
 
 pub use ae_stream::{AeChunk, AeStream};

@@ -40,6 +40,8 @@ pub struct RunSpec {
     pub ae: Option<AeSpec>,
     /// An inline `[machine]` table, if the run carries its own machine config.
     pub inline_machine: Option<toml::Table>,
+    /// `[tolerance]`: the run's own verdict limits (checked keys).
+    pub tolerance: BTreeMap<String, f64>,
     /// The file's text (hashed into cache keys).
     pub text: String,
 }
@@ -90,8 +92,9 @@ fn parse_started(path: &Path, v: &toml::Value) -> Result<String, InputError> {
 }
 
 /// The sections of run.toml (docs/formats.md §3).
-/// `[replay]` is the provenance `sparkout replay --record` writes.
-pub const RUN_TOML_SECTIONS: [&str; 5] = ["run", "process", "ae", "machine", "replay"];
+/// `[replay]` is the provenance `sparkout replay --record` writes;
+/// `[tolerance]` the limits of the run page's verdict (tolerance.rs).
+pub const RUN_TOML_SECTIONS: [&str; 6] = ["run", "process", "ae", "machine", "replay", "tolerance"];
 
 impl RunSpec {
     pub const FILE: &'static str = "run.toml";
@@ -212,6 +215,11 @@ impl RunSpec {
             }
         };
         let inline_machine = doc.get("machine").and_then(|v| v.as_table()).cloned();
+        let tolerance = match doc.get("tolerance") {
+            None => BTreeMap::new(),
+            Some(t) => super::tolerance::check_tolerance(t)
+                .map_err(|(key, msg)| InputError::new(&path, msg).column(key))?,
+        };
         Ok(RunSpec {
             dir: dir.to_path_buf(),
             id,
@@ -221,6 +229,7 @@ impl RunSpec {
             process,
             ae,
             inline_machine,
+            tolerance,
             text: text.to_string(),
         })
     }
@@ -240,6 +249,23 @@ impl RunSpec {
             Some(t0) => super::TimeOrigin::UnixS(t0),
             None => super::TimeOrigin::Missing,
         }
+    }
+
+    /// A verdict limit: the run's `[tolerance]`, else the machine config's,
+    /// else the documented default (tolerance.rs).
+    pub fn tolerance(&self, machine: &MachineConfig, key: &str) -> f64 {
+        self.tolerance
+            .get(key)
+            .copied()
+            .or_else(|| {
+                machine
+                    .table
+                    .get("tolerance")
+                    .and_then(|t| t.get(key))
+                    .and_then(toml_f64)
+            })
+            .or_else(|| super::tolerance::tolerance_default(key))
+            .unwrap_or(f64::NAN)
     }
 
     /// A number from `[process]`, with a default.

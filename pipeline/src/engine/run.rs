@@ -221,7 +221,10 @@ impl Engine {
         // The run's report: a step of its own, cached on every stage's key.
         let mut rkey = KeyBuilder::new("run-report");
         rkey.part("version", &report::REPORT_VERSION.to_string())
-            .part("config", &config_text(&self.config.section("report")));
+            .part("config", &config_text(&self.config.section("report")))
+            // The verdict's `[tolerance]` limits live in these two.
+            .part("run.toml", &run.spec.text)
+            .part("machine", &run.machine.text);
         for r in &records {
             rkey.part(&r.stage, &r.key);
         }
@@ -236,10 +239,12 @@ impl Engine {
             records.push(rec);
         } else {
             let sections = plugin.report_sections(&run, &store);
+            let verdicts = plugin.verdicts(&run, &store);
             let html = report::run_page(
                 &self.config.section("report"),
                 &run,
                 &store.summaries(),
+                &verdicts,
                 &sections,
             );
             let bytes = html.into_bytes();

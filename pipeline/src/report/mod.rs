@@ -7,9 +7,11 @@ pub mod fleet_data;
 pub mod index;
 pub mod svg;
 pub mod trend;
+pub mod verdict;
 
 pub use fleet::fleet_page;
 pub use index::index_page;
+pub use verdict::{verdict_box, Status, Verdict};
 
 use std::collections::BTreeMap;
 use std::fmt::Write;
@@ -17,7 +19,7 @@ use std::fmt::Write;
 use crate::traits::{ReportSection, Run};
 
 /// Bump when the report layout changes (cache key of report steps).
-pub const REPORT_VERSION: u32 = 4;
+pub const REPORT_VERSION: u32 = 5;
 
 /// HTML-escape text.
 pub fn esc(s: &str) -> String {
@@ -78,7 +80,7 @@ th{background:#f3f3f3}td:first-child,th:first-child{text-align:left}td{white-spa
 .note{color:#555;font-size:.9em}pre{background:#f6f6f6;padding:.5em;overflow-x:auto;max-width:100%}\
 svg.chart{display:block;max-width:100%;height:auto;margin:.4em 0}.figs{display:flex;flex-wrap:wrap;gap:.5em}.figs svg.chart{flex:1 1 520px;max-width:720px}\
 .warn{border:2px solid #b00;background:#fff4f4;color:#700;padding:.5em .8em;margin:.6em 0;font-weight:600}\
-.verdict{background:#f4f8ff;border-left:4px solid #2a6ebb;padding:.4em .7em}nav{margin-bottom:1em}a{color:#1a5fb4}\
+.verdict{background:#f4f8ff;border-left:4px solid #2a6ebb;padding:.4em .7em}.check{color:#a60}nav{margin-bottom:1em}a{color:#1a5fb4}\
 details{margin:.5em 0}summary{cursor:pointer;color:#1a5fb4}ul.files{columns:3 16em}\
 @media print{@page{size:A4;margin:12mm}body{max-width:none;margin:0;padding:0;font-size:10pt}nav{display:none}\
 h2,h3,h4{break-after:avoid}svg.chart,table,.verdict,.warn{break-inside:avoid}.figs{display:block}.figs svg.chart{max-width:100%}\
@@ -123,11 +125,13 @@ fn title_of(cfg: &toml::Table, default: &str) -> String {
         .to_string()
 }
 
-/// A run's report: header, each plugin section, then every stage's summary.
+/// A run's report: header, the verdict, each plugin section, then every
+/// stage's summary.
 pub fn run_page(
     cfg: &toml::Table,
     run: &Run,
     summaries: &BTreeMap<String, serde_json::Value>,
+    verdicts: &[Verdict],
     sections: &[ReportSection],
 ) -> String {
     let mut body = String::from(
@@ -146,6 +150,8 @@ pub fn run_page(
             .map(|s| format!(", started {}", esc(s)))
             .unwrap_or_default()
     );
+    // First screen: what a process engineer decides on.
+    body.push_str(&verdict_box(verdicts));
     for s in sections {
         let _ = write!(
             body,

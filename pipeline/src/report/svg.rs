@@ -609,6 +609,104 @@ pub fn mini_curve(points: &[(f64, f64)], w: u32, h: u32, label: &str) -> String 
     s
 }
 
+/// A ballbar-style polar plot: the radial error of circular moves against
+/// the angle on the circle, drawn about a reference circle (zero error)
+/// with rings at ± the largest error, so a reversal spike (a bump where an
+/// axis changes direction, at 0°/90°/180°/270°) or a backlash step (the
+/// circle split into offset halves) stands out at any size of error.
+/// `series`: (name, [(angle rad, error)]). Hand-drawn (plotters has no
+/// polar coordinates); marked `class="chart polar"`.
+pub fn polar_chart(title: &str, unit: &str, series: &[(&str, &[(f64, f64)])]) -> String {
+    const W: f64 = 480.0;
+    const R0: f64 = 120.0;
+    const SPAN: f64 = 80.0;
+    let (cx, cy) = (W / 2.0, 40.0 + R0 + SPAN + 10.0);
+    let e_max = series
+        .iter()
+        .flat_map(|s| s.1.iter().map(|p| p.1.abs()))
+        .filter(|v| v.is_finite())
+        .fold(0.0, f64::max)
+        .max(1e-9);
+    let rad = |e: f64| R0 + SPAN * e / e_max;
+    let row = 20.0;
+    // Below the circle: the 270° label, then the legend and the rings' scale.
+    let legend_y = cy + R0 + SPAN + 44.0;
+    let h = legend_y + row * (series.len() + 1) as f64;
+    let mut s = format!(
+        r#"<svg class="chart polar" xmlns="http://www.w3.org/2000/svg" width="{W}" height="{h}" viewBox="0 0 {W} {h}" font-family="{FONT}"><rect width="{W}" height="{h}" fill="white"/><text x="{cx}" y="24" font-size="16" text-anchor="middle">{}</text>"#,
+        crate::report::esc(title)
+    );
+    for (e, dash) in [(-e_max, "4 3"), (0.0, ""), (e_max, "4 3")] {
+        let _ = write!(
+            s,
+            r##"<circle cx="{cx}" cy="{cy}" r="{:.1}" fill="none" stroke="#999" stroke-width="1"{}/>"##,
+            rad(e),
+            if dash.is_empty() {
+                String::new()
+            } else {
+                format!(r#" stroke-dasharray="{dash}""#)
+            }
+        );
+    }
+    for k in 0..4 {
+        let a = k as f64 * std::f64::consts::FRAC_PI_2;
+        let (dx, dy) = (a.cos(), -a.sin());
+        let _ = write!(
+            s,
+            r##"<line x1="{:.1}" y1="{:.1}" x2="{:.1}" y2="{:.1}" stroke="#ccc"/><text x="{:.1}" y="{:.1}" font-size="{BAR_TEXT_PX}" text-anchor="middle">{}°</text>"##,
+            cx + dx * (R0 - SPAN),
+            cy + dy * (R0 - SPAN),
+            cx + dx * (R0 + SPAN),
+            cy + dy * (R0 + SPAN),
+            cx + dx * (R0 + SPAN + 14.0),
+            cy + dy * (R0 + SPAN + 14.0) + 5.0,
+            k * 90
+        );
+    }
+    let _ = write!(
+        s,
+        r#"<text x="96" y="{:.1}" font-size="{BAR_TEXT_PX}">rings: −{e}, 0, +{e} {}</text>"#,
+        legend_y + row * series.len() as f64 + 5.0,
+        crate::report::esc(unit),
+        e = tick(e_max)
+    );
+    for (i, (_, pts)) in series.iter().enumerate() {
+        let c = COLORS[i % COLORS.len()];
+        let mut d = String::new();
+        for (k, (a, e)) in pts
+            .iter()
+            .filter(|p| p.0.is_finite() && p.1.is_finite())
+            .enumerate()
+        {
+            let r = rad(*e);
+            let _ = write!(
+                d,
+                "{}{:.1},{:.1}",
+                if k == 0 { "M" } else { " L" },
+                cx + r * a.cos(),
+                cy - r * a.sin()
+            );
+        }
+        let _ = write!(
+            s,
+            r#"<path d="{d}" fill="none" stroke="{}" stroke-width="1.5"/>"#,
+            hex(c)
+        );
+    }
+    for (i, (name, _)) in series.iter().enumerate() {
+        let y = legend_y + row * i as f64;
+        let _ = write!(
+            s,
+            r#"<line x1="96" x2="120" y1="{y:.0}" y2="{y:.0}" stroke="{}" stroke-width="2"/><text x="128" y="{:.0}" font-size="{BAR_TEXT_PX}">{}</text>"#,
+            hex(COLORS[i % COLORS.len()]),
+            y + 5.0,
+            crate::report::esc(name)
+        );
+    }
+    s.push_str("</svg>");
+    s
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

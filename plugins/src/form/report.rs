@@ -5,7 +5,7 @@
 use serde_json::Value;
 use sparkout_pipeline::contracts::{batch_f64, batch_i32};
 use sparkout_pipeline::report::svg::{bar_chart, xy_chart, Mark, Series};
-use sparkout_pipeline::report::{esc, fmt_um, table};
+use sparkout_pipeline::report::{esc, fmt_um, table, Verdict};
 use sparkout_pipeline::{ArtifactStore, ReportSection, Run};
 
 fn um(x: Option<f64>) -> String {
@@ -225,4 +225,37 @@ fn delta_phi_chart(title: &str, curves: &[(String, Vec<(f64, f64)>)]) -> String 
         })
         .collect();
     xy_chart(title, "φ (°)", "δ (µm)", &series)
+}
+
+/// The verdict: RMS of the measured profile error along the normal against
+/// the tolerance and against the model's δ(φ) at the same points. They
+/// agree when their point-by-point difference is within three times the
+/// reading noise, estimated from successive differences of that
+/// difference (a smooth model misfit cancels there, noise does not).
+pub fn verdicts(run: &Run, a: &ArtifactStore) -> Vec<Verdict> {
+    let Some(b) = a.get("observations").ok().flatten() else {
+        return Vec::new();
+    };
+    let (Ok(sim), Ok(real)) = (batch_f64(&b, "sim"), batch_f64(&b, "real")) else {
+        return Vec::new();
+    };
+    let rms = |v: &mut dyn Iterator<Item = f64>| {
+        let (s, n) = v.fold((0.0, 0usize), |(s, n), x| (s + x * x, n + 1));
+        if n == 0 {
+            f64::NAN
+        } else {
+            (s / n as f64).sqrt() * 1e3
+        }
+    };
+    let gap: Vec<f64> = real.iter().zip(sim).map(|(r, s)| r - s).collect();
+    let noise = rms(&mut gap.windows(2).map(|w| w[1] - w[0])) / std::f64::consts::SQRT_2;
+    vec![Verdict::new(
+        "profile error (RMS along the normal)",
+        "µm",
+        "measured",
+        rms(&mut real.iter().copied()),
+    )
+    .limit("profile_error_um", run.tolerance("profile_error_um"))
+    .model(rms(&mut sim.iter().copied()), 3.0 * noise)
+    .model_gap(rms(&mut gap.iter().copied()))]
 }

@@ -133,4 +133,11 @@ impl MachinePlugin for GantryPlugin {
     fn report_sections(&self, run: &Run, artifacts: &ArtifactStore) -> Vec<ReportSection> {
         report::sections(run, artifacts)
     }
+    fn verdicts(
+        &self,
+        run: &Run,
+        artifacts: &ArtifactStore,
+    ) -> Vec<sparkout_pipeline::report::Verdict> {
+        report::verdicts(run, artifacts)
+    }
 }

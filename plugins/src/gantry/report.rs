@@ -8,7 +8,7 @@ use sparkout_pipeline::contracts::{batch_f64, batch_str};
 use sparkout_pipeline::report::svg::{
     bar_chart, heat, heatmap, shared_vmax, xy_chart, Heat, Mark, Series,
 };
-use sparkout_pipeline::report::{esc, fmt_um, table, warning};
+use sparkout_pipeline::report::{esc, fmt_um, table, warning, Verdict};
 use sparkout_pipeline::{ArtifactStore, ReportSection, Run};
 
 use super::machine::BODIES;
@@ -243,4 +243,32 @@ pub fn sections(_run: &Run, a: &ArtifactStore) -> Vec<ReportSection> {
     .into_iter()
     .flatten()
     .collect()
+}
+
+/// The verdict: minimum-zone flatness of the last topography state (the
+/// finished surface) against the one before it (the input of the last
+/// step: after grinding, for a polished surface), the tolerance,
+/// and the polish plan's prediction for it when a plan was made.
+pub fn verdicts(run: &Run, a: &ArtifactStore) -> Vec<Verdict> {
+    let Some(f) = a.get("flatness").ok().flatten() else {
+        return Vec::new();
+    };
+    let (Ok(st), Ok(mz)) = (batch_str(&f, "state"), batch_f64(&f, "min_zone_mm")) else {
+        return Vec::new();
+    };
+    let Some(last) = st.len().checked_sub(1) else {
+        return Vec::new();
+    };
+    let label = |s: &str| s.replace('_', " ");
+    let mut v = Verdict::new(
+        "flatness (minimum zone)",
+        "µm",
+        &label(&st[last]),
+        mz[last] * 1e3,
+    )
+    .limit("flatness_um", run.tolerance("flatness_um"));
+    if last > 0 {
+        v = v.before(&label(&st[last - 1]), mz[last - 1] * 1e3);
+    }
+    vec![v]
 }

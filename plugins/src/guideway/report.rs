@@ -7,7 +7,7 @@ use arrow::record_batch::RecordBatch;
 use serde_json::Value;
 use sparkout_pipeline::contracts::{batch_f64, batch_i32};
 use sparkout_pipeline::report::svg::{bar_chart, xy_chart, Mark, Series};
-use sparkout_pipeline::report::{esc, fmt_um, table, warn_fit_above_floor};
+use sparkout_pipeline::report::{esc, fmt_um, table, warn_fit_above_floor, Verdict};
 
 /// A fit whose residual RMS exceeds this many reading-noise σ is flagged.
 const FIT_FLOOR_FACTOR: f64 = 5.0;
@@ -308,6 +308,45 @@ fn compensation(s: &Value, b: &RecordBatch) -> Option<ReportSection> {
         title: "Compensation curve".into(),
         html,
     })
+}
+
+/// The verdict: the offset error the compensation leaves (its predictor's
+/// residual RMS) against the uncompensated offsets F − f (RMS about their
+/// mean), the tolerance, and the separation's reading noise — the model
+/// reaches its floor within [`FIT_FLOOR_FACTOR`] × the noise (the same
+/// rule as the fit warning of the compensation section).
+pub fn verdicts(run: &Run, a: &ArtifactStore) -> Vec<Verdict> {
+    let (Some(s), Ok(Some(b))) = (a.summary("compensation"), a.get("compensation")) else {
+        return Vec::new();
+    };
+    let after = s["prediction_residual_rms_mm"].as_f64().unwrap_or(f64::NAN) * 1e3;
+    let before = col(&b, "dz_mm").map(|v| {
+        let v: Vec<f64> = v.into_iter().filter(|x| x.is_finite()).collect();
+        let m = v.iter().sum::<f64>() / v.len().max(1) as f64;
+        (v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / v.len().max(1) as f64).sqrt() * 1e3
+    });
+    let mut v = Verdict::new(
+        "offset error left after compensation (RMS)",
+        "µm",
+        "compensated (prediction residual)",
+        after,
+    )
+    .limit(
+        "guideway_residual_um",
+        run.tolerance("guideway_residual_um"),
+    );
+    if let Some(bf) = before {
+        v = v.before("uncompensated F − f", bf);
+    }
+    if let Some(floor) = a
+        .summary("separate")
+        .and_then(|p| p["sigma_mm"].as_f64())
+        .filter(|f| f.is_finite() && *f > 0.0)
+    {
+        let floor = floor * 1e3;
+        v = v.model(floor, (FIT_FLOOR_FACTOR - 1.0) * floor);
+    }
+    vec![v]
 }
 
 pub fn sections(_run: &Run, a: &ArtifactStore) -> Vec<ReportSection> {

@@ -78,4 +78,11 @@ impl MachinePlugin for MillPlugin {
     fn report_sections(&self, run: &Run, artifacts: &ArtifactStore) -> Vec<ReportSection> {
         report::sections(run, artifacts)
     }
+    fn verdicts(
+        &self,
+        run: &Run,
+        artifacts: &ArtifactStore,
+    ) -> Vec<sparkout_pipeline::report::Verdict> {
+        report::verdicts(run, artifacts)
+    }
 }

@@ -5,7 +5,7 @@
 use serde_json::Value;
 use sparkout_pipeline::contracts::{batch_f64, batch_i32};
 use sparkout_pipeline::report::svg::{heat, shared_vmax, xy_chart, Heat, Mark, Series};
-use sparkout_pipeline::report::{fmt_fixed, fmt_um, table, warning};
+use sparkout_pipeline::report::{fmt_fixed, fmt_um, table, warning, Verdict};
 use sparkout_pipeline::{ArtifactStore, ReportSection, Run};
 
 use super::chain::{AXES, KINDS};
@@ -196,10 +196,17 @@ fn map(a: &ArtifactStore) -> Option<ReportSection> {
         batch_f64(&m, "y_mm").ok()?,
         batch_f64(&m, "z_mm").ok()?,
     );
-    let (before, after) = (
-        batch_f64(&m, "before_mm").ok()?,
-        batch_f64(&m, "after_mm").ok()?,
-    );
+    let before = batch_f64(&m, "before_mm").ok()?;
+    // After compensation is what the tracker measured less the table's
+    // correction at each tracker point (|d − c|), spread over the map's
+    // grid. The map's own `after_mm` is the model less the table built
+    // from that model — zero by construction, so it cannot show what the
+    // table leaves behind.
+    let measured = measured_after(a);
+    let after: Vec<f64> = match &measured {
+        Some(pts) => (0..x.len()).map(|i| idw(pts, [x[i], y[i], z[i]])).collect(),
+        None => vec![f64::NAN; x.len()],
+    };
     let mut zs: Vec<f64> = z.to_vec();
     zs.sort_by(f64::total_cmp);
     zs.dedup();
@@ -214,7 +221,7 @@ fn map(a: &ArtifactStore) -> Option<ReportSection> {
                 .collect()
         };
         // Before and after on one colour scale (per level).
-        let (b, af) = (pick(before), pick(after));
+        let (b, af) = (pick(before), pick(&after));
         let vmax = shared_vmax([b.as_slice(), af.as_slice()]);
         for (title, c) in [
             (
@@ -222,7 +229,7 @@ fn map(a: &ArtifactStore) -> Option<ReportSection> {
                 &b,
             ),
             (
-                format!("|volumetric error| after table compensation, z = {zl:.0} mm"),
+                format!("|volumetric error| after table compensation (measured), z = {zl:.0} mm"),
                 &af,
             ),
         ] {
@@ -231,10 +238,68 @@ fn map(a: &ArtifactStore) -> Option<ReportSection> {
             html.push_str(&heat(&h));
         }
     }
+    html.insert_str(
+        0,
+        "<p>Before: the identified model's volumetric error. After: the measured residual |d − c| at the tracker points (measured deviation less the table's correction), interpolated onto the grid by inverse distance from the 8 nearest points — the table's effect as measured, not as the model would have it.</p>",
+    );
     Some(ReportSection {
         title: "Volumetric error map before and after compensation".into(),
         html,
     })
+}
+
+/// Tracker points (x, y, z, |d − c| mm) after table compensation.
+fn measured_after(a: &ArtifactStore) -> Option<Vec<([f64; 3], f64)>> {
+    let r = a.get("tracker_residuals").ok()??;
+    let (x, y, z, v) = (
+        batch_f64(&r, "x_mm").ok()?,
+        batch_f64(&r, "y_mm").ok()?,
+        batch_f64(&r, "z_mm").ok()?,
+        batch_f64(&r, "after_mm").ok()?,
+    );
+    let pts: Vec<([f64; 3], f64)> = (0..x.len())
+        .filter(|&i| v[i].is_finite())
+        .map(|i| ([x[i], y[i], z[i]], v[i]))
+        .collect();
+    (!pts.is_empty()).then_some(pts)
+}
+
+/// Inverse-distance-squared mean of the 8 points nearest `q` (a point
+/// on a tracker position takes its value).
+fn idw(pts: &[([f64; 3], f64)], q: [f64; 3]) -> f64 {
+    let mut d: Vec<(f64, f64)> = pts
+        .iter()
+        .map(|(p, v)| {
+            let d2 = (p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2);
+            (d2, *v)
+        })
+        .collect();
+    d.sort_by(|a, b| a.0.total_cmp(&b.0));
+    d.truncate(8);
+    if let Some(&(_, v)) = d.first().filter(|p| p.0 < 1e-12) {
+        return v;
+    }
+    let (num, den) = d
+        .iter()
+        .fold((0.0, 0.0), |(n, w), (d2, v)| (n + v / d2, w + 1.0 / d2));
+    num / den
+}
+
+/// The verdict: RMS volumetric error before → after table compensation,
+/// both measured at the tracker points, against the tolerance.
+pub fn verdicts(run: &Run, a: &ArtifactStore) -> Vec<Verdict> {
+    let Some(s) = a.summary("kinematics") else {
+        return Vec::new();
+    };
+    let um = |k: &str| s[k].as_f64().map(|v| v * 1e3).unwrap_or(f64::NAN);
+    vec![Verdict::new(
+        "volumetric error (RMS, measured)",
+        "µm",
+        "after table compensation",
+        um("after_rms_mm"),
+    )
+    .before("before compensation", um("before_rms_mm"))
+    .limit("volumetric_um", run.tolerance("volumetric_um"))]
 }
 
 fn residuals(a: &ArtifactStore) -> Option<ReportSection> {

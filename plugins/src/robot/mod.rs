@@ -118,6 +118,13 @@ impl MachinePlugin for RobotPlugin {
     fn report_sections(&self, run: &Run, artifacts: &ArtifactStore) -> Vec<ReportSection> {
         report::sections(run, artifacts)
     }
+    fn verdicts(
+        &self,
+        run: &Run,
+        artifacts: &ArtifactStore,
+    ) -> Vec<sparkout_pipeline::report::Verdict> {
+        report::verdicts(run, artifacts)
+    }
 }
 
 #[cfg(test)]

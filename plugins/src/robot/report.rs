@@ -5,7 +5,7 @@
 
 use serde_json::Value;
 use sparkout_pipeline::report::svg::{bar_chart, xy_chart, Mark, Series};
-use sparkout_pipeline::report::{esc, fmt_fixed, fmt_um, table, warning};
+use sparkout_pipeline::report::{esc, fmt_fixed, fmt_um, table, warning, Verdict};
 
 /// Condition number of the datum's 3×3 plane-normal system above which
 /// the report warns (orthogonal faces give 1).
@@ -453,4 +453,45 @@ pub fn sections(_run: &Run, a: &ArtifactStore) -> Vec<ReportSection> {
         out.extend(compare(&s));
     }
     out
+}
+
+/// The verdict: stock left on the part after spark-out (measured) against
+/// the stock left after finishing (before), the tolerance, and the cycle
+/// model's prediction. Two probings of the part differ by √2 × the probe's
+/// standard deviation — of its most repeatable group (method and speed):
+/// slow or latency-biased groups measure the probing method, not the
+/// part; the model agrees with the measurement within three of those.
+pub fn verdicts(run: &Run, a: &ArtifactStore) -> Vec<Verdict> {
+    let Some(s) = a.summary("cycle") else {
+        return Vec::new();
+    };
+    let um_of = |v: &Value| v.as_f64().map(|x| x * 1e3).unwrap_or(f64::NAN);
+    let (pred, meas) = (&s["remaining_after_mm"], &s["remaining_after_measured_mm"]);
+    if meas["spark"].is_null() && pred["spark"].is_null() {
+        return Vec::new();
+    }
+    let probe_std_um = a
+        .summary("repeatability")
+        .and_then(|r| {
+            r["groups"].as_array().map(|g| {
+                g.iter()
+                    .flat_map(|g| Face::ALL.map(|f| g["faces"][f.label()]["std_mm"].as_f64()))
+                    .flatten()
+                    .fold(f64::NAN, f64::min)
+            })
+        })
+        .filter(|v| v.is_finite())
+        .map(|v| v * 1e3);
+    let mut v = Verdict::new(
+        "stock left after spark-out",
+        "µm",
+        "after spark-out",
+        um_of(&meas["spark"]),
+    )
+    .before("after finishing", um_of(&meas["finish"]))
+    .limit("stock_um", run.tolerance("stock_um"));
+    if let Some(sd) = probe_std_um {
+        v = v.model(um_of(&pred["spark"]), 3.0 * std::f64::consts::SQRT_2 * sd);
+    }
+    vec![v]
 }

@@ -19,12 +19,14 @@
 use std::sync::Arc;
 
 use sparkout_pipeline::diagnose::{catalogue_effect, composite, product, Effect, Kind};
-use sparkout_pipeline::{MachinePlugin, Stage};
+use sparkout_pipeline::report::Verdict;
+use sparkout_pipeline::{ArtifactStore, MachinePlugin, ReportSection, Run, Stage};
 
 pub mod config;
 pub mod follow;
 pub mod model;
 pub mod observe;
+pub mod report;
 pub mod trace;
 
 /// A three-axis machine with a 30 1/s position loop and a 0.5 µm encoder
@@ -63,6 +65,12 @@ impl MachinePlugin for ServoPlugin {
     }
     fn builtin_machines(&self) -> Vec<(&'static str, &'static str)> {
         builtin_machines()
+    }
+    fn report_sections(&self, run: &Run, artifacts: &ArtifactStore) -> Vec<ReportSection> {
+        report::sections(run, artifacts)
+    }
+    fn verdicts(&self, run: &Run, artifacts: &ArtifactStore) -> Vec<Verdict> {
+        report::verdicts(run, artifacts)
     }
     /// Physically named versions of catalogue shapes on the servo's own
     /// covariates (names no other plugin emits, so they rename nothing of
