@@ -114,6 +114,34 @@ fn every_demo_run_page_opens_with_a_verdict_and_the_known_problems_are_flagged()
             "{m} flags a contradiction: {contradicted:?}"
         );
     }
+    // The index carries each run page's status word (from verdict.json
+    // beside the page), so a FAIL is visible without opening the run.
+    let out = demo().join("out");
+    let index = std::fs::read_to_string(out.join("index.html")).unwrap();
+    assert!(index.contains("<th>status</th>"), "no status column");
+    for (machine, run, html) in &pages {
+        let (_, word) = verdict(html);
+        let v: serde_json::Value = serde_json::from_slice(
+            &std::fs::read(out.join(machine).join(run).join("verdict.json")).unwrap(),
+        )
+        .unwrap();
+        assert_eq!(
+            v["status"], word,
+            "{machine}/{run}: verdict.json and the page disagree"
+        );
+        if word != "OK" {
+            assert!(
+                !v["reasons"].as_array().unwrap().is_empty(),
+                "{machine}/{run}: a {word} without a reason"
+            );
+        }
+    }
+    let fails = index.matches(">FAIL</b>").count();
+    let gantry_runs = pages.iter().filter(|p| p.0 == "aplm-gantry").count();
+    assert!(
+        fails >= gantry_runs,
+        "{fails} FAIL cells for {gantry_runs} failing gantry runs"
+    );
 }
 
 /// A demo mill run copied into its own input root with `extra` appended

@@ -248,8 +248,15 @@ impl Engine {
                 &sections,
             );
             let bytes = html.into_bytes();
+            let mut verdict =
+                serde_json::to_vec_pretty(&report::verdict::RunVerdict::of(&verdicts))?;
+            verdict.push(b'\n');
             let mut files = BTreeMap::new();
             files.insert("report.html".to_string(), hash_bytes(&bytes));
+            files.insert(
+                report::verdict::RUN_VERDICT_FILE.to_string(),
+                hash_bytes(&verdict),
+            );
             records.push(StageRecord {
                 stage: "report".into(),
                 version: report::REPORT_VERSION,
@@ -258,7 +265,14 @@ impl Engine {
                 cached: false,
             });
             if let Some(run_out) = run_out {
-                write_stage_files(run_out, &[("report.html".into(), bytes)], &records)?;
+                write_stage_files(
+                    run_out,
+                    &[
+                        ("report.html".into(), bytes),
+                        (report::verdict::RUN_VERDICT_FILE.into(), verdict),
+                    ],
+                    &records,
+                )?;
             }
         }
         *failed_stage = None;

@@ -197,7 +197,7 @@ pub fn index_page(cfg: &toml::Table, outcome: &FleetOutcome) -> String {
         // the page stays short.
         let _ = write!(
             body,
-            "<details{}><summary><b>{}</b> ({}): {} runs</summary><table><thead><tr><th>run</th><th>report</th><th>outputs</th></tr></thead><tbody>",
+            "<details{}><summary><b>{}</b> ({}): {} runs</summary><table><thead><tr><th>run</th><th>status</th><th>report</th><th>outputs</th></tr></thead><tbody>",
             if runs.len() <= 20 { " open" } else { "" },
             esc(machine),
             esc(plugin),
@@ -209,9 +209,13 @@ pub fn index_page(cfg: &toml::Table, outcome: &FleetOutcome) -> String {
                 .iter()
                 .map(|n| format!("<a href=\"{}{n}\">{n}</a>", esc(&base), n = esc(n)))
                 .collect();
+            // The run page's verdict word (verdict.json beside it).
+            let status = super::verdict::RunVerdict::read(Path::new(&r.out_dir))
+                .map(|v| v.cell())
+                .unwrap_or_else(|| "—".into());
             let _ = write!(
                 body,
-                "<tr><td>{}</td><td><a href=\"{}report.html\">report</a></td><td class=\"why\">{}</td></tr>",
+                "<tr><td>{}</td><td>{status}</td><td><a href=\"{}report.html\">report</a></td><td class=\"why\">{}</td></tr>",
                 esc(&r.run),
                 esc(&base),
                 files.join(" · ")

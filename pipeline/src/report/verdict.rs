@@ -206,6 +206,62 @@ impl Verdict {
 
 /// The verdict box: the page's overall status word, a table of every
 /// figure with its status and reason, then a box per contradiction.
+/// A run's verdict as `verdict.json` beside its report: the page's status
+/// word and the reasons of every figure that is not OK, so the index can
+/// show a status column without re-reading the run's artifacts.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RunVerdict {
+    /// "OK", "CHECK" or "FAIL" (CHECK when the run has no key figure).
+    pub status: String,
+    /// "figure: reason" for every figure judged CHECK or FAIL, worst first.
+    pub reasons: Vec<String>,
+}
+
+pub const RUN_VERDICT_FILE: &str = "verdict.json";
+
+impl RunVerdict {
+    pub fn of(verdicts: &[Verdict]) -> RunVerdict {
+        let mut judged: Vec<(Status, String)> = verdicts
+            .iter()
+            .map(|v| {
+                let j = v.judge();
+                (j.status, format!("{}: {}", v.figure, j.reason))
+            })
+            .collect();
+        let status = judged.iter().map(|j| j.0).max().unwrap_or(Status::Check);
+        judged.sort_by(|a, b| b.0.cmp(&a.0));
+        RunVerdict {
+            status: status.word().to_string(),
+            reasons: judged
+                .into_iter()
+                .filter(|(s, _)| *s != Status::Ok)
+                .map(|(_, r)| r)
+                .collect(),
+        }
+    }
+
+    /// The verdict a run's output directory holds, if it has one.
+    pub fn read(run_out: &std::path::Path) -> Option<RunVerdict> {
+        let bytes = std::fs::read(run_out.join(RUN_VERDICT_FILE)).ok()?;
+        serde_json::from_slice(&bytes).ok()
+    }
+
+    /// The status cell of the index: the word, coloured as an aid.
+    pub fn cell(&self) -> String {
+        let class = match self.status.as_str() {
+            "OK" => "ok",
+            "FAIL" => "bad",
+            _ => "check",
+        };
+        format!(
+            "<b class=\"{class}\" title=\"{}\">{}</b>",
+            esc(&self.reasons.join("; ")),
+            esc(&self.status)
+        )
+    }
+}
+
 pub fn verdict_box(verdicts: &[Verdict]) -> String {
     let judged: Vec<Judged> = verdicts.iter().map(Verdict::judge).collect();
     let overall = judged.iter().map(|j| j.status).max();
