@@ -230,7 +230,7 @@ impl RunVerdict {
             })
             .collect();
         let status = judged.iter().map(|j| j.0).max().unwrap_or(Status::Check);
-        judged.sort_by(|a, b| b.0.cmp(&a.0));
+        judged.sort_by_key(|j| std::cmp::Reverse(j.0));
         RunVerdict {
             status: status.word().to_string(),
             reasons: judged
