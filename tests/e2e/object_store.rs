@@ -149,6 +149,16 @@ fn fleet(root: &Path) {
     ]));
 }
 
+/// `aggregate` of bucket shards into `out_url`, then the result downloaded
+/// to `dest` for comparison.
+fn aggregate_and_fetch(port: u16, shards: &[&str], out_url: &str, work: &Path, dest: &Path) {
+    let mut args = vec!["aggregate", "--shards"];
+    args.extend_from_slice(shards);
+    args.extend_from_slice(&["--out", out_url, "--work", s(work)]);
+    ok(sparkout_s3(port, &args));
+    ok(sparkout_s3(port, &["sync", out_url, s(dest)]));
+}
+
 fn assert_same(a: &Path, b: &Path, what: &str) {
     for f in COMPARED {
         let x = std::fs::read(a.join(f)).unwrap_or_else(|e| panic!("{}: {e}", a.join(f).display()));
@@ -257,21 +267,14 @@ fn a_batch_on_object_storage_equals_the_local_batch() {
             ],
         ));
     }
-    ok(sparkout_s3(
-        port,
-        &[
-            "aggregate",
-            "--shards",
-            "s3://fleet/shards/0",
-            "s3://fleet/shards/1",
-            "--out",
-            "s3://fleet/agg",
-            "--work",
-            s(&work),
-        ],
-    ));
     let agg = dir.path().join("agg");
-    ok(sparkout_s3(port, &["sync", "s3://fleet/agg", s(&agg)]));
+    aggregate_and_fetch(
+        port,
+        &["s3://fleet/shards/0", "s3://fleet/shards/1"],
+        "s3://fleet/agg",
+        &work,
+        &agg,
+    );
     assert_same(&local, &agg, "2 shards on s3, aggregated");
 
     // A bucket that does not exist: a clear error, exit 1, nothing written.
@@ -544,21 +547,14 @@ fn publishing_checks_the_bucket_and_shards_fetch_only_their_runs() {
     ));
     assert!(text.contains("resumed"), "{text}");
     assert!(text.contains("(everything cached)"), "{text}");
-    ok(sparkout_s3(
-        port,
-        &[
-            "aggregate",
-            "--shards",
-            "s3://fleet/sh/0",
-            "s3://fleet/sh/1",
-            "--out",
-            "s3://fleet/agg2",
-            "--work",
-            s(&work),
-        ],
-    ));
     let agg = dir.path().join("agg2");
-    ok(sparkout_s3(port, &["sync", "s3://fleet/agg2", s(&agg)]));
+    aggregate_and_fetch(
+        port,
+        &["s3://fleet/sh/0", "s3://fleet/sh/1"],
+        "s3://fleet/agg2",
+        &work,
+        &agg,
+    );
     assert_same(&back, &agg, "2 shards on their own nodes, aggregated");
 
     // A fleet history in the bucket: each night staged from it (the first

@@ -319,11 +319,7 @@ pub fn resolve_history(arg: &Path, work: Option<&Path>) -> Result<(PathBuf, Opti
     };
     check_writable(&remote)?;
     let local = work_dir(work, &remote.url, "history");
-    let listed: Vec<object_store::ObjectMeta> = block_on(futures::TryStreamExt::try_collect(
-        remote.store.list(Some(&remote.prefix)),
-    ))
-    .with_context(|| format!("cannot list the history `{}`", remote.url))?;
-    if listed.is_empty() {
+    if sync::holds_nothing(&remote)? {
         std::fs::create_dir_all(&local)
             .with_context(|| format!("cannot create {}", local.display()))?;
         eprintln!("history {} is empty: this is its first night", remote.url);
@@ -424,11 +420,7 @@ fn resume_from_bucket(remote: &RemotePrefix, local: &Path) -> Result<()> {
     if local.exists() {
         return Ok(());
     }
-    let listed: Vec<object_store::ObjectMeta> = block_on(futures::TryStreamExt::try_collect(
-        remote.store.list(Some(&remote.prefix)),
-    ))
-    .with_context(|| format!("cannot list `{}`", remote.url))?;
-    if listed.is_empty() {
+    if sync::holds_nothing(remote)? {
         return Ok(());
     }
     let r = stage_down(remote, local, None)?;

@@ -66,6 +66,18 @@ fn list(remote: &RemotePrefix) -> Result<Vec<ObjectMeta>> {
     Ok(all)
 }
 
+/// Does `remote` hold no object? (Only the first object is fetched.)
+pub(super) fn holds_nothing(remote: &RemotePrefix) -> Result<bool> {
+    let first = block_on(async { remote.store.list(Some(&remote.prefix)).try_next().await })
+        .with_context(|| {
+            format!(
+                "cannot list `{}` (check the bucket name, credentials and endpoint: AWS_*/GOOGLE_*/AZURE_* in the environment)",
+                remote.url
+            )
+        })?;
+    Ok(first.is_none())
+}
+
 /// An object key below a prefix as a local path below `root`; a key with an
 /// empty, `.` or `..` segment (or a separator of this system inside a
 /// segment) would leave `root` and is refused.
