@@ -101,6 +101,31 @@ pub enum Command {
         /// (fleet/augment.json, fleet page verdicts).
         #[arg(long, value_name = "JSON", conflicts_with = "shard")]
         augment: Option<PathBuf>,
+        /// Process exactly the runs listed in this night snapshot (written
+        /// by `sparkout snapshot` when the night started): runs that
+        /// arrived later are left for the next night, a listed run that is
+        /// gone is a failure. Give every shard of a night the same file.
+        #[arg(long, value_name = "FILE")]
+        snapshot: Option<PathBuf>,
+    },
+    /// List the night's runs once, when the night starts, so every shard
+    /// (and a re-run) partitions the same run set however late it starts.
+    #[command(
+        after_help = "Example:\n  sparkout snapshot --input runs/ --out night.json\n  \
+                      sparkout run --input runs/ --out shards/0 --shard 0/2 --snapshot night.json\n\
+                      The file lists run directories relative to the input (docs/scale.md)."
+    )]
+    Snapshot {
+        /// Root of the recorded runs: a directory or a bucket URL (only the
+        /// run.toml files are fetched).
+        #[arg(long, value_name = "DIR|URL")]
+        input: PathBuf,
+        /// The snapshot file to write (JSON).
+        #[arg(long, value_name = "FILE")]
+        out: PathBuf,
+        /// Local directory for a staged bucket input.
+        #[arg(long, value_name = "DIR")]
+        work: Option<PathBuf>,
     },
     /// Each diagnosed effect over nights, from a fleet history: trend.html and
     /// trend.json (ranked alerts when a material effect appears, disappears

@@ -12,6 +12,9 @@ fi
 input=$(realpath "$1"); work=$(realpath -m "$2"); out=$(realpath -m "$3"); n=$4; shift 4
 here=$(cd "$(dirname "$0")" && pwd)
 mkdir -p "$work"
+# The night's run set, listed once now: every shard partitions this list
+# however late it starts (runs arriving meanwhile belong to the next night).
+"${SPARKOUT_BIN:-sparkout}" snapshot --input "$input" --out "$work/night.json" >&2
 export SPARKOUT_INPUT="$input" SPARKOUT_WORK="$work" SPARKOUT_OUT="$out" SPARKOUT_SHARDS="$n"
 array=$(sbatch --parsable --export=ALL --chdir="$work" --array="0-$((n - 1))" "$@" "$here/nightly.sbatch")
 array=${array%%;*}

@@ -32,6 +32,7 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<u8> {
             night,
             events,
             augment,
+            snapshot,
         } => match shard {
             None => {
                 let places = run::Places::resolve(&input, &out, work.as_deref(), None)?;
@@ -40,11 +41,18 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<u8> {
                     &places,
                     jobs,
                     history.map(|h| (h, night, events)),
-                    augment.as_deref(),
+                    (augment.as_deref(), snapshot.as_deref()),
                 )
             }
-            Some(s) => run::run_shard(&config, (&input, &out, work.as_deref()), jobs, &s, &balance),
+            Some(s) => run::run_shard(
+                &config,
+                (&input, &out, work.as_deref()),
+                jobs,
+                (&s, &balance),
+                snapshot.as_deref(),
+            ),
         },
+        Command::Snapshot { input, out, work } => run::snapshot(&input, &out, work.as_deref()),
         Command::Trend {
             config,
             events,

@@ -49,12 +49,15 @@ pub fn run(
     places: &Places,
     jobs: Option<usize>,
     history: Option<(std::path::PathBuf, Option<String>, Vec<String>)>,
-    augment: Option<&Path>,
+    (augment, snapshot): (Option<&Path>, Option<&Path>),
 ) -> anyhow::Result<u8> {
     if jobs == Some(0) {
         anyhow::bail!("--jobs must be at least 1");
     }
     let mut engine = registry::engine(config)?;
+    if let Some(file) = snapshot {
+        engine.set_snapshot(file)?;
+    }
     let mut history_out = None;
     if let Some((dir, night, events)) = history {
         let (local, publish) = storage::resolve_history(&dir, places.work.as_deref())?;
@@ -84,8 +87,8 @@ pub fn run_shard(
     config: &ConfigArgs,
     (input, out, work): (&Path, &Path, Option<&Path>),
     jobs: Option<usize>,
-    shard: &str,
-    balance: &str,
+    (shard, balance): (&str, &str),
+    snapshot: Option<&Path>,
 ) -> anyhow::Result<u8> {
     use sparkout_pipeline::engine::shard::{Balance, ShardSpec};
     if jobs == Some(0) {
@@ -98,6 +101,9 @@ pub fn run_shard(
     };
     let spec = ShardSpec::parse(shard, balance).map_err(anyhow::Error::msg)?;
     let mut engine = registry::engine(config)?;
+    if let Some(file) = snapshot {
+        engine.set_snapshot(file)?;
+    }
     let select = |root: &Path| engine.shard_runs(root, &spec);
     let places = Places::resolve(input, out, work, Some(&select))?;
     if let Some(url) = &places.input_url {
@@ -119,6 +125,33 @@ pub fn run_shard(
     );
     places.out.publish()?;
     Ok(outcome.exit_code() as u8)
+}
+
+/// `sparkout snapshot --input DIR|URL --out FILE`: the night's run set. A
+/// bucket input is listed by staging its run.toml files only.
+pub fn snapshot(input: &Path, out: &Path, work: Option<&Path>) -> anyhow::Result<u8> {
+    use sparkout_pipeline::engine::snapshot::NightSnapshot;
+    if storage::is_url(out) {
+        anyhow::bail!(
+            "--out {}: the snapshot is a local file (copy it next to the shards' inputs with `sparkout sync`)",
+            out.display()
+        );
+    }
+    let none = |_: &Path| Ok(Vec::new());
+    let select: Option<storage::RunSelector> = storage::is_url(input).then_some(&none);
+    let root = storage::resolve_input_selected(input, work, "input", true, select)?;
+    let found = sparkout_pipeline::contracts::discover(&root)
+        .map_err(|e| anyhow::anyhow!("cannot list runs under {}: {e}", root.display()))?;
+    let snap = NightSnapshot::of(&input.display().to_string(), &root, &found);
+    snap.write(out)?;
+    println!(
+        "snapshot: {} run(s) and {} listed director(ies) under {} → {}",
+        snap.runs.len(),
+        snap.listed.len(),
+        input.display(),
+        out.display()
+    );
+    Ok(0)
 }
 
 /// `sparkout aggregate --shards DIR... --out DIR`.

@@ -262,3 +262,102 @@ fn shards_that_would_lose_or_double_a_run_are_refused() {
     assert!(e.contains("different machine configs"), "{e}");
     assert!(!out.join("manifest.json").exists());
 }
+
+/// Copies run `from` to a new run `id` beside it (a run arriving mid-night).
+fn arrive(root: &Path, from: &str, id: &str) -> PathBuf {
+    let first = root.join(from);
+    let late = first.with_file_name(id);
+    std::fs::create_dir_all(&late).unwrap();
+    for e in std::fs::read_dir(&first).unwrap() {
+        let e = e.unwrap().path();
+        std::fs::copy(&e, late.join(e.file_name().unwrap())).unwrap();
+    }
+    let old = format!("\"{}\"", first.file_name().unwrap().to_str().unwrap());
+    let t = std::fs::read_to_string(late.join("run.toml")).unwrap();
+    std::fs::write(late.join("run.toml"), t.replace(&old, &format!("\"{id}\""))).unwrap();
+    late
+}
+
+/// The night's snapshot: shards started before and after a run arrives
+/// partition the same run set, the late run is left for the next night,
+/// and the result equals one node over the snapshot; a shard.json whose
+/// share overlaps another's is refused naming the run.
+#[test]
+fn shards_of_one_snapshot_agree_however_late_they_start() {
+    let d = tempfile::tempdir().unwrap();
+    let root = fleet(d.path());
+    let snap = d.path().join("night.json");
+    let text = ok(sparkout(&[
+        "snapshot",
+        "--input",
+        root.to_str().unwrap(),
+        "--out",
+        snap.to_str().unwrap(),
+    ]));
+    assert!(text.contains("7 run(s)"), "{text}");
+    let s = snap.to_str().unwrap();
+    // One --out for both (paths appear in the outputs).
+    let out = d.path().join("out");
+    ok(sparkout(&[
+        "run",
+        "--input",
+        root.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--snapshot",
+        s,
+    ]));
+    let single = read_outputs(&out);
+    std::fs::remove_dir_all(&out).unwrap();
+    let (s0, s1) = (d.path().join("s0"), d.path().join("s1"));
+    ok(shard(&root, &s0, "0/2", &["--snapshot", s]));
+    arrive(&root, "xfyz-mill/r0000", "r0099");
+    let late = ok(shard(&root, &s1, "1/2", &["--snapshot", s]));
+    assert!(
+        late.contains("arrived after the night's snapshot"),
+        "{late}"
+    );
+    let m: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(s1.join("shard.json")).unwrap()).unwrap();
+    assert_eq!(m["night_runs"].as_array().unwrap().len(), 7, "{m}");
+    assert!(!m["night_runs"].to_string().contains("r0099"), "{m}");
+    ok(aggregate(&[s0.clone(), s1.clone()], &out));
+    assert_same(
+        &single,
+        &read_outputs(&out),
+        "one node and two shards over one snapshot",
+    );
+    assert!(!out.join("xfyz-mill/r0099").exists());
+    // A share that overlaps another shard's is named.
+    let path = s1.join("shard.json");
+    let mut m: serde_json::Value = serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap();
+    let theirs: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(s0.join("shard.json")).unwrap()).unwrap();
+    let stolen = theirs["assigned_runs"][0].as_str().unwrap().to_string();
+    m["assigned_runs"]
+        .as_array_mut()
+        .unwrap()
+        .push(stolen.clone().into());
+    std::fs::write(&path, serde_json::to_vec(&m).unwrap()).unwrap();
+    let o = aggregate(&[s0, s1], &d.path().join("out2"));
+    assert!(!o.status.success());
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(e.contains(&stolen) && e.contains("two shards"), "{e}");
+    // A run listed in the snapshot and gone is a failure of the night.
+    std::fs::remove_dir_all(root.join("xfyz-mill/r0001")).unwrap();
+    let gone = d.path().join("gone");
+    let o = sparkout(&[
+        "run",
+        "--input",
+        root.to_str().unwrap(),
+        "--out",
+        gone.to_str().unwrap(),
+        "--snapshot",
+        s,
+    ]);
+    let f = std::fs::read_to_string(gone.join("failures.json")).unwrap();
+    assert!(
+        f.contains("r0001") && f.contains("no longer under the input"),
+        "{f} {o:?}"
+    );
+}

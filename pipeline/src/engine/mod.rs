@@ -11,6 +11,7 @@ pub mod lock;
 mod outcome;
 mod run;
 pub mod shard;
+pub mod snapshot;
 pub use checks::check_finite;
 use checks::check_plugin;
 use fleet::json_bytes;
@@ -68,6 +69,8 @@ pub struct Engine {
     /// from, so shards staged into different work directories are still
     /// of one input.
     input_label: Option<String>,
+    /// `run --snapshot FILE`: the night's run set, fixed when it started.
+    snapshot: Option<(PathBuf, snapshot::NightSnapshot)>,
 }
 
 fn config_text(t: &toml::Table) -> String {
@@ -93,6 +96,7 @@ impl Engine {
             history: None,
             augment: None,
             input_label: None,
+            snapshot: None,
         };
         engine.validate_config()?;
         Ok(engine)
@@ -148,10 +152,31 @@ impl Engine {
     /// `run --shard` partitions them (discovery, duplicate ids, then the
     /// balance rule) — for staging only those runs from object storage.
     pub fn shard_runs(&self, input_root: &Path, shard: &shard::ShardSpec) -> Result<Vec<PathBuf>> {
-        let found = discover(input_root)
-            .with_context(|| format!("cannot list runs under {}", input_root.display()))?;
+        let (found, _) = self.discover_night(input_root)?;
         let (run_dirs, _) = self.account_for_runs(&found);
         Ok(shard::select_runs(&run_dirs, shard))
+    }
+
+    /// Process the run set of `file` (written by `sparkout snapshot` when
+    /// the night started) instead of whatever is under the input now.
+    pub fn set_snapshot(&mut self, file: &Path) -> Result<()> {
+        self.snapshot = Some((file.to_path_buf(), snapshot::NightSnapshot::read(file)?));
+        Ok(())
+    }
+
+    /// What the night processes under `input_root`: discovery, restricted
+    /// to the snapshot when there is one; and the runs that arrived after
+    /// it (for the next night).
+    pub fn discover_night(
+        &self,
+        input_root: &Path,
+    ) -> Result<(crate::contracts::Discovery, Vec<PathBuf>)> {
+        let found = discover(input_root)
+            .with_context(|| format!("cannot list runs under {}", input_root.display()))?;
+        Ok(match &self.snapshot {
+            Some((file, snap)) => snap.restrict(input_root, found, file),
+            None => (found, Vec::new()),
+        })
     }
 
     pub fn set_augment(&mut self, model: &Path) -> Result<()> {
@@ -341,8 +366,14 @@ impl Engine {
         progress: &dyn Progress,
     ) -> Result<FleetOutcome> {
         names::check_out_apart(input_root, out, "--input").map_err(|e| anyhow!(e))?;
-        let found = discover(input_root)
-            .with_context(|| format!("cannot list runs under {}", input_root.display()))?;
+        let (found, late) = self.discover_night(input_root)?;
+        if !late.is_empty() {
+            tracing::warn!(
+                "{} run(s) arrived after the night's snapshot and are left for the next night (first: {})",
+                late.len(),
+                late[0].display()
+            );
+        }
         if found.runs.is_empty() && found.skipped.is_empty() {
             bail!(
                 "no runs under {} (expected <root>/<machine>/<run>/run.toml); generate some with `sparkout generate robot --runs 4 --seed 1 --out {}`",
@@ -363,6 +394,20 @@ impl Engine {
         }
         let (mut run_dirs, mut early_failures) = self.account_for_runs(&found);
         let night_items = run_dirs.len() + early_failures.len();
+        let items_of = |runs: &[PathBuf], fails: &[Failure]| -> Vec<String> {
+            let mut v: Vec<String> = runs
+                .iter()
+                .map(|r| snapshot::relative(input_root, r))
+                .chain(
+                    fails
+                        .iter()
+                        .map(|f| snapshot::relative(input_root, Path::new(&f.run_dir))),
+                )
+                .collect();
+            v.sort();
+            v
+        };
+        let night_list = shard.map(|_| items_of(&run_dirs, &early_failures));
         if let Some(sh) = shard {
             // A shard.json left by an earlier batch must not outlive this
             // one: if this run is killed, aggregate finds no finished shard.
@@ -381,6 +426,7 @@ impl Engine {
             early_failures.retain(|f| shard::owns_failure(f, sh));
         }
         let assigned_items = run_dirs.len() + early_failures.len();
+        let assigned_list = shard.map(|_| items_of(&run_dirs, &early_failures));
         for f in &early_failures {
             if let (Some(m), Some(r)) = (&f.machine, &f.run) {
                 // Nothing of a rejected run stays in the output (only what
@@ -446,6 +492,8 @@ impl Engine {
                     input_fingerprint: shard::input_fingerprint(input_root, &found),
                     night_items,
                     assigned_items,
+                    night_runs: night_list.unwrap_or_default(),
+                    assigned_runs: assigned_list.unwrap_or_default(),
                     machines_fingerprint: self.resolver.fingerprint(),
                     runs: outcome.runs.clone(),
                     failures: outcome.failures.clone(),

@@ -19,8 +19,9 @@ use crate::contracts::{write_json_atomic, RunSpec};
 use crate::error::Result;
 
 /// Version of shard.json (2: the night's input and machine configs are
-/// fingerprinted, and each shard says how many items it was assigned).
-pub const SHARD_VERSION: u32 = 2;
+/// fingerprinted, and each shard says how many items it was assigned; 3:
+/// the night's run set and each shard's share of it are listed).
+pub const SHARD_VERSION: u32 = 3;
 
 /// The file a shard writes in its output directory.
 pub const SHARD_FILE: &str = "shard.json";
@@ -195,6 +196,13 @@ pub struct ShardManifest {
     /// counts must add up to the night's.
     pub night_items: usize,
     pub assigned_items: usize,
+    /// The night's run set as this shard listed it when it started (runs
+    /// and listed directories, relative to the input, sorted; with
+    /// `--snapshot`, the snapshot's), and the part of it this shard was
+    /// assigned: `aggregate` checks that the shares partition the night
+    /// and names any run missing or doubled.
+    pub night_runs: Vec<String>,
+    pub assigned_runs: Vec<String>,
     /// [`crate::contracts::MachineResolver::fingerprint`]: every shard must
     /// have resolved machines from the same configs.
     pub machines_fingerprint: String,
@@ -335,6 +343,49 @@ pub fn check_shards(dirs: &[PathBuf], manifests: &[ShardManifest]) -> Result<()>
             "missing shard(s) {}: aggregate needs all {} shards of the night",
             missing.join(", "),
             first.shards
+        );
+    }
+    if let Some(m) = manifests.iter().find(|m| m.night_runs != first.night_runs) {
+        bail!(
+            "{} and shard {}/{} listed different run sets for the night: one of them is stale — re-run it",
+            dirs[0].display(),
+            m.shard,
+            m.shards
+        );
+    }
+    let mut owner: std::collections::BTreeMap<&str, &PathBuf> = std::collections::BTreeMap::new();
+    for (dir, m) in dirs.iter().zip(manifests) {
+        for r in &m.assigned_runs {
+            if let Some(other) = owner.insert(r.as_str(), dir) {
+                bail!(
+                    "run {r} was assigned to two shards ({} and {}): re-run every shard with the same sparkout, input and --balance",
+                    other.display(),
+                    dir.display()
+                );
+            }
+        }
+    }
+    let missing: Vec<&str> = first
+        .night_runs
+        .iter()
+        .map(String::as_str)
+        .filter(|r| !owner.contains_key(r))
+        .collect();
+    if !missing.is_empty() {
+        bail!(
+            "{} run(s) of the night were assigned to no shard (first: {}): re-run every shard with the same sparkout, input and --balance",
+            missing.len(),
+            missing[..missing.len().min(5)].join(", ")
+        );
+    }
+    if let Some(extra) = owner.keys().find(|r| {
+        first
+            .night_runs
+            .binary_search_by(|n| n.as_str().cmp(r))
+            .is_err()
+    }) {
+        bail!(
+            "run {extra} was processed by a shard but is not in the night's run set: a shard is stale — re-run it"
         );
     }
     let assigned: usize = manifests.iter().map(|m| m.assigned_items).sum();
