@@ -210,20 +210,38 @@ fn demo_pages_are_linked_self_contained_and_answer_per_observable() {
     assert!(f.contains("aria-label=\"gap, after, noise floor\""), "{f}");
 }
 
-/// Headless Chromium on a copy of `page` that counts the elements wider
-/// than the viewport (outside any scrolling box and inside no SVG) and the
-/// elements visible in the first screen, and writes both into the DOM.
-fn overflowing(page: &Path, profile: &Path) -> (usize, usize, String) {
-    let probe = r#"<script>(function(){var w=document.documentElement.clientWidth,n=0,bad=[];
+/// What headless Chromium saw on a page at 1 400 × 900.
+struct Probe {
+    /// Elements wider than the viewport (outside any scrolling box and
+    /// inside no SVG): the page overflows horizontally.
+    overflow: usize,
+    /// Elements visible in the first screen.
+    visible: usize,
+    /// The first few overflowing elements, for the message.
+    which: String,
+    /// The text of the first screen (text nodes whose box starts above
+    /// 900 px), whitespace collapsed.
+    first_screen: String,
+}
+
+/// Headless Chromium on a copy of `page` with a script that measures it
+/// and writes the result into the DOM, which `--dump-dom` prints.
+fn probe(page: &Path, profile: &Path) -> Probe {
+    let script = r#"<script>(function(){var w=document.documentElement.clientWidth,n=0,bad=[];
 document.querySelectorAll('body *').forEach(function(e){if(e.ownerSVGElement)return;
 var r=e.getBoundingClientRect();if(r.width===0||r.right<=w+1)return;
 for(var a=e.parentElement;a&&a!==document.body;a=a.parentElement){var o=getComputedStyle(a).overflowX;if(o==='auto'||o==='scroll'||o==='hidden')return;}
 n++;if(bad.length<5)bad.push(e.tagName+'.'+e.className+' '+Math.round(r.right));});
 var vis=0;document.querySelectorAll('body *').forEach(function(e){var r=e.getBoundingClientRect();if(r.width>0&&r.height>0&&r.top<innerHeight&&r.bottom>0)vis++;});
-var d=document.createElement('pre');d.id='overflow-count';d.textContent='OVERFLOW='+n+';VISIBLE='+vis+';'+bad.join('|');document.body.appendChild(d);})();</script></body>"#;
+var t=[],it=document.createTreeWalker(document.body,NodeFilter.SHOW_TEXT),x;
+while((x=it.nextNode())){var g=document.createRange();g.selectNodeContents(x);var b=g.getBoundingClientRect();
+if(b.height>0&&b.top<innerHeight&&b.bottom>0)t.push(x.textContent);}
+var d=document.createElement('pre');d.id='probe';
+d.textContent='OVERFLOW='+n+';VISIBLE='+vis+';'+bad.join('|')+';FIRST='+t.join(' ').replace(/\s+/g,' ')+';END';
+document.body.appendChild(d);})();</script></body>"#;
     let html = std::fs::read_to_string(page).unwrap();
-    let probe_page = page.with_file_name(".overflow_probe.html");
-    std::fs::write(&probe_page, html.replace("</body>", probe)).unwrap();
+    let probe_page = page.with_file_name(".probe.html");
+    std::fs::write(&probe_page, html.replace("</body>", script)).unwrap();
     let o = chromium(profile)
         .arg("--dump-dom")
         .arg(&probe_page)
@@ -245,11 +263,44 @@ var d=document.createElement('pre');d.id='overflow-count';d.textContent='OVERFLO
         });
     let (n, rest) = tail.split_once(';').unwrap();
     let (vis, rest) = rest.trim_start_matches("VISIBLE=").split_once(';').unwrap();
-    (
-        n.trim().parse().unwrap(),
-        vis.trim().parse().unwrap(),
-        rest.split('<').next().unwrap_or("").to_string(),
-    )
+    let (which, rest) = rest.split_once(";FIRST=").unwrap();
+    let first = rest.rsplit_once(";END").map_or(rest, |(f, _)| f);
+    Probe {
+        overflow: n.trim().parse().unwrap(),
+        visible: vis.trim().parse().unwrap(),
+        which: which.to_string(),
+        first_screen: first
+            .replace("&lt;", "<")
+            .replace("&gt;", ">")
+            .replace("&nbsp;", " ")
+            .replace("&amp;", "&"),
+    }
+}
+
+/// Prints `page` to PDF as the browser's print does (A4 by the page's
+/// print style sheet); the number of pages.
+fn print_pdf(page: &Path, pdf: &Path, profile: &Path) -> usize {
+    let o = chromium(profile)
+        .arg("--no-pdf-header-footer")
+        .arg(format!("--print-to-pdf={}", pdf.display()))
+        .arg(page)
+        .output()
+        .expect("run chromium");
+    let bytes = std::fs::read(pdf).unwrap_or_else(|e| {
+        panic!(
+            "no PDF of {}: {e}: {}",
+            page.display(),
+            String::from_utf8_lossy(&o.stderr)
+        )
+    });
+    assert!(
+        bytes.starts_with(b"%PDF-"),
+        "{} is not a PDF",
+        pdf.display()
+    );
+    let text = String::from_utf8_lossy(&bytes);
+    // Page objects (not the /Pages tree node).
+    text.matches("/Type /Page").count() - text.matches("/Type /Pages").count()
 }
 
 fn chromium(profile: &Path) -> Command {
@@ -264,7 +315,7 @@ fn chromium(profile: &Path) -> Command {
         "--disable-component-update",
         "--disable-sync",
         "--hide-scrollbars",
-        "--window-size=1280,900",
+        "--window-size=1400,900",
     ])
     .arg(format!("--user-data-dir={}", profile.display()));
     c
@@ -315,10 +366,18 @@ fn demo_pages_render_in_headless_chromium() {
         "<!DOCTYPE html><html><body><div style=\"width:3000px\">wide</div></body></html>",
     )
     .unwrap();
-    let (over, _, _) = overflowing(&wide, &d.path().join("profile_blank"));
-    assert_eq!(over, 1, "the overflow probe misses a 3000 px element");
+    let wide_seen = probe(&wide, &d.path().join("profile_blank"));
+    assert_eq!(
+        wide_seen.overflow, 1,
+        "the overflow probe misses a 3000 px element"
+    );
+    assert!(
+        wide_seen.first_screen.contains("wide"),
+        "{}",
+        wide_seen.first_screen
+    );
     // Two pages at a time (the machine has two cores).
-    type Seen = (String, u64, (usize, usize, String));
+    type Seen = (String, u64, Probe, usize);
     let results: Vec<Seen> = std::thread::scope(|s| {
         let mut chunks: Vec<Vec<&PathBuf>> = vec![Vec::new(), Vec::new()];
         for (i, p) in pages.iter().enumerate() {
@@ -337,7 +396,10 @@ fn demo_pages_render_in_headless_chromium() {
                             let name = page.strip_prefix(out).unwrap().display().to_string();
                             let png_path = shots.join(format!("{}.png", name.replace('/', "_")));
                             let bytes = screenshot(page.to_str().unwrap(), &png_path, &profile);
-                            (name, bytes, overflowing(page, &profile))
+                            let pdf = png_path.with_extension("pdf");
+                            let pages = print_pdf(page, &pdf, &profile);
+                            let _ = std::fs::remove_file(&pdf);
+                            (name, bytes, probe(page, &profile), pages)
                         })
                         .collect::<Vec<_>>()
                 })
@@ -349,18 +411,21 @@ fn demo_pages_render_in_headless_chromium() {
             .collect()
     });
     let _ = std::fs::remove_file(shots.join("blank.png"));
-    for (name, bytes, (over, visible, which)) in &results {
+    for (name, bytes, seen, pdf_pages) in &results {
+        let (over, visible) = (seen.overflow, seen.visible);
         eprintln!(
-            "{name}: screenshot {bytes} B (blank {blank} B), {visible} elements in the first screen, {over} wider than the viewport"
+            "{name}: screenshot {bytes} B (blank {blank} B), {visible} elements in the first screen, {over} wider than the viewport, {pdf_pages} A4 page(s) printed"
         );
         assert!(
-            *bytes > 4 * blank && *visible >= 5,
+            *bytes > 4 * blank && visible >= 5,
             "{name} renders blank: screenshot {bytes} B against {blank} B blank, {visible} visible elements"
         );
         assert_eq!(
-            *over, 0,
-            "{name}: elements wider than the viewport: {which}"
+            over, 0,
+            "{name}: elements wider than the viewport: {}",
+            seen.which
         );
+        assert!(*pdf_pages >= 1, "{name} prints no page");
     }
     // SPARKOUT_SCREENSHOTS=dir keeps the screenshots (docs/screenshots).
     if let Ok(keep) = std::env::var("SPARKOUT_SCREENSHOTS") {
