@@ -7,6 +7,7 @@ use std::process::ExitCode;
 use clap::{Args, Parser, Subcommand};
 
 use crate::bounds::{f64_above_at_most, MAX_AE_RATE_HZ, MAX_FOLDS, MAX_RUNS};
+pub use crate::config_args::ConfigArgs;
 
 #[derive(Parser, Debug)]
 #[command(
@@ -22,19 +23,6 @@ pub struct Cli {
     pub verbose: u8,
     #[command(subcommand)]
     pub command: Command,
-}
-
-#[derive(Args, Debug, Clone)]
-pub struct ConfigArgs {
-    /// Pipeline config (TOML). Default: the built-in configs/nightly.toml.
-    #[arg(long, value_name = "TOML")]
-    pub config: Option<PathBuf>,
-    /// Override a config key, e.g. --set robot.ingest.k_sigma=8 (repeatable).
-    #[arg(long = "set", value_name = "KEY=VALUE")]
-    pub set: Vec<String>,
-    /// Directory of machine configs (<machine>.toml); also SPARKOUT_MACHINES.
-    #[arg(long, value_name = "DIR")]
-    pub machines: Option<PathBuf>,
 }
 
 #[derive(Subcommand, Debug)]

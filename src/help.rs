@@ -35,7 +35,7 @@ fn append(c: Command, text: &str) -> Command {
 /// Every generator with the effects it can inject.
 fn generators() -> String {
     let mut s = String::from("Generators (WHAT) in this build:");
-    for g in sparkout_datasets::generator::all_generators() {
+    for g in sparkout_datasets::all_generators() {
         let fx: Vec<&str> = g.known_effects().into_iter().map(|(n, _)| n).collect();
         s.push_str(&format!("\n  {:<14} effects: {}", g.name(), fx.join(", ")));
     }

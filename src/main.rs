@@ -4,6 +4,7 @@
 mod bounds;
 mod cli;
 mod commands;
+mod config_args;
 mod help;
 mod progress;
 mod registry;

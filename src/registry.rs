@@ -8,7 +8,7 @@ use sparkout_pipeline::contracts::MachineResolver;
 use sparkout_pipeline::engine::{Engine, PipelineConfig};
 use sparkout_pipeline::MachinePlugin;
 
-use crate::cli::ConfigArgs;
+use crate::config_args::ConfigArgs;
 
 pub fn plugins() -> Vec<Arc<dyn MachinePlugin>> {
     sparkout_plugins::all_plugins()

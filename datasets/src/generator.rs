@@ -5,7 +5,6 @@
 //! [`all_generators`] (docs/adding-a-plugin.md).
 
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 
 use anyhow::{bail, Result};
 use sparkout_pipeline::EffectSpec;
@@ -161,26 +160,6 @@ impl<C: 'static> Generator for FleetGenerator<C> {
     }
 }
 
-/// Every generator this build knows, in the demo's order.
-pub fn all_generators() -> Vec<Arc<dyn Generator>> {
-    vec![
-        Arc::new(crate::robot::RobotGenerator),
-        Arc::new(crate::gantry::GENERATOR),
-        Arc::new(crate::guideway::GENERATOR),
-        Arc::new(crate::mill::GENERATOR),
-        Arc::new(crate::form::GENERATOR),
-        Arc::new(crate::servo::GENERATOR),
-        Arc::new(crate::observations::ObservationsGenerator),
-        Arc::new(crate::observations::RasterGenerator { varied: false }),
-        Arc::new(crate::observations::RasterGenerator { varied: true }),
-    ]
-}
-
-/// The generator named `name`.
-pub fn generator(name: &str) -> Option<Arc<dyn Generator>> {
-    all_generators().into_iter().find(|g| g.name() == name)
-}
-
 /// Refuse `--ae-rate-hz` for a generator whose runs have no AE log.
 pub fn no_ae_rate(name: &str, opts: &GenerateOptions) -> Result<()> {
     if opts.ae_rate_hz.is_some() {
@@ -202,7 +181,7 @@ pub fn fleet_summary(name: &str, dirs: usize, out: &Path) -> Generated {
 
 #[cfg(test)]
 mod tests {
-    use super::*;
+    use crate::{all_generators, generator};
 
     #[test]
     fn generator_names_are_unique_and_list_effects() {

@@ -14,6 +14,29 @@ pub mod servo;
 pub mod validate;
 
 pub use generator::{
-    all_generators, generator, DemoFleet, FleetGenerator, GenerateOptions, Generated, Generator,
-    Predicted, RunSize,
+    DemoFleet, FleetGenerator, GenerateOptions, Generated, Generator, Predicted, RunSize,
 };
+
+use std::sync::Arc;
+
+// The registry sits at the crate root, above every generator: a generator
+// module needs only the `Generator` trait below it, never the list.
+/// Every generator this build knows, in the demo's order.
+pub fn all_generators() -> Vec<Arc<dyn Generator>> {
+    vec![
+        Arc::new(crate::robot::RobotGenerator),
+        Arc::new(crate::gantry::GENERATOR),
+        Arc::new(crate::guideway::GENERATOR),
+        Arc::new(crate::mill::GENERATOR),
+        Arc::new(crate::form::GENERATOR),
+        Arc::new(crate::servo::GENERATOR),
+        Arc::new(crate::observations::ObservationsGenerator),
+        Arc::new(crate::observations::RasterGenerator { varied: false }),
+        Arc::new(crate::observations::RasterGenerator { varied: true }),
+    ]
+}
+
+/// The generator named `name`.
+pub fn generator(name: &str) -> Option<Arc<dyn Generator>> {
+    all_generators().into_iter().find(|g| g.name() == name)
+}

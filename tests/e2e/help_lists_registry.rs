@@ -24,7 +24,7 @@ fn has_word(text: &str, name: &str) -> bool {
 #[test]
 fn generate_help_lists_every_generator() {
     let text = help("generate");
-    let gens = sparkout_datasets::generator::all_generators();
+    let gens = sparkout_datasets::all_generators();
     assert!(gens.len() >= 7, "expected the seven-plus generators");
     let missing: Vec<&str> = gens
         .iter()

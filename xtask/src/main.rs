@@ -11,6 +11,9 @@
 //!   cargo xtask bench-gate --no-run         compare the results already in target/criterion
 //!   cargo xtask bench-gate --calibrate --runs 5
 //!                                           run every gated bench 5 times, write ratio + threshold
+//!   cargo xtask cycles                      import cycles between the top-level modules of each crate
+
+mod cycles;
 
 use anyhow::{bail, Context, Result};
 use serde::{Deserialize, Serialize};
@@ -72,9 +75,10 @@ fn real_main() -> Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     match args.first().map(String::as_str) {
         Some("bench-gate") => bench_gate(parse_options(&args[1..])?),
+        Some("cycles") => cycles::check(&workspace_root()),
         _ => {
             eprintln!(
-                "usage: cargo xtask bench-gate [--no-run] [--calibrate --runs N] [--gate FILE] [--bench TARGET]..."
+                "usage: cargo xtask bench-gate [--no-run] [--calibrate --runs N] [--gate FILE] [--bench TARGET]...\n       cargo xtask cycles"
             );
             std::process::exit(1)
         }

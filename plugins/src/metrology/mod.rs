@@ -10,6 +10,7 @@
 //! | module | concern |
 //! |---|---|
 //! | [`areal`] | form removal (plane, second order) and Sq, Sa, Sz, Sp, Sv, Ssk, Sku |
+//! | [`plane`] | least-squares and minimum-zone flatness of a point set |
 //! | [`spikes`] | the robust outlier rule and flatness with and without spikes |
 //! | [`profile`] | P and R parameters of a line profile, piecewise-linear integrals |
 //! | [`gaussian`] | the Gaussian profile filter on any x spacing |
@@ -22,6 +23,7 @@ use sparkout_pipeline::json_f64;
 
 pub mod areal;
 pub mod gaussian;
+pub mod plane;
 pub mod profile;
 pub mod readers;
 pub mod spikes;

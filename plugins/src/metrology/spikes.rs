@@ -16,8 +16,8 @@ use serde_json::{json, Value};
 use sparkout_pipeline::Result;
 
 use super::areal::{heights, residuals, Form};
+use super::plane::flatness;
 use super::{console_length, mm, value_of};
-use crate::gantry::flatness::flatness;
 
 /// Spike threshold in robust standard deviations.
 pub const K: f64 = 6.0;

@@ -18,10 +18,10 @@ use serde_json::{json, Value};
 use sparkout_pipeline::config_check::{NoKeys, SectionCheck};
 use sparkout_pipeline::{Result, Stage, StageArgs, StageContext, StageOutput, StageSpec};
 
+use super::plane::flatness;
 use super::profile::{analyse, Settings, DEFAULT_SAMPLING_LENGTHS};
 use super::readers::{is_text_matrix, read_matrix, read_profile, ProfileSpec};
 use super::{areal, profile};
-use crate::gantry::flatness::flatness;
 
 pub struct ProfileStage;
 
