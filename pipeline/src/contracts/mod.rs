@@ -7,15 +7,16 @@ pub mod config_keys;
 pub mod convert;
 pub mod input_file;
 pub mod motion;
-pub mod names;
 pub mod parquet_file;
 pub mod plausible;
 pub mod run;
 pub mod schema;
 pub mod table;
 pub mod tolerance;
-pub mod write;
 
+// Output files (atomic writes, safe names) sit below the contracts, in
+// `crate::files`, so object storage can use them without the contracts.
+pub use crate::files::{names, write};
 pub use ae_stream::{AeChunk, AeStream};
 pub use batch::{
     batch_f64, batch_i32, batch_str, column_names, numeric_column, read_parquet, BatchBuilder,

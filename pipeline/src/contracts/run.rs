@@ -444,9 +444,9 @@ pub struct Skipped {
 /// Whether `dir` is something sparkout wrote (a run's output or an output
 /// root): an `--out` inside `--input` is not a run that lacks its run.toml.
 fn is_sparkout_output(dir: &Path) -> bool {
-    dir.join(crate::engine::cache::RUN_CACHE_FILE).is_file()
+    dir.join(crate::files::RUN_CACHE_FILE).is_file()
         || dir.join("manifest.json").is_file()
-        || dir.join(crate::engine::lock::LOCK_FILE).is_file()
+        || dir.join(crate::files::LOCK_FILE).is_file()
 }
 
 /// How deep a walk goes below the input root: far deeper than any real

@@ -291,38 +291,7 @@ pub fn shrink_interval(before: &[f64], after: &[f64], seed: u64) -> Option<[f64;
     Some([q(0.025), q(0.975)])
 }
 
-/// `1.50e-5 ± 0.08e-5`: value and standard error on the value's exponent
-/// (the units-free form; outputs show parameters through units::format).
-pub fn format_pm(value: f64, se: f64) -> String {
-    if !value.is_finite() {
-        return format!("{value}");
-    }
-    let e = if value == 0.0 {
-        if se > 0.0 {
-            se.abs().log10().floor() as i32
-        } else {
-            0
-        }
-    } else {
-        value.abs().log10().floor() as i32
-    };
-    // Enough decimals that the standard error shows at least one
-    // significant digit: `1.5000e-5 ± 0.0003e-5`, never `± 0.00e-5`.
-    let se_digits = |se: f64| -> i32 {
-        if se > 0.0 && se.is_finite() {
-            (-se.log10()).ceil() as i32
-        } else {
-            0
-        }
-    };
-    if (-2..4).contains(&e) {
-        let d = (2 - e).max(se_digits(se)).clamp(0, 10) as usize;
-        return format!("{value:.d$} ± {se:.d$}");
-    }
-    let s = 10f64.powi(e);
-    let d = se_digits(se / s).clamp(2, 8) as usize;
-    format!("{:.d$}e{e} ± {:.d$}e{e}", value / s, se / s)
-}
+pub use crate::units::format::format_pm;
 
 /// Intervals of the chosen effects of one observable, in selection order:
 /// (parameter intervals, held-out shrink interval).

@@ -4,7 +4,7 @@
 use std::fmt::Write;
 
 use super::Diagnosis;
-use crate::report::esc;
+use crate::html::esc;
 
 /// Millimetres at micrometre resolution (what an engineer reads), with
 /// scientific notation only for values below that.

@@ -79,7 +79,7 @@ pub struct StageRecord {
 
 /// `<out>/<machine>/<run>/.sparkout-cache.json`, written last in a run's
 /// directory, so a killed batch never trusts a half-written run.
-pub const RUN_CACHE_FILE: &str = ".sparkout-cache.json";
+pub use crate::files::RUN_CACHE_FILE;
 
 pub fn read_run_cache(dir: &Path) -> BTreeMap<String, StageRecord> {
     let p = dir.join(RUN_CACHE_FILE);

@@ -21,7 +21,7 @@ use anyhow::{bail, Context};
 
 use crate::error::Result;
 
-pub const LOCK_FILE: &str = ".sparkout.lock";
+pub use crate::files::LOCK_FILE;
 
 /// Held for the whole batch; removes the lock file when dropped.
 #[derive(Debug)]

@@ -21,13 +21,7 @@ use crate::traits::{ReportSection, Run};
 /// Bump when the report layout changes (cache key of report steps).
 pub const REPORT_VERSION: u32 = 6;
 
-/// HTML-escape text.
-pub fn esc(s: &str) -> String {
-    s.replace('&', "&amp;")
-        .replace('<', "&lt;")
-        .replace('>', "&gt;")
-        .replace('"', "&quot;")
-}
+pub use crate::html::esc;
 
 /// A number for a report: mm shown with µm resolution, NaN as "—".
 pub fn fmt_mm(v: f64) -> String {

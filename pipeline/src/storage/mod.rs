@@ -101,7 +101,7 @@ pub fn check_remote_apart(input: &Path, out: &Path) -> Result<()> {
     if si != so {
         return Ok(());
     }
-    let Some(why) = crate::contracts::names::overlap(&i, &o) else {
+    let Some(why) = crate::files::names::overlap(&i, &o) else {
         return Ok(());
     };
     bail!(

@@ -11,7 +11,7 @@ use serde::{Deserialize, Serialize};
 
 use super::remote::{RemoteStub, REMOTE_STUB_SUFFIX};
 use super::{block_on, RemotePrefix};
-use crate::contracts::write::{is_temp_name, write_atomic};
+use crate::files::write::{is_temp_name, write_atomic};
 
 /// Staging state: which version of each object the local copy is.
 const STAGED_FILE: &str = ".sparkout-staged.json";
@@ -84,7 +84,7 @@ pub(super) fn holds_nothing(remote: &RemotePrefix) -> Result<bool> {
 fn local_path(root: &Path, rel: &str) -> Result<PathBuf> {
     let mut p = root.to_path_buf();
     for part in rel.split('/') {
-        if !crate::contracts::names::is_plain_file_name(part) {
+        if !crate::files::names::is_plain_file_name(part) {
             anyhow::bail!(
                 "object key `{rel}` has a segment `{part}` that is not a plain name; it would be written outside {} — not transferred",
                 root.display()
@@ -221,7 +221,7 @@ fn local_files(dir: &Path) -> Result<Vec<String>> {
                 walk(root, &e.path(), out)?;
             } else if ft.is_file()
                 && !is_temp_name(&name)
-                && name != crate::engine::lock::LOCK_FILE
+                && name != crate::files::LOCK_FILE
                 && name != STAGED_FILE
                 && name != PUBLISHED_FILE
                 && !name.ends_with(REMOTE_STUB_SUFFIX)

@@ -409,7 +409,7 @@ pub fn show_pm(value: f64, se: f64, unit: &ParamUnit) -> String {
     let (v, e) = (value * f, se * f);
     // Scientific unless the value (or, for a zero, its error) reads plainly.
     if !(plain(v) || (v == 0.0 && plain(e))) {
-        let p = crate::diagnose::intervals::format_pm(value, se);
+        let p = format_pm(value, se);
         return with_unit(p, &unit.canonical());
     }
     let d = pm_decimals(v, e);
@@ -440,7 +440,7 @@ pub fn show_interval(value: f64, se: Option<f64>, lo: f64, hi: f64, unit: &Param
     let (v, l, h) = (value * f, lo * f, hi * f);
     if !(plain(v) || (v == 0.0 && plain(h))) {
         let head = match se {
-            Some(se) => crate::diagnose::intervals::format_pm(value, se),
+            Some(se) => format_pm(value, se),
             None => format!("{value:.2e}"),
         };
         let c = unit.canonical();
@@ -514,6 +514,39 @@ fn suffix_of(name: &str) -> &str {
         })
         .copied()
         .unwrap_or("")
+}
+
+/// `1.50e-5 ± 0.08e-5`: value and standard error on the value's exponent
+/// (the units-free form; outputs show parameters through units::format).
+pub fn format_pm(value: f64, se: f64) -> String {
+    if !value.is_finite() {
+        return format!("{value}");
+    }
+    let e = if value == 0.0 {
+        if se > 0.0 {
+            se.abs().log10().floor() as i32
+        } else {
+            0
+        }
+    } else {
+        value.abs().log10().floor() as i32
+    };
+    // Enough decimals that the standard error shows at least one
+    // significant digit: `1.5000e-5 ± 0.0003e-5`, never `± 0.00e-5`.
+    let se_digits = |se: f64| -> i32 {
+        if se > 0.0 && se.is_finite() {
+            (-se.log10()).ceil() as i32
+        } else {
+            0
+        }
+    };
+    if (-2..4).contains(&e) {
+        let d = (2 - e).max(se_digits(se)).clamp(0, 10) as usize;
+        return format!("{value:.d$} ± {se:.d$}");
+    }
+    let s = 10f64.powi(e);
+    let d = se_digits(se / s).clamp(2, 8) as usize;
+    format!("{:.d$}e{e} ± {:.d$}e{e}", value / s, se / s)
 }
 
 #[cfg(test)]
