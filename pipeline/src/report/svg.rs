@@ -74,7 +74,11 @@ fn framed_chart<'a, 'b>(
 
 /// Axes with their descriptions and tick text in the pages' style, no
 /// grid lines (a map's cells fill the plot). Each axis in one notation.
-fn draw_axes(chart: &mut Chart, (x_label, y_label): (&str, &str), (x, y): ((f64, f64), (f64, f64))) {
+fn draw_axes(
+    chart: &mut Chart,
+    (x_label, y_label): (&str, &str),
+    (x, y): ((f64, f64), (f64, f64)),
+) {
     let (ax, ay) = (axis_formatter(x.0, x.1, 7), axis_formatter(y.0, y.1, 6));
     let fx = |v: &f64| ax.text(*v);
     let fy = |v: &f64| ay.text(*v);
@@ -521,7 +525,11 @@ fn bar_notation(vmax: f64, lo: f64) -> AxisText {
 }
 
 /// The map cell nearest to (x, y): its index in `cells`.
-fn nearest_cell(cells: &[(f64, f64, f64)], (x, y): (f64, f64), (dx, dy): (f64, f64)) -> Option<usize> {
+fn nearest_cell(
+    cells: &[(f64, f64, f64)],
+    (x, y): (f64, f64),
+    (dx, dy): (f64, f64),
+) -> Option<usize> {
     cells
         .iter()
         .enumerate()
@@ -551,7 +559,12 @@ pub fn outline_edges(
     for i in &on {
         let c = cells[*i];
         let (kx, ky) = key(&c);
-        let (x0, x1, y0, y1) = (c.0 - dx / 2.0, c.0 + dx / 2.0, c.1 - dy / 2.0, c.1 + dy / 2.0);
+        let (x0, x1, y0, y1) = (
+            c.0 - dx / 2.0,
+            c.0 + dx / 2.0,
+            c.1 - dy / 2.0,
+            c.1 + dy / 2.0,
+        );
         if !keys.contains(&(kx - 1, ky)) {
             edges.push(((x0, y0), (x0, y1)));
         }
@@ -779,7 +792,10 @@ mod tests {
         assert!(own.contains(">µm</text>"), "{own}");
         assert!(own.contains(">2.50</text>") && own.contains(">-2.50</text>"));
         // One notation on the bar: the zero tick has the others' decimals.
-        assert!(own.contains(">0.00</text>") && own.contains(">1.25</text>"), "{own}");
+        assert!(
+            own.contains(">0.00</text>") && own.contains(">1.25</text>"),
+            "{own}"
+        );
         // A shared scale relabels the bar.
         hm.vmax = Some(10.0);
         let shared = heat(&hm);
@@ -811,7 +827,10 @@ mod tests {
     #[test]
     fn axes_read_in_one_notation() {
         let a = axis_formatter(0.0, 3.0, 7);
-        assert_eq!([a.text(0.5), a.text(1.0), a.text(1.5)], ["0.5", "1.0", "1.5"]);
+        assert_eq!(
+            [a.text(0.5), a.text(1.0), a.text(1.5)],
+            ["0.5", "1.0", "1.5"]
+        );
         let b = axis_formatter(0.0, 250.0, 6);
         assert_eq!([b.text(0.0), b.text(100.0)], ["0", "100"]);
         let c = axis_formatter(0.0, 3.9e-5, 6);

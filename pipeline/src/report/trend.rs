@@ -22,8 +22,8 @@ pub mod page;
 pub mod rule;
 
 pub use events::{append_events, parse_event, read_events, Event, EVENTS_FILE, EVENT_KINDS};
-pub use page::{trend_anchor, trend_page};
 pub use history::{append_night, read_history, rows_of, write_night, HistoryRow, HISTORY_VERSION};
+pub use page::{trend_anchor, trend_page};
 pub use rule::{holm, trend, TrendConfig};
 
 /// Version of trend.json. 2: ranked alerts with size, fraction of the gap,

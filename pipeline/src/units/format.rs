@@ -592,11 +592,17 @@ mod tests {
         assert_eq!(show_as_written(2.5, "deg"), "2.50 deg");
         // A thermal coefficient in µm/K and a wavelength in mm.
         assert_eq!(
-            show(1.2e-3, &effect_param_unit("thermal:temp_c", "k", "mm").unwrap()),
+            show(
+                1.2e-3,
+                &effect_param_unit("thermal:temp_c", "k", "mm").unwrap()
+            ),
             "1.20 µm/K"
         );
         assert_eq!(
-            show(58.9, &effect_param_unit("periodic:x_mm", "lambda", "mm").unwrap()),
+            show(
+                58.9,
+                &effect_param_unit("periodic:x_mm", "lambda", "mm").unwrap()
+            ),
             "58.9 mm"
         );
     }

@@ -60,11 +60,7 @@ fn maps_show_the_rms_of_an_alternating_gap_and_outline_only_before() {
     let regions = [[(-3.0, -2.0), (12.0, 31.0)]];
     let m = rms_maps((&x, &y), (&gap, &res), &regions, 1000.0);
     let at = |cells: &[(f64, f64, f64)], p: (f64, f64)| {
-        cells
-            .iter()
-            .find(|c| (c.0, c.1) == p)
-            .map(|c| c.2)
-            .unwrap()
+        cells.iter().find(|c| (c.0, c.1) == p).map(|c| c.2).unwrap()
     };
     assert!((at(&m.before, (0.0, 0.0)) - 30.0).abs() < 1e-9);
     assert!((at(&m.before, (30.0, 30.0)) - 1.0).abs() < 1e-9);
@@ -94,5 +90,8 @@ fn maps_show_the_rms_of_an_alternating_gap_and_outline_only_before() {
 fn at_a_glance_thumbnails_are_readable() {
     assert!(MINI_SIZE.0 >= 120);
     let bars = mini_bars(0.03, 0.01, 0.005);
-    assert!(bars.contains(&format!("width=\"{}\"", MINI_SIZE.0)), "{bars}");
+    assert!(
+        bars.contains(&format!("width=\"{}\"", MINI_SIZE.0)),
+        "{bars}"
+    );
 }

@@ -9,8 +9,8 @@ use std::fmt::Write;
 use plotters::prelude::*;
 
 use super::{
-    axis_formatter, bounds, compact, framed_chart, hex, BAR_TEXT_PX, COLORS,
-    DESC_PX, FONT, LABEL_PX,
+    axis_formatter, bounds, compact, framed_chart, hex, BAR_TEXT_PX, COLORS, DESC_PX, FONT,
+    LABEL_PX,
 };
 
 /// How a series is drawn.
@@ -58,11 +58,14 @@ pub struct XyExtras<'a> {
 const DASHES: [&str; 3] = ["", "9 4", "2 3"];
 
 /// The colour and dash pattern of series `i`: the palette's colours
-/// first, then the same colours dashed, then dotted.
-fn style_of(i: usize) -> (RGBColor, &'static str) {
+/// first, then the same colours dashed, then dotted. A band takes the
+/// colour of the series after it (a value and its interval read as one)
+/// and uses no colour of its own.
+fn style_of(series: &[Series], i: usize) -> (RGBColor, &'static str) {
+    let k = series[..i].iter().filter(|s| s.mark != Mark::Band).count();
     (
-        COLORS[i % COLORS.len()],
-        DASHES[(i / COLORS.len()) % DASHES.len()],
+        COLORS[k % COLORS.len()],
+        DASHES[(k / COLORS.len()) % DASHES.len()],
     )
 }
 
@@ -115,7 +118,8 @@ pub fn xy_chart_with(
     let mut hand = String::new();
     let xs = || series.iter().flat_map(|s| s.points.iter().map(|p| p.0));
     let whole_x = !extras.x_names.is_empty()
-        || (xs().any(|x| x.is_finite()) && xs().filter(|x| x.is_finite()).all(|x| x.fract() == 0.0));
+        || (xs().any(|x| x.is_finite())
+            && xs().filter(|x| x.is_finite()).all(|x| x.fract() == 0.0));
     {
         let root = SVGBackend::with_string(&mut out, size).into_drawing_area();
         let _ = root.fill(&WHITE);
@@ -151,7 +155,7 @@ pub fn xy_chart_with(
                 whole_x_ticks(&chart, (x0, x1, y0), extras.x_names, size.0, &mut hand);
             }
             for (i, s) in series.iter().enumerate() {
-                let (c, dash) = style_of(i);
+                let (c, dash) = style_of(series, i);
                 let pts: Vec<(f64, f64)> = s
                     .points
                     .iter()
@@ -275,7 +279,7 @@ fn legend(chart_svg: &str, series: &[Series], (w, h): (u32, u32)) -> String {
     );
     s.push_str(chart_svg);
     for (i, se) in series.iter().enumerate() {
-        let (c, dash) = style_of(i);
+        let (c, dash) = style_of(series, i);
         let y = h + 4 + row * i as u32;
         let mark = match se.mark {
             Mark::Line => format!(
@@ -383,11 +387,7 @@ mod tests {
             .map(|i| vec![(0.0, i as f64), (1.0, i as f64 + 0.5)])
             .collect();
         let names: Vec<String> = (0..10).map(|i| format!("c{i}")).collect();
-        let series: Vec<Series> = curves
-            .iter()
-            .zip(&names)
-            .map(|(p, n)| line(n, p))
-            .collect();
+        let series: Vec<Series> = curves.iter().zip(&names).map(|(p, n)| line(n, p)).collect();
         let s = xy_chart_sized("t", "x", "y", &series, (600, 300));
         // Three curves past the seven colours: drawn and listed dashed.
         assert_eq!(s.matches("stroke-dasharray=\"9 4\"").count(), 6, "{s}");

@@ -75,12 +75,7 @@ fn chart(t: &Trend, s: &TrendSeries, alerts: &[&Alert]) -> String {
         .iter()
         .filter_map(|a| {
             let x = at(&a.night)?;
-            let y = value
-                .iter()
-                .rev()
-                .find(|p| p.0 <= x)
-                .or(value.first())?
-                .1;
+            let y = value.iter().rev().find(|p| p.0 <= x).or(value.first())?.1;
             Some((x, y, format!("#{} {}", a.rank, a.kind)))
         })
         .collect();
@@ -288,7 +283,11 @@ mod tests {
     fn charts_have_dates_a_band_units_and_alert_rings() {
         let html = trend_page(&sample());
         for n in ["2026-11-01", "2026-11-04"] {
-            assert!(html.contains(&format!("class=\"xtick\"")) && html.contains(&format!(">{n}</text>")), "{n}");
+            assert!(
+                html.contains(&format!("class=\"xtick\""))
+                    && html.contains(&format!(">{n}</text>")),
+                "{n}"
+            );
         }
         assert!(!html.contains("night (0 = first)"));
         assert!(html.contains("<polygon"), "band");
@@ -306,10 +305,14 @@ mod tests {
     #[test]
     fn alerts_are_listed_latest_night_first_then_by_rank_and_link_to_their_chart() {
         let html = trend_page(&sample());
-        let order: Vec<usize> = ["message 2026-11-04 1", "message 2026-11-04 2", "message 2026-11-02 1"]
-            .iter()
-            .map(|m| html.find(m).unwrap())
-            .collect();
+        let order: Vec<usize> = [
+            "message 2026-11-04 1",
+            "message 2026-11-04 2",
+            "message 2026-11-02 1",
+        ]
+        .iter()
+        .map(|m| html.find(m).unwrap())
+        .collect();
         assert!(order.windows(2).all(|w| w[0] < w[1]), "{order:?}");
         assert!(html.contains("<a href=\"#trend-form-1-cut_depth\"><b>2026-11-04 #2</b>"));
         assert!(html.contains("<a href=\"#trend-fleet-cut_depth\"><b>2026-11-04 #1</b>"));
