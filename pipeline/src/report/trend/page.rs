@@ -284,8 +284,7 @@ mod tests {
         let html = trend_page(&sample());
         for n in ["2026-11-01", "2026-11-04"] {
             assert!(
-                html.contains(&format!("class=\"xtick\""))
-                    && html.contains(&format!(">{n}</text>")),
+                html.contains("class=\"xtick\"") && html.contains(&format!(">{n}</text>")),
                 "{n}"
             );
         }
