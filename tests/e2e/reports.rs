@@ -158,12 +158,22 @@ fn demo_pages_are_linked_self_contained_and_answer_per_observable() {
         .and_then(|s| s.split("</section>").next())
         .expect("surface_z section of aplm-gantry");
     assert!(
-        gantry.contains("surface_z: gap, mean per cell"),
+        gantry.contains("surface_z: gap RMS per cell, before"),
         "no gap map"
     );
     assert!(
-        gantry.contains("held-out gap after the selected effects"),
+        gantry.contains("surface_z: held-out gap RMS per cell, after"),
         "no after map"
+    );
+    // The significant cells are outlined on the before map only.
+    let after_map = gantry
+        .split("held-out gap RMS per cell, after")
+        .nth(1)
+        .and_then(|s| s.split("<svg class=\"chart\"").next())
+        .unwrap_or("");
+    assert!(
+        gantry.contains("class=\"outline\"") && !after_map.contains("class=\"outline\""),
+        "outline not on the before map alone"
     );
     assert!(gantry.contains(">µm</text>"), "no colour bar in µm");
     assert!(
@@ -194,7 +204,7 @@ fn demo_pages_are_linked_self_contained_and_answer_per_observable() {
     };
     let g = row("aplm-gantry--surface-z");
     assert!(
-        g.contains("aria-label=\"gap map") && g.matches("<rect").count() >= 9,
+        g.contains("aria-label=\"gap RMS of") && g.matches("<rect").count() >= 9,
         "no gap-map thumbnail for the gantry: {g}"
     );
     assert!(

@@ -5,6 +5,7 @@ use std::fmt::Write;
 
 use super::Diagnosis;
 use crate::html::esc;
+use crate::units::format::show_p;
 
 /// Millimetres at micrometre resolution (what an engineer reads), with
 /// scientific notation only for values below that.
@@ -135,7 +136,7 @@ pub fn section(d: &Diagnosis) -> String {
         for c in d.where_.iter().take(20) {
             let _ = write!(
                 s,
-                "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{:.3}</td><td>{:.2e}</td></tr>",
+                "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{:.3}</td><td>{}</td></tr>",
                 esc(&c.observable),
                 esc(&c.covariate),
                 json_num(&c.lo),
@@ -143,7 +144,7 @@ pub fn section(d: &Diagnosis) -> String {
                 c.n,
                 num(Some(c.rms_mm)),
                 c.share,
-                c.p_value
+                show_p(c.p_value)
             );
         }
         s.push_str("</table>");
@@ -177,7 +178,7 @@ pub fn section(d: &Diagnosis) -> String {
                 (Some(v), None) => format!("{v:.3}"),
                 _ => "—".into(),
             },
-            e.p_value.map(|v| format!("{v:.2e}")).unwrap_or_else(|| "—".into()),
+            e.p_value.map(show_p).unwrap_or_else(|| "—".into()),
             if e.selected { "yes" } else { "" },
             esc(&e.skipped_reason.clone().unwrap_or_else(|| params.join(", ")))
         );
@@ -241,7 +242,7 @@ fn per_machine_table(d: &Diagnosis, s: &mut String) {
                 esc(&params.join(", ")),
                 num(f.offset_mm),
                 e.machines_differ_p
-                    .map(|p| format!("{p:.2e}"))
+                    .map(show_p)
                     .unwrap_or_else(|| "—".into())
             );
         }

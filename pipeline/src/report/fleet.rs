@@ -144,7 +144,7 @@ fn glance_table(tree: &Tree, per_obs: &BTreeMap<&str, &Value>, rows: Option<&Fle
             }
         }
     }
-    body.push_str("</tbody></table><p class=\"note\">where: the gap map over the workpiece (red: real above sim, blue: below); which: the mean gap against the named effect's covariate; how far: gap RMS (grey), held-out RMS after the named effects (green), noise floor (black tick). Each row on its own scale; the full pictures are in the observable's section.</p>");
+    body.push_str("</tbody></table><p class=\"note\">where: the gap RMS per cell over the workpiece (darker: larger); which: the mean gap against the named effect's covariate; how far: gap RMS (grey), held-out RMS after the named effects (green), noise floor (black tick). Each row on its own scale; the full pictures are in the observable's section.</p>");
     body
 }
 

@@ -7,6 +7,9 @@ use std::fmt::Write;
 
 use plotters::prelude::*;
 
+mod xy;
+pub use xy::*;
+
 /// Palette for series (colour-blind friendly, Okabe–Ito).
 const COLORS: [RGBColor; 7] = [
     RGBColor(0, 114, 178),
@@ -69,31 +72,97 @@ fn framed_chart<'a, 'b>(
         .ok()
 }
 
-/// Grid lines behind a chart: the bold mesh only (curves), or none (maps,
-/// whose cells fill the plot).
-#[derive(Clone, Copy)]
-enum Grid {
-    Bold,
-    None,
-}
-
-/// Axes with their descriptions and tick text in the pages' style.
-fn draw_axes(chart: &mut Chart, (x_label, y_label): (&str, &str), grid: Grid) {
-    let fx = |v: &f64| tick(*v);
-    let mut mesh = chart.configure_mesh();
-    mesh.x_desc(x_label)
+/// Axes with their descriptions and tick text in the pages' style, no
+/// grid lines (a map's cells fill the plot). Each axis in one notation.
+fn draw_axes(
+    chart: &mut Chart,
+    (x_label, y_label): (&str, &str),
+    (x, y): ((f64, f64), (f64, f64)),
+) {
+    let (ax, ay) = (axis_formatter(x.0, x.1, 7), axis_formatter(y.0, y.1, 6));
+    let fx = |v: &f64| ax.text(*v);
+    let fy = |v: &f64| ay.text(*v);
+    let _ = chart
+        .configure_mesh()
+        .x_desc(x_label)
         .y_desc(y_label)
         .x_labels(7)
         .y_labels(6)
         .x_label_formatter(&fx)
-        .y_label_formatter(&fx)
+        .y_label_formatter(&fy)
         .label_style((FONT, LABEL_PX))
-        .axis_desc_style((FONT, DESC_PX));
-    match grid {
-        Grid::Bold => mesh.light_line_style(WHITE.mix(0.0)),
-        Grid::None => mesh.disable_mesh(),
-    };
-    let _ = mesh.draw();
+        .axis_desc_style((FONT, DESC_PX))
+        .disable_mesh()
+        .draw();
+}
+
+/// One axis's tick text in one notation: every label with the decimals
+/// of the axis's tick step, so an axis reads 0.5, 1.0, 1.5 and not 0.500,
+/// 1, 1.50; values too small or too large for plain notation share the
+/// scientific one.
+#[derive(Clone, Copy, Debug)]
+pub struct AxisText {
+    decimals: usize,
+    scientific: bool,
+}
+
+impl AxisText {
+    /// Every label with `decimals` decimals.
+    pub fn fixed(decimals: usize) -> AxisText {
+        AxisText {
+            decimals,
+            scientific: false,
+        }
+    }
+    pub fn text(&self, v: f64) -> String {
+        if !v.is_finite() {
+            return "—".into();
+        }
+        let d = self.decimals;
+        let s = if self.scientific {
+            if v == 0.0 {
+                return "0".into();
+            }
+            format!("{v:.d$e}")
+        } else {
+            format!("{v:.d$}")
+        };
+        // "-0.0" is "0.0".
+        match s.strip_prefix('-') {
+            Some(r) if r.chars().all(|c| c == '0' || c == '.') => r.to_string(),
+            _ => s,
+        }
+    }
+}
+
+/// The notation of an axis over [lo, hi] with about `labels` ticks: the
+/// decimals of a step of 1, 2 or 5 × 10^k at twice that many ticks (so a
+/// finer step than the one drawn never needs more decimals than given).
+pub fn axis_formatter(lo: f64, hi: f64, labels: usize) -> AxisText {
+    let big = lo.abs().max(hi.abs());
+    let span = (hi - lo).abs();
+    if !(big.is_finite() && span.is_finite()) || big == 0.0 {
+        return AxisText::fixed(0);
+    }
+    if !(1e-3..1e6).contains(&big) {
+        return AxisText {
+            decimals: 2,
+            scientific: true,
+        };
+    }
+    let raw = span.max(big * 1e-9) / (2 * labels.max(1)) as f64;
+    let e = raw.log10().floor();
+    let m = raw / 10f64.powf(e);
+    let step = if m <= 1.0 {
+        1.0
+    } else if m <= 2.0 {
+        2.0
+    } else if m <= 5.0 {
+        5.0
+    } else {
+        10.0
+    } * 10f64.powf(e);
+    AxisText::fixed((-(step.log10() + 1e-9).floor()).clamp(0.0, 9.0) as usize)
 }
 
 /// Smallest spacing of distinct finite values (a grid's cell size; 1e300
@@ -160,98 +229,6 @@ fn compact(svg: &str) -> String {
     }
     out.push_str(&s);
     out
-}
-
-/// How a series is drawn.
-#[derive(Clone, Copy, PartialEq, Eq)]
-pub enum Mark {
-    Line,
-    Points,
-}
-
-pub struct Series<'a> {
-    pub name: &'a str,
-    pub points: &'a [(f64, f64)],
-    pub mark: Mark,
-}
-
-/// An x–y chart of one or more series.
-pub fn xy_chart(title: &str, x_label: &str, y_label: &str, series: &[Series]) -> String {
-    xy_chart_sized(title, x_label, y_label, series, (720, 380))
-}
-
-/// [`xy_chart`] at a given size in px (plots sized to their content).
-pub fn xy_chart_sized(
-    title: &str,
-    x_label: &str,
-    y_label: &str,
-    series: &[Series],
-    size: (u32, u32),
-) -> String {
-    let mut out = String::new();
-    {
-        let root = SVGBackend::with_string(&mut out, size).into_drawing_area();
-        let _ = root.fill(&WHITE);
-        let (x0, x1) = bounds(series.iter().flat_map(|s| s.points.iter().map(|p| p.0)));
-        let (y0, y1) = bounds(series.iter().flat_map(|s| s.points.iter().map(|p| p.1)));
-        let chart = framed_chart(&root, title, 84, (x0..x1, y0..y1));
-        if let Some(mut chart) = chart {
-            draw_axes(&mut chart, (x_label, y_label), Grid::Bold);
-            for (i, s) in series.iter().enumerate() {
-                let c = COLORS[i % COLORS.len()];
-                let pts: Vec<(f64, f64)> = s
-                    .points
-                    .iter()
-                    .copied()
-                    .filter(|p| p.0.is_finite() && p.1.is_finite())
-                    .collect();
-                let drawn = match s.mark {
-                    Mark::Line => chart.draw_series(LineSeries::new(pts, c.stroke_width(2))),
-                    Mark::Points => {
-                        chart.draw_series(pts.into_iter().map(|p| Circle::new(p, 3, c.filled())))
-                    }
-                };
-                let _ = drawn;
-            }
-        }
-        let _ = root.present();
-    }
-    if series.len() < 2 {
-        return classed(out);
-    }
-    // The legend goes below the chart, one row per series, so it never
-    // hides a point.
-    let (w, h) = size;
-    let row = 20;
-    let total = h + 8 + row * series.len() as u32;
-    let mut s = format!(
-        r#"<svg class="chart" xmlns="http://www.w3.org/2000/svg" width="{w}" height="{total}" viewBox="0 0 {w} {total}" font-family="{FONT}">"#
-    );
-    s.push_str(&compact(&out));
-    for (i, se) in series.iter().enumerate() {
-        let c = COLORS[i % COLORS.len()];
-        let y = h + 4 + row * i as u32;
-        let mark = match se.mark {
-            Mark::Line => format!(
-                r#"<line x1="96" x2="120" y1="{m}" y2="{m}" stroke="{}" stroke-width="2"/>"#,
-                hex(c),
-                m = y + 8
-            ),
-            Mark::Points => format!(
-                r#"<circle cx="108" cy="{}" r="4" fill="{}"/>"#,
-                y + 8,
-                hex(c)
-            ),
-        };
-        let _ = write!(
-            s,
-            r#"{mark}<text x="128" y="{}" font-size="{BAR_TEXT_PX}">{}</text>"#,
-            y + 13,
-            crate::report::esc(se.name)
-        );
-    }
-    s.push_str("</svg>");
-    s
 }
 
 /// Horizontal bars (label, value), e.g. effect ranking. The label column
@@ -327,8 +304,11 @@ pub struct Heat<'a> {
     /// Diverging blue–white–red around 0 (signed data) or sequential
     /// white–red from 0 (magnitudes).
     pub diverging: bool,
-    /// Rectangles [(x0, y0), (x1, y1)] to outline (e.g. significant cells).
-    pub outlines: &'a [[(f64, f64); 2]],
+    /// Cells to outline (e.g. those inside a significant region), by
+    /// their centres: each is snapped to the map's nearest cell and the
+    /// outer edge of the outlined cells is drawn, so the outline follows
+    /// the map's own grid.
+    pub outlined: &'a [(f64, f64)],
 }
 
 impl<'a> Heat<'a> {
@@ -342,7 +322,7 @@ impl<'a> Heat<'a> {
             y_label: "y (mm)",
             vmax: None,
             diverging: cells.iter().any(|c| c.2 < 0.0),
-            outlines: &[],
+            outlined: &[],
         }
     }
 }
@@ -428,19 +408,11 @@ pub fn heat(h: &Heat) -> String {
         } else {
             1.0
         };
-        let (x0, x1) = bounds(
-            xs.iter()
-                .flat_map(|x| [x - dx / 2.0, x + dx / 2.0])
-                .chain(h.outlines.iter().flat_map(|r| [r[0].0, r[1].0])),
-        );
-        let (y0, y1) = bounds(
-            ys.iter()
-                .flat_map(|y| [y - dy / 2.0, y + dy / 2.0])
-                .chain(h.outlines.iter().flat_map(|r| [r[0].1, r[1].1])),
-        );
+        let (x0, x1) = bounds(xs.iter().flat_map(|x| [x - dx / 2.0, x + dx / 2.0]));
+        let (y0, y1) = bounds(ys.iter().flat_map(|y| [y - dy / 2.0, y + dy / 2.0]));
         let chart = framed_chart(&root, h.title, 76, (x0..x1, y0..y1));
         if let Some(mut chart) = chart {
-            draw_axes(&mut chart, (h.x_label, h.y_label), Grid::None);
+            draw_axes(&mut chart, (h.x_label, h.y_label), ((x0, x1), (y0, y1)));
             // Cells and outlines written by hand as compact rects (a plotters
             // rect carries five more attributes): the map's bytes matter on
             // a fleet page with dozens of maps. Colours are quantised to the
@@ -460,14 +432,19 @@ pub fn heat(h: &Heat) -> String {
             for (fill, d) in by_colour {
                 let _ = write!(cells_svg, r#"<path fill="{fill}" d="{d}"/>"#);
             }
-            for r in h.outlines {
-                let (px0, py0) = chart.backend_coord(&(r[0].0, r[1].1));
-                let (px1, py1) = chart.backend_coord(&(r[1].0, r[0].1));
+            let edges = outline_edges(h.cells, h.outlined, (dx, dy));
+            if !edges.is_empty() {
+                let mut d = String::new();
+                for ((ax, ay), (bx, by)) in edges {
+                    let (p0, p1) = (
+                        chart.backend_coord(&(ax, ay)),
+                        chart.backend_coord(&(bx, by)),
+                    );
+                    let _ = write!(d, "M{} {}L{} {}", p0.0, p0.1, p1.0, p1.1);
+                }
                 let _ = write!(
                     cells_svg,
-                    r##"<rect x="{px0}" y="{py0}" width="{}" height="{}" fill="none" stroke="#000" stroke-width="2"/>"##,
-                    (px1 - px0).max(2),
-                    (py1 - py0).max(2)
+                    r##"<path class="outline" d="{d}" fill="none" stroke="#000" stroke-width="2.5" stroke-linecap="square"/>"##
                 );
             }
         }
@@ -518,6 +495,7 @@ pub fn heat(h: &Heat) -> String {
         crate::report::esc(h.unit)
     );
     let ticks = 5;
+    let bar_text = bar_notation(vmax, lo);
     for k in 0..ticks {
         let f = k as f64 / (ticks - 1) as f64;
         let v = vmax - f * (vmax - lo);
@@ -529,17 +507,90 @@ pub fn heat(h: &Heat) -> String {
             bx + 22.0,
             bx + 25.0,
             y + 5.0,
-            tick(v)
+            bar_text.text(v)
         );
     }
     s.push_str("</svg>");
     s
 }
 
-/// A thumbnail of a gap map for the at-a-glance table ("where"): the cells
-/// on the full map's diverging colour scale, no axes — the full map with
-/// its axes and colour bar is in the observable's section, one click away.
-pub fn mini_heat(cells: &[(f64, f64, f64)], w: u32, h: u32) -> String {
+/// The colour bar's tick text: three significant digits of its full scale
+/// for every tick (2.50, 1.25, 0.00, −1.25, −2.50).
+fn bar_notation(vmax: f64, lo: f64) -> AxisText {
+    if !(1e-3..1e6).contains(&vmax) {
+        return axis_formatter(lo, vmax, 4);
+    }
+    let e = vmax.log10().floor() as i32;
+    AxisText::fixed((2 - e).clamp(0, 9) as usize)
+}
+
+/// The map cell nearest to (x, y): its index in `cells`.
+fn nearest_cell(
+    cells: &[(f64, f64, f64)],
+    (x, y): (f64, f64),
+    (dx, dy): (f64, f64),
+) -> Option<usize> {
+    cells
+        .iter()
+        .enumerate()
+        .filter(|(_, c)| c.2.is_finite())
+        .map(|(i, c)| (i, ((c.0 - x) / dx).powi(2) + ((c.1 - y) / dy).powi(2)))
+        .min_by(|a, b| a.1.total_cmp(&b.1))
+        .map(|(i, _)| i)
+}
+
+/// The outer edges of the union of the outlined cells (each snapped to
+/// the nearest drawn cell), as segments in data coordinates: an edge two
+/// outlined cells share is not drawn, so a region reads as one contour
+/// on the cells it covers.
+pub fn outline_edges(
+    cells: &[(f64, f64, f64)],
+    outlined: &[(f64, f64)],
+    (dx, dy): (f64, f64),
+) -> Vec<((f64, f64), (f64, f64))> {
+    let on: std::collections::BTreeSet<usize> = outlined
+        .iter()
+        .filter_map(|p| nearest_cell(cells, *p, (dx, dy)))
+        .collect();
+    // Grid index of a cell: its centre in steps of the cell size.
+    let key = |c: &(f64, f64, f64)| ((c.0 / dx).round() as i64, (c.1 / dy).round() as i64);
+    let keys: std::collections::BTreeSet<(i64, i64)> = on.iter().map(|i| key(&cells[*i])).collect();
+    let mut edges = Vec::new();
+    for i in &on {
+        let c = cells[*i];
+        let (kx, ky) = key(&c);
+        let (x0, x1, y0, y1) = (
+            c.0 - dx / 2.0,
+            c.0 + dx / 2.0,
+            c.1 - dy / 2.0,
+            c.1 + dy / 2.0,
+        );
+        if !keys.contains(&(kx - 1, ky)) {
+            edges.push(((x0, y0), (x0, y1)));
+        }
+        if !keys.contains(&(kx + 1, ky)) {
+            edges.push(((x1, y0), (x1, y1)));
+        }
+        if !keys.contains(&(kx, ky - 1)) {
+            edges.push(((x0, y0), (x1, y0)));
+        }
+        if !keys.contains(&(kx, ky + 1)) {
+            edges.push(((x0, y1), (x1, y1)));
+        }
+    }
+    edges
+}
+
+/// A thumbnail of a map for the at-a-glance table ("where"): the cells on
+/// the full map's colour scale (sequential from 0 for an RMS, diverging
+/// for signed values), no axes — the full map with its axes and colour
+/// bar is in the observable's section, one click away.
+pub fn mini_heat(
+    cells: &[(f64, f64, f64)],
+    (w, h): (u32, u32),
+    diverging: bool,
+    label: &str,
+) -> String {
     let mut xs: Vec<f64> = cells.iter().map(|c| c.0).collect();
     let mut ys: Vec<f64> = cells.iter().map(|c| c.1).collect();
     xs.sort_by(f64::total_cmp);
@@ -552,7 +603,8 @@ pub fn mini_heat(cells: &[(f64, f64, f64)], w: u32, h: u32) -> String {
     }
     let (cw, ch) = (w as f64 / xs.len() as f64, h as f64 / ys.len() as f64);
     let mut s = format!(
-        r##"<svg class="mini" width="{w}" height="{h}" role="img" aria-label="gap map (red: real above sim, blue: below)"><rect width="{w}" height="{h}" fill="#eee"/>"##
+        r##"<svg class="mini" width="{w}" height="{h}" role="img" aria-label="{}"><rect width="{w}" height="{h}" fill="#eee"/>"##,
+        crate::report::esc(label)
     );
     for &(x, y, v) in cells {
         if !v.is_finite() {
@@ -568,7 +620,7 @@ pub fn mini_heat(cells: &[(f64, f64, f64)], w: u32, h: u32) -> String {
             iy * ch,
             cw + 0.3,
             ch + 0.3,
-            hex(colour(quantise(v / vmax, true), true))
+            hex(colour(quantise(v / vmax, diverging), diverging))
         );
     }
     s.push_str("</svg>");
@@ -739,16 +791,52 @@ mod tests {
         // Unit and the full-scale tick (±2.5) on the bar.
         assert!(own.contains(">µm</text>"), "{own}");
         assert!(own.contains(">2.50</text>") && own.contains(">-2.50</text>"));
+        // One notation on the bar: the zero tick has the others' decimals.
+        assert!(
+            own.contains(">0.00</text>") && own.contains(">1.25</text>"),
+            "{own}"
+        );
         // A shared scale relabels the bar.
         hm.vmax = Some(10.0);
         let shared = heat(&hm);
-        assert!(shared.contains(">10</text>") && !shared.contains(">2.50</text>"));
-        // Outlines are drawn as unfilled rectangles.
-        let o = [[(-0.5, -0.5), (0.5, 0.5)]];
-        hm.outlines = &o;
-        assert!(
-            heat(&hm).matches("fill=\"none\"").count() > shared.matches("fill=\"none\"").count()
+        assert!(shared.contains(">10.0</text>") && !shared.contains(">2.50</text>"));
+        assert!(!shared.contains("class=\"outline\""));
+        // Outlined cells: one contour path.
+        let o = [(0.1, -0.2)];
+        hm.outlined = &o;
+        assert_eq!(heat(&hm).matches("class=\"outline\"").count(), 1);
+    }
+
+    #[test]
+    fn outlines_follow_the_map_cells_and_skip_shared_edges() {
+        // A 3 × 2 grid of unit cells; outline the two left cells of row 0
+        // (one asked off-centre: snapped to its cell).
+        let cells: Vec<(f64, f64, f64)> = (0..3)
+            .flat_map(|i| (0..2).map(move |j| (i as f64, j as f64, 1.0)))
+            .collect();
+        let e = outline_edges(&cells, &[(0.0, 0.0), (1.2, -0.1)], (1.0, 1.0));
+        // Two cells side by side: 6 outer unit edges, the shared one absent.
+        assert_eq!(e.len(), 6, "{e:?}");
+        let on_grid = |v: f64| (v + 0.5).fract().abs() < 1e-12;
+        assert!(e
+            .iter()
+            .all(|(a, b)| on_grid(a.0) && on_grid(a.1) && on_grid(b.0) && on_grid(b.1)));
+        assert!(!e.contains(&((0.5, -0.5), (0.5, 0.5))), "shared edge drawn");
+    }
+
+    #[test]
+    fn axes_read_in_one_notation() {
+        let a = axis_formatter(0.0, 3.0, 7);
+        assert_eq!(
+            [a.text(0.5), a.text(1.0), a.text(1.5)],
+            ["0.5", "1.0", "1.5"]
         );
+        let b = axis_formatter(0.0, 250.0, 6);
+        assert_eq!([b.text(0.0), b.text(100.0)], ["0", "100"]);
+        let c = axis_formatter(0.0, 3.9e-5, 6);
+        assert_eq!(c.text(3.9312e-5), "3.93e-5");
+        assert_eq!(c.text(0.0), "0");
+        assert_eq!(bar_notation(0.034, -0.034).text(0.0085), "0.0085");
     }
 
     #[test]

@@ -13,16 +13,17 @@ use std::path::Path;
 use anyhow::{bail, Context};
 use serde::{Deserialize, Serialize};
 
-use super::{esc, page, svg};
 use crate::contracts::{write_atomic, write_json_atomic};
 use crate::error::Result;
 
 pub mod events;
 pub mod history;
+pub mod page;
 pub mod rule;
 
 pub use events::{append_events, parse_event, read_events, Event, EVENTS_FILE, EVENT_KINDS};
 pub use history::{append_night, read_history, rows_of, write_night, HistoryRow, HISTORY_VERSION};
+pub use page::{trend_anchor, trend_page};
 pub use rule::{holm, trend, TrendConfig};
 
 /// Version of trend.json. 2: ranked alerts with size, fraction of the gap,
@@ -173,109 +174,6 @@ pub fn read_trend(path: &Path) -> Result<Trend> {
         .into());
     }
     Ok(serde_json::from_value(v).map_err(|e| crate::InputError::new(path, e.to_string()))?)
-}
-
-fn opt(v: f64) -> Option<f64> {
-    v.is_finite().then_some(v)
-}
-
-/// trend.html: alerts first, then each parameter over nights with its 95 %
-/// interval (value, lower and upper bound as three lines; night index on x).
-pub fn trend_page(t: &Trend) -> String {
-    let mut body = String::new();
-    body.push_str(&format!(
-        "<p>{} night(s): {} … {}.</p>\n",
-        t.nights.len(),
-        esc(t.nights.first().map_or("", |s| s.as_str())),
-        esc(t.nights.last().map_or("", |s| s.as_str()))
-    ));
-    body.push_str("<h2>Alerts</h2>\n");
-    if t.alerts.is_empty() {
-        body.push_str(
-            "<p>None: no material effect appeared, disappeared or moved beyond its night-to-night spread.</p>\n",
-        );
-    } else {
-        body.push_str("<ul class=\"alerts\">\n");
-        for a in &t.alerts {
-            body.push_str(&format!(
-                "<li><b>{} #{}</b> {}: {}</li>\n",
-                esc(&a.night),
-                a.rank,
-                esc(&a.kind),
-                esc(&a.message)
-            ));
-        }
-        body.push_str("</ul>\n");
-    }
-    if !t.events.is_empty() {
-        body.push_str("<h2>Events (each starts a new baseline)</h2>\n<ul>\n");
-        for e in &t.events {
-            body.push_str(&format!(
-                "<li><b>{}</b> {} {}: {}</li>\n",
-                esc(&e.night),
-                esc(&e.kind),
-                esc(if e.machine.is_empty() {
-                    "fleet"
-                } else {
-                    &e.machine
-                }),
-                esc(&e.note)
-            ));
-        }
-        body.push_str("</ul>\n");
-    }
-    for n in &t.notes {
-        body.push_str(&format!("<p class=\"note\">{}</p>\n", esc(n)));
-    }
-    body.push_str(&format!("<p><small>Rule: {}</small></p>\n", esc(&t.rule)));
-    body.push_str("<h2>Parameters over nights</h2>\n");
-    let index: BTreeMap<&str, f64> = t
-        .nights
-        .iter()
-        .enumerate()
-        .map(|(i, n)| (n.as_str(), i as f64))
-        .collect();
-    for s in &t.series {
-        let pts = |g: fn(&Point) -> Option<f64>| -> Vec<(f64, f64)> {
-            s.points
-                .iter()
-                .filter_map(|p| Some((index[p.night.as_str()], g(p)?)))
-                .collect()
-        };
-        let value = pts(|p| opt(p.value));
-        let lo = pts(|p| p.lo95);
-        let hi = pts(|p| p.hi95);
-        let who = s
-            .machine
-            .as_deref()
-            .map_or("fleet".to_string(), |m| format!("machine {m}"));
-        let title = format!("{} {} on {} ({who})", s.effect, s.param, s.observable);
-        body.push_str(&svg::xy_chart_sized(
-            &title,
-            "night (0 = first)",
-            &s.param,
-            &[
-                svg::Series {
-                    name: "value",
-                    points: &value,
-                    mark: svg::Mark::Points,
-                },
-                svg::Series {
-                    name: "95 % low",
-                    points: &lo,
-                    mark: svg::Mark::Line,
-                },
-                svg::Series {
-                    name: "95 % high",
-                    points: &hi,
-                    mark: svg::Mark::Line,
-                },
-            ],
-            (640, 300),
-        ));
-        body.push('\n');
-    }
-    page("sparkout trend across nights", &body)
 }
 
 /// Reads a history and its events (plus `extra` events), writes

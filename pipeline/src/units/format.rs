@@ -373,6 +373,40 @@ pub fn show_group(values: &[f64], unit: &str) -> Vec<String> {
         .collect()
 }
 
+/// The display unit for values of about `size` (canonical) and the factor
+/// from the canonical value: one unit for a whole chart axis or a list of
+/// values read together (a parameter over nights in nm/mm³).
+pub fn display_unit(size: f64, unit: &ParamUnit) -> (String, f64) {
+    pick(&unit.candidates(), size)
+}
+
+/// The unit of parameter `param` of an effect keyed `name:covariate` on an
+/// observable whose gap is in `gap_unit`, when that unit is one sparkout
+/// converts from (`mm`, `mm/s`); `None` for a gap in another unit (its
+/// values are not in a canonical unit, so no display unit applies).
+pub fn effect_param_unit(effect: &str, param: &str, gap_unit: &str) -> Option<ParamUnit> {
+    matches!(gap_unit, "mm" | "mm/s")
+        .then(|| param_unit(param, effect.split_once(':').map(|c| c.1), gap_unit))
+}
+
+/// A value with three significant digits in a unit as written, for values
+/// that are not in a canonical unit (`2.50 deg`).
+pub fn show_as_written(value: f64, unit: &str) -> String {
+    with_unit(show(value, &ParamUnit::of(Dims::default())), unit)
+}
+
+/// A p-value: two significant digits, or `< 0.001` (a p-value that
+/// underflows to 0 is as small as any other below that).
+pub fn show_p(p: f64) -> String {
+    if !p.is_finite() {
+        "—".into()
+    } else if p < 0.001 {
+        "< 0.001".into()
+    } else {
+        num(p, decimals_for(p, 2))
+    }
+}
+
 /// A length in mm shown in nm, µm or mm by magnitude.
 pub fn show_length(mm: f64) -> String {
     show(mm, &ParamUnit::of(Dims::length()))
@@ -576,6 +610,34 @@ mod tests {
         // A period over time is a time.
         assert_eq!(show(0.5, &pu("lambda", "t_s")), "0.500 s");
         assert_eq!(show(0.05, &pu("lambda", "t_s")), "50.0 ms");
+    }
+
+    #[test]
+    fn p_values_and_axis_units() {
+        assert_eq!(show_p(0.0), "< 0.001");
+        assert_eq!(show_p(0.0123), "0.012");
+        assert_eq!(show_p(0.5), "0.50");
+        let w = pu("k", "removed_mm3");
+        assert_eq!(display_unit(1.4e-5, &w), ("nm/mm³".to_string(), 1e6));
+        let lag = effect_param_unit("servo_lag:feed_mm_s", "k", "mm").unwrap();
+        assert_eq!(show(3.9312e-3, &lag), "3.93 ms");
+        assert!(effect_param_unit("drift:t_s", "a", "deg").is_none());
+        assert_eq!(show_as_written(2.5, "deg"), "2.50 deg");
+        // A thermal coefficient in µm/K and a wavelength in mm.
+        assert_eq!(
+            show(
+                1.2e-3,
+                &effect_param_unit("thermal:temp_c", "k", "mm").unwrap()
+            ),
+            "1.20 µm/K"
+        );
+        assert_eq!(
+            show(
+                58.9,
+                &effect_param_unit("periodic:x_mm", "lambda", "mm").unwrap()
+            ),
+            "58.9 mm"
+        );
     }
 
     #[test]

@@ -299,8 +299,9 @@ impl Stage for CompensationStage {
                 let own = fit.k_mm_per_infeed;
                 fit.k_mm_per_infeed = Some(tg.k_mm_per_infeed);
                 fit.notes.push(format!(
-                    "g uses the augmented model's {} mm per infeed ({})",
-                    tg.k_mm_per_infeed, tg.keys
+                    "g uses the augmented model's {} per infeed ({})",
+                    sparkout_pipeline::units::format::show_length(tg.k_mm_per_infeed),
+                    tg.keys
                 ));
                 json!({"in_physics": tg.keys, "k_mm_per_infeed": tg.k_mm_per_infeed, "k_mm_per_infeed_run_fit": own})
             }

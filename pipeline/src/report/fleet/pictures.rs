@@ -3,10 +3,10 @@
 //! and the at-a-glance thumbnails.
 
 use super::*;
-use crate::report::svg::spacing;
+use crate::report::svg::{xy_chart_with, XyExtras};
 
-/// `where` tiles over x_mm,y_mm of an observable: rectangles to outline.
-pub(super) fn xy_tiles(d: &Value, observable: &str, scale_pad: (f64, f64)) -> Vec<[(f64, f64); 2]> {
+/// `where` regions over x_mm,y_mm of an observable: [(x0, y0), (x1, y1)].
+pub(super) fn xy_tiles(d: &Value, observable: &str) -> Vec<[(f64, f64); 2]> {
     d.get("where")
         .and_then(|w| w.as_array())
         .into_iter()
@@ -17,16 +17,100 @@ pub(super) fn xy_tiles(d: &Value, observable: &str, scale_pad: (f64, f64)) -> Ve
             let hi = c.get("hi")?.as_array()?;
             let (x0, y0) = (lo.first()?.as_f64()?, lo.get(1)?.as_f64()?);
             let (x1, y1) = (hi.first()?.as_f64()?, hi.get(1)?.as_f64()?);
-            Some([
-                (x0 - scale_pad.0, y0 - scale_pad.1),
-                (x1 + scale_pad.0, y1 + scale_pad.1),
-            ])
+            Some([(x0.min(x1), y0.min(y1)), (x0.max(x1), y0.max(y1))])
         })
         .collect()
 }
 
-/// Where: the gap map over the workpiece, before and (held out) after the
-/// selected effects, the significant cells outlined. Returns the maps and
+/// The cells of a gap map, in the unit shown: the gap's RMS per cell
+/// before and the held-out gap's RMS after, and the centres of the cells
+/// to outline.
+pub(super) struct RmsMaps {
+    pub before: Vec<(f64, f64, f64)>,
+    pub after: Vec<(f64, f64, f64)>,
+    pub outlined: Vec<(f64, f64)>,
+}
+
+/// The RMS of each series per grid cell: a mean would cancel an effect
+/// whose sign alternates within a cell (a reversal spike, a ripple), so
+/// the map shows how large the gap is, not its average.
+pub(super) fn rms_maps(
+    (x, y): (&[f64], &[f64]),
+    (gap, res): (&[f64], &[f64]),
+    regions: &[[(f64, f64); 2]],
+    scale: f64,
+) -> RmsMaps {
+    let sq = |v: &[f64]| v.iter().map(|g| g * g).collect::<Vec<f64>>();
+    let (g2, r2) = (sq(gap), sq(res));
+    let cells = grid_means(x, y, &[&g2, &r2], MAP_BINS);
+    let pick = |k: usize| -> Vec<(f64, f64, f64)> {
+        cells
+            .iter()
+            .map(|c| (c.0, c.1, c.2[k].sqrt() * scale))
+            .collect()
+    };
+    let before = pick(0);
+    let outlined = cells_in_regions(&before, regions);
+    RmsMaps {
+        after: pick(1),
+        before,
+        outlined,
+    }
+}
+
+/// The map cells a region covers: those whose centre lies inside it, or,
+/// for a region smaller than a cell, the cell nearest its centre.
+pub(super) fn cells_in_regions(
+    cells: &[(f64, f64, f64)],
+    regions: &[[(f64, f64); 2]],
+) -> Vec<(f64, f64)> {
+    let mut out: Vec<(f64, f64)> = Vec::new();
+    for [lo, hi] in regions {
+        let inside: Vec<(f64, f64)> = cells
+            .iter()
+            .filter(|c| c.2.is_finite())
+            .filter(|c| (lo.0..=hi.0).contains(&c.0) && (lo.1..=hi.1).contains(&c.1))
+            .map(|c| (c.0, c.1))
+            .collect();
+        if inside.is_empty() {
+            out.push(((lo.0 + hi.0) / 2.0, (lo.1 + hi.1) / 2.0));
+        } else {
+            out.extend(inside);
+        }
+    }
+    out.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.total_cmp(&b.1)));
+    out.dedup();
+    out
+}
+
+/// The before map (significant cells outlined) and, when there is one,
+/// the after map on the before map's colour scale, without outlines: the
+/// significance is the before gap's.
+pub(super) fn render_maps(m: &RmsMaps, observable: &str, unit: &str, has_after: bool) -> String {
+    let vmax = if has_after {
+        shared_vmax([m.before.as_slice(), m.after.as_slice()])
+    } else {
+        shared_vmax([m.before.as_slice()])
+    };
+    let t1 = format!("{observable}: gap RMS per cell, before");
+    let mut hm = Heat::new(&t1, &m.before, unit);
+    hm.vmax = Some(vmax);
+    hm.diverging = false;
+    hm.outlined = &m.outlined;
+    let mut h = heat(&hm);
+    if has_after {
+        let t2 = format!("{observable}: held-out gap RMS per cell, after");
+        let mut ha = Heat::new(&t2, &m.after, unit);
+        ha.vmax = Some(vmax);
+        ha.diverging = false;
+        h.push_str(&heat(&ha));
+    }
+    h
+}
+
+/// Where: the gap's RMS per cell over the workpiece, before and (held out)
+/// after the selected effects, on one colour scale, the cells of the
+/// significant regions outlined on the before map. Returns the maps and
 /// whether any cell is outlined.
 fn where_maps(
     d: Option<&Value>,
@@ -37,38 +121,15 @@ fn where_maps(
     (gap, res): (&[f64], &[f64]),
 ) -> (String, bool) {
     let has_after = res.iter().any(|r| r.is_finite());
-    let mut h = String::new();
     let (Some(x), Some(y)) = (rows.values("x_mm", idx), rows.values("y_mm", idx)) else {
         return (String::new(), false);
     };
-    let cells = grid_means(&x, &y, &[gap, res], MAP_BINS);
-    let before: Vec<(f64, f64, f64)> = cells.iter().map(|c| (c.0, c.1, c.2[0] * u.scale)).collect();
-    let after: Vec<(f64, f64, f64)> = cells.iter().map(|c| (c.0, c.1, c.2[1] * u.scale)).collect();
-    let vmax = shared_vmax([before.as_slice(), after.as_slice()]);
-    let pad = (
-        spacing(before.iter().map(|c| c.0)) / 2.0,
-        spacing(before.iter().map(|c| c.1)) / 2.0,
-    );
-    let pad = (
-        if pad.0.is_finite() { pad.0 } else { 0.5 },
-        if pad.1.is_finite() { pad.1 } else { 0.5 },
-    );
-    let tiles = d.map(|d| xy_tiles(d, observable, pad)).unwrap_or_default();
-    let t1 = format!("{observable}: gap, mean per cell");
-    let mut hm = Heat::new(&t1, &before, &u.shown);
-    hm.vmax = Some(vmax);
-    hm.diverging = true;
-    hm.outlines = &tiles;
-    h.push_str(&heat(&hm));
-    if has_after {
-        let t2 = format!("{observable}: held-out gap after the selected effects");
-        let mut ha = Heat::new(&t2, &after, &u.shown);
-        ha.vmax = Some(vmax);
-        ha.diverging = true;
-        ha.outlines = &tiles;
-        h.push_str(&heat(&ha));
-    }
-    (h, !tiles.is_empty())
+    let tiles = d.map(|d| xy_tiles(d, observable)).unwrap_or_default();
+    let m = rms_maps((&x, &y), (gap, res), &tiles, u.scale);
+    (
+        render_maps(&m, observable, &u.shown, has_after),
+        !m.outlined.is_empty(),
+    )
 }
 
 /// Which: the gap (less the other selected effects) against the named
@@ -189,20 +250,19 @@ fn how_far_runs(
         } else {
             Vec::new()
         };
-        let first = all.first().map(|r| r.run.as_str()).unwrap_or("");
-        let last = all.last().map(|r| r.run.as_str()).unwrap_or("");
+        // The x axis is ticked with run ids (a group's first–last).
+        let names: Vec<String> = runs.iter().map(|r| r.run.clone()).collect();
         let x_label = if grouped.len() < all.len() {
             format!(
-                "runs {first} … {last} in id order, groups of {}",
+                "run, in id order, groups of {}",
                 all.len().div_ceil(MAX_RUN_POINTS)
             )
         } else {
-            format!("run ({first} … {last}, in id order)")
+            "run, in id order".to_string()
         };
-        h.push_str(&xy_chart_sized(
+        h.push_str(&xy_chart_with(
             &format!("{observable}: RMS per run, before and held-out after"),
-            &x_label,
-            &format!("RMS ({})", u.shown),
+            (&x_label, &format!("RMS ({})", u.shown)),
             &[
                 Series {
                     name: "gap RMS before",
@@ -221,6 +281,10 @@ fn how_far_runs(
                 },
             ],
             (720, 320),
+            &XyExtras {
+                x_names: &names,
+                ..Default::default()
+            },
         ));
     }
     h
@@ -251,7 +315,7 @@ pub(super) fn pictures(
     }
     h.push_str("</div>");
     if outlined {
-        h.push_str("<p class=\"note\">Outlined on the maps: cells where the gap is significantly above the noise floor.</p>");
+        h.push_str("<p class=\"note\">Outlined on the before map: the cells of the regions where the gap is significantly above the noise floor. Both maps show the RMS per cell on one colour scale.</p>");
     }
     h
 }
@@ -272,6 +336,9 @@ pub(super) fn curve_covariate(effect_key: &str) -> &str {
 
 /// Cells per axis of the at-a-glance gap map thumbnail.
 pub(super) const MINI_MAP_BINS: usize = 8;
+/// Size in px of the at-a-glance thumbnails: wide enough to read a
+/// region or a curve's shape at 100 % zoom.
+pub(super) const MINI_SIZE: (u32, u32) = (120, 80);
 /// Bins of the at-a-glance curve thumbnail.
 pub(super) const MINI_CURVE_BINS: usize = 16;
 
@@ -296,11 +363,17 @@ pub(super) fn glance_pictures(
     let gap = FleetRows::at(&rows.gap, idx);
     let mut out = String::new();
     if let (Some(x), Some(y)) = (rows.values("x_mm", idx), rows.values("y_mm", idx)) {
-        let cells: Vec<(f64, f64, f64)> = grid_means(&x, &y, &[&gap], MINI_MAP_BINS)
+        let sq: Vec<f64> = gap.iter().map(|g| g * g).collect();
+        let cells: Vec<(f64, f64, f64)> = grid_means(&x, &y, &[&sq], MINI_MAP_BINS)
             .into_iter()
-            .map(|c| (c.0, c.1, c.2[0]))
+            .map(|c| (c.0, c.1, c.2[0].sqrt()))
             .collect();
-        out.push_str(&mini_heat(&cells, 48, 34));
+        out.push_str(&mini_heat(
+            &cells,
+            MINI_SIZE,
+            false,
+            &format!("gap RMS of {observable} over x and y (darker: larger)"),
+        ));
     }
     if let Some(k) = named {
         let cov = curve_covariate(k);
@@ -314,8 +387,8 @@ pub(super) fn glance_pictures(
             }
             out.push_str(&mini_curve(
                 &pts,
-                64,
-                34,
+                MINI_SIZE.0,
+                MINI_SIZE.1,
                 &format!("gap of {observable} against {cov}"),
             ));
         }
@@ -334,22 +407,23 @@ pub(super) fn mini_bars(rms: f64, after: f64, floor: f64) -> String {
     if top <= 0.0 {
         return String::new();
     }
-    let w = |v: f64| if v.is_finite() { 72.0 * v / top } else { 0.0 };
+    let w = |v: f64| if v.is_finite() { 116.0 * v / top } else { 0.0 };
     let mut s = format!(
-        r##"<svg class="mini" width="78" height="18" role="img" aria-label="gap, after, noise floor"><rect x="0" y="2" width="{:.1}" height="6" fill="#999"/>"##,
-        w(rms)
+        r##"<svg class="mini" width="{W}" height="32" role="img" aria-label="gap, after, noise floor"><rect x="0" y="3" width="{:.1}" height="12" fill="#999"/>"##,
+        w(rms),
+        W = MINI_SIZE.0
     );
     if after.is_finite() {
         let _ = write!(
             s,
-            r##"<rect x="0" y="10" width="{:.1}" height="6" fill="#2a7"/>"##,
+            r##"<rect x="0" y="17" width="{:.1}" height="12" fill="#2a7"/>"##,
             w(after)
         );
     }
     if floor.is_finite() {
         let _ = write!(
             s,
-            r##"<line x1="{x:.1}" x2="{x:.1}" y1="0" y2="18" stroke="#000" stroke-width="1.5"/>"##,
+            r##"<line x1="{x:.1}" x2="{x:.1}" y1="0" y2="32" stroke="#000" stroke-width="2"/>"##,
             x = w(floor)
         );
     }

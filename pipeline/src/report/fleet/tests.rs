@@ -34,3 +34,64 @@ fn selected_parameters_carry_their_interval_and_unit() {
         p[0]
     );
 }
+
+/// A 4 × 4 grid whose gap alternates sign within each cell (±0.03 mm on
+/// the left half, ±0.001 mm on the right), and a held-out gap of
+/// ±0.005 mm everywhere: a mean per cell would show zero.
+fn alternating_field() -> (Vec<f64>, Vec<f64>, Vec<f64>, Vec<f64>) {
+    let (mut x, mut y, mut gap, mut res) = (vec![], vec![], vec![], vec![]);
+    for i in 0..4 {
+        for j in 0..4 {
+            for sign in [1.0, -1.0] {
+                x.push(i as f64 * 10.0);
+                y.push(j as f64 * 10.0);
+                gap.push(sign * if i < 2 { 0.03 } else { 0.001 });
+                res.push(sign * 0.005);
+            }
+        }
+    }
+    (x, y, gap, res)
+}
+
+#[test]
+fn maps_show_the_rms_of_an_alternating_gap_and_outline_only_before() {
+    let (x, y, gap, res) = alternating_field();
+    // A significant region over the left half, its bounds off the grid.
+    let regions = [[(-3.0, -2.0), (12.0, 31.0)]];
+    let m = rms_maps((&x, &y), (&gap, &res), &regions, 1000.0);
+    let at = |cells: &[(f64, f64, f64)], p: (f64, f64)| {
+        cells.iter().find(|c| (c.0, c.1) == p).map(|c| c.2).unwrap()
+    };
+    assert!((at(&m.before, (0.0, 0.0)) - 30.0).abs() < 1e-9);
+    assert!((at(&m.before, (30.0, 30.0)) - 1.0).abs() < 1e-9);
+    assert!((at(&m.after, (0.0, 0.0)) - 5.0).abs() < 1e-9);
+    // Outlined: exactly the 8 cells of the left half, at cell centres.
+    let want: Vec<(f64, f64)> = [0.0, 10.0]
+        .iter()
+        .flat_map(|&a| [0.0, 10.0, 20.0, 30.0].map(|b| (a, b)))
+        .collect();
+    assert_eq!(m.outlined, want);
+    let html = render_maps(&m, "velocity_error_z", "µm", true);
+    let maps: Vec<&str> = html.split("</svg><svg").collect();
+    assert_eq!(maps.len(), 2, "two maps");
+    assert_eq!(maps[0].matches("class=\"outline\"").count(), 1);
+    assert!(!maps[1].contains("class=\"outline\""), "after map outlined");
+    // The outline contour: 2 × 4 cells have 12 outer unit edges.
+    let path = maps[0].split("class=\"outline\" d=\"").nth(1).unwrap();
+    let d = &path[..path.find('"').unwrap()];
+    assert_eq!(d.matches('M').count(), 12, "{d}");
+    // One colour scale: both bars end at the before map's 30 µm.
+    for map in &maps {
+        assert!(map.contains(">30.0</text>"), "{map}");
+    }
+}
+
+#[test]
+fn at_a_glance_thumbnails_are_readable() {
+    assert!(MINI_SIZE.0 >= 120);
+    let bars = mini_bars(0.03, 0.01, 0.005);
+    assert!(
+        bars.contains(&format!("width=\"{}\"", MINI_SIZE.0)),
+        "{bars}"
+    );
+}

@@ -133,11 +133,7 @@ pub(super) fn params_text(e: &Value) -> Vec<String> {
 
 /// A p-value as text ("—" when there is none).
 pub(super) fn pval(p: f64) -> String {
-    if p.is_finite() {
-        format!("{p:.1e}")
-    } else {
-        "—".into()
-    }
+    crate::units::format::show_p(p)
 }
 
 /// Why a candidate was not selected, from its entry and the observable's.

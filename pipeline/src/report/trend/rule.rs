@@ -34,6 +34,8 @@
 use std::collections::{BTreeMap, BTreeSet};
 
 use serde::{Deserialize, Serialize};
+
+use crate::units::format::{effect_param_unit, show, show_as_written, show_in, show_p};
 use statrs::distribution::{ContinuousCDF, Normal};
 
 use super::events::Event;
@@ -583,6 +585,25 @@ pub fn trend(
     }
 }
 
+/// A gap in the observable's unit: nm/µm/mm (or mm/s) by magnitude for
+/// the units sparkout converts from, three significant digits otherwise.
+fn gap_text(v: f64, unit: &str) -> String {
+    match unit {
+        "mm" | "mm/s" => show_in(v, unit),
+        _ => show_as_written(v, unit),
+    }
+}
+
+/// `= 0.012` or `< 0.001`.
+fn p_text(p: f64) -> String {
+    let s = show_p(p);
+    if s.starts_with('<') {
+        s
+    } else {
+        format!("= {s}")
+    }
+}
+
 fn alert_of(t: &Test, night: &str, p_adj: f64, m: usize, cfg: &TrendConfig) -> Alert {
     let fraction = match (t.size, t.gap) {
         (Some(s), Some(g)) if g > 0.0 => Some(s / g),
@@ -599,30 +620,42 @@ fn alert_of(t: &Test, night: &str, p_adj: f64, m: usize, cfg: &TrendConfig) -> A
         _ => String::new(),
     };
     let size_text = match (t.size, fraction) {
-        (Some(s), Some(f)) => format!("{s:.4} {} = {:.0} % of the gap", t.unit, 100.0 * f),
+        (Some(s), Some(f)) => format!("{} = {:.0} % of the gap", gap_text(s, &t.unit), 100.0 * f),
         _ => "size unknown".into(),
+    };
+    // Parameter values in the parameter's engineer unit, one for all three.
+    let pu = effect_param_unit(&t.effect, t.param.as_deref().unwrap_or(""), &t.unit);
+    let param_text = |v: f64| match &pu {
+        Some(u) => show(v, u),
+        None => show_as_written(v, ""),
     };
     let message = match t.kind {
         "moved" => {
             let (v, b) = (t.value.unwrap_or(f64::NAN), t.baseline.unwrap_or(f64::NAN));
             format!(
-                "{} {} on {}{who} moved {:+.0} % ({b:.4e} → {v:.4e}; {} night(s) from {} against {} baseline night(s) from {}, spread ±{:.2e}): {size_text}; z = {:.1}, Holm p = {:.2e} over {m} tests",
+                "{} {} on {}{who} moved {:+.0} % ({} → {}; {} night(s) from {} against {} baseline night(s) from {}, spread ±{}): {size_text}; z = {:.1}, Holm p {} over {m} tests",
                 t.effect,
                 t.param.as_deref().unwrap_or(""),
                 t.obs,
                 100.0 * (v - b) / b.abs(),
+                param_text(b),
+                param_text(v),
                 t.nights,
                 t.from,
                 t.baseline_nights,
                 t.since.as_deref().unwrap_or("?"),
-                t.spread.unwrap_or(f64::NAN),
+                param_text(t.spread.unwrap_or(f64::NAN)),
                 t.z,
-                p_adj
+                p_text(p_adj)
             )
         }
         kind => format!(
-            "{} on {}{who} {kind} (held {} nights from {}): {size_text}; Holm p = {:.2e} over {m} tests",
-            t.effect, t.obs, t.nights, t.from, p_adj
+            "{} on {}{who} {kind} (held {} nights from {}): {size_text}; Holm p {} over {m} tests",
+            t.effect,
+            t.obs,
+            t.nights,
+            t.from,
+            p_text(p_adj)
         ),
     };
     Alert {
