@@ -402,11 +402,12 @@ pub trait MachinePlugin: Send + Sync {
     }
     /// The keys this plugin reads (or the generator records) in run.toml
     /// `[process]`, each with its valid range: any other key is a typo and
-    /// a value outside its range is impossible; either rejects the run
-    /// naming run.toml and the key. docs/formats.md's table of ranges is
-    /// tested against these. `None` leaves `[process]` unchecked.
-    fn process_keys(&self) -> Option<ProcessKeys> {
-        None
+    /// a value of the wrong type or outside its range is impossible; either
+    /// rejects the run naming run.toml and the key. docs/formats.md's table
+    /// of ranges is tested against these. A plugin that reads no key
+    /// declares none, and any key in its runs' `[process]` is refused.
+    fn process_keys(&self) -> ProcessKeys {
+        &[]
     }
     /// Machine configs built into the binary: (machine id, TOML text).
     fn builtin_machines(&self) -> Vec<(&'static str, &'static str)> {
