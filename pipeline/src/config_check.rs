@@ -110,7 +110,7 @@ impl Section for NoKeys {}
 
 /// Read and check a section: unknown key → [`ConfigError::UnknownKey`]
 /// (listing the struct's fields), a value outside its [`Check`] →
-/// [`ConfigError::BadValue`], a wrong type → [`ConfigError::Invalid`], then
+/// [`ConfigError::BadValue`], a wrong type → [`ConfigError::WrongType`], then
 /// [`Section::validate`]. An absent key takes the struct's default. The
 /// unknown-key check is made here once, for the error that lists the
 /// fields; serde's `deny_unknown_fields` never sees one after it.
@@ -153,7 +153,10 @@ fn type_error<T: Section>(table: &toml::Table, e: toml::de::Error) -> ConfigErro
         toml::Value::Table(one).try_into::<T>().is_err()
     });
     match culprit {
-        Some((k, _)) => ConfigError::Invalid(format!("key `{k}`: {msg}")),
+        Some((k, _)) => ConfigError::WrongType {
+            key: k.clone(),
+            message: msg,
+        },
         None => ConfigError::Invalid(msg),
     }
 }
@@ -568,7 +571,7 @@ mod tests {
         assert!(
             matches!(
                 e.downcast_ref::<ConfigError>(),
-                Some(ConfigError::Invalid(_))
+                Some(ConfigError::WrongType { key, .. }) if key == "tol_mm"
             ),
             "{e}"
         );

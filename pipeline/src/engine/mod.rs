@@ -187,7 +187,13 @@ impl Engine {
 
     /// Load and resolve one run: run.toml, plugin, machine, required tables.
     pub fn open_run(&self, dir: &Path) -> Result<(Run, Arc<dyn MachinePlugin>)> {
-        let spec = RunSpec::load(dir)?;
+        self.open_spec(RunSpec::load(dir)?)
+    }
+
+    /// [`Engine::open_run`] from its run.toml, already read and checked.
+    pub(super) fn open_spec(&self, spec: RunSpec) -> Result<(Run, Arc<dyn MachinePlugin>)> {
+        let dir = spec.dir.clone();
+        let dir = dir.as_path();
         let plugin = self.plugin(&spec.plugin).cloned().ok_or_else(|| {
             InputError::new(
                 spec.run_toml_path(),

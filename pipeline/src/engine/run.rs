@@ -44,7 +44,7 @@ impl Engine {
         // A panic in a stage is a bug, but it must not take the batch down:
         // the run is rejected like any other failure.
         let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-            self.process_run_inner(dir, run_out.as_deref(), &mut failed_stage)
+            self.process_run_inner(dir, spec.clone(), run_out.as_deref(), &mut failed_stage)
         }))
         .unwrap_or_else(|panic| {
             let msg = panic
@@ -126,10 +126,12 @@ impl Engine {
     pub(super) fn process_run_inner(
         &self,
         dir: &Path,
+        spec: RunSpec,
         run_out: Option<&Path>,
         failed_stage: &mut Option<String>,
     ) -> Result<RunResult> {
-        let (run, plugin) = self.open_run(dir)?;
+        // run.toml was read and checked once by the caller.
+        let (run, plugin) = self.open_spec(spec)?;
         let stages = self.plan(plugin.as_ref())?;
         let previous = run_out.map(read_run_cache).unwrap_or_default();
         let store = ArtifactStore::default();
