@@ -4,7 +4,9 @@
 
 use serde::de::{DeserializeOwned, Visitor};
 use serde::Serialize;
+use std::any::Any;
 use std::cell::Cell;
+use std::sync::Arc;
 
 use crate::error::ConfigError;
 use crate::values::toml_f64;
@@ -88,7 +90,7 @@ impl Check {
 /// error names the key and the range), checks across keys in
 /// [`Section::validate`]. configs/nightly.toml is tested against
 /// [`SectionCheck::defaults`] for every registered stage.
-pub trait Section: DeserializeOwned + Serialize + Default {
+pub trait Section: DeserializeOwned + Serialize + Default + Send + Sync + 'static {
     /// What each key's value must be; a key absent here is checked by its
     /// type alone. Every name must be a field (checked at registration).
     const CHECKS: &'static [(&'static str, Check)] = &[];
@@ -108,8 +110,10 @@ impl Section for NoKeys {}
 
 /// Read and check a section: unknown key → [`ConfigError::UnknownKey`]
 /// (listing the struct's fields), a value outside its [`Check`] →
-/// [`ConfigError::BadValue`], a wrong type → [`ConfigError::Invalid`], then
-/// [`Section::validate`]. An absent key takes the struct's default.
+/// [`ConfigError::BadValue`], a wrong type → [`ConfigError::WrongType`], then
+/// [`Section::validate`]. An absent key takes the struct's default. The
+/// unknown-key check is made here once, for the error that lists the
+/// fields; serde's `deny_unknown_fields` never sees one after it.
 pub fn read_section<T: Section>(config: &toml::Table) -> crate::Result<T> {
     let fields = struct_fields::<T>();
     if let Some(k) = config.keys().find(|k| !fields.contains(&k.as_str())) {
@@ -131,9 +135,30 @@ pub fn read_section<T: Section>(config: &toml::Table) -> crate::Result<T> {
             }
         }
     }
-    let section: T = parse_section(&table)?;
+    let section: T = match toml::Value::Table(table.clone()).try_into() {
+        Ok(s) => s,
+        Err(e) => return Err(type_error::<T>(&table, e).into()),
+    };
     section.validate()?;
     Ok(section)
+}
+
+/// A value serde could not read, naming the key: the first key that fails
+/// on its own (each is read alone, the others at their defaults) — the
+/// error message of serde's whole-table read does not always name it.
+fn type_error<T: Section>(table: &toml::Table, e: toml::de::Error) -> ConfigError {
+    let msg = e.to_string().trim().to_string();
+    let culprit = table.iter().find(|(k, v)| {
+        let one = toml::Table::from_iter([((*k).clone(), (*v).clone())]);
+        toml::Value::Table(one).try_into::<T>().is_err()
+    });
+    match culprit {
+        Some((k, _)) => ConfigError::WrongType {
+            key: k.clone(),
+            message: msg,
+        },
+        None => ConfigError::Invalid(msg),
+    }
 }
 
 /// Check settings built in code (not read from a config) as if they had
@@ -148,6 +173,146 @@ pub fn check_settings<T: Section>(settings: &T) -> crate::Result<()> {
     read_section::<T>(&table).map(drop)
 }
 
+/// A section read and checked once ([`read_section`]): its typed value,
+/// handed to the stage as it is ([`CheckedSection::get`]), and its
+/// effective config — the value serialised canonically (every field, the
+/// defaults applied, object keys sorted) — which the cache key hashes, so
+/// a changed default recomputes what it affects and a default written out
+/// keeps the same key as the default left out.
+#[derive(Clone)]
+pub struct CheckedSection {
+    value: Arc<dyn Any + Send + Sync>,
+    effective: String,
+}
+
+impl std::fmt::Debug for CheckedSection {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("CheckedSection")
+            .field("effective", &self.effective)
+            .finish()
+    }
+}
+
+impl CheckedSection {
+    /// Read and check `config` as `T` ([`read_section`]).
+    pub fn read<T: Section>(config: &toml::Table) -> crate::Result<CheckedSection> {
+        Ok(Checked::<T>::read(config)?.erase())
+    }
+    /// The typed value; `None` when the section is not a `T` (a stage
+    /// asking for another struct than its spec declares).
+    pub fn get<T: Section>(&self) -> Option<&T> {
+        self.value.downcast_ref::<T>()
+    }
+    /// The effective config: canonical JSON of the checked value.
+    pub fn effective(&self) -> &str {
+        &self.effective
+    }
+}
+
+/// A section of a known type, read and checked once (the settings of the
+/// diagnosis, `[pipeline]`, `[report]`): only [`Checked::read`] and
+/// [`Checked::check`] make one, so holding it is proof the checks ran; it
+/// dereferences to the value and carries its effective config.
+#[derive(Debug)]
+pub struct Checked<T> {
+    value: Arc<T>,
+    effective: Arc<str>,
+}
+
+impl<T> Clone for Checked<T> {
+    fn clone(&self) -> Self {
+        Checked {
+            value: self.value.clone(),
+            effective: self.effective.clone(),
+        }
+    }
+}
+
+impl<T: Section> Checked<T> {
+    /// Read and check a section ([`read_section`]).
+    pub fn read(config: &toml::Table) -> crate::Result<Checked<T>> {
+        Checked::wrap(read_section::<T>(config)?)
+    }
+    /// Settings built in code, held to the section's checks
+    /// ([`check_settings`]).
+    pub fn check(value: T) -> crate::Result<Checked<T>> {
+        check_settings(&value)?;
+        Checked::wrap(value)
+    }
+    /// A value its own code has just checked another way (the diagnosis
+    /// allows any u64 seed in code, more than a TOML section holds).
+    pub(crate) fn checked_by_caller(value: T) -> crate::Result<Checked<T>> {
+        Checked::wrap(value)
+    }
+    fn wrap(value: T) -> crate::Result<Checked<T>> {
+        let effective = effective_config(&value)?;
+        Ok(Checked {
+            value: Arc::new(value),
+            effective: effective.into(),
+        })
+    }
+    /// The effective config: canonical JSON of the checked value.
+    pub fn effective(&self) -> &str {
+        &self.effective
+    }
+    /// The same value, type-erased for a map of stages' sections.
+    pub fn erase(&self) -> CheckedSection {
+        CheckedSection {
+            value: self.value.clone(),
+            effective: self.effective.to_string(),
+        }
+    }
+}
+
+impl<T> std::ops::Deref for Checked<T> {
+    type Target = T;
+    fn deref(&self) -> &T {
+        &self.value
+    }
+}
+
+/// A checked value serialised canonically: JSON with every object's keys
+/// sorted, every field present (a `None` is `null`), numbers as serde_json
+/// writes them (shortest round-trip form). Independent of the order the
+/// keys were written in the config and of whether a default was written.
+pub fn effective_config<T: Serialize>(value: &T) -> crate::Result<String> {
+    let v = serde_json::to_value(value)
+        .map_err(|e| anyhow::anyhow!("config does not serialise: {e}"))?;
+    let mut out = String::new();
+    write_canonical(&v, &mut out);
+    Ok(out)
+}
+
+fn write_canonical(v: &serde_json::Value, out: &mut String) {
+    match v {
+        serde_json::Value::Object(m) => {
+            let mut keys: Vec<&String> = m.keys().collect();
+            keys.sort();
+            out.push('{');
+            for (i, k) in keys.into_iter().enumerate() {
+                if i > 0 {
+                    out.push(',');
+                }
+                out.push_str(&serde_json::Value::String(k.clone()).to_string());
+                out.push(':');
+                write_canonical(&m[k], out);
+            }
+            out.push('}');
+        }
+        serde_json::Value::Array(a) => {
+            out.push('[');
+            for (i, x) in a.iter().enumerate() {
+                if i > 0 {
+                    out.push(',');
+                }
+                write_canonical(x, out);
+            }
+            out.push(']');
+        }
+        other => out.push_str(&other.to_string()),
+    }
+}
+
 /// How a stage's config section (`[<plugin>.<stage>]`) is read: its
 /// [`Section`] struct, as function pointers a `const` [`StageSpec`] can hold
 /// (`SectionCheck::of::<RemovalConfig>()`).
@@ -155,9 +320,9 @@ pub fn check_settings<T: Section>(settings: &T) -> crate::Result<()> {
 /// [`StageSpec`]: crate::StageSpec
 #[derive(Debug, Clone, Copy)]
 pub struct SectionCheck {
-    /// Read and check a section (the value is dropped: the stage reads it
-    /// again with [`read_section`] when it runs).
-    pub check: fn(&toml::Table) -> crate::Result<()>,
+    /// Read and check a section into its typed value (the engine does it
+    /// once per batch and hands the value to the stage).
+    pub read: fn(&toml::Table) -> crate::Result<CheckedSection>,
     /// The defaults as TOML (an `Option` field whose default is `None` is
     /// absent: its default comes from the machine or the run).
     pub defaults: fn() -> toml::Table,
@@ -171,19 +336,15 @@ pub struct SectionCheck {
 impl SectionCheck {
     pub const fn of<T: Section>() -> SectionCheck {
         SectionCheck {
-            check: check_section::<T>,
+            read: CheckedSection::read::<T>,
             defaults: section_defaults::<T>,
             keys: struct_fields::<T>,
             undeclared_checks: undeclared_checks::<T>,
         }
     }
-    pub fn check(&self, config: &toml::Table) -> crate::Result<()> {
-        (self.check)(config)
+    pub fn read(&self, config: &toml::Table) -> crate::Result<CheckedSection> {
+        (self.read)(config)
     }
-}
-
-fn check_section<T: Section>(config: &toml::Table) -> crate::Result<()> {
-    read_section::<T>(config).map(drop)
 }
 
 fn section_defaults<T: Section>() -> toml::Table {
@@ -274,23 +435,6 @@ pub fn read_flags(
         out.insert(flag, v);
     }
     Ok(out)
-}
-
-/// Read a config section into its serde struct: a key the struct does not
-/// have is [`ConfigError::UnknownKey`] (listing the struct's fields), a
-/// value of the wrong type [`ConfigError::Invalid`]. The struct's own range
-/// checks run after this (its `validate()`).
-fn parse_section<T: DeserializeOwned>(config: &toml::Table) -> Result<T, ConfigError> {
-    let fields = struct_fields::<T>();
-    if let Some(k) = config.keys().find(|k| !fields.contains(&k.as_str())) {
-        return Err(ConfigError::UnknownKey {
-            key: k.clone(),
-            known: fields.iter().map(|f| f.to_string()).collect(),
-        });
-    }
-    toml::Value::Table(config.clone())
-        .try_into()
-        .map_err(|e: toml::de::Error| ConfigError::Invalid(e.to_string().trim().to_string()))
 }
 
 /// The field names serde knows for struct `T` (what `deny_unknown_fields`
@@ -427,7 +571,7 @@ mod tests {
         assert!(
             matches!(
                 e.downcast_ref::<ConfigError>(),
-                Some(ConfigError::Invalid(_))
+                Some(ConfigError::WrongType { key, .. }) if key == "tol_mm"
             ),
             "{e}"
         );
@@ -435,6 +579,49 @@ mod tests {
         let e = read_section::<Sample>(&t("tol_mm = 10")).unwrap_err();
         assert_eq!(e.to_string(), "tol_mm must not exceed window");
         assert!(read_section::<Sample>(&t("tol_mm = 10\nwindow = 11")).is_ok());
+    }
+
+    #[test]
+    fn the_effective_config_is_the_checked_value_written_canonically() {
+        let t = |s: &str| s.parse::<toml::Table>().unwrap();
+        let key = |s: &str| {
+            Checked::<Sample>::read(&t(s))
+                .unwrap()
+                .effective()
+                .to_string()
+        };
+        // Every field, defaults applied, keys sorted.
+        assert_eq!(key(""), r#"{"passes":3,"tol_mm":null,"window":9}"#);
+        // A default written out, keys in another order, `--set`'s 3.0 for
+        // an integer: the same effective config.
+        assert_eq!(key(""), key("window = 9\npasses = 3"));
+        assert_eq!(key("passes = 3.0"), key(""));
+        assert_eq!(
+            key("tol_mm = 0.5\nwindow = 11"),
+            key("window = 11\ntol_mm = 0.5")
+        );
+        // Another value: another effective config.
+        assert_ne!(key("passes = 4"), key(""));
+        assert_ne!(key("tol_mm = 0.5"), key(""));
+        // A changed default changes the effective config of a section that
+        // does not write the key.
+        let changed = Sample {
+            passes: 4,
+            ..Sample::default()
+        };
+        assert_ne!(effective_config(&changed).unwrap(), key(""));
+        // Erased, the value and its effective config are kept.
+        let erased = Checked::<Sample>::read(&t("passes = 2")).unwrap().erase();
+        assert_eq!(erased.get::<Sample>().map(|s| s.passes), Some(2));
+        assert!(erased.get::<Typo>().is_none());
+        assert_eq!(erased.effective(), key("passes = 2"));
+    }
+
+    #[test]
+    fn a_wrong_type_names_its_key() {
+        let t = |s: &str| s.parse::<toml::Table>().unwrap();
+        let e = read_section::<Typo>(&t("tol_mm = [1]")).unwrap_err();
+        assert!(e.to_string().starts_with("key `tol_mm`: "), "{e}");
     }
 
     #[test]
@@ -449,7 +636,7 @@ mod tests {
         assert_eq!((SectionCheck::of::<Typo>().undeclared_checks)(), ["tol"]);
         assert!((SectionCheck::of::<NoKeys>().keys)().is_empty());
         assert!(SectionCheck::of::<NoKeys>()
-            .check(&"x = 1".parse().unwrap())
+            .read(&"x = 1".parse().unwrap())
             .is_err());
     }
 }

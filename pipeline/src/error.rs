@@ -65,6 +65,12 @@ pub enum ConfigError {
     /// names the key.
     #[error("{0}")]
     Invalid(String),
+    /// A key's value of the wrong type or shape.
+    #[error("key `{key}`: {message}")]
+    WrongType { key: String, message: String },
+    /// A key that must be given is not.
+    #[error("required key `{key}` is missing")]
+    Missing { key: String },
 }
 
 impl ConfigError {
@@ -73,6 +79,16 @@ impl ConfigError {
             key: key.to_string(),
             want: want.into(),
             found: found.to_string(),
+        }
+    }
+    /// The key the error is about, when it names one.
+    pub fn key(&self) -> Option<&str> {
+        match self {
+            ConfigError::UnknownKey { key, .. }
+            | ConfigError::BadValue { key, .. }
+            | ConfigError::WrongType { key, .. }
+            | ConfigError::Missing { key } => Some(key),
+            ConfigError::Invalid(_) => None,
         }
     }
     /// Whether an error of any kind is an unknown config key.

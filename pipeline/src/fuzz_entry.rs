@@ -20,7 +20,7 @@ pub fn run_toml(data: &[u8]) {
             ("probe_spacing_mm", crate::config_check::Check::Positive),
             ("sample_step_mm", crate::config_check::Check::Positive),
         ];
-        let _ = check_process(&spec, "guideway", Some(KEYS));
+        let _ = check_process(&spec, "guideway", KEYS);
     }
 }
 

@@ -170,8 +170,10 @@ impl ArtifactStore {
 pub struct StageContext<'a> {
     pub run: &'a Run,
     /// The stage's config section (`[<plugin>.<stage>]` of the pipeline
-    /// config), already checked by [`Stage::validate_config`].
-    pub config: &'a toml::Table,
+    /// config), read and checked once per batch by the engine
+    /// ([`Stage::read_config`]); the stage takes its typed value with
+    /// [`StageContext::section`].
+    pub config: &'a crate::config_check::CheckedSection,
     pub artifacts: &'a ArtifactStore,
     /// `run --augment MODEL`, for a stage whose spec sets
     /// `reads_augmented_model` (None otherwise, and on a night without it).
@@ -179,12 +181,19 @@ pub struct StageContext<'a> {
 }
 
 impl StageContext<'_> {
-    /// The stage's config section as its [`Section`] struct (already
-    /// checked by [`Stage::validate_config`]; absent keys take the defaults).
+    /// The stage's config section as its [`Section`] struct, as the engine
+    /// read and checked it before any run (absent keys hold the defaults):
+    /// nothing is parsed here. Asking for another struct than the one the
+    /// stage's spec declares is a bug in the plugin, and an error.
     ///
     /// [`Section`]: crate::config_check::Section
-    pub fn section<T: crate::config_check::Section>(&self) -> Result<T> {
-        crate::config_check::read_section(self.config)
+    pub fn section<T: crate::config_check::Section>(&self) -> Result<&T> {
+        self.config.get::<T>().ok_or_else(|| {
+            anyhow::anyhow!(
+                "stage config is not a `{}` (a bug in the plugin: StageSpec.config declares another struct)",
+                std::any::type_name::<T>()
+            )
+        })
     }
 }
 
@@ -239,9 +248,12 @@ pub struct StageSpec {
     /// One-line description for `--help` listings.
     pub about: &'static str,
     /// The stage's config section (`[<plugin>.<stage>]`) as its
-    /// [`Section`](crate::config_check::Section) struct: checked before
-    /// anything runs (the default [`Stage::validate_config`] applies it),
-    /// its defaults tested against configs/nightly.toml.
+    /// [`Section`](crate::config_check::Section) struct: read and checked
+    /// once before anything runs (the default [`Stage::read_config`]
+    /// applies it),
+    /// its defaults tested against configs/nightly.toml; its effective
+    /// config (the checked value, serialised canonically) enters the cache
+    /// key.
     pub config: crate::config_check::SectionCheck,
 }
 
@@ -319,11 +331,12 @@ impl StageSpec {
 pub trait Stage: Send + Sync {
     /// What the stage reads and writes; a `const` in the stage's file.
     fn spec(&self) -> &'static StageSpec;
-    /// Check the config section before anything runs, as the spec's
-    /// `config` says (an unknown key or a bad value is an error naming the
-    /// key).
-    fn validate_config(&self, config: &toml::Table) -> Result<()> {
-        self.spec().config.check(config)
+    /// Read and check the config section before anything runs, as the
+    /// spec's `config` says (an unknown key or a bad value is an error
+    /// naming the key); the engine does it once per batch and hands the
+    /// typed value to every run ([`StageContext::section`]).
+    fn read_config(&self, config: &toml::Table) -> Result<crate::config_check::CheckedSection> {
+        self.spec().config.read(config)
     }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput>;
     /// Run from command-line options alone (no run directory), when the stage
@@ -389,11 +402,12 @@ pub trait MachinePlugin: Send + Sync {
     }
     /// The keys this plugin reads (or the generator records) in run.toml
     /// `[process]`, each with its valid range: any other key is a typo and
-    /// a value outside its range is impossible; either rejects the run
-    /// naming run.toml and the key. docs/formats.md's table of ranges is
-    /// tested against these. `None` leaves `[process]` unchecked.
-    fn process_keys(&self) -> Option<ProcessKeys> {
-        None
+    /// a value of the wrong type or outside its range is impossible; either
+    /// rejects the run naming run.toml and the key. docs/formats.md's table
+    /// of ranges is tested against these. A plugin that reads no key
+    /// declares none, and any key in its runs' `[process]` is refused.
+    fn process_keys(&self) -> ProcessKeys {
+        &[]
     }
     /// Machine configs built into the binary: (machine id, TOML text).
     fn builtin_machines(&self) -> Vec<(&'static str, &'static str)> {

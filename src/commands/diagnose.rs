@@ -3,6 +3,7 @@
 use std::path::Path;
 
 use anyhow::{bail, Context};
+use sparkout_pipeline::config_check::Checked;
 use sparkout_pipeline::contracts::{write_atomic, write_json_atomic, write_parquet_atomic};
 use sparkout_pipeline::diagnose::{self, DiagnoseConfig, EffectScope};
 
@@ -11,7 +12,7 @@ use crate::registry;
 pub use crate::cli::DiagnoseFlags as Flags;
 
 /// `[diagnose]` of the config (built-in, --config, --set), then the flags.
-pub fn config(flags: &Flags) -> anyhow::Result<DiagnoseConfig> {
+pub fn config(flags: &Flags) -> anyhow::Result<Checked<DiagnoseConfig>> {
     let pc = registry::config(&flags.config)?;
     // The flags are keys of the section, checked with it.
     let mut section = pc.section("diagnose");
@@ -27,7 +28,7 @@ pub fn config(flags: &Flags) -> anyhow::Result<DiagnoseConfig> {
             toml::Value::Array(e.iter().cloned().map(toml::Value::String).collect()),
         );
     }
-    DiagnoseConfig::from_toml(&section)
+    Checked::<DiagnoseConfig>::read(&section)
         .with_context(|| format!("config {} (with the flags): [diagnose]", pc.source))
 }
 
@@ -73,7 +74,7 @@ pub fn diagnose(observations: &Path, out: &Path, flags: &Flags) -> anyhow::Resul
             effects,
         })
         .collect();
-    let d = diagnose::diagnose_scoped(&obs, &cfg, &scopes)?;
+    let d = diagnose::diagnose_checked(&obs, &cfg, &scopes)?;
     write_parquet_atomic(&out.join("diagnosis.parquet"), &d.per_row)?;
     write_json_atomic(&out.join("augmented_model.json"), &d.augmented_model)?;
     let page = format!(

@@ -53,7 +53,7 @@ fn is_flag(s: &str) -> bool {
 /// `stage NAME --run DIR --key value`: each leftover `--key value` becomes
 /// `--set <plugin>.<NAME>.<key>=value` (dashes in the key read as
 /// underscores) when the stage's config accepts that key — its own
-/// `validate_config` decides — e.g. `stage separate --run R --method
+/// `read_config` decides — e.g. `stage separate --run R --method
 /// recursion`. Flags it rejects stay in `args` (and are reported below);
 /// a known key with a bad value is an error naming the flag.
 fn flags_as_config(
@@ -73,8 +73,8 @@ fn flags_as_config(
         let mut probe = sparkout_pipeline::engine::PipelineConfig::parse("", "flags")?;
         probe.set(&set)?;
         let section = probe.section(&format!("{}.{name}", plugin.name()));
-        match stage.validate_config(&section) {
-            Ok(()) => {
+        match stage.read_config(&section) {
+            Ok(_) => {
                 args.remove(&flag);
                 sets.push(set);
             }

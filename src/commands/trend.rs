@@ -96,7 +96,8 @@ pub fn append(
     let v: serde_json::Value = serde_json::from_slice(&bytes)?;
     // The settings the diagnosis ran with: a change between nights is an
     // event, not an alert.
-    let settings = serde_json::to_string(&(super::diagnose::config(flags)?, &flags.plugins))?;
+    let dcfg = super::diagnose::config(flags)?;
+    let settings = serde_json::to_string(&(&*dcfg, &flags.plugins))?;
     let file = append_night(n.history, n.night, &v, &fingerprint(&settings))?;
     append_events(n.history, &events)?;
     println!("history: {}", file.display());

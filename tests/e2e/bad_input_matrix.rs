@@ -426,7 +426,7 @@ const CASES: &[Case] = &[
         "guideway",
         RunToml("id = ", "idd = "),
         Some("run.toml"),
-        Some("run.id"),
+        Some("run.idd"),
     ),
     case(
         "gw-machine-string",

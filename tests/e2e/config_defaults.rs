@@ -181,8 +181,19 @@ fn section_disagreements(
         )];
     };
     let table: toml::Table = lines.join("\n").parse().unwrap();
-    if let Err(e) = spec.check(&table) {
-        bad.push(format!("[{name}] is refused: {e}"));
+    match (spec.read(&table), spec.read(&toml::Table::new())) {
+        (Err(e), _) => bad.push(format!("[{name}] is refused: {e}")),
+        (_, Err(e)) => bad.push(format!("[{name}]'s defaults are refused: {e}")),
+        // Writing the defaults out is the same effective config (the same
+        // cache key) as leaving them out.
+        (Ok(written), Ok(omitted)) if written.effective() != omitted.effective() => {
+            bad.push(format!(
+                "[{name}]'s effective config {} is not the defaults' {}",
+                written.effective(),
+                omitted.effective()
+            ))
+        }
+        _ => {}
     }
     let defaults = (spec.defaults)();
     let keys = (spec.keys)();

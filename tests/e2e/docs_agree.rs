@@ -107,7 +107,6 @@ fn process_keys_in_the_docs_are_the_plugins_declarations() {
         .iter()
         .flat_map(|p| {
             p.process_keys()
-                .unwrap_or(&[])
                 .iter()
                 .map(|(k, check)| (p.name().to_string(), k.to_string(), check.describe()))
                 .collect::<Vec<_>>()

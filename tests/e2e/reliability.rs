@@ -402,8 +402,15 @@ fn config_typos_are_never_silent() {
     for (set, needle) in [
         ("guidewy.separate.method=lsq", "unknown section `guidewy`"),
         ("robotx.ingest.k_sigma=8", "unknown section `robotx`"),
-        ("report.titel=x", "unknown key [report].titel"),
-        ("pipeline.stagez=[\"x\"]", "unknown key [pipeline].stagez"),
+        ("report.titel=x", "[report]: unknown key `titel`"),
+        (
+            "pipeline.stagez=[\"x\"]",
+            "[pipeline]: unknown key `stagez`",
+        ),
+        // A wrong type is an error naming the key, not its default.
+        ("report.title=5", "[report]: key `title`"),
+        ("pipeline.stages=\"observe\"", "[pipeline]: key `stages`"),
+        ("diagnose.folds=\"five\"", "[diagnose]: key `folds`"),
     ] {
         let o = run(&root, &out, &["--set", set]);
         assert_eq!(o.status.code(), Some(1), "{set}: {}", text(&o));

@@ -192,14 +192,10 @@ pub fn check_machine(m: &MachineConfig, plugin: &str, builtins: &[&str]) -> Resu
 }
 
 /// Check run.toml `[process]` against the keys the plugin reads and their
-/// ranges (`None`: the plugin declares none, unchecked beyond finiteness):
-/// an unknown key, a wrong type or a value out of range is an error naming
-/// run.toml and the key (as the column `process.<key>`).
-pub fn check_process(
-    spec: &RunSpec,
-    plugin: &str,
-    known: Option<ProcessKeys>,
-) -> Result<(), InputError> {
+/// ranges (a plugin that reads none declares none): an unknown key, a
+/// wrong type or a value out of range is an error naming run.toml and the
+/// key (as the column `process.<key>`).
+pub fn check_process(spec: &RunSpec, plugin: &str, known: ProcessKeys) -> Result<(), InputError> {
     let err = |k: &str, msg: String| {
         InputError::new(spec.run_toml_path(), msg).column(format!("process.{k}"))
     };
@@ -207,15 +203,16 @@ pub fn check_process(
         if !all_finite(v) {
             return Err(err(k, format!("[process].{k} must be finite, found {v}")));
         }
-        let Some(known) = known else { continue };
         let Some((_, check)) = known.iter().find(|(name, _)| name == k) else {
             let names: Vec<&str> = known.iter().map(|(n, _)| *n).collect();
+            let names = if names.is_empty() {
+                "none".to_string()
+            } else {
+                names.join(", ")
+            };
             return Err(err(
                 k,
-                format!(
-                    "unknown key [process].{k} for a `{plugin}` run (known: {})",
-                    names.join(", ")
-                ),
+                format!("unknown key [process].{k} for a `{plugin}` run (known: {names})"),
             ));
         };
         if !check.accepts(v) {
@@ -244,6 +241,65 @@ mod tests {
             table: text.parse().unwrap(),
             text: text.into(),
         }
+    }
+
+    #[test]
+    fn process_keys_are_checked_by_type_range_and_name() {
+        const KEYS: ProcessKeys = &[
+            ("passes", Check::WholeIn(1, 100)),
+            ("infeed_mm", Check::Positive),
+            ("shape", Check::Text),
+        ];
+        let spec = |process: &str| {
+            RunSpec::parse(
+                std::path::Path::new("runs/g/r1"),
+                &format!("[run]\nid = \"r1\"\nmachine = \"g\"\nplugin = \"guideway\"\n[process]\n{process}\n"),
+            )
+            .unwrap()
+        };
+        check_process(
+            &spec("passes = 3\ninfeed_mm = 0.01\nshape = \"ellipse\""),
+            "guideway",
+            KEYS,
+        )
+        .unwrap();
+        for (bad, key, needle) in [
+            // A wrong type is an error, never the default.
+            (
+                "infeed_mm = \"0.01\"",
+                "infeed_mm",
+                "must be a number > 0, found \"0.01\"",
+            ),
+            (
+                "passes = \"3\"",
+                "passes",
+                "must be a whole number in 1..=100",
+            ),
+            ("passes = 2.5", "passes", "must be a whole number"),
+            ("shape = 5", "shape", "must be a string"),
+            ("infeed_mm = [1.0]", "infeed_mm", "must be a number > 0"),
+            ("infeed_mm = -1", "infeed_mm", "must be a number > 0"),
+            (
+                "infed_mm = 0.01",
+                "infed_mm",
+                "unknown key [process].infed_mm",
+            ),
+        ] {
+            let e = check_process(&spec(bad), "guideway", KEYS).unwrap_err();
+            assert_eq!(
+                e.column.as_deref(),
+                Some(format!("process.{key}").as_str()),
+                "{bad}"
+            );
+            let text = e.to_string();
+            assert!(
+                text.contains("runs/g/r1/run.toml") && text.contains(needle),
+                "{bad}: {text}"
+            );
+        }
+        // A plugin that reads no [process] key refuses any.
+        let e = check_process(&spec("gain = 2"), "servo", &[]).unwrap_err();
+        assert!(e.to_string().contains("unknown key [process].gain"), "{e}");
     }
 
     #[test]

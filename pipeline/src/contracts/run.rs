@@ -4,9 +4,10 @@ use crate::values::toml_f64;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use crate::error::InputError;
+use crate::config_check::{read_section, Check, Section};
+use crate::error::{ConfigError, InputError};
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum AeKind {
     Raw,
@@ -46,17 +47,75 @@ pub struct RunSpec {
     pub text: String,
 }
 
-fn req_str(path: &Path, run: &toml::Table, key: &str) -> Result<String, InputError> {
-    match run.get(key) {
-        Some(toml::Value::String(s)) if !s.trim().is_empty() => Ok(s.clone()),
-        Some(v) => Err(InputError::new(
-            path,
-            format!(
-                "[run].{key} must be a non-empty string, found {}",
-                v.type_str()
-            ),
-        )
-        .column(format!("run.{key}"))),
+/// `[run]` as a [`Section`]: unknown keys and wrong types are refused by
+/// the shared reader; the three names are then required non-empty and
+/// checked as path components, `started` as a date-time.
+#[derive(Debug, Default, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+struct RunSection {
+    id: Option<String>,
+    machine: Option<String>,
+    plugin: Option<String>,
+    /// A TOML date-time or a string holding one ([`parse_started`]).
+    started: Option<toml::Value>,
+}
+
+impl Section for RunSection {}
+
+/// `[ae]` as a [`Section`] (only with ae.parquet).
+#[derive(Debug, Default, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+struct AeSection {
+    sample_rate_hz: Option<f64>,
+    kind: Option<AeKind>,
+    clock_offset_s: f64,
+}
+
+impl Section for AeSection {
+    const CHECKS: &'static [(&'static str, Check)] = &[
+        ("sample_rate_hz", Check::Positive),
+        ("kind", Check::OneOf(&["raw", "rms"])),
+        ("clock_offset_s", Check::Number),
+    ];
+    fn validate(&self) -> crate::Result<()> {
+        if self.sample_rate_hz.is_none() {
+            return Err(ConfigError::Missing {
+                key: "sample_rate_hz".into(),
+            }
+            .into());
+        }
+        Ok(())
+    }
+}
+
+/// A section of a config file read as its [`Section`] struct, an error
+/// naming the file, the section and the key (as the column
+/// `<section>.<key>`).
+pub fn read_file_section<T: Section>(
+    path: &Path,
+    name: &str,
+    value: &toml::Value,
+) -> Result<T, InputError> {
+    let table = value
+        .as_table()
+        .ok_or_else(|| InputError::new(path, format!("[{name}] must be a table")).column(name))?;
+    read_section::<T>(table).map_err(|e| {
+        let column = e
+            .downcast_ref::<ConfigError>()
+            .and_then(|c| c.key())
+            .map_or_else(|| name.to_string(), |k| format!("{name}.{k}"));
+        InputError::new(path, format!("[{name}]: {e:#}")).column(column)
+    })
+}
+
+/// A required name of `[run]`: present and not blank.
+fn required_name(path: &Path, key: &str, value: Option<String>) -> Result<String, InputError> {
+    match value {
+        Some(s) if !s.trim().is_empty() => Ok(s),
+        Some(_) => Err(
+            InputError::new(path, format!("[run].{key} must be a non-empty string"))
+                .column(format!("run.{key}")),
+        ),
         None => Err(
             InputError::new(path, format!("required key [run].{key} is missing"))
                 .column(format!("run.{key}")),
@@ -136,81 +195,39 @@ impl RunSpec {
                 .column(k.clone()));
             }
         }
-        let run = doc
-            .get("run")
-            .and_then(|v| v.as_table())
-            .ok_or_else(|| InputError::new(&path, "missing the [run] table").column("run"))?;
-        let id = req_str(&path, run, "id")?;
-        let machine = req_str(&path, run, "machine")?;
-        let plugin = req_str(&path, run, "plugin")?;
+        let run: RunSection = match doc.get("run") {
+            Some(v) => read_file_section(&path, "run", v)?,
+            None => return Err(InputError::new(&path, "missing the [run] table").column("run")),
+        };
+        let id = required_name(&path, "id", run.id)?;
+        let machine = required_name(&path, "machine", run.machine)?;
+        let plugin = required_name(&path, "plugin", run.plugin)?;
         // Names become output path components (`<out>/<machine>/<id>`) and
         // machine config file names: checked here, at the edge.
         for (key, value) in [("id", &id), ("machine", &machine), ("plugin", &plugin)] {
             super::names::check_name(&format!("[run].{key}"), value)
                 .map_err(|m| InputError::new(&path, m).column(format!("run.{key}")))?;
         }
-        let started = match run.get("started") {
+        let started = match &run.started {
             None => None,
             Some(v) => Some(parse_started(&path, v)?),
         };
-        let process = doc
-            .get("process")
-            .and_then(|v| v.as_table())
-            .cloned()
-            .unwrap_or_default();
+        let process = match doc.get("process") {
+            None => toml::Table::new(),
+            Some(toml::Value::Table(t)) => t.clone(),
+            Some(_) => {
+                return Err(InputError::new(&path, "[process] must be a table").column("process"))
+            }
+        };
         let ae = match doc.get("ae") {
             None => None,
             Some(v) => {
-                let t = v
-                    .as_table()
-                    .ok_or_else(|| InputError::new(&path, "[ae] must be a table").column("ae"))?;
-                let sample_rate_hz =
-                    t.get("sample_rate_hz").and_then(toml_f64).ok_or_else(|| {
-                        InputError::new(
-                            &path,
-                            "[ae].sample_rate_hz (a positive number) is required",
-                        )
-                        .column("ae.sample_rate_hz")
-                    })?;
-                if !(sample_rate_hz.is_finite() && sample_rate_hz > 0.0) {
-                    return Err(InputError::new(&path, "[ae].sample_rate_hz must be > 0")
-                        .column("ae.sample_rate_hz"));
-                }
-                let kind = match t.get("kind").and_then(|v| v.as_str()).unwrap_or("raw") {
-                    "raw" => AeKind::Raw,
-                    "rms" => AeKind::Rms,
-                    other => {
-                        return Err(InputError::new(
-                            &path,
-                            format!("[ae].kind must be \"raw\" or \"rms\", found \"{other}\""),
-                        )
-                        .column("ae.kind"))
-                    }
-                };
-                if let Some(k) = t
-                    .keys()
-                    .find(|k| !["sample_rate_hz", "kind", "clock_offset_s"].contains(&k.as_str()))
-                {
-                    return Err(InputError::new(
-                        &path,
-                        format!(
-                            "unknown key [ae].{k} (known: sample_rate_hz, kind, clock_offset_s)"
-                        ),
-                    )
-                    .column(format!("ae.{k}")));
-                }
-                let clock_offset_s = match t.get("clock_offset_s") {
-                    None => 0.0,
-                    Some(v) => toml_f64(v).filter(|x| x.is_finite()).ok_or_else(|| {
-                        InputError::new(&path, "[ae].clock_offset_s must be a finite number (s)")
-                            .column("ae.clock_offset_s")
-                    })?,
-                };
+                let t: AeSection = read_file_section(&path, "ae", v)?;
                 Some(AeSpec {
-                    sample_rate_hz,
-                    kind,
-                    kind_given: t.contains_key("kind"),
-                    clock_offset_s,
+                    sample_rate_hz: t.sample_rate_hz.unwrap_or_default(),
+                    kind: t.kind.unwrap_or(AeKind::Raw),
+                    kind_given: t.kind.is_some(),
+                    clock_offset_s: t.clock_offset_s,
                 })
             }
         };
@@ -638,4 +655,88 @@ pub fn discover(root: &Path) -> std::io::Result<Discovery> {
 /// The run directories of [`discover`] only.
 pub fn discover_runs(root: &Path) -> std::io::Result<Vec<PathBuf>> {
     discover(root).map(|d| d.runs)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const RUN: &str = "[run]\nid = \"r1\"\nmachine = \"kr16-lab\"\nplugin = \"robot\"\nstarted = 2026-11-20T08:00:00Z\n";
+
+    /// run.toml with `extra` after `[run]`, or before it when it is a
+    /// top-level key.
+    fn parse(extra: &str) -> Result<RunSpec, InputError> {
+        let text = if extra.starts_with('[') {
+            format!("{RUN}{extra}")
+        } else {
+            format!("{extra}{RUN}")
+        };
+        RunSpec::parse(Path::new("runs/r1"), &text)
+    }
+
+    #[test]
+    fn run_toml_sections_are_checked_by_key_and_type() {
+        let ok = parse("[ae]\nsample_rate_hz = 100000\nkind = \"rms\"\n").unwrap();
+        assert_eq!(ok.started.as_deref(), Some("2026-11-20T08:00:00Z"));
+        let ae = ok.ae.unwrap();
+        assert_eq!(
+            (ae.sample_rate_hz, ae.kind, ae.kind_given),
+            (1e5, AeKind::Rms, true)
+        );
+        assert_eq!(ae.clock_offset_s, 0.0);
+        let ae = parse("[ae]\nsample_rate_hz = 5.0\n").unwrap().ae.unwrap();
+        assert_eq!((ae.kind, ae.kind_given), (AeKind::Raw, false));
+        for (extra, column, needle) in [
+            // A wrong type is an error, never the default (`raw`).
+            (
+                "[ae]\nsample_rate_hz = 5.0\nkind = 5\n",
+                "ae.kind",
+                "must be one of raw, rms",
+            ),
+            (
+                "[ae]\nsample_rate_hz = \"fast\"\n",
+                "ae.sample_rate_hz",
+                "a number > 0",
+            ),
+            (
+                "[ae]\nsample_rate_hz = 0\n",
+                "ae.sample_rate_hz",
+                "a number > 0",
+            ),
+            (
+                "[ae]\nkind = \"raw\"\n",
+                "ae.sample_rate_hz",
+                "required key",
+            ),
+            (
+                "[ae]\nsample_rate_hz = 5.0\nclock_offset = 1\n",
+                "ae.clock_offset",
+                "unknown key",
+            ),
+            (
+                "[ae]\nsample_rate_hz = 5.0\nclock_offset_s = \"1 s\"\n",
+                "ae.clock_offset_s",
+                "a finite number",
+            ),
+            ("ae = 5\n", "ae", "must be a table"),
+            ("process = 5\n", "process", "must be a table"),
+        ] {
+            let e = parse(extra).unwrap_err();
+            assert_eq!(e.column.as_deref(), Some(column), "{extra}: {e}");
+            let text = e.to_string();
+            assert!(
+                text.contains("runs/r1/run.toml") && text.contains(needle),
+                "{extra}: {text}"
+            );
+        }
+        let typo = RUN.replace("started", "strated");
+        let e = RunSpec::parse(Path::new("runs/r1"), &typo).unwrap_err();
+        assert_eq!(e.column.as_deref(), Some("run.strated"), "{e}");
+        let wrong = RUN.replace("plugin = \"robot\"", "plugin = 3");
+        let e = RunSpec::parse(Path::new("runs/r1"), &wrong).unwrap_err();
+        assert_eq!(e.column.as_deref(), Some("run.plugin"), "{e}");
+        let blank = RUN.replace("id = \"r1\"", "id = \" \"");
+        let e = RunSpec::parse(Path::new("runs/r1"), &blank).unwrap_err();
+        assert_eq!(e.column.as_deref(), Some("run.id"), "{e}");
+    }
 }

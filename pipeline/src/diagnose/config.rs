@@ -6,7 +6,7 @@
 use anyhow::bail;
 use serde::{Deserialize, Serialize};
 
-use crate::config_check::{check_settings, read_section, Check, Section};
+use crate::config_check::{check_settings, read_section, Check, Checked, Section};
 
 use crate::Result;
 
@@ -105,6 +105,12 @@ impl DiagnoseConfig {
             seed: 0,
             ..self.clone()
         })
+    }
+    /// Settings built in code, checked once ([`DiagnoseConfig::check`]),
+    /// for [`crate::diagnose::diagnose_checked`].
+    pub fn checked(self) -> Result<Checked<DiagnoseConfig>> {
+        self.check()?;
+        Checked::checked_by_caller(self)
     }
 }
 

@@ -186,7 +186,7 @@ pub fn localised_effects(
             .collect();
         let sub = arrow::compute::filter_record_batch(batch, &keep)?;
         // A machine's own diagnosis needs held-out runs.
-        let Ok(one) = super::diagnose_scoped(&sub, cfg, scopes) else {
+        let Ok(one) = super::run_diagnosis(&sub, cfg, scopes) else {
             continue;
         };
         let runs = one.diagnosis.per_observable.first().map_or(0, |p| p.runs);

@@ -47,6 +47,7 @@ pub use output::{
     Unexplained, WhereCell,
 };
 
+use crate::config_check::Checked;
 use crate::Result;
 use cells::ObsCell;
 use observations::Table;
@@ -151,13 +152,34 @@ pub fn diagnose(
 }
 
 /// Diagnoses paired observations; each plugin's composites apply only to
-/// the observables of its scope, the catalogue to all.
+/// the observables of its scope, the catalogue to all. Settings built in
+/// code are checked here; [`diagnose_checked`] takes settings already
+/// checked (the engine's and the CLI's, read from `[diagnose]` once).
 pub fn diagnose_scoped(
     obs: &arrow::array::RecordBatch,
     cfg: &DiagnoseConfig,
     scopes: &[EffectScope],
 ) -> Result<DiagnosisOutput> {
     cfg.check()?;
+    run_diagnosis(obs, cfg, scopes)
+}
+
+/// [`diagnose_scoped`] with settings already checked: nothing is checked
+/// or serialised again.
+pub fn diagnose_checked(
+    obs: &arrow::array::RecordBatch,
+    cfg: &Checked<DiagnoseConfig>,
+    scopes: &[EffectScope],
+) -> Result<DiagnosisOutput> {
+    run_diagnosis(obs, cfg, scopes)
+}
+
+/// The diagnosis proper, on settings its caller checked.
+fn run_diagnosis(
+    obs: &arrow::array::RecordBatch,
+    cfg: &DiagnoseConfig,
+    scopes: &[EffectScope],
+) -> Result<DiagnosisOutput> {
     let batch = observations::validate_observations(obs, Path::new("<observations>"))?;
     let table = Table::from_batch(&batch)?;
     let mut notes = Notes::default();

@@ -5,90 +5,113 @@
 
 use super::*;
 
-impl Engine {
-    /// Every config section names a registered plugin and stage, and each
-    /// stage accepts its section (unknown keys, bad values), before anything
-    /// runs.
-    pub(super) fn validate_config(&self) -> Result<()> {
-        let src = &self.config.source;
-        // A typo'd plugin (`--set guidewy.separate.method=...`, `[robotx.ingest]`)
-        // would otherwise configure nothing, silently.
-        let mut sections: Vec<&str> = vec!["pipeline", "diagnose", "report", "trend"];
-        sections.extend(self.plugin_names());
-        for (key, value) in &self.config.table {
-            if !sections.contains(&key.as_str()) {
+/// The pipeline config read and checked once, before any run: every
+/// section names a registered plugin and stage, and every section —
+/// `[pipeline]`, `[report]`, `[diagnose]`, `[trend]` and each stage's
+/// `[<plugin>.<stage>]`, an absent one as its defaults — is read into its
+/// typed struct here. Runs take the typed values from the result; nothing
+/// parses a section again.
+pub(super) fn check_config(
+    plugins: &[Arc<dyn MachinePlugin>],
+    config: &PipelineConfig,
+) -> Result<CheckedConfig> {
+    let src = &config.source;
+    let plugin_names: Vec<&'static str> = plugins.iter().map(|p| p.name()).collect();
+    // A typo'd plugin (`--set guidewy.separate.method=...`, `[robotx.ingest]`)
+    // would otherwise configure nothing, silently.
+    let mut sections: Vec<&str> = vec!["pipeline", "diagnose", "report", "trend"];
+    sections.extend(plugin_names.iter().copied());
+    for (key, value) in &config.table {
+        if !sections.contains(&key.as_str()) {
+            bail!(
+                "config {src} (with any --set): unknown {} `{key}`; the known sections are {} (a plugin's stages go under [PLUGIN.STAGE])",
+                if value.is_table() { "section" } else { "top-level key" },
+                sections.iter().map(|s| format!("[{s}]")).collect::<Vec<_>>().join(", ")
+            );
+        }
+    }
+    let table_of = |name: &str| -> Result<toml::Table> {
+        match config.table.get(name) {
+            None => Ok(toml::Table::new()),
+            Some(toml::Value::Table(t)) => Ok(t.clone()),
+            Some(_) => bail!("config {src}: [{name}] must be a table"),
+        }
+    };
+    let pipeline: Checked<PipelineSection> = Checked::read(&table_of("pipeline")?)
+        .with_context(|| format!("config {src} (with any --set): [pipeline]"))?;
+    let report: Checked<ReportSection> = Checked::read(&table_of("report")?)
+        .with_context(|| format!("config {src} (with any --set): [report]"))?;
+    let diagnose: Checked<DiagnoseConfig> = Checked::read(&table_of("diagnose")?)
+        .with_context(|| format!("config {src}: [diagnose]"))?;
+    let trend: Checked<report::trend::TrendConfig> =
+        Checked::read(&table_of("trend")?).with_context(|| format!("config {src}: [trend]"))?;
+    if let Some(list) = &pipeline.plugins {
+        for p in list {
+            if !plugin_names.contains(&p.as_str()) {
                 bail!(
-                    "config {src} (with any --set): unknown {} `{key}`; the known sections are {} (a plugin's stages go under [PLUGIN.STAGE])",
-                    if value.is_table() { "section" } else { "top-level key" },
-                    sections.iter().map(|s| format!("[{s}]")).collect::<Vec<_>>().join(", ")
+                    "config {src}: [pipeline].plugins names unknown plugin `{p}` (known: {})",
+                    plugin_names.join(", ")
                 );
             }
         }
-        for (section, known) in [
-            ("pipeline", &["plugins", "stages"][..]),
-            ("report", &["title"][..]),
-        ] {
-            for key in self.config.section(section).keys() {
-                if !known.contains(&key.as_str()) {
-                    bail!(
-                        "config {src} (with any --set): unknown key [{section}].{key} (known: {})",
-                        known.join(", ")
-                    );
-                }
-            }
-        }
-        if let Some(list) = self.config.pipeline_list("plugins")? {
-            for p in &list {
-                if self.plugin(p).is_none() {
-                    bail!(
-                        "config {src}: [pipeline].plugins names unknown plugin `{p}` (known: {})",
-                        self.plugin_names().join(", ")
-                    );
-                }
-            }
-        }
-        let all_stages: BTreeSet<&str> = self
-            .plugins
-            .iter()
-            .flat_map(|p| p.stages().into_iter().map(|s| s.name()).collect::<Vec<_>>())
-            .chain(["diagnose", "report"])
-            .collect();
-        if let Some(list) = self.config.pipeline_list("stages")? {
-            for s in &list {
-                if !all_stages.contains(s.as_str()) {
-                    bail!(
-                        "config {src}: [pipeline].stages names unknown stage `{s}` (known: {})",
-                        all_stages.iter().copied().collect::<Vec<_>>().join(", ")
-                    );
-                }
-            }
-        }
-        for plugin in &self.plugins {
-            let section = self.config.section(plugin.name());
-            let stages = plugin.stages();
-            for (key, value) in &section {
-                let stage =
-                    stages.iter().find(|s| s.name() == key).ok_or_else(|| {
-                        anyhow!(
-                        "config {src}: [{}.{key}] is not a stage of plugin `{}` (its stages: {})",
-                        plugin.name(),
-                        plugin.name(),
-                        stages.iter().map(|s| s.name()).collect::<Vec<_>>().join(", ")
-                    )
-                    })?;
-                let t = value.as_table().ok_or_else(|| {
-                    anyhow!("config {src}: [{}.{key}] must be a table", plugin.name())
-                })?;
-                stage
-                    .validate_config(t)
-                    .with_context(|| format!("config {src}: [{}.{key}]", plugin.name()))?;
-            }
-        }
-        self.diagnose_config()?;
-        self.trend_config()?;
-        Ok(())
     }
+    let all_stages: BTreeSet<&str> = plugins
+        .iter()
+        .flat_map(|p| p.stages().into_iter().map(|s| s.name()).collect::<Vec<_>>())
+        .chain(["diagnose", "report"])
+        .collect();
+    if let Some(list) = &pipeline.stages {
+        for s in list {
+            if !all_stages.contains(s.as_str()) {
+                bail!(
+                    "config {src}: [pipeline].stages names unknown stage `{s}` (known: {})",
+                    all_stages.iter().copied().collect::<Vec<_>>().join(", ")
+                );
+            }
+        }
+    }
+    let mut stage_sections = BTreeMap::new();
+    for plugin in plugins {
+        let section = table_of(plugin.name())?;
+        let stages = plugin.stages();
+        for (key, value) in &section {
+            if !stages.iter().any(|s| s.name() == key) {
+                bail!(
+                    "config {src}: [{}.{key}] is not a stage of plugin `{}` (its stages: {})",
+                    plugin.name(),
+                    plugin.name(),
+                    stages
+                        .iter()
+                        .map(|s| s.name())
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                );
+            }
+            if !value.is_table() {
+                bail!("config {src}: [{}.{key}] must be a table", plugin.name());
+            }
+        }
+        for stage in &stages {
+            let own = match section.get(stage.name()) {
+                Some(toml::Value::Table(t)) => t.clone(),
+                _ => toml::Table::new(),
+            };
+            let checked = stage
+                .read_config(&own)
+                .with_context(|| format!("config {src}: [{}.{}]", plugin.name(), stage.name()))?;
+            stage_sections.insert((plugin.name(), stage.name()), checked);
+        }
+    }
+    Ok(CheckedConfig {
+        pipeline,
+        report,
+        diagnose,
+        trend,
+        stages: stage_sections,
+    })
+}
 
+impl Engine {
     /// `sparkout validate-input`: the checks `sparkout run` makes, with the
     /// same code — discovery (directories without run.toml, duplicate ids),
     /// run.toml, machine, every stage computed in memory — writing nothing.

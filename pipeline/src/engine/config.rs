@@ -3,8 +3,14 @@
 use std::path::Path;
 
 use anyhow::{anyhow, bail, Context};
+use serde::{Deserialize, Serialize};
 
+use std::collections::BTreeMap;
+
+use crate::config_check::{Checked, CheckedSection, Section};
+use crate::diagnose::DiagnoseConfig;
 use crate::error::Result;
+use crate::report::trend::TrendConfig;
 
 /// The default DAG, built into the binary so `sparkout run` works from any
 /// directory without `--config`.
@@ -74,23 +80,54 @@ impl PipelineConfig {
         }
         cur.clone()
     }
+}
 
-    /// `[pipeline].<key>` as a list of strings, if given.
-    pub fn pipeline_list(&self, key: &str) -> Result<Option<Vec<String>>> {
-        let p = self.section("pipeline");
-        match p.get(key) {
-            None => Ok(None),
-            Some(toml::Value::Array(a)) => a
-                .iter()
-                .map(|v| {
-                    v.as_str()
-                        .map(|s| s.to_string())
-                        .ok_or_else(|| anyhow!("[pipeline].{key} must be a list of strings"))
-                })
-                .collect::<Result<Vec<_>>>()
-                .map(Some),
-            Some(_) => bail!("[pipeline].{key} must be a list of strings"),
-        }
+/// `[pipeline]`: which plugins and stages a batch runs (all when absent).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct PipelineSection {
+    /// Only these plugins' runs are processed.
+    pub plugins: Option<Vec<String>>,
+    /// Only these stages (and the stages they read from) run.
+    pub stages: Option<Vec<String>>,
+}
+
+impl Section for PipelineSection {}
+
+/// `[report]`: what the report pages take from the config.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ReportSection {
+    /// The pages' title (each page has its own default).
+    pub title: Option<String>,
+}
+
+impl Section for ReportSection {}
+
+/// The pipeline config read and checked once, when the engine is built
+/// (before any run): each section as its typed, checked value. Runs and
+/// the fleet steps take their settings from here; nothing parses a
+/// section again, and each cache key hashes the effective config
+/// ([`Checked::effective`], [`CheckedSection::effective`]).
+#[derive(Debug, Clone)]
+pub struct CheckedConfig {
+    pub pipeline: Checked<PipelineSection>,
+    pub report: Checked<ReportSection>,
+    pub diagnose: Checked<DiagnoseConfig>,
+    pub trend: Checked<TrendConfig>,
+    /// Every stage of every plugin, by (plugin, stage): its section, or
+    /// its defaults when the config has none.
+    pub(super) stages: BTreeMap<(&'static str, &'static str), CheckedSection>,
+}
+
+impl CheckedConfig {
+    /// A stage's checked section.
+    pub fn stage(&self, plugin: &str, stage: &str) -> Result<&CheckedSection> {
+        self.stages
+            .iter()
+            .find(|((p, s), _)| *p == plugin && *s == stage)
+            .map(|(_, c)| c)
+            .ok_or_else(|| anyhow!("stage `{plugin}.{stage}` has no checked config section"))
     }
 }
 

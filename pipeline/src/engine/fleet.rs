@@ -72,8 +72,10 @@ impl Engine {
             records: Vec::new(),
         };
         let want_diagnose = self
-            .config
-            .pipeline_list("stages")?
+            .checked
+            .pipeline
+            .stages
+            .as_ref()
             .map(|l| l.iter().any(|s| s == "diagnose" || s == "observe"))
             .unwrap_or(true);
         let has_observations = outcome.runs.iter().any(|r| r.observations.is_some());
@@ -176,7 +178,7 @@ impl Engine {
         joined: Option<Joined>,
         progress: &dyn Progress,
     ) -> Result<(Option<serde_json::Value>, Option<String>)> {
-        let dcfg = self.diagnose_config()?;
+        let dcfg = &self.checked.diagnose;
         let effects = self.plugin_effects();
         // Which plugin's composites apply where follows from the joined
         // observations (okey) and the registered effects, so the key
@@ -185,7 +187,7 @@ impl Engine {
             outcome.runs.iter().map(|r| r.plugin.as_str()).collect();
         let mut dkey = KeyBuilder::new("diagnose");
         dkey.part("version", &DIAGNOSE_STAGE_VERSION.to_string())
-            .part("config", &config_text(&self.config.section("diagnose")))
+            .part("config", dcfg.effective())
             .part("observations", okey);
         for (plugin, effects) in effects.iter().filter(|pe| plugins_in_batch.contains(pe.0)) {
             for e in effects {
@@ -222,7 +224,7 @@ impl Engine {
             })
             .collect();
         progress.message("diagnosing the sim-to-real gap");
-        let d = diagnose::diagnose_scoped(&joined, &dcfg, &scopes).context("fleet diagnosis")?;
+        let d = diagnose::diagnose_checked(&joined, dcfg, &scopes).context("fleet diagnosis")?;
         cache.write(
             "diagnose",
             DIAGNOSE_STAGE_VERSION,
@@ -269,7 +271,7 @@ impl Engine {
     ) -> Result<String> {
         let mut rkey = KeyBuilder::new("fleet-report");
         rkey.part("version", &report::REPORT_VERSION.to_string())
-            .part("config", &config_text(&self.config.section("report")));
+            .part("config", self.checked.report.effective());
         for r in &outcome.runs {
             for s in &r.stages {
                 rkey.part(&format!("{}/{}/{}", r.machine, r.run, s.stage), &s.key);
@@ -370,7 +372,7 @@ impl Engine {
         let file = report::trend::append_night(dir, &night, diagnosis, &config)?;
         report::trend::append_events(dir, &events)?;
         progress.message(&format!("history: {}", file.display()));
-        let t = report::trend::write_trend(dir, &out.join("trend"), &[], &self.trend_config()?)?;
+        let t = report::trend::write_trend(dir, &out.join("trend"), &[], &self.checked.trend)?;
         for a in t.alerts_on(&night) {
             tracing::warn!(
                 "trend alert {} #{} {}: {}",

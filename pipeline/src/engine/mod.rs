@@ -26,6 +26,7 @@ use anyhow::{anyhow, bail, Context};
 use arrow::record_batch::RecordBatch;
 use serde::{Deserialize, Serialize};
 
+use crate::config_check::Checked;
 use crate::contracts::{
     config_keys, discover, names, remove_orphaned_temps, table_schema, write_atomic,
     write_json_atomic, AeStream, MachineResolver, RunSpec, Table,
@@ -37,7 +38,7 @@ use crate::traits::{ArtifactStore, MachinePlugin, Run, Stage, StageContext, Stag
 use cache::{
     hash_bytes, hash_file, hash_input, read_run_cache, record_valid, KeyBuilder, StageRecord,
 };
-pub use config::PipelineConfig;
+pub use config::{CheckedConfig, PipelineConfig, PipelineSection, ReportSection};
 
 /// Version of the fleet `diagnose` step (bump when its output changes).
 pub const DIAGNOSE_STAGE_VERSION: u32 = 8;
@@ -60,6 +61,8 @@ pub struct Engine {
     plugins: Vec<Arc<dyn MachinePlugin>>,
     resolver: MachineResolver,
     config: PipelineConfig,
+    /// `config`, every section read and checked once in [`Engine::new`].
+    checked: CheckedConfig,
     /// `run --history DIR [--night D] [--event ...]`.
     history: Option<History>,
     /// `run --augment augmented_model.json`.
@@ -89,17 +92,17 @@ impl Engine {
         for p in &plugins {
             check_plugin(p.as_ref())?;
         }
-        let engine = Engine {
+        let checked = checks::check_config(&plugins, &config)?;
+        Ok(Engine {
             plugins,
             resolver,
             config,
+            checked,
             history: None,
             augment: None,
             input_label: None,
             snapshot: None,
-        };
-        engine.validate_config()?;
-        Ok(engine)
+        })
     }
 
     /// Append each batch's diagnosis to a fleet history and write the trend
@@ -128,15 +131,8 @@ impl Engine {
             }
         }
         report::trend::read_events(&dir)?;
-        self.trend_config()?;
         self.history = Some(History { dir, night, events });
         Ok(())
-    }
-
-    /// `[trend]` as the trend takes it.
-    pub fn trend_config(&self) -> Result<report::trend::TrendConfig> {
-        report::trend::TrendConfig::from_toml(&self.config.section("trend"))
-            .with_context(|| format!("config {}: [trend]", self.config.source))
     }
 
     /// Add a previous diagnosis's effects to the sim side of the fleet's
@@ -188,6 +184,11 @@ impl Engine {
         &self.config
     }
 
+    /// The config's sections as read and checked in [`Engine::new`].
+    pub fn checked_config(&self) -> &CheckedConfig {
+        &self.checked
+    }
+
     pub fn plugins(&self) -> &[Arc<dyn MachinePlugin>] {
         &self.plugins
     }
@@ -198,12 +199,6 @@ impl Engine {
 
     fn plugin_names(&self) -> Vec<&'static str> {
         self.plugins.iter().map(|p| p.name()).collect()
-    }
-
-    /// `[diagnose]` as the diagnosis takes it.
-    pub fn diagnose_config(&self) -> Result<DiagnoseConfig> {
-        DiagnoseConfig::from_toml(&self.config.section("diagnose"))
-            .with_context(|| format!("config {}: [diagnose]", self.config.source))
     }
 
     /// Each plugin's composites (plugin name, effects), in registry order;
@@ -217,7 +212,13 @@ impl Engine {
 
     /// Load and resolve one run: run.toml, plugin, machine, required tables.
     pub fn open_run(&self, dir: &Path) -> Result<(Run, Arc<dyn MachinePlugin>)> {
-        let spec = RunSpec::load(dir)?;
+        self.open_spec(RunSpec::load(dir)?)
+    }
+
+    /// [`Engine::open_run`] from its run.toml, already read and checked.
+    pub(super) fn open_spec(&self, spec: RunSpec) -> Result<(Run, Arc<dyn MachinePlugin>)> {
+        let dir = spec.dir.clone();
+        let dir = dir.as_path();
         let plugin = self.plugin(&spec.plugin).cloned().ok_or_else(|| {
             InputError::new(
                 spec.run_toml_path(),
@@ -312,24 +313,22 @@ impl Engine {
     /// upstream stages, in topological order.
     fn plan(&self, plugin: &dyn MachinePlugin) -> Result<Vec<Arc<dyn Stage>>> {
         let ordered = dag::topological_order(&plugin.stages())?;
-        match self.config.pipeline_list("stages")? {
+        match &self.checked.pipeline.stages {
             None => Ok(ordered),
             Some(list) => {
-                let targets: BTreeSet<String> = list.into_iter().collect();
+                let targets: BTreeSet<String> = list.iter().cloned().collect();
                 Ok(dag::with_upstream(&ordered, &targets))
             }
         }
     }
 
-    fn stage_config(&self, plugin: &str, stage: &str) -> toml::Table {
-        self.config.section(&format!("{plugin}.{stage}"))
-    }
-
     fn plugins_enabled(&self) -> Result<Option<BTreeSet<String>>> {
         Ok(self
-            .config
-            .pipeline_list("plugins")?
-            .map(|l| l.into_iter().collect()))
+            .checked
+            .pipeline
+            .plugins
+            .as_ref()
+            .map(|l| l.iter().cloned().collect()))
     }
 
     /// The whole batch.

@@ -44,7 +44,7 @@ impl Engine {
         // A panic in a stage is a bug, but it must not take the batch down:
         // the run is rejected like any other failure.
         let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-            self.process_run_inner(dir, run_out.as_deref(), &mut failed_stage)
+            self.process_run_inner(dir, spec.clone(), run_out.as_deref(), &mut failed_stage)
         }))
         .unwrap_or_else(|panic| {
             let msg = panic
@@ -68,7 +68,8 @@ impl Engine {
         }))
     }
 
-    /// A stage's cache key: its name, version, plugin and config section,
+    /// A stage's cache key: its name, version, plugin and effective config
+    /// (its checked section serialised canonically, defaults applied),
     /// run.toml and the machine config, the hash of every table it reads
     /// (hashed once per run, in `table_hashes`), the keys of the stages
     /// whose artifacts it reads, and the augmented model's hash when it
@@ -77,7 +78,7 @@ impl Engine {
         &self,
         stage: &Arc<dyn Stage>,
         plugin: &str,
-        cfg: &toml::Table,
+        cfg: &crate::config_check::CheckedSection,
         run: &Run,
         table_hashes: &mut BTreeMap<String, String>,
         producer_key: &BTreeMap<String, String>,
@@ -86,7 +87,7 @@ impl Engine {
         key.part("stage", stage.name())
             .part("version", &stage.version().to_string())
             .part("plugin", plugin)
-            .part("config", &config_text(cfg))
+            .part("config", cfg.effective())
             .part("run.toml", &run.spec.text)
             .part("machine", &run.machine.text);
         for schema in stage.spec().reads {
@@ -125,10 +126,12 @@ impl Engine {
     pub(super) fn process_run_inner(
         &self,
         dir: &Path,
+        spec: RunSpec,
         run_out: Option<&Path>,
         failed_stage: &mut Option<String>,
     ) -> Result<RunResult> {
-        let (run, plugin) = self.open_run(dir)?;
+        // run.toml was read and checked once by the caller.
+        let (run, plugin) = self.open_spec(spec)?;
         let stages = self.plan(plugin.as_ref())?;
         let previous = run_out.map(read_run_cache).unwrap_or_default();
         let store = ArtifactStore::default();
@@ -138,7 +141,7 @@ impl Engine {
 
         for stage in &stages {
             *failed_stage = Some(stage.name().to_string());
-            let cfg = self.stage_config(plugin.name(), stage.name());
+            let cfg = self.checked.stage(plugin.name(), stage.name())?;
             let augment = self
                 .augment
                 .as_ref()
@@ -146,7 +149,7 @@ impl Engine {
             let key = self.stage_key(
                 stage,
                 plugin.name(),
-                &cfg,
+                cfg,
                 &run,
                 &mut table_hashes,
                 &producer_key,
@@ -176,7 +179,7 @@ impl Engine {
             }
             let ctx = StageContext {
                 run: &run,
-                config: &cfg,
+                config: cfg,
                 artifacts: &store,
                 augment,
             };
@@ -221,7 +224,7 @@ impl Engine {
         // The run's report: a step of its own, cached on every stage's key.
         let mut rkey = KeyBuilder::new("run-report");
         rkey.part("version", &report::REPORT_VERSION.to_string())
-            .part("config", &config_text(&self.config.section("report")))
+            .part("config", self.checked.report.effective())
             // The verdict's `[tolerance]` limits live in these two.
             .part("run.toml", &run.spec.text)
             .part("machine", &run.machine.text);
@@ -317,10 +320,10 @@ impl Engine {
         let store = ArtifactStore::default();
         let mut last = None;
         for stage in &chain {
-            let cfg = self.stage_config(plugin.name(), stage.name());
+            let cfg = self.checked.stage(plugin.name(), stage.name())?;
             let ctx = StageContext {
                 run: &run,
-                config: &cfg,
+                config: cfg,
                 artifacts: &store,
                 augment: None,
             };

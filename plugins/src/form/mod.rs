@@ -55,8 +55,8 @@ impl MachinePlugin for FormPlugin {
     }
     /// What the stages read from run.toml `[process]` (and what the
     /// generator writes there, for provenance).
-    fn process_keys(&self) -> Option<ProcessKeys> {
-        Some(&[
+    fn process_keys(&self) -> ProcessKeys {
+        &[
             ("shape", Check::Text),
             ("z_mm", Check::Number),
             ("dressing", Check::WholeIn(0, 1_000_000)),
@@ -67,7 +67,7 @@ impl MachinePlugin for FormPlugin {
             ("stock_mm", Check::Positive),
             ("feed_mm_s", Check::Positive),
             ("width_mm", Check::Positive),
-        ])
+        ]
     }
     fn builtin_machines(&self) -> Vec<(&'static str, &'static str)> {
         vec![("form-grinder", FORM_GRINDER_TOML)]

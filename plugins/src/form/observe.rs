@@ -51,7 +51,7 @@ impl Stage for ObserveStage {
         &SPEC
     }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
-        let cfg: ObserveConfig = ctx.section()?;
+        let cfg: &ObserveConfig = ctx.section()?;
         let (range, t, rows, p, r_kn) = profile_setup(ctx, cfg.window_points, cfg.nominal_mm)?;
         let file = t.path();
         let path = centre_path(&p, r_kn).with_model(cfg.delta_model);

@@ -163,7 +163,7 @@ impl Stage for ProfileErrorStage {
         &SPEC
     }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
-        let cfg: ProfileErrorConfig = ctx.section()?;
+        let cfg: &ProfileErrorConfig = ctx.section()?;
         let (range, t, rows, p, r_kn) = profile_setup(ctx, cfg.window_points, cfg.nominal_mm)?;
         let radii = actual_radii(ctx, cfg.wheel_radius_mm, &rows, t.path(), &range)?;
         let (batch, summary) = compute(

@@ -316,8 +316,8 @@ impl Stage for SegmentStage {
     }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
         let machine = WheelRange::from_machine(&ctx.run.machine).ok();
-        let cfg: SegmentSection = ctx.section()?;
-        let sc = config_for(&cfg, machine)?;
+        let cfg: &SegmentSection = ctx.section()?;
+        let sc = config_for(cfg, machine)?;
         let (t, rows) = profile_rows(ctx.run)?;
         let p = rows.design(t.path(), &curvature(cfg.window_points))?;
         let z = match cfg.z_mm {

@@ -111,7 +111,7 @@ impl Stage for FlatnessStage {
     }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
         let t = ctx.run.require(&TOPOGRAPHY)?;
-        let cfg: FlatnessConfig = ctx.section()?;
+        let cfg: &FlatnessConfig = ctx.section()?;
         let (all, summary) = analyse(&t, cfg.state.as_deref())?;
         Ok(StageOutput::new(summary).with("flatness", batch(&all)))
     }

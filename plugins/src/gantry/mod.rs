@@ -77,8 +77,8 @@ impl MachinePlugin for GantryPlugin {
     }
     /// What the stages read from run.toml `[process]` (and what the
     /// generator writes there, for provenance).
-    fn process_keys(&self) -> Option<ProcessKeys> {
-        Some(&[
+    fn process_keys(&self) -> ProcessKeys {
+        &[
             // grinding (the machine's [grinding] otherwise)
             ("grind_feed_mm_s", Check::Positive),
             ("depth_of_cut_mm", Check::Positive),
@@ -94,7 +94,7 @@ impl MachinePlugin for GantryPlugin {
             ("feed_mm_s", Check::Positive),
             ("accel_mm_s2", Check::Positive),
             ("step_over_mm", Check::Positive),
-        ])
+        ]
     }
     fn builtin_machines(&self) -> Vec<(&'static str, &'static str)> {
         vec![("aplm-gantry", APLM_GANTRY_TOML)]

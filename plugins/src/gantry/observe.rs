@@ -71,7 +71,7 @@ impl Stage for ObserveStage {
     }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
         let (g, t, pattern) = grid::run_surface(ctx)?;
-        let cfg: ObserveConfig = ctx.section()?;
+        let cfg: &ObserveConfig = ctx.section()?;
         let state = cfg.state.as_str();
         let real = grid::same_grid(&t, state, &pattern.grid)?;
         let rem = ctx.artifacts.require("removal")?;

@@ -457,9 +457,9 @@ impl Stage for PolishPlanStage {
     }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
         let (g, t, _) = grid::run_surface(ctx)?;
-        let cfg: PlanConfig = ctx.section()?;
+        let cfg: &PlanConfig = ctx.section()?;
         let s = load(&t, &cfg.state, &g)?;
-        let (summary, batch, surface) = analyse(&g, &s, cfg)?;
+        let (summary, batch, surface) = analyse(&g, &s, cfg.clone())?;
         Ok(StageOutput::new(summary)
             .with("polish_plan", batch)
             .with("polish_surface", surface))

@@ -173,7 +173,7 @@ impl Stage for RemovalStage {
     }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
         let (g, t, pattern) = grid::run_surface(ctx)?;
-        let cfg: RemovalConfig = ctx.section()?;
+        let cfg: &RemovalConfig = ctx.section()?;
         let from = cfg.from_state.as_str();
         let start = grid::same_grid(&t, from, &pattern.grid)?;
         check_tool_fits(&g, &start.grid, t.path())?;

@@ -286,7 +286,7 @@ impl Stage for CompensationStage {
             .iter()
             .filter_map(|v| v.as_f64())
             .collect();
-        let cfg: CompensationConfig = ctx.section()?;
+        let cfg: &CompensationConfig = ctx.section()?;
         let mut fit = fit_thermal_reversal(
             &s,
             cfg.thermal == AutoOff::Auto,

@@ -111,12 +111,16 @@ impl PredictorConfig {
     /// A section (or the run-less flags) read and checked, the machine's
     /// repeatability filling in when the section gives none.
     pub fn from_table(config: &toml::Table, run: Option<&Run>) -> Result<PredictorConfig> {
-        let mut c: PredictorConfig = read_section(config)?;
-        c.repeatability_mm = Some(c.repeatability_mm.unwrap_or_else(|| {
+        Ok(read_section::<PredictorConfig>(config)?.resolve(run))
+    }
+    /// The checked section with the machine's repeatability filling in
+    /// when the section gives none.
+    pub fn resolve(mut self, run: Option<&Run>) -> PredictorConfig {
+        self.repeatability_mm = Some(self.repeatability_mm.unwrap_or_else(|| {
             run.map(|r| machine_f64(r, "table.repeatability_mm", DEFAULT_REPEATABILITY_MM))
                 .unwrap_or(DEFAULT_REPEATABILITY_MM)
         }));
-        Ok(c)
+        self
     }
     /// The Kalman measurement σ (mm).
     pub fn repeatability_mm(&self) -> f64 {

@@ -56,13 +56,13 @@ impl MachinePlugin for GuidewayPlugin {
     }
     /// What the stages read from run.toml `[process]` (and what the
     /// generator writes there, for provenance).
-    fn process_keys(&self) -> Option<ProcessKeys> {
-        Some(&[
+    fn process_keys(&self) -> ProcessKeys {
+        &[
             ("probe_spacing_mm", Check::Positive),
             ("sample_step_mm", Check::Positive),
             ("infeed_mm", Check::Positive),
             ("passes", Check::WholeIn(1, 100_000)),
-        ])
+        ]
     }
     fn builtin_machines(&self) -> Vec<(&'static str, &'static str)> {
         vec![("guideway-grinder", GUIDEWAY_GRINDER_TOML)]

@@ -78,7 +78,7 @@ impl Stage for ObserveStage {
     }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
         let s = SepData::from_batch(ctx.artifacts.require("separation")?.as_ref())?;
-        let mode = ctx.section::<ObserveConfig>()?.sim;
+        let mode = ctx.section::<ObserveConfig>()?.sim.clone();
         let model = if mode == "model" {
             ctx.artifacts
                 .summary("compensation")

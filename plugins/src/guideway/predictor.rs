@@ -210,7 +210,7 @@ impl Stage for PredictorStage {
         &SPEC
     }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
-        let cfg = PredictorConfig::from_table(ctx.config, Some(ctx.run))?;
+        let cfg = ctx.section::<PredictorConfig>()?.resolve(Some(ctx.run));
         let s = SepData::from_batch(ctx.artifacts.require("separation")?.as_ref())?;
         let need = min_samples(&cfg);
         if s.len() < need {

@@ -196,7 +196,7 @@ impl Stage for SeparateStage {
         &SPEC
     }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
-        let cfg: SeparateSection = ctx.section()?;
+        let cfg: &SeparateSection = ctx.section()?;
         let sigma_mm = cfg
             .probe_sigma_mm
             .unwrap_or_else(|| machine_f64(ctx.run, "probes.sigma_mm", 1e-4));

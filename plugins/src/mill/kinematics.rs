@@ -641,10 +641,10 @@ impl Stage for KinematicsStage {
     }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
         let machine = MillMachine::from_config(&ctx.run.machine)?;
-        let cfg: KinematicsConfig = ctx.section()?;
+        let cfg: &KinematicsConfig = ctx.section()?;
         let machine = cfg.apply(&machine)?;
         let data = tracker_points(ctx.run, &machine)?;
-        let r = analyse(data, &machine, &cfg)?;
+        let r = analyse(data, &machine, cfg)?;
         let mut summary = r.summary;
         let mut out = StageOutput::new(serde_json::Value::Null);
         let growth = SpindleGrowth::of(ctx);

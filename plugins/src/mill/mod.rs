@@ -50,12 +50,12 @@ impl MachinePlugin for MillPlugin {
     }
     /// What the stages read from run.toml `[process]` (and what the
     /// generator writes there, for provenance).
-    fn process_keys(&self) -> Option<ProcessKeys> {
-        Some(&[
+    fn process_keys(&self) -> ProcessKeys {
+        &[
             ("points", Check::WholeIn(1, 10_000_000)),
             ("point_period_s", Check::Positive),
             ("axes", Check::Text),
-        ])
+        ]
     }
     fn builtin_machines(&self) -> Vec<(&'static str, &'static str)> {
         vec![("xfyz-mill", XFYZ_MILL_TOML)]

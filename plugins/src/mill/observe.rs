@@ -97,7 +97,7 @@ impl Stage for ObserveStage {
         &SPEC
     }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
-        let cfg: ObserveConfig = ctx.section()?;
+        let cfg: &ObserveConfig = ctx.section()?;
         // The tool offsets come from the machine; identification settings do
         // not matter here (the model is read back from its artifact).
         let machine = MillMachine::from_config(&ctx.run.machine)?;

@@ -495,9 +495,9 @@ impl Stage for CycleStage {
         &SPEC
     }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
-        let cfg: CycleConfig = ctx.section()?;
+        let cfg: &CycleConfig = ctx.section()?;
         let alpha_max = cfg.alpha_max;
-        let area = contact_area_mm2(ctx, &cfg);
+        let area = contact_area_mm2(ctx, cfg);
         let weld = ctx.run.spec.process.get("weld_mm").and_then(toml_f64);
         let Some(passes) = read_passes(ctx)? else {
             // A probing-only run is legal: an empty, valid artifact.

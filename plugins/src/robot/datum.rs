@@ -401,12 +401,12 @@ impl Stage for DatumStage {
         &SPEC
     }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
-        let cfg: DatumConfig = ctx.section()?;
+        let cfg: &DatumConfig = ctx.section()?;
         let every = touches::require(ctx)?;
         let file = source_file(ctx, &every);
         let (all, method) = select_method(&every, &cfg.method, &file)?;
-        let a = analyse(&all, &cfg, &file)?;
-        let mut s = summary(&all, &a, &cfg);
+        let a = analyse(&all, cfg, &file)?;
+        let mut s = summary(&all, &a, cfg);
         s["touch_method"] = json!(method);
         Ok(StageOutput::new(s)
             .with("planes", planes_batch(&a, cfg.use_tls()))

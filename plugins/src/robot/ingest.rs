@@ -601,7 +601,7 @@ impl Stage for IngestStage {
                 &ae_path,
                 spec.sample_rate_hz,
                 spec.kind_given.then_some(spec.kind),
-                &cfg,
+                cfg,
                 spec.clock_offset_s,
                 &run.spec.time_origin(),
             )

@@ -57,8 +57,8 @@ impl MachinePlugin for RobotPlugin {
     }
     /// What the stages read from run.toml `[process]` (and what the
     /// generator writes there, for provenance).
-    fn process_keys(&self) -> Option<ProcessKeys> {
-        Some(&[
+    fn process_keys(&self) -> ProcessKeys {
+        &[
             ("weld_mm", Check::Positive),
             ("contact_area_mm2", Check::Positive),
             ("doc_rough_mm", Check::Positive),
@@ -71,7 +71,7 @@ impl MachinePlugin for RobotPlugin {
             ("standoff_mm", Check::Positive),
             ("motion_rate_hz", Check::Positive),
             ("block_size_mm", Check::PositiveArray(3)),
-        ])
+        ]
     }
     fn builtin_machines(&self) -> Vec<(&'static str, &'static str)> {
         vec![("kr16-lab", KR16_LAB_TOML)]

@@ -322,7 +322,7 @@ impl Stage for RepeatabilityStage {
     }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
         let t = touches::require(ctx)?;
-        let cfg: RepeatabilityConfig = ctx.section()?;
+        let cfg: &RepeatabilityConfig = ctx.section()?;
         let (summary, batch) = analyse(&t, &cfg.latency_method);
         Ok(StageOutput::new(summary).with("repeatability", batch))
     }

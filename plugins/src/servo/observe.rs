@@ -49,7 +49,7 @@ impl Stage for ObserveStage {
         &SPEC
     }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
-        let cfg: ObserveConfig = ctx.section()?;
+        let cfg: &ObserveConfig = ctx.section()?;
         let trace = Trace::read(ctx.run)?;
         let fe = ctx.artifacts.require("following_error")?;
         let n = trace.t_s.len();

@@ -156,6 +156,170 @@ mod tests {
         }
     }
 
+    /// `[toy.counted]` of the test below: every read of it is counted
+    /// (`validate` runs once per read, after serde).
+    #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+    #[serde(deny_unknown_fields, default)]
+    struct CountedConfig {
+        gain: f64,
+        label: String,
+    }
+
+    impl Default for CountedConfig {
+        fn default() -> Self {
+            CountedConfig {
+                gain: 2.0,
+                label: "plain".into(),
+            }
+        }
+    }
+
+    static COUNTED_READS: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+
+    impl sparkout_pipeline::config_check::Section for CountedConfig {
+        const CHECKS: &'static [(&'static str, sparkout_pipeline::config_check::Check)] =
+            &[("gain", sparkout_pipeline::config_check::Check::Positive)];
+        fn validate(&self) -> Result<()> {
+            COUNTED_READS.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+            Ok(())
+        }
+    }
+
+    /// A stage that reports the gain its typed config holds.
+    struct CountedStage;
+
+    const COUNTED: StageSpec = StageSpec {
+        name: "counted",
+        version: 1,
+        reads: &[],
+        reads_artifacts: &[],
+        writes: &[],
+        reads_augmented_model: false,
+        about: "reports its config (test stage)",
+        config: SectionCheck::of::<CountedConfig>(),
+    };
+
+    impl Stage for CountedStage {
+        fn spec(&self) -> &'static StageSpec {
+            &COUNTED
+        }
+        fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
+            let cfg: &CountedConfig = ctx.section()?;
+            Ok(StageOutput::new(
+                json!({"gain": cfg.gain, "label": cfg.label}),
+            ))
+        }
+    }
+
+    /// The toy with the counted stage added (same name, so the toy's runs
+    /// are its runs).
+    struct CountingToy;
+
+    impl MachinePlugin for CountingToy {
+        fn name(&self) -> &'static str {
+            "toy"
+        }
+        fn required_tables(&self) -> Vec<Vec<&'static str>> {
+            ToyPlugin.required_tables()
+        }
+        fn stages(&self) -> Vec<Arc<dyn Stage>> {
+            vec![Arc::new(ObserveStage), Arc::new(CountedStage)]
+        }
+        fn builtin_machines(&self) -> Vec<(&'static str, &'static str)> {
+            ToyPlugin.builtin_machines()
+        }
+        fn observables(&self) -> Vec<&'static str> {
+            ToyPlugin.observables()
+        }
+    }
+
+    fn counting_engine(sets: &[&str]) -> Engine {
+        let mut plugins = crate::all_plugins();
+        plugins.push(Arc::new(CountingToy));
+        let builtins: BTreeMap<String, String> = plugins
+            .iter()
+            .flat_map(|p| p.builtin_machines())
+            .map(|(id, text)| (id.to_string(), text.to_string()))
+            .collect();
+        let mut config = PipelineConfig::builtin();
+        for s in sets {
+            config.set(s).unwrap();
+        }
+        Engine::new(plugins, MachineResolver::new(None, builtins), config).unwrap()
+    }
+
+    /// The `counted` stage's record of every run: (key, cached).
+    fn counted_records(outcome: &sparkout_pipeline::engine::FleetOutcome) -> Vec<(String, bool)> {
+        outcome
+            .runs
+            .iter()
+            .map(|r| {
+                let rec = r.stages.iter().find(|s| s.stage == "counted").unwrap();
+                (rec.key.clone(), rec.cached)
+            })
+            .collect()
+    }
+
+    /// The `run` path reads each config section once per batch — when the
+    /// engine is built, before any run — however many runs there are; the
+    /// stages get the typed value. The cache key hashes the effective
+    /// config: the default written out and the default left out are the
+    /// same key (the second batch reuses every result), another value is
+    /// another key (everything it affects is recomputed).
+    #[test]
+    fn each_section_is_read_once_per_batch_and_keyed_by_its_effective_config() {
+        use std::sync::atomic::Ordering::SeqCst;
+        let dir = tempfile::tempdir().unwrap();
+        let (input, out) = (dir.path().join("runs"), dir.path().join("out"));
+        let runs = 8;
+        fleet(&input, runs);
+
+        let before = COUNTED_READS.load(SeqCst);
+        let engine = counting_engine(&["toy.counted.gain=2.0", "toy.counted.label=\"plain\""]);
+        assert_eq!(
+            COUNTED_READS.load(SeqCst),
+            before + 1,
+            "read once at engine start"
+        );
+        let first = engine.run_fleet(&input, &out, Some(2), &Quiet).unwrap();
+        assert!(first.failures.is_empty(), "{:?}", first.failures);
+        assert_eq!(first.runs.len(), runs);
+        assert_eq!(
+            COUNTED_READS.load(SeqCst),
+            before + 1,
+            "{runs} runs read no section again"
+        );
+        let summary: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(out.join("toy-cmm/r003/counted.json")).unwrap())
+                .unwrap();
+        assert_eq!(summary["gain"], 2.0);
+        let written = counted_records(&first);
+        assert!(written.iter().all(|(_, cached)| !cached));
+
+        // The same settings with the defaults left out: the same keys.
+        let engine = counting_engine(&[]);
+        let second = engine.run_fleet(&input, &out, Some(2), &Quiet).unwrap();
+        assert_eq!(COUNTED_READS.load(SeqCst), before + 2);
+        let omitted = counted_records(&second);
+        for ((k1, _), (k2, cached)) in written.iter().zip(&omitted) {
+            assert_eq!(k1, k2);
+            assert!(cached, "an unchanged effective config reuses the result");
+        }
+
+        // Another value: other keys, recomputed.
+        let engine = counting_engine(&["toy.counted.gain=3"]);
+        let third = engine.run_fleet(&input, &out, Some(2), &Quiet).unwrap();
+        assert_eq!(COUNTED_READS.load(SeqCst), before + 3);
+        for ((k1, _), (k3, cached)) in written.iter().zip(&counted_records(&third)) {
+            assert_ne!(k1, k3);
+            assert!(!cached);
+        }
+        let summary: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(out.join("toy-cmm/r003/counted.json")).unwrap())
+                .unwrap();
+        assert_eq!(summary["gain"], 3.0);
+    }
+
     #[test]
     fn a_toy_machine_added_by_one_folder_runs_through_the_engine() {
         let dir = tempfile::tempdir().unwrap();
