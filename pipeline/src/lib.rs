@@ -19,6 +19,7 @@ pub mod storage;
 pub mod traits;
 pub mod units;
 pub mod values;
+pub mod verdict;
 
 pub use effect_spec::EffectSpec;
 pub use error::{ConfigError, InputError, Result};

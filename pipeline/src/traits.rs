@@ -430,8 +430,8 @@ pub trait MachinePlugin: Send + Sync {
         Vec::new()
     }
     /// The run's key figures for the verdict at the top of its page
-    /// (report/verdict.rs judges them; none leaves the page at CHECK).
-    fn verdicts(&self, _run: &Run, _artifacts: &ArtifactStore) -> Vec<crate::report::Verdict> {
+    /// (`crate::verdict` judges them; none leaves the page at CHECK).
+    fn verdicts(&self, _run: &Run, _artifacts: &ArtifactStore) -> Vec<crate::verdict::Verdict> {
         Vec::new()
     }
 }

@@ -6,7 +6,7 @@
 
 use std::fmt::Write;
 
-use super::esc;
+use crate::html::esc;
 
 /// The outcome of a verdict, worst last (so `max` is the page's status).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
