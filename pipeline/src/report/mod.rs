@@ -5,6 +5,7 @@
 pub mod fleet;
 pub mod fleet_data;
 pub mod index;
+pub mod news;
 pub mod svg;
 pub mod trend;
 pub mod verdict;
@@ -19,7 +20,7 @@ use std::fmt::Write;
 use crate::traits::{ReportSection, Run};
 
 /// Bump when the report layout changes (cache key of report steps).
-pub const REPORT_VERSION: u32 = 6;
+pub const REPORT_VERSION: u32 = 7;
 
 /// HTML-escape text.
 pub fn esc(s: &str) -> String {

@@ -235,7 +235,14 @@ pub fn trend_page(t: &Trend) -> String {
         .enumerate()
         .map(|(i, n)| (n.as_str(), i as f64))
         .collect();
+    // The first chart of each machine and observable carries its id
+    // (news.rs links it from the index and the fleet page).
+    let mut anchored = std::collections::BTreeSet::new();
     for s in &t.series {
+        let id = super::news::trend_anchor(s.machine.as_deref(), &s.observable);
+        let open = anchored
+            .insert(id.clone())
+            .then(|| format!("<svg id=\"{id}\" "));
         let pts = |g: fn(&Point) -> Option<f64>| -> Vec<(f64, f64)> {
             s.points
                 .iter()
@@ -250,7 +257,7 @@ pub fn trend_page(t: &Trend) -> String {
             .as_deref()
             .map_or("fleet".to_string(), |m| format!("machine {m}"));
         let title = format!("{} {} on {} ({who})", s.effect, s.param, s.observable);
-        body.push_str(&svg::xy_chart_sized(
+        let chart = svg::xy_chart_sized(
             &title,
             "night (0 = first)",
             &s.param,
@@ -272,7 +279,11 @@ pub fn trend_page(t: &Trend) -> String {
                 },
             ],
             (640, 300),
-        ));
+        );
+        body.push_str(&match open {
+            Some(open) => chart.replacen("<svg ", &open, 1),
+            None => chart,
+        });
         body.push('\n');
     }
     page("sparkout trend across nights", &body)
