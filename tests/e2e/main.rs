@@ -36,6 +36,7 @@ mod metrology;
 mod mill_diagnosis_e2e;
 mod mill_stages;
 mod negative_values;
+mod news;
 mod object_store;
 mod pandas_fleet;
 mod parquet_readers;

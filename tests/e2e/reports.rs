@@ -11,6 +11,8 @@ use super::common::sparkout;
 
 const CHROMIUM: &str = "/usr/bin/chromium";
 const MAX_PAGE_BYTES: u64 = 2 << 20;
+/// The demo's fleet page budget (docs/reports.md "Page weight").
+const FLEET_PAGE_BUDGET: u64 = 400_000;
 
 fn demo(dir: &Path) -> PathBuf {
     let r = sparkout(&["demo", "--out", dir.to_str().unwrap()]);
@@ -218,6 +220,79 @@ fn demo_pages_are_linked_self_contained_and_answer_per_observable() {
         "no covariate thumbnail for the form grinder: {f}"
     );
     assert!(f.contains("aria-label=\"gap, after, noise floor\""), "{f}");
+    // Ranked by gap over noise floor, largest first.
+    let ratios: Vec<f64> = glance
+        .split("<tr><td><a href=\"#")
+        .skip(1)
+        .map(|r| {
+            let cell = r.split("</td><td>").nth(1).unwrap();
+            cell.trim_end_matches('×').parse().unwrap_or(f64::NAN)
+        })
+        .collect();
+    assert!(ratios.len() >= 10, "{ratios:?}");
+    assert!(
+        ratios.windows(2).all(|w| w[0] >= w[1] || w[1].is_nan()),
+        "not ranked by gap ÷ floor: {ratios:?}"
+    );
+    // The robot's touch probes are at their noise floor: one line for the
+    // machine, no row, no pictures, their verdicts folded.
+    let floor: Vec<&str> = glance
+        .split("<tr class=\"floor\">")
+        .skip(1)
+        .filter(|l| l.contains("(robot / kr16-lab)"))
+        .collect();
+    assert_eq!(floor.len(), 1, "{glance}");
+    for o in [
+        "touch-normal",
+        "touch-normal-ae",
+        "touch-normal-electrical",
+        "touch-normal-mechanical",
+    ] {
+        let a = format!("kr16-lab--{o}");
+        assert!(floor[0].contains(&format!("href=\"#{a}\"")), "{}", floor[0]);
+        assert!(
+            !glance.contains(&format!("<tr><td><a href=\"#{a}\"")),
+            "{a} has a row"
+        );
+        let section = fleet
+            .split(&format!("id=\"{a}\""))
+            .nth(1)
+            .and_then(|s| s.split("</section>").next())
+            .unwrap();
+        assert!(
+            section.contains("At the noise floor") && !section.contains("<svg"),
+            "{a}: {section}"
+        );
+    }
+    let folded = fleet
+        .split("<details class=\"floor\"><summary>")
+        .skip(1)
+        .find(|d| d.starts_with("At the noise floor, nothing to explain: touch_normal,"))
+        .expect("the robot's floor observables folded");
+    assert!(folded.contains("id=\"kr16-lab--touch-normal\""));
+    // The night's date first on both pages (the demo has no history: the
+    // runs date it), then the FAIL/CHECK runs linked.
+    for (page, html) in [("index", &index), ("fleet", &fleet)] {
+        let news = html.find("id=\"news\"").expect("news");
+        assert!(
+            news < html.find("<table").unwrap(),
+            "{page}: news not first"
+        );
+        assert!(
+            html[news..].starts_with("id=\"news\" class=\"news\"><h2>Night 2026-11-20</h2>"),
+            "{page}"
+        );
+    }
+    assert!(fleet
+        .contains("FAIL</b> aplm-gantry (6 runs): <a href=\"../aplm-gantry/r0000/report.html\">"));
+    // Page weight: within the budget docs/reports.md states.
+    let bytes = std::fs::metadata(out.join("fleet/report.html"))
+        .unwrap()
+        .len();
+    assert!(
+        bytes <= FLEET_PAGE_BUDGET,
+        "the demo's fleet page is {bytes} B, over its {FLEET_PAGE_BUDGET} B budget"
+    );
 }
 
 /// What headless Chromium saw on a page at 1 400 × 900.

@@ -85,6 +85,10 @@ fn ranking_svg(d: &Diagnosis) -> String {
     s
 }
 
+/// The heading of the every-candidate ranking (the fleet page leaves
+/// that part out: each observable's section ranks its own candidates).
+pub const EVERY_CANDIDATE_HEADING: &str = "<h3>Which: every candidate, held-out</h3>";
+
 /// The `<section>` of the fleet report.
 pub fn section(d: &Diagnosis) -> String {
     let mut s = String::from(r#"<section class="diagnosis"><h2>Sim-to-real gap diagnosis</h2>"#);
@@ -149,7 +153,7 @@ pub fn section(d: &Diagnosis) -> String {
         }
         s.push_str("</table>");
     }
-    s.push_str("<h3>Which: every candidate, held-out</h3>");
+    s.push_str(EVERY_CANDIDATE_HEADING);
     s.push_str(&ranking_svg(d));
     s.push_str("<table><tr><th>effect</th><th>observable</th><th>before mm</th><th>after mm</th><th>shrink</th><th>p</th><th>selected</th><th>params</th></tr>");
     for e in &d.effects {

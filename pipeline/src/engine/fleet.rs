@@ -88,10 +88,15 @@ impl Engine {
             outcome.diagnosis = Some(fleet_dir.join("diagnosis.json"));
         }
         self.fleet_augment(&fleet_dir, progress)?;
-        let rkey = self.fleet_report(&mut cache, &fleet_dir, outcome, &diagnosis)?;
+        outcome.night = Night::of(
+            self.history.as_ref().and_then(|h| h.night.as_deref()),
+            &outcome.runs,
+        );
+        // The trend before the pages: both open with the night's alerts.
         if let (Some(h), Some(d)) = (&self.history, diagnosis.0.as_ref()) {
             self.append_history(h, d, outcome, out, progress)?;
         }
+        let rkey = self.fleet_report(&mut cache, &fleet_dir, outcome, &diagnosis)?;
         self.fleet_index(&mut cache, out, outcome, &rkey)?;
         let records: Vec<&StageRecord> = cache.records.iter().collect();
         write_json_atomic(&fleet_dir.join(cache::RUN_CACHE_FILE), &records)?;
@@ -286,6 +291,15 @@ impl Engine {
         // The augmentation's figures are shown in the verdicts when present.
         let augment = hash_file(&fleet_dir.join("augment.json")).unwrap_or_default();
         rkey.part("augment", &augment);
+        // The night's news: its date and the trend's alerts (both pages).
+        let night = &outcome.night;
+        rkey.part(
+            "night",
+            &format!("{:?} {:?} {}", night.date, night.first, night.given),
+        );
+        let trend =
+            hash_file(&outcome.out_dir.join("trend").join("trend.json")).unwrap_or_default();
+        rkey.part("trend", &trend);
         let rkey = rkey.finish();
         if !cache.reuse("report", fleet_dir, &rkey) {
             let html = report::fleet_page(
@@ -345,19 +359,9 @@ impl Engine {
         progress: &dyn Progress,
     ) -> Result<()> {
         let dir = &h.dir;
-        let night = match h.night.as_deref() {
-            Some(n) => n.to_string(),
-            None => outcome
-                .runs
-                .iter()
-                .filter_map(|r| RunSpec::load(Path::new(&r.run_dir)).ok()?.started)
-                .filter(|s| s.len() >= 10)
-                .map(|s| s[..10].to_string())
-                .max()
-                .ok_or_else(|| {
-                    anyhow!("--history: no run states [run].started, so the night is unknown — give --night YYYY-MM-DD")
-                })?,
-        };
+        let night = outcome.night.date.clone().ok_or_else(|| {
+            anyhow!("--history: no run's [run].started begins with a date YYYY-MM-DD, so the night is unknown — give --night YYYY-MM-DD")
+        })?;
         let events = h
             .events
             .iter()

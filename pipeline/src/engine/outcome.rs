@@ -81,6 +81,50 @@ pub struct FleetOutcome {
     pub fleet: Vec<StageRecord>,
     pub report: Option<PathBuf>,
     pub diagnosis: Option<PathBuf>,
+    /// The night the batch is, as the pages head it (set by the fleet
+    /// steps).
+    #[serde(skip)]
+    pub night: Night,
+}
+
+/// The date of a night's batch: given with `run --history DIR --night D`,
+/// else the latest date of the runs' `[run].started`; never the wall clock
+/// (the pages are byte-identical across reruns).
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct Night {
+    /// YYYY-MM-DD; None when nothing dates the runs.
+    pub date: Option<String>,
+    /// The earliest date of the runs' `[run].started` (when the night was
+    /// dated from the runs and they span several dates).
+    pub first: Option<String>,
+    /// Given with `--night` rather than read from the runs.
+    pub given: bool,
+}
+
+impl Night {
+    /// The night given with `--night`, else dated from the runs' starts
+    /// (the latest; malformed dates are ignored).
+    pub fn of(given: Option<&str>, runs: &[RunResult]) -> Night {
+        if let Some(d) = given {
+            return Night {
+                date: Some(d.to_string()),
+                first: None,
+                given: true,
+            };
+        }
+        let days: BTreeSet<String> = runs
+            .iter()
+            .filter_map(|r| RunSpec::load(Path::new(&r.run_dir)).ok()?.started)
+            .filter_map(|s| s.get(..10).map(str::to_string))
+            .filter(|d| report::trend::check_night(d).is_ok())
+            .collect();
+        let (first, last) = (days.first().cloned(), days.last().cloned());
+        Night {
+            first: first.filter(|f| Some(f) != last.as_ref()),
+            date: last,
+            given: false,
+        }
+    }
 }
 
 impl FleetOutcome {
@@ -98,6 +142,7 @@ impl FleetOutcome {
             fleet: Vec::new(),
             report: None,
             diagnosis: None,
+            night: Night::default(),
         }
     }
     pub fn stages_computed(&self) -> usize {

@@ -21,6 +21,8 @@ mod verdict;
 pub use verdict::*;
 mod pictures;
 use pictures::*;
+mod glance;
+use glance::*;
 
 /// Grid cells per axis of a gap map, and bins of a covariate curve: the
 /// page's size stays bounded whatever the number of rows.
@@ -80,72 +82,22 @@ fn machine_tree<'a>(
     tree
 }
 
-/// "At a glance": one row per (machine, observable), each in its own unit.
-fn glance_table(tree: &Tree, per_obs: &BTreeMap<&str, &Value>, rows: Option<&FleetRows>) -> String {
-    if tree.is_empty() {
-        return String::new();
-    }
-    let mut body = String::from("<h2>At a glance</h2><table class=\"glance\"><thead><tr><th>type / machine / observable</th><th>gap RMS</th><th>noise floor</th><th class=\"why\">named effect</th><th>where · which</th><th>held-out after</th><th>shrink</th><th>how far</th></tr></thead><tbody>");
-    for (t, machines) in tree {
-        for (m, obs) in machines {
-            for o in obs {
-                let p = per_obs.get(o.as_str());
-                let u = unit_of(o, p.and_then(|p| p.get("unit")).and_then(|x| x.as_str()));
-                let pf = |k: &str| p.map(|p| f(p, k)).unwrap_or(f64::NAN);
-                let above = p
-                    .and_then(|p| p.get("gap_above_noise"))
-                    .and_then(|x| x.as_bool())
-                    == Some(true);
-                let sel = p
-                    .and_then(|p| p.get("selected"))
-                    .and_then(|x| x.as_array())
-                    .map(|a| {
-                        a.iter()
-                            .filter_map(|x| x.as_str())
-                            .collect::<Vec<_>>()
-                            .join(", ")
-                    })
-                    .unwrap_or_default();
-                let named = if !above {
-                    "<span class=\"ok\">at noise floor</span>".to_string()
-                } else if sel.is_empty() {
-                    "<span class=\"bad\">not explained</span>".to_string()
-                } else {
-                    esc(&sel)
-                };
-                let _ = write!(
-                    body,
-                    "<tr><td><a href=\"#{}\">{} / {} / {}</a></td><td>{}</td><td>{}</td><td class=\"why\">{}</td><td class=\"thumbs\">{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
-                    anchor(&[m, o]),
-                    esc(t),
-                    esc(m),
-                    esc(o),
-                    u.show(pf("rms_mm")),
-                    u.show(pf("noise_floor_mm")),
-                    named,
-                    if above {
-                        glance_pictures(
-                            rows,
-                            m,
-                            o,
-                            (!sel.is_empty()).then(|| sel.split(", ").next().unwrap_or("")),
-                        )
-                    } else {
-                        String::new()
-                    },
-                    if above && !sel.is_empty() { u.show(pf("cv_rms_after_mm")) } else { "—".into() },
-                    if above && !sel.is_empty() { super::fmt_fixed(Some(100.0 * pf("shrink")), 0) + " %" } else { "—".into() },
-                    mini_bars(
-                        pf("rms_mm"),
-                        if above && !sel.is_empty() { pf("cv_rms_after_mm") } else { f64::NAN },
-                        pf("noise_floor_mm")
-                    ),
-                );
-            }
-        }
-    }
-    body.push_str("</tbody></table><p class=\"note\">where: the gap RMS per cell over the workpiece (darker: larger); which: the mean gap against the named effect's covariate; how far: gap RMS (grey), held-out RMS after the named effects (green), noise floor (black tick). Each row on its own scale; the full pictures are in the observable's section.</p>");
-    body
+/// The diagnosis tables, folded at the end of the page, without their
+/// every-candidate ranking (each observable's section has it).
+fn appendix(diagnosis_html: &str) -> String {
+    let h = crate::diagnose::report::EVERY_CANDIDATE_HEADING;
+    let trimmed = diagnosis_html.find(h).and_then(|a| {
+        let b = diagnosis_html[a + h.len()..].find("<h3>")? + a + h.len();
+        Some(format!(
+            "{}<h3>Which</h3><p class=\"note\">Every candidate of an observable above its noise floor is ranked in that observable's section (folded); all of them are in <a href=\"diagnosis.json\">diagnosis.json</a>.</p>{}",
+            &diagnosis_html[..a],
+            &diagnosis_html[b..]
+        ))
+    });
+    format!(
+        "<details class=\"appendix\"><summary>Diagnosis tables (every observable: where, per machine, unexplained)</summary>{}</details>",
+        trimmed.as_deref().unwrap_or(diagnosis_html)
+    )
 }
 
 /// The diagnosis's notes (skipped covariates, trimmed outliers), folded.
@@ -183,27 +135,14 @@ pub fn fleet_page(
     let mut body = String::from(
         "<nav><a href=\"../index.html\">← index: every run, every output, the night's failures</a></nav>",
     );
+    // First: the night's date and news (as on the index).
+    body.push_str(&super::news::banner(outcome, "../"));
     // Machine → type (plugin), and the runs per machine.
     let mut type_of: BTreeMap<&str, &str> = BTreeMap::new();
     let mut runs_of: BTreeMap<&str, usize> = BTreeMap::new();
     for r in &outcome.runs {
         type_of.insert(&r.machine, &r.plugin);
         *runs_of.entry(&r.machine).or_default() += 1;
-    }
-    let _ = write!(
-        body,
-        "<p>{} runs on {} machines processed",
-        outcome.runs.len(),
-        runs_of.len()
-    );
-    if outcome.failures.is_empty() {
-        body.push_str(", none rejected.</p>");
-    } else {
-        let _ = write!(
-            body,
-            "; <a class=\"bad\" href=\"../index.html#failures\"><b>{} rejected</b></a>.</p>",
-            outcome.failures.len()
-        );
     }
     let per_obs: BTreeMap<&str, &Value> = diagnosis
         .and_then(|d| d.get("per_observable"))
@@ -238,9 +177,15 @@ pub fn fleet_page(
     } else {
         BTreeMap::new()
     };
-    let augment = augment_entries(out);
+    let augment_json = augment_file(out);
+    let augment = augment_entries(augment_json.as_ref());
     let tree = machine_tree(rows.as_ref(), &per_obs, &type_of);
-    body.push_str(&glance_table(&tree, &per_obs, rows.as_ref()));
+    body.push_str(&glance_table(
+        &tree,
+        &per_obs,
+        rows.as_ref(),
+        augment_json.as_ref(),
+    ));
     if let Some(d) = diagnosis {
         body.push_str(&diagnosis_notes(d));
     }
@@ -253,7 +198,8 @@ pub fn fleet_page(
                 esc(m),
                 runs_of.get(m.as_str()).copied().unwrap_or(0)
             );
-            for o in obs {
+            let (live, flat) = split_at_floor(obs, &per_obs);
+            for o in live {
                 let p = per_obs.get(o.as_str()).copied();
                 let u = unit_of(o, p.and_then(|p| p.get("unit")).and_then(|x| x.as_str()));
                 let _ = write!(
@@ -287,12 +233,34 @@ pub fn fleet_page(
                 }
                 body.push_str("</section>");
             }
+            // At the noise floor: nothing to explain, so no pictures and no
+            // candidates; each verdict line, folded under one line.
+            if let (Some(d), false) = (diagnosis, flat.is_empty()) {
+                let _ = write!(
+                    body,
+                    "<details class=\"floor\"><summary>At the noise floor, nothing to explain: {}</summary>",
+                    esc(&flat.iter().map(|o| o.as_str()).collect::<Vec<_>>().join(", "))
+                );
+                for o in flat {
+                    let Some(p) = per_obs.get(o.as_str()).copied() else {
+                        continue;
+                    };
+                    let u = unit_of(o, p.get("unit").and_then(|x| x.as_str()));
+                    let _ = write!(
+                        body,
+                        "<section class=\"obs\" id=\"{}\"><h4>{} <span class=\"note\">({})</span></h4><p class=\"verdict\">{}</p></section>",
+                        anchor(&[m, o]),
+                        esc(o),
+                        u.data,
+                        verdict(d, p, &augment, m)
+                    );
+                }
+                body.push_str("</details>");
+            }
         }
     }
     if let Some(h) = diagnosis_html {
-        body.push_str("<details class=\"appendix\"><summary>Diagnosis tables (every observable: where, which, per machine, unexplained)</summary>");
-        body.push_str(h);
-        body.push_str("</details>");
+        body.push_str(&appendix(h));
     }
     page(&title_of(cfg, "sparkout fleet report"), &body)
 }

@@ -1,4 +1,5 @@
-//! out/index.html: the night's failures first, then the
+//! out/index.html: the night's news first (its date, trend alerts,
+//! rejected and FAIL/CHECK runs), then its failures, then the
 //! fleet page, the trend page when the history exists, every run page and
 //! every JSON/Parquet output — a new user finds everything in one click.
 //! Links are relative, so the output directory can be copied or served.
@@ -64,69 +65,11 @@ fn run_files(r: &RunResult) -> Vec<String> {
     v
 }
 
-/// The night's news, first on the page: the latest night of the trend
-/// (`trend/trend.json`, written before the index) — its alerts biggest
-/// change first (the trend's rank) and its events — or that nothing
-/// moved. Empty without a history.
-fn night_news(out: &Path) -> String {
-    let Ok(t) = super::trend::read_trend(&out.join("trend").join("trend.json")) else {
-        return String::new();
-    };
-    let Some(night) = t.nights.last() else {
-        return String::new();
-    };
-    let mut s = String::from("<section id=\"news\">");
-    let alerts: Vec<_> = t.alerts_on(night).collect();
-    let tests = t.tests_per_night.get(night).copied().unwrap_or(0);
-    if alerts.is_empty() {
-        let _ = write!(
-            s,
-            "<h2 class=\"ok\">Night {}: no trend alert</h2><p>{tests} parameter tests against each series' own baseline, false alarms controlled over the night (Holm). <a href=\"{TREND_PAGE}\">Trend</a></p>",
-            esc(night)
-        );
-    } else {
-        let _ = write!(
-            s,
-            "<h2 class=\"bad\">Night {}: {} trend alert{}, biggest change first</h2><ol>",
-            esc(night),
-            alerts.len(),
-            if alerts.len() == 1 { "" } else { "s" }
-        );
-        for a in &alerts {
-            let _ = write!(s, "<li>{}</li>", esc(&a.message));
-        }
-        let _ = write!(s, "</ol><p><a href=\"{TREND_PAGE}\">Trend</a></p>");
-    }
-    let events: Vec<_> = t.events.iter().filter(|e| &e.night == night).collect();
-    if !events.is_empty() {
-        s.push_str("<p>Events of the night (each starts a new baseline):</p><ul>");
-        for e in events {
-            let _ = write!(
-                s,
-                "<li>{} on {}{}</li>",
-                esc(&e.kind),
-                esc(if e.machine.is_empty() {
-                    "the fleet"
-                } else {
-                    &e.machine
-                }),
-                if e.note.is_empty() {
-                    String::new()
-                } else {
-                    format!(": {}", esc(&e.note))
-                }
-            );
-        }
-        s.push_str("</ul>");
-    }
-    s.push_str("</section>");
-    s
-}
-
 /// The index page of an output root.
 pub fn index_page(cfg: &toml::Table, outcome: &FleetOutcome) -> String {
     let out = &outcome.out_dir;
-    let mut body = night_news(out);
+    // 0. The night's news: its date, trend alerts, rejected and FAIL/CHECK runs.
+    let mut body = super::news::banner(outcome, "");
     // 1. The night's failures, first.
     body.push_str("<section id=\"failures\">");
     if outcome.failures.is_empty() {
@@ -190,14 +133,15 @@ pub fn index_page(cfg: &toml::Table, outcome: &FleetOutcome) -> String {
     for r in &outcome.runs {
         tree.entry((&r.plugin, &r.machine)).or_default().push(r);
     }
-    let _ = write!(body, "<h2>Runs ({})</h2>", outcome.runs.len());
+    let _ = write!(body, "<h2 id=\"runs\">Runs ({})</h2>", outcome.runs.len());
     for ((plugin, machine), mut runs) in tree {
         runs.sort_by(|a, b| a.run.cmp(&b.run));
         // Small machines open; a machine with many runs stays folded so
         // the page stays short.
         let _ = write!(
             body,
-            "<details{}><summary><b>{}</b> ({}): {} runs</summary><table><thead><tr><th>run</th><th>status</th><th>report</th><th>outputs</th></tr></thead><tbody>",
+            "<details id=\"{}\"{}><summary><b>{}</b> ({}): {} runs</summary><table><thead><tr><th>run</th><th>status</th><th>report</th><th>outputs</th></tr></thead><tbody>",
+            super::news::runs_anchor(machine),
             if runs.len() <= 20 { " open" } else { "" },
             esc(machine),
             esc(plugin),

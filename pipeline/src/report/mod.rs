@@ -5,6 +5,7 @@
 pub mod fleet;
 pub mod fleet_data;
 pub mod index;
+pub mod news;
 pub mod svg;
 pub mod trend;
 // The verdict's rules and box sit below the plugin interface (a plugin
@@ -21,7 +22,7 @@ use std::fmt::Write;
 use crate::traits::{ReportSection, Run};
 
 /// Bump when the report layout changes (cache key of report steps).
-pub const REPORT_VERSION: u32 = 7;
+pub const REPORT_VERSION: u32 = 8;
 
 pub use crate::html::esc;
 

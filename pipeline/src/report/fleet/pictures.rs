@@ -119,8 +119,8 @@ fn where_maps(
     observable: &str,
     u: &Unit,
     (gap, res): (&[f64], &[f64]),
+    has_after: bool,
 ) -> (String, bool) {
-    let has_after = res.iter().any(|r| r.is_finite());
     let (Some(x), Some(y)) = (rows.values("x_mm", idx), rows.values("y_mm", idx)) else {
         return (String::new(), false);
     };
@@ -217,6 +217,32 @@ fn which_curve(
     h
 }
 
+/// Fewer runs than this: their RMS in a small table instead of a chart
+/// (a handful of points reads better as numbers, and weighs less).
+pub(super) const MIN_RUNS_CHARTED: usize = 8;
+
+/// How far for a few runs: each run's gap RMS and held-out RMS after, as
+/// a table, with the noise floor.
+fn how_far_table(po: Option<&Value>, runs: &[RunRms], observable: &str, u: &Unit) -> String {
+    let floor = po.map(|p| f(p, "noise_floor_mm")).unwrap_or(f64::NAN);
+    let mut h = format!(
+        "<p class=\"note\">{}: RMS per run, before and held-out after (noise floor {})</p><table class=\"runs\"><thead><tr><th>run</th><th>gap RMS</th><th>held-out after</th></tr></thead><tbody>",
+        esc(observable),
+        u.show(floor)
+    );
+    for r in runs {
+        let _ = write!(
+            h,
+            "<tr><td>{}</td><td>{}</td><td>{}</td></tr>",
+            esc(&r.run),
+            u.show(r.before),
+            u.show(r.after)
+        );
+    }
+    h.push_str("</tbody></table>");
+    h
+}
+
 /// How far: each run's gap RMS before and held-out RMS after, beside the
 /// noise floor.
 fn how_far_runs(
@@ -307,13 +333,30 @@ pub(super) fn pictures(
     let gap = FleetRows::at(&rows.gap, idx);
     let res = FleetRows::at(&rows.residual, idx);
     let has_after = res.iter().any(|r| r.is_finite());
-    let (maps, outlined) = where_maps(d, rows, idx, observable, &u, (&gap, &res));
+    // Nothing selected: the gap after is the gap before; one map.
+    let selected = po
+        .and_then(|p| p.get("selected"))
+        .and_then(|x| x.as_array())
+        .is_some_and(|a| !a.is_empty());
+    let (maps, outlined) = where_maps(
+        d,
+        rows,
+        idx,
+        observable,
+        &u,
+        (&gap, &res),
+        has_after && selected,
+    );
     h.push_str(&maps);
     h.push_str(&which_curve(po, rows, idx, observable, &u, (&gap, &res)));
-    if has_after {
+    let few = runs.filter(|r| !r.is_empty() && r.len() < MIN_RUNS_CHARTED);
+    if has_after && few.is_none() {
         h.push_str(&how_far_runs(po, runs, observable, &u));
     }
     h.push_str("</div>");
+    if let (true, Some(runs)) = (has_after, few) {
+        h.push_str(&how_far_table(po, runs, observable, &u));
+    }
     if outlined {
         h.push_str("<p class=\"note\">Outlined on the before map: the cells of the regions where the gap is significantly above the noise floor. Both maps show the RMS per cell on one colour scale.</p>");
     }

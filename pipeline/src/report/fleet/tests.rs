@@ -95,3 +95,79 @@ fn at_a_glance_thumbnails_are_readable() {
         "{bars}"
     );
 }
+
+fn glance_of(augment: Option<&Value>) -> String {
+    let per = [
+        serde_json::json!({"observable": "a", "rms_mm": 0.01, "noise_floor_mm": 0.005,
+            "gap_above_noise": true, "selected": ["drift:t_s"], "cv_rms_after_mm": 0.006, "shrink": 0.4}),
+        serde_json::json!({"observable": "b", "rms_mm": 0.1, "noise_floor_mm": 0.001,
+            "gap_above_noise": true, "selected": []}),
+        serde_json::json!({"observable": "d", "rms_mm": 0.001, "noise_floor_mm": 0.0011,
+            "gap_above_noise": false, "selected": []}),
+        serde_json::json!({"observable": "c", "rms_mm": 0.002, "noise_floor_mm": 0.0019,
+            "gap_above_noise": false, "selected": []}),
+    ];
+    let per_obs: BTreeMap<&str, &Value> = per.iter().map(|p| (s(p, "observable"), p)).collect();
+    let mut tree = Tree::new();
+    tree.entry("form").or_default().insert(
+        "m1".to_string(),
+        ["a", "b", "c", "d"].map(String::from).to_vec(),
+    );
+    glance_table(&tree, &per_obs, None, augment)
+}
+
+#[test]
+fn glance_rows_rank_by_gap_over_floor_and_the_floor_is_one_line() {
+    let html = glance_of(None);
+    // b (100×) before a (2×); c and d at their floor: no row, one line.
+    let (a, b) = (
+        html.find("href=\"#m1--a\"").unwrap(),
+        html.find("href=\"#m1--b\"").unwrap(),
+    );
+    assert!(b < a, "{html}");
+    assert!(
+        html.contains("<td>100×</td>") && html.contains("<td>2.0×</td>"),
+        "{html}"
+    );
+    assert!(!html.contains("<tr><td><a href=\"#m1--c\""), "{html}");
+    assert_eq!(html.matches("<tr class=\"floor\">").count(), 1, "{html}");
+    assert!(
+        html.contains("at noise floor</span>: <a href=\"#m1--c\">c</a>, <a href=\"#m1--d\">d</a> <span class=\"note\">(form / m1)</span>"),
+        "{html}"
+    );
+    // No --augment: no column, and the note says how to get it.
+    assert!(!html.contains("<th class=\"why\">last night's model"));
+    assert!(html.contains("--augment"));
+}
+
+#[test]
+fn last_nights_model_on_tonights_runs_is_a_column_with_augment() {
+    let augment = serde_json::json!({
+        "entries": [{"observable": "a", "machine": "m1", "unit": "mm", "held_out": true,
+                     "heldout_rms_plain": 0.01, "heldout_rms_augmented": 0.002}],
+        "not_applied": [{"observable": "b", "effect": "lag:feed_mm_s",
+                         "why": "tonight's observations lack its covariate (feed_mm_s)"}]});
+    let html = glance_of(Some(&augment));
+    assert!(html.contains("<th class=\"why\">last night's model on tonight's runs</th>"));
+    let row = |o: &str| {
+        html.split(&format!("href=\"#m1--{o}\""))
+            .nth(1)
+            .and_then(|r| r.split("</tr>").next())
+            .unwrap()
+            .to_string()
+    };
+    assert!(
+        row("a").contains("10.0 µm → <b>2.00 µm</b></td>"),
+        "{}",
+        row("a")
+    );
+    assert!(
+        row("b").contains(
+            "title=\"lag:feed_mm_s: tonight's observations lack its covariate (feed_mm_s)\">—"
+        ),
+        "{}",
+        row("b")
+    );
+    // The floor line spans the extra column.
+    assert!(html.contains("<td colspan=\"10\">"), "{html}");
+}

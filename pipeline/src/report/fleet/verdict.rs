@@ -229,11 +229,17 @@ pub(super) fn candidates(d: &Value, observable: &str, stop: &str, u: &Unit) -> S
     h
 }
 
-/// augment.json entries (written by the augmentation step when it ran).
-pub(super) fn augment_entries(out_dir: &std::path::Path) -> Vec<Value> {
+/// fleet/augment.json (written by the augmentation step when `run
+/// --augment` ran).
+pub(super) fn augment_file(out_dir: &std::path::Path) -> Option<Value> {
     std::fs::read(out_dir.join("fleet").join("augment.json"))
         .ok()
         .and_then(|b| serde_json::from_slice::<Value>(&b).ok())
+}
+
+/// augment.json's entries (none without it).
+pub(super) fn augment_entries(augment: Option<&Value>) -> Vec<Value> {
+    augment
         .and_then(|v| v.get("entries").and_then(|o| o.as_array()).cloned())
         .unwrap_or_default()
 }

@@ -19,7 +19,24 @@ const CHART_PX: (u32, u32) = (1160, 320);
 /// `trend-fleet-<observable>` for the fleet-wide fits. Other pages link to
 /// exactly this.
 pub fn trend_anchor(machine: Option<&str>, observable: &str) -> String {
-    format!("trend-{}-{observable}", machine.unwrap_or("fleet"))
+    format!(
+        "trend-{}-{}",
+        id_part(machine.unwrap_or("fleet")),
+        id_part(observable)
+    )
+}
+
+/// An id fragment: ASCII letters, digits and `_` kept, anything else `-`.
+pub fn id_part(s: &str) -> String {
+    s.chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '_' {
+                c
+            } else {
+                '-'
+            }
+        })
+        .collect()
 }
 
 /// Whether an alert is about a series: same observable, machine and
