@@ -19,7 +19,7 @@ use std::fmt::Write;
 use crate::traits::{ReportSection, Run};
 
 /// Bump when the report layout changes (cache key of report steps).
-pub const REPORT_VERSION: u32 = 7;
+pub const REPORT_VERSION: u32 = 8;
 
 pub use crate::html::esc;
 
