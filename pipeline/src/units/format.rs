@@ -472,9 +472,7 @@ pub fn show_pm(value: f64, se: f64, unit: &ParamUnit) -> String {
     let size = if value.abs() >= se.abs() { value } else { se };
     let (name, f) = pick(&unit.candidates(), size);
     let (v, e) = (value * f, se * f);
-    if !(plain(v) || plain(e)) {
-        return with_unit(format!("{} ± {}", num(v, 3), num(e, 3)), &name);
-    }
+    // At most five decimals (num), whatever the error's size.
     let d = pm_decimals(v, e);
     with_unit(format!("{} ± {}", num(v, d), num(e, d)), &name)
 }
