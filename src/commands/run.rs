@@ -217,7 +217,7 @@ pub fn sync(from: &Path, to: &Path) -> anyhow::Result<u8> {
 
 /// The end-of-batch summary an engineer reads first.
 pub fn print_outcome(o: &FleetOutcome) {
-    use sparkout_pipeline::units::format::{param_unit, show, show_group};
+    use sparkout_pipeline::units::format::{param_unit, show_group, show_param};
     let computed = o.stages_computed();
     let cached = o.stages_cached();
     println!(
@@ -300,13 +300,8 @@ pub fn print_outcome(o: &FleetOutcome) {
                         .into_iter()
                         .flatten()
                         .map(|(k, p)| {
-                            format!(
-                                "{k} = {}",
-                                show(
-                                    p.as_f64().unwrap_or(f64::NAN),
-                                    &param_unit(k, cov, gap_unit)
-                                )
-                            )
+                            let v = p.as_f64().unwrap_or(f64::NAN);
+                            show_param(k, v, None, &param_unit(k, cov, gap_unit))
                         })
                         .collect();
                     println!(

@@ -35,6 +35,100 @@ fn local_links(html: &str) -> Vec<String> {
         .collect()
 }
 
+/// Every `.html` file under `dir` (pages, fragments, the trend page),
+/// sorted.
+fn all_html(dir: &Path) -> Vec<PathBuf> {
+    let mut v = Vec::new();
+    let mut todo = vec![dir.to_path_buf()];
+    while let Some(d) = todo.pop() {
+        for e in std::fs::read_dir(&d).unwrap().flatten() {
+            let p = e.path();
+            if p.is_dir() {
+                todo.push(p);
+            } else if p.extension().is_some_and(|x| x == "html") {
+                v.push(p);
+            }
+        }
+    }
+    v.sort();
+    v
+}
+
+/// The text a reader sees: tags (with their attributes, SVG path data
+/// and coordinates), comments, and style and script blocks removed; the
+/// text of SVG `<text>` elements (axis ticks, labels) kept.
+fn visible_text(html: &str) -> String {
+    let mut out = String::with_capacity(html.len());
+    let mut rest = html;
+    while let Some(i) = rest.find('<') {
+        out.push_str(&rest[..i]);
+        out.push(' ');
+        let r = &rest[i..];
+        let end = if r.starts_with("<!--") {
+            r.find("-->").map(|j| j + 3)
+        } else if r.starts_with("<style") {
+            r.find("</style>").map(|j| j + 8)
+        } else if r.starts_with("<script") {
+            r.find("</script>").map(|j| j + 9)
+        } else {
+            r.find('>').map(|j| j + 1)
+        };
+        match end {
+            Some(j) => rest = &r[j..],
+            None => return out,
+        }
+    }
+    out.push_str(rest);
+    out
+}
+
+/// Numbers an engineer should not have to read: scientific notation
+/// (`6.29e-4`, `1e5`) and six or more decimals (`180.202276`). A token is
+/// a run of letters, digits, `.`, `+` and `-`; only a whole token of the
+/// form `[-]d[.d]e[±]d` counts as scientific, so identifiers that contain
+/// such a run (a blake3 prefix like `338e9c639116`, a column name) do
+/// not.
+fn unreadable_numbers(text: &str) -> Vec<String> {
+    fn scientific(t: &str) -> bool {
+        let t = t.strip_prefix(['-', '+']).unwrap_or(t);
+        let Some((m, e)) = t.split_once(['e', 'E']) else {
+            return false;
+        };
+        let e = e.strip_prefix(['-', '+']).unwrap_or(e);
+        let m_ok = match m.split_once('.') {
+            Some((a, b)) => !a.is_empty() && a.chars().chain(b.chars()).all(|c| c.is_ascii_digit()),
+            None => !m.is_empty() && m.chars().all(|c| c.is_ascii_digit()),
+        };
+        m_ok && !e.is_empty() && e.chars().all(|c| c.is_ascii_digit())
+    }
+    fn long_tail(t: &str) -> bool {
+        let b = t.as_bytes();
+        (1..b.len()).any(|i| {
+            b[i] == b'.'
+                && b[i - 1].is_ascii_digit()
+                && b.len() >= i + 7
+                && b[i + 1..i + 7].iter().all(u8::is_ascii_digit)
+        })
+    }
+    let mut bad: Vec<String> = text
+        .split(|c: char| !(c.is_ascii_alphanumeric() || matches!(c, '.' | '+' | '-')))
+        .map(|t| t.trim_end_matches('.'))
+        .filter(|t| scientific(t) || long_tail(t))
+        .map(str::to_string)
+        .collect();
+    bad.dedup();
+    bad
+}
+
+#[test]
+fn unreadable_numbers_are_found_in_visible_text_only() {
+    let page = r#"<style>a{color:#1e3a8a}</style><svg><path d="M1e-5 0.1234567"/><text x="1.5e3">6.29e-4</text></svg><p title="3e5">blake3 338e9c639116, 180.202276 mm, 0.435 µm, 1.5e3, v0.1.0, 2026-11-20T08:00:00Z</p>"#;
+    assert_eq!(
+        unreadable_numbers(&visible_text(page)),
+        ["6.29e-4", "180.202276", "1.5e3"]
+    );
+}
+
 /// The pages of the demo checked for rendering: index, fleet, one run page
 /// per machine (the plugins' sections differ, the runs of one machine do
 /// not).
@@ -117,6 +211,14 @@ fn demo_pages_are_linked_self_contained_and_answer_per_observable() {
         }
         // Raw JSON is linked, never dumped inline.
         assert!(!html.contains("<pre>{"), "{name} dumps JSON inline");
+    }
+    // Engineer numbers on every page: no scientific notation and no long
+    // float tail anywhere a reader sees text.
+    for page in all_html(&out) {
+        let html = std::fs::read_to_string(&page).unwrap();
+        let name = page.strip_prefix(&out).unwrap().display().to_string();
+        let bad = unreadable_numbers(&visible_text(&html));
+        assert!(bad.is_empty(), "{name} shows {bad:?}");
     }
     let fleet = std::fs::read_to_string(out.join("fleet/report.html")).unwrap();
     // No pooled number across observables of different scales.

@@ -245,12 +245,12 @@ fn diagnose_observable(
     let after: f64 = o.rows.iter().map(|&i| robust.residual_all[i].powi(2)).sum();
     let rep = outliers::report(&o, &out, &resid, &table.run_names, &table.run, sigma, thr);
     notes.add(format!(
-        "{}: {} isolated outliers ({:.2} % of rows, |residual| > {}σ robust = {:.3e} mm) trimmed from fits and scores",
+        "{}: {} isolated outliers ({:.2} % of rows, |residual| > {}σ robust = {}) trimmed from fits and scores",
         o.name,
         rep.n,
         100.0 * rep.share,
         outliers::K_SIGMA,
-        thr
+        crate::units::format::show_in(thr, &table.obs_units[oi])
     ));
     if let Some(s) = robust.summaries.last_mut() {
         s.shrink_plain = (before > 0.0).then(|| 1.0 - (after / before).sqrt());
@@ -305,6 +305,7 @@ fn analyse(
         alpha: cfg.alpha,
         noise_margin: cfg.noise_margin,
         sigma_mm: nf.sigma_mm,
+        gap_unit: table.obs_units[oi].clone(),
         max_effects: cfg.max_effects,
         min_gain: cfg.min_gain,
         min_frequency: cfg.min_selection_frequency,

@@ -150,24 +150,51 @@ impl EffectEntry {
         explained_text(&self.key(), &self.indistinguishable_from)
     }
     /// Each parameter as an engineer reads it, in its unit chosen by
-    /// magnitude: `k = 4.92 ± 0.08 ms` when it has an interval, else
-    /// `k = 4.92 ms`.
+    /// magnitude: `k = 4.92 ± 0.08 ms (95 % 4.76 … 5.07 ms)` when it has
+    /// an interval, else `k = 4.92 ms`; the offset last; frame constants
+    /// left out.
     pub fn params_text(&self) -> Vec<String> {
-        use crate::units::format::{param_unit, show, show_pm};
         let mut all: Vec<(&str, f64)> = self.params.iter().map(|(k, v)| (k.as_str(), *v)).collect();
         if let Some(o) = self.offset_mm {
             all.push(("offset_mm", o));
         }
         all.into_iter()
-            .map(|(k, v)| {
-                let unit = param_unit(k, self.covariate.as_deref(), &self.gap_unit);
-                match self.intervals.as_ref().and_then(|i| i.get(k)) {
-                    Some(iv) => format!("{k} = {}", show_pm(v, iv.se, &unit)),
-                    None => format!("{k} = {}", show(v, &unit)),
+            .filter_map(|(k, v)| {
+                let iv = self.intervals.as_ref().and_then(|i| i.get(k));
+                // Frame constants of a form (centre, span) come with a
+                // zero-width interval: they were not fitted, so they are
+                // not a finding.
+                if iv.is_some_and(|i| i.se == 0.0 && i.lo == i.hi) {
+                    return None;
                 }
+                Some(param_text(
+                    k,
+                    v,
+                    iv,
+                    self.covariate.as_deref(),
+                    &self.gap_unit,
+                ))
             })
             .collect()
     }
+}
+
+/// Parameter `k` of an effect on `covariate` over a gap in `gap_unit`, as
+/// every page and console line writes it (units::format::show_param).
+pub fn param_text(
+    k: &str,
+    v: f64,
+    iv: Option<&ParamInterval>,
+    covariate: Option<&str>,
+    gap_unit: &str,
+) -> String {
+    use crate::units::format::{param_unit, show_param};
+    show_param(
+        k,
+        v,
+        iv.map(|i| (i.se, i.lo, i.hi)),
+        &param_unit(k, covariate, gap_unit),
+    )
 }
 
 /// "explained by K — on these runs indistinguishable from R…" (the rivals

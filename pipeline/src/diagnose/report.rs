@@ -3,38 +3,100 @@
 
 use std::fmt::Write;
 
+use std::collections::BTreeMap;
+
+use super::output::param_text;
 use super::Diagnosis;
 use crate::html::esc;
-use crate::units::format::show_p;
+use crate::units::format::{
+    covariate_unit, group_unit, plain_number, show_group_in, show_p, Dims, ParamUnit,
+};
 
-/// Millimetres at micrometre resolution (what an engineer reads), with
-/// scientific notation only for values below that.
-fn num(x: Option<f64>) -> String {
-    match x {
-        Some(v) => general(v),
-        None => "—".into(),
+/// Each observable's figures (gap, noise floor, RMS before and after, a
+/// cell's RMS) in one display unit, the smallest in which its gap RMS
+/// stays below 1000 (units::format::show_group): µm for a gap in mm of
+/// micrometres, mm/s for a velocity error, the observable's own unit
+/// otherwise — so the rows of one observable compare digit by digit
+/// across every table of the section.
+struct Figures(BTreeMap<String, (String, f64)>);
+
+impl Figures {
+    fn of(d: &Diagnosis) -> Figures {
+        Figures(
+            d.per_observable
+                .iter()
+                .map(|o| {
+                    let unit = ParamUnit::of(Dims::of_unit(&o.unit));
+                    let max = o.rms_mm.max(o.noise_floor_mm).max(o.cv_rms_before_mm);
+                    (o.observable.clone(), group_unit(max, &unit))
+                })
+                .collect(),
+        )
     }
-}
-
-/// A number in plain notation when it is of a readable size.
-fn general(v: f64) -> String {
-    let a = v.abs();
-    if a == 0.0 || (1e-3..1e5).contains(&a) {
-        format!("{v:.4}")
-    } else {
-        format!("{v:.3e}")
-    }
-}
-
-fn json_num(v: &serde_json::Value) -> String {
-    match v {
-        serde_json::Value::Number(n) => format!("{:.4}", n.as_f64().unwrap_or(f64::NAN)),
-        serde_json::Value::Array(a) => {
-            let parts: Vec<String> = a.iter().map(json_num).collect();
-            format!("({})", parts.join(", "))
+    /// `14.5 µm`, or "—" when absent.
+    fn show(&self, observable: &str, x: Option<f64>) -> String {
+        let Some(v) = x.filter(|v| v.is_finite()) else {
+            return "—".into();
+        };
+        match self.0.get(observable) {
+            Some((name, f)) if name.is_empty() => plain_number(v * f, 3),
+            Some((name, f)) => format!("{} {name}", plain_number(v * f, 3)),
+            // An observable without a summary: its numbers are in mm.
+            None => crate::units::format::show_length(v),
         }
+    }
+}
+
+/// A cell's bounds in the covariate's unit, both in one (`0 … 300 mm`,
+/// not `0 nm … 300 mm`); an x/y tile's corners as `(x, y)` with each
+/// coordinate in its own unit; a machine id as written.
+fn bounds(covariate: &str, lo: &serde_json::Value, hi: &serde_json::Value) -> (String, String) {
+    use serde_json::Value;
+    match (lo, hi) {
+        (Value::Number(a), Value::Number(b)) => {
+            let v = [
+                a.as_f64().unwrap_or(f64::NAN),
+                b.as_f64().unwrap_or(f64::NAN),
+            ];
+            let unit = covariate_unit(covariate);
+            // A count or index without a unit (`segment`, `pass`) as an
+            // integer.
+            if unit.canonical() == "1" && v.iter().all(|x| x.fract() == 0.0 && x.abs() < 1e15) {
+                return (format!("{:.0}", v[0]), format!("{:.0}", v[1]));
+            }
+            let [l, h] = <[String; 2]>::try_from(show_group_in(&v, &unit)).expect("two figures");
+            (l, h)
+        }
+        (Value::Array(a), Value::Array(b)) if a.len() == b.len() => {
+            // An x/y tile: `x_mm,y_mm` names the two coordinates.
+            let covs: Vec<&str> = covariate.split(',').collect();
+            let (l, h): (Vec<String>, Vec<String>) = a
+                .iter()
+                .zip(b)
+                .enumerate()
+                .map(|(i, (x, y))| bounds(covs.get(i).copied().unwrap_or(covariate), x, y))
+                .unzip();
+            (format!("({})", l.join(", ")), format!("({})", h.join(", ")))
+        }
+        _ => (as_text(lo), as_text(hi)),
+    }
+}
+
+fn as_text(v: &serde_json::Value) -> String {
+    match v {
         serde_json::Value::String(t) => esc(t),
         other => esc(&other.to_string()),
+    }
+}
+
+/// A shrink (1 − after/before) with three decimals, "0.000" for a zero
+/// that rounding made negative.
+fn shrink(v: f64) -> String {
+    let s = format!("{v:.3}");
+    if s == "-0.000" {
+        "0.000".into()
+    } else {
+        s
     }
 }
 
@@ -91,20 +153,21 @@ pub const EVERY_CANDIDATE_HEADING: &str = "<h3>Which: every candidate, held-out<
 
 /// The `<section>` of the fleet report.
 pub fn section(d: &Diagnosis) -> String {
+    let fig = Figures::of(d);
     let mut s = String::from(r#"<section class="diagnosis"><h2>Sim-to-real gap diagnosis</h2>"#);
     // No pooled gap or "share unexplained" across observables: their
     // scales differ (a touch probe's noise would swamp every real gap). Each observable against its own floor, in its own row.
-    s.push_str("<table><tr><th>observable</th><th>n</th><th>gap RMS mm</th><th>noise floor mm</th><th>held-out RMS after mm</th><th>shrink</th><th>selected or why not</th></tr>");
+    s.push_str("<table><tr><th>observable</th><th>n</th><th>gap RMS</th><th>noise floor</th><th>held-out RMS after</th><th>shrink</th><th>selected or why not</th></tr>");
     for o in &d.per_observable {
         let _ = write!(
             s,
-            "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{:.2}</td><td>{}</td></tr>",
+            "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
             esc(&o.observable),
             o.n,
-            num(Some(o.rms_mm)),
-            num(Some(o.noise_floor_mm)),
-            num(Some(o.cv_rms_after_mm)),
-            o.shrink,
+            fig.show(&o.observable, Some(o.rms_mm)),
+            fig.show(&o.observable, Some(o.noise_floor_mm)),
+            fig.show(&o.observable, Some(o.cv_rms_after_mm)),
+            shrink(o.shrink),
             esc(&if o.selected.is_empty() {
                 o.stop_reason.clone()
             } else {
@@ -136,17 +199,18 @@ pub fn section(d: &Diagnosis) -> String {
     if d.where_.is_empty() {
         s.push_str("<p>No cell of covariate space is significantly above the noise floor.</p>");
     } else {
-        s.push_str("<table><tr><th>observable</th><th>covariate</th><th>lo</th><th>hi</th><th>n</th><th>RMS mm</th><th>share</th><th>p</th></tr>");
+        s.push_str("<table><tr><th>observable</th><th>covariate</th><th>lo</th><th>hi</th><th>n</th><th>RMS</th><th>share</th><th>p</th></tr>");
         for c in d.where_.iter().take(20) {
+            let (lo, hi) = bounds(&c.covariate, &c.lo, &c.hi);
             let _ = write!(
                 s,
                 "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{:.3}</td><td>{}</td></tr>",
                 esc(&c.observable),
                 esc(&c.covariate),
-                json_num(&c.lo),
-                json_num(&c.hi),
+                lo,
+                hi,
                 c.n,
-                num(Some(c.rms_mm)),
+                fig.show(&c.observable, Some(c.rms_mm)),
                 c.share,
                 show_p(c.p_value)
             );
@@ -155,7 +219,7 @@ pub fn section(d: &Diagnosis) -> String {
     }
     s.push_str(EVERY_CANDIDATE_HEADING);
     s.push_str(&ranking_svg(d));
-    s.push_str("<table><tr><th>effect</th><th>observable</th><th>before mm</th><th>after mm</th><th>shrink</th><th>p</th><th>selected</th><th>params</th></tr>");
+    s.push_str("<table><tr><th>effect</th><th>observable</th><th>held-out RMS before</th><th>after</th><th>shrink</th><th>p</th><th>selected</th><th>params</th></tr>");
     for e in &d.effects {
         // Selected effects: every parameter with its standard error.
         let params: Vec<String> = if e.intervals.is_some() {
@@ -163,7 +227,7 @@ pub fn section(d: &Diagnosis) -> String {
         } else {
             e.params
                 .iter()
-                .map(|(k, v)| format!("{k}={}", general(*v)))
+                .map(|(k, v)| param_text(k, *v, None, e.covariate.as_deref(), &e.gap_unit))
                 .collect()
         };
         let name = match &e.covariate {
@@ -175,11 +239,13 @@ pub fn section(d: &Diagnosis) -> String {
             "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
             esc(&name),
             esc(&e.observable),
-            num(e.cv_rms_before_mm),
-            num(e.cv_rms_after_mm),
+            fig.show(&e.observable, e.cv_rms_before_mm),
+            fig.show(&e.observable, e.cv_rms_after_mm),
             match (e.shrink, e.shrink_interval) {
-                (Some(v), Some([lo, hi])) => format!("{v:.3} [{lo:.3}, {hi:.3}]"),
-                (Some(v), None) => format!("{v:.3}"),
+                (Some(v), Some([lo, hi])) => {
+                    format!("{} [{}, {}]", shrink(v), shrink(lo), shrink(hi))
+                }
+                (Some(v), None) => shrink(v),
                 _ => "—".into(),
             },
             e.p_value.map(show_p).unwrap_or_else(|| "—".into()),
@@ -188,23 +254,24 @@ pub fn section(d: &Diagnosis) -> String {
         );
     }
     s.push_str("</table>");
-    per_machine_table(d, &mut s);
+    per_machine_table(d, &fig, &mut s);
     s.push_str("<h3>Unexplained</h3>");
     if d.unexplained.where_.is_empty() {
         s.push_str("<p>No cell remains significantly above the noise floor.</p>");
     } else {
-        s.push_str("<table><tr><th>observable</th><th>covariate</th><th>lo</th><th>hi</th><th>RMS before mm</th><th>RMS after mm</th><th>shrink</th></tr>");
+        s.push_str("<table><tr><th>observable</th><th>covariate</th><th>lo</th><th>hi</th><th>RMS before</th><th>RMS after</th><th>shrink</th></tr>");
         for c in d.unexplained.where_.iter().take(20) {
+            let (lo, hi) = bounds(&c.covariate, &c.lo, &c.hi);
             let _ = write!(
                 s,
                 "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
                 esc(&c.observable),
                 esc(&c.covariate),
-                json_num(&c.lo),
-                json_num(&c.hi),
-                num(c.rms_before_mm),
-                num(Some(c.rms_mm)),
-                c.shrink.map(|v| format!("{v:.3}")).unwrap_or_else(|| "—".into())
+                lo,
+                hi,
+                fig.show(&c.observable, c.rms_before_mm),
+                fig.show(&c.observable, Some(c.rms_mm)),
+                c.shrink.map(shrink).unwrap_or_else(|| "—".into())
             );
         }
         s.push_str("</table>");
@@ -214,7 +281,7 @@ pub fn section(d: &Diagnosis) -> String {
 }
 
 /// Selected effects whose machines disagree: each machine's own fit.
-fn per_machine_table(d: &Diagnosis, s: &mut String) {
+fn per_machine_table(d: &Diagnosis, fig: &Figures, s: &mut String) {
     let rows: Vec<_> = d
         .effects
         .iter()
@@ -223,7 +290,7 @@ fn per_machine_table(d: &Diagnosis, s: &mut String) {
     if rows.is_empty() {
         return;
     }
-    s.push_str("<h3>Per machine: the machines disagree</h3><table><tr><th>effect</th><th>observable</th><th>machine</th><th>runs</th><th>n</th><th>params</th><th>offset mm</th><th>p (one effect for all)</th></tr>");
+    s.push_str("<h3>Per machine: the machines disagree</h3><table><tr><th>effect</th><th>observable</th><th>machine</th><th>runs</th><th>n</th><th>params</th><th>offset</th><th>p (one effect for all)</th></tr>");
     for (e, fits) in rows {
         let name = match &e.covariate {
             Some(c) => format!("{}:{}", e.name, c),
@@ -233,7 +300,7 @@ fn per_machine_table(d: &Diagnosis, s: &mut String) {
             let params: Vec<String> = f
                 .params
                 .iter()
-                .map(|(k, v)| format!("{k}={}", general(*v)))
+                .map(|(k, v)| param_text(k, *v, None, e.covariate.as_deref(), &e.gap_unit))
                 .collect();
             let _ = write!(
                 s,
@@ -244,7 +311,7 @@ fn per_machine_table(d: &Diagnosis, s: &mut String) {
                 f.runs,
                 f.n,
                 esc(&params.join(", ")),
-                num(f.offset_mm),
+                fig.show(&e.observable, f.offset_mm),
                 e.machines_differ_p
                     .map(show_p)
                     .unwrap_or_else(|| "—".into())

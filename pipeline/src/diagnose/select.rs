@@ -370,6 +370,8 @@ pub struct SelectOptions {
     pub alpha: f64,
     pub noise_margin: f64,
     pub sigma_mm: f64,
+    /// The unit of the gap (`mm`, `mm/s`), for the messages.
+    pub gap_unit: String,
     pub max_effects: usize,
     /// Smallest mean log RMS ratio that counts as a gain (selection and
     /// parsimony).
@@ -430,7 +432,8 @@ pub fn select(prob: &Problem, cands: &[&dyn Effect], opt: &SelectOptions) -> Res
         let rms_now = (before.iter().sum::<f64>() / n as f64).sqrt();
         if step > 1 && rms_now <= opt.noise_margin * opt.sigma_mm {
             stop_reason = format!(
-                "held-out RMS {rms_now:.3e} mm at the noise floor (≤ {}·σ)",
+                "held-out RMS {} at the noise floor (≤ {}·σ)",
+                crate::units::format::show_in(rms_now, &opt.gap_unit),
                 opt.noise_margin
             );
             break;
@@ -456,7 +459,8 @@ pub fn select(prob: &Problem, cands: &[&dyn Effect], opt: &SelectOptions) -> Res
         }
         if rms_now <= opt.noise_margin * opt.sigma_mm {
             stop_reason = format!(
-                "held-out RMS {rms_now:.3e} mm at the noise floor (≤ {}·σ)",
+                "held-out RMS {} at the noise floor (≤ {}·σ)",
+                crate::units::format::show_in(rms_now, &opt.gap_unit),
                 opt.noise_margin
             );
             break;

@@ -194,7 +194,8 @@ pub fn tick(v: f64) -> String {
     } else if a >= 0.01 {
         format!("{v:.3}")
     } else {
-        format!("{v:.2e}")
+        // Three significant digits, never scientific notation.
+        crate::units::format::plain_number(v, 3)
     }
 }
 
@@ -252,7 +253,9 @@ pub fn bar_chart(title: &str, value_label: &str, bars: &[(String, f64)]) -> Stri
             .build_cartesian_2d(0.0..hi.max(1e-12), (0..n).into_segmented());
         if let Ok(mut chart) = chart {
             let labels: Vec<String> = bars.iter().map(|b| b.0.clone()).collect();
-            let fx = |v: &f64| tick(*v);
+            // One notation along the value axis.
+            let notation = axis_formatter(0.0, hi, 5);
+            let fx = |v: &f64| notation.text(*v);
             let fy = |v: &SegmentValue<usize>| match v {
                 SegmentValue::CenterOf(i) => (n - 1)
                     .checked_sub(*i)
@@ -846,5 +849,6 @@ mod tests {
         assert_eq!(tick(0.0), "0");
         assert_eq!(tick(250.0), "250");
         assert_eq!(tick(3.0), "3");
+        assert_eq!(tick(0.0021), "0.00210");
     }
 }

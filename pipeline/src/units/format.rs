@@ -294,8 +294,12 @@ fn decimals_for(v: f64, sig: i32) -> i32 {
     (sig - 1 - e).max(0)
 }
 
+/// At most five decimals: a displayed number never has a longer tail
+/// (the display unit is chosen so its digits come before that).
+const MAX_DECIMALS: i32 = 5;
+
 fn num(v: f64, d: i32) -> String {
-    let d = d.clamp(0, 12) as usize;
+    let d = d.clamp(0, MAX_DECIMALS) as usize;
     let s = format!("{v:.d$}");
     // "-0.00" is "0.00".
     if s.starts_with('-') && s[1..].chars().all(|c| c == '0' || c == '.') {
@@ -305,11 +309,31 @@ fn num(v: f64, d: i32) -> String {
     }
 }
 
-/// Whether the scaled value reads in plain notation; else it is written in
-/// scientific notation in the canonical unit.
+/// Whether the scaled value reads with three significant digits in at most
+/// five decimals.
 fn plain(v: f64) -> bool {
     let a = v.abs();
-    a == 0.0 || (1e-3..1e6).contains(&a)
+    a == 0.0 || a >= 1e-3
+}
+
+/// A number in plain notation, never scientific: `sig` significant digits
+/// from 0.001 up, whole numbers above 1000 (`1234567`), five decimals
+/// below 0.001 (`0.00019`), and `0` for what rounds to zero there — zero
+/// at the resolution it is read at (the display unit is chosen so real
+/// figures are well above that).
+pub fn plain_number(v: f64, sig: i32) -> String {
+    if !v.is_finite() {
+        return "—".into();
+    }
+    if plain(v) {
+        return num(v, decimals_for(v, sig));
+    }
+    let s = num(v, MAX_DECIMALS);
+    if s.chars().all(|c| c == '0' || c == '.') {
+        "0".into()
+    } else {
+        s
+    }
 }
 
 fn with_unit(text: String, unit: &str) -> String {
@@ -327,11 +351,7 @@ pub fn show(value: f64, unit: &ParamUnit) -> String {
         return "—".into();
     }
     let (name, f) = pick(&unit.candidates(), value);
-    let v = value * f;
-    if !plain(v) {
-        return with_unit(format!("{value:.2e}"), &unit.canonical());
-    }
-    with_unit(num(v, decimals_for(v, 3)), &name)
+    with_unit(plain_number(value * f, 3), &name)
 }
 
 /// A value in a unit as written (`mm`, `mm/s`, `rad`), shown by
@@ -345,32 +365,38 @@ pub fn show_in(value: f64, unit: &str) -> String {
 /// 1000 — `106 µm (noise 0.951 µm) → 15.2 µm`, not `0.106 mm (noise
 /// 0.951 µm)` — each with three significant digits.
 pub fn show_group(values: &[f64], unit: &str) -> Vec<String> {
-    let u = ParamUnit::of(Dims::of_unit(unit));
-    let c = u.candidates();
+    show_group_in(values, &ParamUnit::of(Dims::of_unit(unit)))
+}
+
+/// [`show_group`] for a unit already resolved (a covariate's, a
+/// parameter's).
+pub fn show_group_in(values: &[f64], u: &ParamUnit) -> Vec<String> {
     let max = values
         .iter()
         .filter(|v| v.is_finite())
         .fold(0.0f64, |m, v| m.max(v.abs()));
-    let (name, f) = c
-        .iter()
-        .find(|(_, f)| max * f < 999.5)
-        .or(c.last())
-        .cloned()
-        .unwrap_or_default();
+    let (name, f) = group_unit(max, u);
     values
         .iter()
         .map(|&v| {
             if !v.is_finite() {
                 return "—".into();
             }
-            let x = v * f;
-            if plain(x) {
-                with_unit(num(x, decimals_for(x, 3)), &name)
-            } else {
-                with_unit(format!("{v:.2e}"), &u.canonical())
-            }
+            with_unit(plain_number(v * f, 3), &name)
         })
         .collect()
+}
+
+/// The display unit of [`show_group`] for values up to `max` (canonical):
+/// the smallest in which `max` stays below 1000, and the factor from the
+/// canonical value.
+pub fn group_unit(max: f64, u: &ParamUnit) -> (String, f64) {
+    let c = u.candidates();
+    c.iter()
+        .find(|(_, f)| max.abs() * f < 999.5)
+        .or(c.last())
+        .cloned()
+        .unwrap_or_default()
 }
 
 /// The display unit for values of about `size` (canonical) and the factor
@@ -413,7 +439,9 @@ pub fn show_length(mm: f64) -> String {
 }
 
 /// The decimals for a value and its standard error in one notation: three
-/// significant digits of the value, and at least one of the error.
+/// significant digits of the value, and at least one of the error; a value
+/// smaller than its error (zero within it) no finer than two digits of
+/// the error.
 fn pm_decimals(v: f64, se: f64) -> i32 {
     let d3 = decimals_for(v, 3);
     let d_se = if se > 0.0 && se.is_finite() {
@@ -422,6 +450,9 @@ fn pm_decimals(v: f64, se: f64) -> i32 {
         0
     };
     let d = d3.max(d_se);
+    if se.is_finite() && v.abs() < se.abs() {
+        return d.min(decimals_for(se, 2));
+    }
     // Never more than six significant digits of the value.
     if v != 0.0 {
         d.min(decimals_for(v, 6))
@@ -441,11 +472,7 @@ pub fn show_pm(value: f64, se: f64, unit: &ParamUnit) -> String {
     let size = if value.abs() >= se.abs() { value } else { se };
     let (name, f) = pick(&unit.candidates(), size);
     let (v, e) = (value * f, se * f);
-    // Scientific unless the value (or, for a zero, its error) reads plainly.
-    if !(plain(v) || (v == 0.0 && plain(e))) {
-        let p = format_pm(value, se);
-        return with_unit(p, &unit.canonical());
-    }
+    // At most five decimals (num), whatever the error's size.
     let d = pm_decimals(v, e);
     with_unit(format!("{} ± {}", num(v, d), num(e, d)), &name)
 }
@@ -472,26 +499,16 @@ pub fn show_interval(value: f64, se: Option<f64>, lo: f64, hi: f64, unit: &Param
     };
     let (name, f) = pick(&unit.candidates(), size);
     let (v, l, h) = (value * f, lo * f, hi * f);
-    if !(plain(v) || (v == 0.0 && plain(h))) {
-        let head = match se {
-            Some(se) => format_pm(value, se),
-            None => format!("{value:.2e}"),
-        };
-        let c = unit.canonical();
-        return format!(
-            "{} (95 % {lo:.2e} … {hi:.2e}{})",
-            with_unit(head, &c),
-            if c.is_empty() {
-                String::new()
-            } else {
-                format!(" {c}")
-            }
-        );
-    }
     let width = (h - l).abs() / 2.0;
-    let d = match se {
-        Some(se) => pm_decimals(v, se * f),
-        None => pm_decimals(v, width / 2.0),
+    let d = if !(plain(v) || plain(width)) {
+        // Zero at the resolution of the smallest unit, and so is its
+        // interval.
+        3
+    } else {
+        match se {
+            Some(se) => pm_decimals(v, se * f),
+            None => pm_decimals(v, width / 2.0),
+        }
     };
     let mut s = num(v, d);
     if let Some(se) = se {
@@ -500,6 +517,27 @@ pub fn show_interval(value: f64, se: Option<f64>, lo: f64, hi: f64, unit: &Param
     let s = with_unit(s, &name);
     let tail = with_unit(format!("{} … {}", num(l, d), num(h, d)), &name);
     format!("{s} (95 % {tail})")
+}
+
+/// One parameter as every output writes it: `k = 4.92 ms`, or with its
+/// standard error and 95 % interval `k = 4.92 ± 0.08 ms (95 % 4.76 … 5.07
+/// ms)` — value, error and interval in one unit and notation.
+pub fn show_param(
+    name: &str,
+    value: f64,
+    interval: Option<(f64, f64, f64)>,
+    unit: &ParamUnit,
+) -> String {
+    match interval {
+        Some((se, lo, hi)) => format!("{name} = {}", show_interval(value, Some(se), lo, hi, unit)),
+        None => format!("{name} = {}", show(value, unit)),
+    }
+}
+
+/// The unit of a covariate from its name's suffix (`x_mm` → mm, `t_s` →
+/// s, `temp_c` → °C), a number for a name without one.
+pub fn covariate_unit(covariate: &str) -> ParamUnit {
+    ParamUnit::of(Dims::of_unit(suffix_of(covariate)))
 }
 
 /// The unit of a reported diagnosis parameter, from its name, the effect's
@@ -512,6 +550,22 @@ pub fn show_interval(value: f64, se: Option<f64>, lo: f64, hi: f64, unit: &Param
 /// and a frame bound (`c0`, `c1`) are in the covariate's unit; anything
 /// else is the gap per the product of the covariates' units.
 pub fn param_unit(param: &str, covariate: Option<&str>, gap_unit: &str) -> ParamUnit {
+    // A product of two effects (`thermal_bow:y_mm,t_s` = bow(y)·drift(t)):
+    // `a.*` are the first factor's shape parameters, on its covariate,
+    // `b.*` the second's, and `coefN` the product's joint amplitudes, in
+    // the gap's unit (each factor's shape has unit amplitude).
+    if let (Some(rest), Some(cov)) = (param.strip_prefix("a."), covariate) {
+        return param_unit(rest, cov.split(',').next(), gap_unit);
+    }
+    if let (Some(rest), Some(cov)) = (param.strip_prefix("b."), covariate) {
+        return param_unit(rest, cov.split(',').nth(1), gap_unit);
+    }
+    if param
+        .strip_prefix("coef")
+        .is_some_and(|n| n.parse::<usize>().is_ok())
+    {
+        return ParamUnit::of(Dims::of_unit(gap_unit));
+    }
     let gap = Dims::of_unit(gap_unit);
     let covs: Vec<Dims> = covariate
         .map(|c| c.split(',').map(|c| Dims::of_unit(suffix_of(c))).collect())
@@ -681,6 +735,11 @@ mod tests {
         assert_eq!(ratio.canonical(), "1");
         assert_eq!(show(3.78e-3, &ratio), "0.00378");
         assert_eq!(pu("k", "x_mm").canonical(), "mm/mm");
+        // A product of two effects: each factor's parameters on its own
+        // covariate, the joint amplitude in the gap's unit.
+        assert_eq!(pu("a.c0", "y_mm,t_s").canonical(), "mm");
+        assert_eq!(pu("b.tau_s", "y_mm,t_s").canonical(), "s");
+        assert_eq!(show(0.0064, &pu("coef0", "y_mm,t_s")), "6.40 µm");
     }
 
     #[test]
@@ -719,7 +778,37 @@ mod tests {
             show_pm(0.0, 3e-6, &ParamUnit::of(Dims::length())),
             "0 ± 3 nm"
         );
-        // Beyond plain notation: scientific, canonical unit.
-        assert_eq!(show(3e-15, &ParamUnit::of(Dims::length())), "3.00e-15 mm");
+        // Below the smallest unit's resolution: zero there, never
+        // scientific notation.
+        assert_eq!(show(3e-15, &ParamUnit::of(Dims::length())), "0 nm");
+        assert_eq!(show_as_written(1.93e-4, "V"), "0.00019 V");
+        // A value far inside its error: the error's digits, the error's unit.
+        assert_eq!(
+            show_pm(-5.48e-18, 6.54e-6, &ParamUnit::of(Dims::length())),
+            "0.0 ± 6.5 nm"
+        );
+        let v = param_unit("offset_mm", None, "mm/s");
+        assert_eq!(show_pm(-1.59e-5, 9.395e-4, &v), "-0.00002 ± 0.00094 mm/s");
+        assert_eq!(
+            show_interval(
+                2e-20,
+                Some(1e-21),
+                1e-20,
+                3e-20,
+                &ParamUnit::of(Dims::length())
+            ),
+            "0.000 ± 0.000 nm (95 % 0.000 … 0.000 nm)"
+        );
+        assert_eq!(plain_number(1.234e7, 3), "12340000");
+        assert_eq!(
+            show_param(
+                "lambda",
+                58.9,
+                Some((1.0, 57.0, 60.9)),
+                &pu("lambda", "x_mm")
+            ),
+            "lambda = 58.9 ± 1.0 mm (95 % 57.0 … 60.9 mm)"
+        );
+        assert_eq!(covariate_unit("temp_c").canonical(), "°C");
     }
 }

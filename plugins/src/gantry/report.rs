@@ -205,15 +205,21 @@ fn polish(a: &ArtifactStore, s: Option<&Value>) -> Option<ReportSection> {
         .as_array()
         .map(|a| {
             a.iter()
-                .filter_map(|p| Some((p["area_fraction"].as_f64()?, p["ratio"].as_f64()?)))
+                .filter_map(|p| {
+                    Some((
+                        100.0 * p["area_fraction"].as_f64()?,
+                        100.0 * p["ratio"].as_f64()?,
+                    ))
+                })
                 .collect()
         })
         .unwrap_or_default();
-    let one: Vec<(f64, f64)> = vec![(0.0, 1.0), (1.0, 1.0)];
+    // Both axes in percent: a fraction and a ratio read with a unit.
+    let one: Vec<(f64, f64)> = vec![(0.0, 100.0), (100.0, 100.0)];
     html.push_str(&xy_chart(
         "Selective / raster time against the zone's area fraction",
-        "area fraction",
-        "ratio",
+        "zone area (% of the surface)",
+        "selective time (% of raster)",
         &[
             Series {
                 name: "selective / raster",

@@ -44,7 +44,11 @@ fn identification(s: &Value) -> ReportSection {
             ],
             vec![
                 "rcond (scaled Jacobian)".into(),
-                format!("{:.2e}", s["rcond"].as_f64().unwrap_or(f64::NAN)),
+                // Two significant digits, never scientific notation.
+                sparkout_pipeline::units::format::plain_number(
+                    s["rcond"].as_f64().unwrap_or(f64::NAN),
+                    2,
+                ),
             ],
             vec![
                 "solver".into(),
@@ -177,8 +181,8 @@ fn functions(a: &ArtifactStore) -> Option<ReportSection> {
                     },
                     ax.to_uppercase()
                 ),
-                &format!("{ax}_mm"),
-                unit,
+                &format!("{ax} (mm)"),
+                &format!("error ({unit})"),
                 &s,
             ));
         }

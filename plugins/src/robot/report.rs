@@ -10,6 +10,7 @@ use sparkout_pipeline::report::{esc, fmt_fixed, fmt_um, table, warning, Verdict}
 /// Condition number of the datum's 3×3 plane-normal system above which
 /// the report warns (orthogonal faces give 1).
 const DATUM_CONDITION_WARN: f64 = 100.0;
+use sparkout_pipeline::units::format::{show_as_written, show_group_in, Dims, ParamUnit};
 use sparkout_pipeline::{ArtifactStore, ReportSection, Run};
 
 use super::planes::Face;
@@ -17,6 +18,13 @@ use super::touches;
 
 fn um(v: &Value) -> String {
     fmt_um(v.as_f64(), 1)
+}
+
+/// An AE voltage in mV with three significant digits (`6.46 mV`: the
+/// threshold and noise are millivolts).
+fn volts(v: &Value) -> String {
+    v.as_f64()
+        .map_or_else(|| "—".into(), |x| show_as_written(x * 1e3, "mV"))
 }
 
 fn num(v: &Value, digits: usize) -> String {
@@ -93,10 +101,23 @@ fn planes(s: &Value, run_artifacts: &ArtifactStore) -> Option<ReportSection> {
         if x.is_null() {
             continue;
         }
-        let ols: Vec<String> = x["ols"]
+        // The plane's offset b0 at micrometre resolution (a datum plane's
+        // position), its slopes b1, b2 as lengths per length (µm/m).
+        let slope = ParamUnit {
+            num: Dims::length(),
+            den: Dims::length(),
+        };
+        let b: Vec<f64> = x["ols"]
             .as_array()
-            .map(|a| a.iter().map(|v| num(v, 6)).collect())
+            .map(|a| a.iter().map(|v| v.as_f64().unwrap_or(f64::NAN)).collect())
             .unwrap_or_default();
+        let mut ols: Vec<String> = b
+            .first()
+            .map(|b0| format!("{} mm", fmt_fixed(Some(*b0), 3)))
+            .into_iter()
+            .collect();
+        // Both slopes in one unit.
+        ols.extend(show_group_in(b.get(1..).unwrap_or_default(), &slope));
         rows.push(vec![
             f.label().to_string(),
             x["n"].to_string(),
@@ -112,7 +133,7 @@ fn planes(s: &Value, run_artifacts: &ArtifactStore) -> Option<ReportSection> {
             "face",
             "touches",
             "rejected",
-            "OLS b0, b1, b2",
+            "OLS plane: b0, slopes b1, b2",
             "OLS RMS (µm)",
             "TLS RMS (µm)",
             "max |res| (µm)",
@@ -418,11 +439,11 @@ fn ae_detection(s: &Value) -> Option<ReportSection> {
     .collect();
     html.push_str(&table(&["parameter", "samples", "time"], &rows));
     html.push_str(&format!(
-        "<p>Threshold {} V = noise median {} V + {}·σ (σ = 1.4826·MAD {} V); {} threshold crossings shorter than the dwell were dropped.</p>",
-        num(&ae["threshold_v"], 6),
-        num(&ae["noise_floor_v"], 6),
+        "<p>Threshold {} = noise median {} + {}·σ (σ = 1.4826·MAD {}); {} threshold crossings shorter than the dwell were dropped.</p>",
+        volts(&ae["threshold_v"]),
+        volts(&ae["noise_floor_v"]),
         p["k_sigma"],
-        num(&ae["noise_sigma_v"], 6),
+        volts(&ae["noise_sigma_v"]),
         ae["short_crossings"],
     ));
     for w in ae["warnings"].as_array().into_iter().flatten() {

@@ -170,6 +170,7 @@ mod tests {
 
     fn opt() -> SelectOptions {
         SelectOptions {
+            gap_unit: "mm".into(),
             alpha: 0.01,
             noise_margin: 1.1,
             sigma_mm: 1.0,

@@ -61,7 +61,7 @@ impl Unit {
         if self.data == "mm" {
             return crate::units::format::show_length(v);
         }
-        format!("{} {}", super::super::svg::tick(v * self.scale), self.shown)
+        crate::units::format::show_in(v, &self.data)
     }
 }
 
@@ -84,7 +84,7 @@ pub(super) fn key_of(e: &Value) -> String {
 /// selected effect (diagnosis.json `effects[].intervals`), in the unit an
 /// engineer reads it in (units::format).
 pub(super) fn params_text(e: &Value) -> Vec<String> {
-    use crate::units::format::{param_unit, show, show_interval};
+    use crate::units::format::{param_unit, show_param};
     // An `effects` entry names its covariate; a `machine_effects` entry
     // spells it inside `effect` (name:covariate).
     let cov = e.get("covariate").and_then(|c| c.as_str()).or_else(|| {
@@ -119,12 +119,10 @@ pub(super) fn params_text(e: &Value) -> Vec<String> {
                     .iter()
                     .all(|x| x.is_finite()) =>
             {
-                out.push(format!(
-                    "{k} = {}",
-                    show_interval(v, Some(f(iv, "se")), f(iv, "lo"), f(iv, "hi"), &unit)
-                ))
+                let iv = (f(iv, "se"), f(iv, "lo"), f(iv, "hi"));
+                out.push(show_param(k, v, Some(iv), &unit))
             }
-            _ if v.is_finite() => out.push(format!("{k} = {}", show(v, &unit))),
+            _ if v.is_finite() => out.push(show_param(k, v, None, &unit)),
             _ => {}
         }
     }
@@ -347,17 +345,13 @@ pub(super) fn verdict(d: &Value, po: &Value, augment: &[Value], machine: &str) -
                     .and_then(|m| m.as_array())
                     .and_then(|m| m.iter().find(|x| s(x, "machine") == machine))
                 {
-                    let ps: Vec<String> = own
-                        .get("params")
-                        .and_then(|p| p.as_object())
-                        .into_iter()
-                        .flatten()
-                        .filter_map(|(k, v)| {
-                            v.as_f64()
-                                .filter(|x| x.is_finite())
-                                .map(|x| format!("{k} = {x:.3e}"))
-                        })
-                        .collect();
+                    // In the units of the pooled fit's parameters.
+                    let own = serde_json::json!({
+                        "covariate": e.get("covariate"),
+                        "param_units": e.get("param_units"),
+                        "params": own.get("params"),
+                    });
+                    let ps = params_text(&own);
                     let _ = write!(
                         t,
                         " (machines differ; {} alone: {})",
