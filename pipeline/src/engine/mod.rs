@@ -159,11 +159,6 @@ impl Engine {
         &self.config
     }
 
-    /// The config's sections as read and checked in [`Engine::new`].
-    pub fn checked_config(&self) -> &CheckedConfig {
-        &self.checked
-    }
-
     pub fn plugins(&self) -> &[Arc<dyn MachinePlugin>] {
         &self.plugins
     }
