@@ -42,6 +42,9 @@ pub use config::{CheckedConfig, PipelineConfig, PipelineSection, ReportSection};
 /// Version of the fleet `diagnose` step (bump when its output changes).
 pub const DIAGNOSE_STAGE_VERSION: u32 = 8;
 
+/// Run directories with their run.toml, read and checked once.
+type RunSpecs = BTreeMap<PathBuf, RunSpec>;
+
 /// A plugin's name and the composite effects it adds to the diagnosis.
 pub type PluginEffects = (&'static str, Vec<Box<dyn Effect>>);
 
@@ -146,7 +149,7 @@ impl Engine {
     pub fn shard_runs(&self, input_root: &Path, shard: &shard::ShardSpec) -> Result<Vec<PathBuf>> {
         let found = discover(input_root)
             .with_context(|| format!("cannot list runs under {}", input_root.display()))?;
-        let (run_dirs, _) = self.account_for_runs(&found);
+        let (run_dirs, _, _) = self.account_for_runs(&found);
         Ok(shard::select_runs(&run_dirs, shard))
     }
 
@@ -355,7 +358,7 @@ impl Engine {
                 out.display()
             );
         }
-        let (mut run_dirs, mut early_failures) = self.account_for_runs(&found);
+        let (mut run_dirs, mut early_failures, specs) = self.account_for_runs(&found);
         let night_items = run_dirs.len() + early_failures.len();
         if let Some(sh) = shard {
             // A shard.json left by an earlier batch must not outlive this
@@ -388,7 +391,7 @@ impl Engine {
         progress.start(run_dirs.len());
         let enabled = self.plugins_enabled()?;
         let work = |dir: &PathBuf| -> Option<std::result::Result<RunResult, Failure>> {
-            let r = self.process_run(dir, out, enabled.as_ref());
+            let r = self.process_run(dir, specs.get(dir), out, enabled.as_ref());
             match &r {
                 Some(Ok(rr)) => progress.run_done(
                     &format!("{}/{}", rr.machine, rr.run),
@@ -519,10 +522,12 @@ impl Engine {
     /// with tables but no run.toml, and runs whose (machine, run) id another
     /// directory also claims (one would silently overwrite the other's
     /// outputs), become failures naming every directory involved.
+    /// The run.toml of every run directory that has a readable one comes
+    /// back with it, read once: processing the run takes it from there.
     fn account_for_runs(
         &self,
         found: &crate::contracts::Discovery,
-    ) -> (Vec<PathBuf>, Vec<Failure>) {
+    ) -> (Vec<PathBuf>, Vec<Failure>, RunSpecs) {
         let mut failures: Vec<Failure> = found
             .skipped
             .iter()
@@ -549,9 +554,12 @@ impl Engine {
                 Err(_) => runs.push(dir.clone()),
             }
         }
-        for ((machine, id), dirs) in by_id {
+        let mut specs = RunSpecs::new();
+        for ((machine, id), mut dirs) in by_id {
             if dirs.len() == 1 {
-                runs.push(dirs[0].0.clone());
+                let (dir, spec) = dirs.remove(0);
+                runs.push(dir.clone());
+                specs.insert(dir.clone(), spec);
                 continue;
             }
             let all: Vec<String> = dirs.iter().map(|(d, _)| d.display().to_string()).collect();
@@ -573,7 +581,7 @@ impl Engine {
             }
         }
         runs.sort();
-        (runs, failures)
+        (runs, failures, specs)
     }
 
     /// A stage by name across all plugins (for run-less `sparkout stage`).
