@@ -14,7 +14,8 @@ use std::time::Instant;
 
 use rayon::prelude::*;
 use serde::Serialize;
-use sparkout_pipeline::diagnose::{diagnose, DiagnoseConfig, Diagnosis, WhereCell};
+use sparkout_pipeline::config_check::Checked;
+use sparkout_pipeline::diagnose::{diagnose_checked, DiagnoseConfig, Diagnosis, WhereCell};
 use sparkout_pipeline::{EffectSpec, Result};
 
 use crate::observations::{
@@ -207,7 +208,11 @@ struct Job {
     seed: u64,
 }
 
-fn run_fleet(cfg: &ValidateConfig, job: &Job) -> Result<FleetResult> {
+fn run_fleet(
+    cfg: &ValidateConfig,
+    dcfg: &Checked<DiagnoseConfig>,
+    job: &Job,
+) -> Result<FleetResult> {
     let start = Instant::now();
     let fleet = ObsFleetConfig {
         seed: job.seed,
@@ -272,11 +277,8 @@ fn run_fleet(cfg: &ValidateConfig, job: &Job) -> Result<FleetResult> {
         cols[idx] = std::sync::Arc::new(arrow::array::StringArray::from(m.clone()));
         batch = arrow::record_batch::RecordBatch::try_new(batch.schema(), cols)?;
     }
-    let dcfg = DiagnoseConfig {
-        seed: job.seed,
-        ..cfg.diagnose.clone()
-    };
-    let out = diagnose(&batch, &dcfg, &[])?;
+    let dcfg = dcfg.with_seed(job.seed)?;
+    let out = diagnose_checked(&batch, &dcfg, &[])?;
     let d = &out.diagnosis;
     let named = d.selected.first().cloned().unwrap_or_else(|| "none".into());
     let e_energy: f64 = effect.iter().map(|e| e * e).sum();
@@ -356,7 +358,8 @@ fn mix(seed: u64, a: u64, b: u64, c: u64) -> u64 {
 
 /// Runs the validation (rayon over fleets; results in a fixed order).
 pub fn run(cfg: &ValidateConfig) -> Result<ValidationReport> {
-    cfg.diagnose.check()?;
+    // `[diagnose]` checked once; each fleet takes it with its own seed.
+    let dcfg = cfg.diagnose.clone().checked()?;
     let start = Instant::now();
     let mut jobs = Vec::new();
     for (ci, case) in CATALOGUE_CASES.iter().enumerate() {
@@ -420,7 +423,7 @@ pub fn run(cfg: &ValidateConfig) -> Result<ValidationReport> {
         .build()?;
     let results: Vec<FleetResult> = pool.install(|| {
         jobs.par_iter()
-            .map(|j| run_fleet(cfg, j))
+            .map(|j| run_fleet(cfg, &dcfg, j))
             .collect::<Result<_>>()
     })?;
     Ok(summarise(cfg, results, start.elapsed().as_secs_f64()))

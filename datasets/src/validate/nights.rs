@@ -15,7 +15,8 @@ use std::time::Instant;
 
 use rayon::prelude::*;
 use serde::Serialize;
-use sparkout_pipeline::diagnose::{diagnose, DiagnoseConfig};
+use sparkout_pipeline::config_check::Checked;
+use sparkout_pipeline::diagnose::{diagnose_checked, DiagnoseConfig};
 use sparkout_pipeline::report::trend::{rows_of, trend, Event, HistoryRow, TrendConfig};
 use sparkout_pipeline::{EffectSpec, Result};
 
@@ -214,6 +215,7 @@ fn fleet_specs(cfg: &NightsConfig) -> Result<Vec<EffectSpec>> {
 /// by `factor`.
 fn night_diagnosis(
     cfg: &NightsConfig,
+    dcfg: &Checked<DiagnoseConfig>,
     specs: &[EffectSpec],
     seed: u64,
     factor: f64,
@@ -247,15 +249,26 @@ fn night_diagnosis(
         batches.push(sparkout_pipeline::engine::with_machine_column(b, machine)?);
     }
     let batch = arrow::compute::concat_batches(&batches[0].schema(), &batches)?;
-    let out = diagnose(&batch, &cfg.diagnose, &[])?;
+    let out = diagnose_checked(&batch, dcfg, &[])?;
     Ok(serde_json::to_value(&out.diagnosis)?)
 }
 
-fn run_sequence(cfg: &NightsConfig, specs: &[EffectSpec], sq: &Sequence) -> Result<SequenceResult> {
+fn run_sequence(
+    cfg: &NightsConfig,
+    dcfg: &Checked<DiagnoseConfig>,
+    specs: &[EffectSpec],
+    sq: &Sequence,
+) -> Result<SequenceResult> {
     let start = Instant::now();
     let mut rows: Vec<HistoryRow> = Vec::new();
     for n in 0..sq.nights {
-        let d = night_diagnosis(cfg, specs, mix(sq.seed, n as u64 + 1, 0, 0), sq.factor(n))?;
+        let d = night_diagnosis(
+            cfg,
+            dcfg,
+            specs,
+            mix(sq.seed, n as u64 + 1, 0, 0),
+            sq.factor(n),
+        )?;
         rows.extend(rows_of(&d, &date(n), "validate"));
     }
     let events: Vec<Event> = match (sq.kind, sq.change) {
@@ -325,7 +338,8 @@ fn step_summary(size: f64, rs: &[&SequenceResult]) -> StepSummary {
 
 /// Runs every sequence (rayon over sequences; results in a fixed order).
 pub fn run(cfg: &NightsConfig) -> Result<NightsReport> {
-    cfg.diagnose.check()?;
+    // `[diagnose]` checked once for every night's diagnosis.
+    let dcfg = cfg.diagnose.clone().checked()?;
     cfg.trend.check()?;
     let start = Instant::now();
     let specs = fleet_specs(cfg)?;
@@ -374,7 +388,7 @@ pub fn run(cfg: &NightsConfig) -> Result<NightsReport> {
         .build()?;
     let results: Vec<SequenceResult> = pool.install(|| {
         seqs.par_iter()
-            .map(|s| run_sequence(cfg, &specs, s))
+            .map(|s| run_sequence(cfg, &dcfg, &specs, s))
             .collect::<Result<_>>()
     })?;
     let of = |kind: &str| -> Vec<&SequenceResult> {

@@ -114,6 +114,18 @@ impl DiagnoseConfig {
     }
 }
 
+impl Checked<DiagnoseConfig> {
+    /// The same checked settings with another seed: any u64 seed is valid,
+    /// so nothing is checked again (a validation diagnoses many fleets,
+    /// each with its own seed).
+    pub fn with_seed(&self, seed: u64) -> Result<Checked<DiagnoseConfig>> {
+        Checked::checked_by_caller(DiagnoseConfig {
+            seed,
+            ..(**self).clone()
+        })
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -119,7 +119,7 @@ impl Engine {
     /// contract is listed too, so one pass shows all there is to fix.
     pub fn validate_input(&self, root: &Path) -> Result<(usize, Vec<Problem>)> {
         let found = discover(root)?;
-        let (dirs, early) = self.account_for_runs(&found);
+        let (dirs, early, specs) = self.account_for_runs(&found);
         let mut problems: Vec<Problem> = early
             .into_iter()
             .map(|f| Problem {
@@ -130,7 +130,9 @@ impl Engine {
         let enabled = self.plugins_enabled()?;
         for dir in &dirs {
             let d = dir.display().to_string();
-            let Some(Err(f)) = self.check_run(dir, enabled.as_ref()) else {
+            // `run`'s per-run path, in memory.
+            let Some(Err(f)) = self.process_run_at(dir, specs.get(dir), None, enabled.as_ref())
+            else {
                 continue;
             };
             let first = f.error.clone();
@@ -172,16 +174,6 @@ impl Engine {
             .chain(problems.iter().map(|p| p.run_dir.clone()))
             .collect();
         Ok((checked.len(), problems))
-    }
-
-    /// One run through `run`'s per-run path, in memory: `None` when its
-    /// plugin is not enabled, else accepted or the failure `run` would list.
-    pub fn check_run(
-        &self,
-        dir: &Path,
-        enabled: Option<&BTreeSet<String>>,
-    ) -> Option<std::result::Result<RunResult, Failure>> {
-        self.process_run_at(dir, None, enabled)
     }
 }
 

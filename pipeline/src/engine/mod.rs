@@ -43,6 +43,9 @@ pub use config::{CheckedConfig, PipelineConfig, PipelineSection, ReportSection};
 /// Version of the fleet `diagnose` step (bump when its output changes).
 pub const DIAGNOSE_STAGE_VERSION: u32 = 8;
 
+/// Run directories with their run.toml, read and checked once.
+type RunSpecs = BTreeMap<PathBuf, RunSpec>;
+
 /// A plugin's name and the composite effects it adds to the diagnosis.
 pub type PluginEffects = (&'static str, Vec<Box<dyn Effect>>);
 
@@ -149,7 +152,7 @@ impl Engine {
     /// balance rule) — for staging only those runs from object storage.
     pub fn shard_runs(&self, input_root: &Path, shard: &shard::ShardSpec) -> Result<Vec<PathBuf>> {
         let (found, _) = self.discover_night(input_root)?;
-        let (run_dirs, _) = self.account_for_runs(&found);
+        let (run_dirs, _, _) = self.account_for_runs(&found);
         Ok(shard::select_runs(&run_dirs, shard))
     }
 
@@ -182,11 +185,6 @@ impl Engine {
 
     pub fn config(&self) -> &PipelineConfig {
         &self.config
-    }
-
-    /// The config's sections as read and checked in [`Engine::new`].
-    pub fn checked_config(&self) -> &CheckedConfig {
-        &self.checked
     }
 
     pub fn plugins(&self) -> &[Arc<dyn MachinePlugin>] {
@@ -391,7 +389,7 @@ impl Engine {
                 out.display()
             );
         }
-        let (mut run_dirs, mut early_failures) = self.account_for_runs(&found);
+        let (mut run_dirs, mut early_failures, specs) = self.account_for_runs(&found);
         let night_items = run_dirs.len() + early_failures.len();
         let items_of = |runs: &[PathBuf], fails: &[Failure]| -> Vec<String> {
             let mut v: Vec<String> = runs
@@ -439,7 +437,7 @@ impl Engine {
         progress.start(run_dirs.len());
         let enabled = self.plugins_enabled()?;
         let work = |dir: &PathBuf| -> Option<std::result::Result<RunResult, Failure>> {
-            let r = self.process_run(dir, out, enabled.as_ref());
+            let r = self.process_run(dir, specs.get(dir), out, enabled.as_ref());
             match &r {
                 Some(Ok(rr)) => progress.run_done(
                     &format!("{}/{}", rr.machine, rr.run),
@@ -572,10 +570,12 @@ impl Engine {
     /// with tables but no run.toml, and runs whose (machine, run) id another
     /// directory also claims (one would silently overwrite the other's
     /// outputs), become failures naming every directory involved.
+    /// The run.toml of every run directory that has a readable one comes
+    /// back with it, read once: processing the run takes it from there.
     fn account_for_runs(
         &self,
         found: &crate::contracts::Discovery,
-    ) -> (Vec<PathBuf>, Vec<Failure>) {
+    ) -> (Vec<PathBuf>, Vec<Failure>, RunSpecs) {
         let mut failures: Vec<Failure> = found
             .skipped
             .iter()
@@ -602,9 +602,12 @@ impl Engine {
                 Err(_) => runs.push(dir.clone()),
             }
         }
-        for ((machine, id), dirs) in by_id {
+        let mut specs = RunSpecs::new();
+        for ((machine, id), mut dirs) in by_id {
             if dirs.len() == 1 {
-                runs.push(dirs[0].0.clone());
+                let (dir, spec) = dirs.remove(0);
+                runs.push(dir.clone());
+                specs.insert(dir.clone(), spec);
                 continue;
             }
             let all: Vec<String> = dirs.iter().map(|(d, _)| d.display().to_string()).collect();
@@ -626,7 +629,7 @@ impl Engine {
             }
         }
         runs.sort();
-        (runs, failures)
+        (runs, failures, specs)
     }
 
     /// A stage by name across all plugins (for run-less `sparkout stage`).

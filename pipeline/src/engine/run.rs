@@ -10,20 +10,24 @@ impl Engine {
     pub(super) fn process_run(
         &self,
         dir: &Path,
+        spec: Option<&RunSpec>,
         out: &Path,
         enabled: Option<&BTreeSet<String>>,
     ) -> Option<std::result::Result<RunResult, Failure>> {
-        self.process_run_at(dir, Some(out), enabled)
+        self.process_run_at(dir, spec, Some(out), enabled)
     }
 
-    /// [`Self::process_run`] writing under `out`, or in memory only.
+    /// [`Self::process_run`] writing under `out`, or in memory only. `spec`
+    /// is the run's run.toml when discovery read it already (else it is
+    /// read here).
     pub(super) fn process_run_at(
         &self,
         dir: &Path,
+        spec: Option<&RunSpec>,
         out: Option<&Path>,
         enabled: Option<&BTreeSet<String>>,
     ) -> Option<std::result::Result<RunResult, Failure>> {
-        let spec = match RunSpec::load(dir) {
+        let spec = match spec.cloned().map_or_else(|| RunSpec::load(dir), Ok) {
             Ok(s) => s,
             Err(e) => return Some(Err(Failure::from_error(dir, None, None, &e.into()))),
         };
