@@ -13,6 +13,7 @@ pub mod files;
 pub mod fuzz_entry;
 pub mod html;
 pub mod import;
+pub mod outcome;
 pub mod replay;
 pub mod report;
 pub mod storage;

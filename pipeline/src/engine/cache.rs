@@ -64,18 +64,7 @@ impl KeyBuilder {
     }
 }
 
-/// What one stage left on disk for one run (the per-run cache file records
-/// these; manifest.json repeats them).
-#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct StageRecord {
-    pub stage: String,
-    pub version: u32,
-    pub key: String,
-    /// Output file name → blake3 of its bytes.
-    pub files: BTreeMap<String, String>,
-    #[serde(default)]
-    pub cached: bool,
-}
+pub use crate::outcome::StageRecord;
 
 /// `<out>/<machine>/<run>/.sparkout-cache.json`, written last in a run's
 /// directory, so a killed batch never trusts a half-written run.

@@ -8,15 +8,14 @@ pub mod config;
 pub mod dag;
 mod fleet;
 pub mod lock;
-mod outcome;
 mod run;
 pub mod shard;
 pub mod snapshot;
+pub use crate::outcome::*;
 pub use checks::check_finite;
 use checks::check_plugin;
 use fleet::json_bytes;
 pub use fleet::{parquet_bytes, union_concat, with_machine_column};
-pub use outcome::*;
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
@@ -24,7 +23,7 @@ use std::sync::Arc;
 
 use anyhow::{anyhow, bail, Context};
 use arrow::record_batch::RecordBatch;
-use serde::{Deserialize, Serialize};
+use serde::Serialize;
 
 use crate::config_check::Checked;
 use crate::contracts::{
@@ -35,9 +34,7 @@ use crate::diagnose::{self, DiagnoseConfig, Effect};
 use crate::error::{InputError, Result};
 use crate::report;
 use crate::traits::{ArtifactStore, MachinePlugin, Run, Stage, StageContext, StageOutput};
-use cache::{
-    hash_bytes, hash_file, hash_input, read_run_cache, record_valid, KeyBuilder, StageRecord,
-};
+use cache::{hash_bytes, hash_file, hash_input, read_run_cache, record_valid, KeyBuilder};
 pub use config::{CheckedConfig, PipelineConfig, PipelineSection, ReportSection};
 
 /// Version of the fleet `diagnose` step (bump when its output changes).

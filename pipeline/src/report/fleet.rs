@@ -15,7 +15,7 @@ use serde_json::Value;
 use super::fleet_data::{binned_means, grid_means, per_run_rms, FleetRows, RunRms};
 use super::svg::{heat, mini_curve, mini_heat, shared_vmax, xy_chart_sized, Heat, Mark, Series};
 use super::{esc, page, title_of};
-use crate::engine::FleetOutcome;
+use crate::outcome::FleetOutcome;
 
 mod verdict;
 pub use verdict::*;

@@ -9,7 +9,7 @@ use std::fmt::Write;
 use std::path::Path;
 
 use super::{esc, page, title_of};
-use crate::engine::{FleetOutcome, RunResult};
+use crate::outcome::{FleetOutcome, RunResult};
 
 /// Where the trend page is, relative to the output root (written by the
 /// diagnosis history step when it ran).

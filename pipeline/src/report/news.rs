@@ -15,7 +15,7 @@ use super::index::TREND_PAGE;
 use super::trend::page::id_part;
 use super::trend::{read_trend, trend_anchor, Alert, Trend};
 use super::verdict::RunVerdict;
-use crate::engine::{FleetOutcome, Night, RunResult};
+use crate::outcome::{FleetOutcome, Night, RunResult};
 use crate::units::format::{param_unit, show, show_in};
 
 /// At most this many alerts in the banner (the trend page has them all).

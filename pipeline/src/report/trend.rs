@@ -10,7 +10,7 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 
-use anyhow::{bail, Context};
+use anyhow::Context;
 use serde::{Deserialize, Serialize};
 
 use crate::contracts::{write_atomic, write_json_atomic};
@@ -39,22 +39,7 @@ pub fn fingerprint(settings: &str) -> String {
     blake3::hash(settings.as_bytes()).to_hex()[..16].to_string()
 }
 
-/// `YYYY-MM-DD`, checked.
-pub fn check_night(night: &str) -> Result<()> {
-    let b = night.as_bytes();
-    let ok = b.len() == 10
-        && b[4] == b'-'
-        && b[7] == b'-'
-        && b.iter()
-            .enumerate()
-            .all(|(i, c)| i == 4 || i == 7 || c.is_ascii_digit())
-        && (1..=12).contains(&night[5..7].parse::<u32>().unwrap_or(0))
-        && (1..=31).contains(&night[8..10].parse::<u32>().unwrap_or(0));
-    if !ok {
-        bail!("night `{night}`: expected a date YYYY-MM-DD, e.g. 2026-11-25");
-    }
-    Ok(())
-}
+pub use crate::outcome::check_night;
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]

@@ -1,7 +1,27 @@
 //! What a batch reports: progress callbacks, each run's result, the
 //! failures (file, column, row and what to do) and the fleet's outcome.
+//! Data only, below the engine that fills it and the reports that show it.
 
-use super::*;
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+use crate::contracts::RunSpec;
+use crate::error::InputError;
+
+/// What one stage left on disk for one run (the per-run cache file records
+/// these; manifest.json repeats them).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct StageRecord {
+    pub stage: String,
+    pub version: u32,
+    pub key: String,
+    /// Output file name → blake3 of its bytes.
+    pub files: BTreeMap<String, String>,
+    #[serde(default)]
+    pub cached: bool,
+}
 
 /// Receives progress from a long batch (the CLI draws a bar or logs lines).
 pub trait Progress: Sync {
@@ -28,7 +48,7 @@ pub struct Failure {
 }
 
 impl Failure {
-    pub(super) fn from_error(
+    pub(crate) fn from_error(
         run_dir: &Path,
         spec: Option<&RunSpec>,
         stage: Option<&str>,
@@ -116,7 +136,7 @@ impl Night {
             .iter()
             .filter_map(|r| RunSpec::load(Path::new(&r.run_dir)).ok()?.started)
             .filter_map(|s| s.get(..10).map(str::to_string))
-            .filter(|d| report::trend::check_night(d).is_ok())
+            .filter(|d| check_night(d).is_ok())
             .collect();
         let (first, last) = (days.first().cloned(), days.last().cloned());
         Night {
@@ -127,9 +147,26 @@ impl Night {
     }
 }
 
+/// `YYYY-MM-DD`, checked.
+pub fn check_night(night: &str) -> crate::error::Result<()> {
+    let b = night.as_bytes();
+    let ok = b.len() == 10
+        && b[4] == b'-'
+        && b[7] == b'-'
+        && b.iter()
+            .enumerate()
+            .all(|(i, c)| i == 4 || i == 7 || c.is_ascii_digit())
+        && (1..=12).contains(&night[5..7].parse::<u32>().unwrap_or(0))
+        && (1..=31).contains(&night[8..10].parse::<u32>().unwrap_or(0));
+    if !ok {
+        anyhow::bail!("night `{night}`: expected a date YYYY-MM-DD, e.g. 2026-11-25");
+    }
+    Ok(())
+}
+
 impl FleetOutcome {
     /// Before the fleet steps; failures in run-directory order.
-    pub(super) fn new(
+    pub(crate) fn new(
         out: &Path,
         runs: Vec<RunResult>,
         mut failures: Vec<Failure>,
