@@ -167,6 +167,42 @@ fn both_pages_open_with_the_nights_date_and_the_wear_alert() {
         std::fs::read(again.join("fleet/report.html")).unwrap(),
         fleet.as_bytes()
     );
+    rendered_first_screens(d.path(), &out);
+}
+
+/// In headless Chromium at 1 400 × 900: the first screen of the index and
+/// of the fleet page shows the night's date and the top alert; those pages
+/// and the trend page do not overflow horizontally and print to PDF.
+fn rendered_first_screens(dir: &Path, out: &Path) {
+    use super::reports::{print_pdf, probe, CHROMIUM};
+    if !Path::new(CHROMIUM).exists() {
+        eprintln!("SKIPPED news::rendered_first_screens: {CHROMIUM} not installed (apt-get install -y chromium)");
+        return;
+    }
+    let profile = dir.join("chromium-profile");
+    for (page, first) in [
+        ("index.html", true),
+        ("fleet/report.html", true),
+        ("trend/trend.html", false),
+    ] {
+        let path = out.join(page);
+        let seen = probe(&path, &profile);
+        assert_eq!(seen.overflow, 0, "{page} overflows: {}", seen.which);
+        if first {
+            for want in ["2026-11-03", "wheel_wear", "profile_error", "nm/mm³"] {
+                assert!(
+                    seen.first_screen.contains(want),
+                    "{page}: `{want}` is not in the first 900 px: {}",
+                    seen.first_screen
+                );
+            }
+        }
+        let pdf = dir.join(format!("{}.pdf", page.replace('/', "_")));
+        assert!(
+            print_pdf(&path, &pdf, &profile) >= 1,
+            "{page} prints no page"
+        );
+    }
 }
 
 /// The demo (no history): dated from its runs, never "today".

@@ -9,7 +9,7 @@ use std::process::Command;
 
 use super::common::sparkout;
 
-const CHROMIUM: &str = "/usr/bin/chromium";
+pub(crate) const CHROMIUM: &str = "/usr/bin/chromium";
 const MAX_PAGE_BYTES: u64 = 2 << 20;
 /// The demo's fleet page budget (docs/reports.md "Page weight").
 const FLEET_PAGE_BUDGET: u64 = 400_000;
@@ -398,22 +398,22 @@ fn demo_pages_are_linked_self_contained_and_answer_per_observable() {
 }
 
 /// What headless Chromium saw on a page at 1 400 × 900.
-struct Probe {
+pub(crate) struct Probe {
     /// Elements wider than the viewport (outside any scrolling box and
     /// inside no SVG): the page overflows horizontally.
-    overflow: usize,
+    pub(crate) overflow: usize,
     /// Elements visible in the first screen.
-    visible: usize,
+    pub(crate) visible: usize,
     /// The first few overflowing elements, for the message.
-    which: String,
+    pub(crate) which: String,
     /// The text of the first screen (text nodes whose box starts above
     /// 900 px), whitespace collapsed.
-    first_screen: String,
+    pub(crate) first_screen: String,
 }
 
 /// Headless Chromium on a copy of `page` with a script that measures it
 /// and writes the result into the DOM, which `--dump-dom` prints.
-fn probe(page: &Path, profile: &Path) -> Probe {
+pub(crate) fn probe(page: &Path, profile: &Path) -> Probe {
     let script = r#"<script>(function(){var w=document.documentElement.clientWidth,n=0,bad=[];
 document.querySelectorAll('body *').forEach(function(e){if(e.ownerSVGElement)return;
 var r=e.getBoundingClientRect();if(r.width===0||r.right<=w+1)return;
@@ -466,7 +466,7 @@ document.body.appendChild(d);})();</script></body>"#;
 
 /// Prints `page` to PDF as the browser's print does (A4 by the page's
 /// print style sheet); the number of pages.
-fn print_pdf(page: &Path, pdf: &Path, profile: &Path) -> usize {
+pub(crate) fn print_pdf(page: &Path, pdf: &Path, profile: &Path) -> usize {
     let o = chromium(profile)
         .arg("--no-pdf-header-footer")
         .arg(format!("--print-to-pdf={}", pdf.display()))

@@ -22,7 +22,7 @@ use std::fmt::Write;
 use crate::traits::{ReportSection, Run};
 
 /// Bump when the report layout changes (cache key of report steps).
-pub const REPORT_VERSION: u32 = 9;
+pub const REPORT_VERSION: u32 = 10;
 
 pub use crate::html::esc;
 
@@ -80,7 +80,7 @@ svg.chart{display:block;max-width:100%;height:auto;margin:.4em 0}.figs{display:f
 .verdict{background:#f4f8ff;border-left:4px solid #2a6ebb;padding:.4em .7em}.check{color:#a60}nav{margin-bottom:1em}a{color:#1a5fb4}\
 details{margin:.5em 0}summary{cursor:pointer;color:#1a5fb4}ul.files{columns:3 16em}\
 @media print{@page{size:A4;margin:12mm}body{max-width:none;margin:0;padding:0;font-size:10pt}nav{display:none}\
-h2,h3,h4{break-after:avoid}svg.chart,table,.verdict,.warn{break-inside:avoid}.figs{display:block}.figs svg.chart{max-width:100%}\
+h2,h3,h4{break-after:avoid}h2~h2{break-before:page}svg.chart,table,.verdict,.warn{break-inside:avoid}.figs{display:block}.figs svg.chart{max-width:100%}\
 details>summary{color:#222}a{color:#222;text-decoration:none}}";
 
 /// A self-contained HTML page: inline style, no script, no network.
