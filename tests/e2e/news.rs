@@ -9,17 +9,7 @@
 
 use std::path::{Path, PathBuf};
 
-use super::common::sparkout;
-
-fn ok(o: std::process::Output) -> String {
-    let text = format!(
-        "{}{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    );
-    assert!(o.status.success(), "{text}");
-    text
-}
+use super::common::{ok, sparkout};
 
 fn s(p: &Path) -> &str {
     p.to_str().unwrap()

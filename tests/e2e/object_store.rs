@@ -16,6 +16,8 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
+use super::common::ok;
+
 /// The artifacts compared between the local and the object-store batch
 /// (manifest.json differs by design: a remote input's cache key is its
 /// ETag, not its bytes).
@@ -112,16 +114,6 @@ fn sparkout_s3(port: u16, args: &[&str]) -> Output {
         .env("SPARKOUT_STREAM_MIN_BYTES", "0")
         .output()
         .expect("run sparkout")
-}
-
-fn ok(o: Output) -> String {
-    let text = format!(
-        "{}{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    );
-    assert!(o.status.success(), "{text}");
-    text
 }
 
 fn s(p: &Path) -> &str {

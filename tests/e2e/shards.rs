@@ -5,7 +5,7 @@
 use std::path::{Path, PathBuf};
 use std::process::Output;
 
-use super::common::sparkout;
+use super::common::{ok, sparkout};
 
 const FLEET_OUTPUTS: [&str; 7] = [
     "fleet/observations.parquet",
@@ -16,16 +16,6 @@ const FLEET_OUTPUTS: [&str; 7] = [
     "failures.json",
     "manifest.json",
 ];
-
-fn ok(o: Output) -> String {
-    let text = format!(
-        "{}{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    );
-    assert!(o.status.success(), "{text}");
-    text
-}
 
 /// Two machine types, so the partition and the join cross plugins.
 fn fleet(dir: &Path) -> PathBuf {

@@ -7,17 +7,7 @@
 
 use std::path::Path;
 
-use super::common::sparkout;
-
-fn ok(o: std::process::Output) -> String {
-    let text = format!(
-        "{}{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    );
-    assert!(o.status.success(), "{text}");
-    text
-}
+use super::common::{ok, sparkout};
 
 /// One night: a generated observations table whose wear rate is `k`,
 /// diagnosed and appended to `history`.
