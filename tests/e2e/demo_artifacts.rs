@@ -139,6 +139,28 @@ fn demo_artifacts_hold_no_non_finite_number() {
         "non-finite numbers in demo artifacts:\n{}",
         problems.join("\n")
     );
+    // diagnosis.json reads back through the serde type that wrote it into
+    // the same JSON: no field the type does not know, none it would drop
+    // or rename. (Compared as parsed JSON: serde_json's default float
+    // parser may land one ulp off a printed shortest float, the same way on
+    // both sides.)
+    let path = tmp.path().join("out/fleet/diagnosis.json");
+    let bytes = std::fs::read(&path).expect("fleet/diagnosis.json");
+    let typed: sparkout_pipeline::diagnose::Diagnosis =
+        serde_json::from_slice(&bytes).expect("diagnosis.json reads as its serde type");
+    let file: serde_json::Value = serde_json::from_slice(&bytes).unwrap();
+    let back = serde_json::to_value(&typed).unwrap();
+    if let Some(k) = file
+        .as_object()
+        .unwrap()
+        .iter()
+        .find(|(k, v)| back.get(k.as_str()) != Some(v))
+        .map(|(k, _)| k)
+    {
+        panic!("diagnosis.json `{k}` does not round-trip through its type");
+    }
+    assert_eq!(file, back);
+    assert!(!typed.per_observable.is_empty());
 }
 
 #[test]

@@ -19,11 +19,11 @@ use nalgebra::DMatrix;
 use serde::Serialize;
 
 /// A covariate of a selected effect that moves with others within runs.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, serde::Deserialize)]
 pub struct Collinearity {
     pub covariate: String,
     /// Covariates with |within-run r| ≥ `collinear_r`, and r.
-    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub moves_with: BTreeMap<String, f64>,
     /// Within-run variance inflation factor against every other covariate
     /// (1e6 when it is a linear combination of them).
@@ -34,7 +34,7 @@ pub struct Collinearity {
     /// whose covariates are among those it moves with: the collinearity is
     /// why they cannot be told apart. Printed only when not empty — a
     /// collinearity that the held-out scores see through is no news.
-    #[serde(skip_serializing_if = "Vec::is_empty")]
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub confounds: Vec<String>,
 }
 

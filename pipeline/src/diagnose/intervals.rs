@@ -37,7 +37,7 @@ use super::effect::Effect;
 use super::select::{params_of, CandEval, CandFit, Problem};
 
 /// A parameter's uncertainty (diagnosis.json `effects[].intervals`).
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, serde::Deserialize)]
 pub struct ParamInterval {
     pub se: f64,
     /// 95 % interval.
@@ -46,7 +46,7 @@ pub struct ParamInterval {
     /// Where the standard error came from: "pooled", "runs" or "folds".
     pub from: String,
     /// The check: the jackknife spread over the CV folds' fits.
-    #[serde(skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub se_folds: Option<f64>,
 }
 

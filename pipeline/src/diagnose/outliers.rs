@@ -29,7 +29,7 @@ pub const K_SIGMA: f64 = 6.0;
 pub const MAX_SHARE: f64 = 0.05;
 
 /// diagnosis.json `per_observable[].outliers`.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, serde::Deserialize)]
 pub struct OutlierReport {
     pub n: usize,
     pub share: f64,

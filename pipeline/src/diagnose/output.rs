@@ -7,7 +7,7 @@ use std::sync::Arc;
 
 use arrow::array::{ArrayRef, Float64Array, RecordBatch};
 use arrow::datatypes::{DataType, Field, Schema};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use super::collinear::Collinearity;
 use super::effect::Effect;
@@ -27,7 +27,7 @@ fn fin(x: f64) -> Option<f64> {
 }
 
 /// diagnosis.json `gap`.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct GapSummary {
     pub rms_mm: f64,
     pub max_abs_mm: f64,
@@ -37,7 +37,7 @@ pub struct GapSummary {
 
 /// A cell of `where` / `unexplained.where`. `lo`/`hi` are numbers for a
 /// 1-D cell and `[x, y]` arrays for an x/y tile (docs/formats.md).
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct WhereCell {
     pub covariate: String,
     pub lo: serde_json::Value,
@@ -50,14 +50,14 @@ pub struct WhereCell {
     pub n: usize,
     /// Only in `unexplained.where`: the cell's gap RMS before the selection
     /// and 1 − after/before.
-    #[serde(skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub rms_before_mm: Option<f64>,
-    #[serde(skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub shrink: Option<f64>,
 }
 
 /// An entry of `effects`.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct EffectEntry {
     pub name: String,
     pub covariate: Option<String>,
@@ -84,13 +84,13 @@ pub struct EffectEntry {
     pub gap_share: Option<f64>,
     /// Passed the held-out test but is not stable or material enough to
     /// be selected: listed with its figures as "minor".
-    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub minor: bool,
     /// Selected effects: candidates of the same round whose held-out error
     /// is statistically indistinguishable from this one's (95 % paired
     /// interval over held-out units containing zero) — on these runs, the
     /// gap is explained as well by any of them.
-    #[serde(skip_serializing_if = "Vec::is_empty")]
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub indistinguishable_from: Vec<String>,
     /// Selection round the score belongs to (1 = against the raw gap).
     pub step: usize,
@@ -98,18 +98,18 @@ pub struct EffectEntry {
     /// The effect fitted on each machine's runs alone, present when the
     /// machines of this observable disagree significantly
     /// (`machines.rs`): the pooled `params` are then a compromise.
-    #[serde(skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub per_machine: Option<Vec<MachineFit>>,
     /// p-value of "one effect for all machines" against "one per machine".
-    #[serde(skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub machines_differ_p: Option<f64>,
     /// Selected effects: standard error and 95 % interval of every
     /// parameter and of `offset_mm` (intervals.rs).
-    #[serde(skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub intervals: Option<BTreeMap<String, ParamInterval>>,
     /// Selected effects: 95 % bootstrap interval of `shrink` over held-out
     /// runs.
-    #[serde(skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub shrink_interval: Option<[f64; 2]>,
     /// The unit of the observable's gap (`mm`, `mm/s`): the unit of the
     /// amplitudes and offset, the numerator of a coefficient.
@@ -216,7 +216,7 @@ pub fn with_rivals(key: &str, rivals: &[String]) -> String {
 }
 
 /// One machine's fit of a selected effect (`EffectEntry::per_machine`).
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct MachineFit {
     pub machine: String,
     pub n: usize,
@@ -225,7 +225,7 @@ pub struct MachineFit {
     pub offset_mm: Option<f64>,
 }
 
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Unexplained {
     pub rms_mm: f64,
     pub share: f64,
@@ -233,7 +233,7 @@ pub struct Unexplained {
     pub where_: Vec<WhereCell>,
 }
 
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct CvInfo {
     pub folds: usize,
     /// "run" (a run = one (machine, run) pair) or "blocked_within_run".
@@ -243,7 +243,7 @@ pub struct CvInfo {
 }
 
 /// Per-observable summary (extra to v1).
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct ObservableSummary {
     pub observable: String,
     /// Unit of this observable's gap, RMS and noise-floor numbers (the
@@ -255,7 +255,7 @@ pub struct ObservableSummary {
     pub runs: usize,
     /// Machines whose rows carry this observable (empty without a
     /// `machine` column).
-    #[serde(skip_serializing_if = "Vec::is_empty")]
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub machines: Vec<String>,
     pub rms_mm: f64,
     pub noise_floor_mm: f64,
@@ -265,35 +265,35 @@ pub struct ObservableSummary {
     pub selected: Vec<String>,
     /// Effects that passed the held-out test but not the stability or
     /// materiality threshold (their figures are in `effects`).
-    #[serde(skip_serializing_if = "Vec::is_empty")]
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub minor: Vec<String>,
     /// Covariates of selected effects that move with others within runs,
     /// with advice (collinear.rs).
-    #[serde(skip_serializing_if = "Vec::is_empty")]
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub collinear: Vec<Collinearity>,
     pub cv_rms_before_mm: f64,
     pub cv_rms_after_mm: f64,
     pub shrink: f64,
     /// 95 % bootstrap interval of `shrink` over held-out runs.
-    #[serde(skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub shrink_interval: Option<[f64; 2]>,
     /// With outliers trimmed: `shrink` and the CV RMS
     /// are over the kept rows (robust); this is over every row.
-    #[serde(skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub shrink_plain: Option<f64>,
-    #[serde(skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub outliers: Option<OutlierReport>,
     pub stop_reason: String,
 }
 
 /// diagnosis.json v1 (every contract field) plus extras.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Diagnosis {
     pub version: u32,
     pub observables: Vec<String>,
     /// Machine ids of the table (empty without a `machine`
     /// column — a v1 table).
-    #[serde(skip_serializing_if = "Vec::is_empty")]
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub machines: Vec<String>,
     pub gap: GapSummary,
     #[serde(rename = "where")]
@@ -309,12 +309,12 @@ pub struct Diagnosis {
     /// Effects named on one machine's rows alone, where a `where` cell over
     /// `machine` localised the gap to that machine (13
     /// item 6): the fleet-wide fit dilutes an effect only one machine has.
-    #[serde(skip_serializing_if = "Vec::is_empty")]
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub machine_effects: Vec<MachineEffect>,
 }
 
 /// An effect selected by diagnosing one machine's rows of one observable.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct MachineEffect {
     pub machine: String,
     pub observable: String,
@@ -324,10 +324,10 @@ pub struct MachineEffect {
     /// As `EffectEntry::param_units`: the canonical unit of each parameter
     /// and of the offset.
     pub param_units: BTreeMap<String, String>,
-    #[serde(skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub intervals: Option<BTreeMap<String, ParamInterval>>,
     pub shrink: Option<f64>,
-    #[serde(skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub shrink_interval: Option<[f64; 2]>,
     /// Runs of that machine the effect was fitted and held out on.
     pub runs: usize,

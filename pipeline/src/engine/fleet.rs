@@ -242,7 +242,8 @@ impl Engine {
                 ("diagnosis_section.html", d.report_html.as_bytes()),
             ],
         )?;
-        Ok((serde_json::to_value(&d.diagnosis).ok(), Some(d.report_html)))
+        let value = serde_json::to_value(&d.diagnosis).context("diagnosis.json as JSON")?;
+        Ok((Some(value), Some(d.report_html)))
     }
 
     /// The augmented simulator: written before the
