@@ -235,85 +235,67 @@ pub fn print_outcome(o: &FleetOutcome) {
     }
     if let Some(d) = &o.diagnosis {
         println!("diagnosis: {}", d.display());
-        if let Ok(bytes) = std::fs::read(d) {
-            if let Ok(v) = serde_json::from_slice::<serde_json::Value>(&bytes) {
-                let sel: Vec<&str> = v
-                    .get("selected")
-                    .and_then(|s| s.as_array())
-                    .map(|a| a.iter().filter_map(|x| x.as_str()).collect())
-                    .unwrap_or_default();
-                let before = v.pointer("/gap/rms_mm").and_then(|x| x.as_f64());
-                let after = v.pointer("/unexplained/rms_mm").and_then(|x| x.as_f64());
-                let noise = v.pointer("/gap/noise_floor_mm").and_then(|x| x.as_f64());
-                let n_obs = v
-                    .get("observables")
-                    .and_then(|o| o.as_array())
-                    .map_or(0, |o| o.len());
-                let named = if sel.is_empty() {
-                    "no effect selected".to_string()
-                } else {
-                    sel.join(", ")
-                };
-                if n_obs > 1 {
-                    // Pooled RMS over observables of different scales says
-                    // nothing; the per-observable lines below do.
-                    println!("  effects named (most signal explained first): {named}");
-                } else if let (Some(b), Some(a), Some(n)) = (before, after, noise) {
-                    let unit = v
-                        .pointer("/per_observable/0/unit")
-                        .and_then(|u| u.as_str())
-                        .unwrap_or("mm");
-                    let [b, n, a] = <[String; 3]>::try_from(show_group(&[b, n, a], unit))
-                        .expect("three figures");
-                    println!("  gap RMS {b} (noise floor {n}) → held-out {a} after: {named}");
-                }
-                // Per observable: each has its own noise floor and effects,
-                // and a small observable's shrink is invisible in the total.
-                for o in sparkout_pipeline::report::observable_summaries(&v) {
-                    let [b, n, a] = <[String; 3]>::try_from(show_group(
-                        &[o.rms_mm, o.noise_floor_mm, o.after_mm],
-                        &o.unit,
-                    ))
-                    .expect("three figures");
-                    println!(
-                        "  {}: gap RMS {b} (noise {n}) → held-out {a}, {:.0} % shrink; {}",
-                        o.observable,
-                        100.0 * o.shrink,
-                        o.explained_by
-                    );
-                }
-                // Effects only one machine has (diagnosis.json machine_effects).
-                for e in v["machine_effects"].as_array().into_iter().flatten() {
-                    let cov = e["effect"]
-                        .as_str()
-                        .and_then(|k| k.split_once(':'))
-                        .map(|k| k.1);
-                    let gap_unit = v["per_observable"]
-                        .as_array()
-                        .into_iter()
-                        .flatten()
-                        .find(|o| o["observable"] == e["observable"])
-                        .and_then(|o| o["unit"].as_str())
-                        .unwrap_or("mm");
-                    let params: Vec<String> = e["params"]
-                        .as_object()
-                        .into_iter()
-                        .flatten()
-                        .map(|(k, p)| {
-                            let v = p.as_f64().unwrap_or(f64::NAN);
-                            show_param(k, v, None, &param_unit(k, cov, gap_unit))
-                        })
-                        .collect();
-                    println!(
-                        "  {} on machine {} only: {} ({}), held-out shrink {:.0} % over its {} runs",
-                        e["observable"].as_str().unwrap_or("?"),
-                        e["machine"].as_str().unwrap_or("?"),
-                        e["effect"].as_str().unwrap_or("?"),
-                        params.join(", "),
-                        100.0 * e["shrink"].as_f64().unwrap_or(f64::NAN),
-                        e["runs"]
-                    );
-                }
+        if let Some((v, diag)) = read_diagnosis(d) {
+            let named = if diag.selected.is_empty() {
+                "no effect selected".to_string()
+            } else {
+                diag.selected.join(", ")
+            };
+            if diag.observables.len() > 1 {
+                // Pooled RMS over observables of different scales says
+                // nothing; the per-observable lines below do.
+                println!("  effects named (most signal explained first): {named}");
+            } else {
+                let unit = diag
+                    .per_observable
+                    .first()
+                    .map_or("mm", |o| o.unit.as_str());
+                let figures = [
+                    diag.gap.rms_mm,
+                    diag.gap.noise_floor_mm,
+                    diag.unexplained.rms_mm,
+                ];
+                let [b, n, a] =
+                    <[String; 3]>::try_from(show_group(&figures, unit)).expect("three figures");
+                println!("  gap RMS {b} (noise floor {n}) → held-out {a} after: {named}");
+            }
+            // Per observable: each has its own noise floor and effects,
+            // and a small observable's shrink is invisible in the total.
+            for o in sparkout_pipeline::report::observable_summaries(&v) {
+                let [b, n, a] = <[String; 3]>::try_from(show_group(
+                    &[o.rms_mm, o.noise_floor_mm, o.after_mm],
+                    &o.unit,
+                ))
+                .expect("three figures");
+                println!(
+                    "  {}: gap RMS {b} (noise {n}) → held-out {a}, {:.0} % shrink; {}",
+                    o.observable,
+                    100.0 * o.shrink,
+                    o.explained_by
+                );
+            }
+            // Effects only one machine has (diagnosis.json machine_effects).
+            for e in &diag.machine_effects {
+                let cov = e.effect.split_once(':').map(|k| k.1);
+                let gap_unit = diag
+                    .per_observable
+                    .iter()
+                    .find(|o| o.observable == e.observable)
+                    .map_or("mm", |o| o.unit.as_str());
+                let params: Vec<String> = e
+                    .params
+                    .iter()
+                    .map(|(k, v)| show_param(k, *v, None, &param_unit(k, cov, gap_unit)))
+                    .collect();
+                println!(
+                    "  {} on machine {} only: {} ({}), held-out shrink {:.0} % over its {} runs",
+                    e.observable,
+                    e.machine,
+                    e.effect,
+                    params.join(", "),
+                    100.0 * e.shrink.unwrap_or(f64::NAN),
+                    e.runs
+                );
             }
         }
     }
@@ -324,5 +306,25 @@ pub fn print_outcome(o: &FleetOutcome) {
     if o.report.is_some() {
         println!("failures: {}", o.out_dir.join("failures.json").display());
         println!("manifest: {}", o.out_dir.join("manifest.json").display());
+    }
+}
+
+/// diagnosis.json as its serde type (and as JSON for the per-observable
+/// summaries); a file that does not read is said so, not skipped silently.
+fn read_diagnosis(
+    path: &Path,
+) -> Option<(serde_json::Value, sparkout_pipeline::diagnose::Diagnosis)> {
+    let read = || -> anyhow::Result<_> {
+        let bytes = std::fs::read(path)?;
+        let v: serde_json::Value = serde_json::from_slice(&bytes)?;
+        let d = serde_json::from_value(v.clone())?;
+        Ok((v, d))
+    };
+    match read() {
+        Ok(r) => Some(r),
+        Err(e) => {
+            eprintln!("  (cannot summarise {}: {e})", path.display());
+            None
+        }
     }
 }

@@ -26,11 +26,20 @@ fn fin(x: f64) -> Option<f64> {
     x.is_finite().then_some(x)
 }
 
+/// A number as diagnosis.json holds it: serde_json writes a non-finite f64
+/// as `null`, which reads back as NaN (not an error).
+pub(crate) fn f64_or_nan<'de, D: serde::Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+    Ok(<Option<f64> as serde::Deserialize>::deserialize(d)?.unwrap_or(f64::NAN))
+}
+
 /// diagnosis.json `gap`.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct GapSummary {
+    #[serde(deserialize_with = "crate::diagnose::output::f64_or_nan")]
     pub rms_mm: f64,
+    #[serde(deserialize_with = "crate::diagnose::output::f64_or_nan")]
     pub max_abs_mm: f64,
+    #[serde(deserialize_with = "crate::diagnose::output::f64_or_nan")]
     pub noise_floor_mm: f64,
     pub n: usize,
 }
@@ -43,9 +52,12 @@ pub struct WhereCell {
     pub lo: serde_json::Value,
     pub hi: serde_json::Value,
     pub observable: String,
+    #[serde(deserialize_with = "crate::diagnose::output::f64_or_nan")]
     pub share: f64,
+    #[serde(deserialize_with = "crate::diagnose::output::f64_or_nan")]
     pub rms_mm: f64,
     /// Bonferroni-adjusted over all cells of all observables.
+    #[serde(deserialize_with = "crate::diagnose::output::f64_or_nan")]
     pub p_value: f64,
     pub n: usize,
     /// Only in `unexplained.where`: the cell's gap RMS before the selection
@@ -227,7 +239,9 @@ pub struct MachineFit {
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Unexplained {
+    #[serde(deserialize_with = "crate::diagnose::output::f64_or_nan")]
     pub rms_mm: f64,
+    #[serde(deserialize_with = "crate::diagnose::output::f64_or_nan")]
     pub share: f64,
     #[serde(rename = "where")]
     pub where_: Vec<WhereCell>,
@@ -257,10 +271,13 @@ pub struct ObservableSummary {
     /// `machine` column).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub machines: Vec<String>,
+    #[serde(deserialize_with = "crate::diagnose::output::f64_or_nan")]
     pub rms_mm: f64,
+    #[serde(deserialize_with = "crate::diagnose::output::f64_or_nan")]
     pub noise_floor_mm: f64,
     pub noise_floor_source: String,
     pub gap_above_noise: bool,
+    #[serde(deserialize_with = "crate::diagnose::output::f64_or_nan")]
     pub p_value: f64,
     pub selected: Vec<String>,
     /// Effects that passed the held-out test but not the stability or
@@ -271,8 +288,11 @@ pub struct ObservableSummary {
     /// with advice (collinear.rs).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub collinear: Vec<Collinearity>,
+    #[serde(deserialize_with = "crate::diagnose::output::f64_or_nan")]
     pub cv_rms_before_mm: f64,
+    #[serde(deserialize_with = "crate::diagnose::output::f64_or_nan")]
     pub cv_rms_after_mm: f64,
+    #[serde(deserialize_with = "crate::diagnose::output::f64_or_nan")]
     pub shrink: f64,
     /// 95 % bootstrap interval of `shrink` over held-out runs.
     #[serde(default, skip_serializing_if = "Option::is_none")]

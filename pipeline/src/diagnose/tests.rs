@@ -365,3 +365,16 @@ fn periodic_grid_features_rotate_to_the_direct_ones() {
     let uneven: Vec<f64> = tr.grid.iter().map(|t| t * t).collect();
     assert_eq!(check_grid(&uneven[..40]), 0.0);
 }
+
+/// A non-finite figure is written as `null` and reads back as NaN.
+#[test]
+fn a_null_figure_in_diagnosis_json_reads_as_nan() {
+    let g: super::GapSummary = serde_json::from_str(
+        r#"{"rms_mm": null, "max_abs_mm": 1.5, "noise_floor_mm": 0.25, "n": 3}"#,
+    )
+    .unwrap();
+    assert!(g.rms_mm.is_nan());
+    assert_eq!((g.max_abs_mm, g.noise_floor_mm, g.n), (1.5, 0.25, 3));
+    let back = serde_json::to_value(&g).unwrap();
+    assert!(back["rms_mm"].is_null());
+}
