@@ -235,7 +235,7 @@ pub fn print_outcome(o: &FleetOutcome) {
     }
     if let Some(d) = &o.diagnosis {
         println!("diagnosis: {}", d.display());
-        if let Some((v, diag)) = read_diagnosis(d) {
+        if let Some(diag) = read_diagnosis(d) {
             let named = if diag.selected.is_empty() {
                 "no effect selected".to_string()
             } else {
@@ -261,7 +261,7 @@ pub fn print_outcome(o: &FleetOutcome) {
             }
             // Per observable: each has its own noise floor and effects,
             // and a small observable's shrink is invisible in the total.
-            for o in sparkout_pipeline::report::observable_summaries(&v) {
+            for o in sparkout_pipeline::report::observable_summaries(&diag) {
                 let [b, n, a] = <[String; 3]>::try_from(show_group(
                     &[o.rms_mm, o.noise_floor_mm, o.after_mm],
                     &o.unit,
@@ -309,17 +309,10 @@ pub fn print_outcome(o: &FleetOutcome) {
     }
 }
 
-/// diagnosis.json as its serde type (and as JSON for the per-observable
-/// summaries); a file that does not read is said so, not skipped silently.
-fn read_diagnosis(
-    path: &Path,
-) -> Option<(serde_json::Value, sparkout_pipeline::diagnose::Diagnosis)> {
-    let read = || -> anyhow::Result<_> {
-        let bytes = std::fs::read(path)?;
-        let v: serde_json::Value = serde_json::from_slice(&bytes)?;
-        let d = serde_json::from_value(v.clone())?;
-        Ok((v, d))
-    };
+/// diagnosis.json as its serde type; a file that does not read is said
+/// so, not skipped silently.
+fn read_diagnosis(path: &Path) -> Option<sparkout_pipeline::diagnose::Diagnosis> {
+    let read = || -> anyhow::Result<_> { Ok(serde_json::from_slice(&std::fs::read(path)?)?) };
     match read() {
         Ok(r) => Some(r),
         Err(e) => {

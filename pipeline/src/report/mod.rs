@@ -19,6 +19,7 @@ pub use verdict::{verdict_box, Status, Verdict};
 use std::collections::BTreeMap;
 use std::fmt::Write;
 
+use crate::diagnose::Diagnosis;
 use crate::traits::{ReportSection, Run};
 
 /// Bump when the report layout changes (cache key of report steps).
@@ -198,102 +199,49 @@ pub struct ObservableSummary {
 /// selected effects, each with the rivals it cannot be told from on these
 /// runs; the minor effects; the covariates that move together, with what
 /// to change.
-fn explained_by(diagnosis: &serde_json::Value, o: &serde_json::Value, sel: &[&str]) -> String {
-    let name = o.get("observable").and_then(|x| x.as_str()).unwrap_or("?");
-    let strs = |v: Option<&serde_json::Value>| -> Vec<String> {
-        v.and_then(|a| a.as_array())
-            .map(|a| {
-                a.iter()
-                    .filter_map(|x| x.as_str().map(String::from))
-                    .collect()
-            })
-            .unwrap_or_default()
-    };
-    let mut text = if sel.is_empty() {
-        o.get("stop_reason")
-            .and_then(|x| x.as_str())
-            .unwrap_or("no effect selected")
-            .to_string()
+fn explained_by(diagnosis: &Diagnosis, o: &crate::diagnose::ObservableSummary) -> String {
+    let mut text = if o.selected.is_empty() {
+        o.stop_reason.clone()
     } else {
-        let effects = diagnosis.get("effects").and_then(|e| e.as_array());
-        let keys = sel
+        let keys = o
+            .selected
             .iter()
             .map(|k| {
-                let rivals = effects
-                    .into_iter()
-                    .flatten()
-                    .find(|e| {
-                        e.get("observable").and_then(|x| x.as_str()) == Some(name)
-                            && e.get("selected").and_then(|x| x.as_bool()) == Some(true)
-                            && effect_key(e) == *k
-                    })
-                    .map(|e| strs(e.get("indistinguishable_from")))
+                let rivals = diagnosis
+                    .effects
+                    .iter()
+                    .find(|e| e.observable == o.observable && e.selected && e.key() == *k)
+                    .map(|e| e.indistinguishable_from.as_slice())
                     .unwrap_or_default();
-                crate::diagnose::output::with_rivals(k, &rivals)
+                crate::diagnose::output::with_rivals(k, rivals)
             })
             .collect::<Vec<_>>()
             .join(", ");
         format!("explained by {keys}")
     };
-    let minor = strs(o.get("minor"));
-    if !minor.is_empty() {
-        text.push_str(&format!("; minor (not selected): {}", minor.join(", ")));
+    if !o.minor.is_empty() {
+        text.push_str(&format!("; minor (not selected): {}", o.minor.join(", ")));
     }
-    for c in o
-        .get("collinear")
-        .and_then(|c| c.as_array())
-        .into_iter()
-        .flatten()
-    {
-        // News only where it is why rivals cannot be told apart.
-        if c.get("confounds").is_none() {
-            continue;
-        }
-        if let Some(a) = c.get("advice").and_then(|x| x.as_str()) {
-            text.push_str(&format!(". Note: {a}"));
-        }
+    // News only where it is why rivals cannot be told apart.
+    for c in o.collinear.iter().filter(|c| !c.confounds.is_empty()) {
+        text.push_str(&format!(". Note: {}", c.advice));
     }
     text
 }
 
-/// `name:covariate` (or `name`) of a diagnosis.json `effects` entry.
-fn effect_key(e: &serde_json::Value) -> String {
-    let name = e.get("name").and_then(|x| x.as_str()).unwrap_or("");
-    match e.get("covariate").and_then(|x| x.as_str()) {
-        Some(c) => format!("{name}:{c}"),
-        None => name.to_string(),
-    }
-}
-
 /// The `per_observable` entries of a diagnosis.json.
-pub fn observable_summaries(diagnosis: &serde_json::Value) -> Vec<ObservableSummary> {
-    let per = diagnosis.get("per_observable").and_then(|p| p.as_array());
-    per.into_iter()
-        .flatten()
-        .map(|o| {
-            let f = |k: &str| o.get(k).and_then(|x| x.as_f64()).unwrap_or(f64::NAN);
-            let sel: Vec<&str> = o
-                .get("selected")
-                .and_then(|s| s.as_array())
-                .map(|a| a.iter().filter_map(|x| x.as_str()).collect())
-                .unwrap_or_default();
-            ObservableSummary {
-                observable: o
-                    .get("observable")
-                    .and_then(|x| x.as_str())
-                    .unwrap_or("?")
-                    .to_string(),
-                unit: o
-                    .get("unit")
-                    .and_then(|x| x.as_str())
-                    .unwrap_or("mm")
-                    .to_string(),
-                rms_mm: f("rms_mm"),
-                noise_floor_mm: f("noise_floor_mm"),
-                explained_by: explained_by(diagnosis, o, &sel),
-                after_mm: f("cv_rms_after_mm"),
-                shrink: f("shrink"),
-            }
+pub fn observable_summaries(diagnosis: &Diagnosis) -> Vec<ObservableSummary> {
+    diagnosis
+        .per_observable
+        .iter()
+        .map(|o| ObservableSummary {
+            observable: o.observable.clone(),
+            unit: o.unit.clone(),
+            rms_mm: o.rms_mm,
+            noise_floor_mm: o.noise_floor_mm,
+            explained_by: explained_by(diagnosis, o),
+            after_mm: o.cv_rms_after_mm,
+            shrink: o.shrink,
         })
         .collect()
 }
