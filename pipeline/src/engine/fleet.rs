@@ -79,7 +79,7 @@ impl Engine {
             .map(|l| l.iter().any(|s| s == "diagnose" || s == "observe"))
             .unwrap_or(true);
         let has_observations = outcome.runs.iter().any(|r| r.observations.is_some());
-        let mut diagnosis: (Option<serde_json::Value>, Option<String>) = (None, None);
+        let mut diagnosis: (Option<diagnose::Diagnosis>, Option<String>) = (None, None);
         if want_diagnose && has_observations {
             let (okey, joined) =
                 self.fleet_observations(&mut cache, &fleet_dir, outcome, progress)?;
@@ -173,7 +173,7 @@ impl Engine {
 
     /// The fleet diagnosis (`fleet/diagnosis.*`, augmented_model.json), each
     /// plugin's composites scoped to the observables it produced. Returns
-    /// diagnosis.json as a value and its report section.
+    /// diagnosis.json as its serde type and its report section.
     fn fleet_diagnosis(
         &self,
         cache: &mut FleetCache,
@@ -182,7 +182,7 @@ impl Engine {
         okey: &str,
         joined: Option<Joined>,
         progress: &dyn Progress,
-    ) -> Result<(Option<serde_json::Value>, Option<String>)> {
+    ) -> Result<(Option<diagnose::Diagnosis>, Option<String>)> {
         let dcfg = &self.checked.diagnose;
         let effects = self.plugin_effects();
         // Which plugin's composites apply where follows from the joined
@@ -204,7 +204,7 @@ impl Engine {
             return Ok((
                 std::fs::read(fleet_dir.join("diagnosis.json"))
                     .ok()
-                    .and_then(|b| serde_json::from_slice(&b).ok()),
+                    .and_then(|b| serde_json::from_slice::<diagnose::Diagnosis>(&b).ok()),
                 std::fs::read_to_string(fleet_dir.join("diagnosis_section.html")).ok(),
             ));
         }
@@ -242,8 +242,7 @@ impl Engine {
                 ("diagnosis_section.html", d.report_html.as_bytes()),
             ],
         )?;
-        let value = serde_json::to_value(&d.diagnosis).context("diagnosis.json as JSON")?;
-        Ok((Some(value), Some(d.report_html)))
+        Ok((Some(d.diagnosis), Some(d.report_html)))
     }
 
     /// The augmented simulator: written before the
@@ -273,7 +272,7 @@ impl Engine {
         cache: &mut FleetCache,
         fleet_dir: &Path,
         outcome: &mut FleetOutcome,
-        (diagnosis_json, diagnosis_html): &(Option<serde_json::Value>, Option<String>),
+        (diagnosis, diagnosis_html): &(Option<diagnose::Diagnosis>, Option<String>),
     ) -> Result<String> {
         let mut rkey = KeyBuilder::new("fleet-report");
         rkey.part("version", &report::REPORT_VERSION.to_string())
@@ -306,7 +305,7 @@ impl Engine {
             let html = report::fleet_page(
                 &self.config.section("report"),
                 outcome,
-                diagnosis_json.as_ref(),
+                diagnosis.as_ref(),
                 diagnosis_html.as_deref(),
             );
             cache.write(
@@ -354,7 +353,7 @@ impl Engine {
     fn append_history(
         &self,
         h: &super::History,
-        diagnosis: &serde_json::Value,
+        diagnosis: &diagnose::Diagnosis,
         outcome: &FleetOutcome,
         out: &Path,
         progress: &dyn Progress,
@@ -374,7 +373,9 @@ impl Engine {
         settings.remove("report");
         settings.remove("trend");
         let config = report::trend::fingerprint(&super::config_text(&settings));
-        let file = report::trend::append_night(dir, &night, diagnosis, &config)?;
+        // The history keeps diagnosis.json as JSON.
+        let diagnosis = serde_json::to_value(diagnosis).context("diagnosis.json as JSON")?;
+        let file = report::trend::append_night(dir, &night, &diagnosis, &config)?;
         report::trend::append_events(dir, &events)?;
         progress.message(&format!("history: {}", file.display()));
         let t = report::trend::write_trend(dir, &out.join("trend"), &[], &self.checked.trend)?;

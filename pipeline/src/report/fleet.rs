@@ -15,6 +15,7 @@ use serde_json::Value;
 use super::fleet_data::{binned_means, grid_means, per_run_rms, FleetRows, RunRms};
 use super::svg::{heat, mini_curve, mini_heat, shared_vmax, xy_chart_sized, Heat, Mark, Series};
 use super::{esc, page, title_of};
+use crate::diagnose::{Diagnosis, EffectEntry, ObservableSummary};
 use crate::outcome::FleetOutcome;
 
 mod verdict;
@@ -48,7 +49,7 @@ type Tree<'a> = BTreeMap<&'a str, BTreeMap<String, Vec<String>>>;
 /// rows could not be read).
 fn machine_tree<'a>(
     rows: Option<&FleetRows>,
-    per_obs: &BTreeMap<&str, &Value>,
+    per_obs: &BTreeMap<&str, &ObservableSummary>,
     type_of: &BTreeMap<&str, &'a str>,
 ) -> Tree<'a> {
     let mut tree = Tree::new();
@@ -63,17 +64,11 @@ fn machine_tree<'a>(
         }
     } else {
         for (o, p) in per_obs {
-            for m in p
-                .get("machines")
-                .and_then(|m| m.as_array())
-                .into_iter()
-                .flatten()
-                .filter_map(|m| m.as_str())
-            {
-                let t = type_of.get(m).copied().unwrap_or("—");
+            for m in &p.machines {
+                let t = type_of.get(m.as_str()).copied().unwrap_or("—");
                 tree.entry(t)
                     .or_default()
-                    .entry(m.to_string())
+                    .entry(m.clone())
                     .or_default()
                     .push(o.to_string());
             }
@@ -101,14 +96,8 @@ fn appendix(diagnosis_html: &str) -> String {
 }
 
 /// The diagnosis's notes (skipped covariates, trimmed outliers), folded.
-fn diagnosis_notes(d: &Value) -> String {
-    let notes: Vec<&str> = d
-        .get("notes")
-        .and_then(|n| n.as_array())
-        .into_iter()
-        .flatten()
-        .filter_map(|n| n.as_str())
-        .collect();
+fn diagnosis_notes(d: &Diagnosis) -> String {
+    let notes = &d.notes;
     if notes.is_empty() {
         return String::new();
     }
@@ -127,7 +116,7 @@ fn diagnosis_notes(d: &Value) -> String {
 pub fn fleet_page(
     cfg: &toml::Table,
     outcome: &FleetOutcome,
-    diagnosis: Option<&Value>,
+    diagnosis: Option<&Diagnosis>,
     diagnosis_html: Option<&str>,
 ) -> String {
     let out = &outcome.out_dir;
@@ -144,12 +133,10 @@ pub fn fleet_page(
         type_of.insert(&r.machine, &r.plugin);
         *runs_of.entry(&r.machine).or_default() += 1;
     }
-    let per_obs: BTreeMap<&str, &Value> = diagnosis
-        .and_then(|d| d.get("per_observable"))
-        .and_then(|p| p.as_array())
+    let per_obs: BTreeMap<&str, &ObservableSummary> = diagnosis
         .into_iter()
-        .flatten()
-        .map(|p| (s(p, "observable"), p))
+        .flat_map(|d| &d.per_observable)
+        .map(|p| (p.observable.as_str(), p))
         .collect();
     let obs_file = fleet_dir.join("observations.parquet");
     let diag_file = fleet_dir.join("diagnosis.parquet");
@@ -201,7 +188,7 @@ pub fn fleet_page(
             let (live, flat) = split_at_floor(obs, &per_obs);
             for o in live {
                 let p = per_obs.get(o.as_str()).copied();
-                let u = unit_of(o, p.and_then(|p| p.get("unit")).and_then(|x| x.as_str()));
+                let u = unit_of(o, p.map(|p| p.unit.as_str()));
                 let _ = write!(
                     body,
                     "<section class=\"obs\" id=\"{}\"><h4>{} <span class=\"note\">({})</span></h4>",
@@ -229,7 +216,7 @@ pub fn fleet_page(
                     }
                 }
                 if let (Some(d), Some(p)) = (diagnosis, p) {
-                    body.push_str(&candidates(d, o, s(p, "stop_reason"), &u));
+                    body.push_str(&candidates(d, o, &p.stop_reason, &u));
                 }
                 body.push_str("</section>");
             }
@@ -245,7 +232,7 @@ pub fn fleet_page(
                     let Some(p) = per_obs.get(o.as_str()).copied() else {
                         continue;
                     };
-                    let u = unit_of(o, p.get("unit").and_then(|x| x.as_str()));
+                    let u = unit_of(o, Some(&p.unit));
                     let _ = write!(
                         body,
                         "<section class=\"obs\" id=\"{}\"><h4>{} <span class=\"note\">({})</span></h4><p class=\"verdict\">{}</p></section>",

@@ -5,10 +5,8 @@
 use super::*;
 
 /// Gap RMS over noise floor of an observable (NaN when either is unknown).
-pub(super) fn gap_over_floor(p: Option<&Value>) -> f64 {
-    let (rms, floor) = p.map_or((f64::NAN, f64::NAN), |p| {
-        (f(p, "rms_mm"), f(p, "noise_floor_mm"))
-    });
+pub(super) fn gap_over_floor(p: Option<&ObservableSummary>) -> f64 {
+    let (rms, floor) = p.map_or((f64::NAN, f64::NAN), |p| (p.rms_mm, p.noise_floor_mm));
     if floor > 0.0 {
         rms / floor
     } else {
@@ -17,17 +15,9 @@ pub(super) fn gap_over_floor(p: Option<&Value>) -> f64 {
 }
 
 /// The diagnosis found the observable's gap not above its noise floor
-/// (`gap_above_noise`; a diagnosis without it: RMS ≤ floor). Unknown when
-/// the observable was not diagnosed.
-pub(super) fn at_noise_floor(p: Option<&Value>) -> bool {
-    let Some(p) = p else { return false };
-    match p.get("gap_above_noise").and_then(|x| x.as_bool()) {
-        Some(above) => !above,
-        None => {
-            let (rms, floor) = (f(p, "rms_mm"), f(p, "noise_floor_mm"));
-            rms.is_finite() && floor.is_finite() && rms <= floor
-        }
-    }
+/// (`gap_above_noise`). Unknown when the observable was not diagnosed.
+pub(super) fn at_noise_floor(p: Option<&ObservableSummary>) -> bool {
+    p.is_some_and(|p| !p.gap_above_noise)
 }
 
 /// "116×", "1.1×", or "—".
@@ -56,7 +46,7 @@ fn by_gap_over_floor<T>(v: &mut [T], key: impl Fn(&T) -> (f64, String)) {
 /// over floor first), and those at their noise floor.
 pub(super) fn split_at_floor<'a>(
     obs: &'a [String],
-    per_obs: &BTreeMap<&str, &Value>,
+    per_obs: &BTreeMap<&str, &ObservableSummary>,
 ) -> (Vec<&'a String>, Vec<&'a String>) {
     let mut v: Vec<&String> = obs.iter().collect();
     by_gap_over_floor(&mut v, |o| {
@@ -127,7 +117,7 @@ fn augment_cell(augment: &Value, o: &str, m: &str, u: &Unit) -> String {
 /// of last night's model on tonight's runs.
 pub(super) fn glance_table(
     tree: &Tree,
-    per_obs: &BTreeMap<&str, &Value>,
+    per_obs: &BTreeMap<&str, &ObservableSummary>,
     rows: Option<&FleetRows>,
     augment: Option<&Value>,
 ) -> String {
@@ -163,23 +153,11 @@ pub(super) fn glance_table(
         }
     );
     for (t, m, o) in ranked {
-        let p = per_obs.get(o);
-        let u = unit_of(o, p.and_then(|p| p.get("unit")).and_then(|x| x.as_str()));
-        let pf = |k: &str| p.map(|p| f(p, k)).unwrap_or(f64::NAN);
-        let above = p
-            .and_then(|p| p.get("gap_above_noise"))
-            .and_then(|x| x.as_bool())
-            == Some(true);
-        let sel = p
-            .and_then(|p| p.get("selected"))
-            .and_then(|x| x.as_array())
-            .map(|a| {
-                a.iter()
-                    .filter_map(|x| x.as_str())
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            })
-            .unwrap_or_default();
+        let p = per_obs.get(o).copied();
+        let u = unit_of(o, p.map(|p| p.unit.as_str()));
+        let pf = |k: fn(&ObservableSummary) -> f64| p.map_or(f64::NAN, k);
+        let above = p.is_some_and(|p| p.gap_above_noise);
+        let sel = p.map(|p| p.selected.join(", ")).unwrap_or_default();
         let named = if p.is_none() {
             "not diagnosed".to_string()
         } else if !above {
@@ -197,9 +175,9 @@ pub(super) fn glance_table(
             esc(t),
             esc(m),
             esc(o),
-            times(gap_over_floor(p.copied())),
-            u.show(pf("rms_mm")),
-            u.show(pf("noise_floor_mm")),
+            times(gap_over_floor(p)),
+            u.show(pf(|p| p.rms_mm)),
+            u.show(pf(|p| p.noise_floor_mm)),
             named,
             if above {
                 glance_pictures(
@@ -211,15 +189,15 @@ pub(super) fn glance_table(
             } else {
                 String::new()
             },
-            if explained { u.show(pf("cv_rms_after_mm")) } else { "—".into() },
-            if explained { crate::report::fmt_fixed(Some(100.0 * pf("shrink")), 0) + " %" } else { "—".into() },
+            if explained { u.show(pf(|p| p.cv_rms_after_mm)) } else { "—".into() },
+            if explained { crate::report::fmt_fixed(Some(100.0 * pf(|p| p.shrink)), 0) + " %" } else { "—".into() },
             augment
                 .map(|a| format!("<td class=\"why\">{}</td>", augment_cell(a, o, m, &u)))
                 .unwrap_or_default(),
             mini_bars(
-                pf("rms_mm"),
-                if explained { pf("cv_rms_after_mm") } else { f64::NAN },
-                pf("noise_floor_mm")
+                pf(|p| p.rms_mm),
+                if explained { pf(|p| p.cv_rms_after_mm) } else { f64::NAN },
+                pf(|p| p.noise_floor_mm)
             ),
         );
     }

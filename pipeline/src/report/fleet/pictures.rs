@@ -6,15 +6,14 @@ use super::*;
 use crate::report::svg::{xy_chart_with, XyExtras};
 
 /// `where` regions over x_mm,y_mm of an observable: [(x0, y0), (x1, y1)].
-pub(super) fn xy_tiles(d: &Value, observable: &str) -> Vec<[(f64, f64); 2]> {
-    d.get("where")
-        .and_then(|w| w.as_array())
-        .into_iter()
-        .flatten()
-        .filter(|c| s(c, "observable") == observable && s(c, "covariate") == "x_mm,y_mm")
+pub(super) fn xy_tiles(d: &Diagnosis, observable: &str) -> Vec<[(f64, f64); 2]> {
+    d.where_
+        .iter()
+        .filter(|c| c.observable == observable && c.covariate == "x_mm,y_mm")
         .filter_map(|c| {
-            let lo = c.get("lo")?.as_array()?;
-            let hi = c.get("hi")?.as_array()?;
+            // An x/y tile's bounds are [x, y] pairs (a 1-D cell's are numbers).
+            let lo = c.lo.as_array()?;
+            let hi = c.hi.as_array()?;
             let (x0, y0) = (lo.first()?.as_f64()?, lo.get(1)?.as_f64()?);
             let (x1, y1) = (hi.first()?.as_f64()?, hi.get(1)?.as_f64()?);
             Some([(x0.min(x1), y0.min(y1)), (x0.max(x1), y0.max(y1))])
@@ -113,7 +112,7 @@ pub(super) fn render_maps(m: &RmsMaps, observable: &str, unit: &str, has_after: 
 /// significant regions outlined on the before map. Returns the maps and
 /// whether any cell is outlined.
 fn where_maps(
-    d: Option<&Value>,
+    d: Option<&Diagnosis>,
     rows: &FleetRows,
     idx: &[usize],
     observable: &str,
@@ -135,7 +134,7 @@ fn where_maps(
 /// Which: the gap (less the other selected effects) against the named
 /// effect's covariate, with its fitted curve and the held-out gap after.
 fn which_curve(
-    po: Option<&Value>,
+    po: Option<&ObservableSummary>,
     rows: &FleetRows,
     idx: &[usize],
     observable: &str,
@@ -144,19 +143,12 @@ fn which_curve(
 ) -> String {
     let has_after = res.iter().any(|r| r.is_finite());
     let mut h = String::new();
-    let named = po
-        .and_then(|p| p.get("selected"))
-        .and_then(|x| x.as_array())
-        .and_then(|a| a.first())
-        .and_then(|x| x.as_str());
+    let selected: &[String] = po.map_or(&[], |p| &p.selected);
+    let named = selected.first().map(String::as_str);
     if let Some(k) = named {
         let cov = curve_covariate(k);
-        let others: Vec<String> = po
-            .and_then(|p| p.get("selected"))
-            .and_then(|x| x.as_array())
-            .into_iter()
-            .flatten()
-            .filter_map(|x| x.as_str())
+        let others: Vec<String> = selected
+            .iter()
             .filter(|o| *o != k)
             .map(|o| format!("contrib_{o}"))
             .collect();
@@ -223,8 +215,13 @@ pub(super) const MIN_RUNS_CHARTED: usize = 8;
 
 /// How far for a few runs: each run's gap RMS and held-out RMS after, as
 /// a table, with the noise floor.
-fn how_far_table(po: Option<&Value>, runs: &[RunRms], observable: &str, u: &Unit) -> String {
-    let floor = po.map(|p| f(p, "noise_floor_mm")).unwrap_or(f64::NAN);
+fn how_far_table(
+    po: Option<&ObservableSummary>,
+    runs: &[RunRms],
+    observable: &str,
+    u: &Unit,
+) -> String {
+    let floor = po.map_or(f64::NAN, |p| p.noise_floor_mm);
     let mut h = format!(
         "<p class=\"note\">{}: RMS per run, before and held-out after (noise floor {})</p><table class=\"runs\"><thead><tr><th>run</th><th>gap RMS</th><th>held-out after</th></tr></thead><tbody>",
         esc(observable),
@@ -246,7 +243,7 @@ fn how_far_table(po: Option<&Value>, runs: &[RunRms], observable: &str, u: &Unit
 /// How far: each run's gap RMS before and held-out RMS after, beside the
 /// noise floor.
 fn how_far_runs(
-    po: Option<&Value>,
+    po: Option<&ObservableSummary>,
     runs: Option<&Vec<RunRms>>,
     observable: &str,
     u: &Unit,
@@ -268,9 +265,7 @@ fn how_far_runs(
             .enumerate()
             .map(|(i, r)| (i as f64, r.after * u.scale))
             .collect();
-        let floor = po
-            .map(|p| f(p, "noise_floor_mm") * u.scale)
-            .unwrap_or(f64::NAN);
+        let floor = po.map_or(f64::NAN, |p| p.noise_floor_mm * u.scale);
         let fl: Vec<(f64, f64)> = if floor.is_finite() {
             vec![(0.0, floor), ((runs.len() - 1) as f64, floor)]
         } else {
@@ -318,26 +313,20 @@ fn how_far_runs(
 
 /// The pictures of one (machine, observable).
 pub(super) fn pictures(
-    d: Option<&Value>,
-    po: Option<&Value>,
+    d: Option<&Diagnosis>,
+    po: Option<&ObservableSummary>,
     rows: &FleetRows,
     idx: &[usize],
     runs: Option<&Vec<RunRms>>,
     observable: &str,
 ) -> String {
-    let u = unit_of(
-        observable,
-        po.and_then(|p| p.get("unit")).and_then(|x| x.as_str()),
-    );
+    let u = unit_of(observable, po.map(|p| p.unit.as_str()));
     let mut h = String::from("<div class=\"figs\">");
     let gap = FleetRows::at(&rows.gap, idx);
     let res = FleetRows::at(&rows.residual, idx);
     let has_after = res.iter().any(|r| r.is_finite());
     // Nothing selected: the gap after is the gap before; one map.
-    let selected = po
-        .and_then(|p| p.get("selected"))
-        .and_then(|x| x.as_array())
-        .is_some_and(|a| !a.is_empty());
+    let selected = po.is_some_and(|p| !p.selected.is_empty());
     let (maps, outlined) = where_maps(
         d,
         rows,
@@ -502,15 +491,9 @@ pub(super) fn group_runs(runs: &[RunRms], max: usize) -> Vec<RunRms> {
 
 /// Every covariate the pictures draw: positions and the covariates of
 /// the selected effects.
-pub(super) fn covariates_drawn(d: Option<&Value>) -> Vec<String> {
+pub(super) fn covariates_drawn(d: Option<&Diagnosis>) -> Vec<String> {
     let mut c: BTreeSet<String> = ["x_mm".to_string(), "y_mm".to_string()].into();
-    for k in d
-        .and_then(|d| d.get("selected"))
-        .and_then(|s| s.as_array())
-        .into_iter()
-        .flatten()
-        .filter_map(|x| x.as_str())
-    {
+    for k in d.into_iter().flat_map(|d| &d.selected) {
         if let Some((_, cov)) = k.split_once(':') {
             c.extend(cov.split(',').map(String::from));
         }

@@ -1,5 +1,27 @@
 use super::*;
 
+/// An `effects` entry: its required fields, then `fields` over them.
+fn effect(fields: Value) -> EffectEntry {
+    let mut e = serde_json::json!({"name": "", "observable": "o", "params": {}, "param_units": {},
+        "n_params": 0, "selected": false, "step": 1});
+    e.as_object_mut()
+        .unwrap()
+        .extend(fields.as_object().unwrap().clone());
+    serde_json::from_value(e).unwrap()
+}
+
+/// A `per_observable` entry: its required fields, then `fields` over them.
+fn summary(fields: Value) -> ObservableSummary {
+    let mut p = serde_json::json!({"observable": "", "unit": "mm", "n": 0, "runs": 0,
+        "rms_mm": null, "noise_floor_mm": null, "noise_floor_source": "replicates",
+        "gap_above_noise": false, "p_value": null, "selected": [], "cv_rms_before_mm": null,
+        "cv_rms_after_mm": null, "shrink": null, "stop_reason": ""});
+    p.as_object_mut()
+        .unwrap()
+        .extend(fields.as_object().unwrap().clone());
+    serde_json::from_value(p).unwrap()
+}
+
 #[test]
 fn velocity_errors_are_shown_in_mm_per_s_and_positions_in_um() {
     assert_eq!(
@@ -13,20 +35,26 @@ fn velocity_errors_are_shown_in_mm_per_s_and_positions_in_um() {
 #[test]
 fn losers_say_why() {
     let winners: BTreeMap<usize, (String, f64)> = [(1, ("wear:removed_mm3".into(), 0.74))].into();
-    let lost = serde_json::json!({"name": "drift", "covariate": "t_s", "shrink": 0.2, "p_value": 0.001, "step": 1, "selected": false});
+    let lost = effect(
+        serde_json::json!({"name": "drift", "covariate": "t_s", "shrink": 0.2, "p_value": 0.001, "step": 1, "selected": false}),
+    );
     assert!(why_lost(&lost, &winners, "").contains("wear:removed_mm3 shrank the held-out gap more"));
-    let worse = serde_json::json!({"name": "drift", "shrink": -0.1, "step": 1, "selected": false});
+    let worse =
+        effect(serde_json::json!({"name": "drift", "shrink": -0.1, "step": 1, "selected": false}));
     assert!(why_lost(&worse, &winners, "").starts_with("held-out gap not smaller"));
-    let skipped =
-        serde_json::json!({"name": "drift", "skipped_reason": "no t_s column", "selected": false});
+    let skipped = effect(
+        serde_json::json!({"name": "drift", "skipped_reason": "no t_s column", "selected": false}),
+    );
     assert_eq!(why_lost(&skipped, &winners, ""), "not tried: no t_s column");
 }
 
 #[test]
 fn selected_parameters_carry_their_interval_and_unit() {
-    let e = serde_json::json!({"name": "wear", "covariate": "removed_mm3", "params": {"k": -9.35e-5},
-        "intervals": {"k": {"se": 0.9e-5, "lo": -1.22e-4, "hi": -6.5e-5}}});
-    let p = params_text(&e);
+    let e = effect(
+        serde_json::json!({"name": "wear", "covariate": "removed_mm3", "params": {"k": -9.35e-5},
+        "intervals": {"k": {"se": 0.9e-5, "lo": -1.22e-4, "hi": -6.5e-5, "from": "pooled"}}}),
+    );
+    let p = effect_params_text(&e);
     assert_eq!(p.len(), 1);
     assert!(
         p[0].contains("±") && p[0].contains("nm/mm³") && p[0].contains("95 %"),
@@ -98,16 +126,25 @@ fn at_a_glance_thumbnails_are_readable() {
 
 fn glance_of(augment: Option<&Value>) -> String {
     let per = [
-        serde_json::json!({"observable": "a", "rms_mm": 0.01, "noise_floor_mm": 0.005,
+        summary(
+            serde_json::json!({"observable": "a", "rms_mm": 0.01, "noise_floor_mm": 0.005,
             "gap_above_noise": true, "selected": ["drift:t_s"], "cv_rms_after_mm": 0.006, "shrink": 0.4}),
-        serde_json::json!({"observable": "b", "rms_mm": 0.1, "noise_floor_mm": 0.001,
+        ),
+        summary(
+            serde_json::json!({"observable": "b", "rms_mm": 0.1, "noise_floor_mm": 0.001,
             "gap_above_noise": true, "selected": []}),
-        serde_json::json!({"observable": "d", "rms_mm": 0.001, "noise_floor_mm": 0.0011,
+        ),
+        summary(
+            serde_json::json!({"observable": "d", "rms_mm": 0.001, "noise_floor_mm": 0.0011,
             "gap_above_noise": false, "selected": []}),
-        serde_json::json!({"observable": "c", "rms_mm": 0.002, "noise_floor_mm": 0.0019,
+        ),
+        summary(
+            serde_json::json!({"observable": "c", "rms_mm": 0.002, "noise_floor_mm": 0.0019,
             "gap_above_noise": false, "selected": []}),
+        ),
     ];
-    let per_obs: BTreeMap<&str, &Value> = per.iter().map(|p| (s(p, "observable"), p)).collect();
+    let per_obs: BTreeMap<&str, &ObservableSummary> =
+        per.iter().map(|p| (p.observable.as_str(), p)).collect();
     let mut tree = Tree::new();
     tree.entry("form").or_default().insert(
         "m1".to_string(),

@@ -3,6 +3,7 @@
 //! and intervals, the held-out shrink, the augmented simulator's gap.
 
 use super::*;
+use crate::diagnose::intervals::ParamInterval;
 
 /// An observable's unit and how it is shown: gaps in mm are shown in µm;
 /// `velocity_error_*` is a velocity (mm/s, docs/models.md §7), shown in
@@ -73,54 +74,31 @@ pub(super) fn s<'a>(v: &'a Value, k: &str) -> &'a str {
     v.get(k).and_then(|x| x.as_str()).unwrap_or("")
 }
 
-pub(super) fn key_of(e: &Value) -> String {
-    match e.get("covariate").and_then(|c| c.as_str()) {
-        Some(c) => format!("{}:{c}", s(e, "name")),
-        None => s(e, "name").to_string(),
-    }
-}
-
-/// `k = 4.92 ± 0.08 ms (95 % 4.76 … 5.07 ms)` for each parameter of a
-/// selected effect (diagnosis.json `effects[].intervals`), in the unit an
-/// engineer reads it in (units::format).
-pub(super) fn params_text(e: &Value) -> Vec<String> {
+/// `k = 4.92 ± 0.08 ms (95 % 4.76 … 5.07 ms)` for each parameter of an
+/// effect (diagnosis.json `effects[].intervals` when it has them), in the
+/// unit an engineer reads it in (units::format). The offset is not shown.
+pub(super) fn params_text(
+    params: &BTreeMap<String, f64>,
+    intervals: Option<&BTreeMap<String, ParamInterval>>,
+    cov: Option<&str>,
+    param_units: &BTreeMap<String, String>,
+) -> Vec<String> {
     use crate::units::format::{param_unit, show_param};
-    // An `effects` entry names its covariate; a `machine_effects` entry
-    // spells it inside `effect` (name:covariate).
-    let cov = e.get("covariate").and_then(|c| c.as_str()).or_else(|| {
-        e.get("effect")
-            .and_then(|x| x.as_str())
-            .and_then(|k| k.split_once(':').map(|(_, c)| c))
-    });
     // The offset is in the gap's unit (mm/s for a velocity); a diagnosis
     // written before `param_units` is in mm.
-    let gap_unit = e
-        .pointer("/param_units/offset_mm")
-        .and_then(|u| u.as_str())
-        .unwrap_or("mm");
+    let gap_unit = param_units.get("offset_mm").map_or("mm", String::as_str);
     let mut out = Vec::new();
-    for (k, v) in e
-        .get("params")
-        .and_then(|p| p.as_object())
-        .into_iter()
-        .flatten()
-    {
-        let Some(v) = v.as_f64() else { continue };
+    for (k, &v) in params {
         let unit = param_unit(k, cov, gap_unit);
-        let iv = e.pointer(&format!("/intervals/{k}"));
+        let iv = intervals.and_then(|i| i.get(k));
         // Frame constants of a form (centre, span) come with a zero-width
         // interval: they were not fitted, so they are not a finding.
-        if iv.is_some_and(|iv| f(iv, "se") == 0.0 && f(iv, "lo") == f(iv, "hi")) {
+        if iv.is_some_and(|iv| iv.se == 0.0 && iv.lo == iv.hi) {
             continue;
         }
         match iv {
-            Some(iv)
-                if [v, f(iv, "se"), f(iv, "lo"), f(iv, "hi")]
-                    .iter()
-                    .all(|x| x.is_finite()) =>
-            {
-                let iv = (f(iv, "se"), f(iv, "lo"), f(iv, "hi"));
-                out.push(show_param(k, v, Some(iv), &unit))
+            Some(iv) if [v, iv.se, iv.lo, iv.hi].iter().all(|x| x.is_finite()) => {
+                out.push(show_param(k, v, Some((iv.se, iv.lo, iv.hi)), &unit))
             }
             _ if v.is_finite() => out.push(show_param(k, v, None, &unit)),
             _ => {}
@@ -129,22 +107,36 @@ pub(super) fn params_text(e: &Value) -> Vec<String> {
     out
 }
 
+/// [`params_text`] of a diagnosis.json `effects` entry.
+pub(super) fn effect_params_text(e: &EffectEntry) -> Vec<String> {
+    params_text(
+        &e.params,
+        e.intervals.as_ref(),
+        e.covariate.as_deref(),
+        &e.param_units,
+    )
+}
+
 /// A p-value as text ("—" when there is none).
 pub(super) fn pval(p: f64) -> String {
     crate::units::format::show_p(p)
 }
 
 /// Why a candidate was not selected, from its entry and the observable's.
-pub(super) fn why_lost(e: &Value, winners: &BTreeMap<usize, (String, f64)>, stop: &str) -> String {
-    if let Some(r) = e.get("skipped_reason").and_then(|r| r.as_str()) {
+pub(super) fn why_lost(
+    e: &EffectEntry,
+    winners: &BTreeMap<usize, (String, f64)>,
+    stop: &str,
+) -> String {
+    if let Some(r) = &e.skipped_reason {
         return format!("not tried: {r}");
     }
-    if e.get("selected").and_then(|x| x.as_bool()) == Some(true) {
-        return format!("selected (step {})", e["step"]);
+    if e.selected {
+        return format!("selected (step {})", e.step);
     }
-    let shrink = f(e, "shrink");
-    let p = pval(f(e, "p_value"));
-    let step = e.get("step").and_then(|x| x.as_u64()).unwrap_or(1) as usize;
+    let shrink = e.shrink.unwrap_or(f64::NAN);
+    let p = pval(e.p_value.unwrap_or(f64::NAN));
+    let step = e.step;
     if !shrink.is_finite() {
         return "no held-out score".into();
     }
@@ -161,32 +153,26 @@ pub(super) fn why_lost(e: &Value, winners: &BTreeMap<usize, (String, f64)>, stop
 }
 
 /// The folded candidate ranking of one observable, best first.
-pub(super) fn candidates(d: &Value, observable: &str, stop: &str, u: &Unit) -> String {
-    let mut es: Vec<&Value> = d
-        .get("effects")
-        .and_then(|e| e.as_array())
-        .into_iter()
-        .flatten()
-        .filter(|e| s(e, "observable") == observable)
+pub(super) fn candidates(d: &Diagnosis, observable: &str, stop: &str, u: &Unit) -> String {
+    let nan = |x: Option<f64>| x.unwrap_or(f64::NAN);
+    let mut es: Vec<&EffectEntry> = d
+        .effects
+        .iter()
+        .filter(|e| e.observable == observable)
         .collect();
     if es.is_empty() {
         return String::new();
     }
     let winners: BTreeMap<usize, (String, f64)> = es
         .iter()
-        .filter(|e| e.get("selected").and_then(|x| x.as_bool()) == Some(true))
-        .map(|e| {
-            (
-                e.get("step").and_then(|x| x.as_u64()).unwrap_or(1) as usize,
-                (key_of(e), f(e, "shrink")),
-            )
-        })
+        .filter(|e| e.selected)
+        .map(|e| (e.step, (e.key(), nan(e.shrink))))
         .collect();
     // Selected first (in order), then by held-out RMS after, skipped last.
-    let rank = |e: &Value| {
-        let sel = e.get("selected").and_then(|x| x.as_bool()) == Some(true);
-        let skipped = e.get("skipped_reason").map(|r| !r.is_null()) == Some(true);
-        let after = f(e, "cv_rms_after_mm");
+    let rank = |e: &EffectEntry| {
+        let sel = e.selected;
+        let skipped = e.skipped_reason.is_some();
+        let after = nan(e.cv_rms_after_mm);
         (
             if sel {
                 0
@@ -195,14 +181,14 @@ pub(super) fn candidates(d: &Value, observable: &str, stop: &str, u: &Unit) -> S
             } else {
                 1
             },
-            if sel { f(e, "step") } else { after },
+            if sel { e.step as f64 } else { after },
         )
     };
     es.sort_by(|a, b| {
         let (ra, rb) = (rank(a), rank(b));
         ra.0.cmp(&rb.0)
             .then(ra.1.total_cmp(&rb.1))
-            .then(key_of(a).cmp(&key_of(b)))
+            .then(a.key().cmp(&b.key()))
     });
     let mut h = format!(
         "<details><summary>All {} candidates for {}, ranked, and why each lost</summary><table><thead><tr><th>effect</th><th>held-out RMS before ({})</th><th>after ({})</th><th>shrink</th><th>p</th><th>verdict</th></tr></thead><tbody>",
@@ -215,11 +201,11 @@ pub(super) fn candidates(d: &Value, observable: &str, stop: &str, u: &Unit) -> S
         let _ = write!(
             h,
             "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td class=\"why\">{}</td></tr>",
-            esc(&key_of(e)),
-            super::super::svg::tick(f(e, "cv_rms_before_mm") * u.scale),
-            super::super::svg::tick(f(e, "cv_rms_after_mm") * u.scale),
-            super::super::fmt_fixed(Some(f(e, "shrink")), 2),
-            super::super::fmt_fixed(Some(f(e, "p_value")), 4),
+            esc(&e.key()),
+            super::super::svg::tick(nan(e.cv_rms_before_mm) * u.scale),
+            super::super::svg::tick(nan(e.cv_rms_after_mm) * u.scale),
+            super::super::fmt_fixed(e.shrink, 2),
+            super::super::fmt_fixed(e.p_value, 4),
             esc(&why_lost(e, &winners, stop))
         );
     }
@@ -291,67 +277,58 @@ fn augment_lines(augment: &[Value], obs: &str, machine: &str, u: &Unit) -> Strin
 
 /// The verdict line of one observable (the diagnosis is per observable,
 /// pooled over the machines that carry it).
-pub(super) fn verdict(d: &Value, po: &Value, augment: &[Value], machine: &str) -> String {
-    let obs = s(po, "observable");
-    let u = unit_of(obs, po.get("unit").and_then(|x| x.as_str()));
-    let (rms, floor) = (f(po, "rms_mm"), f(po, "noise_floor_mm"));
+pub(super) fn verdict(
+    d: &Diagnosis,
+    po: &ObservableSummary,
+    augment: &[Value],
+    machine: &str,
+) -> String {
+    let obs = po.observable.as_str();
+    let u = unit_of(obs, Some(&po.unit));
+    let (rms, floor) = (po.rms_mm, po.noise_floor_mm);
     let mut v = format!(
         "Gap RMS <b>{}</b> against a noise floor of {} ({})",
         u.show(rms),
         u.show(floor),
-        esc(s(po, "noise_floor_source"))
+        esc(&po.noise_floor_source)
     );
-    let above = po.get("gap_above_noise").and_then(|x| x.as_bool()) == Some(true);
+    let above = po.gap_above_noise;
     if above && floor > 0.0 && rms.is_finite() {
         let _ = write!(v, ", {:.1}× the floor", rms / floor);
     }
     v.push_str(". ");
-    let selected: Vec<&str> = po
-        .get("selected")
-        .and_then(|x| x.as_array())
-        .map(|a| a.iter().filter_map(|x| x.as_str()).collect())
-        .unwrap_or_default();
+    let selected = &po.selected;
     if !above {
         v.push_str("<span class=\"ok\">At the noise floor: nothing to explain.</span>");
     } else if selected.is_empty() {
         let _ = write!(
             v,
             "<span class=\"bad\">Not explained</span>: {}.",
-            esc(s(po, "stop_reason"))
+            esc(&po.stop_reason)
         );
     } else {
-        let effects: Vec<&Value> = d
-            .get("effects")
-            .and_then(|e| e.as_array())
-            .into_iter()
-            .flatten()
-            .filter(|e| {
-                s(e, "observable") == obs
-                    && e.get("selected").and_then(|x| x.as_bool()) == Some(true)
-            })
+        let effects: Vec<&EffectEntry> = d
+            .effects
+            .iter()
+            .filter(|e| e.observable == obs && e.selected)
             .collect();
         let mut named = Vec::new();
-        for k in &selected {
-            let e = effects.iter().find(|e| key_of(e) == *k);
+        for k in selected {
+            let e = effects.iter().find(|e| e.key() == *k);
             let mut t = format!("<b>{}</b>", esc(k));
             if let Some(e) = e {
-                let p = params_text(e);
+                let p = effect_params_text(e);
                 if !p.is_empty() {
                     let _ = write!(t, " with {}", esc(&p.join(", ")));
                 }
                 // The machines disagree: this machine's own fit.
                 if let Some(own) = e
-                    .get("per_machine")
-                    .and_then(|m| m.as_array())
-                    .and_then(|m| m.iter().find(|x| s(x, "machine") == machine))
+                    .per_machine
+                    .as_ref()
+                    .and_then(|m| m.iter().find(|x| x.machine == machine))
                 {
                     // In the units of the pooled fit's parameters.
-                    let own = serde_json::json!({
-                        "covariate": e.get("covariate"),
-                        "param_units": e.get("param_units"),
-                        "params": own.get("params"),
-                    });
-                    let ps = params_text(&own);
+                    let ps = params_text(&own.params, None, e.covariate.as_deref(), &e.param_units);
                     let _ = write!(
                         t,
                         " (machines differ; {} alone: {})",
@@ -364,49 +341,40 @@ pub(super) fn verdict(d: &Value, po: &Value, augment: &[Value], machine: &str) -
         }
         let _ = write!(v, "Explained by {}. ", named.join("; then "));
         let si = po
-            .get("shrink_interval")
-            .and_then(|x| x.as_array())
-            .and_then(|a| {
-                let lo = a
-                    .first()
-                    .and_then(|x| x.as_f64())
-                    .filter(|x| x.is_finite())?;
-                let hi = a
-                    .get(1)
-                    .and_then(|x| x.as_f64())
-                    .filter(|x| x.is_finite())?;
-                Some(format!(" (95 % {lo:.2}–{hi:.2})"))
-            })
+            .shrink_interval
+            .filter(|[lo, hi]| lo.is_finite() && hi.is_finite())
+            .map(|[lo, hi]| format!(" (95 % {lo:.2}–{hi:.2})"))
             .unwrap_or_default();
         let _ = write!(
             v,
             "Held-out RMS {} → <b>{}</b>, shrink <b>{}</b>{si}.",
-            u.show(f(po, "cv_rms_before_mm")),
-            u.show(f(po, "cv_rms_after_mm")),
-            super::super::fmt_fixed(Some(f(po, "shrink")), 2)
+            u.show(po.cv_rms_before_mm),
+            u.show(po.cv_rms_after_mm),
+            super::super::fmt_fixed(Some(po.shrink), 2)
         );
     }
     // Effects named on this machine's rows alone (diagnosis.json
     // machine_effects): the pooled fit may miss what only one machine has.
     for me in d
-        .get("machine_effects")
-        .and_then(|m| m.as_array())
-        .into_iter()
-        .flatten()
-        .filter(|me| s(me, "observable") == obs && s(me, "machine") == machine)
+        .machine_effects
+        .iter()
+        .filter(|me| me.observable == obs && me.machine == machine)
     {
-        let p = params_text(me);
+        // A `machine_effects` entry spells its covariate inside `effect`
+        // (name:covariate).
+        let cov = me.effect.split_once(':').map(|(_, c)| c);
+        let p = params_text(&me.params, me.intervals.as_ref(), cov, &me.param_units);
         let _ = write!(
             v,
             " <span class=\"bad\">This machine alone</span>: <b>{}</b>{}, held-out shrink {} over its {} runs.",
-            esc(s(me, "effect")),
+            esc(&me.effect),
             if p.is_empty() {
                 String::new()
             } else {
                 format!(" with {}", esc(&p.join(", ")))
             },
-            super::super::fmt_fixed(Some(f(me, "shrink")), 2),
-            me.get("runs").and_then(|x| x.as_u64()).unwrap_or(0)
+            super::super::fmt_fixed(me.shrink, 2),
+            me.runs
         );
     }
     v.push_str(&augment_lines(augment, obs, machine, &u));
