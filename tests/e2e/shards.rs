@@ -204,15 +204,7 @@ fn shards_that_would_lose_or_double_a_run_are_refused() {
     // re-run of shard 1 is killed before it finishes.
     let s1 = d.path().join("n1");
     ok(shard(&root, &s1, "1/2", &[]));
-    let first = root.join("xfyz-mill/r0000");
-    let late = root.join("xfyz-mill/r0099");
-    std::fs::create_dir_all(&late).unwrap();
-    for e in std::fs::read_dir(&first).unwrap() {
-        let e = e.unwrap().path();
-        std::fs::copy(&e, late.join(e.file_name().unwrap())).unwrap();
-    }
-    let t = std::fs::read_to_string(late.join("run.toml")).unwrap();
-    std::fs::write(late.join("run.toml"), t.replace("\"r0000\"", "\"r0099\"")).unwrap();
+    arrive(&root, "xfyz-mill/r0000", "r0099");
     let h0 = d.path().join("n0");
     ok(shard(&root, &h0, "0/2", &[]));
     let e = err(aggregate(&[h0.clone(), s1.clone()], &out));
