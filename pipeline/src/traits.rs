@@ -124,6 +124,16 @@ impl ArtifactStore {
     pub fn summaries(&self) -> BTreeMap<String, serde_json::Value> {
         self.summaries.lock().expect("store").clone()
     }
+    /// A stage's summary read through the serde type that wrote it
+    /// (`StageOutput::typed`): `None` when the stage has not run, an error
+    /// naming the stage when the summary does not have the type's shape.
+    pub fn summary_as<T: serde::de::DeserializeOwned>(&self, stage: &str) -> Option<Result<T>> {
+        let v = self.summary(stage)?;
+        Some(
+            serde_json::from_value(v)
+                .map_err(|e| anyhow::anyhow!("summary of stage `{stage}` ({stage}.json): {e}")),
+        )
+    }
     /// The artifacts looked up since the last call.
     pub fn take_reads(&self) -> BTreeSet<String> {
         std::mem::take(&mut *self.reads.lock().expect("read log"))
@@ -214,6 +224,11 @@ impl StageOutput {
             artifacts: Vec::new(),
             summary,
         }
+    }
+    /// A summary written through its serde type (the same type a reader
+    /// gets back with [`ArtifactStore::summary_as`]).
+    pub fn typed<T: serde::Serialize>(summary: &T) -> Result<Self> {
+        Ok(StageOutput::new(serde_json::to_value(summary)?))
     }
     pub fn with(mut self, name: &str, batch: RecordBatch) -> Self {
         self.artifacts.push((name.to_string(), batch));
