@@ -277,7 +277,7 @@ fn run_fleet(
         cols[idx] = std::sync::Arc::new(arrow::array::StringArray::from(m.clone()));
         batch = arrow::record_batch::RecordBatch::try_new(batch.schema(), cols)?;
     }
-    let dcfg = dcfg.with_seed(job.seed)?;
+    let dcfg = DiagnoseConfig::reseeded(dcfg, job.seed)?;
     let out = diagnose_checked(&batch, &dcfg, &[])?;
     let d = &out.diagnosis;
     let named = d.selected.first().cloned().unwrap_or_else(|| "none".into());

@@ -1,31 +1,27 @@
-//! sparkout-pipeline: the DAG engine, the Stage/MachinePlugin/Effect traits,
-//! data contracts (validated readers and atomic writers), the gap diagnosis
-//! and reports. It knows no concrete machine: plugins plug in by trait.
+//! sparkout-pipeline: the DAG engine (discovery, the per-stage cache,
+//! shards, the fleet steps), import of foreign tables and the fuzz entry
+//! points. It knows no concrete machine: plugins plug in by trait.
+//!
+//! The crates below it are re-exported under their old module names, so a
+//! plugin or the binary names one crate: `sparkout-core` (the plugin
+//! interface, contracts, units, errors, files, storage),
+//! `sparkout-diagnose` (the gap diagnosis), `sparkout-report` (the HTML
+//! pages and the trend) and `sparkout-can` (CANopen replay).
 
-pub mod alloc;
-pub mod config_check;
-pub mod contracts;
-pub mod diagnose;
-pub mod effect_spec;
 pub mod engine;
-pub mod error;
-pub mod files;
 pub mod fuzz_entry;
-pub mod html;
 pub mod import;
-pub mod outcome;
-pub mod replay;
-pub mod report;
-pub mod storage;
-pub mod traits;
-pub mod units;
-pub mod values;
-pub mod verdict;
 
-pub use effect_spec::EffectSpec;
-pub use error::{ConfigError, InputError, Result};
-pub use traits::{
-    ArtifactStore, MachinePlugin, ProcessKeys, ReportSection, Run, Stage, StageArgs, StageContext,
+pub use sparkout_can as replay;
+pub use sparkout_core::{
+    alloc, augment, config_check, contracts, effect, effect_spec, error, files, html, outcome,
+    storage, traits, units, values, verdict,
+};
+pub use sparkout_diagnose as diagnose;
+pub use sparkout_report as report;
+
+pub use sparkout_core::{
+    json_f64, json_opt_f64, toml_f64, ArtifactStore, ConfigError, EffectSpec, InputError,
+    MachinePlugin, ProcessKeys, ReportSection, Result, Run, Stage, StageArgs, StageContext,
     StageOutput, StageSpec,
 };
-pub use values::{json_f64, json_opt_f64, toml_f64};

@@ -376,11 +376,25 @@ pub fn cycles(g: &Graph) -> Vec<Vec<String>> {
         .collect()
 }
 
-/// The crates of the workspace: (name, src directory).
+/// The crates of the workspace: (name, src directory) — the root package
+/// and every `[workspace] members` entry of the root Cargo.toml, so a new
+/// crate is checked the day it is added.
 pub fn workspace_crates(root: &Path) -> Vec<(String, PathBuf)> {
-    ["datasets", "pipeline", "plugins", "xtask"]
-        .iter()
-        .map(|c| (c.to_string(), root.join(c).join("src")))
+    let members: Vec<String> = std::fs::read_to_string(root.join("Cargo.toml"))
+        .ok()
+        .and_then(|t| t.parse::<toml::Table>().ok())
+        .and_then(|t| {
+            let m = t.get("workspace")?.get("members")?.as_array()?.clone();
+            Some(
+                m.iter()
+                    .filter_map(|v| v.as_str().map(str::to_string))
+                    .collect(),
+            )
+        })
+        .unwrap_or_default();
+    members
+        .into_iter()
+        .map(|c| (c.clone(), root.join(&c).join("src")))
         .chain(std::iter::once(("sparkout".to_string(), root.join("src"))))
         .filter(|(_, src)| src.is_dir())
         .collect()
@@ -464,6 +478,12 @@ mod tests {
     #[test]
     fn the_workspace_has_no_import_cycle() {
         let root = Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap();
+        let names: Vec<String> = workspace_crates(root).into_iter().map(|c| c.0).collect();
+        for c in [
+            "core", "diagnose", "report", "can", "pipeline", "plugins", "sparkout",
+        ] {
+            assert!(names.iter().any(|n| n == c), "{c} not checked: {names:?}");
+        }
         check(root).unwrap();
     }
 }

@@ -1,0 +1,375 @@
+//! Candidate effects: the `Effect` trait (fit → fitted → predict, linfa
+//! style), the v1 catalogue of docs/formats.md §7, "Candidate effects" and
+//! the composites plugins register (docs/design.md §7,
+//! point 2).
+//!
+//! Every catalogue effect is *linear in its amplitudes once its (at most one)
+//! nonlinear parameter θ is fixed*: drift's τ, periodic's λ (the phase is
+//! linear through a sin/cos pair), edge's λ. Such an effect exposes a
+//! [`LinearForm`]; the diagnosis engine then cross-validates it from additive
+//! per-run sufficient statistics (X'X, X'y) instead of refitting on rows, and
+//! scans θ on a grid. An effect that is not of that shape (a plugin's own
+//! nonlinear model) implements only [`Effect::fit`] and is cross-validated
+//! the slow way (fit on the training rows, predict the held-out rows).
+
+use std::collections::BTreeMap;
+use std::f64::consts::PI;
+use std::sync::Arc;
+
+use anyhow::{anyhow, bail};
+
+use crate::Result;
+
+pub mod fit;
+mod shape;
+pub use shape::*;
+mod catalogue;
+pub use catalogue::*;
+mod composite;
+pub use composite::*;
+
+/// Column views over the rows an effect is fitted on or predicts: one `f64`
+/// slice per covariate, all of the same length. Cheap to build (borrows).
+#[derive(Debug, Clone, Default)]
+pub struct EffectData<'a> {
+    n: usize,
+    cols: Vec<(String, &'a [f64])>,
+}
+
+impl<'a> EffectData<'a> {
+    pub fn new(n_rows: usize) -> Self {
+        EffectData {
+            n: n_rows,
+            cols: Vec::new(),
+        }
+    }
+    /// Adds a covariate column; panics when its length is not the row count
+    /// (an engine bug, never user input).
+    pub fn with(mut self, name: &str, values: &'a [f64]) -> Self {
+        self.push(name, values);
+        self
+    }
+    pub fn push(&mut self, name: &str, values: &'a [f64]) {
+        assert_eq!(values.len(), self.n, "column {name}: length mismatch");
+        self.cols.retain(|(n, _)| n != name);
+        self.cols.push((name.to_string(), values));
+    }
+    pub fn col(&self, name: &str) -> Option<&'a [f64]> {
+        self.cols.iter().find(|(n, _)| n == name).map(|(_, v)| *v)
+    }
+    /// The column or an error naming it (an effect asked for a covariate the
+    /// table lacks).
+    pub fn require(&self, name: &str) -> Result<&'a [f64]> {
+        self.col(name)
+            .ok_or_else(|| anyhow!("effect needs covariate `{name}`, which the data lack"))
+    }
+    pub fn len(&self) -> usize {
+        self.n
+    }
+    pub fn is_empty(&self) -> bool {
+        self.n == 0
+    }
+    pub fn names(&self) -> impl Iterator<Item = &str> {
+        self.cols.iter().map(|(n, _)| n.as_str())
+    }
+}
+
+/// A candidate unmodelled effect. `fit` must fit the shape *together with a
+/// free offset* (docs/design.md §7: "every shape is fitted together with an offset,
+/// so it is judged on its shape").
+pub trait Effect: Send + Sync {
+    /// Catalogue or composite name, e.g. `drift`, `thermal_bow`.
+    fn name(&self) -> &str;
+    /// Covariates it reads, in order (`squareness`: two).
+    fn covariates(&self) -> Vec<String>;
+    /// Shape parameters, the offset excluded (`drift`: amplitude and τ = 2).
+    fn n_params(&self) -> usize;
+    /// Fits shape + offset to `gap` over the rows of `x`.
+    fn fit(&self, x: &EffectData, gap: &[f64]) -> Result<Box<dyn FittedEffect>>;
+    /// The fast path: `Some` when the effect is linear in its amplitudes for
+    /// a fixed θ (all catalogue effects are).
+    fn linear_form(&self) -> Option<Arc<dyn LinearForm>> {
+        None
+    }
+    /// `name:covariate` as diagnosis.json's `selected` spells it
+    /// (`offset` alone; two covariates joined by a comma).
+    /// The key of the catalogue candidate this effect is a physically named
+    /// version of (a plugin composite made by [`composite`]): the diagnosis
+    /// then tries only the named one, so the two never tie for first place.
+    fn replaces(&self) -> Option<String> {
+        None
+    }
+    fn key(&self) -> String {
+        let c = self.covariates();
+        if c.is_empty() {
+            self.name().to_string()
+        } else {
+            format!("{}:{}", self.name(), c.join(","))
+        }
+    }
+}
+
+/// A fitted effect: its parameters and a predictor of its *shape* (the
+/// offset it was fitted with is reported apart, [`FittedEffect::offset_mm`]).
+pub trait FittedEffect: Send + Sync {
+    fn params(&self) -> BTreeMap<String, f64>;
+    fn offset_mm(&self) -> f64;
+    fn predict(&self, x: &EffectData) -> Vec<f64>;
+}
+
+/// Data-dependent constants of one covariate, computed from covariate values
+/// only (never from the gap), over all rows of an observable: the range that
+/// bounds `bow` and `periodic`, and the typical sample step (the smallest
+/// admissible wavelength is 3 sample steps, docs/formats.md §7 catalogue table).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct CovStats {
+    pub min: f64,
+    pub max: f64,
+    /// Median positive spacing of the sorted distinct values.
+    pub step: f64,
+    pub max_abs: f64,
+}
+
+impl CovStats {
+    pub fn from_values(v: &[f64]) -> CovStats {
+        let mut s: Vec<f64> = v.to_vec();
+        s.sort_unstable_by(f64::total_cmp);
+        Self::from_sorted(&s)
+    }
+    /// From ascending values (the engine sorts each covariate once).
+    pub fn from_sorted(s: &[f64]) -> CovStats {
+        if s.is_empty() {
+            return CovStats {
+                min: 0.0,
+                max: 0.0,
+                step: 0.0,
+                max_abs: 0.0,
+            };
+        }
+        let (min, max) = (s[0], s[s.len() - 1]);
+        let tol = 1e-12 * (max - min).abs().max(1e-300);
+        let mut steps: Vec<f64> = s
+            .windows(2)
+            .map(|w| w[1] - w[0])
+            .filter(|d| *d > tol)
+            .collect();
+        let step = if steps.is_empty() {
+            0.0
+        } else {
+            let m = steps.len() / 2;
+            *steps.select_nth_unstable_by(m, f64::total_cmp).1
+        };
+        CovStats {
+            min,
+            max,
+            step,
+            max_abs: min.abs().max(max.abs()),
+        }
+    }
+    pub fn range(&self) -> f64 {
+        self.max - self.min
+    }
+    /// Centre and half range, used to standardise linear features so the
+    /// normal equations stay well conditioned (removed_mm3 reaches 1e5).
+    fn mid_half(&self) -> (f64, f64) {
+        let half = 0.5 * self.range();
+        (
+            0.5 * (self.min + self.max),
+            if half > 0.0 { half } else { 1.0 },
+        )
+    }
+    /// A covariate that does not vary cannot carry a shape (skipped, said).
+    pub fn is_constant(&self) -> bool {
+        let r = self.range();
+        r.is_nan() || r <= 1e-12 * self.max_abs.max(1e-300)
+    }
+}
+
+/// The constants of each covariate of a form, in `covariates()` order.
+pub type Frame = Vec<CovStats>;
+
+/// Search range of the one nonlinear parameter θ of a form.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ThetaRange {
+    /// Parameter name as reported (`tau_s`, `lambda`).
+    pub name: String,
+    pub lo: f64,
+    pub hi: f64,
+    /// Coarse grid, ascending in θ, dense enough that the refinement between
+    /// two neighbours finds the optimum (periodic: a quarter cycle over the
+    /// covariate's range between neighbours).
+    pub grid: Vec<f64>,
+    /// Covariate resolution at which values may be pooled for the coarse
+    /// scan without changing a feature by more than ~1 %.
+    pub resolution: f64,
+    /// Refine in log θ (τ, edge λ) or in 1/θ (periodic λ: frequency).
+    pub refine_in_frequency: bool,
+}
+
+/// Reported parameters (contract units) and the offset in the convention
+/// `offset_mm + form(c; params)`.
+pub type ParamsAndOffset = (BTreeMap<String, f64>, f64);
+
+/// Feature columns, `out[j][i]` = feature j at row i.
+pub type Columns = [Vec<f64>];
+
+/// An effect that is linear in its amplitudes given θ.
+pub trait LinearForm: Send + Sync {
+    fn covariates(&self) -> Vec<String>;
+    /// Number of linear shape features (the offset is implicit).
+    fn n_linear(&self) -> usize;
+    /// `None` for purely linear forms.
+    fn theta(&self, frame: &Frame) -> Option<ThetaRange>;
+    /// Writes the shape features of every row of `x` into `out[j][i]`
+    /// (`out.len() == n_linear()`, each `x.len()` long).
+    fn features(&self, frame: &Frame, x: &EffectData, theta: f64, out: &mut Columns) -> Result<()>;
+    /// The features at every θ of `grid`, in order, each handed to `each`
+    /// (the coarse θ scan). The default computes each θ from scratch
+    /// ([`features_each`]); a form whose features advance cheaply from one
+    /// grid value to the next overrides it (periodic: one rotation per row).
+    fn features_grid(
+        &self,
+        frame: &Frame,
+        x: &EffectData,
+        grid: &[f64],
+        out: &mut Columns,
+        each: &mut dyn FnMut(usize, &Columns) -> Result<()>,
+    ) -> Result<()> {
+        features_each(self, frame, x, grid, out, each)
+    }
+    /// Reported parameters (contract units) from θ, the feature
+    /// coefficients and the fitted offset; returns the parameters and the
+    /// offset in the convention `offset_mm + form(c; params)`.
+    fn params(&self, frame: &Frame, theta: f64, coef: &[f64], offset: f64) -> ParamsAndOffset;
+    /// The catalogue forms it is built from, each on its covariates (one
+    /// for a catalogue shape, two for a product), so a fit can be replayed
+    /// outside the diagnosis ([`rebuild_linear_form`]); empty for a form
+    /// that is not built from the catalogue.
+    fn factors(&self) -> Vec<(Kind, Vec<String>)> {
+        Vec::new()
+    }
+}
+
+/// [`LinearForm::features_grid`] by [`LinearForm::features`] at each θ.
+pub fn features_each<F: LinearForm + ?Sized>(
+    form: &F,
+    frame: &Frame,
+    x: &EffectData,
+    grid: &[f64],
+    out: &mut Columns,
+    each: &mut dyn FnMut(usize, &Columns) -> Result<()>,
+) -> Result<()> {
+    for (gi, &theta) in grid.iter().enumerate() {
+        form.features(frame, x, theta, out)?;
+        each(gi, out)?;
+    }
+    Ok(())
+}
+
+/// The linear form of `factors` (as [`LinearForm::factors`] lists them):
+/// a catalogue shape, or the product of two. None for any other list.
+pub fn rebuild_linear_form(factors: &[(Kind, Vec<String>)]) -> Option<Arc<dyn LinearForm>> {
+    let effect = |(k, c): &(Kind, Vec<String>)| {
+        let covs: Vec<&str> = c.iter().map(String::as_str).collect();
+        catalogue_effect(*k, &covs)
+    };
+    match factors {
+        [one] => effect(one).linear_form(),
+        [a, b] => product("replay", effect(a), effect(b)).ok()?.linear_form(),
+        _ => None,
+    }
+}
+
+/// The v1 catalogue kinds (docs/formats.md §7 table).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Kind {
+    Offset,
+    Scale,
+    Drift,
+    Lag,
+    Inertia,
+    Backlash,
+    Wear,
+    Compliance,
+    Bow,
+    Periodic,
+    Edge,
+    Squareness,
+    Thermal,
+}
+
+impl Kind {
+    pub fn name(self) -> &'static str {
+        match self {
+            Kind::Offset => "offset",
+            Kind::Scale => "scale",
+            Kind::Drift => "drift",
+            Kind::Lag => "lag",
+            Kind::Inertia => "inertia",
+            Kind::Backlash => "backlash",
+            Kind::Wear => "wear",
+            Kind::Compliance => "compliance",
+            Kind::Bow => "bow",
+            Kind::Periodic => "periodic",
+            Kind::Edge => "edge",
+            Kind::Squareness => "squareness",
+            Kind::Thermal => "thermal",
+        }
+    }
+    pub fn all() -> [Kind; 13] {
+        [
+            Kind::Offset,
+            Kind::Scale,
+            Kind::Drift,
+            Kind::Lag,
+            Kind::Inertia,
+            Kind::Backlash,
+            Kind::Wear,
+            Kind::Compliance,
+            Kind::Bow,
+            Kind::Periodic,
+            Kind::Edge,
+            Kind::Squareness,
+            Kind::Thermal,
+        ]
+    }
+    pub fn from_name(s: &str) -> Option<Kind> {
+        Kind::all().into_iter().find(|k| k.name() == s)
+    }
+    /// Shape parameters (offset excluded).
+    pub fn n_params(self) -> usize {
+        match self {
+            Kind::Offset => 0,
+            Kind::Drift | Kind::Edge => 2,
+            Kind::Periodic => 3,
+            _ => 1,
+        }
+    }
+    fn n_linear(self) -> usize {
+        match self {
+            Kind::Offset => 0,
+            Kind::Periodic => 2,
+            _ => 1,
+        }
+    }
+}
+
+/// Reference temperature of `thermal` (k·(T − T0)): T0 is confounded with
+/// the offset, so it is fixed at the metrology reference 20 °C (ISO 1).
+pub const THERMAL_T0_C: f64 = 20.0;
+/// τ of `drift` is searched in [span/200, span] of the time covariate: a
+/// longer τ makes drift a straight line (which `wear`/`scale` already are).
+pub const DRIFT_TAU_MIN_FRAC: f64 = 1.0 / 200.0;
+/// Upper bound of periodic's cycle count over the covariate range beyond the
+/// contract's 3-sample-step bound: keeps the frequency scan bounded on
+/// densely sampled time covariates (see [`periodic_lambda_bounds`]).
+pub const PERIODIC_MAX_CYCLES: f64 = 64.0;
+
+/// Periodic λ bounds: from max(3 sample steps, range/64) to the covariate
+/// range (docs/formats.md: at least one whole cycle inside the data, so
+/// periodic cannot impersonate scale or bow).
+pub fn periodic_lambda_bounds(s: &CovStats) -> (f64, f64) {
+    let range = s.range();
+    let lo = (3.0 * s.step).max(range / PERIODIC_MAX_CYCLES);
+    (lo.min(range), range)
+}

@@ -1,0 +1,658 @@
+//! Least squares from additive sufficient statistics, and the 1-D search of
+//! a form's nonlinear parameter θ.
+//!
+//! Why sufficient statistics: for a model linear in its coefficients β, the
+//! normal equations X'WX β = X'Wy are sums over rows. Computing X'X, X'y and
+//! y'y once per *unit* (a run, or a block of a run) lets every fold of the
+//! leave-runs-out cross-validation fit from the sum over its training units
+//! and score each held-out unit exactly as y'y − 2β'X'y + β'X'Xβ — no row is
+//! touched per fold ("Speed"). For the θ scan of a one-covariate
+//! form, rows are first pooled into bins of the covariate finer than θ's
+//! resolution (`ThetaRange::resolution`), so each grid value costs a pass over
+//! bins, not rows; the chosen θ is then refined by golden section and the
+//! held-out score is computed exactly on rows.
+
+use std::ops::Range;
+
+use anyhow::bail;
+use nalgebra::{DMatrix, DVector};
+
+use super::{EffectData, Frame, LinearForm, ThetaRange};
+use crate::Result;
+
+/// X'WX (p×p, p = 1 + n_linear; column 0 is the offset).
+pub fn design_gram(feats: &[Vec<f64>], w: Option<&[f64]>, r: Range<usize>) -> Vec<f64> {
+    let p = feats.len() + 1;
+    let mut g = vec![0.0; p * p];
+    let n = match w {
+        Some(w) => w[r.clone()].iter().sum(),
+        None => r.len() as f64,
+    };
+    g[0] = n;
+    for j in 0..feats.len() {
+        let fj = &feats[j][r.clone()];
+        let s = match w {
+            Some(w) => dot(fj, &w[r.clone()]),
+            None => fj.iter().sum(),
+        };
+        g[j + 1] = s;
+        g[(j + 1) * p] = s;
+        for k in j..feats.len() {
+            let fk = &feats[k][r.clone()];
+            let s = match w {
+                Some(w) => dot3(fj, fk, &w[r.clone()]),
+                None => dot(fj, fk),
+            };
+            g[(j + 1) * p + k + 1] = s;
+            g[(k + 1) * p + j + 1] = s;
+        }
+    }
+    g
+}
+
+/// X'y (length p) where `sy` holds y (rows) or Σy (pooled rows).
+pub fn design_xy(feats: &[Vec<f64>], sy: &[f64], r: Range<usize>) -> Vec<f64> {
+    let mut h = Vec::with_capacity(feats.len() + 1);
+    h.push(sy[r.clone()].iter().sum());
+    for f in feats {
+        h.push(dot(&f[r.clone()], &sy[r.clone()]));
+    }
+    h
+}
+
+/// Four-way unrolled dot product (f64 sums do not auto-vectorise otherwise).
+pub fn dot(a: &[f64], b: &[f64]) -> f64 {
+    let n = a.len().min(b.len());
+    let (mut s0, mut s1, mut s2, mut s3) = (0.0, 0.0, 0.0, 0.0);
+    let mut i = 0;
+    while i + 4 <= n {
+        s0 += a[i] * b[i];
+        s1 += a[i + 1] * b[i + 1];
+        s2 += a[i + 2] * b[i + 2];
+        s3 += a[i + 3] * b[i + 3];
+        i += 4;
+    }
+    while i < n {
+        s0 += a[i] * b[i];
+        i += 1;
+    }
+    (s0 + s1) + (s2 + s3)
+}
+
+fn dot3(a: &[f64], b: &[f64], c: &[f64]) -> f64 {
+    let n = a.len().min(b.len()).min(c.len());
+    let (mut s0, mut s1) = (0.0, 0.0);
+    let mut i = 0;
+    while i + 2 <= n {
+        s0 += a[i] * b[i] * c[i];
+        s1 += a[i + 1] * b[i + 1] * c[i + 1];
+        i += 2;
+    }
+    if i < n {
+        s0 += a[i] * b[i] * c[i];
+    }
+    s0 + s1
+}
+
+pub fn add_into(acc: &mut [f64], v: &[f64]) {
+    for (a, b) in acc.iter_mut().zip(v) {
+        *a += b;
+    }
+}
+
+/// Solves G β = h (symmetric positive semi-definite). Cholesky with a tiny
+/// ridge for conditioning; a singular system (collinear features) falls back
+/// to the SVD minimum-norm solution.
+pub fn solve(g: &[f64], h: &[f64]) -> Option<Vec<f64>> {
+    let p = h.len();
+    if p == 0 {
+        return Some(Vec::new());
+    }
+    let scale = (0..p).map(|i| g[i * p + i].abs()).fold(0.0, f64::max);
+    if scale.is_nan() || scale <= 0.0 || !scale.is_finite() {
+        return None;
+    }
+    let mut m = DMatrix::from_row_slice(p, p, g);
+    for i in 0..p {
+        m[(i, i)] += 1e-12 * scale;
+    }
+    let b = DVector::from_column_slice(h);
+    if let Some(ch) = m.clone().cholesky() {
+        let x = ch.solve(&b);
+        if x.iter().all(|v| v.is_finite()) {
+            return Some(x.iter().copied().collect());
+        }
+    }
+    let svd = m.svd(true, true);
+    svd.solve(&b, 1e-10 * scale)
+        .ok()
+        .map(|x| x.iter().copied().collect())
+}
+
+/// y'y − 2β'h + β'Gβ: the SSE of coefficients β on a unit's statistics.
+pub fn sse(g: &[f64], h: &[f64], yy: f64, beta: &[f64]) -> f64 {
+    let p = beta.len();
+    let mut quad = 0.0;
+    for i in 0..p {
+        let mut s = 0.0;
+        for j in 0..p {
+            s += g[i * p + j] * beta[j];
+        }
+        quad += beta[i] * s;
+    }
+    (yy - 2.0 * dot(beta, h) + quad).max(0.0)
+}
+
+/// Rows (or pooled bins) over which θ is scanned: one covariate column
+/// (pooled) or the original rows, weights, and per-target Σy per row.
+pub struct ScanRows<'a> {
+    pub x: EffectData<'a>,
+    pub w: Option<Vec<f64>>,
+    /// Σy per (pseudo-)row for each distinct target.
+    pub sy: Vec<Vec<f64>>,
+    /// The rows of each scan unit (a group of units, [`fold_groups`]).
+    pub units: Vec<Vec<Range<usize>>>,
+}
+
+/// The units grouped by the folds that train on them: units every fold
+/// treats alike are summed together in the θ scan, so its cost depends on
+/// the number of folds, not of runs (a fleet of 500 runs is 6 groups for
+/// 5 folds; with the rows of a group pooled into one set of covariate bins,
+/// the 10⁶-row scan went from 10⁶ rows per grid value to a few thousand
+/// bins). Groups in order of their first unit; members in unit order.
+pub fn fold_groups(train: &[Vec<bool>], n_units: usize) -> Vec<Vec<usize>> {
+    let mut groups: Vec<Vec<usize>> = Vec::new();
+    let mut pattern_of_group: Vec<Vec<bool>> = Vec::new();
+    for u in 0..n_units {
+        let pattern: Vec<bool> = train.iter().map(|m| m[u]).collect();
+        match pattern_of_group.iter().position(|p| *p == pattern) {
+            Some(g) => groups[g].push(u),
+            None => {
+                pattern_of_group.push(pattern);
+                groups.push(vec![u]);
+            }
+        }
+    }
+    groups
+}
+
+/// Pooled covariate, counts, Σy per target, pooled unit ranges.
+pub type Pooled = (Vec<f64>, Vec<f64>, Vec<Vec<f64>>, Vec<Range<usize>>);
+
+/// Per-unit X'X, and X'y per target per unit.
+type UnitStats = (Vec<Vec<f64>>, Vec<Vec<Vec<f64>>>);
+
+/// Pools the rows of each unit — a unit being one or more row ranges —
+/// into bins of width `res` of one covariate (bin value = mean covariate
+/// inside). Returns the pooled covariate, the counts, Σy per target and the
+/// pooled unit ranges (one per unit).
+pub fn pool_rows(
+    c: &[f64],
+    c_min: f64,
+    res: f64,
+    units: &[Vec<Range<usize>>],
+    targets: &[&[f64]],
+) -> Pooled {
+    let span = c.iter().fold(0.0f64, |m, v| m.max(v - c_min));
+    // At most 1<<16 bins: beyond that pooling saves nothing.
+    let res = res.max(span / 65_536.0).max(1e-300);
+    let nb = (span / res) as usize + 1;
+    let (mut xc, mut w, mut out_units) = (Vec::new(), Vec::new(), Vec::new());
+    let mut sy: Vec<Vec<f64>> = vec![Vec::new(); targets.len()];
+    let mut cnt = vec![0.0f64; nb];
+    let mut sc = vec![0.0f64; nb];
+    let mut st = vec![vec![0.0f64; nb]; targets.len()];
+    let mut touched: Vec<usize> = Vec::new();
+    for u in units {
+        touched.clear();
+        for i in u.iter().flat_map(Range::clone) {
+            let b = (((c[i] - c_min) / res) as usize).min(nb - 1);
+            if cnt[b] == 0.0 {
+                touched.push(b);
+            }
+            cnt[b] += 1.0;
+            sc[b] += c[i];
+            for (t, y) in targets.iter().enumerate() {
+                st[t][b] += y[i];
+            }
+        }
+        touched.sort_unstable();
+        let start = xc.len();
+        for &b in &touched {
+            xc.push(sc[b] / cnt[b]);
+            w.push(cnt[b]);
+            for t in 0..targets.len() {
+                sy[t].push(st[t][b]);
+                st[t][b] = 0.0;
+            }
+            cnt[b] = 0.0;
+            sc[b] = 0.0;
+        }
+        out_units.push(start..xc.len());
+    }
+    (xc, w, sy, out_units)
+}
+
+/// Folds as seen by the fitter: which units train each fold, and which
+/// target (index into the targets) each fold fits.
+pub struct FoldSpec<'a> {
+    pub train: &'a [Vec<bool>],
+    pub target_of_fold: &'a [usize],
+}
+
+/// Per-unit G and per-target, per-unit h for one θ over scan rows.
+fn unit_stats(
+    form: &dyn LinearForm,
+    frame: &Frame,
+    rows: &ScanRows,
+    theta: f64,
+    buf: &mut [Vec<f64>],
+) -> Result<UnitStats> {
+    form.features(frame, &rows.x, theta, buf)?;
+    Ok(unit_stats_of(buf, rows))
+}
+
+/// Per-unit G and per-target, per-unit h of features `buf` of scan rows.
+fn unit_stats_of(buf: &[Vec<f64>], rows: &ScanRows) -> UnitStats {
+    let per_range = |u: &Range<usize>| match (buf.len(), rows.w.as_deref()) {
+        (1, Some(w)) => unit_moments::<1>(buf, w, &rows.sy, u.clone()),
+        (2, Some(w)) => unit_moments::<2>(buf, w, &rows.sy, u.clone()),
+        (_, w) => (
+            design_gram(buf, w, u.clone()),
+            rows.sy
+                .iter()
+                .map(|sy| design_xy(buf, sy, u.clone()))
+                .collect(),
+        ),
+    };
+    // A unit of several ranges (unpooled rows of a group) sums its ranges.
+    let per_unit = |ranges: &[Range<usize>]| {
+        let mut it = ranges.iter();
+        let (mut g, mut h) = match it.next() {
+            Some(r) => per_range(r),
+            None => per_range(&(0..0)),
+        };
+        for r in it {
+            let (g_r, h_r) = per_range(r);
+            add_into(&mut g, &g_r);
+            for (h_t, x) in h.iter_mut().zip(&h_r) {
+                add_into(h_t, x);
+            }
+        }
+        (g, h)
+    };
+    // g by unit, h by [target][unit]: each unit's vectors moved into place.
+    let mut g = Vec::with_capacity(rows.units.len());
+    let mut h = vec![Vec::with_capacity(rows.units.len()); rows.sy.len()];
+    for u in &rows.units {
+        let (g_u, h_u) = per_unit(u);
+        g.push(g_u);
+        for (h_t, x) in h.iter_mut().zip(h_u) {
+            h_t.push(x);
+        }
+    }
+    (g, h)
+}
+
+/// Lanes of the fused sums (independent accumulators the loop vectorises).
+const LANES: usize = 4;
+
+/// Rows of a column `a` and `F` feature columns (all `a.len()` long), each
+/// handed to `row` with its lane: whole groups of [`LANES`] rows sliced once
+/// (no bounds check per value) with a constant lane each (independent sums
+/// the compiler keeps in registers), then the tail in lane 0.
+#[inline(always)]
+fn in_lanes<const F: usize>(a: &[f64], f: [&[f64]; F], mut row: impl FnMut(f64, [f64; F], usize)) {
+    let n = a.len();
+    let whole = n / LANES * LANES;
+    for c in (0..whole).step_by(LANES) {
+        let a4 = &a[c..c + LANES];
+        let f4: [&[f64]; F] = std::array::from_fn(|j| &f[j][c..c + LANES]);
+        for l in 0..LANES {
+            row(a4[l], std::array::from_fn(|j| f4[j][l]), l);
+        }
+    }
+    for i in whole..n {
+        row(a[i], std::array::from_fn(|j| f[j][i]), 0);
+    }
+}
+
+/// [`design_gram`] with weights and [`design_xy`] of every target over one
+/// unit's pooled rows in one pass per matrix: the θ scan's inner loop (its
+/// six to nine separate dot products were half the diagnosis' time), the
+/// columns read once, the sums in [`LANES`] lanes. `F` features.
+fn unit_moments<const F: usize>(
+    feats: &[Vec<f64>],
+    w: &[f64],
+    sy: &[Vec<f64>],
+    r: Range<usize>,
+) -> (Vec<f64>, Vec<Vec<f64>>) {
+    let w = &w[r.clone()];
+    let n = w.len();
+    let f: [&[f64]; F] = std::array::from_fn(|j| &feats[j][r.clone()][..n]);
+    let lanes = |acc: &[f64; LANES]| (acc[0] + acc[1]) + (acc[2] + acc[3]);
+    let p = F + 1;
+    let mut g = vec![0.0; p * p];
+    {
+        let (mut sw, mut s1, mut s2) = ([0.0; LANES], [[0.0; LANES]; F], [[[0.0; LANES]; F]; F]);
+        in_lanes(w, f, |wi, x, l| {
+            sw[l] += wi;
+            for j in 0..F {
+                let wa = wi * x[j];
+                s1[j][l] += wa;
+                for k in j..F {
+                    s2[j][k][l] += wa * x[k];
+                }
+            }
+        });
+        g[0] = lanes(&sw);
+        for j in 0..F {
+            let s = lanes(&s1[j]);
+            g[j + 1] = s;
+            g[(j + 1) * p] = s;
+            for k in j..F {
+                let s = lanes(&s2[j][k]);
+                g[(j + 1) * p + k + 1] = s;
+                g[(k + 1) * p + j + 1] = s;
+            }
+        }
+    }
+    let h = sy
+        .iter()
+        .map(|sy| {
+            let sy = &sy[r.clone()][..n];
+            let (mut s0, mut s1) = ([0.0; LANES], [[0.0; LANES]; F]);
+            in_lanes(sy, f, |y, x, l| {
+                s0[l] += y;
+                for j in 0..F {
+                    s1[j][l] += x[j] * y;
+                }
+            });
+            std::iter::once(lanes(&s0))
+                .chain(s1.iter().map(lanes))
+                .collect()
+        })
+        .collect();
+    (g, h)
+}
+
+/// Training SSE at the least-squares optimum: y'y − β'h.
+fn train_sse(g_u: &[Vec<f64>], h_u: &[Vec<f64>], yy_u: &[f64], train: &[bool], p: usize) -> f64 {
+    let mut g = vec![0.0; p * p];
+    let mut h = vec![0.0; p];
+    let mut yy = 0.0;
+    for (u, t) in train.iter().enumerate() {
+        if *t {
+            add_into(&mut g, &g_u[u]);
+            add_into(&mut h, &h_u[u]);
+            yy += yy_u[u];
+        }
+    }
+    match solve(&g, &h) {
+        Some(b) => sse(&g, &h, yy, &b),
+        None => f64::INFINITY,
+    }
+}
+
+/// Chooses θ per fold: coarse grid on the scan rows, then golden-section
+/// refinement between the best grid value's neighbours (in log θ, or in
+/// frequency 1/θ for periodic), all on the fold's training units.
+/// `yy_u[t][u]` is Σy² of target t in unit u.
+pub fn choose_theta(
+    form: &dyn LinearForm,
+    frame: &Frame,
+    tr: &ThetaRange,
+    rows: &ScanRows,
+    yy_u: &[Vec<f64>],
+    folds: &FoldSpec,
+) -> Result<Vec<f64>> {
+    let p = form.n_linear() + 1;
+    let nf = folds.train.len();
+    let mut buf = vec![Vec::new(); form.n_linear()];
+    let mut best = vec![(f64::INFINITY, 0usize); nf];
+    form.features_grid(frame, &rows.x, &tr.grid, &mut buf, &mut |gi, feats| {
+        let (g_u, h_u) = unit_stats_of(feats, rows);
+        for (f, b) in best.iter_mut().enumerate() {
+            let t = folds.target_of_fold[f];
+            let s = train_sse(&g_u, &h_u[t], &yy_u[t], &folds.train[f], p);
+            if s < b.0 {
+                *b = (s, gi);
+            }
+        }
+        Ok(())
+    })?;
+    let to = |th: f64| {
+        if tr.refine_in_frequency {
+            1.0 / th
+        } else {
+            th.ln()
+        }
+    };
+    let from = |z: f64| {
+        if tr.refine_in_frequency {
+            1.0 / z
+        } else {
+            z.exp()
+        }
+    };
+    let mut out = Vec::with_capacity(nf);
+    let mut refined: std::collections::HashMap<u64, UnitStats> = std::collections::HashMap::new();
+    for (f, &(best_sse, gi)) in best.iter().enumerate() {
+        let lo_t = tr.grid[gi.saturating_sub(1)];
+        let hi_t = tr.grid[(gi + 1).min(tr.grid.len() - 1)];
+        let (mut a, mut b) = (to(lo_t), to(hi_t));
+        if a > b {
+            std::mem::swap(&mut a, &mut b);
+        }
+        let t = folds.target_of_fold[f];
+        // Folds that share a best grid value start from the same bracket and
+        // mostly walk the same points: the unit statistics at a point are
+        // the same for every fold, so each is computed once.
+        let mut eval = |z: f64| -> Result<f64> {
+            let (g_u, h_u) = match refined.entry(z.to_bits()) {
+                std::collections::hash_map::Entry::Occupied(e) => e.into_mut(),
+                std::collections::hash_map::Entry::Vacant(e) => {
+                    e.insert(unit_stats(form, frame, rows, from(z), &mut buf)?)
+                }
+            };
+            Ok(train_sse(g_u, &h_u[t], &yy_u[t], &folds.train[f], p))
+        };
+        let (mut bz, mut bs) = (to(tr.grid[gi]), best_sse);
+        if b > a {
+            let r = 0.5 * (5f64.sqrt() - 1.0);
+            let (mut x1, mut x2) = (b - r * (b - a), a + r * (b - a));
+            let (mut f1, mut f2) = (eval(x1)?, eval(x2)?);
+            for _ in 0..20 {
+                if f1 < f2 {
+                    b = x2;
+                    x2 = x1;
+                    f2 = f1;
+                    x1 = b - r * (b - a);
+                    f1 = eval(x1)?;
+                } else {
+                    a = x1;
+                    x1 = x2;
+                    f1 = f2;
+                    x2 = a + r * (b - a);
+                    f2 = eval(x2)?;
+                }
+            }
+            for (z, s) in [(x1, f1), (x2, f2)] {
+                if s < bs {
+                    bz = z;
+                    bs = s;
+                }
+            }
+        }
+        out.push(from(bz).clamp(tr.lo.min(tr.hi), tr.hi.max(tr.lo)));
+    }
+    Ok(out)
+}
+
+/// Builds the scan rows of a form over `x` (pooled when the form has one
+/// covariate and a positive resolution). `units`: the row ranges of each
+/// scan unit (a group of [`fold_groups`]).
+pub fn scan_rows<'a>(
+    form: &dyn LinearForm,
+    frame: &Frame,
+    tr: &ThetaRange,
+    x: &EffectData<'a>,
+    units: &[Vec<Range<usize>>],
+    targets: &[&[f64]],
+    pooled_store: &'a mut Vec<f64>,
+) -> Result<ScanRows<'a>> {
+    let covs = form.covariates();
+    if covs.len() == 1 && tr.resolution > 0.0 {
+        let c = x.require(&covs[0])?;
+        let (xc, w, sy, pu) = pool_rows(c, frame[0].min, tr.resolution, units, targets);
+        *pooled_store = xc;
+        let pooled: &'a Vec<f64> = pooled_store;
+        let xd = EffectData::new(pooled.len()).with(&covs[0], pooled);
+        Ok(ScanRows {
+            x: xd,
+            w: Some(w),
+            sy,
+            units: pu.into_iter().map(|r| vec![r]).collect(),
+        })
+    } else {
+        Ok(ScanRows {
+            x: x.clone(),
+            w: None,
+            sy: targets.iter().map(|t| t.to_vec()).collect(),
+            units: units.to_vec(),
+        })
+    }
+}
+
+/// One least-squares fit of a form: θ (NaN when linear), coefficients of
+/// the shape features, offset (feature-space; see `LinearForm::params`).
+#[derive(Debug, Clone)]
+pub struct FormFit {
+    pub theta: f64,
+    pub coef: Vec<f64>,
+    pub offset: f64,
+}
+
+/// Fits a form with an offset on all rows of `x` (the `Effect::fit` path
+/// and the augmented model): θ scan + refine, then exact least squares.
+pub fn fit_form(
+    form: &dyn LinearForm,
+    frame: &Frame,
+    x: &EffectData,
+    y: &[f64],
+) -> Result<FormFit> {
+    let n = x.len();
+    if y.len() != n {
+        bail!("fit: {} gap values for {} rows", y.len(), n);
+    }
+    let p = form.n_linear() + 1;
+    if n < p {
+        bail!("fit: {n} observations for {p} parameters");
+    }
+    let units = vec![vec![0..n]];
+    let theta = match form.theta(frame) {
+        None => f64::NAN,
+        Some(tr) => {
+            let mut store = Vec::new();
+            let rows = scan_rows(form, frame, &tr, x, &units, &[y], &mut store)?;
+            let yy = vec![vec![dot(y, y)]];
+            let train = vec![vec![true]];
+            let spec = FoldSpec {
+                train: &train,
+                target_of_fold: &[0],
+            };
+            choose_theta(form, frame, &tr, &rows, &yy, &spec)?[0]
+        }
+    };
+    let mut buf = vec![Vec::new(); form.n_linear()];
+    form.features(frame, x, theta, &mut buf)?;
+    let g = design_gram(&buf, None, 0..n);
+    let h = design_xy(&buf, y, 0..n);
+    let beta = solve(&g, &h).ok_or_else(|| anyhow::anyhow!("fit: singular normal equations"))?;
+    Ok(FormFit {
+        theta,
+        coef: beta[1..].to_vec(),
+        offset: beta[0],
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn solve_recovers_linear_coefficients() {
+        // y = 2 + 3 f
+        let f = vec![(0..50).map(|i| i as f64 / 10.0).collect::<Vec<_>>()];
+        let y: Vec<f64> = f[0].iter().map(|v| 2.0 + 3.0 * v).collect();
+        let g = design_gram(&f, None, 0..50);
+        let h = design_xy(&f, &y, 0..50);
+        let b = solve(&g, &h).unwrap();
+        assert!((b[0] - 2.0).abs() < 1e-9 && (b[1] - 3.0).abs() < 1e-9);
+        assert!(sse(&g, &h, dot(&y, &y), &b) < 1e-9);
+    }
+
+    #[test]
+    fn fused_unit_moments_are_the_separate_sums() {
+        let n = 203;
+        let col =
+            |k: f64| -> Vec<f64> { (0..n).map(|i| ((i as f64) * k).sin() + 0.1 * k).collect() };
+        let feats = vec![col(0.37), col(1.3)];
+        let w: Vec<f64> = (0..n).map(|i| 1.0 + (i % 5) as f64).collect();
+        let sy = vec![col(0.11), col(2.9)];
+        for r in [0..n, 17..18, 40..131, 5..5] {
+            let one = super::unit_moments::<1>(&feats[..1], &w, &sy, r.clone());
+            let two = super::unit_moments::<2>(&feats, &w, &sy, r.clone());
+            for (fused, f) in [(one, &feats[..1]), (two, &feats[..])] {
+                let g = design_gram(f, Some(&w), r.clone());
+                let close = |a: &[f64], b: &[f64]| {
+                    a.len() == b.len()
+                        && a.iter()
+                            .zip(b)
+                            .all(|(x, y)| (x - y).abs() <= 1e-12 * (1.0 + y.abs()))
+                };
+                assert!(close(&fused.0, &g), "{:?} vs {g:?}", fused.0);
+                for (t, s) in sy.iter().enumerate() {
+                    assert!(close(&fused.1[t], &design_xy(f, s, r.clone())));
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn pooling_keeps_sums() {
+        let c: Vec<f64> = (0..100).map(|i| (i % 10) as f64).collect();
+        let y: Vec<f64> = (0..100).map(|i| i as f64).collect();
+        let unit = |r: Range<usize>| vec![r];
+        let (xc, w, sy, u) = pool_rows(&c, 0.0, 0.5, &[unit(0..50), unit(50..100)], &[&y]);
+        assert_eq!(u.len(), 2);
+        assert_eq!(xc.len(), 20);
+        assert_eq!(w.iter().sum::<f64>(), 100.0);
+        assert!((sy[0].iter().sum::<f64>() - y.iter().sum::<f64>()).abs() < 1e-9);
+        // A unit of two ranges pools them into one set of bins.
+        let (xc, w, sy, u) = pool_rows(&c, 0.0, 0.5, &[vec![0..30, 70..100]], &[&y]);
+        assert_eq!(u, vec![0..10]);
+        assert_eq!(xc, (0..10).map(f64::from).collect::<Vec<_>>());
+        assert_eq!(w, vec![6.0; 10]);
+        let want: f64 = (0..30).chain(70..100).map(f64::from).sum();
+        assert_eq!(sy[0].iter().sum::<f64>(), want);
+    }
+
+    /// Units are grouped by the folds that train on them (here: the units
+    /// one fold holds out form a group), groups in order of first
+    /// appearance; with one all-units fit, every unit is in one group.
+    #[test]
+    fn units_group_by_their_training_folds() {
+        // Unit fold assignment 0 1 0 2 1 0, three folds + the all-runs fit.
+        let unit_fold = [0usize, 1, 0, 2, 1, 0];
+        let mut train: Vec<Vec<bool>> = (0..3)
+            .map(|f| unit_fold.iter().map(|&uf| uf != f).collect())
+            .collect();
+        train.push(vec![true; 6]);
+        assert_eq!(
+            fold_groups(&train, 6),
+            vec![vec![0, 2, 5], vec![1, 4], vec![3]]
+        );
+        assert_eq!(fold_groups(&[vec![true; 3]], 3), vec![vec![0, 1, 2]]);
+    }
+}

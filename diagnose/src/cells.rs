@@ -1,0 +1,299 @@
+//! "Where is the gap?" (docs/design.md §7 point 1): cells of
+//! covariate space per observable — quantile bins per covariate (one cell
+//! per value for covariates with at most 8 values: `dir`, `pass`), 4×4
+//! quantile tiles over (x_mm, y_mm) — each with its Σgap², RMS and a test
+//! against the noise floor.
+//!
+//! The test: under "no gap", a cell's gaps are noise of variance σ², so
+//! (Σg²/n)/σ̂² ~ F(n, df_σ) where df_σ is the noise floor's degrees of
+//! freedom (σ̂ is itself estimated; a χ²(n) test would treat it as exact and
+//! flag big cells for a 2 % error in σ̂). The raw gap is tested, not the gap
+//! minus its mean: an offset is a gap too. Cells are significant at α after
+//! Bonferroni over all cells of all observables (done by the caller).
+//!
+//! Binning and the per-cell sums run in polars (group-by over the cell id).
+//!
+//! `machine` is a where-dimension too: with two or more machines
+//! an observable gets one cell per machine, tested the same way, so a gap
+//! present on one machine of a type is localised to that machine.
+
+use polars::prelude as pl;
+use polars::prelude::{col, len, IntoLazy};
+use statrs::distribution::{ContinuousCDF, FisherSnedecor, Normal};
+
+use super::document::WhereCell;
+use crate::Result;
+
+/// Number of quantile bins per covariate and per axis of the x/y tiles.
+pub const QUANTILE_BINS: usize = 6;
+pub const TILE_BINS: usize = 4;
+/// Covariates with at most this many distinct values get one cell per value.
+pub const MAX_DISCRETE_VALUES: usize = 8;
+
+/// One cell's aggregates. `lo`/`hi` hold one value (1-D) or two (x, y tile).
+#[derive(Debug, Clone)]
+pub struct Cell {
+    pub covariate: String,
+    pub lo: Vec<f64>,
+    pub hi: Vec<f64>,
+    pub n: usize,
+    pub sum_g2: f64,
+    pub sum_r2: f64,
+    /// A categorical cell (`machine`): its value; `lo`/`hi` are empty.
+    pub label: Option<String>,
+}
+
+/// Upper-tail probability of F(d1, d2) at `stat`; for very large degrees of
+/// freedom ln F is normal with variance 2/d1 + 2/d2 (the incomplete beta of
+/// statrs loses accuracy there).
+pub fn f_sf(stat: f64, d1: f64, d2: f64) -> f64 {
+    if !(stat.is_finite()) {
+        return if stat > 0.0 { 0.0 } else { 1.0 };
+    }
+    if d1 <= 0.0 || d2 <= 0.0 {
+        return f64::NAN;
+    }
+    if d1.min(d2) > 2_000.0 {
+        let z = stat.max(1e-300).ln() / (2.0 / d1 + 2.0 / d2).sqrt();
+        return Normal::standard().sf(z);
+    }
+    match FisherSnedecor::new(d1, d2) {
+        Ok(f) => f.sf(stat),
+        Err(_) => f64::NAN,
+    }
+}
+
+/// p-value of a cell's mean square `ms` against σ² with `df_sigma`.
+pub fn cell_p(ms: f64, n: usize, sigma: f64, df_sigma: f64) -> f64 {
+    if n == 0 {
+        return 1.0;
+    }
+    if sigma.is_nan() || sigma <= 0.0 {
+        return if ms > 0.0 { 0.0 } else { 1.0 };
+    }
+    f_sf(ms / (sigma * sigma), n as f64, df_sigma)
+}
+
+/// Bin index per row for one covariate (`sorted`: its values ascending).
+fn bin_ids(v: &[f64], sorted: &[f64], bins: usize) -> Vec<u32> {
+    // Distinct values, capped at MAX_DISCRETE_VALUES + 1.
+    let mut distinct: Vec<f64> = Vec::new();
+    for &x in sorted {
+        if distinct.last() != Some(&x) {
+            distinct.push(x);
+            if distinct.len() > MAX_DISCRETE_VALUES {
+                break;
+            }
+        }
+    }
+    if distinct.len() <= MAX_DISCRETE_VALUES {
+        return v
+            .iter()
+            .map(|x| distinct.partition_point(|d| d < x) as u32)
+            .collect();
+    }
+    let n = sorted.len();
+    let mut edges: Vec<f64> = (1..bins).map(|j| sorted[n * j / bins]).collect();
+    edges.dedup();
+    v.iter()
+        .map(|x| edges.partition_point(|e| e <= x) as u32)
+        .collect()
+}
+
+/// Aggregates every binning of one observable. `covs`: (name, values in
+/// row order, the same values sorted); `g`/`r`: gap and held-out residual.
+pub fn cells(covs: &[(&str, &[f64], &[f64])], g: &[f64], r: &[f64]) -> Result<Vec<Cell>> {
+    let n = g.len();
+    let g2: Vec<f64> = g.iter().map(|v| v * v).collect();
+    let r2: Vec<f64> = r.iter().map(|v| v * v).collect();
+    let mut out = Vec::new();
+    let mut base = vec![
+        pl::Column::new("g2".into(), g2),
+        pl::Column::new("r2".into(), r2),
+    ];
+    // 1-D binnings.
+    let mut plans: Vec<(String, Vec<String>)> = Vec::new();
+    for (i, (name, v, s)) in covs.iter().enumerate() {
+        base.push(pl::Column::new(
+            format!("b{i}").into(),
+            bin_ids(v, s, QUANTILE_BINS),
+        ));
+        base.push(pl::Column::new(format!("v{i}").into(), v.to_vec()));
+        plans.push((format!("b{i}"), vec![name.to_string()]));
+    }
+    // 2-D tiles over the positions x_mm, y_mm.
+    let ix = covs.iter().position(|c| c.0 == "x_mm");
+    let iy = covs.iter().position(|c| c.0 == "y_mm");
+    if let (Some(ix), Some(iy)) = (ix, iy) {
+        let bx = bin_ids(covs[ix].1, covs[ix].2, TILE_BINS);
+        let by = bin_ids(covs[iy].1, covs[iy].2, TILE_BINS);
+        let t: Vec<u32> = bx.iter().zip(&by).map(|(a, b)| a * 64 + b).collect();
+        base.push(pl::Column::new("bxy".into(), t));
+        plans.push(("bxy".into(), vec!["x_mm".into(), "y_mm".into()]));
+    }
+    let df = pl::DataFrame::new(n, base)?;
+    for (bcol, names) in plans {
+        let vcols: Vec<String> = names
+            .iter()
+            .map(|nm| format!("v{}", covs.iter().position(|c| c.0 == nm).expect("cov")))
+            .collect();
+        let mut aggs = vec![
+            col("g2").sum().alias("sg2"),
+            col("r2").sum().alias("sr2"),
+            len().cast(pl::DataType::Float64).alias("n"),
+        ];
+        for (j, vc) in vcols.iter().enumerate() {
+            aggs.push(col(vc.as_str()).min().alias(format!("lo{j}")));
+            aggs.push(col(vc.as_str()).max().alias(format!("hi{j}")));
+        }
+        let agg = df
+            .clone()
+            .lazy()
+            .group_by_stable([col(bcol.as_str())])
+            .agg(aggs)
+            .sort([bcol.as_str()], Default::default())
+            .collect()?;
+        let f = |name: &str| -> Result<Vec<f64>> {
+            let c = agg.column(name)?.f64()?;
+            Ok((0..c.len()).map(|i| c.get(i).unwrap_or(f64::NAN)).collect())
+        };
+        let (sg2, sr2, cnt) = (f("sg2")?, f("sr2")?, f("n")?);
+        let los: Vec<Vec<f64>> = (0..vcols.len())
+            .map(|j| f(&format!("lo{j}")))
+            .collect::<Result<_>>()?;
+        let his: Vec<Vec<f64>> = (0..vcols.len())
+            .map(|j| f(&format!("hi{j}")))
+            .collect::<Result<_>>()?;
+        for k in 0..sg2.len() {
+            out.push(Cell {
+                covariate: names.join(","),
+                lo: los.iter().map(|l| l[k]).collect(),
+                hi: his.iter().map(|h| h[k]).collect(),
+                n: cnt[k] as usize,
+                sum_g2: sg2[k],
+                sum_r2: sr2[k],
+                label: None,
+            });
+        }
+    }
+    Ok(out)
+}
+
+/// One cell per machine of an observable (none with fewer than two).
+pub fn machine_cells(machine: &[u32], names: &[String], g: &[f64], r: &[f64]) -> Vec<Cell> {
+    let mut acc: std::collections::BTreeMap<u32, (usize, f64, f64)> = Default::default();
+    for ((m, g), r) in machine.iter().zip(g).zip(r) {
+        let a = acc.entry(*m).or_insert((0, 0.0, 0.0));
+        a.0 += 1;
+        a.1 += g * g;
+        a.2 += r * r;
+    }
+    if acc.len() < 2 {
+        return Vec::new();
+    }
+    acc.into_iter()
+        .map(|(m, (n, sg2, sr2))| Cell {
+            covariate: "machine".into(),
+            lo: Vec::new(),
+            hi: Vec::new(),
+            n,
+            sum_g2: sg2,
+            sum_r2: sr2,
+            label: Some(names[m as usize].clone()),
+        })
+        .collect()
+}
+
+/// A cell of one observable with its noise floor σ and σ's df.
+pub struct ObsCell {
+    pub observable: String,
+    pub sigma_mm: f64,
+    pub df: f64,
+    pub cell: Cell,
+}
+
+/// `where` (cells whose raw gap is significant) and `unexplained.where`
+/// (cells whose held-out residual still is), Bonferroni over all cells,
+/// largest RMS first. `sum_g2`/`sum_r2`: totals for the shares.
+pub fn where_lists(
+    all: &[ObsCell],
+    sum_g2: f64,
+    sum_r2: f64,
+    alpha: f64,
+) -> (Vec<WhereCell>, Vec<WhereCell>) {
+    let m_cells = all.len().max(1) as f64;
+    let bound = |c: &Cell, v: &[f64]| match &c.label {
+        Some(l) => serde_json::json!(l),
+        None if v.len() == 1 => serde_json::json!(v[0]),
+        None => serde_json::json!(v),
+    };
+    let mk = |o: &str, c: &Cell, ss: f64, total: f64, p: f64| WhereCell {
+        covariate: c.covariate.clone(),
+        lo: bound(c, &c.lo),
+        hi: bound(c, &c.hi),
+        observable: o.to_string(),
+        share: if total > 0.0 { ss / total } else { 0.0 },
+        rms_mm: (ss / c.n.max(1) as f64).sqrt(),
+        p_value: (p * m_cells).min(1.0),
+        n: c.n,
+        rms_before_mm: None,
+        shrink: None,
+    };
+    let mut where_: Vec<WhereCell> = Vec::new();
+    let mut where_after: Vec<WhereCell> = Vec::new();
+    for oc in all {
+        let c = &oc.cell;
+        let p = cell_p(c.sum_g2 / c.n.max(1) as f64, c.n, oc.sigma_mm, oc.df);
+        if p * m_cells < alpha {
+            where_.push(mk(&oc.observable, c, c.sum_g2, sum_g2, p));
+        }
+        let pa = cell_p(c.sum_r2 / c.n.max(1) as f64, c.n, oc.sigma_mm, oc.df);
+        if pa * m_cells < alpha {
+            let mut w = mk(&oc.observable, c, c.sum_r2, sum_r2, pa);
+            let before = (c.sum_g2 / c.n.max(1) as f64).sqrt();
+            w.rms_before_mm = Some(before);
+            let s = 1.0 - w.rms_mm / before;
+            w.shrink = s.is_finite().then_some(s);
+            where_after.push(w);
+        }
+    }
+    let order = |a: &WhereCell, b: &WhereCell| {
+        b.rms_mm
+            .total_cmp(&a.rms_mm)
+            .then(a.observable.cmp(&b.observable))
+            .then(a.covariate.cmp(&b.covariate))
+            .then(a.lo.to_string().cmp(&b.lo.to_string()))
+    };
+    where_.sort_by(order);
+    where_after.sort_by(order);
+    (where_, where_after)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn quantile_and_discrete_bins() {
+        let v: Vec<f64> = (0..120).map(|i| i as f64).collect();
+        let d: Vec<f64> = (0..120)
+            .map(|i| if i % 2 == 0 { -1.0 } else { 1.0 })
+            .collect();
+        let mut ds = d.clone();
+        ds.sort_by(f64::total_cmp);
+        let g: Vec<f64> = v
+            .iter()
+            .map(|x| if *x >= 100.0 { 1.0 } else { 0.0 })
+            .collect();
+        let c = cells(&[("x_mm", &v, &v), ("dir", &d, &ds)], &g, &g).unwrap();
+        let xs: Vec<&Cell> = c.iter().filter(|c| c.covariate == "x_mm").collect();
+        assert_eq!(xs.len(), QUANTILE_BINS);
+        assert_eq!(xs.iter().map(|c| c.n).sum::<usize>(), 120);
+        let last = xs.last().unwrap();
+        assert_eq!(last.hi[0], 119.0);
+        assert_eq!(last.sum_g2, 20.0);
+        assert_eq!(c.iter().filter(|c| c.covariate == "dir").count(), 2);
+        assert!(cell_p(1.0, 100, 0.1, 1000.0) < 1e-10);
+        assert!(cell_p(0.01, 100, 0.1, 1000.0) > 0.01);
+    }
+}

@@ -1,0 +1,203 @@
+//! Covariates that move together within runs: an effect of one of them
+//! cannot be told from an effect of the other on these runs (a raster
+//! where position and time advance together, a wear that grows with the
+//! clock). For each covariate of a selected effect: the covariates whose
+//! within-run correlation reaches `collinear_r`, and its within-run
+//! variance inflation factor against all the other covariates.
+//!
+//! "Within run": every covariate is centred on its run's mean before the
+//! cross products are pooled, so a covariate that differs between runs
+//! only (a run's start temperature) is not mistaken for one that moves
+//! with another inside each run, and runs that scan in opposite
+//! directions cancel each other's correlation — as they should, since
+//! they are what lets the diagnosis tell the two effects apart.
+
+use std::collections::BTreeMap;
+use std::ops::Range;
+
+use nalgebra::DMatrix;
+use serde::Serialize;
+
+/// A covariate of a selected effect that moves with others within runs.
+#[derive(Debug, Clone, Serialize, serde::Deserialize)]
+pub struct Collinearity {
+    pub covariate: String,
+    /// Covariates with |within-run r| ≥ `collinear_r`, and r.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub moves_with: BTreeMap<String, f64>,
+    /// Within-run variance inflation factor against every other covariate
+    /// (1e6 when it is a linear combination of them).
+    #[serde(deserialize_with = "sparkout_core::values::f64_or_nan")]
+    pub vif: f64,
+    /// What an engineer can change so the next runs tell the effects apart.
+    pub advice: String,
+    /// Candidates indistinguishable from the selected effect on these runs
+    /// whose covariates are among those it moves with: the collinearity is
+    /// why they cannot be told apart. Printed only when not empty — a
+    /// collinearity that the held-out scores see through is no news.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub confounds: Vec<String>,
+}
+
+impl Collinearity {
+    /// Names the rivals (`key`, its covariates) this collinearity explains:
+    /// those using a covariate it moves with, or — when only its VIF is
+    /// high — any covariate other than its own.
+    pub fn add_confounds(&mut self, rivals: &[(String, Vec<String>)]) {
+        for (key, covs) in rivals {
+            let hit = if self.moves_with.is_empty() {
+                covs.iter().any(|c| *c != self.covariate)
+            } else {
+                covs.iter().any(|c| self.moves_with.contains_key(c))
+            };
+            if hit && !self.confounds.contains(key) {
+                self.confounds.push(key.clone());
+            }
+        }
+    }
+}
+
+/// Largest VIF reported (a covariate that is an exact combination).
+const VIF_CAP: f64 = 1e6;
+
+/// Within-run cross products of the columns, pooled over runs.
+fn within_run_scatter(cols: &[&[f64]], runs: &[Range<usize>]) -> DMatrix<f64> {
+    let p = cols.len();
+    let mut s = DMatrix::<f64>::zeros(p, p);
+    let mut centred = vec![Vec::new(); p];
+    for r in runs {
+        let len = r.len() as f64;
+        for (c, col) in centred.iter_mut().zip(cols) {
+            let x = &col[r.clone()];
+            let m = x.iter().sum::<f64>() / len;
+            *c = x.iter().map(|v| v - m).collect();
+        }
+        for a in 0..p {
+            for b in a..p {
+                let v: f64 = centred[a].iter().zip(&centred[b]).map(|(x, y)| x * y).sum();
+                s[(a, b)] += v;
+                if a != b {
+                    s[(b, a)] += v;
+                }
+            }
+        }
+    }
+    s
+}
+
+/// The collinearity of each covariate in `of` (covariates of selected
+/// effects) among `cols` (name, values in run order) over `runs`;
+/// reported when it moves with another (|r| ≥ `max_r`) or its VIF ≥
+/// `max_vif`.
+pub fn collinear(
+    cols: &[(&str, &[f64])],
+    runs: &[Range<usize>],
+    of: &[String],
+    max_r: f64,
+    max_vif: f64,
+) -> Vec<Collinearity> {
+    if of.is_empty() {
+        return Vec::new();
+    }
+    let s = within_run_scatter(&cols.iter().map(|c| c.1).collect::<Vec<_>>(), runs);
+    // Covariates that vary within runs at all (beyond rounding of their
+    // raw values).
+    let live: Vec<usize> = (0..cols.len())
+        .filter(|&i| {
+            let raw: f64 = cols[i].1.iter().map(|v| v * v).sum();
+            s[(i, i)].is_finite() && s[(i, i)] > 1e-20 * raw.max(f64::MIN_POSITIVE)
+        })
+        .collect();
+    let r = |a: usize, b: usize| s[(a, b)] / (s[(a, a)] * s[(b, b)]).sqrt();
+    let mut out = Vec::new();
+    for name in of {
+        let Some(a) = cols.iter().position(|c| c.0 == name) else {
+            continue;
+        };
+        if !live.contains(&a) {
+            continue;
+        }
+        let moves_with: BTreeMap<String, f64> = live
+            .iter()
+            .filter(|&&b| b != a && r(a, b).abs() >= max_r)
+            .map(|&b| (cols[b].0.to_string(), r(a, b)))
+            .collect();
+        let vif = vif_of(a, &live, &r);
+        if moves_with.is_empty() && vif < max_vif {
+            continue;
+        }
+        let with: Vec<String> = if moves_with.is_empty() {
+            vec![format!("the other covariates (VIF {vif:.0})")]
+        } else {
+            moves_with
+                .iter()
+                .map(|(k, r)| format!("{k} (r = {r:.3})"))
+                .collect()
+        };
+        out.push(Collinearity {
+            covariate: name.clone(),
+            advice: format!(
+                "{name} moves with {} within every run, so effects of one cannot be told from effects of the other on these runs: vary the scan direction, the start time or the order of the passes between runs",
+                with.join(", ")
+            ),
+            moves_with,
+            vif,
+            confounds: Vec::new(),
+        });
+    }
+    out
+}
+
+/// 1 / (1 − R²) of covariate `a` on the other live covariates: the
+/// diagonal of the inverse within-run correlation matrix.
+fn vif_of(a: usize, live: &[usize], r: &dyn Fn(usize, usize) -> f64) -> f64 {
+    if live.len() < 2 {
+        return 1.0;
+    }
+    let p = live.len();
+    let corr = DMatrix::from_fn(p, p, |i, j| if i == j { 1.0 } else { r(live[i], live[j]) });
+    let Some(ia) = live.iter().position(|&l| l == a) else {
+        return 1.0;
+    };
+    match corr.try_inverse() {
+        Some(inv) if inv[(ia, ia)].is_finite() && inv[(ia, ia)] > 0.0 => inv[(ia, ia)].min(VIF_CAP),
+        _ => VIF_CAP,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_raster_in_one_direction_is_collinear_and_alternating_runs_are_not() {
+        // Two runs of 50 rows: x advances with time; temperature rises.
+        let n = 50;
+        let t: Vec<f64> = (0..2 * n).map(|i| (i % n) as f64).collect();
+        let temp: Vec<f64> = t.iter().map(|t| 20.0 + 0.02 * t + 1e-4 * t * t).collect();
+        let same: Vec<f64> = t.clone();
+        let alternating: Vec<f64> = (0..2 * n)
+            .map(|i| if i < n { t[i] } else { (n - 1) as f64 - t[i] })
+            .collect();
+        let runs = [0..n, n..2 * n];
+        let of = vec!["temp_c".to_string()];
+        let c = collinear(
+            &[("temp_c", &temp), ("x_mm", &same)],
+            &runs,
+            &of,
+            0.95,
+            10.0,
+        );
+        assert_eq!(c.len(), 1);
+        assert!(c[0].moves_with["x_mm"] > 0.95, "{:?}", c[0]);
+        assert!(c[0].vif >= 10.0 && c[0].advice.contains("scan direction"));
+        let c = collinear(
+            &[("temp_c", &temp), ("x_mm", &alternating)],
+            &runs,
+            &of,
+            0.95,
+            10.0,
+        );
+        assert!(c.is_empty(), "{c:?}");
+    }
+}

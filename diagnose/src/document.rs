@@ -1,0 +1,351 @@
+//! diagnosis.json's serde types (docs/formats.md "diagnosis.json (v1)"):
+//! what the diagnosis writes and what every reader — the fleet page, the
+//! trend, `sparkout run`'s summary — reads back, through the same types.
+//! They sit below the steps that fill them (`output` assembles them) so a
+//! reader needs no diagnosis logic.
+
+use std::collections::BTreeMap;
+
+use arrow::array::RecordBatch;
+use serde::{Deserialize, Serialize};
+
+use crate::collinear::Collinearity;
+use crate::intervals::ParamInterval;
+use crate::outliers::OutlierReport;
+
+pub(crate) fn fin(x: f64) -> Option<f64> {
+    x.is_finite().then_some(x)
+}
+
+/// diagnosis.json `gap`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct GapSummary {
+    #[serde(deserialize_with = "sparkout_core::values::f64_or_nan")]
+    pub rms_mm: f64,
+    #[serde(deserialize_with = "sparkout_core::values::f64_or_nan")]
+    pub max_abs_mm: f64,
+    #[serde(deserialize_with = "sparkout_core::values::f64_or_nan")]
+    pub noise_floor_mm: f64,
+    pub n: usize,
+}
+
+/// A cell of `where` / `unexplained.where`. `lo`/`hi` are numbers for a
+/// 1-D cell and `[x, y]` arrays for an x/y tile (docs/formats.md).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct WhereCell {
+    pub covariate: String,
+    pub lo: serde_json::Value,
+    pub hi: serde_json::Value,
+    pub observable: String,
+    #[serde(deserialize_with = "sparkout_core::values::f64_or_nan")]
+    pub share: f64,
+    #[serde(deserialize_with = "sparkout_core::values::f64_or_nan")]
+    pub rms_mm: f64,
+    /// Bonferroni-adjusted over all cells of all observables.
+    #[serde(deserialize_with = "sparkout_core::values::f64_or_nan")]
+    pub p_value: f64,
+    pub n: usize,
+    /// Only in `unexplained.where`: the cell's gap RMS before the selection
+    /// and 1 − after/before.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rms_before_mm: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub shrink: Option<f64>,
+}
+
+/// An entry of `effects`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct EffectEntry {
+    pub name: String,
+    pub covariate: Option<String>,
+    pub observable: String,
+    pub params: BTreeMap<String, f64>,
+    /// The canonical unit of every parameter of `params` and of
+    /// `offset_mm` (`{"k": "s", "offset_mm": "mm"}`; docs/formats.md
+    /// "Units"), so no reader has to guess it from the names.
+    pub param_units: BTreeMap<String, String>,
+    pub offset_mm: Option<f64>,
+    pub n_params: usize,
+    pub cv_rms_before_mm: Option<f64>,
+    pub cv_rms_after_mm: Option<f64>,
+    pub shrink: Option<f64>,
+    pub p_value: Option<f64>,
+    /// Mean over held-out units of ln(rms_before/rms_after): the ranking score.
+    pub mean_log_ratio: Option<f64>,
+    pub selected: bool,
+    /// Share of half-subsamples of the runs on whose held-out units its
+    /// gain holds (stability; `diagnose.min_selection_frequency`).
+    pub selection_frequency: Option<f64>,
+    /// Held-out SSE it removes over the observable's explainable SSE (gap
+    /// SSE above the noise floor; materiality; `diagnose.min_gap_share`).
+    pub gap_share: Option<f64>,
+    /// Passed the held-out test but is not stable or material enough to
+    /// be selected: listed with its figures as "minor".
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub minor: bool,
+    /// Selected effects: candidates of the same round whose held-out error
+    /// is statistically indistinguishable from this one's (95 % paired
+    /// interval over held-out units containing zero) — on these runs, the
+    /// gap is explained as well by any of them.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub indistinguishable_from: Vec<String>,
+    /// Selection round the score belongs to (1 = against the raw gap).
+    pub step: usize,
+    pub skipped_reason: Option<String>,
+    /// The effect fitted on each machine's runs alone, present when the
+    /// machines of this observable disagree significantly
+    /// (`machines.rs`): the pooled `params` are then a compromise.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub per_machine: Option<Vec<MachineFit>>,
+    /// p-value of "one effect for all machines" against "one per machine".
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub machines_differ_p: Option<f64>,
+    /// Selected effects: standard error and 95 % interval of every
+    /// parameter and of `offset_mm` (intervals.rs).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub intervals: Option<BTreeMap<String, ParamInterval>>,
+    /// Selected effects: 95 % bootstrap interval of `shrink` over held-out
+    /// runs.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub shrink_interval: Option<[f64; 2]>,
+    /// The unit of the observable's gap (`mm`, `mm/s`): the unit of the
+    /// amplitudes and offset, the numerator of a coefficient.
+    #[serde(skip)]
+    pub gap_unit: String,
+}
+
+/// The canonical unit of each parameter and of `offset_mm`.
+pub fn param_units(
+    params: &BTreeMap<String, f64>,
+    covariate: Option<&str>,
+    gap_unit: &str,
+) -> BTreeMap<String, String> {
+    params
+        .keys()
+        .map(String::as_str)
+        .chain(["offset_mm"])
+        .map(|k| {
+            (
+                k.to_string(),
+                crate::units::format::param_unit(k, covariate, gap_unit).canonical(),
+            )
+        })
+        .collect()
+}
+
+impl EffectEntry {
+    /// `name:covariate` (or `name`), as `selected` spells it.
+    pub fn key(&self) -> String {
+        match &self.covariate {
+            Some(c) => format!("{}:{c}", self.name),
+            None => self.name.clone(),
+        }
+    }
+    /// "explained by K" plus, when rivals fit these runs as well, "— on
+    /// these runs indistinguishable from R1, R2".
+    pub fn explained_text(&self) -> String {
+        explained_text(&self.key(), &self.indistinguishable_from)
+    }
+    /// Each parameter as an engineer reads it, in its unit chosen by
+    /// magnitude: `k = 4.92 ± 0.08 ms (95 % 4.76 … 5.07 ms)` when it has
+    /// an interval, else `k = 4.92 ms`; the offset last; frame constants
+    /// left out.
+    pub fn params_text(&self) -> Vec<String> {
+        let mut all: Vec<(&str, f64)> = self.params.iter().map(|(k, v)| (k.as_str(), *v)).collect();
+        if let Some(o) = self.offset_mm {
+            all.push(("offset_mm", o));
+        }
+        all.into_iter()
+            .filter_map(|(k, v)| {
+                let iv = self.intervals.as_ref().and_then(|i| i.get(k));
+                // Frame constants of a form (centre, span) come with a
+                // zero-width interval: they were not fitted, so they are
+                // not a finding.
+                if iv.is_some_and(|i| i.se == 0.0 && i.lo == i.hi) {
+                    return None;
+                }
+                Some(param_text(
+                    k,
+                    v,
+                    iv,
+                    self.covariate.as_deref(),
+                    &self.gap_unit,
+                ))
+            })
+            .collect()
+    }
+}
+
+/// Parameter `k` of an effect on `covariate` over a gap in `gap_unit`, as
+/// every page and console line writes it (units::format::show_param).
+pub fn param_text(
+    k: &str,
+    v: f64,
+    iv: Option<&ParamInterval>,
+    covariate: Option<&str>,
+    gap_unit: &str,
+) -> String {
+    use crate::units::format::{param_unit, show_param};
+    show_param(
+        k,
+        v,
+        iv.map(|i| (i.se, i.lo, i.hi)),
+        &param_unit(k, covariate, gap_unit),
+    )
+}
+
+/// "explained by K — on these runs indistinguishable from R…" (the rivals
+/// part only when there are rivals).
+pub fn explained_text(key: &str, rivals: &[String]) -> String {
+    format!("explained by {}", with_rivals(key, rivals))
+}
+
+/// "K — on these runs indistinguishable from R1, R2", or "K" alone.
+pub fn with_rivals(key: &str, rivals: &[String]) -> String {
+    if rivals.is_empty() {
+        key.to_string()
+    } else {
+        format!(
+            "{key} — on these runs indistinguishable from {}",
+            rivals.join(" and ")
+        )
+    }
+}
+
+/// One machine's fit of a selected effect (`EffectEntry::per_machine`).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct MachineFit {
+    pub machine: String,
+    pub n: usize,
+    pub runs: usize,
+    pub params: BTreeMap<String, f64>,
+    pub offset_mm: Option<f64>,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Unexplained {
+    #[serde(deserialize_with = "sparkout_core::values::f64_or_nan")]
+    pub rms_mm: f64,
+    #[serde(deserialize_with = "sparkout_core::values::f64_or_nan")]
+    pub share: f64,
+    #[serde(rename = "where")]
+    pub where_: Vec<WhereCell>,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct CvInfo {
+    pub folds: usize,
+    /// "run" (a run = one (machine, run) pair) or "blocked_within_run".
+    pub by: String,
+    pub test: String,
+    pub seed: u64,
+}
+
+/// Per-observable summary (extra to v1).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct ObservableSummary {
+    pub observable: String,
+    /// Unit of this observable's gap, RMS and noise-floor numbers (the
+    /// `_mm` field names are v1's; the values are in this unit — "mm"
+    /// unless the observations' `unit` column says otherwise).
+    pub unit: String,
+    pub n: usize,
+    /// Run units: (machine, run) pairs.
+    pub runs: usize,
+    /// Machines whose rows carry this observable (empty without a
+    /// `machine` column).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub machines: Vec<String>,
+    #[serde(deserialize_with = "sparkout_core::values::f64_or_nan")]
+    pub rms_mm: f64,
+    #[serde(deserialize_with = "sparkout_core::values::f64_or_nan")]
+    pub noise_floor_mm: f64,
+    pub noise_floor_source: String,
+    pub gap_above_noise: bool,
+    #[serde(deserialize_with = "sparkout_core::values::f64_or_nan")]
+    pub p_value: f64,
+    pub selected: Vec<String>,
+    /// Effects that passed the held-out test but not the stability or
+    /// materiality threshold (their figures are in `effects`).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub minor: Vec<String>,
+    /// Covariates of selected effects that move with others within runs,
+    /// with advice (collinear.rs).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub collinear: Vec<Collinearity>,
+    #[serde(deserialize_with = "sparkout_core::values::f64_or_nan")]
+    pub cv_rms_before_mm: f64,
+    #[serde(deserialize_with = "sparkout_core::values::f64_or_nan")]
+    pub cv_rms_after_mm: f64,
+    #[serde(deserialize_with = "sparkout_core::values::f64_or_nan")]
+    pub shrink: f64,
+    /// 95 % bootstrap interval of `shrink` over held-out runs.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub shrink_interval: Option<[f64; 2]>,
+    /// With outliers trimmed: `shrink` and the CV RMS
+    /// are over the kept rows (robust); this is over every row.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub shrink_plain: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub outliers: Option<OutlierReport>,
+    pub stop_reason: String,
+}
+
+/// diagnosis.json v1 (every contract field) plus extras.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Diagnosis {
+    pub version: u32,
+    pub observables: Vec<String>,
+    /// Machine ids of the table (empty without a `machine`
+    /// column — a v1 table).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub machines: Vec<String>,
+    pub gap: GapSummary,
+    #[serde(rename = "where")]
+    pub where_: Vec<WhereCell>,
+    pub effects: Vec<EffectEntry>,
+    pub selected: Vec<String>,
+    pub unexplained: Unexplained,
+    /// "replicates", "point_to_point" or "mixed" (per observable below).
+    pub noise_floor_source: String,
+    pub cv: CvInfo,
+    pub per_observable: Vec<ObservableSummary>,
+    pub notes: Vec<String>,
+    /// Effects named on one machine's rows alone, where a `where` cell over
+    /// `machine` localised the gap to that machine (13
+    /// item 6): the fleet-wide fit dilutes an effect only one machine has.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub machine_effects: Vec<MachineEffect>,
+}
+
+/// An effect selected by diagnosing one machine's rows of one observable.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct MachineEffect {
+    pub machine: String,
+    pub observable: String,
+    /// `name:covariate`, as `selected` spells it.
+    pub effect: String,
+    pub params: BTreeMap<String, f64>,
+    /// As `EffectEntry::param_units`: the canonical unit of each parameter
+    /// and of the offset.
+    pub param_units: BTreeMap<String, String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub intervals: Option<BTreeMap<String, ParamInterval>>,
+    pub shrink: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub shrink_interval: Option<[f64; 2]>,
+    /// Runs of that machine the effect was fitted and held out on.
+    pub runs: usize,
+}
+
+pub struct DiagnosisOutput {
+    pub diagnosis: Diagnosis,
+    /// diagnosis.parquet: [machine,] run, observable, gap,
+    /// contrib_<name:cov>…, residual_after — one row per observation, in
+    /// input order.
+    pub per_row: RecordBatch,
+    /// The selected effects fitted on all runs, for a simulator to add.
+    pub augmented_model: serde_json::Value,
+    /// Self-contained `<section>` for the fleet report.
+    pub report_html: String,
+}

@@ -1,0 +1,446 @@
+//! sparkout-diagnose: the sim-to-real gap diagnosis (docs/design.md §7;
+//! docs/formats.md §7 and "diagnosis.json (v1)"; the statistics: docs/models.md §8).
+//!
+//! [`diagnose`] answers, per observable: where the gap lies (cells of
+//! covariate space and machines tested against the noise floor, `cells`),
+//! which catalogue or plugin effect explains it (leave-runs-out CV +
+//! forward selection, `select`), and how far it shrinks on held-out runs.
+//! A run is a (machine, run) pair throughout.
+//!
+//! The steps, one file each: gather → noise → folds → candidates → select
+//! → intervals → machines → cells → report (`output` assembles
+//! diagnosis.json); `outliers` runs the steps a second time without the
+//! isolated spikes a first pass leaves in its residual. It is
+//! pure and deterministic for a given seed: names are sorted, folds come
+//! from a seeded shuffle, rayon only fills vectors whose order is fixed.
+
+pub mod candidates;
+pub mod cells;
+pub mod collinear;
+pub mod config;
+pub mod document;
+pub mod folds;
+pub mod gather;
+pub mod intervals;
+pub mod machines;
+pub mod noise;
+pub mod observations;
+pub mod outliers;
+pub mod output;
+pub mod report;
+pub mod select;
+
+// The effect model (the `Effect` trait, the catalogue, least squares from
+// sufficient statistics) and the augmented model sit in sparkout-core, below
+// the plugin interface that names them; re-exported here under the names
+// the diagnosis has always used.
+pub use sparkout_core::augment;
+pub use sparkout_core::effect;
+pub use sparkout_core::effect::fit;
+// The ground floor, by the module names the steps use (`crate::contracts`…).
+pub use sparkout_core::Result;
+pub(crate) use sparkout_core::{config_check, contracts, html, units, InputError};
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::Path;
+
+pub use candidates::EffectScope;
+pub use config::DiagnoseConfig;
+pub use effect::{
+    catalogue, catalogue_effect, composite, product, shape_value, CovStats, Effect, EffectData,
+    FittedEffect, Kind, LinearForm,
+};
+pub use observations::read_observations;
+pub use output::{
+    CvInfo, Diagnosis, DiagnosisOutput, EffectEntry, GapSummary, MachineFit, ObservableSummary,
+    Unexplained, WhereCell,
+};
+
+use crate::config_check::Checked;
+use cells::ObsCell;
+use observations::Table;
+
+/// Notes of diagnosis.json, each said once, in first-said order.
+#[derive(Default)]
+pub struct Notes {
+    seen: BTreeSet<String>,
+    ordered: Vec<String>,
+}
+
+impl Notes {
+    pub fn add(&mut self, s: String) {
+        if self.seen.insert(s.clone()) {
+            self.ordered.push(s);
+        }
+    }
+    pub fn into_vec(self) -> Vec<String> {
+        self.ordered
+    }
+}
+
+/// What the per-observable steps hand to the fleet-level assembly.
+pub struct Accum {
+    pub residual_all: Vec<f64>,
+    pub contrib_cols: BTreeMap<String, Vec<f64>>,
+    /// Selected keys in order of first selection.
+    pub selected_keys: Vec<String>,
+    /// Held-out SSE each selected effect removed, in units of its
+    /// observable's noise variance, summed over observables: the fleet's
+    /// `selected` list is ordered by it (the effect that explains the most
+    /// signal first), not by the order observables happen to be named in.
+    pub explained_var: BTreeMap<String, f64>,
+    pub effects: Vec<EffectEntry>,
+    pub summaries: Vec<ObservableSummary>,
+    pub cells: Vec<ObsCell>,
+    pub augmented: Vec<serde_json::Value>,
+    pub blocked: bool,
+    pub folds_used: usize,
+}
+
+impl Accum {
+    pub fn new(n: usize) -> Accum {
+        Accum {
+            residual_all: vec![0.0; n],
+            contrib_cols: BTreeMap::new(),
+            selected_keys: Vec::new(),
+            explained_var: BTreeMap::new(),
+            effects: Vec::new(),
+            summaries: Vec::new(),
+            cells: Vec::new(),
+            augmented: Vec::new(),
+            blocked: false,
+            folds_used: 0,
+        }
+    }
+
+    /// Adds one observable's results (its table rows `rows`).
+    fn merge(&mut self, o: Accum, rows: &[usize]) {
+        for &i in rows {
+            self.residual_all[i] = o.residual_all[i];
+        }
+        for (k, v) in o.contrib_cols {
+            let col = self
+                .contrib_cols
+                .entry(k)
+                .or_insert_with(|| vec![0.0; v.len()]);
+            for &i in rows {
+                col[i] = v[i];
+            }
+        }
+        for k in o.selected_keys {
+            if !self.selected_keys.contains(&k) {
+                self.selected_keys.push(k);
+            }
+        }
+        for (k, v) in o.explained_var {
+            *self.explained_var.entry(k).or_insert(0.0) += v;
+        }
+        self.effects.extend(o.effects);
+        self.summaries.extend(o.summaries);
+        self.cells.extend(o.cells);
+        self.augmented.extend(o.augmented);
+        self.blocked |= o.blocked;
+        self.folds_used = self.folds_used.max(o.folds_used);
+    }
+}
+
+/// Diagnoses paired observations (validated like [`read_observations`]);
+/// `extra_effects` apply to every observable.
+pub fn diagnose(
+    obs: &arrow::array::RecordBatch,
+    cfg: &DiagnoseConfig,
+    extra_effects: &[Box<dyn Effect>],
+) -> Result<DiagnosisOutput> {
+    let everywhere = [EffectScope {
+        plugin: "",
+        observables: None,
+        effects: extra_effects,
+    }];
+    diagnose_scoped(obs, cfg, &everywhere)
+}
+
+/// Diagnoses paired observations; each plugin's composites apply only to
+/// the observables of its scope, the catalogue to all. Settings built in
+/// code are checked here; [`diagnose_checked`] takes settings already
+/// checked (the engine's and the CLI's, read from `[diagnose]` once).
+pub fn diagnose_scoped(
+    obs: &arrow::array::RecordBatch,
+    cfg: &DiagnoseConfig,
+    scopes: &[EffectScope],
+) -> Result<DiagnosisOutput> {
+    cfg.check()?;
+    run_diagnosis(obs, cfg, scopes)
+}
+
+/// [`diagnose_scoped`] with settings already checked: nothing is checked
+/// or serialised again.
+pub fn diagnose_checked(
+    obs: &arrow::array::RecordBatch,
+    cfg: &Checked<DiagnoseConfig>,
+    scopes: &[EffectScope],
+) -> Result<DiagnosisOutput> {
+    run_diagnosis(obs, cfg, scopes)
+}
+
+/// The diagnosis proper, on settings its caller checked.
+fn run_diagnosis(
+    obs: &arrow::array::RecordBatch,
+    cfg: &DiagnoseConfig,
+    scopes: &[EffectScope],
+) -> Result<DiagnosisOutput> {
+    let batch = observations::validate_observations(obs, Path::new("<observations>"))?;
+    let table = Table::from_batch(&batch)?;
+    let mut notes = Notes::default();
+    for d in &table.dropped {
+        notes.add(format!("covariate {d} has no finite value: skipped"));
+    }
+    candidates::check_wanted(cfg, scopes)?;
+    let mut acc = Accum::new(table.n);
+    for oi in 0..table.obs_names.len() {
+        diagnose_observable(&table, oi, cfg, scopes, &mut acc, &mut notes)?;
+    }
+    let mut out = output::assemble(&batch, &table, cfg, acc, notes)?;
+    if table.machine_names.len() > 1 {
+        out.diagnosis.machine_effects =
+            machines::localised_effects(&batch, &out.diagnosis, cfg, scopes)?;
+    }
+    Ok(out)
+}
+
+/// One observable: gather, a plain pass, and — when it leaves isolated
+/// spikes in its residual — a second pass without them (outliers.rs).
+fn diagnose_observable(
+    table: &Table,
+    oi: usize,
+    cfg: &DiagnoseConfig,
+    scopes: &[EffectScope],
+    acc: &mut Accum,
+    notes: &mut Notes,
+) -> Result<()> {
+    let o = gather::gather(table, oi, notes);
+    let mut plain = Accum::new(table.n);
+    let mut plain_notes = Notes::default();
+    analyse(
+        table,
+        &o,
+        oi,
+        cfg,
+        scopes,
+        &mut plain,
+        &mut plain_notes,
+        &[],
+    )?;
+    let resid: Vec<f64> = o.rows.iter().map(|&i| plain.residual_all[i]).collect();
+    let (out, sigma, thr) = match outliers::detect(&o, &resid) {
+        Ok(found) => found,
+        Err(why) => {
+            notes.add(why);
+            (Vec::new(), f64::NAN, f64::NAN)
+        }
+    };
+    if out.is_empty() {
+        for n in plain_notes.into_vec() {
+            notes.add(n);
+        }
+        acc.merge(plain, &o.rows);
+        return Ok(());
+    }
+    let kept = o.without(&out);
+    let trimmed: Vec<usize> = out.iter().map(|&p| o.rows[p]).collect();
+    let mut robust = Accum::new(table.n);
+    analyse(table, &kept, oi, cfg, scopes, &mut robust, notes, &trimmed)?;
+    let before: f64 = o.gap.iter().map(|g| g * g).sum();
+    let after: f64 = o.rows.iter().map(|&i| robust.residual_all[i].powi(2)).sum();
+    let rep = outliers::report(&o, &out, &resid, &table.run_names, &table.run, sigma, thr);
+    notes.add(format!(
+        "{}: {} isolated outliers ({:.2} % of rows, |residual| > {}σ robust = {}) trimmed from fits and scores",
+        o.name,
+        rep.n,
+        100.0 * rep.share,
+        outliers::K_SIGMA,
+        crate::units::format::show_in(thr, &table.obs_units[oi])
+    ));
+    if let Some(s) = robust.summaries.last_mut() {
+        s.shrink_plain = (before > 0.0).then(|| 1.0 - (after / before).sqrt());
+        s.outliers = Some(rep);
+    }
+    acc.merge(robust, &o.rows);
+    Ok(())
+}
+
+/// noise → folds → candidates → select → intervals → machines → cells for
+/// the rows of `o`, into `acc`; `extra_rows` (table rows trimmed as
+/// outliers) get the all-runs fits' contributions.
+#[allow(clippy::too_many_arguments)]
+fn analyse(
+    table: &Table,
+    o: &gather::ObsRows,
+    oi: usize,
+    cfg: &DiagnoseConfig,
+    scopes: &[EffectScope],
+    acc: &mut Accum,
+    notes: &mut Notes,
+    extra_rows: &[usize],
+) -> Result<()> {
+    let n = o.n();
+    let nf = noise::floor_of(table, o);
+    let fo = folds::folds(o, cfg.folds, cfg.seed, oi);
+    acc.blocked |= fo.blocked;
+    acc.folds_used = acc.folds_used.max(fo.k);
+    let mut x = EffectData::new(n);
+    for c in &o.cols {
+        x.push(&c.name, &c.v);
+    }
+    let prob = select::Problem {
+        x,
+        gap: &o.gap,
+        units: fo.units,
+        unit_fold: fo.unit_fold,
+        unit_run: fo.unit_group,
+        k: fo.k,
+        frames: o.cols.iter().map(|c| (c.name.clone(), c.stats)).collect(),
+    };
+    let names = o.names();
+    let builtin = catalogue(&names);
+    let cands = candidates::candidates(cfg, &o.name, &names, &builtin, scopes, notes);
+    // Is there a gap above noise at all? F-test of the whole observable
+    // plus the practical margin (σ̂ is an estimate; see cells.rs).
+    let ms = o.gap.iter().map(|g| g * g).sum::<f64>() / n as f64;
+    let rms = ms.sqrt();
+    let p_gap = cells::cell_p(ms, n, nf.sigma_mm, nf.df);
+    let above = p_gap < cfg.alpha && rms > cfg.noise_margin * nf.sigma_mm;
+    let opt = select::SelectOptions {
+        alpha: cfg.alpha,
+        noise_margin: cfg.noise_margin,
+        sigma_mm: nf.sigma_mm,
+        gap_unit: table.obs_units[oi].clone(),
+        max_effects: cfg.max_effects,
+        min_gain: cfg.min_gain,
+        min_frequency: cfg.min_selection_frequency,
+        min_gap_share: cfg.min_gap_share,
+        seed: cfg.seed ^ (oi as u64).wrapping_mul(0xA24B_AED4_963E_E407),
+        allow_selection: above,
+    };
+    let sel = select::select(&prob, &cands, &opt)?;
+    let machine_tests = output::machine_tests(table, o, &prob, &cands, &sel)?;
+    let ivs = intervals::chosen_intervals(&cands, &prob, &sel, &o.run_ranges, cfg.seed);
+    acc.effects.extend(output::effect_entries(
+        &o.name,
+        &table.obs_units[oi],
+        n,
+        &cands,
+        &sel,
+        &machine_tests,
+        &ivs,
+        cfg,
+    ));
+    let obs_selected =
+        output::record_selected(table, o, &prob, &cands, &sel, nf.sigma_mm, extra_rows, acc)?;
+    if !above {
+        notes.add(format!("{}: no gap above noise", o.name));
+    }
+    let sse_b: f64 = sel.unit_sse_gap.iter().sum();
+    let sse_a: f64 = sel.unit_sse_after.iter().sum();
+    let (rb, ra) = ((sse_b / n as f64).sqrt(), (sse_a / n as f64).sqrt());
+    let selected_covs: Vec<String> = {
+        let mut v: Vec<String> = sel
+            .chosen
+            .iter()
+            .flat_map(|&ci| cands[ci].covariates())
+            .collect();
+        v.sort();
+        v.dedup();
+        v
+    };
+    let cov_cols: Vec<(&str, &[f64])> = o
+        .cols
+        .iter()
+        .map(|c| (c.name.as_str(), c.v.as_slice()))
+        .collect();
+    let mut collinear = collinear::collinear(
+        &cov_cols,
+        &o.run_ranges,
+        &selected_covs,
+        cfg.collinear_r,
+        cfg.collinear_vif,
+    );
+    for r in sel.records.iter().filter(|r| r.selected) {
+        let own = cands[r.idx].covariates();
+        let rivals: Vec<(String, Vec<String>)> = r
+            .indistinguishable
+            .iter()
+            .map(|&i| (cands[i].key(), cands[i].covariates()))
+            .collect();
+        for c in collinear.iter_mut().filter(|c| own.contains(&c.covariate)) {
+            c.add_confounds(&rivals);
+        }
+    }
+    let minor: Vec<String> = sel
+        .records
+        .iter()
+        .filter(|r| r.minor && !r.selected)
+        .map(|r| cands[r.idx].key())
+        .collect();
+    acc.summaries.push(ObservableSummary {
+        observable: o.name.clone(),
+        unit: table.obs_units[oi].clone(),
+        n,
+        runs: o.run_ranges.len(),
+        machines: if table.has_machine {
+            o.machines()
+                .iter()
+                .map(|&m| table.machine_names[m as usize].clone())
+                .collect()
+        } else {
+            Vec::new()
+        },
+        rms_mm: rms,
+        noise_floor_mm: nf.sigma_mm,
+        noise_floor_source: nf.source.as_str().into(),
+        gap_above_noise: above,
+        p_value: p_gap,
+        selected: obs_selected,
+        minor,
+        collinear,
+        cv_rms_before_mm: rb,
+        cv_rms_after_mm: ra,
+        shrink: if rb > 0.0 { 1.0 - ra / rb } else { 0.0 },
+        shrink_interval: intervals::shrink_interval(
+            &sel.unit_sse_gap,
+            &sel.unit_sse_after,
+            cfg.seed ^ oi as u64,
+        ),
+        shrink_plain: None,
+        outliers: None,
+        stop_reason: sel.stop_reason.clone(),
+    });
+    // Cells of this observable: covariates, then machines.
+    let cov_refs: Vec<(&str, &[f64], &[f64])> = o
+        .cols
+        .iter()
+        .map(|c| (c.name.as_str(), c.v.as_slice(), c.sorted.as_slice()))
+        .collect();
+    let mut cs = if cov_refs.is_empty() {
+        Vec::new()
+    } else {
+        cells::cells(&cov_refs, &o.gap, &sel.residual)?
+    };
+    cs.extend(cells::machine_cells(
+        &o.machine,
+        &table.machine_names,
+        &o.gap,
+        &sel.residual,
+    ));
+    acc.cells.extend(cs.into_iter().map(|cell| ObsCell {
+        observable: o.name.clone(),
+        sigma_mm: nf.sigma_mm,
+        df: nf.df,
+        cell,
+    }));
+    Ok(())
+}
+
+#[cfg(test)]
+mod augment_tests;
+#[cfg(test)]
+pub(crate) mod tests;

@@ -1,0 +1,398 @@
+//! What the diagnosis returns: diagnosis.json v1 (docs/formats.md
+//! "diagnosis.json (v1)") plus the fields later versions added — every v1
+//! field unchanged — and the per-row diagnosis.parquet.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::sync::Arc;
+
+use arrow::array::{ArrayRef, Float64Array, RecordBatch};
+use arrow::datatypes::{DataType, Field, Schema};
+
+use super::effect::Effect;
+use super::gather::ObsRows;
+use super::intervals::ChosenIntervals;
+use super::machines::{self, MachineTest};
+use super::observations::{self, Table};
+use super::select::{Problem, Record, Selection};
+use super::{cells, report, Accum, DiagnoseConfig, Notes};
+use crate::Result;
+
+const PAIRED_TEST: &str = "one-sided paired t-test on ln(rms_before/rms_after) over held-out units (runs; blocks of runs when fewer than 6 runs)";
+
+use crate::document::fin;
+pub use crate::document::*;
+
+pub fn per_row_batch(
+    batch: &RecordBatch,
+    table: &observations::Table,
+    contrib: &BTreeMap<String, Vec<f64>>,
+    keys: &[String],
+    residual: &[f64],
+) -> Result<RecordBatch> {
+    let to_utf8 = |name: &str| -> Result<ArrayRef> {
+        let a = batch.column_by_name(name).expect("validated");
+        Ok(arrow::compute::cast(a, &DataType::Utf8)?)
+    };
+    let mut fields = Vec::new();
+    let mut cols: Vec<ArrayRef> = Vec::new();
+    if table.has_machine {
+        fields.push(Field::new("machine", DataType::Utf8, false));
+        cols.push(to_utf8("machine")?);
+    }
+    fields.extend([
+        Field::new("run", DataType::Utf8, false),
+        Field::new("observable", DataType::Utf8, false),
+        Field::new("gap", DataType::Float64, false),
+    ]);
+    cols.extend([
+        to_utf8("run")?,
+        to_utf8("observable")?,
+        Arc::new(Float64Array::from(table.gap.clone())) as ArrayRef,
+    ]);
+    for k in keys {
+        fields.push(Field::new(format!("contrib_{k}"), DataType::Float64, false));
+        cols.push(Arc::new(Float64Array::from(contrib[k].clone())));
+    }
+    fields.push(Field::new("residual_after", DataType::Float64, false));
+    cols.push(Arc::new(Float64Array::from(residual.to_vec())));
+    Ok(RecordBatch::try_new(Arc::new(Schema::new(fields)), cols)?)
+}
+
+/// Per selected effect (in selection order): does it hold for every machine?
+/// Empty entries without a `machine` column or with one machine.
+pub fn machine_tests(
+    table: &Table,
+    o: &ObsRows,
+    prob: &Problem,
+    cands: &[&dyn Effect],
+    sel: &Selection,
+) -> Result<Vec<Option<MachineTest>>> {
+    if !table.has_machine || o.machines().len() < 2 {
+        return Ok(sel.chosen.iter().map(|_| None).collect());
+    }
+    sel.chosen
+        .iter()
+        .zip(&sel.final_targets)
+        .map(|(&ci, target)| {
+            machines::per_machine(
+                cands[ci],
+                &prob.x,
+                target,
+                &o.machine,
+                &o.run_ranges,
+                &table.machine_names,
+            )
+        })
+        .collect()
+}
+
+/// The `effects` entries of one observable: selected (in order), then by
+/// score, skipped last.
+#[allow(clippy::too_many_arguments)]
+pub fn effect_entries(
+    observable: &str,
+    gap_unit: &str,
+    n: usize,
+    cands: &[&dyn Effect],
+    sel: &Selection,
+    tests: &[Option<MachineTest>],
+    intervals: &ChosenIntervals,
+    cfg: &DiagnoseConfig,
+) -> Vec<EffectEntry> {
+    let mut recs: Vec<&Record> = sel.records.iter().collect();
+    let rank = |r: &Record| {
+        if r.selected {
+            (
+                0usize,
+                sel.chosen.iter().position(|&c| c == r.idx).unwrap_or(0) as f64,
+            )
+        } else if r.skipped.is_some() {
+            (2, 0.0)
+        } else {
+            (1, -r.mean_log_ratio)
+        }
+    };
+    recs.sort_by(|a, b| {
+        let (ra, rb) = (rank(a), rank(b));
+        ra.0.cmp(&rb.0)
+            .then(ra.1.total_cmp(&rb.1))
+            .then(a.idx.cmp(&b.idx))
+    });
+    recs.into_iter()
+        .map(|r| {
+            let e = cands[r.idx];
+            let covs = e.covariates();
+            let before = (r.sse_before / n as f64).sqrt();
+            let after = (r.sse_after / n as f64).sqrt();
+            let j = sel.chosen.iter().position(|&c| c == r.idx && r.selected);
+            let test = j.and_then(|j| tests.get(j)).and_then(|t| t.as_ref());
+            let iv = j.and_then(|j| intervals.get(j));
+            let covariate = (!covs.is_empty()).then(|| covs.join(","));
+            let params: BTreeMap<String, f64> = r
+                .params
+                .iter()
+                .filter(|(_, v)| v.is_finite())
+                .map(|(k, v)| (k.clone(), *v))
+                .collect();
+            EffectEntry {
+                name: e.name().to_string(),
+                param_units: param_units(&params, covariate.as_deref(), gap_unit),
+                covariate,
+                observable: observable.to_string(),
+                params,
+                offset_mm: fin(r.offset_mm),
+                n_params: e.n_params(),
+                cv_rms_before_mm: fin(before),
+                cv_rms_after_mm: fin(after),
+                shrink: fin(1.0 - after / before),
+                p_value: fin(r.p_value),
+                mean_log_ratio: fin(r.mean_log_ratio),
+                selected: r.selected,
+                selection_frequency: fin(r.selection_frequency),
+                gap_share: fin(r.gap_share),
+                minor: r.minor,
+                indistinguishable_from: r
+                    .indistinguishable
+                    .iter()
+                    .map(|&i| cands[i].key())
+                    .collect(),
+                step: r.step,
+                skipped_reason: r.skipped.clone(),
+                per_machine: test
+                    .filter(|t| t.disagree(cfg.alpha, cfg.min_gain))
+                    .map(|t| t.fits.clone()),
+                machines_differ_p: test.and_then(|t| fin(t.p_value)),
+                intervals: iv.map(|i| i.0.clone()),
+                shrink_interval: iv.and_then(|i| i.1),
+                gap_unit: gap_unit.to_string(),
+            }
+        })
+        .collect()
+}
+
+/// Selected effects of one observable into the fleet accumulators: keys,
+/// explained variance, per-row contributions, augmented model, residual.
+/// `extra_rows` (trimmed outliers) get the all-runs fits' predictions.
+/// Returns the observable's selected keys.
+#[allow(clippy::too_many_arguments)]
+pub fn record_selected(
+    table: &Table,
+    o: &ObsRows,
+    prob: &Problem,
+    cands: &[&dyn Effect],
+    sel: &Selection,
+    sigma_mm: f64,
+    extra_rows: &[usize],
+    acc: &mut Accum,
+) -> Result<Vec<String>> {
+    let mut extra_resid: Vec<f64> = extra_rows.iter().map(|&i| table.gap[i]).collect();
+    let mut obs_selected = Vec::new();
+    for (j, &ci) in sel.chosen.iter().enumerate() {
+        let e = cands[ci];
+        let key = e.key();
+        if !acc.selected_keys.contains(&key) {
+            acc.selected_keys.push(key.clone());
+        }
+        if let Some(r) = sel.records.iter().find(|r| r.idx == ci && r.selected) {
+            let var = sigma_mm.powi(2).max(f64::MIN_POSITIVE);
+            *acc.explained_var.entry(key.clone()).or_insert(0.0) +=
+                ((r.sse_before - r.sse_after) / var).max(0.0);
+        }
+        obs_selected.push(key.clone());
+        let col = acc
+            .contrib_cols
+            .entry(key.clone())
+            .or_insert_with(|| vec![0.0; table.n]);
+        for (pos, &i) in o.rows.iter().enumerate() {
+            col[i] = sel.contrib[j][pos];
+        }
+        if !extra_rows.is_empty() {
+            let pred = predict_rows(e, &prob.x, &sel.final_targets[j], table, extra_rows)?;
+            for ((&i, p), r) in extra_rows.iter().zip(pred).zip(extra_resid.iter_mut()) {
+                col[i] = p;
+                *r -= p;
+            }
+        }
+        let (params, off) = &sel.final_params[j];
+        let covs = e.covariates();
+        // The catalogue form it evaluates as outside the diagnosis (`run
+        // --augment`): its own name, or that of the catalogue effect a
+        // plugin composite renames; none for products of forms.
+        let form = super::effect::Kind::from_name(e.name())
+            .or_else(|| {
+                e.replaces()
+                    .and_then(|r| super::effect::Kind::from_name(r.split(':').next().unwrap_or("")))
+            })
+            .map(|k| k.name());
+        // The all-runs fit exactly as the diagnosis predicts with it (θ,
+        // feature-space intercept and coefficients of its linear form, and
+        // the catalogue forms it is built from), so `run --augment` replays
+        // any linear-form effect — products of forms included.
+        let linear = match (&sel.chosen_evals[j].fit, e.linear_form()) {
+            (super::select::CandFit::Fast { theta, beta }, Some(form))
+                if !form.factors().is_empty() =>
+            {
+                serde_json::json!({
+                    "factors": form.factors().iter().map(|(k, c)| serde_json::json!({"form": k.name(), "covariates": c})).collect::<Vec<_>>(),
+                    "theta": fin(theta[prob.k]),
+                    "intercept": fin(beta[prob.k][0]),
+                    "coef": beta[prob.k][1..].iter().map(|b| fin(*b)).collect::<Vec<_>>(),
+                })
+            }
+            _ => serde_json::Value::Null,
+        };
+        acc.augmented.push(serde_json::json!({
+            "observable": o.name,
+            "name": e.name(),
+            "form": form,
+            "covariate": if covs.is_empty() { serde_json::Value::Null } else { covs.join(",").into() },
+            "key": key,
+            "params": params.iter().filter(|(_, v)| v.is_finite()).map(|(k, v)| (k.clone(), serde_json::json!(v))).collect::<serde_json::Map<_, _>>(),
+            "offset_mm": fin(*off),
+            "frame": covs.iter().map(|c| (c.clone(), serde_json::json!(prob.frames.get(c)))).collect::<serde_json::Map<_, _>>(),
+            "linear": linear,
+        }));
+    }
+    for (pos, &i) in o.rows.iter().enumerate() {
+        acc.residual_all[i] = sel.residual[pos];
+    }
+    for (&i, r) in extra_rows.iter().zip(extra_resid) {
+        acc.residual_all[i] = r;
+    }
+    Ok(obs_selected)
+}
+
+/// The all-runs fit of `e` to `target` (over the rows of `x`), predicted on
+/// table rows `rows` (offset included).
+fn predict_rows(
+    e: &dyn Effect,
+    x: &super::effect::EffectData,
+    target: &[f64],
+    table: &Table,
+    rows: &[usize],
+) -> Result<Vec<f64>> {
+    let fe = e.fit(x, target)?;
+    let covs = e.covariates();
+    let store: Vec<Vec<f64>> = covs
+        .iter()
+        .map(|c| {
+            table
+                .cov(c)
+                .map(|v| rows.iter().map(|&i| v[i]).collect())
+                .ok_or_else(|| anyhow::anyhow!("covariate `{c}` not in the table"))
+        })
+        .collect::<Result<_>>()?;
+    let mut xd = super::effect::EffectData::new(rows.len());
+    for (c, v) in covs.iter().zip(&store) {
+        xd.push(c, v);
+    }
+    let off = fe.offset_mm();
+    Ok(fe.predict(&xd).into_iter().map(|p| p + off).collect())
+}
+
+/// The fleet-level diagnosis from the per-observable results.
+pub fn assemble(
+    batch: &RecordBatch,
+    table: &Table,
+    cfg: &DiagnoseConfig,
+    mut acc: Accum,
+    mut notes: Notes,
+) -> Result<DiagnosisOutput> {
+    let n_all = table.n;
+    if acc.blocked {
+        notes.add("single run: blocked folds within the run".into());
+    }
+    if acc.summaries.iter().all(|s| !s.gap_above_noise) {
+        notes.add("no gap above noise".into());
+    }
+    let sum_g2: f64 = table.gap.iter().map(|g| g * g).sum();
+    let sum_r2: f64 = acc.residual_all.iter().map(|r| r * r).sum();
+    let noise_floor = (acc
+        .summaries
+        .iter()
+        .map(|s| s.n as f64 * s.noise_floor_mm.powi(2))
+        .sum::<f64>()
+        / n_all as f64)
+        .sqrt();
+    let sources: BTreeSet<&str> = acc
+        .summaries
+        .iter()
+        .map(|s| s.noise_floor_source.as_str())
+        .collect();
+    let noise_src = if sources.len() == 1 {
+        sources
+            .into_iter()
+            .next()
+            .unwrap_or("point_to_point")
+            .to_string()
+    } else {
+        "mixed".into()
+    };
+    let (where_, where_after) = cells::where_lists(&acc.cells, sum_g2, sum_r2, cfg.alpha);
+    // Stable: ties keep the order of first selection.
+    let explained = std::mem::take(&mut acc.explained_var);
+    acc.selected_keys.sort_by(|a, b| {
+        let w = |k: &String| explained.get(k).copied().unwrap_or(0.0);
+        w(b).total_cmp(&w(a))
+    });
+    let diagnosis = Diagnosis {
+        version: 1,
+        observables: table.obs_names.clone(),
+        machines: if table.has_machine {
+            table.machine_names.clone()
+        } else {
+            Vec::new()
+        },
+        gap: GapSummary {
+            rms_mm: (sum_g2 / n_all as f64).sqrt(),
+            max_abs_mm: table.gap.iter().fold(0.0, |m, g| m.max(g.abs())),
+            noise_floor_mm: noise_floor,
+            n: n_all,
+        },
+        where_,
+        effects: acc.effects,
+        selected: acc.selected_keys.clone(),
+        unexplained: Unexplained {
+            rms_mm: (sum_r2 / n_all as f64).sqrt(),
+            share: if sum_g2 > 0.0 { sum_r2 / sum_g2 } else { 0.0 },
+            where_: where_after,
+        },
+        noise_floor_source: noise_src,
+        cv: CvInfo {
+            folds: acc.folds_used,
+            by: if acc.blocked {
+                "blocked_within_run".into()
+            } else {
+                "run".into()
+            },
+            test: PAIRED_TEST.into(),
+            seed: cfg.seed,
+        },
+        per_observable: acc.summaries,
+        notes: notes.into_vec(),
+        machine_effects: Vec::new(),
+    };
+    let per_row = per_row_batch(
+        batch,
+        table,
+        &acc.contrib_cols,
+        &acc.selected_keys,
+        &acc.residual_all,
+    )?;
+    let augmented_model = serde_json::json!({
+        "version": 1,
+        "kind": "sparkout.augmented_model",
+        "applies_as": "real ≈ sim + Σ over effects of (offset_mm + form(covariates; params)), per observable; forms as in the effect catalogue of docs/formats.md",
+        // `run --augment` reports the augmented gap on the runs not listed
+        // here (held out by construction).
+        "fitted_on_runs": table.run_names,
+        "effects": acc.augmented,
+    });
+    let report_html = report::section(&diagnosis);
+    Ok(DiagnosisOutput {
+        diagnosis,
+        per_row,
+        augmented_model,
+        report_html,
+    })
+}
