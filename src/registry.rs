@@ -14,6 +14,12 @@ pub fn plugins() -> Vec<Arc<dyn MachinePlugin>> {
     sparkout_plugins::all_plugins()
 }
 
+/// The tables every registered plugin records, with the shared ones.
+pub fn tables() -> anyhow::Result<sparkout_pipeline::contracts::TableRegistry> {
+    let plugins = plugins();
+    sparkout_pipeline::contracts::TableRegistry::of(plugins.iter().map(|p| (p.name(), p.tables())))
+}
+
 pub fn resolver(machines: Option<PathBuf>) -> MachineResolver {
     let builtins: BTreeMap<String, String> = plugins()
         .iter()

@@ -20,7 +20,7 @@ use anyhow::{Context, Result};
 
 use super::canopen::Outcome;
 use super::source::Plan;
-use crate::contracts::{write_atomic, write_parquet_atomic, MotionColumns, RunSpec, ALL_TABLES};
+use crate::contracts::{write_atomic, write_parquet_atomic, MotionColumns, RunSpec};
 
 /// What goes into `[replay]` of the recorded run.toml.
 #[derive(Debug, Clone)]
@@ -80,25 +80,33 @@ pub fn write_recorded_run(
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
     write_parquet_atomic(&out.join("motion.parquet"), &motion.into_batch())?;
 
-    // The other tables the plugin may need, byte for byte.
+    // The run's other tables, byte for byte (whatever machine type recorded
+    // them: the replay knows no plugin's tables): every regular
+    // `<table>.parquet` beside run.toml but the motion log it replaced.
+    let mut tables: Vec<String> = std::fs::read_dir(&source.dir)
+        .with_context(|| format!("cannot list {}", source.dir.display()))?
+        .filter_map(|e| e.ok())
+        .filter(|e| e.file_type().map(|t| t.is_file()).unwrap_or(false))
+        .filter_map(|e| {
+            let name = e.file_name().to_string_lossy().into_owned();
+            let stem = name.strip_suffix(".parquet")?.to_string();
+            (stem != "motion" && !stem.starts_with('.')).then_some(stem)
+        })
+        .collect();
+    tables.sort();
     let mut copied = Vec::new();
-    for schema in ALL_TABLES {
-        if schema.name == "motion" {
-            continue;
-        }
-        let src = source.dir.join(schema.file_name());
-        if !src.is_file() {
-            continue;
-        }
-        let dst = out.join(schema.file_name());
-        if schema.name == "ae" {
+    for table in tables {
+        let file = format!("{table}.parquet");
+        let src = source.dir.join(&file);
+        let dst = out.join(&file);
+        if table == "ae" {
             link_or_copy(&src, &dst)?;
         } else {
             let bytes =
                 std::fs::read(&src).with_context(|| format!("cannot read {}", src.display()))?;
             write_atomic(&dst, &bytes)?;
         }
-        copied.push(schema.name.to_string());
+        copied.push(table);
     }
 
     let mut doc: toml::Table = source.text.parse().context("source run.toml")?;

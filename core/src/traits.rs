@@ -399,6 +399,13 @@ pub type ProcessKeys = &'static [(&'static str, crate::config_check::Check)];
 /// One machine type.
 pub trait MachinePlugin: Send + Sync {
     fn name(&self) -> &'static str;
+    /// The tables this machine type records beyond the shared ones (the AE,
+    /// motion and thermal logs, `contracts::SHARED_TABLES`): their columns,
+    /// types and plausible ranges. The engine registers them
+    /// (`contracts::TableRegistry`); a name may be declared once.
+    fn tables(&self) -> &'static [TableSchema] {
+        &[]
+    }
     /// Alternative sets of tables, one of which a run must have
     /// (docs/formats.md §5), e.g. robot: `[["probe"], ["ae", "motion", "plan"]]`.
     fn required_tables(&self) -> Vec<Vec<&'static str>>;
@@ -454,12 +461,12 @@ pub trait MachinePlugin: Send + Sync {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::contracts::schema::{MOTION, TOPOGRAPHY};
+    use crate::contracts::schema::{MOTION, THERMAL};
 
     const SPEC: StageSpec = StageSpec {
         name: "removal",
         version: 1,
-        reads: &[&TOPOGRAPHY, &MOTION],
+        reads: &[&THERMAL, &MOTION],
         reads_artifacts: &["plan"],
         writes: &["removal"],
         reads_augmented_model: false,
@@ -471,7 +478,7 @@ mod tests {
     fn a_spec_is_checked_on_its_own() {
         SPEC.check().unwrap();
         let twice = StageSpec {
-            reads: &[&TOPOGRAPHY, &TOPOGRAPHY],
+            reads: &[&THERMAL, &THERMAL],
             ..SPEC
         };
         assert!(twice.check().unwrap_err().to_string().contains("twice"));
@@ -489,7 +496,7 @@ mod tests {
 
     #[test]
     fn reads_outside_the_spec_are_refused() {
-        let tables: BTreeSet<&str> = ["topography"].into();
+        let tables: BTreeSet<&str> = ["thermal"].into();
         let artifacts: BTreeSet<String> = ["plan".to_string()].into();
         SPEC.check_reads(&tables, &artifacts).unwrap();
         let e = SPEC

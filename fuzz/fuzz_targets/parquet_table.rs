@@ -5,7 +5,16 @@
 //! also replays over this target's corpus.
 #![no_main]
 
+use std::sync::LazyLock;
+
 use libfuzzer_sys::fuzz_target;
+use sparkout_pipeline::contracts::TableRegistry;
 use sparkout_pipeline::fuzz_entry;
 
-fuzz_target!(|data: &[u8]| fuzz_entry::parquet_table(data, &std::env::temp_dir()));
+/// The shared tables and every plugin's, as the engine registers them.
+static TABLES: LazyLock<TableRegistry> = LazyLock::new(|| {
+    let plugins = sparkout_plugins::all_plugins();
+    TableRegistry::of(plugins.iter().map(|p| (p.name(), p.tables()))).expect("plugins' tables")
+});
+
+fuzz_target!(|data: &[u8]| fuzz_entry::parquet_table(data, &std::env::temp_dir(), &TABLES));

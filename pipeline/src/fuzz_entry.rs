@@ -8,7 +8,7 @@
 use std::path::Path;
 
 use crate::contracts::config_keys::{check_machine, check_process};
-use crate::contracts::{AeStream, MachineConfig, RunSpec, Table, ALL_TABLES};
+use crate::contracts::{AeStream, MachineConfig, RunSpec, Table, TableRegistry};
 
 /// Any text as run.toml, and its `[process]` against a plugin's keys.
 pub fn run_toml(data: &[u8]) {
@@ -24,14 +24,16 @@ pub fn run_toml(data: &[u8]) {
     }
 }
 
-/// Any bytes as a contract table (the first byte picks the table), written
+/// Any bytes as a contract table (the first byte picks one of `tables`: the
+/// shared ones and the registered plugins'), written
 /// to `scratch` and read back by the validated reader: a table or an error
 /// naming the file. The AE log goes through its streaming reader.
-pub fn parquet_table(data: &[u8], scratch: &Path) {
+pub fn parquet_table(data: &[u8], scratch: &Path, tables: &TableRegistry) {
     let Some((&pick, bytes)) = data.split_first() else {
         return;
     };
-    let schema = &ALL_TABLES[pick as usize % ALL_TABLES.len()];
+    let all: Vec<_> = tables.iter().collect();
+    let schema = all[pick as usize % all.len()];
     let path = scratch.join(format!(
         "sparkout-fuzz-{}-{}",
         std::process::id(),

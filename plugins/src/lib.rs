@@ -26,3 +26,59 @@ pub fn all_plugins() -> Vec<Arc<dyn MachinePlugin>> {
         Arc::new(servo::ServoPlugin),
     ]
 }
+
+#[cfg(test)]
+mod tables_tests {
+    use sparkout_pipeline::contracts::plausible::{all_ranges, range_for};
+    use sparkout_pipeline::contracts::TableRegistry;
+
+    fn registry() -> TableRegistry {
+        let plugins = super::all_plugins();
+        TableRegistry::of(plugins.iter().map(|p| (p.name(), p.tables()))).unwrap()
+    }
+
+    /// Each plugin declares its own tables, none twice, and every numeric
+    /// column of every table has a plausible range (its own or its unit
+    /// suffix's).
+    #[test]
+    fn every_plugin_table_is_registered_once_with_ranges() {
+        let r = registry();
+        for name in ["ae", "motion", "thermal", "probe", "plan", "passes"] {
+            assert!(r.get(name).is_some(), "{name} not registered");
+        }
+        for name in ["topography", "guideway", "profile", "tracker"] {
+            assert!(r.get(name).is_some(), "{name} not registered");
+        }
+        for t in r.iter() {
+            for c in t.columns {
+                let text = matches!(c.name, "face" | "method" | "state" | "stage" | "sensor");
+                assert!(
+                    text || range_for(t, c.name).is_some(),
+                    "{}.{} has no plausible range",
+                    t.name,
+                    c.name
+                );
+            }
+        }
+        let mut twice = TableRegistry::shared();
+        let robot = super::robot::RobotPlugin;
+        use sparkout_pipeline::MachinePlugin;
+        twice.register("robot", robot.tables()).unwrap();
+        let e = twice.register("robot again", robot.tables()).unwrap_err();
+        assert!(e.to_string().contains("`probe`"), "{e}");
+    }
+
+    /// docs/validation.md lists every registered table's ranges.
+    #[test]
+    fn every_registered_range_is_documented() {
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../docs/validation.md");
+        let doc = std::fs::read_to_string(path).unwrap();
+        for (t, c, r) in all_ranges(&registry()) {
+            let row = format!("| {t} | {c} | {} | {} |", r.lo, r.hi);
+            assert!(
+                doc.contains(&row),
+                "docs/validation.md lacks the row `{row}`"
+            );
+        }
+    }
+}

@@ -27,13 +27,17 @@ pub struct ImportArgs<'a> {
 /// A mapping by built-in name or TOML path.
 fn load_mapping(name: &str) -> anyhow::Result<Mapping> {
     if let Some((_, text)) = BUILTIN_MAPPINGS.iter().find(|(n, _)| *n == name) {
-        return Mapping::from_toml(text, &format!("`{name}` (built in)"));
+        return Mapping::from_toml(
+            text,
+            &format!("`{name}` (built in)"),
+            &crate::registry::tables()?,
+        );
     }
     let p = Path::new(name);
     if p.is_file() {
         let text = std::fs::read_to_string(p)
             .with_context(|| format!("cannot read mapping {}", p.display()))?;
-        return Mapping::from_toml(&text, &p.display().to_string());
+        return Mapping::from_toml(&text, &p.display().to_string(), &crate::registry::tables()?);
     }
     let known: Vec<&str> = BUILTIN_MAPPINGS.iter().map(|(n, _)| *n).collect();
     bail!(
@@ -45,7 +49,7 @@ fn load_mapping(name: &str) -> anyhow::Result<Mapping> {
 pub fn import(a: &ImportArgs) -> anyhow::Result<u8> {
     if a.list_mappings {
         for (name, text) in BUILTIN_MAPPINGS {
-            let m = Mapping::from_toml(text, name)?;
+            let m = Mapping::from_toml(text, name, &crate::registry::tables()?)?;
             println!(
                 "{name:12} → table {}, machine {}, plugin {} ({} columns)",
                 m.table,
@@ -66,7 +70,7 @@ pub fn import(a: &ImportArgs) -> anyhow::Result<u8> {
             let (Some(table), Some(machine), Some(plugin)) = (a.table, a.machine, a.plugin) else {
                 bail!("without --mapping, give --table, --machine and --plugin (and --map SRC=DEST[*FACTOR] per column)");
             };
-            Mapping::from_flags(table, machine, plugin)
+            Mapping::from_flags(table, machine, plugin, &crate::registry::tables()?)
         }
     };
     // Flags override the mapping file's settings.

@@ -28,7 +28,7 @@ fn probe_batch(t: Vec<f64>, z: Vec<f64>) -> BatchBuilder {
 fn read_probe(dir: &Path, b: BatchBuilder) -> Result<Table, InputError> {
     let p = dir.join("probe.parquet");
     write_parquet_atomic(&p, &b.build()).unwrap();
-    Table::read(&p, &schema::PROBE)
+    Table::read(&p, &sparkout_plugins::robot::tables::PROBE)
 }
 
 #[test]
@@ -47,7 +47,7 @@ fn missing_column_names_file_and_column() {
     let p = d.path().join("probe.parquet");
     let b = BatchBuilder::new().f64("t_s", vec![0.0]).build();
     write_parquet_atomic(&p, &b).unwrap();
-    let e = Table::read(&p, &schema::PROBE).unwrap_err();
+    let e = Table::read(&p, &sparkout_plugins::robot::tables::PROBE).unwrap_err();
     assert_eq!(e.file, p);
     assert_eq!(e.column.as_deref(), Some("face"));
     assert!(e.to_string().contains("required column missing"), "{e}");
@@ -117,7 +117,7 @@ fn truncated_parquet_is_rejected() {
     write_parquet_atomic(&p, &probe_batch(vec![0.0, 1.0], vec![3.0; 2]).build()).unwrap();
     let bytes = std::fs::read(&p).unwrap();
     std::fs::write(&p, &bytes[..bytes.len() / 2]).unwrap();
-    let e = Table::read(&p, &schema::PROBE).unwrap_err();
+    let e = Table::read(&p, &sparkout_plugins::robot::tables::PROBE).unwrap_err();
     assert_eq!(e.file, p);
     assert!(e.to_string().contains("Parquet"), "{e}");
 }

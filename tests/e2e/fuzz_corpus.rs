@@ -61,8 +61,13 @@ fn text_parsers_survive_their_corpora() {
 #[test]
 fn table_readers_survive_their_corpora() {
     let scratch = tempfile::tempdir().unwrap();
+    let plugins = sparkout_plugins::all_plugins();
+    let tables = sparkout_pipeline::contracts::TableRegistry::of(
+        plugins.iter().map(|p| (p.name(), p.tables())),
+    )
+    .unwrap();
     replay("parquet_table", &|d| {
-        fuzz_entry::parquet_table(d, scratch.path())
+        fuzz_entry::parquet_table(d, scratch.path(), &tables)
     });
     replay("observations", &|d| {
         fuzz_entry::observations(d, scratch.path())

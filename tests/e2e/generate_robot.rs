@@ -9,9 +9,12 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use sparkout_datasets::robot::{generate_fleet, known_effects, ProbeMode, RobotFleetConfig};
-use sparkout_pipeline::contracts::schema::{MOTION, PASSES, PLAN, PROBE};
+use sparkout_pipeline::contracts::schema::MOTION;
 use sparkout_pipeline::contracts::{AeStream, RunSpec, Table};
 use sparkout_pipeline::EffectSpec;
+use sparkout_plugins::robot::tables::PASSES;
+use sparkout_plugins::robot::tables::PLAN;
+use sparkout_plugins::robot::tables::PROBE;
 
 fn tiny(seed: u64) -> RobotFleetConfig {
     RobotFleetConfig {

@@ -8,7 +8,7 @@
 use std::path::{Path, PathBuf};
 
 use sparkout_pipeline::contracts::{
-    discover_runs, read_parquet, table_schema, write_parquet_atomic, RunSpec, Table,
+    discover_runs, read_parquet, write_parquet_atomic, RunSpec, Table,
 };
 
 use crate::common::sparkout;
@@ -81,7 +81,7 @@ fn a_fleet_written_by_pandas_runs_end_to_end_and_matches_the_same_data_written_b
             let Some(stem) = p.file_stem().and_then(|s| s.to_str()) else {
                 continue;
             };
-            if let Some(schema) = table_schema(stem) {
+            if let Some(schema) = crate::common::tables().get(stem) {
                 let t = Table::read_at(&p, schema, &spec.time_origin()).unwrap();
                 // Drop pandas' schema metadata: the copy is sparkout's own.
                 let fields = t.batch().schema().fields().clone();

@@ -18,7 +18,7 @@ use arrow::record_batch::RecordBatch;
 use parquet::arrow::ArrowWriter;
 use parquet::basic::{BrotliLevel, Compression, GzipLevel, ZstdLevel};
 use parquet::file::properties::{WriterProperties, WriterVersion};
-use sparkout_pipeline::contracts::schema::{ColumnKind, TableSchema, ALL_TABLES};
+use sparkout_pipeline::contracts::schema::{ColumnKind, TableSchema};
 use sparkout_pipeline::contracts::{read_parquet, AeStream, Table};
 use sparkout_pipeline::diagnose::read_observations;
 use sparkout_pipeline::InputError;
@@ -72,7 +72,7 @@ fn column(name: &str, kind: ColumnKind, v: usize) -> (ArrayRef, Want) {
     // range is narrower (a unit direction: 0, 1; an angle: 0..6), shifted to
     // its lower bound where that is above 0. Time columns stay increasing.
     let time = name == "t_s" || (name.starts_with("t_") && name.ends_with("_s"));
-    let (lo, hi) = sparkout_pipeline::contracts::plausible::all_ranges()
+    let (lo, hi) = sparkout_pipeline::contracts::plausible::all_ranges(&crate::common::tables())
         .iter()
         .filter(|(_, c, _)| *c == name)
         .fold((f64::NEG_INFINITY, f64::INFINITY), |(lo, hi), (_, _, r)| {
@@ -222,7 +222,7 @@ fn every_codec_page_version_and_encoding_reads_through_every_contract_reader() {
             for dict in [true, false] {
                 let variant = c * 4 + v2 as usize * 2 + dict as usize;
                 let tag = format!("{codec:?} v2={v2} dict={dict}");
-                for schema in ALL_TABLES {
+                for schema in crate::common::tables().iter() {
                     let (b, want) = table_batch(schema, variant);
                     let p = d.path().join(format!("{}_{variant}.parquet", schema.name));
                     write(&p, &b, codec, v2, dict);
@@ -293,7 +293,10 @@ fn every_codec_page_version_and_encoding_reads_through_every_contract_reader() {
             }
         }
     }
-    assert_eq!(files, 7 * 2 * 2 * (ALL_TABLES.len() + 1));
+    assert_eq!(
+        files,
+        7 * 2 * 2 * (crate::common::tables().iter().count() + 1)
+    );
 }
 
 /// The contract table a committed fixture holds, by its file name.
@@ -303,7 +306,7 @@ fn schema_of(stem: &str) -> &'static TableSchema {
     } else {
         stem.split('_').next().unwrap()
     };
-    sparkout_pipeline::contracts::table_schema(name).unwrap()
+    crate::common::tables().get(name).unwrap()
 }
 
 fn normalised(t: &Table, schema: &TableSchema) -> Vec<(String, Want)> {

@@ -10,7 +10,7 @@ use std::path::Path;
 use proptest::prelude::*;
 use sparkout_pipeline::contracts::config_keys::{check_machine, check_process};
 use sparkout_pipeline::contracts::{
-    schema, write_parquet_atomic, BatchBuilder, MachineConfig, RunSpec, Table,
+    write_parquet_atomic, BatchBuilder, MachineConfig, RunSpec, Table,
 };
 use sparkout_pipeline::diagnose::observations::validate_observations;
 use sparkout_pipeline::replay::canopen::{check_eds, DRIVE_EDS};
@@ -129,7 +129,7 @@ proptest! {
     fn probe_readings_accepted_iff_finite_and_plausible(z in proptest::collection::vec(
         prop_oneof![any::<f64>(), -150.0f64..150.0, -0.05f64..0.05], 2..40)) {
         let batch = guideway_batch(z.clone()).build();
-        let r = Table::from_batch(Path::new("guideway.parquet"), &schema::GUIDEWAY, batch);
+        let r = Table::from_batch(Path::new("guideway.parquet"), &sparkout_plugins::guideway::tables::GUIDEWAY, batch);
         let ok = z.iter().all(|v| v.is_finite() && v.abs() <= 100.0);
         prop_assert_eq!(r.is_ok(), ok, "{:?}", r.err());
     }
@@ -175,7 +175,7 @@ proptest! {
             bytes.truncate(k);
         }
         std::fs::write(&p, &bytes).unwrap();
-        let r = std::panic::catch_unwind(|| Table::read(&p, &schema::GUIDEWAY));
+        let r = std::panic::catch_unwind(|| Table::read(&p, &sparkout_plugins::guideway::tables::GUIDEWAY));
         prop_assert!(r.is_ok(), "the reader panicked");
         if let Ok(Err(e)) = r {
             prop_assert_eq!(e.file, p);

@@ -405,7 +405,7 @@ fn to_chunk(
     // The plausible range of the contract's `ae_v`; any other signal column
     // (`--column`) only has to be finite.
     let value_range = (value == "ae_v")
-        .then(|| super::plausible::range_for("ae", value))
+        .then(|| super::plausible::range_for(&super::schema::AE, value))
         .flatten()
         .map_or((f64::MIN, f64::MAX), |r| (r.lo, r.hi));
     let value_ok = v.null_count() == 0
@@ -417,7 +417,7 @@ fn to_chunk(
             return Err(e);
         }
         if value == "ae_v" {
-            super::plausible::check_column(path, "ae", value, v.as_ref(), first_row)?;
+            super::plausible::check_column(path, &super::schema::AE, value, v.as_ref(), first_row)?;
         }
     }
     let was_f32 = v.data_type() == &DataType::Float32;
@@ -452,7 +452,8 @@ fn to_chunk(
                 .as_any()
                 .downcast_ref::<Float64Array>()
                 .expect("normalised");
-            let range = super::plausible::range_for("ae", name).expect("t_s has a range");
+            let range =
+                super::plausible::range_for(&super::schema::AE, name).expect("t_s has a range");
             let scan = if t_s.null_count() == 0 {
                 time_column_scan(t_s.values(), range.lo, range.hi)
             } else {
@@ -464,7 +465,13 @@ fn to_chunk(
                     if let Some(e) = bad(name, t.as_ref()) {
                         return Err(e);
                     }
-                    super::plausible::check_column(path, "ae", name, t.as_ref(), first_row)?;
+                    super::plausible::check_column(
+                        path,
+                        &super::schema::AE,
+                        name,
+                        t.as_ref(),
+                        first_row,
+                    )?;
                     if let Some(i) = first_decrease(t_s.values()) {
                         return Err(decrease_error(
                             path,

@@ -28,7 +28,7 @@ pub use run::{
     discover, discover_runs, AeKind, AeSpec, Discovery, MachineConfig, MachineResolver, RunSpec,
     Skipped,
 };
-pub use schema::{table_schema, ColumnKind, ColumnSpec, TableSchema, ALL_TABLES};
+pub use schema::{ColumnKind, ColumnSpec, TableRegistry, TableSchema, SHARED_TABLES};
 pub use table::Table;
 pub use write::{
     remove_orphaned_temps, write_atomic, write_json_atomic, write_parquet_atomic,

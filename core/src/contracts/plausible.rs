@@ -8,7 +8,7 @@
 
 use arrow::array::{Array, Float32Array, Float64Array, Int32Array, Int64Array, Int8Array};
 
-use super::schema::TableSchema;
+use super::schema::{TableRegistry, TableSchema};
 use super::table::first_failing;
 use crate::error::InputError;
 
@@ -28,7 +28,7 @@ pub struct Range {
 /// Lengths: the largest machine of the contract (a gantry bed) is a few
 /// metres and a guide-way trace tens of metres; 1 km is implausible in any
 /// of them, while a few metres written in µm (10⁶ and more) is caught.
-const LENGTH: Range = Range {
+pub const LENGTH: Range = Range {
     lo: -1e6,
     hi: 1e6,
     unit: "mm",
@@ -36,21 +36,21 @@ const LENGTH: Range = Range {
     above: "values look like µm or nm (divide by 1000 or 10⁶) or encoder counts",
 };
 /// A measured deviation from nominal (probe readings, surface heights).
-const DEVIATION: Range = Range {
+pub const DEVIATION: Range = Range {
     lo: -100.0,
     hi: 100.0,
     unit: "mm",
     below: "a deviation beyond 100 mm: values look like µm (divide by 1000)",
     above: "a deviation beyond 100 mm: values look like µm (divide by 1000)",
 };
-const TIME: Range = Range {
+pub const TIME: Range = Range {
     lo: -1e6,
     hi: 1e7,
     unit: "s",
     below: "t_s is seconds since the run's start (docs/formats.md); values look like ms, µs or an absolute (epoch) time",
     above: "t_s is seconds since the run's start (docs/formats.md); values look like ms, µs or an absolute (epoch) time — subtract the start and convert to s",
 };
-const SPEED: Range = Range {
+pub const SPEED: Range = Range {
     lo: 0.0,
     hi: 1e5,
     unit: "mm/s",
@@ -58,7 +58,7 @@ const SPEED: Range = Range {
     above: "values look like mm/min (divide by 60) or µm/s (divide by 1000)",
 };
 /// A signed axis velocity (motion v1.1 `cmd_v_<axis>_mm_s`, `act_v_…`).
-const AXIS_VELOCITY: Range = Range {
+pub const AXIS_VELOCITY: Range = Range {
     lo: -1e5,
     hi: 1e5,
     unit: "mm/s",
@@ -67,105 +67,83 @@ const AXIS_VELOCITY: Range = Range {
 };
 /// A signed axis acceleration (motion v1.1 `cmd_a_<axis>_mm_s2`, `act_a_…`):
 /// machine tools reach tens of m/s², 10⁷ mm/s² (1 000 g) is implausible.
-const AXIS_ACCELERATION: Range = Range {
+pub const AXIS_ACCELERATION: Range = Range {
     lo: -1e7,
     hi: 1e7,
     unit: "mm/s²",
     below: "values look like µm/s² (divide by 1000) or a wrong column",
     above: "values look like µm/s² (divide by 1000) or a wrong column",
 };
-const TEMPERATURE: Range = Range {
+pub const TEMPERATURE: Range = Range {
     lo: -60.0,
     hi: 200.0,
     unit: "°C",
     below: "values look like a sensor fault code",
     above: "values look like kelvin (subtract 273.15) or °F",
 };
-const UNIT_VECTOR: Range = Range {
+pub const UNIT_VECTOR: Range = Range {
     lo: -1.000_001,
     hi: 1.000_001,
     unit: "",
     below: "a unit direction has components in [−1, 1]: normalise it",
     above: "a unit direction has components in [−1, 1]: normalise it",
 };
-const ANGLE: Range = Range {
+pub const ANGLE: Range = Range {
     lo: -std::f64::consts::TAU - 1e-6,
     hi: std::f64::consts::TAU + 1e-6,
     unit: "rad",
     below: "values look like degrees: multiply by π/180 (0.0174533)",
     above: "values look like degrees: multiply by π/180 (0.0174533)",
 };
-const RADIUS: Range = Range {
+pub const RADIUS: Range = Range {
     lo: 0.0,
     hi: 1e4,
     unit: "mm",
     below: "a radius cannot be negative",
     above: "values look like µm (divide by 1000)",
 };
-const COUNT: Range = Range {
+pub const COUNT: Range = Range {
     lo: 0.0,
     hi: 2.0e9,
     unit: "",
     below: "an id or index is never negative",
     above: "an id or index this large looks like a wrong column",
 };
-const DIRECTION: Range = Range {
+pub const DIRECTION: Range = Range {
     lo: -1.0,
     hi: 1.0,
     unit: "",
     below: "dir is +1 or −1",
     above: "dir is +1 or −1",
 };
-const AE_VOLTS: Range = Range {
+pub const AE_VOLTS: Range = Range {
     lo: -100.0,
     hi: 100.0,
     unit: "V",
     below: "values look like millivolts or raw ADC counts: convert to volts",
     above: "values look like millivolts or raw ADC counts: convert to volts",
 };
-const DEPTH_OF_CUT: Range = Range {
+pub const DEPTH_OF_CUT: Range = Range {
     lo: 0.0,
     hi: 50.0,
     unit: "mm",
     below: "a programmed depth of cut is ≥ 0 (0 for spark-out)",
     above: "values look like µm (divide by 1000)",
 };
-const SEGMENT: Range = Range {
+pub const SEGMENT: Range = Range {
     lo: -1.0,
     hi: 2.0e9,
     unit: "",
     below: "segment is a plan seq or −1 when none",
     above: "an id this large looks like a wrong column",
 };
-const PASS: Range = Range {
+pub const PASS: Range = Range {
     lo: 1.0,
     hi: 1e6,
     unit: "",
     below: "passes are numbered from 1",
     above: "a pass number this large looks like a wrong column",
 };
-
-/// Per table and column. Columns not listed take the range of their unit
-/// suffix ([`range_by_suffix`]).
-const BY_COLUMN: &[(&str, &str, Range)] = &[
-    ("ae", "ae_v", AE_VOLTS),
-    ("motion", "segment", SEGMENT),
-    ("plan", "seq", COUNT),
-    ("plan", "dir_x", UNIT_VECTOR),
-    ("plan", "dir_y", UNIT_VECTOR),
-    ("plan", "dir_z", UNIT_VECTOR),
-    ("passes", "pass", PASS),
-    ("passes", "nominal_doc_mm", DEPTH_OF_CUT),
-    ("topography", "z_mm", DEVIATION),
-    ("guideway", "n", COUNT),
-    ("guideway", "za_mm", DEVIATION),
-    ("guideway", "zb_mm", DEVIATION),
-    ("guideway", "zc_mm", DEVIATION),
-    ("guideway", "dir", DIRECTION),
-    ("profile", "phi_rad", ANGLE),
-    ("profile", "r_mm", RADIUS),
-    ("profile", "wheel_radius_mm", RADIUS),
-];
 
 /// The range for a column of a unit-suffixed name (docs/formats.md
 /// "Conventions": the unit is in the name).
@@ -191,23 +169,26 @@ pub fn range_by_suffix(column: &str) -> Option<Range> {
     }
 }
 
-/// The plausible range of a contract column.
-pub fn range_for(table: &str, column: &str) -> Option<Range> {
-    BY_COLUMN
+/// The plausible range of a table's column: the table's own
+/// ([`TableSchema::ranges`]), else its unit suffix's.
+pub fn range_for(table: &TableSchema, column: &str) -> Option<Range> {
+    table
+        .ranges
         .iter()
-        .find(|(t, c, _)| *t == table && *c == column)
-        .map(|(_, _, r)| *r)
+        .find(|(c, _)| *c == column)
+        .map(|(_, r)| *r)
         .or_else(|| range_by_suffix(column))
 }
 
-/// Every (table, column, range) of the v1 tables, for the docs and tests.
-pub fn all_ranges() -> Vec<(&'static str, &'static str, Range)> {
-    super::schema::ALL_TABLES
+/// Every (table, column, range) of the registered tables, for the docs
+/// and tests.
+pub fn all_ranges(tables: &TableRegistry) -> Vec<(&'static str, &'static str, Range)> {
+    tables
         .iter()
         .flat_map(|t| {
             t.columns
                 .iter()
-                .filter_map(move |c| range_for(t.name, c.name).map(|r| (t.name, c.name, r)))
+                .filter_map(move |c| range_for(t, c.name).map(|r| (t.name, c.name, r)))
         })
         .collect()
 }
@@ -216,44 +197,11 @@ pub fn all_ranges() -> Vec<(&'static str, &'static str, Range)> {
 /// in range: a robot program, a guideway travel or a form profile spans tens
 /// to thousands of mm; all of its positions within ±`max_abs_below` mm is
 /// what metres look like.
+#[derive(Debug, Clone, Copy)]
 pub struct MetresRule {
-    pub table: &'static str,
     pub columns: &'static [&'static str],
     pub max_abs_below: f64,
 }
-
-pub const METRES_RULES: &[MetresRule] = &[
-    MetresRule {
-        table: "motion",
-        columns: &["cmd_x_mm", "cmd_y_mm", "cmd_z_mm"],
-        max_abs_below: 2.5,
-    },
-    MetresRule {
-        table: "probe",
-        columns: &["nom_x_mm", "nom_y_mm", "nom_z_mm"],
-        max_abs_below: 2.5,
-    },
-    MetresRule {
-        table: "plan",
-        columns: &["nom_x_mm", "nom_y_mm", "nom_z_mm"],
-        max_abs_below: 2.5,
-    },
-    MetresRule {
-        table: "tracker",
-        columns: &["x_mm", "y_mm", "z_mm"],
-        max_abs_below: 2.5,
-    },
-    MetresRule {
-        table: "guideway",
-        columns: &["x_mm"],
-        max_abs_below: 2.5,
-    },
-    MetresRule {
-        table: "profile",
-        columns: &["r_mm"],
-        max_abs_below: 1.0,
-    },
-];
 
 fn values(col: &dyn Array) -> Option<Box<dyn Iterator<Item = (usize, f64)> + '_>> {
     let any = col.as_any();
@@ -281,7 +229,7 @@ fn values(col: &dyn Array) -> Option<Box<dyn Iterator<Item = (usize, f64)> + '_>
 /// row of the column's first value within the file (streamed tables).
 pub fn check_column(
     path: &std::path::Path,
-    table: &str,
+    table: &TableSchema,
     column: &str,
     col: &dyn Array,
     row0: usize,
@@ -328,10 +276,10 @@ pub fn check_batch(
 ) -> Result<(), InputError> {
     for spec in schema.columns {
         if let Some(col) = batch.column_by_name(spec.name) {
-            check_column(path, schema.name, spec.name, col.as_ref(), 0)?;
+            check_column(path, schema, spec.name, col.as_ref(), 0)?;
         }
     }
-    for rule in METRES_RULES.iter().filter(|r| r.table == schema.name) {
+    for rule in schema.metres_rule.iter() {
         let mut max_abs = 0.0f64;
         let mut present = false;
         for c in rule.columns {
@@ -361,13 +309,13 @@ mod tests {
 
     #[test]
     fn every_length_time_speed_column_has_a_range() {
-        for t in super::super::schema::ALL_TABLES {
+        for t in TableRegistry::shared().iter() {
             for c in t.columns {
                 let numeric_text =
                     matches!(c.name, "face" | "method" | "state" | "stage" | "sensor");
                 if !numeric_text {
                     assert!(
-                        range_for(t.name, c.name).is_some(),
+                        range_for(t, c.name).is_some(),
                         "{}.{} has no plausible range",
                         t.name,
                         c.name
@@ -384,7 +332,7 @@ mod tests {
         let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../docs/validation.md");
         let doc = std::fs::read_to_string(path).unwrap();
         let doc = doc.as_str();
-        for (t, c, r) in all_ranges() {
+        for (t, c, r) in all_ranges(&TableRegistry::shared()) {
             let row = format!("| {t} | {c} | {} | {} |", r.lo, r.hi);
             assert!(
                 doc.contains(&row),

@@ -1,5 +1,12 @@
-//! The v1 table schemas of docs/formats.md §4, as data: one place that says which
-//! columns each table has, their types and whether they are required.
+//! Table schemas as data (docs/formats.md §4): which columns a table has,
+//! their types, whether they are required and what values are plausible.
+//!
+//! The tables any machine may record — the AE log, the motion log, the
+//! thermal log — are declared here; a machine type's own tables (the robot's
+//! probe points, the gantry's topography, …) are declared by the plugin that
+//! owns them ([`crate::traits::MachinePlugin::tables`]) and registered with
+//! the engine in a [`TableRegistry`], so nothing below the plugins names a
+//! machine's table.
 
 /// Logical column type. Readers accept wider physical types where the
 /// contract allows (float32 for float64, any integer width for integers,
@@ -34,14 +41,16 @@ pub struct ColumnSpec {
     pub required: bool,
 }
 
-const fn req(name: &'static str, kind: ColumnKind) -> ColumnSpec {
+/// A required column.
+pub const fn req(name: &'static str, kind: ColumnKind) -> ColumnSpec {
     ColumnSpec {
         name,
         kind,
         required: true,
     }
 }
-const fn opt(name: &'static str, kind: ColumnKind) -> ColumnSpec {
+/// An optional column.
+pub const fn opt(name: &'static str, kind: ColumnKind) -> ColumnSpec {
     ColumnSpec {
         name,
         kind,
@@ -58,6 +67,12 @@ pub struct TableSchema {
     /// the time-series tables. Tables keyed by state (topography) or by
     /// probe point may be measured in any order and are not checked.
     pub monotonic_t_s: bool,
+    /// Plausible ranges of columns the unit suffix rule does not cover, or
+    /// covers too loosely (docs/validation.md; `plausible::range_for`).
+    pub ranges: &'static [(&'static str, Range)],
+    /// Positions whose whole-column magnitude gives metres away
+    /// (`plausible::MetresRule`).
+    pub metres_rule: Option<MetresRule>,
 }
 
 impl TableSchema {
@@ -69,12 +84,15 @@ impl TableSchema {
     }
 }
 
+use super::plausible::{MetresRule, Range, AE_VOLTS, SEGMENT};
 use ColumnKind::*;
 
 pub const AE: TableSchema = TableSchema {
     name: "ae",
     columns: &[req("t_s", F64), req("ae_v", F32)],
     monotonic_t_s: true,
+    ranges: &[("ae_v", AE_VOLTS)],
+    metres_rule: None,
 };
 
 pub const MOTION: TableSchema = TableSchema {
@@ -105,125 +123,84 @@ pub const MOTION: TableSchema = TableSchema {
         opt("act_a_z_mm_s2", F64),
     ],
     monotonic_t_s: true,
-};
-
-/// The columns that name one probing point (face, point, trial, method,
-/// approach speed, nominal position), shared by probe.parquet (a touch)
-/// and plan.parquet (a planned approach), between their own columns.
-macro_rules! probing_point_columns {
-    ([$($before:expr),*], [$($after:expr),*]) => {
-        &[
-            $($before,)*
-            req("face", Utf8),
-            req("point", I32),
-            req("trial", I32),
-            req("method", Utf8),
-            req("approach_mm_s", F64),
-            req("nom_x_mm", F64),
-            req("nom_y_mm", F64),
-            req("nom_z_mm", F64),
-            $($after,)*
-        ]
-    };
-}
-
-pub const PROBE: TableSchema = TableSchema {
-    name: "probe",
-    columns: probing_point_columns!(
-        [req("t_s", F64)],
-        [req("x_mm", F64), req("y_mm", F64), req("z_mm", F64)]
-    ),
-    monotonic_t_s: true,
-};
-
-pub const PLAN: TableSchema = TableSchema {
-    name: "plan",
-    columns: probing_point_columns!(
-        [req("seq", I32)],
-        [req("dir_x", F64), req("dir_y", F64), req("dir_z", F64)]
-    ),
-    monotonic_t_s: false,
-};
-
-pub const PASSES: TableSchema = TableSchema {
-    name: "passes",
-    columns: &[
-        req("pass", I32),
-        req("stage", Utf8),
-        req("nominal_doc_mm", F64),
-        req("feed_mm_s", F64),
-        req("height_before_mm", F64),
-        req("height_after_mm", F64),
-        opt("t_start_s", F64),
-        opt("t_end_s", F64),
-    ],
-    monotonic_t_s: false,
-};
-
-pub const TOPOGRAPHY: TableSchema = TableSchema {
-    name: "topography",
-    columns: &[
-        req("state", Utf8),
-        req("x_mm", F64),
-        req("y_mm", F64),
-        req("z_mm", F64),
-        opt("t_s", F64),
-    ],
-    monotonic_t_s: false,
-};
-
-pub const GUIDEWAY: TableSchema = TableSchema {
-    name: "guideway",
-    columns: &[
-        req("n", I64),
-        req("x_mm", F64),
-        req("za_mm", F64),
-        req("zb_mm", F64),
-        req("zc_mm", F64),
-        opt("dir", I8),
-        opt("t_s", F64),
-        opt("temp_c", F64),
-    ],
-    monotonic_t_s: true,
-};
-
-pub const PROFILE: TableSchema = TableSchema {
-    name: "profile",
-    columns: &[
-        req("state", Utf8),
-        req("phi_rad", F64),
-        req("r_mm", F64),
-        opt("wheel_radius_mm", F64),
-    ],
-    monotonic_t_s: false,
-};
-
-pub const TRACKER: TableSchema = TableSchema {
-    name: "tracker",
-    columns: &[
-        req("point", I32),
-        req("x_mm", F64),
-        req("y_mm", F64),
-        req("z_mm", F64),
-        req("mx_mm", F64),
-        req("my_mm", F64),
-        req("mz_mm", F64),
-        opt("t_s", F64),
-    ],
-    monotonic_t_s: true,
+    ranges: &[("segment", SEGMENT)],
+    metres_rule: Some(MetresRule {
+        columns: &["cmd_x_mm", "cmd_y_mm", "cmd_z_mm"],
+        max_abs_below: 2.5,
+    }),
 };
 
 pub const THERMAL: TableSchema = TableSchema {
     name: "thermal",
     columns: &[req("t_s", F64), req("sensor", Utf8), req("temp_c", F64)],
     monotonic_t_s: true,
+    ranges: &[],
+    metres_rule: None,
 };
 
-/// Every v1 recorded-run table.
-pub const ALL_TABLES: &[TableSchema] = &[
-    AE, MOTION, PROBE, PLAN, PASSES, TOPOGRAPHY, GUIDEWAY, PROFILE, TRACKER, THERMAL,
-];
+/// The tables any machine may record, declared here; a plugin's own come
+/// from [`crate::traits::MachinePlugin::tables`].
+pub const SHARED_TABLES: &[TableSchema] = &[AE, MOTION, THERMAL];
 
-pub fn table_schema(name: &str) -> Option<&'static TableSchema> {
-    ALL_TABLES.iter().find(|t| t.name == name)
+/// The tables a batch knows: the shared ones and every registered plugin's.
+/// Two tables of one name are refused at registration (a file name means
+/// one schema).
+#[derive(Debug, Clone)]
+pub struct TableRegistry {
+    tables: Vec<&'static TableSchema>,
+}
+
+/// Two registries are equal when they know the same tables in the same
+/// order (a table name is one schema).
+impl PartialEq for TableRegistry {
+    fn eq(&self, other: &Self) -> bool {
+        self.names() == other.names()
+    }
+}
+
+impl Default for TableRegistry {
+    fn default() -> Self {
+        TableRegistry::shared()
+    }
+}
+
+impl TableRegistry {
+    /// The shared tables alone.
+    pub fn shared() -> TableRegistry {
+        TableRegistry {
+            tables: SHARED_TABLES.iter().collect(),
+        }
+    }
+    /// Adds `owner`'s tables; an error names a table declared twice.
+    pub fn register(&mut self, owner: &str, tables: &'static [TableSchema]) -> crate::Result<()> {
+        for t in tables {
+            if self.get(t.name).is_some() {
+                anyhow::bail!(
+                    "{owner} declares table `{}`, which is already declared (a table name is one schema: rename the plugin's table)",
+                    t.name
+                );
+            }
+            self.tables.push(t);
+        }
+        Ok(())
+    }
+    /// The shared tables and each owner's, registered in order.
+    pub fn of<'a>(
+        owners: impl IntoIterator<Item = (&'a str, &'static [TableSchema])>,
+    ) -> crate::Result<TableRegistry> {
+        let mut r = TableRegistry::shared();
+        for (owner, tables) in owners {
+            r.register(owner, tables)?;
+        }
+        Ok(r)
+    }
+    pub fn get(&self, name: &str) -> Option<&'static TableSchema> {
+        self.tables.iter().copied().find(|t| t.name == name)
+    }
+    pub fn iter(&self) -> impl Iterator<Item = &'static TableSchema> + '_ {
+        self.tables.iter().copied()
+    }
+    pub fn names(&self) -> Vec<&'static str> {
+        self.tables.iter().map(|t| t.name).collect()
+    }
 }

@@ -144,7 +144,7 @@ impl Engine {
             let origin = RunSpec::load(dir)
                 .map(|s| s.time_origin())
                 .unwrap_or(crate::contracts::TimeOrigin::TableStart);
-            for schema in crate::contracts::ALL_TABLES {
+            for schema in self.tables.iter() {
                 let path = dir.join(schema.file_name());
                 if !crate::contracts::input_file::InputFile::exists(&path) {
                     continue;
@@ -209,7 +209,10 @@ pub fn check_finite(stage: &str, artifact: &str, batch: &RecordBatch) -> Result<
 /// spec on its own, stage names unique within the plugin, and the DAG its
 /// stages form (each artifact read is written by exactly one stage, no
 /// cycle).
-pub(super) fn check_plugin(plugin: &dyn MachinePlugin) -> Result<()> {
+pub(super) fn check_plugin(
+    plugin: &dyn MachinePlugin,
+    tables: &crate::contracts::TableRegistry,
+) -> Result<()> {
     let stages = plugin.stages();
     let mut names = BTreeSet::new();
     for s in &stages {
@@ -226,7 +229,7 @@ pub(super) fn check_plugin(plugin: &dyn MachinePlugin) -> Result<()> {
     }
     dag::topological_order(&stages).with_context(|| format!("plugin `{}`", plugin.name()))?;
     for set in plugin.required_tables() {
-        if let Some(t) = set.iter().find(|t| table_schema(t).is_none()) {
+        if let Some(t) = set.iter().find(|t| tables.get(t).is_none()) {
             bail!("plugin `{}` requires unknown table `{t}`", plugin.name());
         }
     }

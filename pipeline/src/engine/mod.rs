@@ -27,8 +27,8 @@ use serde::Serialize;
 
 use crate::config_check::Checked;
 use crate::contracts::{
-    config_keys, discover, names, remove_orphaned_temps, table_schema, write_atomic,
-    write_json_atomic, AeStream, MachineResolver, RunSpec, Table,
+    config_keys, discover, names, remove_orphaned_temps, write_atomic, write_json_atomic, AeStream,
+    MachineResolver, RunSpec, Table, TableRegistry,
 };
 use crate::diagnose::{self, DiagnoseConfig, Effect};
 use crate::error::{InputError, Result};
@@ -59,6 +59,8 @@ pub struct History {
 
 pub struct Engine {
     plugins: Vec<Arc<dyn MachinePlugin>>,
+    /// The shared tables and every plugin's (`MachinePlugin::tables`).
+    tables: TableRegistry,
     resolver: MachineResolver,
     config: PipelineConfig,
     /// `config`, every section read and checked once in [`Engine::new`].
@@ -84,17 +86,24 @@ impl Engine {
     /// The engine over these plugins; checks each plugin's declared stages
     /// and the config against them before anything runs (unknown plugin,
     /// unknown stage, bad values).
+    /// The tables this engine knows: the shared ones and its plugins'.
+    pub fn tables(&self) -> &TableRegistry {
+        &self.tables
+    }
+
     pub fn new(
         plugins: Vec<Arc<dyn MachinePlugin>>,
         resolver: MachineResolver,
         config: PipelineConfig,
     ) -> Result<Self> {
+        let tables = TableRegistry::of(plugins.iter().map(|p| (p.name(), p.tables())))?;
         for p in &plugins {
-            check_plugin(p.as_ref())?;
+            check_plugin(p.as_ref(), &tables)?;
         }
         let checked = checks::check_config(&plugins, &config)?;
         Ok(Engine {
             plugins,
+            tables,
             resolver,
             config,
             checked,
@@ -227,7 +236,7 @@ impl Engine {
         })?;
         // A contract table's name that is not a regular file (a directory,
         // e.g. a Hive-partitioned export) would otherwise read as "absent".
-        for schema in crate::contracts::ALL_TABLES {
+        for schema in self.tables.iter() {
             let p = dir.join(schema.file_name());
             if p.exists() && !p.is_file() {
                 return Err(InputError::new(
@@ -251,7 +260,7 @@ impl Engine {
         // not this DAG needs it. (Tables are cached in the Run, so stages do
         // not read them twice; the AE log streams and is checked as it is
         // read.)
-        for schema in crate::contracts::ALL_TABLES {
+        for schema in self.tables.iter() {
             if schema.name != "ae" && run.has_table(schema) {
                 run.table(schema)?;
             }
@@ -259,8 +268,12 @@ impl Engine {
         let alternatives = plugin.required_tables();
         let satisfied = alternatives.is_empty()
             || alternatives.iter().any(|set| {
-                set.iter()
-                    .all(|t| table_schema(t).map(|s| run.has_table(s)).unwrap_or(false))
+                set.iter().all(|t| {
+                    self.tables
+                        .get(t)
+                        .map(|s| run.has_table(s))
+                        .unwrap_or(false)
+                })
             });
         if !satisfied {
             let alts: Vec<String> = alternatives
@@ -283,7 +296,7 @@ impl Engine {
             .into());
         }
         for &(name, min) in plugin.min_rows() {
-            let Some(schema) = table_schema(name) else {
+            let Some(schema) = self.tables.get(name) else {
                 continue;
             };
             if let Some(t) = run.table(schema)? {

@@ -8,7 +8,7 @@ use std::collections::BTreeMap;
 use anyhow::{anyhow, bail, Context};
 use serde::Deserialize;
 
-use crate::contracts::{table_schema, ColumnKind};
+use crate::contracts::{ColumnKind, TableRegistry};
 use crate::units::{resolve, Source, Stated, Unit};
 use crate::Result;
 
@@ -100,6 +100,9 @@ pub struct Mapping {
     pub columns: Vec<ColumnMap>,
     /// Copied to each run's run.toml `[process]`.
     pub process: toml::Table,
+    /// The tables a mapping may fill: the shared ones and the registered
+    /// plugins' (`MachinePlugin::tables`).
+    pub tables: TableRegistry,
 }
 
 #[derive(Debug, Deserialize)]
@@ -155,7 +158,7 @@ fn source_ref(s: &str) -> SourceRef {
 
 impl Mapping {
     /// Parse a mapping TOML (`what` names it in errors).
-    pub fn from_toml(text: &str, what: &str) -> Result<Mapping> {
+    pub fn from_toml(text: &str, what: &str, tables: &TableRegistry) -> Result<Mapping> {
         let m: MappingToml =
             toml::from_str(text).with_context(|| format!("import mapping {what}"))?;
         let mut columns = Vec::new();
@@ -211,6 +214,7 @@ impl Mapping {
             delimiter,
             columns,
             process: m.process,
+            tables: tables.clone(),
         };
         let mut mapping = mapping;
         mapping
@@ -221,7 +225,7 @@ impl Mapping {
     }
 
     /// A mapping from flags alone (no file): every column from `--map`.
-    pub fn from_flags(table: &str, machine: &str, plugin: &str) -> Mapping {
+    pub fn from_flags(table: &str, machine: &str, plugin: &str, tables: &TableRegistry) -> Mapping {
         Mapping {
             table: table.to_string(),
             machine: machine.to_string(),
@@ -231,6 +235,7 @@ impl Mapping {
             delimiter: b',',
             columns: Vec::new(),
             process: toml::Table::new(),
+            tables: tables.clone(),
         }
     }
 
@@ -315,7 +320,7 @@ impl Mapping {
     /// The destination kind of a column: the contract's, else the declared
     /// extra kind (f64 by default).
     pub fn dest_kind(&self, c: &ColumnMap) -> ColumnKind {
-        let schema = table_schema(&self.table).expect("validated table");
+        let schema = self.tables.get(&self.table).expect("validated table");
         match schema.column(&c.dest) {
             Some(spec) => spec.kind,
             None => match c.extra_kind.unwrap_or(ExtraKind::F64) {
@@ -328,11 +333,8 @@ impl Mapping {
 
     /// Everything that can be checked without the data.
     pub fn validate(&self) -> Result<()> {
-        let schema = table_schema(&self.table).ok_or_else(|| {
-            let known: Vec<&str> = crate::contracts::ALL_TABLES
-                .iter()
-                .map(|t| t.name)
-                .collect();
+        let schema = self.tables.get(&self.table).ok_or_else(|| {
+            let known = self.tables.names();
             anyhow!(
                 "unknown contract table `{}` (known: {})",
                 self.table,
@@ -423,7 +425,7 @@ act_x_mm = "#4"
 
     #[test]
     fn parses_names_positions_and_factors() {
-        let m = Mapping::from_toml(TOML, "test").unwrap();
+        let m = Mapping::from_toml(TOML, "test", &TableRegistry::shared()).unwrap();
         assert_eq!(m.table, "motion");
         let y = m.columns.iter().find(|c| c.dest == "cmd_y_mm").unwrap();
         assert_eq!(y.factor, 25.4);
@@ -436,12 +438,18 @@ act_x_mm = "#4"
     #[test]
     fn rejects_unknown_keys_missing_required_and_bad_flags() {
         let bad = TOML.replace("sample_period_s", "sample_perod_s");
-        let e = format!("{:#}", Mapping::from_toml(&bad, "test").unwrap_err());
+        let e = format!(
+            "{:#}",
+            Mapping::from_toml(&bad, "test", &TableRegistry::shared()).unwrap_err()
+        );
         assert!(e.contains("sample_perod_s"), "{e}");
         let no_t = TOML.replace("sample_period_s = 0.1\n", "");
-        let e = format!("{:#}", Mapping::from_toml(&no_t, "test").unwrap_err());
+        let e = format!(
+            "{:#}",
+            Mapping::from_toml(&no_t, "test", &TableRegistry::shared()).unwrap_err()
+        );
         assert!(e.contains("t_s"), "{e}");
-        let mut m = Mapping::from_flags("motion", "m", "servo");
+        let mut m = Mapping::from_flags("motion", "m", "servo", &TableRegistry::shared());
         assert!(m.apply_flag("a=b*x").is_err());
         m.apply_flag("feed=feed_mm_s*0.5").unwrap();
         assert_eq!(m.columns[0].factor, 0.5);
@@ -454,6 +462,7 @@ act_x_mm = "#4"
             Mapping::from_toml(
                 &TOML.replace("act_x_mm = \"#4\"\n", &format!("act_x_mm = \"#4\"\n{cols}")),
                 "test",
+                &TableRegistry::shared(),
             )
         };
         let m = with("feed_mm_s = { from = \"F\", unit = \"mm/min\" }\nact_y_mm = \"pos_um\"\nact_z_mm = { from = \"Z\", unit = \"nm\" }\n").unwrap();

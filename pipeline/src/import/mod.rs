@@ -22,7 +22,7 @@ use arrow::record_batch::RecordBatch;
 pub use mapping::{ColumnMap, Mapping, RunSplit, SourceRef};
 pub use source::SourceTable;
 
-use crate::contracts::{table_schema, write_atomic, write_parquet_atomic, ColumnKind, Table};
+use crate::contracts::{write_atomic, write_parquet_atomic, ColumnKind, Table};
 use crate::error::InputError;
 use crate::Result;
 
@@ -218,7 +218,7 @@ fn convert(
 
 /// Build and validate one run's contract table from a source table.
 fn run_table(src: &SourceTable, m: &Mapping, g: &Group) -> Result<Table, InputError> {
-    let schema = table_schema(&m.table).expect("validated mapping");
+    let schema = m.tables.get(&m.table).expect("validated mapping");
     let mut fields = Vec::new();
     let mut cols: Vec<ArrayRef> = Vec::new();
     let rebase = matches!(m.split, RunSplit::ByColumn(_));
@@ -298,7 +298,7 @@ pub fn import_file(path: &Path, m: &Mapping, out: &Path) -> Result<Vec<ImportedR
     for cm in &m.columns {
         src.column(&cm.source)?;
     }
-    let schema = table_schema(&m.table).expect("validated mapping");
+    let schema = m.tables.get(&m.table).expect("validated mapping");
     let groups = groups(&src, m)?;
     let tables: Vec<Table> = groups
         .iter()
@@ -358,7 +358,12 @@ mod tests {
     use super::*;
 
     fn mapping() -> Mapping {
-        let mut m = Mapping::from_flags("motion", "m1", "servo");
+        let mut m = Mapping::from_flags(
+            "motion",
+            "m1",
+            "servo",
+            &crate::contracts::TableRegistry::shared(),
+        );
         for f in [
             "#0=t_s*0.1",
             "xc=cmd_x_mm",

@@ -12,11 +12,11 @@ use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
+use crate::form::tables::PROFILE;
 use anyhow::{anyhow, bail, Context};
 use arrow::record_batch::RecordBatch;
 use serde_json::Value;
 use sparkout_pipeline::config_check::{read_section, NoKeys, SectionCheck};
-use sparkout_pipeline::contracts::schema::PROFILE;
 use sparkout_pipeline::contracts::{batch_f64, batch_i32, write_atomic, BatchBuilder, Table};
 use sparkout_pipeline::{Result, Stage, StageArgs, StageContext, StageOutput, StageSpec};
 

@@ -30,6 +30,7 @@ pub mod profile_error;
 pub mod report;
 pub mod segment;
 pub mod shapes;
+pub mod tables;
 
 /// The form grinder of the source (wheel 175 mm, usable range 50 mm), built
 /// into the binary.
@@ -41,6 +42,9 @@ pub struct FormPlugin;
 impl MachinePlugin for FormPlugin {
     fn name(&self) -> &'static str {
         "form"
+    }
+    fn tables(&self) -> &'static [sparkout_pipeline::contracts::TableSchema] {
+        tables::TABLES
     }
     fn required_tables(&self) -> Vec<Vec<&'static str>> {
         vec![vec!["profile"]]

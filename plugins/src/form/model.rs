@@ -7,8 +7,8 @@
 
 use std::path::Path;
 
+use crate::form::tables::PROFILE;
 use arrow::array::{Array, Float64Array};
-use sparkout_pipeline::contracts::schema::PROFILE;
 use sparkout_pipeline::contracts::{MachineConfig, Table};
 use sparkout_pipeline::{InputError, Result, Run};
 

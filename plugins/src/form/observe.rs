@@ -18,10 +18,10 @@
 
 use std::collections::BTreeMap;
 
+use crate::form::tables::PROFILE;
 use anyhow::bail;
 use serde_json::{json, Value};
 use sparkout_pipeline::config_check::SectionCheck;
-use sparkout_pipeline::contracts::schema::PROFILE;
 use sparkout_pipeline::contracts::BatchBuilder;
 use sparkout_pipeline::{InputError, Result, Stage, StageContext, StageOutput, StageSpec};
 

@@ -5,11 +5,11 @@
 //! cut it about N-fold). Also a sweep over N and the tool paths (X, Z, A, C
 //! per profile point) of each segment's nominal.
 
+use crate::form::tables::PROFILE;
 use anyhow::{anyhow, bail};
 use arrow::record_batch::RecordBatch;
 use serde_json::{json, Value};
 use sparkout_pipeline::config_check::SectionCheck;
-use sparkout_pipeline::contracts::schema::PROFILE;
 use sparkout_pipeline::contracts::BatchBuilder;
 use sparkout_pipeline::{InputError, Result, Stage, StageContext, StageOutput, StageSpec};
 

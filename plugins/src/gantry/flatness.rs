@@ -6,10 +6,10 @@
 //! The plane fits themselves live in `crate::metrology::plane` (shared
 //! with the profile and spike figures).
 
+use crate::gantry::tables::TOPOGRAPHY;
 use anyhow::{anyhow, Context};
 use serde_json::{json, Value};
 use sparkout_pipeline::config_check::SectionCheck;
-use sparkout_pipeline::contracts::schema::TOPOGRAPHY;
 use sparkout_pipeline::contracts::{BatchBuilder, Table};
 use sparkout_pipeline::{Result, Stage, StageArgs, StageContext, StageOutput, StageSpec};
 

@@ -245,9 +245,7 @@ pub fn run_surface(
     ctx: &sparkout_pipeline::StageContext,
 ) -> sparkout_pipeline::Result<(super::machine::Gantry, std::sync::Arc<Table>, Surface)> {
     let g = super::machine::Gantry::from_run(&ctx.run.machine, &ctx.run.spec)?;
-    let t = ctx
-        .run
-        .require(&sparkout_pipeline::contracts::schema::TOPOGRAPHY)?;
+    let t = ctx.run.require(&crate::gantry::tables::TOPOGRAPHY)?;
     let pattern = pattern(&t)?;
     Ok((g, t, pattern))
 }
@@ -296,7 +294,7 @@ pub fn same_grid(table: &Table, state: &str, reference: &Grid) -> Result<Surface
 #[cfg(test)]
 pub(crate) mod tests {
     use super::*;
-    use sparkout_pipeline::contracts::schema::TOPOGRAPHY;
+    use crate::gantry::tables::TOPOGRAPHY;
     use sparkout_pipeline::contracts::BatchBuilder;
 
     pub fn table(rows: &[(&str, f64, f64, f64)]) -> Table {

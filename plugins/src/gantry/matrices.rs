@@ -17,10 +17,11 @@
 //! run along x, the bridge along y) by the moving-load series at the path
 //! velocity. Γ = τ − τ_pattern for both.
 
+use crate::gantry::tables::TOPOGRAPHY;
 use anyhow::anyhow;
 use serde_json::json;
 use sparkout_pipeline::config_check::{NoKeys, SectionCheck};
-use sparkout_pipeline::contracts::schema::{MOTION, TOPOGRAPHY};
+use sparkout_pipeline::contracts::schema::MOTION;
 use sparkout_pipeline::contracts::BatchBuilder;
 use sparkout_pipeline::{InputError, Result, Stage, StageContext, StageOutput, StageSpec};
 

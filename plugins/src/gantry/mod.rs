@@ -36,6 +36,7 @@ pub mod removal;
 pub mod report;
 pub mod straightness;
 pub mod surface;
+pub mod tables;
 pub mod tool_influence;
 
 /// The APLM gantry, built into the binary (docs/formats.md §4).
@@ -57,6 +58,9 @@ pub struct GantryPlugin;
 impl MachinePlugin for GantryPlugin {
     fn name(&self) -> &'static str {
         "gantry"
+    }
+    fn tables(&self) -> &'static [sparkout_pipeline::contracts::TableSchema] {
+        tables::TABLES
     }
     fn required_tables(&self) -> Vec<Vec<&'static str>> {
         vec![vec!["topography"]]

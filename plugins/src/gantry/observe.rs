@@ -12,10 +12,11 @@
 //! the gantry's `thermal_bow` composite reads (composites apply only to
 //! their plugin's observables).
 
+use crate::gantry::tables::TOPOGRAPHY;
 use anyhow::anyhow;
 use serde_json::json;
 use sparkout_pipeline::config_check::SectionCheck;
-use sparkout_pipeline::contracts::schema::{MOTION, TOPOGRAPHY};
+use sparkout_pipeline::contracts::schema::MOTION;
 use sparkout_pipeline::contracts::{batch_f64, BatchBuilder};
 use sparkout_pipeline::{Result, Stage, StageContext, StageOutput, StageSpec};
 

@@ -26,10 +26,10 @@
 //! fraction f of the points needing the same depth, the dwell solved for
 //! that removal, selective time over raster time against f.
 
+use crate::gantry::tables::TOPOGRAPHY;
 use serde::{Deserialize, Serialize};
 use serde_json::{json, Value};
 use sparkout_pipeline::config_check::{read_section, SectionCheck};
-use sparkout_pipeline::contracts::schema::TOPOGRAPHY;
 use sparkout_pipeline::contracts::{BatchBuilder, Table};
 use sparkout_pipeline::json_f64;
 use sparkout_pipeline::{

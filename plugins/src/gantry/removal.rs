@@ -3,10 +3,11 @@
 //! dwell-time map of the path convolved by FFT with the disc tool's
 //! influence function, and the predicted final topography (docs/models.md §2.5).
 
+use crate::gantry::tables::TOPOGRAPHY;
 use anyhow::Context;
 use serde_json::json;
 use sparkout_pipeline::config_check::SectionCheck;
-use sparkout_pipeline::contracts::schema::{MOTION, TOPOGRAPHY};
+use sparkout_pipeline::contracts::schema::MOTION;
 use sparkout_pipeline::contracts::BatchBuilder;
 use sparkout_pipeline::{InputError, Result, Run, Stage, StageContext, StageOutput, StageSpec};
 

@@ -28,11 +28,11 @@
 //! F − f, the offset to add to the nominal path — with t_s strictly
 //! increasing this is the shape CAN replay reads (t_s + dz_mm).
 
+use crate::guideway::tables::GUIDEWAY;
 use anyhow::{anyhow, Context};
 use nalgebra::{DMatrix, DVector};
 use serde_json::{json, Value};
 use sparkout_pipeline::config_check::SectionCheck;
-use sparkout_pipeline::contracts::schema::GUIDEWAY;
 use sparkout_pipeline::contracts::BatchBuilder;
 use sparkout_pipeline::{InputError, Result, Stage, StageContext, StageOutput, StageSpec};
 

@@ -10,10 +10,10 @@
 
 use std::path::{Path, PathBuf};
 
+use crate::guideway::tables::GUIDEWAY;
 use arrow::array::{Array, Int64Array};
 use arrow::compute::cast;
 use arrow::datatypes::DataType;
-use sparkout_pipeline::contracts::schema::GUIDEWAY;
 use sparkout_pipeline::contracts::Table;
 use sparkout_pipeline::{InputError, Result, Run};
 

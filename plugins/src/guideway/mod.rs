@@ -31,6 +31,7 @@ pub mod predictor;
 pub mod report;
 pub mod rls;
 pub mod separate;
+pub mod tables;
 pub mod three_probe;
 
 /// The source's machine, built into the binary.
@@ -42,6 +43,9 @@ pub struct GuidewayPlugin;
 impl MachinePlugin for GuidewayPlugin {
     fn name(&self) -> &'static str {
         "guideway"
+    }
+    fn tables(&self) -> &'static [sparkout_pipeline::contracts::TableSchema] {
+        tables::TABLES
     }
     fn required_tables(&self) -> Vec<Vec<&'static str>> {
         vec![vec!["guideway"]]

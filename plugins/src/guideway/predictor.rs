@@ -11,12 +11,12 @@
 //! (p, fpe_mm2, bic, hq, sigma2_mm2, selected — by the chosen criterion), `forecast` (step, n, dz_mm,
 //! dz_sigma_mm).
 
+use crate::guideway::tables::GUIDEWAY;
 use anyhow::anyhow;
 use arrow::array::{Array, Float64Array};
 use arrow::record_batch::RecordBatch;
 use serde_json::{json, Value};
 use sparkout_pipeline::config_check::SectionCheck;
-use sparkout_pipeline::contracts::schema::GUIDEWAY;
 use sparkout_pipeline::contracts::{read_parquet, BatchBuilder};
 use sparkout_pipeline::json_f64;
 use sparkout_pipeline::{

@@ -9,12 +9,12 @@
 //! recorded). The only stage that reads guideway.parquet: later stages work
 //! on this artifact, so a resampled run stays consistent downstream.
 
+use crate::guideway::tables::GUIDEWAY;
 use anyhow::{anyhow, Context};
 use arrow::array::{Array, Float64Array, Int32Array, Int64Array, Int8Array};
 use arrow::record_batch::RecordBatch;
 use serde_json::{json, Value};
 use sparkout_pipeline::config_check::{read_section, SectionCheck};
-use sparkout_pipeline::contracts::schema::GUIDEWAY;
 use sparkout_pipeline::contracts::{batch_f64, batch_i32, BatchBuilder};
 use sparkout_pipeline::json_f64 as num;
 use sparkout_pipeline::{Result, Stage, StageArgs, StageContext, StageOutput, StageSpec};

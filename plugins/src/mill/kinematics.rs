@@ -23,13 +23,14 @@
 use sparkout_pipeline::json_opt_f64;
 use std::collections::BTreeMap;
 
+use crate::mill::tables::TRACKER;
 use arrow::array::{Array, Int64Array};
 use arrow::compute::cast;
 use arrow::datatypes::DataType;
 use arrow::record_batch::RecordBatch;
 use serde_json::{json, Value};
 use sparkout_pipeline::config_check::SectionCheck;
-use sparkout_pipeline::contracts::schema::{THERMAL, TRACKER};
+use sparkout_pipeline::contracts::schema::THERMAL;
 use sparkout_pipeline::contracts::{batch_f64, batch_i32, batch_str, BatchBuilder, Table};
 use sparkout_pipeline::{InputError, Result, Run, Stage, StageContext, StageOutput, StageSpec};
 

@@ -28,6 +28,7 @@ pub mod identify;
 pub mod kinematics;
 pub mod observe;
 pub mod report;
+pub mod tables;
 
 /// The XFYZ mill of the volumetric verification, built into the binary.
 pub const XFYZ_MILL_TOML: &str = include_str!("../../machines/xfyz-mill.toml");
@@ -38,6 +39,9 @@ pub struct MillPlugin;
 impl MachinePlugin for MillPlugin {
     fn name(&self) -> &'static str {
         "mill"
+    }
+    fn tables(&self) -> &'static [sparkout_pipeline::contracts::TableSchema] {
+        tables::TABLES
     }
     fn required_tables(&self) -> Vec<Vec<&'static str>> {
         vec![vec!["tracker"]]

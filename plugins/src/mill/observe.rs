@@ -19,9 +19,10 @@
 
 use std::collections::BTreeMap;
 
+use crate::mill::tables::TRACKER;
 use serde_json::json;
 use sparkout_pipeline::config_check::SectionCheck;
-use sparkout_pipeline::contracts::schema::{THERMAL, TRACKER};
+use sparkout_pipeline::contracts::schema::THERMAL;
 use sparkout_pipeline::contracts::{BatchBuilder, Table};
 use sparkout_pipeline::{InputError, Result, Stage, StageContext, StageOutput, StageSpec};
 

@@ -26,10 +26,10 @@
 use sparkout_pipeline::toml_f64;
 use std::collections::BTreeMap;
 
+use crate::robot::tables::PASSES;
 use anyhow::{anyhow, bail};
 use serde_json::{json, Value};
 use sparkout_pipeline::config_check::{read_flags, whole_number, Check, Section, SectionCheck};
-use sparkout_pipeline::contracts::schema::PASSES;
 use sparkout_pipeline::contracts::BatchBuilder;
 use sparkout_pipeline::{
     InputError, Result, Stage, StageArgs, StageContext, StageOutput, StageSpec,

@@ -8,11 +8,12 @@
 //! planes.rs holds the plane algebra; datum/output.rs what the stage
 //! writes (summary JSON and the `planes`/`datum` artifacts).
 
+use crate::robot::tables::PROBE;
 use anyhow::{anyhow, bail};
 use nalgebra::{Matrix3, SymmetricEigen, Vector3};
 use serde_json::{json, Value};
 use sparkout_pipeline::config_check::{Check, Section, SectionCheck};
-use sparkout_pipeline::contracts::schema::{AE, PROBE};
+use sparkout_pipeline::contracts::schema::AE;
 use sparkout_pipeline::contracts::BatchBuilder;
 use sparkout_pipeline::json_f64;
 use sparkout_pipeline::{

@@ -14,11 +14,13 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 
+use crate::robot::tables::PLAN;
+use crate::robot::tables::PROBE;
 use anyhow::Context;
 use nalgebra::Vector3;
 use serde_json::{json, Value};
 use sparkout_pipeline::config_check::{flags_to_table, read_section, Check, Section, SectionCheck};
-use sparkout_pipeline::contracts::schema::{AE, MOTION, PLAN, PROBE};
+use sparkout_pipeline::contracts::schema::{AE, MOTION};
 use sparkout_pipeline::contracts::{AeKind, AeStream, BatchBuilder, Table, TimeOrigin};
 use sparkout_pipeline::{
     InputError, Result, Stage, StageArgs, StageContext, StageOutput, StageSpec,

@@ -30,6 +30,7 @@ pub mod observe;
 pub mod planes;
 pub mod repeatability;
 pub mod report;
+pub mod tables;
 pub mod touches;
 
 /// The KR16 lab cell, built into the binary (docs/formats.md §3: machine ids
@@ -42,6 +43,9 @@ pub struct RobotPlugin;
 impl MachinePlugin for RobotPlugin {
     fn name(&self) -> &'static str {
         "robot"
+    }
+    fn tables(&self) -> &'static [sparkout_pipeline::contracts::TableSchema] {
+        tables::TABLES
     }
     fn required_tables(&self) -> Vec<Vec<&'static str>> {
         vec![vec!["probe"], vec!["ae", "motion", "plan"]]

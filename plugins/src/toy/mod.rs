@@ -4,8 +4,9 @@
 //! needs an edit outside its folder (a match arm in the engine, a table
 //! the engine must be told about), this stops compiling or fails.
 //!
-//! The toy is a three-axis measuring machine checked with a laser tracker
-//! (the `tracker` table): its model says the machine is perfect, so the
+//! The toy is a three-axis measuring machine whose points are checked
+//! against a reference (its own table, `toy_points`, declared below and
+//! registered through `MachinePlugin::tables`): its model says the machine is perfect, so the
 //! paired observation is the measured deviation against zero, and the
 //! fleet diagnosis has to find what the tests put in the data (a scale
 //! error along x).
@@ -14,12 +15,34 @@ use std::sync::Arc;
 
 use serde_json::json;
 use sparkout_pipeline::config_check::{NoKeys, SectionCheck};
-use sparkout_pipeline::contracts::schema::TRACKER;
+use sparkout_pipeline::contracts::plausible::MetresRule;
+use sparkout_pipeline::contracts::schema::{opt, req, ColumnKind::*, TableSchema};
 use sparkout_pipeline::contracts::BatchBuilder;
 use sparkout_pipeline::{MachinePlugin, Result, Stage, StageContext, StageOutput, StageSpec};
 
 /// The toy's one machine, built in as a plugin's machines are.
 const TOY_CMM_TOML: &str = "[machine]\nid = \"toy-cmm\"\nplugin = \"toy\"\ndescription = \"a perfect three-axis measuring machine (test plugin)\"\n";
+
+/// The toy's own table: each reference point, nominal and measured.
+pub const TOY_POINTS: TableSchema = TableSchema {
+    name: "toy_points",
+    columns: &[
+        req("point", I32),
+        req("x_mm", F64),
+        req("y_mm", F64),
+        req("z_mm", F64),
+        req("mx_mm", F64),
+        req("my_mm", F64),
+        req("mz_mm", F64),
+        opt("t_s", F64),
+    ],
+    monotonic_t_s: true,
+    ranges: &[],
+    metres_rule: Some(MetresRule {
+        columns: &["x_mm", "y_mm", "z_mm"],
+        max_abs_below: 2.5,
+    }),
+};
 
 pub const OBSERVABLES: [&str; 3] = ["toy_dx", "toy_dy", "toy_dz"];
 
@@ -29,8 +52,11 @@ impl MachinePlugin for ToyPlugin {
     fn name(&self) -> &'static str {
         "toy"
     }
+    fn tables(&self) -> &'static [TableSchema] {
+        &[TOY_POINTS]
+    }
     fn required_tables(&self) -> Vec<Vec<&'static str>> {
-        vec![vec!["tracker"]]
+        vec![vec!["toy_points"]]
     }
     fn stages(&self) -> Vec<Arc<dyn Stage>> {
         vec![Arc::new(ObserveStage)]
@@ -43,14 +69,14 @@ impl MachinePlugin for ToyPlugin {
     }
 }
 
-/// `observe`: one row per tracker point and axis; real = measured −
+/// `observe`: one row per reference point and axis; real = measured −
 /// nominal, sim = 0 (the toy's model is the nominal geometry).
 pub struct ObserveStage;
 
 const SPEC: StageSpec = StageSpec {
     name: "observe",
     version: 1,
-    reads: &[&TRACKER],
+    reads: &[&TOY_POINTS],
     reads_artifacts: &[],
     writes: &["observations"],
     reads_augmented_model: false,
@@ -63,7 +89,7 @@ impl Stage for ObserveStage {
         &SPEC
     }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
-        let t = ctx.run.require(&TRACKER)?;
+        let t = ctx.run.require(&TOY_POINTS)?;
         let point = t.i32("point")?;
         let nominal = [t.f64("x_mm")?, t.f64("y_mm")?, t.f64("z_mm")?];
         let measured = [t.f64("mx_mm")?, t.f64("my_mm")?, t.f64("mz_mm")?];
@@ -152,7 +178,7 @@ mod tests {
                 .f64("my_mm", my)
                 .f64("mz_mm", mz)
                 .build();
-            write_parquet_atomic(&dir.join("tracker.parquet"), &b).unwrap();
+            write_parquet_atomic(&dir.join("toy_points.parquet"), &b).unwrap();
         }
     }
 
@@ -218,6 +244,9 @@ mod tests {
     impl MachinePlugin for CountingToy {
         fn name(&self) -> &'static str {
             "toy"
+        }
+        fn tables(&self) -> &'static [TableSchema] {
+            ToyPlugin.tables()
         }
         fn required_tables(&self) -> Vec<Vec<&'static str>> {
             ToyPlugin.required_tables()

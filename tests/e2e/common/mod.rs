@@ -116,3 +116,10 @@ pub fn ok(o: Output) -> String {
     assert!(o.status.success(), "{text}");
     text
 }
+
+/// The tables the CLI knows: the shared ones and every registered plugin's.
+pub fn tables() -> sparkout_pipeline::contracts::TableRegistry {
+    let plugins = sparkout_plugins::all_plugins();
+    sparkout_pipeline::contracts::TableRegistry::of(plugins.iter().map(|p| (p.name(), p.tables())))
+        .unwrap()
+}

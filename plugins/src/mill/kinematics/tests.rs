@@ -1,5 +1,5 @@
 use super::*;
-use sparkout_pipeline::contracts::schema::TRACKER;
+use crate::mill::tables::TRACKER;
 use std::path::Path;
 
 fn table(point: Vec<i32>, extra: impl Fn(BatchBuilder) -> BatchBuilder) -> Table {
