@@ -30,6 +30,7 @@ pub mod observe;
 pub mod planes;
 pub mod repeatability;
 pub mod report;
+pub mod summary;
 pub mod touches;
 
 /// The KR16 lab cell, built into the binary (docs/formats.md §3: machine ids
