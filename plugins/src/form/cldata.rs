@@ -23,6 +23,7 @@ use sparkout_pipeline::{Result, Stage, StageArgs, StageContext, StageOutput, Sta
 use super::config::{curvature, SegmentSection};
 use super::model::ProfileRows;
 use super::segment::{self, SegmentConfig};
+use super::summary::{CldataStandalone, CldataSummary, ProgramLines};
 
 /// CLDATA-like programs, one text per segment, from a `toolpath` batch.
 pub fn programs(toolpath: &RecordBatch) -> Result<BTreeMap<i32, String>> {
@@ -107,10 +108,16 @@ impl Stage for CldataStage {
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
         let tp = ctx.artifacts.require("toolpath")?;
         let progs = programs(&tp)?;
-        let summary = serde_json::json!({
-            "programs": progs.iter().map(|(s, t)| serde_json::json!({"segment": s, "lines": t.lines().count()})).collect::<Vec<_>>(),
-        });
-        Ok(StageOutput::new(summary).with("cldata", cldata_batch(&progs)))
+        let summary = CldataSummary {
+            programs: progs
+                .iter()
+                .map(|(s, t)| ProgramLines {
+                    segment: *s,
+                    lines: t.lines().count(),
+                })
+                .collect(),
+        };
+        Ok(StageOutput::typed(&summary)?.with("cldata", cldata_batch(&progs)))
     }
     fn run_standalone(&self, args: &StageArgs) -> Option<Result<Value>> {
         Some(standalone(args))
@@ -170,7 +177,10 @@ fn standalone(args: &StageArgs) -> Result<Value> {
     let rows = ProfileRows::from_table(&t)?;
     let p = rows.design(&file, &curvature(section.window_points))?;
     let res = segment::compute(&p, &sc, &file, &rows.design_rows)?;
-    let mut summary = res.output.summary.clone();
+    let mut summary = CldataStandalone {
+        segment: res.summary,
+        cldata_files: None,
+    };
     if let Some(dir) = args.get("cldata-dir") {
         let tp = res
             .output
@@ -185,9 +195,9 @@ fn standalone(args: &StageArgs) -> Result<Value> {
             write_atomic(&path, text.as_bytes())?;
             files.push(path.display().to_string());
         }
-        summary["cldata_files"] = serde_json::json!(files);
+        summary.cldata_files = Some(files);
     }
-    Ok(summary)
+    Ok(serde_json::to_value(summary)?)
 }
 
 #[cfg(test)]

@@ -30,6 +30,7 @@ pub mod profile_error;
 pub mod report;
 pub mod segment;
 pub mod shapes;
+pub mod summary;
 pub mod tables;
 
 /// The form grinder of the source (wheel 175 mm, usable range 50 mm), built

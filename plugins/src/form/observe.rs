@@ -18,9 +18,9 @@
 
 use std::collections::BTreeMap;
 
+use super::summary::{ObserveAugmented, ObserveSummary};
 use crate::form::tables::PROFILE;
 use anyhow::bail;
-use serde_json::{json, Value};
 use sparkout_pipeline::config_check::SectionCheck;
 use sparkout_pipeline::contracts::BatchBuilder;
 use sparkout_pipeline::{InputError, Result, Stage, StageContext, StageOutput, StageSpec};
@@ -163,21 +163,33 @@ impl Stage for ObserveStage {
                 b = b
                     .opt_f64("sim_augmented", aug)
                     .opt_str("sim_augmented_effects", listed);
-                json!({"in_physics": keys, "rows": applied})
+                Some(ObserveAugmented {
+                    in_physics: keys,
+                    rows: applied,
+                })
             }
-            _ => Value::Null,
+            _ => None,
         };
-        let summary = json!({
-            "observable": "profile_error",
-            "rows": n,
-            "nominal_mm": r_kn,
-            "wheel_radii_mm": deltas.keys().map(|k| f64::from_bits(*k)).collect::<Vec<_>>(),
-            "gap_rms_mm": rms,
-            "gap_mean_mm": gap.iter().sum::<f64>() / n as f64,
-            "covariates": if usage.is_some() { json!(["phi_rad", "wheel_radius_mm", "t_s", "removed_mm3"]) } else { json!(["phi_rad", "wheel_radius_mm", "t_s"]) },
-            "nominal_source": if cfg.nominal_mm.is_some() { "config" } else { "run" },
-            "augmented": augmented,
-        });
-        Ok(StageOutput::new(summary).with("observations", b.build()))
+        let mut covariates = vec!["phi_rad", "wheel_radius_mm", "t_s"];
+        if usage.is_some() {
+            covariates.push("removed_mm3");
+        }
+        let summary = ObserveSummary {
+            observable: "profile_error".into(),
+            rows: n,
+            nominal_mm: r_kn,
+            wheel_radii_mm: deltas.keys().map(|k| f64::from_bits(*k)).collect(),
+            gap_rms_mm: rms,
+            gap_mean_mm: gap.iter().sum::<f64>() / n as f64,
+            covariates: covariates.into_iter().map(String::from).collect(),
+            nominal_source: if cfg.nominal_mm.is_some() {
+                "config"
+            } else {
+                "run"
+            }
+            .into(),
+            augmented,
+        };
+        Ok(StageOutput::typed(&summary)?.with("observations", b.build()))
     }
 }

@@ -5,10 +5,10 @@
 
 use std::collections::BTreeSet;
 
+use super::summary::{fin, ProfileErrorSummary, RadiusError, WearApplied};
 use crate::form::tables::PROFILE;
 use anyhow::bail;
 use arrow::record_batch::RecordBatch;
-use serde_json::{json, Value};
 use sparkout_pipeline::config_check::SectionCheck;
 use sparkout_pipeline::contracts::BatchBuilder;
 use sparkout_pipeline::{InputError, Result, Stage, StageContext, StageOutput, StageSpec};
@@ -84,7 +84,7 @@ pub fn compute(
     file: &std::path::Path,
     design_rows: &[usize],
     model: DeltaModel,
-) -> Result<(RecordBatch, Value)> {
+) -> Result<(RecordBatch, ProfileErrorSummary)> {
     let path = centre_path(p, r_kn).with_model(model);
     let n = p.len();
     let mut b_rk = Vec::new();
@@ -107,7 +107,13 @@ pub fn compute(
             }
         }
         let rms = (d.iter().map(|v| v * v).sum::<f64>() / n as f64).sqrt();
-        per.push(json!({"wheel_radius_mm": rk, "max_error_mm": mx.abs(), "signed_max_error_mm": mx, "phi_at_max_rad": at, "rms_error_mm": rms}));
+        per.push(RadiusError {
+            wheel_radius_mm: rk,
+            max_error_mm: mx.abs(),
+            signed_max_error_mm: mx,
+            phi_at_max_rad: at,
+            rms_error_mm: rms,
+        });
         b_rk.extend(std::iter::repeat_n(rk, n));
         delta.extend(d);
     }
@@ -130,17 +136,29 @@ pub fn compute(
         .iter()
         .filter(|k| k.abs() * mean_r < 1e-2)
         .count();
-    let summary = json!({
-        "nominal_mm": r_kn,
-        "delta_model": format!("{model:?}").to_lowercase(),
-        "points": n,
-        "closed": p.closed,
-        "straight_points": flat,
-        "curvature_max_per_mm": p.kappa_per_mm.iter().cloned().fold(f64::NEG_INFINITY, f64::max),
-        "curvature_min_per_mm": p.kappa_per_mm.iter().cloned().fold(f64::INFINITY, f64::min),
-        "radii": per,
-        "max_error_mm": per.iter().filter_map(|v| v["max_error_mm"].as_f64()).fold(0.0, f64::max),
-    });
+    // The largest of the radii's errors that are defined (a NaN one was
+    // written as null and never counted).
+    let max_error_mm = per
+        .iter()
+        .map(|v| v.max_error_mm)
+        .filter(|v| v.is_finite())
+        .fold(0.0, f64::max);
+    let summary = ProfileErrorSummary {
+        nominal_mm: r_kn,
+        delta_model: format!("{model:?}").to_lowercase(),
+        points: n,
+        closed: p.closed,
+        straight_points: flat,
+        curvature_max_per_mm: p
+            .kappa_per_mm
+            .iter()
+            .cloned()
+            .fold(f64::NEG_INFINITY, f64::max),
+        curvature_min_per_mm: p.kappa_per_mm.iter().cloned().fold(f64::INFINITY, f64::min),
+        radii: per,
+        max_error_mm,
+        augmented: None,
+    };
     Ok((batch, summary))
 }
 
@@ -182,23 +200,31 @@ impl Stage for ProfileErrorStage {
             (Some(w), Some((v0, area))) => {
                 let removed: Vec<f64> = p.arc_length_mm().iter().map(|s| v0 + area * s).collect();
                 let loss = w.radius_loss_mm(&removed);
-                let info = json!({
-                    "in_physics": w.keys(),
-                    "wear_max_mm": loss.as_ref().map(|l| l.iter().fold(0.0f64, |m, v| m.max(v.abs()))),
-                });
-                (loss, info)
+                let info = WearApplied::Applied {
+                    in_physics: w.keys(),
+                    wear_max_mm: loss
+                        .as_ref()
+                        .and_then(|l| fin(l.iter().fold(0.0f64, |m, v| m.max(v.abs())))),
+                };
+                (loss, Some(info))
             }
             (Some(w), None) => (
                 None,
-                json!({"in_physics": null, "not_applied": w.keys(), "why": "run.toml gives no removed_before_mm3 and stock_mm: the wheel's usage is unknown"}),
+                Some(WearApplied::NotApplied {
+                    in_physics: None,
+                    not_applied: w.keys(),
+                    why: "run.toml gives no removed_before_mm3 and stock_mm: the wheel's usage is unknown".into(),
+                }),
             ),
-            _ => (None, Value::Null),
+            _ => (None, None),
         };
         // The largest actual radius (the first) gets the compensation.
         let comp = compensation(&p, r_kn, radii[0], wear_mm.as_deref(), feed);
-        let mut summary = summary;
-        summary["augmented"] = augmented;
-        Ok(StageOutput::new(summary)
+        let summary = ProfileErrorSummary {
+            augmented,
+            ..summary
+        };
+        Ok(StageOutput::typed(&summary)?
             .with("profile_error", batch)
             .with("compensation", comp))
     }

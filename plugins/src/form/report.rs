@@ -2,11 +2,12 @@
 //! segment (the segmentation of docs/models.md §4), the run's own δ(φ) for the
 //! radius it was ground with, and measured against predicted error.
 
-use serde_json::Value;
 use sparkout_pipeline::contracts::{batch_f64, batch_i32};
 use sparkout_pipeline::report::svg::{bar_chart, xy_chart, Mark, Series};
 use sparkout_pipeline::report::{esc, fmt_um, table, Verdict};
 use sparkout_pipeline::{ArtifactStore, ReportSection, Run};
+
+use super::summary::{fin, ProfileErrorSummary, SegmentSummary};
 
 fn um(x: Option<f64>) -> String {
     fmt_um(x, 2)
@@ -18,36 +19,26 @@ fn thin(points: Vec<(f64, f64)>, max: usize) -> Vec<(f64, f64)> {
     points.into_iter().step_by(step).collect()
 }
 
-fn segments(s: &Value, a: &ArtifactStore) -> Option<ReportSection> {
-    let segs = s.get("segments")?.as_array()?;
+fn segments(s: &SegmentSummary, a: &ArtifactStore) -> ReportSection {
+    let segs = &s.segments;
     let rows: Vec<Vec<String>> = segs
         .iter()
         .map(|g| {
             vec![
-                g["segment"].to_string(),
-                format!("{:.3}", g["nominal_mm"].as_f64().unwrap_or(f64::NAN)),
-                format!(
-                    "{:.3} – {:.3}",
-                    g["r_min_mm"].as_f64().unwrap_or(f64::NAN),
-                    g["r_max_mm"].as_f64().unwrap_or(f64::NAN)
-                ),
-                um(g["max_error_mm"].as_f64()),
-                format!(
-                    "{:.1}",
-                    g["phi_at_max_rad"]
-                        .as_f64()
-                        .unwrap_or(f64::NAN)
-                        .to_degrees()
-                ),
+                g.segment.to_string(),
+                format!("{:.3}", g.nominal_mm),
+                format!("{:.3} – {:.3}", g.r_min_mm, g.r_max_mm),
+                um(fin(g.max_error_mm)),
+                format!("{:.1}", g.phi_at_max_rad.to_degrees()),
             ]
         })
         .collect();
     let mut html = format!(
         "<p>Usable wheel radius {:.1} – {:.1} mm in {} segments, one program per segment for its mean radius; largest profile error left: <b>{} µm</b>.</p>",
-        s["r_max_mm"].as_f64().unwrap_or(f64::NAN) - s["range_mm"].as_f64().unwrap_or(f64::NAN),
-        s["r_max_mm"].as_f64().unwrap_or(f64::NAN),
+        s.r_max_mm - s.range_mm,
+        s.r_max_mm,
         segs.len(),
-        um(s["max_error_mm"].as_f64())
+        um(fin(s.max_error_mm))
     );
     html.push_str(&table(
         &[
@@ -84,45 +75,37 @@ fn segments(s: &Value, a: &ArtifactStore) -> Option<ReportSection> {
             ));
         }
     }
-    if let Some(sw) = s.get("sweep").and_then(|v| v.as_array()) {
-        let bars: Vec<(String, f64)> = sw
-            .iter()
-            .map(|e| {
-                (
-                    format!("N={}", e["segments"]),
-                    e["max_error_mm"].as_f64().unwrap_or(f64::NAN) * 1e3,
-                )
-            })
-            .collect();
-        html.push_str(&bar_chart(
-            "Largest profile error against the number of segments",
-            "max |δ| (µm)",
-            &bars,
-        ));
-    }
-    Some(ReportSection {
+    let bars: Vec<(String, f64)> = s
+        .sweep
+        .iter()
+        .map(|e| (format!("N={}", e.segments), e.max_error_mm * 1e3))
+        .collect();
+    html.push_str(&bar_chart(
+        "Largest profile error against the number of segments",
+        "max |δ| (µm)",
+        &bars,
+    ));
+    ReportSection {
         title: "Wheel-radius segmentation".into(),
         html,
-    })
+    }
 }
 
-fn run_error(s: &Value, a: &ArtifactStore) -> Option<ReportSection> {
-    let radii = s.get("radii")?.as_array()?;
-    let rows: Vec<Vec<String>> = radii
+fn run_error(s: &ProfileErrorSummary, a: &ArtifactStore) -> ReportSection {
+    let rows: Vec<Vec<String>> = s
+        .radii
         .iter()
         .map(|r| {
             vec![
-                format!("{:.3}", r["wheel_radius_mm"].as_f64().unwrap_or(f64::NAN)),
-                um(r["max_error_mm"].as_f64()),
-                um(r["rms_error_mm"].as_f64()),
+                format!("{:.3}", r.wheel_radius_mm),
+                um(fin(r.max_error_mm)),
+                um(fin(r.rms_error_mm)),
             ]
         })
         .collect();
     let mut html = format!(
         "<p>Program nominal {:.3} mm; {} design points, {} of them straight (curvature ≈ 0).</p>",
-        s["nominal_mm"].as_f64().unwrap_or(f64::NAN),
-        s["points"],
-        s["straight_points"]
+        s.nominal_mm, s.points, s.straight_points
     );
     html.push_str(&table(
         &["wheel radius (mm)", "max |δ| (µm)", "RMS δ (µm)"],
@@ -152,10 +135,10 @@ fn run_error(s: &Value, a: &ArtifactStore) -> Option<ReportSection> {
             ));
         }
     }
-    Some(ReportSection {
+    ReportSection {
         title: "Profile error of this run (model)".into(),
         html,
-    })
+    }
 }
 
 fn measured(a: &ArtifactStore) -> Option<ReportSection> {
@@ -202,13 +185,26 @@ fn measured(a: &ArtifactStore) -> Option<ReportSection> {
     })
 }
 
+/// A stage's summary read through its type; a summary of another shape
+/// (a bug, or a cache from another build) is named in the log and its
+/// section left out.
+fn read<T: serde::de::DeserializeOwned>(a: &ArtifactStore, stage: &str) -> Option<T> {
+    match a.summary_as::<T>(stage)? {
+        Ok(v) => Some(v),
+        Err(e) => {
+            tracing::warn!("form report: {e:#}");
+            None
+        }
+    }
+}
+
 pub fn sections(_run: &Run, a: &ArtifactStore) -> Vec<ReportSection> {
     let mut out = Vec::new();
-    if let Some(s) = a.summary("segment") {
-        out.extend(segments(&s, a));
+    if let Some(s) = read::<SegmentSummary>(a, "segment") {
+        out.push(segments(&s, a));
     }
-    if let Some(s) = a.summary("profile_error") {
-        out.extend(run_error(&s, a));
+    if let Some(s) = read::<ProfileErrorSummary>(a, "profile_error") {
+        out.push(run_error(&s, a));
     }
     out.extend(measured(a));
     out

@@ -5,10 +5,10 @@
 //! cut it about N-fold). Also a sweep over N and the tool paths (X, Z, A, C
 //! per profile point) of each segment's nominal.
 
+use crate::form::summary::{SegmentRow, SegmentSummary, SweepPoint};
 use crate::form::tables::PROFILE;
 use anyhow::{anyhow, bail};
 use arrow::record_batch::RecordBatch;
-use serde_json::{json, Value};
 use sparkout_pipeline::config_check::SectionCheck;
 use sparkout_pipeline::contracts::BatchBuilder;
 use sparkout_pipeline::{InputError, Result, Stage, StageContext, StageOutput, StageSpec};
@@ -122,19 +122,18 @@ pub fn sweep(
         .collect()
 }
 
-pub fn segments_json(segs: &[Segment]) -> Value {
-    json!(segs
-        .iter()
-        .map(|s| json!({
-            "segment": s.index,
-            "nominal_mm": s.nominal_mm,
-            "r_min_mm": s.r_min_mm,
-            "r_max_mm": s.r_max_mm,
-            "max_error_mm": s.max_error_mm,
-            "phi_at_max_rad": s.phi_at_max_rad,
-            "radius_at_max_mm": s.radius_at_max_mm,
-        }))
-        .collect::<Vec<_>>())
+pub fn segment_rows(segs: &[Segment]) -> Vec<SegmentRow> {
+    segs.iter()
+        .map(|s| SegmentRow {
+            segment: s.index,
+            nominal_mm: s.nominal_mm,
+            r_min_mm: s.r_min_mm,
+            r_max_mm: s.r_max_mm,
+            max_error_mm: s.max_error_mm,
+            phi_at_max_rad: s.phi_at_max_rad,
+            radius_at_max_mm: s.radius_at_max_mm,
+        })
+        .collect()
 }
 
 pub fn summary(
@@ -142,15 +141,21 @@ pub fn summary(
     sweep: &[(usize, f64)],
     range: &WheelRange,
     points: usize,
-) -> Value {
-    json!({
-        "r_max_mm": range.r_max_mm,
-        "range_mm": range.range_mm,
-        "profile_points": points,
-        "segments": segments_json(segs),
-        "max_error_mm": overall(segs),
-        "sweep": sweep.iter().map(|(n, e)| json!({"segments": n, "max_error_mm": e})).collect::<Vec<_>>(),
-    })
+) -> SegmentSummary {
+    SegmentSummary {
+        r_max_mm: range.r_max_mm,
+        range_mm: range.range_mm,
+        profile_points: points,
+        segments: segment_rows(segs),
+        max_error_mm: overall(segs),
+        sweep: sweep
+            .iter()
+            .map(|&(segments, max_error_mm)| SweepPoint {
+                segments,
+                max_error_mm,
+            })
+            .collect(),
+    }
 }
 
 /// `segments`: one row per segment.
@@ -257,6 +262,8 @@ pub fn config_for(cfg: &SegmentSection, machine: Option<WheelRange>) -> Result<S
 pub struct SegmentResult {
     pub segments: Vec<Segment>,
     pub sweep: Vec<(usize, f64)>,
+    /// What the output's summary holds.
+    pub summary: SegmentSummary,
     pub output: StageOutput,
 }
 
@@ -285,7 +292,8 @@ pub fn compute(
         .i32("segments", sw.iter().map(|s| s.0 as i32).collect())
         .f64("max_error_mm", sw.iter().map(|s| s.1).collect())
         .build();
-    let output = StageOutput::new(summary(&segs, &sw, &sc.range, p.len()))
+    let summary = summary(&segs, &sw, &sc.range, p.len());
+    let output = StageOutput::typed(&summary)?
         .with("segments", segments_batch(&segs))
         .with("segment_error", segment_error_batch(p, &segs))
         .with("segment_sweep", sweep_batch)
@@ -293,6 +301,7 @@ pub fn compute(
     Ok(SegmentResult {
         segments: segs,
         sweep: sw,
+        summary,
         output,
     })
 }

@@ -14,10 +14,11 @@
 
 use anyhow::{anyhow, bail};
 use nalgebra::{DMatrix, DVector};
-use serde_json::{json, Value};
+use serde::{Deserialize, Serialize};
 use sparkout_pipeline::Result;
 
-use super::{console_length, mm, ratio, spikes, value_of};
+use super::spikes::SpikeReport;
+use super::{console_length, spikes, Figure, OrWhy};
 
 /// Which form is removed before the heights are evaluated.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -134,14 +135,66 @@ pub fn heights(r: &[f64], scale: f64) -> Heights {
     }
 }
 
+/// [`Heights`] as figures with their units, as the JSON holds them.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct HeightFigures {
+    #[serde(rename = "Sq")]
+    pub sq: Figure,
+    #[serde(rename = "Sa")]
+    pub sa: Figure,
+    #[serde(rename = "Sz")]
+    pub sz: Figure,
+    #[serde(rename = "Sp")]
+    pub sp: Figure,
+    #[serde(rename = "Sv")]
+    pub sv: Figure,
+    #[serde(rename = "Ssk")]
+    pub ssk: Figure,
+    #[serde(rename = "Sku")]
+    pub sku: Figure,
+}
+
 impl Heights {
-    pub fn json(&self) -> Value {
-        json!({
-            "Sq": mm(self.sq), "Sa": mm(self.sa), "Sz": mm(self.sz),
-            "Sp": mm(self.sp), "Sv": mm(self.sv),
-            "Ssk": ratio(self.ssk), "Sku": ratio(self.sku),
-        })
+    pub fn figures(&self) -> HeightFigures {
+        HeightFigures {
+            sq: Figure::mm(self.sq),
+            sa: Figure::mm(self.sa),
+            sz: Figure::mm(self.sz),
+            sp: Figure::mm(self.sp),
+            sv: Figure::mm(self.sv),
+            ssk: Figure::ratio(self.ssk),
+            sku: Figure::ratio(self.sku),
+        }
     }
+}
+
+/// The evaluation area of an `areal` object.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct EvaluationArea {
+    pub x_min: Figure,
+    pub x_max: Figure,
+    pub x_extent: Figure,
+    pub y_min: Figure,
+    pub y_max: Figure,
+    pub y_extent: Figure,
+    pub n_valid: usize,
+    /// `null` when the reader left unmeasured cells out before counting.
+    pub n_not_measured: Option<usize>,
+    /// Why `n_not_measured` is unknown.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub not_measured: Option<String>,
+}
+
+/// The `areal` object of `flatness --surface`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ArealReport {
+    pub standard: String,
+    pub evaluation_area: EvaluationArea,
+    pub filter: String,
+    pub weighting: String,
+    pub least_squares_plane: HeightFigures,
+    pub second_order: OrWhy<HeightFigures>,
+    pub spikes: SpikeReport,
 }
 
 /// The largest |z| (the scale rounding noise is relative to).
@@ -152,19 +205,24 @@ fn scale_of(z: &[f64]) -> f64 {
 /// [`surface_report`] of points a reader has already cleared of unmeasured
 /// cells (the Parquet surface reader leaves null/NaN grid cells out): the
 /// count of those is not known here, and the output says so.
-pub fn report_read_points(x: &[f64], y: &[f64], z: &[f64]) -> Result<Value> {
+pub fn report_read_points(x: &[f64], y: &[f64], z: &[f64]) -> Result<serde_json::Value> {
+    Ok(serde_json::to_value(read_points_report(x, y, z)?)?)
+}
+
+/// [`report_read_points`] as its type.
+pub fn read_points_report(x: &[f64], y: &[f64], z: &[f64]) -> Result<ArealReport> {
     let mut v = surface_report(x, y, z)?;
-    let area = &mut v["evaluation_area"];
-    area["n_not_measured"] = Value::Null;
-    area["not_measured"] =
-        "null or NaN cells of a gridded map are left out by the surface reader before these figures; their count is not known here".into();
+    v.evaluation_area.n_not_measured = None;
+    v.evaluation_area.not_measured = Some(
+        "null or NaN cells of a gridded map are left out by the surface reader before these figures; their count is not known here".into(),
+    );
     Ok(v)
 }
 
 /// The `areal` object of `flatness --surface`: evaluation area, heights
 /// after both forms, the spike report. Points with a non-finite z are not
 /// measured: counted and left out; a non-finite x or y is an error.
-pub fn surface_report(x: &[f64], y: &[f64], z: &[f64]) -> Result<Value> {
+pub fn surface_report(x: &[f64], y: &[f64], z: &[f64]) -> Result<ArealReport> {
     if let Some(i) = (0..x.len()).find(|&i| !(x[i].is_finite() && y[i].is_finite())) {
         bail!("point {i}: x or y is not a finite number");
     }
@@ -174,8 +232,10 @@ pub fn surface_report(x: &[f64], y: &[f64], z: &[f64]) -> Result<Value> {
     let scale = scale_of(&z);
     let plane = residuals(&x, &y, &z, Form::Plane)?;
     let second = match residuals(&x, &y, &z, Form::SecondOrder) {
-        Ok(r) => heights(&r, scale).json(),
-        Err(e) => json!({"not_computed": e.to_string()}),
+        Ok(r) => OrWhy::Computed(heights(&r, scale).figures()),
+        Err(e) => OrWhy::NotComputed {
+            not_computed: e.to_string(),
+        },
     };
     let range = |v: &[f64]| {
         v.iter()
@@ -184,67 +244,76 @@ pub fn surface_report(x: &[f64], y: &[f64], z: &[f64]) -> Result<Value> {
             })
     };
     let ((x0, x1), (y0, y1)) = (range(&x), range(&y));
-    Ok(json!({
-        "standard": "ISO 25178-2 height parameters; flatness ISO 12781",
-        "evaluation_area": {
-            "x_min": mm(x0), "x_max": mm(x1), "x_extent": mm(x1 - x0),
-            "y_min": mm(y0), "y_max": mm(y1), "y_extent": mm(y1 - y0),
-            "n_valid": z.len(),
-            "n_not_measured": missing,
+    Ok(ArealReport {
+        standard: "ISO 25178-2 height parameters; flatness ISO 12781".into(),
+        evaluation_area: EvaluationArea {
+            x_min: Figure::mm(x0),
+            x_max: Figure::mm(x1),
+            x_extent: Figure::mm(x1 - x0),
+            y_min: Figure::mm(y0),
+            y_max: Figure::mm(y1),
+            y_extent: Figure::mm(y1 - y0),
+            n_valid: z.len(),
+            n_not_measured: Some(missing),
+            not_measured: None,
         },
-        "filter": "none: no S- or L-filter; only the form is removed (least-squares plane, or second-order polynomial surface)",
-        "weighting": "plain means over the valid points, not area-weighted (exact on a regular grid; on scattered points dense regions count more)",
-        "least_squares_plane": heights(&plane, scale).json(),
-        "second_order": second,
-        "spikes": spikes::report(&x, &y, &z, &plane)?,
-    }))
+        filter: "none: no S- or L-filter; only the form is removed (least-squares plane, or second-order polynomial surface)".into(),
+        weighting: "plain means over the valid points, not area-weighted (exact on a regular grid; on scattered points dense regions count more)".into(),
+        least_squares_plane: heights(&plane, scale).figures(),
+        second_order: second,
+        spikes: spikes::report(&x, &y, &z, &plane)?,
+    })
 }
 
 /// Console lines of an `areal` object (lengths through
 /// [`console_length`]).
-pub fn console(a: &Value) -> String {
+pub fn console(a: &ArealReport) -> String {
     let mut s = String::new();
-    let area = &a["evaluation_area"];
+    let area = &a.evaluation_area;
     s += &format!(
         "evaluation area {} × {}, {} valid points{}; filter: none (form removal only); plain means\n",
-        console_length(value_of(&area["x_extent"])),
-        console_length(value_of(&area["y_extent"])),
-        area["n_valid"],
-        match area["n_not_measured"].as_u64() {
+        console_length(area.x_extent.value),
+        console_length(area.y_extent.value),
+        area.n_valid,
+        match area.n_not_measured {
             Some(k) => format!(" ({k} not measured, left out)"),
             None => " (unmeasured cells left out by the reader)".into(),
         },
     );
-    for (key, title) in [
-        ("least_squares_plane", "after LS plane  "),
-        ("second_order", "after 2nd order "),
+    for (h, title) in [
+        (
+            &OrWhy::Computed(a.least_squares_plane.clone()),
+            "after LS plane  ",
+        ),
+        (&a.second_order, "after 2nd order "),
     ] {
-        let h = &a[key];
-        if let Some(why) = h["not_computed"].as_str() {
-            s += &format!("{title} not computed: {why}\n");
-            continue;
-        }
-        let l = |k: &str| console_length(value_of(&h[k]));
-        let r = |k: &str| {
-            let v = value_of(&h[k]);
-            if v.is_finite() {
-                format!("{v:.3}")
+        let h = match h {
+            OrWhy::Computed(h) => h,
+            OrWhy::NotComputed { not_computed } => {
+                s += &format!("{title} not computed: {not_computed}\n");
+                continue;
+            }
+        };
+        let l = |f: &Figure| console_length(f.value);
+        let r = |f: &Figure| {
+            if f.value.is_finite() {
+                format!("{:.3}", f.value)
             } else {
                 "n/a".into()
             }
         };
         s += &format!(
             "{title} Sq {}  Sa {}  Sz {}  Sp {}  Sv {}  Ssk {}  Sku {}\n",
-            l("Sq"),
-            l("Sa"),
-            l("Sz"),
-            l("Sp"),
-            l("Sv"),
-            r("Ssk"),
-            r("Sku")
+            l(&h.sq),
+            l(&h.sa),
+            l(&h.sz),
+            l(&h.sp),
+            l(&h.sv),
+            r(&h.ssk),
+            r(&h.sku)
         );
     }
-    s += &spikes::console(&a["spikes"]);
+    s += &spikes::console(&a.spikes);
     s
 }
 
@@ -325,9 +394,9 @@ mod tests {
         }
         let a = surface_report(&x, &y, &z).unwrap();
         let missing = z.iter().filter(|v| v.is_nan()).count();
-        assert_eq!(a["evaluation_area"]["n_not_measured"], missing);
-        assert_eq!(a["evaluation_area"]["n_valid"], 36 - missing);
-        assert!(value_of(&a["least_squares_plane"]["Sq"]).is_finite());
+        assert_eq!(a.evaluation_area.n_not_measured, Some(missing));
+        assert_eq!(a.evaluation_area.n_valid, 36 - missing);
+        assert!(a.least_squares_plane.sq.value.is_finite());
         assert!(console(&a).contains("not measured"));
     }
 }

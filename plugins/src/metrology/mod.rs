@@ -18,8 +18,7 @@
 //! | [`readers`] | profile tables (Parquet, CSV, instrument text) and height matrices |
 //! | [`stage`] | `sparkout stage profile` and the matrix form of `flatness --surface` |
 
-use serde_json::{json, Value};
-use sparkout_pipeline::json_f64;
+use serde::{Deserialize, Deserializer, Serialize};
 
 pub mod areal;
 pub mod gaussian;
@@ -32,14 +31,63 @@ pub mod straightness;
 
 pub use stage::ProfileStage;
 
-/// A length figure for JSON: canonical mm, with its unit beside it.
-pub fn mm(v: f64) -> Value {
-    json!({"value": json_f64(v), "unit": "mm"})
+/// A figure in the JSON outputs: `{"value", "unit"}` (and a `note` where
+/// the value is undefined for a stated reason). A non-finite value is
+/// written `null` and read back as NaN.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Figure {
+    #[serde(deserialize_with = "nan")]
+    pub value: f64,
+    pub unit: String,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub note: Option<String>,
 }
 
-/// A dimensionless figure for JSON (skewness, kurtosis).
-pub fn ratio(v: f64) -> Value {
-    json!({"value": json_f64(v), "unit": "1"})
+impl Figure {
+    /// A length: canonical mm, with its unit beside it.
+    pub fn mm(v: f64) -> Self {
+        Figure {
+            value: v,
+            unit: "mm".into(),
+            note: None,
+        }
+    }
+    /// A dimensionless figure (skewness, kurtosis).
+    pub fn ratio(v: f64) -> Self {
+        Figure {
+            value: v,
+            unit: "1".into(),
+            note: None,
+        }
+    }
+}
+
+/// A result that is computed, or not computed with the reason:
+/// `{"not_computed": "why"}`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum OrWhy<T> {
+    Computed(T),
+    NotComputed { not_computed: String },
+}
+
+/// A plain `f64` field: `null` (a NaN or infinity written) reads back as NaN.
+pub fn nan<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+    Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NAN))
+}
+
+/// [`nan`] element by element.
+pub fn nan_vec<'de, D: Deserializer<'de>>(d: D) -> Result<Vec<f64>, D::Error> {
+    Ok(Vec::<Option<f64>>::deserialize(d)?
+        .into_iter()
+        .map(|x| x.unwrap_or(f64::NAN))
+        .collect())
+}
+
+/// A number as serde_json prints it (`6.0`, `null`), for console text that
+/// showed the JSON value itself.
+pub fn json_number(x: f64) -> String {
+    serde_json::to_string(&x).unwrap_or_else(|_| "null".into())
 }
 
 /// A length for the console, in nm, µm or mm by magnitude (4 significant
@@ -67,14 +115,109 @@ pub fn console_length(v_mm: f64) -> String {
     format!("{v:.digits$} {unit}")
 }
 
-/// The `value` of a `{"value", "unit"}` figure (NaN when null).
-pub(crate) fn value_of(v: &Value) -> f64 {
-    v["value"].as_f64().unwrap_or(f64::NAN)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Write → read → write gives the same JSON (a NaN figure is null both
+    /// times).
+    fn round_trip<T>(v: &T) -> T
+    where
+        T: Serialize + serde::de::DeserializeOwned + std::fmt::Debug,
+    {
+        let j = serde_json::to_value(v).unwrap();
+        let back: T = serde_json::from_value(j.clone()).unwrap();
+        assert_eq!(serde_json::to_value(&back).unwrap(), j, "{v:?}");
+        back
+    }
+
+    #[test]
+    fn every_metrology_output_reads_back_what_it_wrote() {
+        use readers::{AxisInput, MatrixInput, ProfileInput, UnitInput};
+        let x: Vec<f64> = (0..2001).map(|i| i as f64 * 0.003).collect();
+        let z: Vec<f64> = x
+            .iter()
+            .map(|&u| 1e-4 * (u * 2.0).sin() + 1e-5 * (u * 90.0).sin())
+            .collect();
+        let axis = |c: &str| AxisInput {
+            column: c.into(),
+            unit: "mm".into(),
+            stated_in: "the column name".into(),
+        };
+        // No cut-off, a cut-off that fits, one too long for the profile.
+        for lambda_c in [None, Some(0.8), Some(100.0)] {
+            let r = profile::analyse(
+                &x,
+                &z,
+                profile::Settings {
+                    lambda_c,
+                    sampling_lengths: 5,
+                },
+            )
+            .unwrap();
+            round_trip(&r);
+            let with_input = profile::ProfileReport {
+                input: Some(ProfileInput {
+                    file: "p.csv".into(),
+                    format: "csv".into(),
+                    n_points: x.len(),
+                    n_not_measured: 1,
+                    x: axis("x"),
+                    z: axis("z"),
+                    notes: vec!["a note".into()],
+                }),
+                ..r
+            };
+            assert_eq!(round_trip(&with_input).input, with_input.input);
+        }
+        // A map with three spikes.
+        let (mut mx, mut my, mut mz) = (vec![], vec![], vec![]);
+        for i in 0..20 {
+            for j in 0..20 {
+                let (u, v) = (i as f64, j as f64);
+                mx.push(u);
+                my.push(v);
+                let spike = if (i * 20 + j) % 97 == 5 { 0.05 } else { 0.0 };
+                mz.push(1e-3 * (u * 0.7).sin() * (v * 0.4).cos() + spike);
+            }
+        }
+        let a = areal::surface_report(&mx, &my, &mz).unwrap();
+        assert!(a.spikes.count > 0);
+        let unit = |u: &str| UnitInput {
+            unit: u.into(),
+            stated_in: "line 2".into(),
+        };
+        round_trip(&stage::SurfaceFlatness {
+            least_squares_mm: 0.05,
+            min_zone_mm: f64::NAN,
+            n: mz.len(),
+            areal: a.clone(),
+            input: Some(MatrixInput {
+                file: "m.txt".into(),
+                format: "height matrix".into(),
+                rows: 20,
+                columns: 20,
+                pixel_x: Figure::mm(1.0),
+                pixel_y: Figure::mm(1.0),
+                layout: "rows".into(),
+                x: unit("mm"),
+                y: unit("mm"),
+                z: unit("m"),
+            }),
+        });
+        let mut b = areal::read_points_report(&mx, &my, &mz).unwrap();
+        assert_eq!(b.evaluation_area.n_not_measured, None);
+        b.second_order = OrWhy::NotComputed {
+            not_computed: "too few points".into(),
+        };
+        b.spikes.threshold = Figure {
+            note: Some("MAD = 0".into()),
+            ..Figure::mm(f64::NAN)
+        };
+        let back = round_trip(&b);
+        assert!(back.spikes.threshold.value.is_nan());
+        assert_eq!(back.second_order, b.second_order);
+    }
 
     #[test]
     fn console_lengths_pick_a_unit_by_magnitude() {

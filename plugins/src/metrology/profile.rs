@@ -23,10 +23,11 @@
 //!   each (half-open [a, a + λc), the last one closed)
 
 use anyhow::bail;
-use serde_json::{json, Value};
+use serde::{Deserialize, Serialize};
 use sparkout_pipeline::Result;
 
-use super::{console_length, gaussian, mm, ratio, straightness, value_of};
+use super::readers::ProfileInput;
+use super::{console_length, gaussian, nan, nan_vec, straightness, Figure, OrWhy};
 
 /// Default number of sampling lengths in the evaluation length.
 pub const DEFAULT_SAMPLING_LENGTHS: usize = 5;
@@ -97,9 +98,103 @@ pub struct Settings {
     pub sampling_lengths: usize,
 }
 
+/// The `profile` stage's JSON: straightness, P and R figures of a line
+/// profile, and the input as read.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ProfileReport {
+    pub form_removal: String,
+    pub straightness: Straightness,
+    pub x_spacing: XSpacing,
+    pub integration: String,
+    pub primary: Primary,
+    /// The Gaussian filter (`null` without a cut-off).
+    pub filter: Option<GaussianFilter>,
+    pub roughness: OrWhy<Roughness>,
+    /// The file as read (the stage adds it).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub input: Option<ProfileInput>,
+}
+
+/// [`ProfileReport`]'s straightness.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Straightness {
+    pub standard: String,
+    pub least_squares: Figure,
+    pub min_zone: Figure,
+    #[serde(deserialize_with = "nan")]
+    pub least_squares_slope: f64,
+}
+
+/// [`ProfileReport`]'s x spacing.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct XSpacing {
+    pub uniform: bool,
+    pub min_step: Figure,
+    pub max_step: Figure,
+}
+
+/// The primary profile's figures.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Primary {
+    pub filter: String,
+    pub evaluation_length: Figure,
+    pub n_points: usize,
+    #[serde(rename = "Pt")]
+    pub pt: Figure,
+    #[serde(rename = "Pq")]
+    pub pq: Figure,
+    #[serde(rename = "Pa")]
+    pub pa: Figure,
+    #[serde(rename = "Psk")]
+    pub psk: Figure,
+    #[serde(rename = "Pku")]
+    pub pku: Figure,
+}
+
+/// The Gaussian profile filter in force.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct GaussianFilter {
+    #[serde(rename = "type")]
+    pub kind: String,
+    pub lambda_c: Figure,
+    #[serde(deserialize_with = "nan")]
+    pub alpha: f64,
+    pub weighting: String,
+    pub truncation: String,
+    pub discretisation: String,
+    pub lambda_s: String,
+}
+
+/// The roughness profile's figures.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Roughness {
+    pub end_effect: String,
+    pub sampling_length: Figure,
+    pub sampling_lengths: usize,
+    pub sampling_lengths_note: String,
+    pub evaluation_start: Figure,
+    pub evaluation_end: Figure,
+    pub evaluation_length: Figure,
+    pub n_points: usize,
+    #[serde(rename = "Rq")]
+    pub rq: Figure,
+    #[serde(rename = "Ra")]
+    pub ra: Figure,
+    #[serde(rename = "Rz")]
+    pub rz: Figure,
+    #[serde(rename = "Rz_per_sampling_length", deserialize_with = "nan_vec")]
+    pub rz_per_sampling_length: Vec<f64>,
+    #[serde(rename = "Rt")]
+    pub rt: Figure,
+    #[serde(rename = "Rsk")]
+    pub rsk: Figure,
+    #[serde(rename = "Rku")]
+    pub rku: Figure,
+}
+
 /// Straightness, P and R figures of a profile (x strictly increasing, mm)
 /// as the `profile` stage's JSON.
-pub fn analyse(x: &[f64], z: &[f64], s: Settings) -> Result<Value> {
+pub fn analyse(x: &[f64], z: &[f64], s: Settings) -> Result<ProfileReport> {
     if x.len() < 3 {
         bail!("{} points; a profile needs at least 3", x.len());
     }
@@ -117,53 +212,52 @@ pub fn analyse(x: &[f64], z: &[f64], s: Settings) -> Result<Value> {
         });
     let mean_step = pm.length / steps.len() as f64;
     let uniform = smax - smin <= 1e-6 * mean_step;
-    let mut out = json!({
-        "form_removal": "least-squares line over the points",
-        "straightness": {
-            "standard": "ISO 12780 (distances along z)",
-            "least_squares": mm(ls.width),
-            "min_zone": mm(mz.width),
-            "least_squares_slope": ls.slope,
-        },
-        "x_spacing": {
-            "uniform": uniform,
-            "min_step": mm(smin),
-            "max_step": mm(smax),
-        },
-        "integration": "piecewise-linear profile through the points, over the x span of the points evaluated (trapezoid rule on a uniform step)",
-        "primary": {
-            "filter": "none (no λs filter)",
-            "evaluation_length": mm(pm.length),
-            "n_points": x.len(),
-            "Pt": mm(pm.t),
-            "Pq": mm(pm.q),
-            "Pa": mm(pm.a),
-            "Psk": ratio(pm.sk),
-            "Pku": ratio(pm.ku),
-        },
+    let filter = s.lambda_c.map(|lc| GaussianFilter {
+        kind: "Gaussian profile filter (ISO 16610-21)".into(),
+        lambda_c: Figure::mm(lc),
+        alpha: gaussian::alpha(),
+        weighting: "s(x) = (1/(α·λc))·exp(−π·(x/(α·λc))²), α = √(ln 2/π)".into(),
+        truncation: "±λc".into(),
+        discretisation: "Δx-weighted sum over the measured points, normalised by the weights present: w(xᵢ) = Σ s(xⱼ−xᵢ)Δⱼzⱼ / Σ s(xⱼ−xᵢ)Δⱼ, Δⱼ = (xⱼ₊₁ − xⱼ₋₁)/2; no resampling".into(),
+        lambda_s: "none".into(),
     });
-    out["filter"] = match s.lambda_c {
-        None => Value::Null,
-        Some(lc) => json!({
-            "type": "Gaussian profile filter (ISO 16610-21)",
-            "lambda_c": mm(lc),
-            "alpha": gaussian::alpha(),
-            "weighting": "s(x) = (1/(α·λc))·exp(−π·(x/(α·λc))²), α = √(ln 2/π)",
-            "truncation": "±λc",
-            "discretisation": "Δx-weighted sum over the measured points, normalised by the weights present: w(xᵢ) = Σ s(xⱼ−xᵢ)Δⱼzⱼ / Σ s(xⱼ−xᵢ)Δⱼ, Δⱼ = (xⱼ₊₁ − xⱼ₋₁)/2; no resampling",
-            "lambda_s": "none",
-        }),
-    };
-    out["roughness"] = match s.lambda_c {
-        None => {
-            json!({"not_computed": "no cut-off: give --lambda-c MM (standard cut-offs 0.08, 0.25, 0.8, 2.5, 8 mm) for the R figures"})
-        }
+    let roughness = match s.lambda_c {
+        None => OrWhy::NotComputed {
+            not_computed: "no cut-off: give --lambda-c MM (standard cut-offs 0.08, 0.25, 0.8, 2.5, 8 mm) for the R figures".into(),
+        },
         Some(lc) => roughness(x, &p, lc, s.sampling_lengths)?,
     };
-    Ok(out)
+    Ok(ProfileReport {
+        form_removal: "least-squares line over the points".into(),
+        straightness: Straightness {
+            standard: "ISO 12780 (distances along z)".into(),
+            least_squares: Figure::mm(ls.width),
+            min_zone: Figure::mm(mz.width),
+            least_squares_slope: ls.slope,
+        },
+        x_spacing: XSpacing {
+            uniform,
+            min_step: Figure::mm(smin),
+            max_step: Figure::mm(smax),
+        },
+        integration: "piecewise-linear profile through the points, over the x span of the points evaluated (trapezoid rule on a uniform step)".into(),
+        primary: Primary {
+            filter: "none (no λs filter)".into(),
+            evaluation_length: Figure::mm(pm.length),
+            n_points: x.len(),
+            pt: Figure::mm(pm.t),
+            pq: Figure::mm(pm.q),
+            pa: Figure::mm(pm.a),
+            psk: Figure::ratio(pm.sk),
+            pku: Figure::ratio(pm.ku),
+        },
+        filter,
+        roughness,
+        input: None,
+    })
 }
 
-fn roughness(x: &[f64], p: &[f64], lc: f64, want: usize) -> Result<Value> {
+fn roughness(x: &[f64], p: &[f64], lc: f64, want: usize) -> Result<OrWhy<Roughness>> {
     if !(lc.is_finite() && lc > 0.0) {
         bail!("--lambda-c must be a length > 0 (mm)");
     }
@@ -176,10 +270,13 @@ fn roughness(x: &[f64], p: &[f64], lc: f64, want: usize) -> Result<Value> {
     let fit = ((total - lc) / lc + 1e-9).floor().max(0.0) as usize;
     let k = want.min(fit);
     if k == 0 {
-        return Ok(json!({"not_computed": format!(
-            "the profile is {} mm long; a sampling length of λc = {lc} mm plus λc/2 at each end needs {} mm",
-            total, 2.0 * lc
-        )}));
+        return Ok(OrWhy::NotComputed {
+            not_computed: format!(
+                "the profile is {} mm long; a sampling length of λc = {lc} mm plus λc/2 at each end needs {} mm",
+                total,
+                2.0 * lc
+            ),
+        });
     }
     let w = gaussian::mean_line(x, p, lc);
     let r: Vec<f64> = (0..n).map(|i| p[i] - w[i]).collect();
@@ -220,91 +317,91 @@ fn roughness(x: &[f64], p: &[f64], lc: f64, want: usize) -> Result<Value> {
     } else {
         format!("{k} sampling lengths")
     };
-    Ok(json!({
-        "end_effect": "the Gaussian mean line lacks data near the ends: the evaluation length is centred in the profile and leaves at least λc/2 at each end out",
-        "sampling_length": mm(lc),
-        "sampling_lengths": k,
-        "sampling_lengths_note": note,
-        "evaluation_start": mm(start),
-        "evaluation_end": mm(end),
-        "evaluation_length": mm(ln),
-        "n_points": ex.len(),
-        "Rq": mm(rm.q),
-        "Ra": mm(rm.a),
-        "Rz": mm(rz),
-        "Rz_per_sampling_length": peaks,
-        "Rt": mm(rm.t),
-        "Rsk": ratio(rm.sk),
-        "Rku": ratio(rm.ku),
+    Ok(OrWhy::Computed(Roughness {
+        end_effect: "the Gaussian mean line lacks data near the ends: the evaluation length is centred in the profile and leaves at least λc/2 at each end out".into(),
+        sampling_length: Figure::mm(lc),
+        sampling_lengths: k,
+        sampling_lengths_note: note,
+        evaluation_start: Figure::mm(start),
+        evaluation_end: Figure::mm(end),
+        evaluation_length: Figure::mm(ln),
+        n_points: ex.len(),
+        rq: Figure::mm(rm.q),
+        ra: Figure::mm(rm.a),
+        rz: Figure::mm(rz),
+        rz_per_sampling_length: peaks,
+        rt: Figure::mm(rm.t),
+        rsk: Figure::ratio(rm.sk),
+        rku: Figure::ratio(rm.ku),
     }))
 }
 
 /// Console lines of the `profile` stage's JSON (lengths through
 /// [`console_length`]).
-pub fn console(v: &Value) -> String {
-    let l = |f: &Value| console_length(value_of(f));
-    let r = |f: &Value| {
-        let x = value_of(f);
-        if x.is_finite() {
-            format!("{x:.3}")
+pub fn console(v: &ProfileReport) -> String {
+    let l = |f: &Figure| console_length(f.value);
+    let r = |f: &Figure| {
+        if f.value.is_finite() {
+            format!("{:.3}", f.value)
         } else {
             "n/a".into()
         }
     };
     let mut s = String::new();
-    let inp = &v["input"];
-    if inp.is_object() {
+    if let Some(inp) = &v.input {
         s += &format!(
             "{}: {} points (x {} [{}], z {} [{}]){}\n",
-            inp["file"].as_str().unwrap_or(""),
-            inp["n_points"],
-            inp["x"]["column"].as_str().unwrap_or(""),
-            inp["x"]["unit"].as_str().unwrap_or(""),
-            inp["z"]["column"].as_str().unwrap_or(""),
-            inp["z"]["unit"].as_str().unwrap_or(""),
-            match inp["n_not_measured"].as_u64() {
-                Some(k) if k > 0 => format!(", {k} not measured (left out)"),
+            inp.file,
+            inp.n_points,
+            inp.x.column,
+            inp.x.unit,
+            inp.z.column,
+            inp.z.unit,
+            match inp.n_not_measured {
+                k if k > 0 => format!(", {k} not measured (left out)"),
                 _ => String::new(),
             }
         );
-        for n in inp["notes"].as_array().into_iter().flatten() {
-            s += &format!("  note: {}\n", n.as_str().unwrap_or(""));
+        for n in &inp.notes {
+            s += &format!("  note: {n}\n");
         }
     }
-    let st = &v["straightness"];
+    let st = &v.straightness;
     s += &format!(
         "straightness: LS {}  min-zone {}\n",
-        l(&st["least_squares"]),
-        l(&st["min_zone"])
+        l(&st.least_squares),
+        l(&st.min_zone)
     );
-    let p = &v["primary"];
+    let p = &v.primary;
     s += &format!(
         "primary (no filter, LS line removed, length {}): Pt {}  Pq {}  Pa {}  Psk {}  Pku {}\n",
-        l(&p["evaluation_length"]),
-        l(&p["Pt"]),
-        l(&p["Pq"]),
-        l(&p["Pa"]),
-        r(&p["Psk"]),
-        r(&p["Pku"])
+        l(&p.evaluation_length),
+        l(&p.pt),
+        l(&p.pq),
+        l(&p.pa),
+        r(&p.psk),
+        r(&p.pku)
     );
-    let g = &v["roughness"];
-    if let Some(why) = g["not_computed"].as_str() {
-        s += &format!("roughness: not computed: {why}\n");
-    } else {
-        s += &format!(
-            "roughness (Gaussian λc {}, {} × {} evaluated from {} to {}, λc/2 at least left at each end): Rq {}  Ra {}  Rz {}  Rt {}  Rsk {}  Rku {}\n",
-            l(&v["filter"]["lambda_c"]),
-            g["sampling_lengths"],
-            l(&g["sampling_length"]),
-            l(&g["evaluation_start"]),
-            l(&g["evaluation_end"]),
-            l(&g["Rq"]),
-            l(&g["Ra"]),
-            l(&g["Rz"]),
-            l(&g["Rt"]),
-            r(&g["Rsk"]),
-            r(&g["Rku"])
-        );
+    match &v.roughness {
+        OrWhy::NotComputed { not_computed } => {
+            s += &format!("roughness: not computed: {not_computed}\n");
+        }
+        OrWhy::Computed(g) => {
+            s += &format!(
+                "roughness (Gaussian λc {}, {} × {} evaluated from {} to {}, λc/2 at least left at each end): Rq {}  Ra {}  Rz {}  Rt {}  Rsk {}  Rku {}\n",
+                console_length(v.filter.as_ref().map_or(f64::NAN, |f| f.lambda_c.value)),
+                g.sampling_lengths,
+                l(&g.sampling_length),
+                l(&g.evaluation_start),
+                l(&g.evaluation_end),
+                l(&g.rq),
+                l(&g.ra),
+                l(&g.rz),
+                l(&g.rt),
+                r(&g.rsk),
+                r(&g.rku)
+            );
+        }
     }
     s
 }
@@ -369,12 +466,14 @@ mod tests {
             },
         )
         .unwrap();
-        let g = &v["roughness"];
-        let rq = value_of(&g["Rq"]);
+        let OrWhy::Computed(g) = &v.roughness else {
+            panic!("λc 0.8 fits 5 sampling lengths: {:?}", v.roughness);
+        };
+        let rq = g.rq.value;
         assert!((rq - a / 2f64.sqrt()).abs() < 0.02 * a, "{rq}");
-        assert!((value_of(&g["Rz"]) - 2.0 * a).abs() < 0.05 * a);
-        assert_eq!(g["sampling_lengths"], 5);
-        assert!((value_of(&g["evaluation_start"]) - 1.0).abs() < 1e-12);
+        assert!((g.rz.value - 2.0 * a).abs() < 0.05 * a);
+        assert_eq!(g.sampling_lengths, 5);
+        assert!((g.evaluation_start.value - 1.0).abs() < 1e-12);
         assert!(console(&v).contains("Rq"));
         // Without λc: no R figures, and the output says how to get them.
         let v = analyse(
@@ -386,10 +485,9 @@ mod tests {
             },
         )
         .unwrap();
-        assert!(v["roughness"]["not_computed"]
-            .as_str()
-            .unwrap()
-            .contains("--lambda-c"));
+        assert!(
+            matches!(&v.roughness, OrWhy::NotComputed { not_computed } if not_computed.contains("--lambda-c"))
+        );
         // Too short for one sampling length and its two half ends.
         let v = analyse(
             &x[..1000],
@@ -400,6 +498,6 @@ mod tests {
             },
         )
         .unwrap();
-        assert!(v["roughness"]["not_computed"].is_string());
+        assert!(matches!(v.roughness, OrWhy::NotComputed { .. }));
     }
 }

@@ -30,7 +30,7 @@
 use std::path::Path;
 
 use arrow::record_batch::RecordBatch;
-use serde_json::{json, Value};
+use serde::{Deserialize, Serialize};
 use sparkout_pipeline::contracts::{column_names, numeric_column, read_parquet};
 use sparkout_pipeline::units::{resolve, Kind, Source, Stated, Unit, UnitError};
 use sparkout_pipeline::{InputError, Result};
@@ -53,9 +53,34 @@ pub struct Axis {
 }
 
 impl Axis {
-    fn json(&self) -> Value {
-        json!({"column": self.column, "unit": self.unit.symbol, "stated_in": self.stated_in})
+    fn input(&self) -> AxisInput {
+        AxisInput {
+            column: self.column.clone(),
+            unit: self.unit.symbol.to_string(),
+            stated_in: self.stated_in.clone(),
+        }
     }
+}
+
+/// One axis of an [`ProfileInput`]: its column, unit and where the unit
+/// was stated.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct AxisInput {
+    pub column: String,
+    pub unit: String,
+    pub stated_in: String,
+}
+
+/// The `input` echo of the `profile` stage: the file as read.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ProfileInput {
+    pub file: String,
+    pub format: String,
+    pub n_points: usize,
+    pub n_not_measured: usize,
+    pub x: AxisInput,
+    pub z: AxisInput,
+    pub notes: Vec<String>,
 }
 
 /// A profile in mm, x strictly increasing, only measured points.
@@ -72,16 +97,16 @@ pub struct ProfileData {
 
 impl ProfileData {
     /// The `input` echo of the stage's output.
-    pub fn json(&self, path: &Path) -> Value {
-        json!({
-            "file": path.display().to_string(),
-            "format": self.format,
-            "n_points": self.x_mm.len(),
-            "n_not_measured": self.not_measured,
-            "x": self.x.json(),
-            "z": self.z.json(),
-            "notes": self.notes,
-        })
+    pub fn input(&self, path: &Path) -> ProfileInput {
+        ProfileInput {
+            file: path.display().to_string(),
+            format: self.format.into(),
+            n_points: self.x_mm.len(),
+            n_not_measured: self.not_measured,
+            x: self.x.input(),
+            z: self.z.input(),
+            notes: self.notes.clone(),
+        }
     }
 }
 
@@ -611,7 +636,29 @@ pub struct Matrix {
     pub z_mm: Vec<f64>,
     pub rows: usize,
     pub cols: usize,
-    pub input: Value,
+    pub input: MatrixInput,
+}
+
+/// The unit of one axis of a height matrix and where it was stated.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct UnitInput {
+    pub unit: String,
+    pub stated_in: String,
+}
+
+/// The `input` echo of `flatness --surface` on a text height matrix.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MatrixInput {
+    pub file: String,
+    pub format: String,
+    pub rows: usize,
+    pub columns: usize,
+    pub pixel_x: super::Figure,
+    pub pixel_y: super::Figure,
+    pub layout: String,
+    pub x: UnitInput,
+    pub y: UnitInput,
+    pub z: UnitInput,
 }
 
 /// A text file whose first non-blank line is a `#` comment: the matrix
@@ -749,13 +796,28 @@ pub fn read_matrix(
         .into());
     }
     let (dx, dy) = (width / cols as f64, height / rows as f64);
+    let unit = |a: &Axis| UnitInput {
+        unit: a.unit.symbol.to_string(),
+        stated_in: a.stated_in.clone(),
+    };
     let mut m = Matrix {
         x_mm: Vec::with_capacity(rows * cols),
         y_mm: Vec::with_capacity(rows * cols),
         z_mm: Vec::with_capacity(rows * cols),
         rows,
         cols,
-        input: Value::Null,
+        input: MatrixInput {
+            file: path.display().to_string(),
+            format: "height matrix (text, `#` header)".into(),
+            rows,
+            columns: cols,
+            pixel_x: super::Figure::mm(ax.unit.to_canonical(dx)),
+            pixel_y: super::Figure::mm(ay.unit.to_canonical(dy)),
+            layout: "row i, column j at x = j·Width/columns, y = i·Height/rows".into(),
+            x: unit(&ax),
+            y: unit(&ay),
+            z: unit(&az),
+        },
     };
     for (i, row) in grid.iter().enumerate() {
         for (j, &v) in row.iter().enumerate() {
@@ -768,18 +830,6 @@ pub fn read_matrix(
             });
         }
     }
-    m.input = json!({
-        "file": path.display().to_string(),
-        "format": "height matrix (text, `#` header)",
-        "rows": rows,
-        "columns": cols,
-        "pixel_x": super::mm(ax.unit.to_canonical(dx)),
-        "pixel_y": super::mm(ay.unit.to_canonical(dy)),
-        "layout": "row i, column j at x = j·Width/columns, y = i·Height/rows",
-        "x": {"unit": ax.unit.symbol, "stated_in": ax.stated_in},
-        "y": {"unit": ay.unit.symbol, "stated_in": ay.stated_in},
-        "z": {"unit": az.unit.symbol, "stated_in": az.stated_in},
-    });
     Ok(m)
 }
 

@@ -12,12 +12,12 @@
 //! rule stays silent. When more than half the residuals are equal the MAD
 //! is 0 and the rule does not apply (said in the output).
 
-use serde_json::{json, Value};
+use serde::{Deserialize, Serialize};
 use sparkout_pipeline::Result;
 
 use super::areal::{heights, residuals, Form};
 use super::plane::flatness;
-use super::{console_length, mm, value_of};
+use super::{console_length, json_number, nan, Figure};
 
 /// Spike threshold in robust standard deviations.
 pub const K: f64 = 6.0;
@@ -74,23 +74,63 @@ pub fn detect(r: &[f64]) -> Detection {
 }
 
 /// LS flatness, minimum-zone flatness, Sz and Sq of a point set (plane
-/// removed), as JSON.
-fn figures(x: &[f64], y: &[f64], z: &[f64]) -> Result<Value> {
-    let f = flatness(x, y, z)?;
-    let r = residuals(x, y, z, Form::Plane)?;
-    let h = heights(&r, 1.0);
-    Ok(json!({
-        "n": z.len(),
-        "least_squares_flatness": mm(f.least_squares.width_mm),
-        "min_zone_flatness": mm(f.min_zone.width_mm),
-        "Sz": mm(h.sz),
-        "Sq": mm(h.sq),
-    }))
+/// removed).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SpikeFigures {
+    pub n: usize,
+    pub least_squares_flatness: Figure,
+    pub min_zone_flatness: Figure,
+    #[serde(rename = "Sz")]
+    pub sz: Figure,
+    #[serde(rename = "Sq")]
+    pub sq: Figure,
+}
+
+/// One spike: where it is and its residual from the LS plane.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SpikePosition {
+    #[serde(deserialize_with = "nan")]
+    pub x_mm: f64,
+    #[serde(deserialize_with = "nan")]
+    pub y_mm: f64,
+    #[serde(deserialize_with = "nan")]
+    pub residual_mm: f64,
 }
 
 /// The `spikes` object: the rule, what it found, and the figures with and
-/// without the spikes. `plane` is the LS-plane residuals of the points.
-pub fn report(x: &[f64], y: &[f64], z: &[f64], plane: &[f64]) -> Result<Value> {
+/// without the spikes.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SpikeReport {
+    pub rule: String,
+    #[serde(deserialize_with = "nan")]
+    pub k: f64,
+    pub median: Figure,
+    pub mad: Figure,
+    /// `null` value with a note when the rule does not apply.
+    pub threshold: Figure,
+    pub count: usize,
+    /// The first [`SHOWN`] spikes.
+    pub positions: Vec<SpikePosition>,
+    pub positions_shown: usize,
+    pub with_spikes: SpikeFigures,
+    pub without_spikes: SpikeFigures,
+}
+
+fn figures(x: &[f64], y: &[f64], z: &[f64]) -> Result<SpikeFigures> {
+    let f = flatness(x, y, z)?;
+    let r = residuals(x, y, z, Form::Plane)?;
+    let h = heights(&r, 1.0);
+    Ok(SpikeFigures {
+        n: z.len(),
+        least_squares_flatness: Figure::mm(f.least_squares.width_mm),
+        min_zone_flatness: Figure::mm(f.min_zone.width_mm),
+        sz: Figure::mm(h.sz),
+        sq: Figure::mm(h.sq),
+    })
+}
+
+/// The `spikes` object of the points; `plane` is their LS-plane residuals.
+pub fn report(x: &[f64], y: &[f64], z: &[f64], plane: &[f64]) -> Result<SpikeReport> {
     let d = detect(plane);
     let with = figures(x, y, z)?;
     let without = if d.indices.is_empty() {
@@ -107,66 +147,77 @@ pub fn report(x: &[f64], y: &[f64], z: &[f64], plane: &[f64]) -> Result<Value> {
         let (cx, cy, cz) = (pick(x), pick(y), pick(z));
         figures(&cx, &cy, &cz)?
     };
-    let positions: Vec<Value> = d
+    let positions: Vec<SpikePosition> = d
         .indices
         .iter()
         .take(SHOWN)
-        .map(|&i| json!({"x_mm": x[i], "y_mm": y[i], "residual_mm": plane[i]}))
+        .map(|&i| SpikePosition {
+            x_mm: x[i],
+            y_mm: y[i],
+            residual_mm: plane[i],
+        })
         .collect();
-    Ok(json!({
-        "rule": format!("|r − median(r)| > k·1.4826·MAD of the least-squares-plane residuals r, k = {K}"),
-        "k": K,
-        "median": mm(d.median),
-        "mad": mm(d.mad),
-        "threshold": d.threshold.map_or(json!({"value": null, "unit": "mm", "note": "MAD = 0: more than half the residuals are equal, the rule does not apply"}), mm),
-        "count": d.indices.len(),
-        "positions": positions,
-        "positions_shown": positions.len(),
-        "with_spikes": with,
-        "without_spikes": without,
-    }))
+    Ok(SpikeReport {
+        rule: format!(
+            "|r − median(r)| > k·1.4826·MAD of the least-squares-plane residuals r, k = {K}"
+        ),
+        k: K,
+        median: Figure::mm(d.median),
+        mad: Figure::mm(d.mad),
+        threshold: d.threshold.map_or(
+            Figure {
+                note: Some(
+                    "MAD = 0: more than half the residuals are equal, the rule does not apply"
+                        .into(),
+                ),
+                ..Figure::mm(f64::NAN)
+            },
+            Figure::mm,
+        ),
+        count: d.indices.len(),
+        positions_shown: positions.len(),
+        positions,
+        with_spikes: with,
+        without_spikes: without,
+    })
 }
 
 /// Console lines of a `spikes` object.
-pub fn console(s: &Value) -> String {
-    let count = s["count"].as_u64().unwrap_or(0);
-    let line = |v: &Value| {
+pub fn console(s: &SpikeReport) -> String {
+    let count = s.count;
+    let line = |v: &SpikeFigures| {
         format!(
             "LS flatness {}  min-zone {}  Sz {}",
-            console_length(value_of(&v["least_squares_flatness"])),
-            console_length(value_of(&v["min_zone_flatness"])),
-            console_length(value_of(&v["Sz"]))
+            console_length(v.least_squares_flatness.value),
+            console_length(v.min_zone_flatness.value),
+            console_length(v.sz.value)
         )
     };
     let mut out = format!(
         "spikes (|r − median| > {}·1.4826·MAD = {}): {count}\n",
-        s["k"],
-        console_length(value_of(&s["threshold"]))
+        json_number(s.k),
+        console_length(s.threshold.value)
     );
     if count > 0 {
-        let shown: Vec<String> = s["positions"]
-            .as_array()
-            .into_iter()
-            .flatten()
+        let shown: Vec<String> = s
+            .positions
+            .iter()
             .map(|p| {
-                let l = |k: &str| console_length(p[k].as_f64().unwrap_or(f64::NAN));
-                format!("({}, {}) {}", l("x_mm"), l("y_mm"), l("residual_mm"))
+                let l = console_length;
+                format!("({}, {}) {}", l(p.x_mm), l(p.y_mm), l(p.residual_mm))
             })
             .collect();
         out += &format!(
             "  at (x, y) and residual: {}{}\n",
             shown.join("; "),
-            if count as usize > shown.len() {
-                format!(
-                    "; … {} more in the JSON count",
-                    count as usize - shown.len()
-                )
+            if count > shown.len() {
+                format!("; … {} more in the JSON count", count - shown.len())
             } else {
                 String::new()
             }
         );
-        out += &format!("  with spikes:    {}\n", line(&s["with_spikes"]));
-        out += &format!("  without spikes: {}\n", line(&s["without_spikes"]));
+        out += &format!("  with spikes:    {}\n", line(&s.with_spikes));
+        out += &format!("  without spikes: {}\n", line(&s.without_spikes));
     }
     out
 }
@@ -196,11 +247,11 @@ mod tests {
         found.sort();
         assert_eq!(found, [37, 250, 511]);
         let rep = report(&x, &y, &z, &r).unwrap();
-        assert_eq!(rep["count"], 3);
-        let with = value_of(&rep["with_spikes"]["min_zone_flatness"]);
-        let without = value_of(&rep["without_spikes"]["min_zone_flatness"]);
+        assert_eq!(rep.count, 3);
+        let with = rep.with_spikes.min_zone_flatness.value;
+        let without = rep.without_spikes.min_zone_flatness.value;
         assert!(with > 0.05 && without < 5e-4, "{with} {without}");
-        assert_eq!(rep["without_spikes"]["n"], 600 - 3);
+        assert_eq!(rep.without_spikes.n, 600 - 3);
         assert!(console(&rep).contains("without spikes"));
     }
 

@@ -14,14 +14,17 @@
 use std::path::Path;
 
 use anyhow::{anyhow, Context};
-use serde_json::{json, Value};
+use serde::{Deserialize, Serialize};
+use serde_json::Value;
 use sparkout_pipeline::config_check::{NoKeys, SectionCheck};
 use sparkout_pipeline::{Result, Stage, StageArgs, StageContext, StageOutput, StageSpec};
 
+use super::areal::ArealReport;
 use super::plane::flatness;
+use super::profile::ProfileReport;
 use super::profile::{analyse, Settings, DEFAULT_SAMPLING_LENGTHS};
-use super::readers::{is_text_matrix, read_matrix, read_profile, ProfileSpec};
-use super::{areal, profile};
+use super::readers::{is_text_matrix, read_matrix, read_profile, MatrixInput, ProfileSpec};
+use super::{areal, nan, profile};
 
 pub struct ProfileStage;
 
@@ -57,7 +60,8 @@ impl Stage for ProfileStage {
         Some(profile_standalone(args))
     }
     fn console(&self, result: &Value) -> Option<String> {
-        Some(profile::console(result))
+        let r: ProfileReport = serde_json::from_value(result.clone()).ok()?;
+        Some(profile::console(&r))
     }
 }
 
@@ -97,7 +101,7 @@ fn profile_standalone(args: &StageArgs) -> Result<Value> {
     };
     let path = Path::new(file);
     let p = read_profile(path, &spec)?;
-    let mut out = analyse(
+    let out = analyse(
         &p.x_mm,
         &p.z_mm,
         Settings {
@@ -106,8 +110,11 @@ fn profile_standalone(args: &StageArgs) -> Result<Value> {
         },
     )
     .with_context(|| path.display().to_string())?;
-    out["input"] = p.json(path);
-    Ok(out)
+    let out = ProfileReport {
+        input: Some(p.input(path)),
+        ..out
+    };
+    Ok(serde_json::to_value(out)?)
 }
 
 /// `flatness --surface FILE` when FILE is a text height matrix: `None` for
@@ -142,30 +149,46 @@ pub fn matrix_flatness(args: &StageArgs) -> Option<Result<Value>> {
         let pick = |v: &[f64]| keep.iter().map(|&i| v[i]).collect::<Vec<f64>>();
         let f = flatness(&pick(&m.x_mm), &pick(&m.y_mm), &pick(&m.z_mm))
             .with_context(|| path.display().to_string())?;
-        Ok(json!({
-            "least_squares_mm": f.least_squares.width_mm,
-            "min_zone_mm": f.min_zone.width_mm,
-            "n": keep.len(),
-            "areal": areal::surface_report(&m.x_mm, &m.y_mm, &m.z_mm)
+        let out = SurfaceFlatness {
+            least_squares_mm: f.least_squares.width_mm,
+            min_zone_mm: f.min_zone.width_mm,
+            n: keep.len(),
+            areal: areal::surface_report(&m.x_mm, &m.y_mm, &m.z_mm)
                 .with_context(|| path.display().to_string())?,
-            "input": m.input,
-        }))
+            input: Some(m.input),
+        };
+        Ok(serde_json::to_value(out)?)
     })())
 }
 
-/// Console text of a `flatness --surface` result that carries `areal`.
+/// What `flatness --surface` prints: the flatness of the points, their
+/// areal figures, and (for a text height matrix) the file as read.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SurfaceFlatness {
+    #[serde(deserialize_with = "nan")]
+    pub least_squares_mm: f64,
+    #[serde(deserialize_with = "nan")]
+    pub min_zone_mm: f64,
+    pub n: usize,
+    pub areal: ArealReport,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub input: Option<MatrixInput>,
+}
+
+/// Console text of a `flatness --surface` result ([`SurfaceFlatness`]);
+/// `None` for any other result (a topography's flatness has no `areal`).
 pub fn surface_console(result: &Value) -> Option<String> {
-    let a = result.get("areal")?;
+    let r: SurfaceFlatness = serde_json::from_value(result.clone()).ok()?;
     let mut s = String::new();
-    if let Some(f) = result["input"]["file"].as_str() {
-        s += &format!("{f}\n");
+    if let Some(i) = &r.input {
+        s += &format!("{}\n", i.file);
     }
     s += &format!(
         "flatness: LS {}  min-zone {}  ({} points)\n",
-        super::console_length(result["least_squares_mm"].as_f64().unwrap_or(f64::NAN)),
-        super::console_length(result["min_zone_mm"].as_f64().unwrap_or(f64::NAN)),
-        result["n"]
+        super::console_length(r.least_squares_mm),
+        super::console_length(r.min_zone_mm),
+        r.n
     );
-    s += &areal::console(a);
+    s += &areal::console(&r.areal);
     Some(s)
 }

@@ -26,9 +26,10 @@
 use sparkout_pipeline::toml_f64;
 use std::collections::BTreeMap;
 
+use super::summary::{fin, fin_opt, CyclePass, CyclePasses, CycleSummary, NoPasses, Remaining};
 use crate::robot::tables::PASSES;
 use anyhow::{anyhow, bail};
-use serde_json::{json, Value};
+use serde_json::Value;
 use sparkout_pipeline::config_check::{read_flags, whole_number, Check, Section, SectionCheck};
 use sparkout_pipeline::contracts::BatchBuilder;
 use sparkout_pipeline::{
@@ -268,70 +269,66 @@ pub fn model(passes: &[Pass], weld_mm: Option<f64>, alpha_max: f64) -> Result<Cy
     })
 }
 
-fn opt(v: Option<f64>) -> Value {
-    match v {
-        Some(x) if x.is_finite() => json!(x),
-        _ => Value::Null,
-    }
-}
-
-/// The remaining stock after the last pass of each stage (`null` for a
+/// The remaining stock after the last pass of each stage (`None` for a
 /// stage with no pass or when the weld height is unknown).
-fn remaining_after(passes: &[Pass], remaining: Option<&[f64]>) -> Value {
-    let mut m = serde_json::Map::new();
-    for st in [PassStage::Rough, PassStage::Finish, PassStage::Spark] {
+fn remaining_after(passes: &[Pass], remaining: Option<&[f64]>) -> Remaining {
+    let after = |st: PassStage| {
         let last = passes.iter().rposition(|p| p.stage == st);
-        let v = match (last, remaining) {
-            (Some(i), Some(r)) => json!(r[i]),
-            _ => Value::Null,
-        };
-        m.insert(st.label().to_string(), v);
+        match (last, remaining) {
+            (Some(i), Some(r)) => fin(r[i]),
+            _ => None,
+        }
+    };
+    Remaining {
+        rough: after(PassStage::Rough),
+        finish: after(PassStage::Finish),
+        spark: after(PassStage::Spark),
     }
-    Value::Object(m)
 }
 
 /// The `--json` summary of the stage.
-pub fn summary(passes: &[Pass], r: &CycleResult, weld_mm: Option<f64>) -> Value {
-    let rows: Vec<Value> = passes
+pub fn summary(passes: &[Pass], r: &CycleResult, weld_mm: Option<f64>) -> CycleSummary {
+    let rows: Vec<CyclePass> = passes
         .iter()
         .enumerate()
-        .map(|(i, p)| {
-            json!({
-                "pass": p.pass,
-                "stage": p.stage.label(),
-                "nominal_doc_mm": p.nominal_doc_mm,
-                "predicted_cut_mm": r.predicted[i],
-                "measured_cut_mm": opt(p.measured_cut_mm),
-                "predicted_cut_fit_mm": opt(r.predicted_fit.as_ref().map(|v| v[i])),
-            })
+        .map(|(i, p)| CyclePass {
+            pass: p.pass,
+            stage: p.stage.label().into(),
+            nominal_doc_mm: p.nominal_doc_mm,
+            predicted_cut_mm: r.predicted[i],
+            measured_cut_mm: fin_opt(p.measured_cut_mm),
+            predicted_cut_fit_mm: fin_opt(r.predicted_fit.as_ref().map(|v| v[i])),
         })
         .collect();
     let remaining_meas: Option<Vec<f64>> = r.remaining_meas.iter().copied().collect();
-    let tau: serde_json::Map<String, Value> =
-        r.tau_s.iter().map(|(k, v)| (k.clone(), opt(*v))).collect();
-    let rms = |pred: &[f64]| -> Value {
+    let tau_s: BTreeMap<String, Option<f64>> = r
+        .tau_s
+        .iter()
+        .map(|(k, v)| (k.clone(), fin_opt(*v)))
+        .collect();
+    let rms = |pred: &[f64]| -> Option<f64> {
         let d: Vec<f64> = pred
             .iter()
             .zip(passes)
             .filter_map(|(p, q)| q.measured_cut_mm.map(|m| m - p))
             .collect();
         if d.is_empty() {
-            Value::Null
+            None
         } else {
-            json!((d.iter().map(|x| x * x).sum::<f64>() / d.len() as f64).sqrt())
+            fin((d.iter().map(|x| x * x).sum::<f64>() / d.len() as f64).sqrt())
         }
     };
-    json!({
-        "alpha_first_pass": r.alpha_first_pass,
-        "alpha_fit": opt(r.alpha_fit),
-        "ratio_first_pass": r.alpha_first_pass / (1.0 + r.alpha_first_pass),
-        "passes": rows,
-        "remaining_after_mm": remaining_after(passes, r.remaining_pred.as_deref()),
-        "remaining_after_measured_mm": remaining_after(passes, remaining_meas.as_deref()),
-        "tau_s": Value::Object(tau),
-        "weld_mm": opt(weld_mm),
-        "rms_gap_first_pass_mm": rms(&r.predicted),
-        "rms_gap_fit_mm": r.predicted_fit.as_deref().map(rms).unwrap_or(Value::Null),
+    CycleSummary::Passes(CyclePasses {
+        alpha_first_pass: r.alpha_first_pass,
+        alpha_fit: fin_opt(r.alpha_fit),
+        ratio_first_pass: r.alpha_first_pass / (1.0 + r.alpha_first_pass),
+        passes: rows,
+        remaining_after_mm: remaining_after(passes, r.remaining_pred.as_deref()),
+        remaining_after_measured_mm: remaining_after(passes, remaining_meas.as_deref()),
+        tau_s,
+        weld_mm: fin_opt(weld_mm),
+        rms_gap_first_pass_mm: rms(&r.predicted),
+        rms_gap_fit_mm: r.predicted_fit.as_deref().and_then(rms),
     })
 }
 
@@ -501,19 +498,19 @@ impl Stage for CycleStage {
         let weld = ctx.run.spec.process.get("weld_mm").and_then(toml_f64);
         let Some(passes) = read_passes(ctx)? else {
             // A probing-only run is legal: an empty, valid artifact.
-            return Ok(StageOutput::new(json!({
-                "alpha_first_pass": null,
-                "alpha_fit": null,
-                "passes": [],
-                "remaining_after_mm": {"rough": null, "finish": null, "spark": null},
-                "tau_s": {},
-                "note": "no passes: the run has no passes.parquet (probing only)",
-            }))
-            .with("cycle", cycle_batch(&[], None, area)));
+            let empty = CycleSummary::NoPasses(NoPasses {
+                alpha_first_pass: None,
+                alpha_fit: None,
+                passes: Vec::new(),
+                remaining_after_mm: Remaining::default(),
+                tau_s: BTreeMap::new(),
+                note: "no passes: the run has no passes.parquet (probing only)".into(),
+            });
+            return Ok(StageOutput::typed(&empty)?.with("cycle", cycle_batch(&[], None, area)));
         };
         let r = model(&passes, weld, alpha_max)?;
         let s = summary(&passes, &r, weld);
-        Ok(StageOutput::new(s).with("cycle", cycle_batch(&passes, Some(&r), area)))
+        Ok(StageOutput::typed(&s)?.with("cycle", cycle_batch(&passes, Some(&r), area)))
     }
     fn run_standalone(&self, args: &StageArgs) -> Option<Result<Value>> {
         Some(standalone(args))
@@ -652,7 +649,7 @@ fn standalone(args: &StageArgs) -> Result<Value> {
         remaining_meas: vec![None; passes.len()],
         tau_s: BTreeMap::new(),
     };
-    Ok(summary(&passes, &r, weld))
+    Ok(serde_json::to_value(summary(&passes, &r, weld))?)
 }
 
 #[cfg(test)]

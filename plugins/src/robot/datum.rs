@@ -11,11 +11,10 @@
 use crate::robot::tables::PROBE;
 use anyhow::{anyhow, bail};
 use nalgebra::{Matrix3, SymmetricEigen, Vector3};
-use serde_json::{json, Value};
+use serde_json::Value;
 use sparkout_pipeline::config_check::{Check, Section, SectionCheck};
 use sparkout_pipeline::contracts::schema::AE;
 use sparkout_pipeline::contracts::BatchBuilder;
-use sparkout_pipeline::json_f64;
 use sparkout_pipeline::{
     InputError, Result, Stage, StageArgs, StageContext, StageOutput, StageSpec,
 };
@@ -26,6 +25,9 @@ use super::planes::{
     OlsFit, Plane, TlsFit,
 };
 use super::repeatability::{latency, pooled_std_by_face};
+use super::summary::{
+    fin, DatumStandalone, GivenPlane, GivenSquareness, PlaneSquareness, Squareness,
+};
 use super::touches::{self, Touch};
 
 mod output;
@@ -407,9 +409,8 @@ impl Stage for DatumStage {
         let file = source_file(ctx, &every);
         let (all, method) = select_method(&every, &cfg.method, &file)?;
         let a = analyse(&all, cfg, &file)?;
-        let mut s = summary(&all, &a, cfg);
-        s["touch_method"] = json!(method);
-        Ok(StageOutput::new(s)
+        let s = summary(&all, &a, cfg, &method);
+        Ok(StageOutput::typed(&s)?
             .with("planes", planes_batch(&a, cfg.use_tls()))
             .with("datum", datum_batch(&a, cfg.use_tls())))
     }
@@ -486,7 +487,7 @@ fn standalone(args: &StageArgs) -> Result<Value> {
         &cfg,
     )
     .map_err(|e| anyhow!("stage datum: {e}"))?;
-    let mut pj = serde_json::Map::new();
+    let mut pj = std::collections::BTreeMap::new();
     for (k, &i) in order.iter().enumerate() {
         let p = &planes[i];
         let label = if distinct {
@@ -494,10 +495,14 @@ fn standalone(args: &StageArgs) -> Result<Value> {
         } else {
             format!("p{}", k + 1)
         };
-        let mut o = json!({"normal": [p.n[0], p.n[1], p.n[2]], "d": p.d, "tls_normal": [p.n[0], p.n[1], p.n[2]], "tls_d": p.d});
-        if distinct {
-            o["ols"] = json!(ols_form(faces[i], p));
-        }
+        let n = [p.n[0], p.n[1], p.n[2]];
+        let o = GivenPlane {
+            normal: n,
+            d: p.d,
+            tls_normal: n,
+            tls_d: p.d,
+            ols: distinct.then(|| ols_form(faces[i], p)),
+        };
         pj.insert(label, o);
     }
     let error_vector = match (distinct, args.get("alpha")) {
@@ -510,21 +515,25 @@ fn standalone(args: &StageArgs) -> Result<Value> {
             ];
             v3(&(thesis_a(b) * Vector3::new(a[0], a[1], a[2])))
         }
-        _ => Value::Null,
+        _ => None,
     };
     let sq = if distinct {
-        sq_json(&d.squareness)
+        GivenSquareness::Faces(Squareness::new(&d.squareness))
     } else {
-        json!({"p1_p2": json_f64(d.squareness[0]), "p2_p3": json_f64(d.squareness[1]), "p3_p1": json_f64(d.squareness[2])})
+        GivenSquareness::Planes(PlaneSquareness {
+            p1_p2: fin(d.squareness[0]),
+            p2_p3: fin(d.squareness[1]),
+            p3_p1: fin(d.squareness[2]),
+        })
     };
-    Ok(json!({
-        "planes": pj,
-        "datum_mm": v3(&d.datum.p),
-        "datum_cov_mm2": Value::Null,
-        "condition": d.datum.condition,
-        "squareness_rad": sq,
-        "error_vector_mm": error_vector,
-    }))
+    Ok(serde_json::to_value(DatumStandalone {
+        planes: pj,
+        datum_mm: v3(&d.datum.p),
+        datum_cov_mm2: None,
+        condition: d.datum.condition,
+        squareness_rad: sq,
+        error_vector_mm: error_vector,
+    })?)
 }
 
 #[cfg(test)]

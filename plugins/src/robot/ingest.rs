@@ -18,7 +18,7 @@ use crate::robot::tables::PLAN;
 use crate::robot::tables::PROBE;
 use anyhow::Context;
 use nalgebra::Vector3;
-use serde_json::{json, Value};
+use serde_json::Value;
 use sparkout_pipeline::config_check::{flags_to_table, read_section, Check, Section, SectionCheck};
 use sparkout_pipeline::contracts::schema::{AE, MOTION};
 use sparkout_pipeline::contracts::{AeKind, AeStream, BatchBuilder, Table, TimeOrigin};
@@ -28,6 +28,7 @@ use sparkout_pipeline::{
 
 use super::ae::{gaps, AeDetector, AeEvent, AeParams, AeSettings, SignalKind};
 use super::planes::Face;
+use super::summary::{AeParamsSummary, AeSummary, ContactSummary, IngestStandalone, IngestSummary};
 use super::touches::{self, Touch};
 
 mod plan_motion;
@@ -153,24 +154,24 @@ pub struct AeResult {
 
 impl AeResult {
     /// The parameters in force, in samples and seconds (summaries, JSON).
-    pub fn params_json(&self) -> Value {
+    pub fn params_summary(&self) -> AeParamsSummary {
         let p = self.detector.params();
         let s = |n: usize| n as f64 / self.fs_hz;
-        json!({
-            "signal": self.kind.label(),
-            "signal_from": self.kind_source.label(),
-            "sample_rate_hz": self.fs_hz,
-            "window_samples": p.window,
-            "window_s": s(p.window),
-            "min_dwell_samples": p.min_dwell,
-            "min_dwell_s": s(p.min_dwell),
-            "merge_gap_samples": p.merge_gap,
-            "merge_gap_s": s(p.merge_gap),
-            "noise_window_samples": p.noise_window,
-            "noise_window_s": s(p.noise_window),
-            "k_sigma": p.k_sigma,
-            "hysteresis": p.hysteresis,
-        })
+        AeParamsSummary {
+            signal: self.kind.label().into(),
+            signal_from: self.kind_source.label().into(),
+            sample_rate_hz: self.fs_hz,
+            window_samples: p.window,
+            window_s: s(p.window),
+            min_dwell_samples: p.min_dwell,
+            min_dwell_s: s(p.min_dwell),
+            merge_gap_samples: p.merge_gap,
+            merge_gap_s: s(p.merge_gap),
+            noise_window_samples: p.noise_window,
+            noise_window_s: s(p.noise_window),
+            k_sigma: p.k_sigma,
+            hysteresis: p.hysteresis,
+        }
     }
 
     /// A signal read as an RMS that goes negative: the warning names the
@@ -383,22 +384,26 @@ fn standalone(args: &StageArgs) -> Result<Value> {
         &cfg,
         0.0,
     )?;
-    let contacts: Vec<Value> = r
+    let contacts: Vec<ContactSummary> = r
         .events
         .iter()
-        .map(|e| json!({"start_s": e.onset_t_s, "end_s": e.end_t_s, "peak": e.peak_v}))
+        .map(|e| ContactSummary {
+            start_s: e.onset_t_s,
+            end_s: e.end_t_s,
+            peak: e.peak_v,
+        })
         .collect();
     let mut warnings = r.signal_warnings(path, column);
     warnings.extend(r.fragmentation_warnings(None));
     for w in &warnings {
         tracing::warn!("{}: {w}", path.display());
     }
-    Ok(json!({
-        "contacts": contacts,
-        "threshold": r.detector.floors().first().map(|f| f.threshold_v),
-        "params": r.params_json(),
-        "warnings": warnings,
-    }))
+    Ok(serde_json::to_value(IngestStandalone {
+        contacts,
+        threshold: r.detector.floors().first().map(|f| f.threshold_v),
+        params: r.params_summary(),
+        warnings,
+    })?)
 }
 
 /// Role of each AE event.
@@ -580,7 +585,7 @@ impl Stage for IngestStage {
 
         // The AE path: whenever the signal, the motion log and the plan are
         // all there (for the touches, or to check the recorded ones).
-        let mut ae_summary = Value::Null;
+        let mut ae_summary: Option<AeSummary> = None;
         let mut ae_out: Option<AePath> = None;
         if let (true, Some(motion), Some(plan)) = (has_ae, motion.as_ref(), plan.as_ref()) {
             let ae_path = run.table_path(&AE);
@@ -623,26 +628,26 @@ impl Stage for IngestStage {
             }
             let f0 = r.detector.floors()[0];
             let count = |role: Role| roles.iter().filter(|x| x.1 == role).count();
-            ae_summary = json!({
-                "samples": r.samples,
-                "recording_blocks": r.blocks,
-                "window_samples": r.detector.params().window,
-                "params": r.params_json(),
-                "events": r.events.len(),
-                "short_crossings": r.detector.short_crossings(),
-                "stray_crossings": r.detector.stray_crossings(),
-                "warnings": warnings,
-                "touches": count(Role::Touch),
-                "extra_events": count(Role::Extra),
-                "unassigned_events": count(Role::Unassigned),
-                "missed_seq": missed.iter().take(100).collect::<Vec<_>>(),
-                "n_missed": missed.len(),
-                "noise_floor_v": f0.centre_v,
-                "noise_sigma_v": f0.sigma_v,
-                "threshold_v": f0.threshold_v,
-                "k_sigma": cfg.k_sigma,
-                "clock_offset_s": r.clock_offset_s,
-                "positions": if motion.measured { "act" } else { "cmd" },
+            ae_summary = Some(AeSummary {
+                samples: r.samples,
+                recording_blocks: r.blocks,
+                window_samples: r.detector.params().window,
+                params: r.params_summary(),
+                events: r.events.len(),
+                short_crossings: r.detector.short_crossings(),
+                stray_crossings: r.detector.stray_crossings(),
+                warnings,
+                touches: count(Role::Touch),
+                extra_events: count(Role::Extra),
+                unassigned_events: count(Role::Unassigned),
+                missed_seq: missed.iter().take(100).copied().collect(),
+                n_missed: missed.len(),
+                noise_floor_v: f0.centre_v,
+                noise_sigma_v: f0.sigma_v,
+                threshold_v: f0.threshold_v,
+                k_sigma: cfg.k_sigma,
+                clock_offset_s: r.clock_offset_s,
+                positions: if motion.measured { "act" } else { "cmd" }.into(),
             });
             ae_out = Some((touches, r, roles));
         }
@@ -673,20 +678,20 @@ impl Stage for IngestStage {
         }
         let mut per_face = BTreeMap::new();
         for t in &touches {
-            *per_face.entry(t.face.label()).or_insert(0usize) += 1;
+            *per_face.entry(t.face.label().to_string()).or_insert(0usize) += 1;
         }
-        let summary = json!({
-            "touch_source": source,
-            "n_touches": touches.len(),
-            "per_face": per_face,
-            "ae": ae_summary,
-            "compare": compare_out.as_ref().map(|c| c.1.clone()).unwrap_or(Value::Null),
-        });
+        let summary = IngestSummary {
+            touch_source: source.into(),
+            n_touches: touches.len(),
+            per_face,
+            ae: ae_summary,
+            compare: compare_out.as_ref().map(|c| c.1.clone()),
+        };
         let contacts = match &ae_out {
             Some((_, r, roles)) => contacts_batch(r, roles),
             None => empty_contacts(),
         };
-        let mut out = StageOutput::new(summary)
+        let mut out = StageOutput::typed(&summary)?
             .with("touches", touches::to_batch(&touches))
             .with("contacts", contacts);
         if let Some((b, _)) = compare_out {

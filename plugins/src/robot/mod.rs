@@ -30,6 +30,7 @@ pub mod observe;
 pub mod planes;
 pub mod repeatability;
 pub mod report;
+pub mod summary;
 pub mod tables;
 pub mod touches;
 

@@ -53,13 +53,13 @@ use anyhow::anyhow;
 use arrow::array::Int32Array;
 use arrow::datatypes::{DataType, Field};
 use nalgebra::Vector3;
-use serde_json::json;
 use sparkout_pipeline::config_check::{Check, Section, SectionCheck};
 use sparkout_pipeline::contracts::{batch_f64, batch_i32, batch_str, BatchBuilder};
 use sparkout_pipeline::{Result, Stage, StageContext, StageOutput, StageSpec};
 
 use super::datum::PlaneFit;
 use super::planes::{Face, Plane};
+use super::summary::{fin, ObservableGap, ObserveSummary};
 use super::touches::{self, opt_col};
 
 pub struct ObserveStage;
@@ -253,25 +253,34 @@ impl Stage for ObserveStage {
                 .map(|r| r.real - r.sim)
                 .collect();
             if g.is_empty() {
-                serde_json::Value::Null
+                None
             } else {
-                json!((g.iter().map(|x| x * x).sum::<f64>() / g.len() as f64).sqrt())
+                fin((g.iter().map(|x| x * x).sum::<f64>() / g.len() as f64).sqrt())
             }
         };
         let count = |obs: &str| rows.iter().filter(|r| r.observable == obs).count();
         // The three observables every robot run can have, always present
         // (n = 0 when absent), then any comparison method's.
-        let mut summary = json!({
-            "rows": rows.len(),
-            "plane_fit": fit,
-        });
         let names: std::collections::BTreeSet<&str> = [TOUCH_REGISTERED, TOUCH_AE, "cut_depth"]
             .into_iter()
             .chain(rows.iter().map(|r| r.observable.as_str()))
             .collect();
-        for obs in names {
-            summary[obs] = json!({"n": count(obs), "rms_gap_mm": rms(obs)});
-        }
-        Ok(StageOutput::new(summary).with("observations", build(&ctx.run.spec.id, &rows)))
+        let summary = ObserveSummary {
+            rows: rows.len(),
+            plane_fit: fit.into(),
+            observables: names
+                .into_iter()
+                .map(|obs| {
+                    (
+                        obs.to_string(),
+                        ObservableGap {
+                            n: count(obs),
+                            rms_gap_mm: rms(obs),
+                        },
+                    )
+                })
+                .collect(),
+        };
+        Ok(StageOutput::typed(&summary)?.with("observations", build(&ctx.run.spec.id, &rows)))
     }
 }

@@ -12,12 +12,14 @@
 
 use std::collections::BTreeMap;
 
-use serde_json::{json, Value};
 use sparkout_pipeline::config_check::{Check, Section, SectionCheck};
 use sparkout_pipeline::contracts::BatchBuilder;
 use sparkout_pipeline::{Result, Stage, StageContext, StageOutput, StageSpec};
 
 use super::planes::Face;
+use super::summary::{
+    fin, fin_opt, FaceRepeatability, MethodLatency, RepeatabilityGroup, RepeatabilitySummary,
+};
 use super::touches::{self, Touch};
 
 /// Statistics of one face within one (method, speed) group.
@@ -134,14 +136,11 @@ pub fn latency(ts: &[&Touch]) -> Option<Latency> {
     })
 }
 
-fn opt(v: Option<f64>) -> Value {
-    v.filter(|x| x.is_finite())
-        .map(Value::from)
-        .unwrap_or(Value::Null)
-}
-
 /// Everything the stage computes, for the summary and the report.
-pub fn analyse(all: &[Touch], latency_method: &str) -> (Value, arrow::record_batch::RecordBatch) {
+pub fn analyse(
+    all: &[Touch],
+    latency_method: &str,
+) -> (RepeatabilitySummary, arrow::record_batch::RecordBatch) {
     // (method, speed bits) → touches, groups in (method, speed) order.
     let mut groups: BTreeMap<(String, u64), Vec<&Touch>> = BTreeMap::new();
     for t in all {
@@ -175,7 +174,7 @@ pub fn analyse(all: &[Touch], latency_method: &str) -> (Value, arrow::record_bat
     let mut rows: Vec<(String, f64, Face, FaceStats, Option<f64>)> = Vec::new();
     for ((method, _), ts) in &groups {
         let v = ts[0].approach_mm_s;
-        let mut faces = serde_json::Map::new();
+        let mut faces = BTreeMap::new();
         let mut ranges = Vec::new();
         let mut stds = Vec::new();
         for face in Face::ALL {
@@ -189,48 +188,48 @@ pub fn analyse(all: &[Touch], latency_method: &str) -> (Value, arrow::record_bat
                 .map(|l| s.bias_mm - l.latency_s * s.mean_approach_normal_mm_s);
             faces.insert(
                 face.label().into(),
-                json!({
-                    "range_mm": opt(s.range_mm),
-                    "std_mm": opt(s.std_mm),
-                    "n": s.n,
-                    "n_points": s.n_points,
-                    "bias_mm": s.bias_mm,
-                    "scatter_mm": opt(s.std_mm),
-                    "bias_latency_corrected_mm": opt(corrected),
-                }),
+                FaceRepeatability {
+                    range_mm: fin_opt(s.range_mm),
+                    std_mm: fin_opt(s.std_mm),
+                    n: s.n,
+                    n_points: s.n_points,
+                    bias_mm: s.bias_mm,
+                    scatter_mm: fin_opt(s.std_mm),
+                    bias_latency_corrected_mm: fin_opt(corrected),
+                },
             );
             ranges.extend(s.range_mm);
             stds.extend(s.std_mm);
             rows.push((method.clone(), v, face, s, corrected));
         }
         let mean = |v: &[f64]| (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64);
-        out_groups.push(json!({
-            "method": method,
-            "approach_mm_s": v,
-            "faces": faces,
-            "mean_range_mm": opt(mean(&ranges)),
-            "mean_std_mm": opt(mean(&stds)),
-        }));
+        out_groups.push(RepeatabilityGroup {
+            method: method.clone(),
+            approach_mm_s: v,
+            faces,
+            mean_range_mm: fin_opt(mean(&ranges)),
+            mean_std_mm: fin_opt(mean(&stds)),
+        });
     }
-    let lat_json: serde_json::Map<String, Value> = lat
+    let latency_by_method: BTreeMap<String, MethodLatency> = lat
         .iter()
         .map(|(m, l)| {
             (
                 m.clone(),
-                json!({
-                    "latency_s": l.latency_s,
-                    "stderr_s": opt(Some(l.stderr_s)),
-                    "n": l.n,
-                    "speeds_mm_s": l.speeds_mm_s,
-                }),
+                MethodLatency {
+                    latency_s: l.latency_s,
+                    stderr_s: fin(l.stderr_s),
+                    n: l.n,
+                    speeds_mm_s: l.speeds_mm_s.clone(),
+                },
             )
         })
         .collect();
-    let summary = json!({
-        "groups": out_groups,
-        "latency_s": opt(headline),
-        "latency_by_method": lat_json,
-    });
+    let summary = RepeatabilitySummary {
+        groups: out_groups,
+        latency_s: fin_opt(headline),
+        latency_by_method,
+    };
     let batch = BatchBuilder::new()
         .str(
             "method",
@@ -324,7 +323,7 @@ impl Stage for RepeatabilityStage {
         let t = touches::require(ctx)?;
         let cfg: &RepeatabilityConfig = ctx.section()?;
         let (summary, batch) = analyse(&t, &cfg.latency_method);
-        Ok(StageOutput::new(summary).with("repeatability", batch))
+        Ok(StageOutput::typed(&summary)?.with("repeatability", batch))
     }
 }
 
@@ -394,21 +393,21 @@ pub(crate) mod tests {
         let lat = 0.004;
         let ts = synth_touches(Vector3::new(0.0, 0.0, 0.0), &[5.0, 10.0], 10, lat, 0.005, 9);
         let (s, b) = analyse(&ts, "auto");
-        let l = s["latency_s"].as_f64().unwrap();
-        let se = s["latency_by_method"]["ae"]["stderr_s"].as_f64().unwrap();
+        let l = s.latency_s.unwrap();
+        let se = s.latency_by_method["ae"].stderr_s.unwrap();
         assert!((l - lat).abs() < 4.0 * se && se < 2e-4, "L {l} ± {se}");
-        let g = &s["groups"][0];
-        assert_eq!(g["method"], "ae");
-        assert_eq!(g["approach_mm_s"].as_f64(), Some(5.0));
-        let xy = &g["faces"]["xy"];
-        let std = xy["std_mm"].as_f64().unwrap();
+        let g = &s.groups[0];
+        assert_eq!(g.method, "ae");
+        assert_eq!(g.approach_mm_s, 5.0);
+        let xy = &g.faces["xy"];
+        let std = xy.std_mm.unwrap();
         assert!((std - 0.005).abs() < 0.001, "{std}");
         // Range of 10 normal draws ≈ 3.1 σ.
-        let range = xy["range_mm"].as_f64().unwrap();
+        let range = xy.range_mm.unwrap();
         assert!(range > 2.0 * 0.005 && range < 4.5 * 0.005, "{range}");
         // Bias along the normal = −v·L (overshoot into the face).
-        assert!((xy["bias_mm"].as_f64().unwrap() + 5.0 * lat).abs() < 0.002);
-        let corrected = xy["bias_latency_corrected_mm"].as_f64().unwrap();
+        assert!((xy.bias_mm + 5.0 * lat).abs() < 0.002);
+        let corrected = xy.bias_latency_corrected_mm.unwrap();
         assert!(corrected.abs() < 0.002, "{corrected}");
         assert_eq!(b.num_rows(), 6);
         // One speed: no latency.
@@ -418,6 +417,6 @@ pub(crate) mod tests {
             .cloned()
             .collect();
         let (s1, _) = analyse(&one, "auto");
-        assert!(s1["latency_s"].is_null());
+        assert!(s1.latency_s.is_none());
     }
 }

@@ -3,7 +3,6 @@
 //! uncertainty, predicted vs measured cuts per pass, and how far recorded
 //! and AE-derived touches disagree.
 
-use serde_json::Value;
 use sparkout_pipeline::report::svg::{bar_chart, xy_chart, Mark, Series};
 use sparkout_pipeline::report::{esc, fmt_fixed, fmt_um, table, warning, Verdict};
 
@@ -14,50 +13,54 @@ use sparkout_pipeline::units::format::{show_as_written, show_group_in, Dims, Par
 use sparkout_pipeline::{ArtifactStore, ReportSection, Run};
 
 use super::planes::Face;
+use super::summary::{
+    fin, json_number, CompareSummary, CycleSummary, DatumSummary, IngestSummary, Remaining,
+    RepeatabilitySummary,
+};
 use super::touches;
 
-fn um(v: &Value) -> String {
-    fmt_um(v.as_f64(), 1)
+fn um(v: Option<f64>) -> String {
+    fmt_um(v, 1)
 }
 
 /// An AE voltage in mV with three significant digits (`6.46 mV`: the
 /// threshold and noise are millivolts).
-fn volts(v: &Value) -> String {
-    v.as_f64()
-        .map_or_else(|| "—".into(), |x| show_as_written(x * 1e3, "mV"))
+fn volts(v: f64) -> String {
+    fin(v).map_or_else(|| "—".into(), |x| show_as_written(x * 1e3, "mV"))
 }
 
-fn num(v: &Value, digits: usize) -> String {
-    fmt_fixed(v.as_f64(), digits)
+fn num(v: Option<f64>, digits: usize) -> String {
+    fmt_fixed(v, digits)
 }
 
-fn repeatability(s: &Value) -> Option<ReportSection> {
-    let groups = s.get("groups")?.as_array()?;
+/// A time in ms with three decimals, "—" when undefined.
+fn millis(v: f64) -> String {
+    fin(v)
+        .map(|x| format!("{:.3}", x * 1e3))
+        .unwrap_or_else(|| "—".into())
+}
+
+fn repeatability(s: &RepeatabilitySummary) -> Option<ReportSection> {
     let mut rows = Vec::new();
     let mut bars = Vec::new();
-    for g in groups {
-        let label = format!(
-            "{} @ {} mm/s",
-            g["method"].as_str().unwrap_or("?"),
-            num(&g["approach_mm_s"], 3)
-        );
+    for g in &s.groups {
+        let label = format!("{} @ {} mm/s", g.method, num(Some(g.approach_mm_s), 3));
         for f in Face::ALL {
-            let x = &g["faces"][f.label()];
-            if x.is_null() {
+            let Some(x) = g.faces.get(f.label()) else {
                 continue;
-            }
+            };
             rows.push(vec![
-                g["method"].as_str().unwrap_or("?").to_string(),
-                num(&g["approach_mm_s"], 3),
+                g.method.clone(),
+                num(Some(g.approach_mm_s), 3),
                 f.label().to_string(),
-                x["n"].to_string(),
-                um(&x["range_mm"]),
-                um(&x["std_mm"]),
-                um(&x["bias_mm"]),
-                um(&x["bias_latency_corrected_mm"]),
+                x.n.to_string(),
+                um(x.range_mm),
+                um(x.std_mm),
+                um(Some(x.bias_mm)),
+                um(x.bias_latency_corrected_mm),
             ]);
         }
-        if let Some(v) = g["mean_range_mm"].as_f64() {
+        if let Some(v) = g.mean_range_mm {
             bars.push((label, v * 1e3));
         }
     }
@@ -79,7 +82,7 @@ fn repeatability(s: &Value) -> Option<ReportSection> {
         "µm",
         &bars,
     ));
-    let lat = match s["latency_s"].as_f64() {
+    let lat = match s.latency_s {
         Some(l) => format!(
             "<p>Trigger latency from the bias at ≥ 2 approach speeds: <b>{:.3} ms</b> (bias ≈ v·L along the approach direction).</p>",
             l * 1e3
@@ -93,24 +96,20 @@ fn repeatability(s: &Value) -> Option<ReportSection> {
     })
 }
 
-fn planes(s: &Value, run_artifacts: &ArtifactStore) -> Option<ReportSection> {
-    let p = s.get("planes")?;
+fn planes(s: &DatumSummary, run_artifacts: &ArtifactStore) -> Option<ReportSection> {
+    let p = &s.planes;
     let mut rows = Vec::new();
     for f in Face::ALL {
-        let x = &p[f.label()];
-        if x.is_null() {
+        let Some(x) = p.get(f.label()) else {
             continue;
-        }
+        };
         // The plane's offset b0 at micrometre resolution (a datum plane's
         // position), its slopes b1, b2 as lengths per length (µm/m).
         let slope = ParamUnit {
             num: Dims::length(),
             den: Dims::length(),
         };
-        let b: Vec<f64> = x["ols"]
-            .as_array()
-            .map(|a| a.iter().map(|v| v.as_f64().unwrap_or(f64::NAN)).collect())
-            .unwrap_or_default();
+        let b: Vec<f64> = x.ols.iter().map(|v| v.unwrap_or(f64::NAN)).collect();
         let mut ols: Vec<String> = b
             .first()
             .map(|b0| format!("{} mm", fmt_fixed(Some(*b0), 3)))
@@ -120,12 +119,12 @@ fn planes(s: &Value, run_artifacts: &ArtifactStore) -> Option<ReportSection> {
         ols.extend(show_group_in(b.get(1..).unwrap_or_default(), &slope));
         rows.push(vec![
             f.label().to_string(),
-            x["n"].to_string(),
-            x["n_rejected"].to_string(),
+            x.n.to_string(),
+            x.n_rejected.to_string(),
             ols.join(", "),
-            um(&x["ols_residual_rms_mm"]),
-            um(&x["tls_residual_rms_mm"]),
-            um(&x["residual_max_mm"]),
+            um(x.ols_residual_rms_mm),
+            um(x.tls_residual_rms_mm),
+            um(x.residual_max_mm),
         ]);
     }
     let mut html = table(
@@ -141,20 +140,17 @@ fn planes(s: &Value, run_artifacts: &ArtifactStore) -> Option<ReportSection> {
         &rows,
     );
     // Residual of each touch from its face's TLS plane, in touch order.
-    if let (Ok(Some(t)), Some(pl)) = (run_artifacts.get("touches"), p.as_object()) {
+    if let Ok(Some(t)) = run_artifacts.get("touches") {
         if let Ok(t) = touches::from_batch(&t) {
             let mut series: Vec<(String, Vec<(f64, f64)>)> = Vec::new();
             for f in Face::ALL {
-                let x = &pl.get(f.label());
+                let x = p.get(f.label());
                 let (Some(n), Some(d)) = (
-                    x.and_then(|x| x["tls_normal"].as_array()).map(|a| {
-                        nalgebra::Vector3::new(
-                            a[0].as_f64().unwrap_or(0.0),
-                            a[1].as_f64().unwrap_or(0.0),
-                            a[2].as_f64().unwrap_or(0.0),
-                        )
+                    x.map(|x| {
+                        let a = x.tls_normal.map(|v| v.unwrap_or(0.0));
+                        nalgebra::Vector3::new(a[0], a[1], a[2])
                     }),
-                    x.and_then(|x| x["tls_d"].as_f64()),
+                    x.and_then(|x| fin(x.tls_d)),
                 ) else {
                     continue;
                 };
@@ -188,28 +184,23 @@ fn planes(s: &Value, run_artifacts: &ArtifactStore) -> Option<ReportSection> {
     })
 }
 
-fn datum(s: &Value) -> Option<ReportSection> {
-    let p = s.get("datum_mm")?.as_array()?;
-    let sig = &s["datum_sigma_mm"];
-    let ell = &s["datum_ellipsoid_mm"]["semi_axes_mm"];
-    let conf = s["datum_ellipsoid_mm"]["confidence"]
-        .as_f64()
-        .unwrap_or(0.95);
+fn datum(s: &DatumSummary) -> Option<ReportSection> {
+    let p = s.datum_mm?;
+    let sig = &s.datum_sigma_mm;
+    let ell = &s.datum_ellipsoid_mm.semi_axes_mm;
+    let conf = fin(s.datum_ellipsoid_mm.confidence).unwrap_or(0.95);
     let rows: Vec<Vec<String>> = ["x", "y", "z"]
         .iter()
         .enumerate()
-        .map(|(i, a)| vec![a.to_string(), num(&p[i], 4), um(&sig[i]), um(&ell[i])])
+        .map(|(i, a)| vec![a.to_string(), num(Some(p[i]), 4), um(sig[i]), um(ell[i])])
         .collect();
     let mut html = format!(
         "<p>Datum = intersection of the three face planes ({} fit); condition number {}.</p>",
-        esc(s["fit"].as_str().unwrap_or("tls")),
-        num(&s["condition"], 3)
+        esc(&s.fit),
+        num(Some(s.condition), 3)
     );
     // A datum from nearly parallel planes moves a lot with little noise.
-    if let Some(c) = s["condition"]
-        .as_f64()
-        .filter(|c| *c > DATUM_CONDITION_WARN)
-    {
+    if let Some(c) = fin(s.condition).filter(|c| *c > DATUM_CONDITION_WARN) {
         html.push_str(&warning(&format!(
             "the datum is badly conditioned (condition number {c:.0} > {DATUM_CONDITION_WARN:.0}): the three faces are close to parallel, so probing noise moves the datum far more than its σ suggests. Probe faces that are closer to orthogonal."
         )));
@@ -223,44 +214,38 @@ fn datum(s: &Value) -> Option<ReportSection> {
         ],
         &rows,
     ));
-    let sq = &s["squareness_rad"];
     html.push_str(&table(
         &["faces", "deviation from 90° (µrad)"],
-        &["xy_yz", "yz_zx", "zx_xy"]
+        &s.squareness_rad
+            .pairs()
             .iter()
-            .map(|k| {
+            .map(|(k, v)| {
                 vec![
                     k.replace('_', "–"),
-                    sq[*k]
-                        .as_f64()
-                        .map(|x| format!("{:.1}", x * 1e6))
+                    v.map(|x| format!("{:.1}", x * 1e6))
                         .unwrap_or_else(|| "—".into()),
                 ]
             })
             .collect::<Vec<_>>(),
     ));
-    if let Some(sq) = s["by_square"].as_array().filter(|a| !a.is_empty()) {
-        let rows: Vec<Vec<String>> = sq
+    if !s.by_square.is_empty() {
+        let rows: Vec<Vec<String>> = s
+            .by_square
             .iter()
             .map(|q| {
-                let d = &q["datum_mm"];
-                vec![
-                    q["square"].as_str().unwrap_or("?").to_string(),
-                    num(&d[0], 4),
-                    num(&d[1], 4),
-                    num(&d[2], 4),
-                ]
+                let d = |i: usize| num(q.datum_mm.map(|d| d[i]), 4);
+                vec![q.square.clone(), d(0), d(1), d(2)]
             })
             .collect();
         html.push_str("<p>Datum per square of the thesis's pattern:</p>");
         html.push_str(&table(&["square", "x (mm)", "y (mm)", "z (mm)"], &rows));
     }
-    if let Some(e) = s["error_vector_mm"].as_array() {
+    if let Some(e) = s.error_vector_mm {
         html.push_str(&format!(
             "<p class=\"note\">Thesis error vector E = A·α: ({}, {}, {}) µm.</p>",
-            um(&e[0]),
-            um(&e[1]),
-            um(&e[2])
+            um(Some(e[0])),
+            um(Some(e[1])),
+            um(Some(e[2]))
         ));
     }
     Some(ReportSection {
@@ -269,27 +254,31 @@ fn datum(s: &Value) -> Option<ReportSection> {
     })
 }
 
-fn cycle(s: &Value) -> Option<ReportSection> {
-    let passes = s.get("passes")?.as_array()?;
-    if passes.is_empty() {
-        return Some(ReportSection {
-            title: "Grinding cycle".into(),
-            html: format!(
-                "<p class=\"note\">{}</p>",
-                esc(s["note"].as_str().unwrap_or("no passes"))
-            ),
-        });
-    }
-    let pt = |k: &str| -> Vec<(f64, f64)> {
+fn cycle(s: &CycleSummary) -> Option<ReportSection> {
+    let s = match s {
+        CycleSummary::Passes(s) if !s.passes.is_empty() => s,
+        other => {
+            let note = match other {
+                CycleSummary::NoPasses(n) => n.note.as_str(),
+                CycleSummary::Passes(_) => "no passes",
+            };
+            return Some(ReportSection {
+                title: "Grinding cycle".into(),
+                html: format!("<p class=\"note\">{}</p>", esc(note)),
+            });
+        }
+    };
+    let passes = &s.passes;
+    let pt = |cut: &dyn Fn(&super::summary::CyclePass) -> Option<f64>| -> Vec<(f64, f64)> {
         passes
             .iter()
-            .filter_map(|p| Some((p["pass"].as_f64()?, p[k].as_f64()? * 1e3)))
+            .filter_map(|p| Some((p.pass as f64, cut(p)? * 1e3)))
             .collect()
     };
     let (pred, meas, fit) = (
-        pt("predicted_cut_mm"),
-        pt("measured_cut_mm"),
-        pt("predicted_cut_fit_mm"),
+        pt(&|p| fin(p.predicted_cut_mm)),
+        pt(&|p| p.measured_cut_mm),
+        pt(&|p| p.predicted_cut_fit_mm),
     );
     let mut series = vec![
         Series {
@@ -312,21 +301,21 @@ fn cycle(s: &Value) -> Option<ReportSection> {
     }
     let mut html = format!(
         "<p>α from the first pass {} (ratio α/(1+α) {}); α refit over all passes {}.</p>",
-        num(&s["alpha_first_pass"], 4),
-        num(&s["ratio_first_pass"], 4),
-        num(&s["alpha_fit"], 4)
+        num(Some(s.alpha_first_pass), 4),
+        num(Some(s.ratio_first_pass), 4),
+        num(s.alpha_fit, 4)
     );
     html.push_str(&xy_chart("Real cut per pass", "pass", "cut (µm)", &series));
     let rows: Vec<Vec<String>> = passes
         .iter()
         .map(|p| {
             vec![
-                p["pass"].to_string(),
-                p["stage"].as_str().unwrap_or("?").to_string(),
-                um(&p["nominal_doc_mm"]),
-                um(&p["predicted_cut_mm"]),
-                um(&p["measured_cut_mm"]),
-                um(&p["predicted_cut_fit_mm"]),
+                p.pass.to_string(),
+                p.stage.clone(),
+                um(Some(p.nominal_doc_mm)),
+                um(Some(p.predicted_cut_mm)),
+                um(p.measured_cut_mm),
+                um(p.predicted_cut_fit_mm),
             ]
         })
         .collect();
@@ -341,21 +330,25 @@ fn cycle(s: &Value) -> Option<ReportSection> {
         ],
         &rows,
     ));
-    let r = &s["remaining_after_mm"];
-    let rm = &s["remaining_after_measured_mm"];
+    let (r, rm) = (&s.remaining_after_mm, &s.remaining_after_measured_mm);
     html.push_str(&table(
         &[
             "after",
             "remaining predicted (µm)",
             "remaining measured (µm)",
         ],
-        &["rough", "finish", "spark"]
+        &r.stages()
             .iter()
-            .map(|k| vec![k.to_string(), um(&r[*k]), um(&rm[*k])])
+            .zip(rm.stages())
+            .map(|((k, r), (_, rm))| vec![k.to_string(), um(*r), um(rm)])
             .collect::<Vec<_>>(),
     ));
-    if let Some(t) = s["tau_s"].as_object().filter(|t| !t.is_empty()) {
-        let rows: Vec<Vec<String>> = t.iter().map(|(k, v)| vec![k.clone(), num(v, 3)]).collect();
+    if !s.tau_s.is_empty() {
+        let rows: Vec<Vec<String>> = s
+            .tau_s
+            .iter()
+            .map(|(k, v)| vec![k.clone(), num(*v, 3)])
+            .collect();
         html.push_str(&table(&["feed (mm/s)", "spark-out τ (s)"], &rows));
     }
     Some(ReportSection {
@@ -364,92 +357,85 @@ fn cycle(s: &Value) -> Option<ReportSection> {
     })
 }
 
-fn compare(s: &Value) -> Option<ReportSection> {
-    let c = s.get("compare").filter(|c| !c.is_null())?;
+fn compare(c: &CompareSummary) -> ReportSection {
     let mut html = format!(
         "<p>{} touches both registered by the controller and detected from AE: RMS distance {} µm (max {} µm); mean normal difference {} µm; the controller registers on average {} ms after the AE contact.</p>",
-        c["n"],
-        um(&c["rms_dist_mm"]),
-        um(&c["max_dist_mm"]),
-        um(&c["mean_dnormal_mm"]),
-        c["mean_dt_s"].as_f64().map(|x| format!("{:.3}", x * 1e3)).unwrap_or_else(|| "—".into())
+        c.n,
+        um(Some(c.rms_dist_mm)),
+        um(Some(c.max_dist_mm)),
+        um(Some(c.mean_dnormal_mm)),
+        millis(c.mean_dt_s)
     );
-    if let Some(b) = c["by_speed"].as_array() {
-        let rows: Vec<Vec<String>> = b
-            .iter()
-            .map(|g| {
-                vec![
-                    g["method"].as_str().unwrap_or("?").to_string(),
-                    num(&g["approach_mm_s"], 3),
-                    g["n"].to_string(),
-                    um(&g["mean_dnormal_mm"]),
-                    g["mean_dt_s"]
-                        .as_f64()
-                        .map(|x| format!("{:.3}", x * 1e3))
-                        .unwrap_or_else(|| "—".into()),
-                ]
-            })
-            .collect();
-        html.push_str(&table(
-            &[
-                "method",
-                "approach (mm/s)",
-                "n",
-                "mean Δnormal (µm)",
-                "mean Δt (ms)",
-            ],
-            &rows,
-        ));
-    }
-    Some(ReportSection {
+    let rows: Vec<Vec<String>> = c
+        .by_speed
+        .iter()
+        .map(|g| {
+            vec![
+                g.method.clone(),
+                num(Some(g.approach_mm_s), 3),
+                g.n.to_string(),
+                um(Some(g.mean_dnormal_mm)),
+                millis(g.mean_dt_s),
+            ]
+        })
+        .collect();
+    html.push_str(&table(
+        &[
+            "method",
+            "approach (mm/s)",
+            "n",
+            "mean Δnormal (µm)",
+            "mean Δt (ms)",
+        ],
+        &rows,
+    ));
+    ReportSection {
         title: "Recorded vs AE-derived touches".into(),
         html,
-    })
+    }
 }
 
 /// How the AE contacts were found: the signal kind and the parameters in
 /// force (derived or set), what they found, and any fragmentation warning.
-fn ae_detection(s: &Value) -> Option<ReportSection> {
-    let ae = s.get("ae").filter(|a| !a.is_null())?;
-    let p = &ae["params"];
-    let ms = |k: &str| {
-        p[k].as_f64()
+fn ae_detection(s: &IngestSummary) -> Option<ReportSection> {
+    let ae = s.ae.as_ref()?;
+    let p = &ae.params;
+    let ms = |x: f64| {
+        fin(x)
             .map(|x| format!("{:.3} ms", x * 1e3))
             .unwrap_or_else(|| "—".into())
     };
     let mut html = format!(
         "<p>{} AE signal ({}) at {} Hz: {} contacts, {} of them touches of the plan, {} extra, {} outside any approach; {} planned touches without one.</p>",
-        esc(p["signal"].as_str().unwrap_or("?")),
-        esc(p["signal_from"].as_str().unwrap_or("?")),
-        p["sample_rate_hz"],
-        ae["events"],
-        ae["touches"],
-        ae["extra_events"],
-        ae["unassigned_events"],
-        ae["n_missed"],
+        esc(&p.signal),
+        esc(&p.signal_from),
+        json_number(p.sample_rate_hz),
+        ae.events,
+        ae.touches,
+        ae.extra_events,
+        ae.unassigned_events,
+        ae.n_missed,
     );
     let rows: Vec<Vec<String>> = [
-        ("envelope window", "window_samples", ms("window_s")),
-        ("minimum dwell", "min_dwell_samples", ms("min_dwell_s")),
-        ("merge gap", "merge_gap_samples", ms("merge_gap_s")),
-        ("noise window", "noise_window_samples", ms("noise_window_s")),
+        ("envelope window", p.window_samples, ms(p.window_s)),
+        ("minimum dwell", p.min_dwell_samples, ms(p.min_dwell_s)),
+        ("merge gap", p.merge_gap_samples, ms(p.merge_gap_s)),
+        ("noise window", p.noise_window_samples, ms(p.noise_window_s)),
     ]
     .into_iter()
-    .map(|(name, k, secs)| vec![name.to_string(), p[k].to_string(), secs])
+    .map(|(name, n, secs)| vec![name.to_string(), n.to_string(), secs])
     .collect();
     html.push_str(&table(&["parameter", "samples", "time"], &rows));
     html.push_str(&format!(
         "<p>Threshold {} = noise median {} + {}·σ (σ = 1.4826·MAD {}); {} threshold crossings shorter than the dwell were dropped.</p>",
-        volts(&ae["threshold_v"]),
-        volts(&ae["noise_floor_v"]),
-        p["k_sigma"],
-        volts(&ae["noise_sigma_v"]),
-        ae["short_crossings"],
+        volts(ae.threshold_v),
+        volts(ae.noise_floor_v),
+        json_number(p.k_sigma),
+        volts(ae.noise_sigma_v),
+        ae.short_crossings,
     ));
-    for w in ae["warnings"].as_array().into_iter().flatten() {
-        if let Some(w) = w.as_str() {
-            html.push_str(&warning(w));
-        }
+    for w in &ae.warnings {
+        html.push_str(&warning(w));
     }
     Some(ReportSection {
         title: "AE contact detection".into(),
@@ -457,21 +443,34 @@ fn ae_detection(s: &Value) -> Option<ReportSection> {
     })
 }
 
+/// A stage's summary read through its type; a summary of another shape
+/// (a bug, or a cache from another build) is named in the log and its
+/// sections left out.
+fn read<T: serde::de::DeserializeOwned>(a: &ArtifactStore, stage: &str) -> Option<T> {
+    match a.summary_as::<T>(stage)? {
+        Ok(v) => Some(v),
+        Err(e) => {
+            tracing::warn!("robot report: {e:#}");
+            None
+        }
+    }
+}
+
 pub fn sections(_run: &Run, a: &ArtifactStore) -> Vec<ReportSection> {
     let mut out = Vec::new();
-    if let Some(s) = a.summary("repeatability") {
+    if let Some(s) = read::<RepeatabilitySummary>(a, "repeatability") {
         out.extend(repeatability(&s));
     }
-    if let Some(s) = a.summary("datum") {
+    if let Some(s) = read::<DatumSummary>(a, "datum") {
         out.extend(planes(&s, a));
         out.extend(datum(&s));
     }
-    if let Some(s) = a.summary("cycle") {
+    if let Some(s) = read::<CycleSummary>(a, "cycle") {
         out.extend(cycle(&s));
     }
-    if let Some(s) = a.summary("ingest") {
+    if let Some(s) = read::<IngestSummary>(a, "ingest") {
         out.extend(ae_detection(&s));
-        out.extend(compare(&s));
+        out.extend(s.compare.as_ref().map(compare));
     }
     out
 }
@@ -483,23 +482,25 @@ pub fn sections(_run: &Run, a: &ArtifactStore) -> Vec<ReportSection> {
 /// slow or latency-biased groups measure the probing method, not the
 /// part; the model agrees with the measurement within three of those.
 pub fn verdicts(run: &Run, a: &ArtifactStore) -> Vec<Verdict> {
-    let Some(s) = a.summary("cycle") else {
+    let Some(s) = read::<CycleSummary>(a, "cycle") else {
         return Vec::new();
     };
-    let um_of = |v: &Value| v.as_f64().map(|x| x * 1e3).unwrap_or(f64::NAN);
-    let (pred, meas) = (&s["remaining_after_mm"], &s["remaining_after_measured_mm"]);
-    if meas["spark"].is_null() && pred["spark"].is_null() {
+    let um_of = |v: Option<f64>| v.map(|x| x * 1e3).unwrap_or(f64::NAN);
+    let none = Remaining::default();
+    let (pred, meas) = match &s {
+        CycleSummary::Passes(c) => (&c.remaining_after_mm, &c.remaining_after_measured_mm),
+        CycleSummary::NoPasses(n) => (&n.remaining_after_mm, &none),
+    };
+    if meas.spark.is_none() && pred.spark.is_none() {
         return Vec::new();
     }
-    let probe_std_um = a
-        .summary("repeatability")
-        .and_then(|r| {
-            r["groups"].as_array().map(|g| {
-                g.iter()
-                    .flat_map(|g| Face::ALL.map(|f| g["faces"][f.label()]["std_mm"].as_f64()))
-                    .flatten()
-                    .fold(f64::NAN, f64::min)
-            })
+    let probe_std_um = read::<RepeatabilitySummary>(a, "repeatability")
+        .map(|r| {
+            r.groups
+                .iter()
+                .flat_map(|g| Face::ALL.map(|f| g.faces.get(f.label()).and_then(|x| x.std_mm)))
+                .flatten()
+                .fold(f64::NAN, f64::min)
         })
         .filter(|v| v.is_finite())
         .map(|v| v * 1e3);
@@ -507,12 +508,12 @@ pub fn verdicts(run: &Run, a: &ArtifactStore) -> Vec<Verdict> {
         "stock left after spark-out",
         "µm",
         "after spark-out",
-        um_of(&meas["spark"]),
+        um_of(meas.spark),
     )
-    .before("after finishing", um_of(&meas["finish"]))
+    .before("after finishing", um_of(meas.finish))
     .limit("stock_um", run.tolerance("stock_um"));
     if let Some(sd) = probe_std_um {
-        v = v.model(um_of(&pred["spark"]), 3.0 * std::f64::consts::SQRT_2 * sd);
+        v = v.model(um_of(pred.spark), 3.0 * std::f64::consts::SQRT_2 * sd);
     }
     vec![v]
 }

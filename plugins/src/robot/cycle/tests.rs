@@ -92,9 +92,11 @@ fn alpha_fit_recovers_true_alpha_and_tau_from_decay() {
     let tau = r.tau_s["20"].unwrap();
     let expect = -dt / (0.8f64 / 1.8).ln();
     assert!((tau - expect).abs() < 1e-6 * expect, "{tau} vs {expect}");
-    let s = summary(&passes, &r, Some(2.0));
-    assert_eq!(s["passes"].as_array().unwrap().len(), 8);
-    assert!(s["remaining_after_mm"]["spark"].is_number());
+    let CycleSummary::Passes(s) = summary(&passes, &r, Some(2.0)) else {
+        panic!("a run with passes has the full summary");
+    };
+    assert_eq!(s.passes.len(), 8);
+    assert!(s.remaining_after_mm.spark.is_some());
 }
 
 #[test]
@@ -112,13 +114,16 @@ fn standalone_reproduces_the_thesis_cycle() {
     .map(|(k, v)| (k.to_string(), v.to_string()))
     .collect();
     let v = CycleStage.run_standalone(&args).unwrap().unwrap();
-    assert!((v["alpha_first_pass"].as_f64().unwrap() - 0.5).abs() < 1e-12);
-    let passes = v["passes"].as_array().unwrap();
+    let Ok(CycleSummary::Passes(v)) = serde_json::from_value(v) else {
+        panic!("the standalone cycle writes the full summary");
+    };
+    assert!((v.alpha_first_pass - 0.5).abs() < 1e-12);
+    let passes = &v.passes;
     assert_eq!(passes.len(), 11);
-    assert_eq!(passes[0]["measured_cut_mm"].as_f64(), Some(0.2));
-    assert!(passes[1]["measured_cut_mm"].is_null());
-    assert!((passes[6]["predicted_cut_mm"].as_f64().unwrap() - 0.2999).abs() < 5e-5);
-    assert!((v["remaining_after_mm"]["rough"].as_f64().unwrap() - 0.3199).abs() < 5e-5);
+    assert_eq!(passes[0].measured_cut_mm, Some(0.2));
+    assert!(passes[1].measured_cut_mm.is_none());
+    assert!((passes[6].predicted_cut_mm - 0.2999).abs() < 5e-5);
+    assert!((v.remaining_after_mm.rough.unwrap() - 0.3199).abs() < 5e-5);
     let bad: StageArgs = [("rough".to_string(), "x".to_string())]
         .into_iter()
         .collect();

@@ -1,37 +1,40 @@
 //! What `datum` writes: summary.json's datum section (planes, datum,
 //! squareness, transition angles) and the `planes` and `datum` artifacts.
 
-use super::*;
+use std::collections::BTreeMap;
 
-pub(super) fn m3(m: &Matrix3<f64>) -> Value {
+use super::*;
+use crate::robot::summary::{
+    fin, fin_opt, AxisTriple, DatumSummary, Ellipsoid, OtherFit, PlaneSummary, RejectedTouch,
+    SquareDatum, SquarePlane, Squareness,
+};
+
+pub(super) fn m3(m: &Matrix3<f64>) -> Option<[[f64; 3]; 3]> {
     if !m.iter().all(|x| x.is_finite()) {
-        return Value::Null;
+        return None;
     }
-    json!([
+    Some([
         [m[(0, 0)], m[(0, 1)], m[(0, 2)]],
         [m[(1, 0)], m[(1, 1)], m[(1, 2)]],
-        [m[(2, 0)], m[(2, 1)], m[(2, 2)]]
+        [m[(2, 0)], m[(2, 1)], m[(2, 2)]],
     ])
 }
 
-pub(super) fn v3(v: &Vector3<f64>) -> Value {
-    if v.iter().all(|x| x.is_finite()) {
-        json!([v[0], v[1], v[2]])
-    } else {
-        Value::Null
-    }
+pub(super) fn v3(v: &Vector3<f64>) -> Option<[f64; 3]> {
+    v.iter().all(|x| x.is_finite()).then(|| [v[0], v[1], v[2]])
 }
 
-pub(super) fn sq_json(sq: &[f64; 3]) -> Value {
-    json!({"xy_yz": json_f64(sq[0]), "yz_zx": json_f64(sq[1]), "zx_xy": json_f64(sq[2])})
+/// The square roots of a covariance's diagonal (`None` where undefined).
+fn sigma3(c: &Matrix3<f64>) -> [Option<f64>; 3] {
+    [0, 1, 2].map(|i| fin(c[(i, i)].sqrt()))
 }
 
 /// Transition angles (docs/models.md §1.3: ±(atan(ΔY/Lx) + atan(ΔZ/Lx))), read as:
 /// for each face, the two other faces' repeatability σ over the spacing L of
 /// the detection points on this face (the side of its outer square of
 /// nominal points).
-pub(super) fn transition_angles(all: &[Touch], a: &DatumAnalysis) -> Value {
-    let mut m = serde_json::Map::new();
+pub(super) fn transition_angles(all: &[Touch], a: &DatumAnalysis) -> BTreeMap<String, Option<f64>> {
+    let mut m = BTreeMap::new();
     for face in Face::ALL {
         let (u, w) = face.in_plane_axes();
         let idx = &a.face_touches[face.index()];
@@ -50,61 +53,78 @@ pub(super) fn transition_angles(all: &[Touch], a: &DatumAnalysis) -> Value {
             .map(|f| a.alpha_mm[f.index()])
             .collect();
         let v = match (others[0], others[1]) {
-            (Some(p), Some(q)) if l > 0.0 => json_f64((p / l).atan() + (q / l).atan()),
-            _ => Value::Null,
+            (Some(p), Some(q)) if l > 0.0 => fin((p / l).atan() + (q / l).atan()),
+            _ => None,
         };
         m.insert(face.label().into(), v);
     }
-    Value::Object(m)
+    m
 }
 
-pub(super) fn plane_json(f: &FaceFit, use_tls: bool, all: &[Touch], idx: &[usize]) -> Value {
+pub(super) fn plane_summary(
+    f: &FaceFit,
+    use_tls: bool,
+    all: &[Touch],
+    idx: &[usize],
+) -> PlaneSummary {
     let r = if use_tls {
         &f.tls.residuals
     } else {
         &f.ols.residuals
     };
-    let rejected: Vec<Value> = f
+    let rejected: Vec<RejectedTouch> = f
         .rejected
         .iter()
         .map(|&k| {
             let t = &all[idx[k]];
-            json!({"point": t.point, "trial": t.trial, "method": t.method, "approach_mm_s": t.approach_mm_s,
-                   "distance_mm": f.tls.plane.distance(&t.p)})
+            RejectedTouch {
+                point: t.point,
+                trial: t.trial,
+                method: t.method.clone(),
+                approach_mm_s: t.approach_mm_s,
+                distance_mm: f.tls.plane.distance(&t.p),
+            }
         })
         .collect();
-    json!({
-        "ols": f.ols.b,
-        "tls_normal": [f.tls.plane.n[0], f.tls.plane.n[1], f.tls.plane.n[2]],
-        "tls_d": f.tls.plane.d,
-        "residual_rms_mm": json_f64(rms(r)),
-        "residual_max_mm": json_f64(max_abs(r)),
-        "ols_residual_rms_mm": json_f64(rms(&f.ols.residuals)),
-        "tls_residual_rms_mm": json_f64(rms(&f.tls.residuals)),
-        "n": f.kept.len() + f.rejected.len(),
-        "n_rejected": f.rejected.len(),
-        "robust_scale_mm": f.robust_scale_mm.map_or(Value::Null, json_f64),
-        "rejected": rejected,
-    })
+    PlaneSummary {
+        ols: f.ols.b.map(fin),
+        tls_normal: [0, 1, 2].map(|i| fin(f.tls.plane.n[i])),
+        tls_d: f.tls.plane.d,
+        residual_rms_mm: fin(rms(r)),
+        residual_max_mm: fin(max_abs(r)),
+        ols_residual_rms_mm: fin(rms(&f.ols.residuals)),
+        tls_residual_rms_mm: fin(rms(&f.tls.residuals)),
+        n: f.kept.len() + f.rejected.len(),
+        n_rejected: f.rejected.len(),
+        robust_scale_mm: fin_opt(f.robust_scale_mm),
+        rejected,
+    }
 }
 
-pub(super) fn datum_json(d: &DatumResult) -> Value {
+pub(super) fn other_fit(d: &DatumResult) -> OtherFit {
     let c = &d.datum.cov;
-    json!({
-        "datum_mm": v3(&d.datum.p),
-        "datum_cov_mm2": m3(c),
-        "datum_sigma_mm": [json_f64(c[(0, 0)].sqrt()), json_f64(c[(1, 1)].sqrt()), json_f64(c[(2, 2)].sqrt())],
-        "condition": d.datum.condition,
-        "squareness_rad": sq_json(&d.squareness),
-    })
+    OtherFit {
+        datum_mm: v3(&d.datum.p),
+        datum_cov_mm2: m3(c),
+        datum_sigma_mm: sigma3(c),
+        condition: d.datum.condition,
+        squareness_rad: Squareness::new(&d.squareness),
+    }
 }
 
-pub fn summary(all: &[Touch], a: &DatumAnalysis, cfg: &DatumConfig) -> Value {
-    let mut planes = serde_json::Map::new();
+/// `datum.json` of a run; `touch_method` is the method the touches were
+/// selected by.
+pub fn summary(
+    all: &[Touch],
+    a: &DatumAnalysis,
+    cfg: &DatumConfig,
+    touch_method: &str,
+) -> DatumSummary {
+    let mut planes = BTreeMap::new();
     for f in &a.fits {
         planes.insert(
             f.face.label().into(),
-            plane_json(f, cfg.use_tls(), all, &a.face_touches[f.face.index()]),
+            plane_summary(f, cfg.use_tls(), all, &a.face_touches[f.face.index()]),
         );
     }
     let b = [a.fits[0].ols.b, a.fits[1].ols.b, a.fits[2].ols.b];
@@ -113,50 +133,68 @@ pub fn summary(all: &[Touch], a: &DatumAnalysis, cfg: &DatumConfig) -> Value {
     let alpha_z = a.alpha_mm[Face::Xy.index()];
     let error_vector = match (alpha_x, alpha_y, alpha_z) {
         (Some(x), Some(y), Some(z)) => v3(&(thesis_a(b) * Vector3::new(x, y, z))),
-        _ => Value::Null,
+        _ => None,
     };
     let m = &a.main;
-    let squares: Vec<Value> = a
+    let by_square: Vec<SquareDatum> = a
         .squares
         .iter()
         .map(|(sq, fits, d)| {
-            let res: serde_json::Map<String, Value> = fits
+            let planes: BTreeMap<String, SquarePlane> = fits
                 .iter()
                 .map(|f| {
+                    let r = if cfg.use_tls() {
+                        &f.tls.residuals
+                    } else {
+                        &f.ols.residuals
+                    };
                     (
                         f.face.label().to_string(),
-                        json!({"ols": f.ols.b, "residual_rms_mm": json_f64(rms(if cfg.use_tls() { &f.tls.residuals } else { &f.ols.residuals })), "n": f.kept.len()}),
+                        SquarePlane {
+                            ols: f.ols.b.map(fin),
+                            residual_rms_mm: fin(rms(r)),
+                            n: f.kept.len(),
+                        },
                     )
                 })
                 .collect();
-            json!({
-                "square": SQUARES[*sq],
-                "planes": res,
-                "datum_mm": d.as_ref().map(|d| v3(&d.datum.p)).unwrap_or(Value::Null),
-                "datum_sigma_mm": d.as_ref().map(|d| json!([json_f64(d.datum.cov[(0,0)].sqrt()), json_f64(d.datum.cov[(1,1)].sqrt()), json_f64(d.datum.cov[(2,2)].sqrt())])).unwrap_or(Value::Null),
-            })
+            SquareDatum {
+                square: SQUARES[*sq].into(),
+                planes,
+                datum_mm: d.as_ref().and_then(|d| v3(&d.datum.p)),
+                datum_sigma_mm: d.as_ref().map(|d| sigma3(&d.datum.cov)),
+            }
         })
         .collect();
-    json!({
-        "fit": if cfg.use_tls() { "tls" } else { "ols" },
-        "planes": planes,
-        "datum_mm": v3(&m.datum.p),
-        "datum_cov_mm2": m3(&m.datum.cov),
-        "datum_sigma_mm": [json_f64(m.datum.cov[(0, 0)].sqrt()), json_f64(m.datum.cov[(1, 1)].sqrt()), json_f64(m.datum.cov[(2, 2)].sqrt())],
-        "datum_ellipsoid_mm": {
-            "confidence": cfg.confidence,
-            "semi_axes_mm": [json_f64(m.ellipsoid_mm[0]), json_f64(m.ellipsoid_mm[1]), json_f64(m.ellipsoid_mm[2])],
-            "axes": [v3(&m.ellipsoid_axes[0]), v3(&m.ellipsoid_axes[1]), v3(&m.ellipsoid_axes[2])],
+    DatumSummary {
+        fit: if cfg.use_tls() { "tls" } else { "ols" }.into(),
+        planes,
+        datum_mm: v3(&m.datum.p),
+        datum_cov_mm2: m3(&m.datum.cov),
+        datum_sigma_mm: sigma3(&m.datum.cov),
+        datum_ellipsoid_mm: Ellipsoid {
+            confidence: cfg.confidence,
+            semi_axes_mm: m.ellipsoid_mm.map(fin),
+            axes: [0, 1, 2].map(|i| v3(&m.ellipsoid_axes[i])),
         },
-        "condition": m.datum.condition,
-        "squareness_rad": sq_json(&m.squareness),
-        "error_vector_mm": error_vector,
-        "alpha_mm": {"x": alpha_x, "y": alpha_y, "z": alpha_z},
-        "transition_angles_rad": transition_angles(all, a),
-        "datum_other_fit": a.ols.as_ref().map(datum_json).unwrap_or(Value::Null),
-        "by_square": squares,
-        "latency_corrected_s": a.latency_s,
-    })
+        condition: m.datum.condition,
+        squareness_rad: Squareness::new(&m.squareness),
+        error_vector_mm: error_vector,
+        alpha_mm: AxisTriple {
+            x: fin_opt(alpha_x),
+            y: fin_opt(alpha_y),
+            z: fin_opt(alpha_z),
+        },
+        transition_angles_rad: transition_angles(all, a),
+        datum_other_fit: a.ols.as_ref().map(other_fit),
+        by_square,
+        latency_corrected_s: a
+            .latency_s
+            .iter()
+            .map(|(k, v)| (k.clone(), fin(*v)))
+            .collect(),
+        touch_method: touch_method.into(),
+    }
 }
 
 pub(super) const COV_NAMES: [(usize, usize, &str); 10] = [

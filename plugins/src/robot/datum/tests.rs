@@ -11,15 +11,14 @@ fn standalone_planes_give_their_intersection() {
     .into_iter()
     .collect();
     let v = DatumStage.run_standalone(&args).unwrap().unwrap();
-    let p: Vec<f64> = v["datum_mm"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|x| x.as_f64().unwrap())
-        .collect();
+    let v: DatumStandalone = serde_json::from_value(v).unwrap();
+    let p = v.datum_mm.unwrap();
     assert!((p[0] - 1.0).abs() < 1e-12 && (p[1] - 2.0).abs() < 1e-12 && (p[2] - 3.0).abs() < 1e-12);
-    assert_eq!(v["planes"]["xy"]["ols"][0].as_f64(), Some(3.0));
-    assert!(v["squareness_rad"]["xy_yz"].as_f64().unwrap().abs() < 1e-15);
+    assert_eq!(v.planes["xy"].ols.map(|o| o[0]), Some(3.0));
+    let GivenSquareness::Faces(sq) = &v.squareness_rad else {
+        panic!("planes facing three axes are labelled by face: {v:?}");
+    };
+    assert!(sq.xy_yz.unwrap().abs() < 1e-15);
     let bad: StageArgs = [(
         "planes".to_string(),
         "0,0,1,0;0,0.01,1,-1;1,0,0,0".to_string(),
@@ -42,12 +41,11 @@ fn datum_of_synthetic_block_within_its_uncertainty() {
     let m = err.dot(&(cov.try_inverse().unwrap() * err));
     assert!(m < 16.3, "datum error {err} vs cov {cov}");
     assert_eq!(a.squares.len(), 3);
-    let s = summary(&ts, &a, &cfg);
-    assert!(s["error_vector_mm"].is_array());
+    let s = summary(&ts, &a, &cfg, "ae");
     // E ≈ −α for near-axis-aligned planes.
-    let e0 = s["error_vector_mm"][0].as_f64().unwrap();
+    let e0 = s.error_vector_mm.unwrap()[0];
     assert!((e0 + a.alpha_mm[1].unwrap()).abs() < 1e-3);
-    assert!(s["datum_ellipsoid_mm"]["semi_axes_mm"][0].as_f64().unwrap() > 0.0);
+    assert!(s.datum_ellipsoid_mm.semi_axes_mm[0].unwrap() > 0.0);
 }
 
 #[test]

@@ -2,12 +2,13 @@
 //! and the `contacts` artifact (one row per AE event).
 
 use super::*;
+use crate::robot::summary::{CompareGroup, CompareSummary};
 
 /// Recorded vs AE-derived touches of the same plan row.
 pub(super) fn compare(
     probe: &[Touch],
     ae: &[Touch],
-) -> Option<(arrow::record_batch::RecordBatch, Value)> {
+) -> Option<(arrow::record_batch::RecordBatch, CompareSummary)> {
     let ae_by_seq: BTreeMap<i32, &Touch> = ae.iter().map(|t| (t.seq, t)).collect();
     let pairs: Vec<(&Touch, &Touch)> = probe
         .iter()
@@ -54,18 +55,18 @@ pub(super) fn compare(
     let mean = |v: &[f64]| v.iter().sum::<f64>() / n;
     // The controller registers a touch L seconds after the contact the AE
     // shows: the time difference estimates the trigger latency directly.
-    let summary = json!({
-        "n": pairs.len(),
-        "rms_dist_mm": (dist.iter().map(|x| x * x).sum::<f64>() / n).sqrt(),
-        "max_dist_mm": dist.iter().fold(0.0f64, |m, x| m.max(*x)),
-        "mean_dnormal_mm": mean(&dn),
-        "mean_dt_s": mean(&dt),
-        "by_speed": by_speed(&pairs, &dn, &dt),
-    });
+    let summary = CompareSummary {
+        n: pairs.len(),
+        rms_dist_mm: (dist.iter().map(|x| x * x).sum::<f64>() / n).sqrt(),
+        max_dist_mm: dist.iter().fold(0.0f64, |m, x| m.max(*x)),
+        mean_dnormal_mm: mean(&dn),
+        mean_dt_s: mean(&dt),
+        by_speed: by_speed(&pairs, &dn, &dt),
+    };
     Some((batch, summary))
 }
 
-pub(super) fn by_speed(pairs: &[(&Touch, &Touch)], dn: &[f64], dt: &[f64]) -> Value {
+pub(super) fn by_speed(pairs: &[(&Touch, &Touch)], dn: &[f64], dt: &[f64]) -> Vec<CompareGroup> {
     let mut g: BTreeMap<(String, u64), (f64, Vec<usize>)> = BTreeMap::new();
     for (i, (p, _)) in pairs.iter().enumerate() {
         g.entry((p.method.clone(), p.approach_mm_s.to_bits()))
@@ -73,20 +74,18 @@ pub(super) fn by_speed(pairs: &[(&Touch, &Touch)], dn: &[f64], dt: &[f64]) -> Va
             .1
             .push(i);
     }
-    Value::Array(
-        g.into_iter()
-            .map(|((m, _), (v, idx))| {
-                let n = idx.len() as f64;
-                json!({
-                    "method": m,
-                    "approach_mm_s": v,
-                    "n": idx.len(),
-                    "mean_dnormal_mm": idx.iter().map(|&i| dn[i]).sum::<f64>() / n,
-                    "mean_dt_s": idx.iter().map(|&i| dt[i]).sum::<f64>() / n,
-                })
-            })
-            .collect(),
-    )
+    g.into_iter()
+        .map(|((m, _), (v, idx))| {
+            let n = idx.len() as f64;
+            CompareGroup {
+                method: m,
+                approach_mm_s: v,
+                n: idx.len(),
+                mean_dnormal_mm: idx.iter().map(|&i| dn[i]).sum::<f64>() / n,
+                mean_dt_s: idx.iter().map(|&i| dt[i]).sum::<f64>() / n,
+            }
+        })
+        .collect()
 }
 
 pub(super) fn contacts_batch(
