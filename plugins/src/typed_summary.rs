@@ -1,0 +1,51 @@
+//! Stage summaries through their serde types: each `<stage>.json` a plugin
+//! writes has one type that writes it (`StageOutput::typed`) and reads it
+//! back (`ArtifactStore::summary_as`), so a renamed key fails to compile
+//! instead of reading as missing.
+//!
+//! serde_json writes a non-finite f64 as `null`; a summary type reads that
+//! `null` back as NaN (not an error), so a number that was NaN when written
+//! is NaN when read.
+
+use serde::de::DeserializeOwned;
+use serde::{Deserialize, Deserializer};
+use sparkout_pipeline::ArtifactStore;
+
+/// The summary of `stage` as `T`; `None` when the stage has not run, or
+/// when its summary does not have the type's shape (a summary cached by
+/// another version of sparkout), which is logged: a report then leaves out
+/// what it would have shown, as it does for a stage that has not run.
+pub(crate) fn read<T: DeserializeOwned>(a: &ArtifactStore, stage: &str) -> Option<T> {
+    match a.summary_as::<T>(stage)? {
+        Ok(t) => Some(t),
+        Err(e) => {
+            tracing::warn!("{e:#}");
+            None
+        }
+    }
+}
+
+/// `#[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]`: `null` → NaN.
+pub(crate) fn f64_or_nan<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+    Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NAN))
+}
+
+/// The round-trip test of a summary type: written through
+/// `StageOutput::typed` and read back with `ArtifactStore::summary_as`, it
+/// is the same summary (compared as the JSON each writes, so NaN, written
+/// as `null`, equals NaN). Returns the JSON for further checks.
+#[cfg(test)]
+pub(crate) fn round_trip<T>(summary: &T) -> serde_json::Value
+where
+    T: serde::Serialize + serde::de::DeserializeOwned,
+{
+    let written = sparkout_pipeline::StageOutput::typed(summary)
+        .unwrap()
+        .summary;
+    let store = sparkout_pipeline::ArtifactStore::default();
+    store.set_summary("stage", written.clone());
+    let read: T = store.summary_as("stage").unwrap().unwrap();
+    let again = serde_json::to_value(&read).unwrap();
+    assert_eq!(written, again, "a summary read back writes the same JSON");
+    written
+}
