@@ -30,6 +30,30 @@ pub(crate) fn f64_or_nan<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Erro
     Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NAN))
 }
 
+/// The same for a list of numbers: each `null` → NaN.
+pub(crate) fn vec_f64_or_nan<'de, D: Deserializer<'de>>(d: D) -> Result<Vec<f64>, D::Error> {
+    Ok(Vec::<Option<f64>>::deserialize(d)?
+        .into_iter()
+        .map(|x| x.unwrap_or(f64::NAN))
+        .collect())
+}
+
+/// The same for a fixed-length list (a vector's components).
+pub(crate) fn arr_or_nan<'de, D: Deserializer<'de>, const N: usize>(
+    d: D,
+) -> Result<[f64; N], D::Error> {
+    let v = vec_f64_or_nan(d)?;
+    let n = v.len();
+    v.try_into()
+        .map_err(|_| serde::de::Error::invalid_length(n, &format!("{N} numbers").as_str()))
+}
+
+/// A number for a report to show: `None` for NaN or ±∞ (written as
+/// `null`: not computed).
+pub(crate) fn finite(x: f64) -> Option<f64> {
+    x.is_finite().then_some(x)
+}
+
 /// The round-trip test of a summary type: written through
 /// `StageOutput::typed` and read back with `ArtifactStore::summary_as`, it
 /// is the same summary (compared as the JSON each writes, so NaN, written

@@ -28,6 +28,7 @@ pub mod identify;
 pub mod kinematics;
 pub mod observe;
 pub mod report;
+pub mod summary;
 
 /// The XFYZ mill of the volumetric verification, built into the binary.
 pub const XFYZ_MILL_TOML: &str = include_str!("../../machines/xfyz-mill.toml");
