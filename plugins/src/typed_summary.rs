@@ -38,6 +38,18 @@ pub(crate) fn vec_f64_or_nan<'de, D: Deserializer<'de>>(d: D) -> Result<Vec<f64>
         .collect())
 }
 
+/// The same for a map of numbers by name: each `null` → NaN.
+pub(crate) fn map_f64_or_nan<'de, D: Deserializer<'de>>(
+    d: D,
+) -> Result<std::collections::BTreeMap<String, f64>, D::Error> {
+    Ok(
+        std::collections::BTreeMap::<String, Option<f64>>::deserialize(d)?
+            .into_iter()
+            .map(|(k, x)| (k, x.unwrap_or(f64::NAN)))
+            .collect(),
+    )
+}
+
 /// The same for a fixed-length list (a vector's components).
 pub(crate) fn arr_or_nan<'de, D: Deserializer<'de>, const N: usize>(
     d: D,
@@ -46,6 +58,16 @@ pub(crate) fn arr_or_nan<'de, D: Deserializer<'de>, const N: usize>(
     let n = v.len();
     v.try_into()
         .map_err(|_| serde::de::Error::invalid_length(n, &format!("{N} numbers").as_str()))
+}
+
+/// `#[serde(default, skip_serializing_if = "Option::is_none",
+/// deserialize_with = "crate::typed_summary::present")]` on an
+/// `Option<Option<T>>`: a key that is absent reads as `None`, a key that
+/// is `null` as `Some(None)` (serde alone reads both as `None`).
+pub(crate) fn present<'de, D: Deserializer<'de>, T: Deserialize<'de>>(
+    d: D,
+) -> Result<Option<T>, D::Error> {
+    T::deserialize(d).map(Some)
 }
 
 /// A number for a report to show: `None` for NaN or ±∞ (written as
