@@ -382,10 +382,7 @@ impl Stage for MatricesStage {
         let pattern = grid::pattern(&t)?;
         check_travel(&g, &pattern.grid, t.path())?;
         let m = compute(&g, &pattern)?;
-        let mut artifacts = StageOutput::new(serde_json::Value::Null)
-            .with("static_matrix", m.matrix_batch(&m.stat))
-            .with("dynamic_matrix", m.matrix_batch(&m.dynamic))
-            .with("compensation_table", m.controller_batch());
+        let mut path = None;
         let mut path_rows = 0;
         let mut augmented = None;
         if let Some(mo) = ctx.run.table(&MOTION)? {
@@ -431,8 +428,7 @@ impl Stage for MatricesStage {
                         * lift_per_growth,
                 });
             }
-            artifacts = artifacts.with(
-                "compensation_path",
+            path = Some(
                 BatchBuilder::new()
                     .f64("t_s", t_out)
                     .f64("dz_mm", dz)
@@ -441,8 +437,13 @@ impl Stage for MatricesStage {
         }
         let mut summary = summary(&g, &m, path_rows);
         summary.augmented = Some(augmented);
-        let mut out = StageOutput::typed(&summary)?;
-        out.artifacts = artifacts.artifacts;
+        let mut out = StageOutput::typed(&summary)?
+            .with("static_matrix", m.matrix_batch(&m.stat))
+            .with("dynamic_matrix", m.matrix_batch(&m.dynamic))
+            .with("compensation_table", m.controller_batch());
+        if let Some(path) = path {
+            out = out.with("compensation_path", path);
+        }
         Ok(out)
     }
 }
