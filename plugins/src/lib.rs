@@ -14,6 +14,7 @@ pub mod robot;
 pub mod servo;
 #[cfg(test)]
 mod toy;
+mod typed_summary;
 
 /// Every plugin this build knows, in a fixed order.
 pub fn all_plugins() -> Vec<Arc<dyn MachinePlugin>> {

@@ -8,7 +8,8 @@
 
 use crate::gantry::tables::TOPOGRAPHY;
 use anyhow::{anyhow, Context};
-use serde_json::{json, Value};
+use serde::{Deserialize, Serialize};
+use serde_json::Value;
 use sparkout_pipeline::config_check::SectionCheck;
 use sparkout_pipeline::contracts::{BatchBuilder, Table};
 use sparkout_pipeline::{Result, Stage, StageArgs, StageContext, StageOutput, StageSpec};
@@ -43,7 +44,10 @@ fn state_points(t: &Table, state: &str) -> Result<(Vec<f64>, Vec<f64>, Vec<f64>)
 }
 
 /// Flatness of every state (artifact rows) and the JSON of the chosen one.
-pub fn analyse(t: &Table, state: Option<&str>) -> Result<(Vec<(String, Flatness)>, Value)> {
+pub fn analyse(
+    t: &Table,
+    state: Option<&str>,
+) -> Result<(Vec<(String, Flatness)>, FlatnessSummary)> {
     let states = grid::states(t)?;
     let chosen = match state {
         Some(s) => s.to_string(),
@@ -76,19 +80,66 @@ pub fn analyse(t: &Table, state: Option<&str>) -> Result<(Vec<(String, Flatness)
         .find(|(s, _)| *s == chosen)
         .expect("chosen state")
         .1;
-    let per_state: Vec<Value> = all
+    let states = all
         .iter()
-        .map(|(s, f)| json!({"state": s, "least_squares_mm": f.least_squares.width_mm, "min_zone_mm": f.min_zone.width_mm}))
+        .map(|(s, f)| StateFlatness {
+            state: s.clone(),
+            least_squares_mm: f.least_squares.width_mm,
+            min_zone_mm: f.min_zone.width_mm,
+        })
         .collect();
-    let summary = json!({
-        "state": chosen,
-        "least_squares_mm": f.least_squares.width_mm,
-        "min_zone_mm": f.min_zone.width_mm,
-        "plane": f.min_zone.plane,
-        "least_squares_plane": f.least_squares.plane,
-        "states": per_state,
-    });
+    let summary = FlatnessSummary {
+        state: chosen,
+        least_squares_mm: f.least_squares.width_mm,
+        min_zone_mm: f.min_zone.width_mm,
+        plane: f.min_zone.plane,
+        least_squares_plane: f.least_squares.plane,
+        states,
+    };
     Ok((all, summary))
+}
+
+/// `flatness.json` (and `stage flatness --topography FILE --json`).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct FlatnessSummary {
+    /// The state the figures are of.
+    pub state: String,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub least_squares_mm: f64,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub min_zone_mm: f64,
+    /// Minimum-zone plane z = a·x + b·y + c (mm).
+    #[serde(deserialize_with = "crate::typed_summary::arr_or_nan")]
+    pub plane: [f64; 3],
+    #[serde(deserialize_with = "crate::typed_summary::arr_or_nan")]
+    pub least_squares_plane: [f64; 3],
+    /// Every state of the topography.
+    pub states: Vec<StateFlatness>,
+}
+
+/// `flatness.json` `states[]`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct StateFlatness {
+    pub state: String,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub least_squares_mm: f64,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub min_zone_mm: f64,
+}
+
+/// `stage flatness --surface FILE --json`: any surface's flatness and its
+/// areal parameters.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct SurfaceFlatness {
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub least_squares_mm: f64,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub min_zone_mm: f64,
+    /// Points.
+    pub n: usize,
+    /// ISO 25178-2 heights, spikes and the evaluation area, as metrology
+    /// reports them (docs/metrology.md).
+    pub areal: Value,
 }
 
 pub struct FlatnessStage;
@@ -113,7 +164,7 @@ impl Stage for FlatnessStage {
         let t = ctx.run.require(&TOPOGRAPHY)?;
         let cfg: &FlatnessConfig = ctx.section()?;
         let (all, summary) = analyse(&t, cfg.state.as_deref())?;
-        Ok(StageOutput::new(summary).with("flatness", batch(&all)))
+        Ok(StageOutput::typed(&summary)?.with("flatness", batch(&all)))
     }
     /// `sparkout stage flatness --topography FILE [--state NAME] --json`
     /// (a topography table), or `--surface FILE [--x COL --y COL --z COL]
@@ -134,7 +185,9 @@ impl Stage for FlatnessStage {
                 }
             }
             let t = Table::read(std::path::Path::new(file), &TOPOGRAPHY)?;
-            Ok(analyse(&t, args.get("state").map(|s| s.as_str()))?.1)
+            Ok(serde_json::to_value(
+                analyse(&t, args.get("state").map(|s| s.as_str()))?.1,
+            )?)
         })())
     }
     fn console(&self, result: &Value) -> Option<String> {
@@ -177,15 +230,15 @@ fn surface_flatness(args: &StageArgs) -> Result<Value> {
     let path = std::path::Path::new(&args["surface"]);
     let p = read_surface(path, &spec)?;
     let f = flatness(&p.x_mm, &p.y_mm, &p.z_mm).with_context(|| path.display().to_string())?;
-    let mut out = json!({
-        "least_squares_mm": f.least_squares.width_mm,
-        "min_zone_mm": f.min_zone.width_mm,
-        "n": p.z_mm.len(),
-    });
-    // ISO 25178-2 heights, spikes and the evaluation area (docs/metrology.md).
-    out["areal"] = crate::metrology::areal::report_read_points(&p.x_mm, &p.y_mm, &p.z_mm)
-        .with_context(|| path.display().to_string())?;
-    Ok(out)
+    let out = SurfaceFlatness {
+        least_squares_mm: f.least_squares.width_mm,
+        min_zone_mm: f.min_zone.width_mm,
+        n: p.z_mm.len(),
+        // ISO 25178-2 heights, spikes and the evaluation area (docs/metrology.md).
+        areal: crate::metrology::areal::report_read_points(&p.x_mm, &p.y_mm, &p.z_mm)
+            .with_context(|| path.display().to_string())?,
+    };
+    Ok(serde_json::to_value(out)?)
 }
 
 fn batch(all: &[(String, Flatness)]) -> arrow::record_batch::RecordBatch {

@@ -19,7 +19,9 @@
 
 use crate::gantry::tables::TOPOGRAPHY;
 use anyhow::anyhow;
-use serde_json::json;
+use std::collections::BTreeMap;
+
+use serde::{Deserialize, Serialize};
 use sparkout_pipeline::config_check::{NoKeys, SectionCheck};
 use sparkout_pipeline::contracts::schema::MOTION;
 use sparkout_pipeline::contracts::BatchBuilder;
@@ -29,6 +31,7 @@ use super::augment::ThermalBow;
 use super::grid::{self, Grid, Surface};
 use super::machine::{Body, Gantry, PassAxis, BODIES};
 use super::moving_load;
+use super::removal::RemovalSummary;
 
 /// τ on the grid and each body's share (row-major, y rows).
 #[derive(Debug, Clone)]
@@ -224,35 +227,109 @@ fn max_abs(v: &[f64]) -> f64 {
     v.iter().map(|x| x.abs()).fold(0.0, f64::max)
 }
 
-/// The stage summary (also the run-less JSON).
-pub fn summary(g: &Gantry, m: &Matrices, path_rows: usize) -> serde_json::Value {
+/// `matrices.json` (and `stage matrices --topography FILE --json`).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct MatricesSummary {
+    pub grid: GridSummary,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub cut_force_n: f64,
+    /// Travelling moment, N·mm.
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub moment_n_mm: f64,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub path_velocity_mm_s: f64,
+    pub critical_speed_mm_s: CriticalSpeeds,
+    /// Most series terms the moving-load solution needed.
+    pub series_terms_max: usize,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub gamma_static_max_mm: f64,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub gamma_dynamic_max_mm: f64,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub dynamic_minus_static_max_mm: f64,
+    /// Largest |share| of τ per body (`stringer1`, `stringer2`, `bridge`).
+    #[serde(deserialize_with = "crate::typed_summary::map_f64_or_nan")]
+    pub static_share_max_mm: BTreeMap<String, f64>,
+    #[serde(deserialize_with = "crate::typed_summary::map_f64_or_nan")]
+    pub dynamic_share_max_mm: BTreeMap<String, f64>,
+    pub compensation_path_rows: usize,
+    /// Written by a run (`null` without a thermal bow from `run --augment`);
+    /// absent from the run-less JSON.
+    #[serde(
+        default,
+        skip_serializing_if = "Option::is_none",
+        deserialize_with = "crate::typed_summary::present"
+    )]
+    pub augmented: Option<Option<MatricesAugmented>>,
+}
+
+/// `matrices.json` `grid`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct GridSummary {
+    pub nx: usize,
+    pub ny: usize,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub dx_mm: f64,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub dy_mm: f64,
+}
+
+/// `matrices.json` `critical_speed_mm_s`, per beam.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct CriticalSpeeds {
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub stringer1: f64,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub stringer2: f64,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub bridge: f64,
+}
+
+/// `matrices.json` `augmented`: the bridge lift taken out of the path.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct MatricesAugmented {
+    pub in_physics: String,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub bridge_lift_max_mm: f64,
+}
+
+/// The stage summary (also the run-less JSON, without `augmented`).
+pub fn summary(g: &Gantry, m: &Matrices, path_rows: usize) -> MatricesSummary {
     let gs = m.gamma(&m.stat);
     let gd = m.gamma(&m.dynamic);
     let shares = |t: &Topography| {
-        let mut o = serde_json::Map::new();
-        for (name, s) in BODIES.iter().zip(&t.shares) {
-            o.insert(name.to_string(), json!(max_abs(s)));
-        }
-        o
+        BODIES
+            .iter()
+            .zip(&t.shares)
+            .map(|(name, s)| (name.to_string(), max_abs(s)))
+            .collect()
     };
-    json!({
-        "grid": {"nx": m.grid.nx(), "ny": m.grid.ny(), "dx_mm": m.grid.dx, "dy_mm": m.grid.dy},
-        "cut_force_n": m.cut_force_n,
-        "moment_n_mm": m.moment_n_mm,
-        "path_velocity_mm_s": g.path_velocity_mm_s,
-        "critical_speed_mm_s": {
-            "stringer1": g.stringer1.beam.critical_speed_mm_s(),
-            "stringer2": g.stringer2.beam.critical_speed_mm_s(),
-            "bridge": g.bridge.beam.critical_speed_mm_s(),
+    MatricesSummary {
+        grid: GridSummary {
+            nx: m.grid.nx(),
+            ny: m.grid.ny(),
+            dx_mm: m.grid.dx,
+            dy_mm: m.grid.dy,
         },
-        "series_terms_max": m.dynamic.max_terms,
-        "gamma_static_max_mm": max_abs(&gs),
-        "gamma_dynamic_max_mm": max_abs(&gd),
-        "dynamic_minus_static_max_mm": max_abs(&gd.iter().zip(&gs).map(|(a, b)| a - b).collect::<Vec<_>>()),
-        "static_share_max_mm": shares(&m.stat),
-        "dynamic_share_max_mm": shares(&m.dynamic),
-        "compensation_path_rows": path_rows,
-    })
+        cut_force_n: m.cut_force_n,
+        moment_n_mm: m.moment_n_mm,
+        path_velocity_mm_s: g.path_velocity_mm_s,
+        critical_speed_mm_s: CriticalSpeeds {
+            stringer1: g.stringer1.beam.critical_speed_mm_s(),
+            stringer2: g.stringer2.beam.critical_speed_mm_s(),
+            bridge: g.bridge.beam.critical_speed_mm_s(),
+        },
+        series_terms_max: m.dynamic.max_terms,
+        gamma_static_max_mm: max_abs(&gs),
+        gamma_dynamic_max_mm: max_abs(&gd),
+        dynamic_minus_static_max_mm: max_abs(
+            &gd.iter().zip(&gs).map(|(a, b)| a - b).collect::<Vec<_>>(),
+        ),
+        static_share_max_mm: shares(&m.stat),
+        dynamic_share_max_mm: shares(&m.dynamic),
+        compensation_path_rows: path_rows,
+        augmented: None,
+    }
 }
 
 pub struct MatricesStage;
@@ -297,7 +374,7 @@ impl Stage for MatricesStage {
             let pattern = grid::pattern(&t)?;
             check_travel(&g, &pattern.grid, t.path())?;
             let m = compute(&g, &pattern)?;
-            Ok(summary(&g, &m, 0))
+            Ok(serde_json::to_value(summary(&g, &m, 0))?)
         })())
     }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
@@ -306,12 +383,9 @@ impl Stage for MatricesStage {
         let pattern = grid::pattern(&t)?;
         check_travel(&g, &pattern.grid, t.path())?;
         let m = compute(&g, &pattern)?;
-        let mut out = StageOutput::new(serde_json::Value::Null)
-            .with("static_matrix", m.matrix_batch(&m.stat))
-            .with("dynamic_matrix", m.matrix_batch(&m.dynamic))
-            .with("compensation_table", m.controller_batch());
+        let mut path = None;
         let mut path_rows = 0;
-        let mut augmented = serde_json::Value::Null;
+        let mut augmented = None;
         if let Some(mo) = ctx.run.table(&MOTION)? {
             let (ts, xs, ys) = (mo.f64("t_s")?, mo.f64("cmd_x_mm")?, mo.f64("cmd_y_mm")?);
             let gd = m.gamma(&m.dynamic);
@@ -329,8 +403,9 @@ impl Stage for MatricesStage {
             // b(y, t) as it warms; lower the tool by it.
             let mean_removal = ctx
                 .artifacts
-                .summary("removal")
-                .and_then(|s| s["removal_mean_mm"].as_f64())
+                .summary_as::<RemovalSummary>("removal")
+                .transpose()?
+                .map(|s| s.removal_mean_mm)
                 .filter(|r| *r > 0.0);
             if let (Some(bow), Some(r)) = (ThermalBow::of(ctx), mean_removal) {
                 let mut ys_out = Vec::with_capacity(t_out.len());
@@ -348,21 +423,28 @@ impl Stage for MatricesStage {
                 for (d, gr) in dz.iter_mut().zip(&growth) {
                     *d -= gr * lift_per_growth;
                 }
-                augmented = json!({
-                    "in_physics": bow.keys(),
-                    "bridge_lift_max_mm": growth.iter().fold(0.0f64, |m, v| m.max(v.abs())) * lift_per_growth,
+                augmented = Some(MatricesAugmented {
+                    in_physics: bow.keys(),
+                    bridge_lift_max_mm: growth.iter().fold(0.0f64, |m, v| m.max(v.abs()))
+                        * lift_per_growth,
                 });
             }
-            out = out.with(
-                "compensation_path",
+            path = Some(
                 BatchBuilder::new()
                     .f64("t_s", t_out)
                     .f64("dz_mm", dz)
                     .build(),
             );
         }
-        out.summary = summary(&g, &m, path_rows);
-        out.summary["augmented"] = augmented;
+        let mut summary = summary(&g, &m, path_rows);
+        summary.augmented = Some(augmented);
+        let mut out = StageOutput::typed(&summary)?
+            .with("static_matrix", m.matrix_batch(&m.stat))
+            .with("dynamic_matrix", m.matrix_batch(&m.dynamic))
+            .with("compensation_table", m.controller_batch());
+        if let Some(path) = path {
+            out = out.with("compensation_path", path);
+        }
         Ok(out)
     }
 }

@@ -145,3 +145,156 @@ impl MachinePlugin for GantryPlugin {
         report::verdicts(run, artifacts)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::flatness::{FlatnessSummary, StateFlatness, SurfaceFlatness};
+    use super::matrices::{CriticalSpeeds, GridSummary, MatricesAugmented, MatricesSummary};
+    use super::observe::ObserveSummary;
+    use super::polish_plan::{
+        FlatnessPair, PlanFlatness, PlanLimits, PolishPlanSummary, SweepPoint,
+    };
+    use super::removal::{RemovalAugmented, RemovalSummary};
+    use crate::typed_summary::round_trip;
+
+    /// Every summary the gantry's stages write reads back as itself, NaN
+    /// (written as `null`) included; `augmented` keeps absent ≠ `null`.
+    #[test]
+    fn summaries_round_trip() {
+        let m = MatricesSummary {
+            grid: GridSummary {
+                nx: 41,
+                ny: 31,
+                dx_mm: 30.0,
+                dy_mm: 30.0,
+            },
+            cut_force_n: 208.6,
+            moment_n_mm: 3.1e4,
+            path_velocity_mm_s: 150.0,
+            critical_speed_mm_s: CriticalSpeeds {
+                stringer1: 3.7e5,
+                stringer2: 3.7e5,
+                bridge: f64::NAN,
+            },
+            series_terms_max: 12,
+            gamma_static_max_mm: 0.155,
+            gamma_dynamic_max_mm: 0.155,
+            dynamic_minus_static_max_mm: 4.2e-5,
+            static_share_max_mm: [("bridge".to_string(), f64::NAN)].into(),
+            dynamic_share_max_mm: [("stringer1".to_string(), 0.1)].into(),
+            compensation_path_rows: 0,
+            augmented: None,
+        };
+        let v = round_trip(&m);
+        assert!(
+            v.get("augmented").is_none(),
+            "the run-less JSON has no `augmented`"
+        );
+        let mut run = m.clone();
+        run.augmented = Some(None);
+        assert!(round_trip(&run)["augmented"].is_null());
+        run.augmented = Some(Some(MatricesAugmented {
+            in_physics: "thermal_bow:y_mm".into(),
+            bridge_lift_max_mm: 0.002,
+        }));
+        round_trip(&run);
+
+        let f = FlatnessSummary {
+            state: "after_grind".into(),
+            least_squares_mm: 0.064,
+            min_zone_mm: 0.062,
+            plane: [1.5e-5, f64::NAN, -0.14],
+            least_squares_plane: [1.3e-5, -5.2e-6, -0.145],
+            states: vec![StateFlatness {
+                state: "pattern".into(),
+                least_squares_mm: 0.0065,
+                min_zone_mm: f64::NAN,
+            }],
+        };
+        round_trip(&f);
+        round_trip(&SurfaceFlatness {
+            least_squares_mm: 0.01,
+            min_zone_mm: 0.009,
+            n: 100,
+            areal: serde_json::json!({"sq_mm": 0.001}),
+        });
+
+        let pair = |a: f64, b: f64| FlatnessPair {
+            least_squares_mm: a,
+            min_zone_mm: b,
+        };
+        round_trip(&PolishPlanSummary {
+            state: "after_grind".into(),
+            method: "dwell_optimisation".into(),
+            placements: 40,
+            selective_s: 120.0,
+            raster_s: 0.0,
+            raster_sweeps: 1.5,
+            ratio: f64::NAN,
+            breakeven_area_fraction: None,
+            tolerance_mm: 0.005,
+            zone_points: 444,
+            zone_area_fraction: 0.35,
+            dwell_s: 100.0,
+            travel_s: 20.0,
+            flatness: PlanFlatness {
+                before: pair(0.06, 0.059),
+                selective: pair(0.02, 0.019),
+                raster: pair(0.05, f64::NAN),
+            },
+            min_zone_ratio: 0.32,
+            verdict: "flatter".into(),
+            warning: None,
+            points_above_tolerance_after: 3,
+            max_above_plane_mm: 0.03,
+            max_above_plane_after_mm: f64::NEG_INFINITY,
+            limits: PlanLimits {
+                min_dwell_s: 0.1,
+                max_dwell_s: 30.0,
+                overhang_mm: 20.0,
+                time_weight: 0.01,
+                iterations: 400,
+            },
+            sweep: vec![
+                SweepPoint {
+                    area_fraction: 0.1,
+                    ratio: 0.2,
+                },
+                SweepPoint {
+                    area_fraction: 0.2,
+                    ratio: f64::NAN,
+                },
+            ],
+        });
+
+        let r = RemovalSummary {
+            from_state: "after_grind".into(),
+            path: "motion".into(),
+            path_samples: 10835,
+            duration_s: 216.2,
+            tool_radius_mm: 100.0,
+            pressure_pa: 389.93,
+            k_p_per_pa: 1.7e-8,
+            removal_mean_mm: 0.056,
+            removal_max_mm: 0.066,
+            removal_min_mm: f64::INFINITY,
+            augmented: None,
+        };
+        assert!(round_trip(&r).get("augmented").is_none());
+        round_trip(&RemovalSummary {
+            augmented: Some(RemovalAugmented {
+                in_physics: "thermal_bow:y_mm".into(),
+                mean_removal_mm: 0.056,
+                bridge_lift_max_mm: 0.001,
+            }),
+            ..r
+        });
+        round_trip(&ObserveSummary {
+            rows: 1271,
+            observable: "surface_z".into(),
+            state: "after_polish".into(),
+            rms_gap_mm: 0.0022,
+            max_abs_gap_mm: f64::NAN,
+        });
+    }
+}

@@ -14,7 +14,7 @@
 
 use crate::gantry::tables::TOPOGRAPHY;
 use anyhow::anyhow;
-use serde_json::json;
+use serde::{Deserialize, Serialize};
 use sparkout_pipeline::config_check::SectionCheck;
 use sparkout_pipeline::contracts::schema::MOTION;
 use sparkout_pipeline::contracts::{batch_f64, BatchBuilder};
@@ -22,7 +22,7 @@ use sparkout_pipeline::{Result, Stage, StageContext, StageOutput, StageSpec};
 
 use super::config::ObserveConfig;
 use super::grid::{self, Grid};
-use super::removal::polishing_path;
+use super::removal::{polishing_path, RemovalSummary};
 use super::tool_influence::PathSample;
 
 pub const OBSERVABLE: &str = "surface_z";
@@ -65,6 +65,19 @@ const SPEC: StageSpec = StageSpec {
     about: "paired observations surface_z (measured polished vs predicted) for the gap diagnosis (docs/formats.md)",
     config: SectionCheck::of::<ObserveConfig>(),
 };
+
+/// `observe.json`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct ObserveSummary {
+    pub rows: usize,
+    pub observable: String,
+    /// The topography state observed.
+    pub state: String,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub rms_gap_mm: f64,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub max_abs_gap_mm: f64,
+}
 
 impl Stage for ObserveStage {
     fn spec(&self) -> &'static StageSpec {
@@ -130,21 +143,23 @@ impl Stage for ObserveStage {
         // the physics (gantry/augment.rs); its final surface is this sim.
         let in_physics = ctx
             .artifacts
-            .summary("removal")
-            .and_then(|s| s["augmented"]["in_physics"].as_str().map(str::to_string));
+            .summary_as::<RemovalSummary>("removal")
+            .transpose()?
+            .and_then(|s| s.augmented)
+            .map(|a| a.in_physics);
         if let (Some(keys), Ok(aug)) = (&in_physics, batch_f64(&rem, "final_augmented_mm")) {
             batch = batch
                 .f64("sim_augmented", aug.to_vec())
                 .str("sim_augmented_effects", &vec![keys.as_str(); n]);
         }
         let batch = batch.build();
-        let summary = json!({
-            "rows": n,
-            "observable": OBSERVABLE,
-            "state": state,
-            "rms_gap_mm": rms,
-            "max_abs_gap_mm": gap.iter().map(|v| v.abs()).fold(0.0, f64::max),
-        });
-        Ok(StageOutput::new(summary).with("observations", batch))
+        let summary = ObserveSummary {
+            rows: n,
+            observable: OBSERVABLE.to_string(),
+            state: state.to_string(),
+            rms_gap_mm: rms,
+            max_abs_gap_mm: gap.iter().map(|v| v.abs()).fold(0.0, f64::max),
+        };
+        Ok(StageOutput::typed(&summary)?.with("observations", batch))
     }
 }

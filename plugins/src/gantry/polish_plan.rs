@@ -28,10 +28,9 @@
 
 use crate::gantry::tables::TOPOGRAPHY;
 use serde::{Deserialize, Serialize};
-use serde_json::{json, Value};
+use serde_json::Value;
 use sparkout_pipeline::config_check::{read_section, SectionCheck};
 use sparkout_pipeline::contracts::{BatchBuilder, Table};
-use sparkout_pipeline::json_f64;
 use sparkout_pipeline::{
     InputError, Result, Stage, StageArgs, StageContext, StageOutput, StageSpec,
 };
@@ -296,11 +295,105 @@ pub fn above_plane(s: &Surface) -> Result<Vec<f64>> {
         .collect())
 }
 
-fn flat_json(f: &Flatness) -> Value {
-    json!({
-        "least_squares_mm": f.least_squares.width_mm,
-        "min_zone_mm": f.min_zone.width_mm,
-    })
+/// `polish_plan.json` (and `stage polish_plan --json`): the plan, its
+/// predicted flatness against a raster's, and the zone-size sweep.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct PolishPlanSummary {
+    /// The topography state planned for.
+    pub state: String,
+    pub method: String,
+    /// Dwell positions.
+    pub placements: usize,
+    /// Selective polishing time (dwell + lifted travel) and a raster's of
+    /// the same removal, s.
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub selective_s: f64,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub raster_s: f64,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub raster_sweeps: f64,
+    /// selective_s / raster_s.
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub ratio: f64,
+    /// The zone's area fraction where selective stops paying off (`null`:
+    /// never within the sweep).
+    pub breakeven_area_fraction: Option<f64>,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub tolerance_mm: f64,
+    /// Points more than the tolerance above the least-squares plane.
+    pub zone_points: usize,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub zone_area_fraction: f64,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub dwell_s: f64,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub travel_s: f64,
+    pub flatness: PlanFlatness,
+    /// Minimum zone after selective / before.
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub min_zone_ratio: f64,
+    /// `flatter`, `unchanged` or `WORSE`.
+    pub verdict: String,
+    /// Set when the plan would leave the surface less flat.
+    pub warning: Option<String>,
+    pub points_above_tolerance_after: usize,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub max_above_plane_mm: f64,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub max_above_plane_after_mm: f64,
+    pub limits: PlanLimits,
+    /// Selective / raster time against the zone's area fraction.
+    pub sweep: Vec<SweepPoint>,
+}
+
+/// `polish_plan.json` `flatness`: before, and predicted after selective
+/// polishing and after a raster of the same removal.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct PlanFlatness {
+    pub before: FlatnessPair,
+    pub selective: FlatnessPair,
+    pub raster: FlatnessPair,
+}
+
+/// Least-squares and minimum-zone flatness, mm.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct FlatnessPair {
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub least_squares_mm: f64,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub min_zone_mm: f64,
+}
+
+impl FlatnessPair {
+    fn of(f: &Flatness) -> FlatnessPair {
+        FlatnessPair {
+            least_squares_mm: f.least_squares.width_mm,
+            min_zone_mm: f.min_zone.width_mm,
+        }
+    }
+}
+
+/// `polish_plan.json` `limits`: the planner's.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct PlanLimits {
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub min_dwell_s: f64,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub max_dwell_s: f64,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub overhang_mm: f64,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub time_weight: f64,
+    pub iterations: usize,
+}
+
+/// A point of `polish_plan.json` `sweep`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct SweepPoint {
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub area_fraction: f64,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub ratio: f64,
 }
 
 /// The whole analysis: plan, verification, sweep, JSON and the artifacts.
@@ -309,7 +402,7 @@ pub fn analyse(
     s: &Surface,
     cfg: PlanConfig,
 ) -> Result<(
-    Value,
+    PolishPlanSummary,
     arrow::record_batch::RecordBatch,
     arrow::record_batch::RecordBatch,
 )> {
@@ -378,40 +471,49 @@ pub fn analyse(
     } else {
         f64::NAN
     };
-    let summary = json!({
-        "state": s.state,
-        "method": "dwell_optimisation",
-        "placements": plan.placements.len(),
-        "selective_s": plan.selective_s,
-        "raster_s": plan.raster_s,
-        "raster_sweeps": plan.raster_sweeps,
-        "ratio": json_f64(ratio),
-        "breakeven_area_fraction": breakeven,
-        "tolerance_mm": cfg.tolerance_mm,
-        "zone_points": zone_points,
-        "zone_area_fraction": zone_points as f64 / n as f64,
-        "dwell_s": plan.dwell_total_s,
-        "travel_s": plan.travel_s,
-        "flatness": {
-            "before": flat_json(&before),
-            "selective": flat_json(&sel),
-            "raster": flat_json(&ras),
+    let summary = PolishPlanSummary {
+        state: s.state.clone(),
+        method: "dwell_optimisation".into(),
+        placements: plan.placements.len(),
+        selective_s: plan.selective_s,
+        raster_s: plan.raster_s,
+        raster_sweeps: plan.raster_sweeps,
+        ratio,
+        breakeven_area_fraction: breakeven,
+        tolerance_mm: cfg.tolerance_mm,
+        zone_points,
+        zone_area_fraction: zone_points as f64 / n as f64,
+        dwell_s: plan.dwell_total_s,
+        travel_s: plan.travel_s,
+        flatness: PlanFlatness {
+            before: FlatnessPair::of(&before),
+            selective: FlatnessPair::of(&sel),
+            raster: FlatnessPair::of(&ras),
         },
-        "min_zone_ratio": json_f64(mz1 / mz0),
-        "verdict": verdict,
-        "warning": warning,
-        "points_above_tolerance_after": still_out,
-        "max_above_plane_mm": dz.iter().cloned().fold(f64::NEG_INFINITY, f64::max),
-        "max_above_plane_after_mm": after_about_plane.iter().cloned().fold(f64::NEG_INFINITY, f64::max),
-        "limits": {
-            "min_dwell_s": planner.limits.min_dwell_s,
-            "max_dwell_s": planner.limits.max_dwell_s,
-            "overhang_mm": planner.limits.overhang_nodes as f64 * s.grid.dx.max(s.grid.dy),
-            "time_weight": cfg.time_weight,
-            "iterations": cfg.iterations,
+        min_zone_ratio: mz1 / mz0,
+        verdict: verdict.into(),
+        warning,
+        points_above_tolerance_after: still_out,
+        max_above_plane_mm: dz.iter().cloned().fold(f64::NEG_INFINITY, f64::max),
+        max_above_plane_after_mm: after_about_plane
+            .iter()
+            .cloned()
+            .fold(f64::NEG_INFINITY, f64::max),
+        limits: PlanLimits {
+            min_dwell_s: planner.limits.min_dwell_s,
+            max_dwell_s: planner.limits.max_dwell_s,
+            overhang_mm: planner.limits.overhang_nodes as f64 * s.grid.dx.max(s.grid.dy),
+            time_weight: cfg.time_weight,
+            iterations: cfg.iterations,
         },
-        "sweep": sweep.iter().map(|(f, r)| json!({"area_fraction": f, "ratio": r})).collect::<Vec<_>>(),
-    });
+        sweep: sweep
+            .iter()
+            .map(|&(area_fraction, ratio)| SweepPoint {
+                area_fraction,
+                ratio,
+            })
+            .collect(),
+    };
     let p = &plan.placements;
     let batch = BatchBuilder::new()
         .i32("placement", (0..p.len() as i32).collect())
@@ -460,7 +562,7 @@ impl Stage for PolishPlanStage {
         let cfg: &PlanConfig = ctx.section()?;
         let s = load(&t, &cfg.state, &g)?;
         let (summary, batch, surface) = analyse(&g, &s, cfg.clone())?;
-        Ok(StageOutput::new(summary)
+        Ok(StageOutput::typed(&summary)?
             .with("polish_plan", batch)
             .with("polish_surface", surface))
     }
@@ -488,7 +590,7 @@ impl Stage for PolishPlanStage {
             let g = Gantry::read(&m, &toml::Table::new(), std::path::PathBuf::from(file))?;
             let t = Table::read(std::path::Path::new(file), &TOPOGRAPHY)?;
             let s = load(&t, &cfg.state, &g)?;
-            Ok(analyse(&g, &s, cfg)?.0)
+            Ok(serde_json::to_value(analyse(&g, &s, cfg)?.0)?)
         })())
     }
 }

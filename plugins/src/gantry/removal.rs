@@ -5,7 +5,7 @@
 
 use crate::gantry::tables::TOPOGRAPHY;
 use anyhow::Context;
-use serde_json::json;
+use serde::{Deserialize, Serialize};
 use sparkout_pipeline::config_check::SectionCheck;
 use sparkout_pipeline::contracts::schema::MOTION;
 use sparkout_pipeline::contracts::BatchBuilder;
@@ -128,7 +128,7 @@ fn with_thermal_bow(
     g: &Gantry,
     bow: &ThermalBow,
     node_y_mm: &[f64],
-) -> Result<(Vec<f64>, serde_json::Value)> {
+) -> Result<(Vec<f64>, RemovalAugmented)> {
     let mean_removal = r.removal_mm.iter().sum::<f64>() / r.removal_mm.len().max(1) as f64;
     let (py, pt): (Vec<f64>, Vec<f64>) = r.path.iter().map(|p| (p.y_mm, p.t_s)).unzip();
     let evaluated =
@@ -150,8 +150,50 @@ fn with_thermal_bow(
         growth.iter().fold(0.0f64, |m, v| m.max(v.abs())) * scale * g.polish.spring_compression_mm;
     Ok((
         fin,
-        json!({"in_physics": bow.keys(), "mean_removal_mm": mean_removal, "bridge_lift_max_mm": lift_max}),
+        RemovalAugmented {
+            in_physics: bow.keys(),
+            mean_removal_mm: mean_removal,
+            bridge_lift_max_mm: lift_max,
+        },
     ))
+}
+
+/// `removal.json`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct RemovalSummary {
+    /// The topography state the removal starts from.
+    pub from_state: String,
+    /// Where the polishing path came from (`motion`, `raster`).
+    pub path: String,
+    pub path_samples: usize,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub duration_s: f64,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub tool_radius_mm: f64,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub pressure_pa: f64,
+    /// Preston coefficient.
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub k_p_per_pa: f64,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub removal_mean_mm: f64,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub removal_max_mm: f64,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub removal_min_mm: f64,
+    /// Only under `run --augment` with a thermal bow.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub augmented: Option<RemovalAugmented>,
+}
+
+/// `removal.json` `augmented`: the thermal bow the removal re-simulated.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct RemovalAugmented {
+    pub in_physics: String,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub mean_removal_mm: f64,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub bridge_lift_max_mm: f64,
 }
 
 pub struct RemovalStage;
@@ -185,18 +227,19 @@ impl Stage for RemovalStage {
         let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
         let duration = r.path.last().map(|p| p.t_s).unwrap_or(0.0)
             - r.path.first().map(|p| p.t_s).unwrap_or(0.0);
-        let summary = json!({
-            "from_state": from,
-            "path": r.path_source,
-            "path_samples": r.path.len(),
-            "duration_s": duration,
-            "tool_radius_mm": g.polish.radius_mm,
-            "pressure_pa": g.polish.pressure_pa,
-            "k_p_per_pa": g.polish.k_p_per_pa,
-            "removal_mean_mm": mean(&r.removal_mm),
-            "removal_max_mm": r.removal_mm.iter().cloned().fold(0.0, f64::max),
-            "removal_min_mm": r.removal_mm.iter().cloned().fold(f64::INFINITY, f64::min),
-        });
+        let mut summary = RemovalSummary {
+            from_state: from.to_string(),
+            path: r.path_source.to_string(),
+            path_samples: r.path.len(),
+            duration_s: duration,
+            tool_radius_mm: g.polish.radius_mm,
+            pressure_pa: g.polish.pressure_pa,
+            k_p_per_pa: g.polish.k_p_per_pa,
+            removal_mean_mm: mean(&r.removal_mm),
+            removal_max_mm: r.removal_mm.iter().cloned().fold(0.0, f64::max),
+            removal_min_mm: r.removal_mm.iter().cloned().fold(f64::INFINITY, f64::min),
+            augmented: None,
+        };
         let mut batch = BatchBuilder::new()
             .f64("x_mm", xs)
             .f64("y_mm", ys.clone())
@@ -204,12 +247,11 @@ impl Stage for RemovalStage {
             .f64("dwell_s", r.dwell_s.clone())
             .f64("removal_mm", r.removal_mm.clone())
             .f64("final_mm", r.final_mm.clone());
-        let mut summary = summary;
         if let Some(bow) = ThermalBow::of(ctx) {
             let (fin, info) = with_thermal_bow(&r, &g, &bow, &ys)?;
             batch = batch.f64("final_augmented_mm", fin);
-            summary["augmented"] = info;
+            summary.augmented = Some(info);
         }
-        Ok(StageOutput::new(summary).with("removal", batch.build()))
+        Ok(StageOutput::typed(&summary)?.with("removal", batch.build()))
     }
 }

@@ -3,7 +3,6 @@
 //! plan (dwell map, predicted flatness, loud warning when it would make the
 //! surface worse); selective against raster time.
 
-use serde_json::Value;
 use sparkout_pipeline::contracts::{batch_f64, batch_str};
 use sparkout_pipeline::report::svg::{
     bar_chart, heat, heatmap, shared_vmax, xy_chart, Heat, Mark, Series,
@@ -12,6 +11,9 @@ use sparkout_pipeline::report::{esc, fmt_um, table, warning, Verdict};
 use sparkout_pipeline::{ArtifactStore, ReportSection, Run};
 
 use super::machine::BODIES;
+use super::matrices::MatricesSummary;
+use super::polish_plan::PolishPlanSummary;
+use crate::typed_summary::{finite, read};
 
 fn um(v: f64) -> String {
     fmt_um(Some(v), 1)
@@ -26,28 +28,31 @@ fn cells(b: &arrow::record_batch::RecordBatch, col: &str) -> Option<Vec<(f64, f6
     Some((0..x.len()).map(|k| (x[k], y[k], v[k] * 1e3)).collect())
 }
 
-fn matrices(a: &ArtifactStore, s: Option<&Value>) -> Option<ReportSection> {
+fn matrices(a: &ArtifactStore, s: Option<&MatricesSummary>) -> Option<ReportSection> {
     let st = a.get("static_matrix").ok()??;
     let dy = a.get("dynamic_matrix").ok()??;
     let mut html = String::new();
     if let Some(s) = s {
         html.push_str(&format!(
             "<p>Cutting force (Qin) {:.1} N, travelling moment {:.0} N·mm, path velocity {:.0} mm/s; max |Γ_static| {} µm, max |Γ_dynamic| {} µm, dynamic − static up to {} µm ({} series terms at most).</p>",
-            s["cut_force_n"].as_f64().unwrap_or(f64::NAN),
-            s["moment_n_mm"].as_f64().unwrap_or(f64::NAN),
-            s["path_velocity_mm_s"].as_f64().unwrap_or(f64::NAN),
-            um(s["gamma_static_max_mm"].as_f64().unwrap_or(f64::NAN)),
-            um(s["gamma_dynamic_max_mm"].as_f64().unwrap_or(f64::NAN)),
-            um(s["dynamic_minus_static_max_mm"].as_f64().unwrap_or(f64::NAN)),
-            s["series_terms_max"],
+            s.cut_force_n,
+            s.moment_n_mm,
+            s.path_velocity_mm_s,
+            um(s.gamma_static_max_mm),
+            um(s.gamma_dynamic_max_mm),
+            um(s.dynamic_minus_static_max_mm),
+            s.series_terms_max,
         ));
+        let share = |m: &std::collections::BTreeMap<String, f64>, b: &str| {
+            um(m.get(b).copied().unwrap_or(f64::NAN))
+        };
         let rows: Vec<Vec<String>> = BODIES
             .iter()
             .map(|b| {
                 vec![
                     b.to_string(),
-                    um(s["static_share_max_mm"][b].as_f64().unwrap_or(f64::NAN)),
-                    um(s["dynamic_share_max_mm"][b].as_f64().unwrap_or(f64::NAN)),
+                    share(&s.static_share_max_mm, b),
+                    share(&s.dynamic_share_max_mm, b),
                 ]
             })
             .collect();
@@ -105,7 +110,7 @@ fn flatness(a: &ArtifactStore) -> Option<ReportSection> {
     })
 }
 
-fn polish(a: &ArtifactStore, s: Option<&Value>) -> Option<ReportSection> {
+fn polish(a: &ArtifactStore, s: Option<&PolishPlanSummary>) -> Option<ReportSection> {
     let p = a.get("polish_plan").ok()??;
     let s = s?;
     let (x, y, d) = (
@@ -113,15 +118,17 @@ fn polish(a: &ArtifactStore, s: Option<&Value>) -> Option<ReportSection> {
         batch_f64(&p, "y_mm").ok()?,
         batch_f64(&p, "dwell_s").ok()?,
     );
-    let fl = |state: &str, key: &str| um(s["flatness"][state][key].as_f64().unwrap_or(f64::NAN));
+    let fl = &s.flatness;
     let mut html = String::new();
-    if let Some(w) = s["warning"].as_str() {
+    if let Some(w) = &s.warning {
         html.push_str(&warning(w));
     }
     // The plan's purpose is a flatter surface: say so loudly when its own
     // prediction is not (minimum zone, the flatness the drawing states).
-    let mz = |state: &str| s["flatness"][state]["min_zone_mm"].as_f64();
-    if let (Some(before), Some(after)) = (mz("before"), mz("selective")) {
+    if let (Some(before), Some(after)) = (
+        finite(fl.before.min_zone_mm),
+        finite(fl.selective.min_zone_mm),
+    ) {
         if after > before {
             html.push_str(&warning(&format!(
                 "this polishing plan makes the surface less flat: minimum zone {} → {} µm predicted. Do not run it; check the tool influence and removal calibration.",
@@ -132,36 +139,36 @@ fn polish(a: &ArtifactStore, s: Option<&Value>) -> Option<ReportSection> {
     }
     html.push_str(&format!(
         "<p>Dwell-time optimisation (verdict: <b>{}</b>): {} dwell positions, {:.1} s dwell + {:.1} s lifted travel = <b>{:.1} s</b>, against <b>{:.1} s</b> for a raster of the same removal ({:.2} sweeps; ratio {:.2}). {} points ({:.1} % of the area) stood more than {} µm above the least-squares plane. Selective polishing stops paying off at a zone of {} of the area (by sweeping the zone).</p>",
-        esc(s["verdict"].as_str().unwrap_or("—")),
-        s["placements"],
-        s["dwell_s"].as_f64().unwrap_or(f64::NAN),
-        s["travel_s"].as_f64().unwrap_or(f64::NAN),
-        s["selective_s"].as_f64().unwrap_or(f64::NAN),
-        s["raster_s"].as_f64().unwrap_or(f64::NAN),
-        s["raster_sweeps"].as_f64().unwrap_or(f64::NAN),
-        s["ratio"].as_f64().unwrap_or(f64::NAN),
-        s["zone_points"],
-        100.0 * s["zone_area_fraction"].as_f64().unwrap_or(f64::NAN),
-        um(s["tolerance_mm"].as_f64().unwrap_or(f64::NAN)),
-        s["breakeven_area_fraction"].as_f64().map(|v| format!("{:.0} %", 100.0 * v)).unwrap_or_else(|| "— (never within the sweep)".into()),
+        esc(&s.verdict),
+        s.placements,
+        s.dwell_s,
+        s.travel_s,
+        s.selective_s,
+        s.raster_s,
+        s.raster_sweeps,
+        s.ratio,
+        s.zone_points,
+        100.0 * s.zone_area_fraction,
+        um(s.tolerance_mm),
+        s.breakeven_area_fraction.and_then(finite).map(|v| format!("{:.0} %", 100.0 * v)).unwrap_or_else(|| "— (never within the sweep)".into()),
     ));
     html.push_str(&table(
         &["surface", "least squares (µm)", "minimum zone (µm)"],
         &[
             vec![
                 "after grinding (plan input)".into(),
-                fl("before", "least_squares_mm"),
-                fl("before", "min_zone_mm"),
+                um(fl.before.least_squares_mm),
+                um(fl.before.min_zone_mm),
             ],
             vec![
                 "after selective polishing (predicted)".into(),
-                fl("selective", "least_squares_mm"),
-                fl("selective", "min_zone_mm"),
+                um(fl.selective.least_squares_mm),
+                um(fl.selective.min_zone_mm),
             ],
             vec![
                 "after raster of the same removal (predicted)".into(),
-                fl("raster", "least_squares_mm"),
-                fl("raster", "min_zone_mm"),
+                um(fl.raster.least_squares_mm),
+                um(fl.raster.min_zone_mm),
             ],
         ],
     ));
@@ -197,23 +204,16 @@ fn polish(a: &ArtifactStore, s: Option<&Value>) -> Option<ReportSection> {
         "Selective vs raster polishing time",
         "s",
         &[
-            ("selective".into(), s["selective_s"].as_f64().unwrap_or(0.0)),
-            ("raster".into(), s["raster_s"].as_f64().unwrap_or(0.0)),
+            ("selective".into(), finite(s.selective_s).unwrap_or(0.0)),
+            ("raster".into(), finite(s.raster_s).unwrap_or(0.0)),
         ],
     ));
-    let sweep: Vec<(f64, f64)> = s["sweep"]
-        .as_array()
-        .map(|a| {
-            a.iter()
-                .filter_map(|p| {
-                    Some((
-                        100.0 * p["area_fraction"].as_f64()?,
-                        100.0 * p["ratio"].as_f64()?,
-                    ))
-                })
-                .collect()
-        })
-        .unwrap_or_default();
+    // A point that could not be computed (`null`) is not drawn.
+    let sweep: Vec<(f64, f64)> = s
+        .sweep
+        .iter()
+        .filter_map(|p| Some((100.0 * finite(p.area_fraction)?, 100.0 * finite(p.ratio)?)))
+        .collect();
     // Both axes in percent: a fraction and a ratio read with a unit.
     let one: Vec<(f64, f64)> = vec![(0.0, 100.0), (100.0, 100.0)];
     html.push_str(&xy_chart(
@@ -240,11 +240,10 @@ fn polish(a: &ArtifactStore, s: Option<&Value>) -> Option<ReportSection> {
 }
 
 pub fn sections(_run: &Run, a: &ArtifactStore) -> Vec<ReportSection> {
-    let summaries = a.summaries();
     [
-        matrices(a, summaries.get("matrices")),
+        matrices(a, read::<MatricesSummary>(a, "matrices").as_ref()),
         flatness(a),
-        polish(a, summaries.get("polish_plan")),
+        polish(a, read::<PolishPlanSummary>(a, "polish_plan").as_ref()),
     ]
     .into_iter()
     .flatten()

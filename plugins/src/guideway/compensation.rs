@@ -29,9 +29,9 @@
 //! increasing this is the shape CAN replay reads (t_s + dz_mm).
 
 use crate::guideway::tables::GUIDEWAY;
-use anyhow::{anyhow, Context};
+use anyhow::anyhow;
 use nalgebra::{DMatrix, DVector};
-use serde_json::{json, Value};
+use serde::{Deserialize, Serialize};
 use sparkout_pipeline::config_check::SectionCheck;
 use sparkout_pipeline::contracts::BatchBuilder;
 use sparkout_pipeline::{InputError, Result, Stage, StageContext, StageOutput, StageSpec};
@@ -39,6 +39,7 @@ use sparkout_pipeline::{InputError, Result, Stage, StageContext, StageOutput, St
 use super::ar_fpe;
 use super::augment::ThermalGrowth;
 use super::config::{machine_f64, AutoOff, CompensationConfig};
+use super::predictor::PredictorSummary;
 use super::separate::SepData;
 
 /// The fitted thermal and reversal terms.
@@ -70,33 +71,94 @@ impl ThermalReversal {
     pub fn reversal(&self, dir: f64) -> f64 {
         self.c_mm.unwrap_or(0.0) / 2.0 * dir
     }
-    pub fn to_json(&self) -> Value {
-        json!({
-            "thermal_k_mm_per_infeed": self.k_mm_per_infeed,
-            "thermal_k_sigma_mm_per_infeed": self.k_sigma,
-            "thermal_k_mm_per_c": self.k_mm_per_c,
-            "thermal_k_sigma_mm_per_c": self.k_c_sigma,
-            "t0_c": self.t0_c,
-            "reversal_c_mm": self.c_mm,
-            "reversal_c_sigma_mm": self.c_sigma,
-            "residual_rms_mm": self.residual_rms_mm,
-            "notes": self.notes,
-        })
+    /// As `compensation.json` `fit` holds it.
+    pub fn to_summary(&self) -> ThermalReversalFit {
+        ThermalReversalFit {
+            thermal_k_mm_per_infeed: self.k_mm_per_infeed,
+            thermal_k_sigma_mm_per_infeed: self.k_sigma,
+            thermal_k_mm_per_c: self.k_mm_per_c,
+            thermal_k_sigma_mm_per_c: self.k_c_sigma,
+            t0_c: self.t0_c,
+            reversal_c_mm: self.c_mm,
+            reversal_c_sigma_mm: self.c_sigma,
+            residual_rms_mm: self.residual_rms_mm,
+            notes: self.notes.clone(),
+        }
     }
-    pub fn from_json(v: &Value) -> ThermalReversal {
-        let f = |k: &str| v[k].as_f64();
+    /// The terms back from `compensation.json` `fit` (without its notes).
+    pub fn from_summary(f: &ThermalReversalFit) -> ThermalReversal {
         ThermalReversal {
-            k_mm_per_infeed: f("thermal_k_mm_per_infeed"),
-            k_sigma: f("thermal_k_sigma_mm_per_infeed"),
-            k_mm_per_c: f("thermal_k_mm_per_c"),
-            k_c_sigma: f("thermal_k_sigma_mm_per_c"),
-            t0_c: f("t0_c").unwrap_or(0.0),
-            c_mm: f("reversal_c_mm"),
-            c_sigma: f("reversal_c_sigma_mm"),
-            residual_rms_mm: f("residual_rms_mm").unwrap_or(f64::NAN),
+            k_mm_per_infeed: f.thermal_k_mm_per_infeed,
+            k_sigma: f.thermal_k_sigma_mm_per_infeed,
+            k_mm_per_c: f.thermal_k_mm_per_c,
+            k_c_sigma: f.thermal_k_sigma_mm_per_c,
+            t0_c: f.t0_c,
+            c_mm: f.reversal_c_mm,
+            c_sigma: f.reversal_c_sigma_mm,
+            residual_rms_mm: f.residual_rms_mm,
             notes: Vec::new(),
         }
     }
+}
+
+/// `compensation.json` `fit`: the fitted thermal and reversal terms
+/// (`null`: not fitted).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct ThermalReversalFit {
+    pub thermal_k_mm_per_infeed: Option<f64>,
+    pub thermal_k_sigma_mm_per_infeed: Option<f64>,
+    pub thermal_k_mm_per_c: Option<f64>,
+    pub thermal_k_sigma_mm_per_c: Option<f64>,
+    /// Reference temperature (`null` reads as 0 °C).
+    #[serde(deserialize_with = "zero_if_null")]
+    pub t0_c: f64,
+    pub reversal_c_mm: Option<f64>,
+    pub reversal_c_sigma_mm: Option<f64>,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub residual_rms_mm: f64,
+    pub notes: Vec<String>,
+}
+
+fn zero_if_null<'de, D: serde::Deserializer<'de>>(d: D) -> std::result::Result<f64, D::Error> {
+    Ok(Option::<f64>::deserialize(d)?.unwrap_or(0.0))
+}
+
+/// `compensation.json`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct CompensationSummary {
+    /// Predicted samples (rows of `compensation`).
+    pub rows: usize,
+    /// Differencing and AR order of the predictor used.
+    pub d: usize,
+    pub order: usize,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub infeed_mm: f64,
+    /// Headstock reversal constant C.
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub backlash_mm: f64,
+    pub fit: ThermalReversalFit,
+    /// g per mm of cumulative infeed (value × count), when the infeed is known.
+    pub thermal_k_per_mm_infeed: Option<f64>,
+    /// RMS of the offsets F − f.
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub dz_rms_mm: f64,
+    /// RMS of the predictor's one-step residual: the offset error left.
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub prediction_residual_rms_mm: f64,
+    /// The columns CAN replay reads.
+    pub replay_columns: Vec<String>,
+    /// `null` without a thermal growth from `run --augment`.
+    pub augmented: Option<CompensationAugmented>,
+}
+
+/// `compensation.json` `augmented`: the fleet's thermal growth per infeed
+/// g uses, and the run's own fit beside it.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct CompensationAugmented {
+    pub in_physics: String,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub k_mm_per_infeed: f64,
+    pub k_mm_per_infeed_run_fit: Option<f64>,
 }
 
 /// Fit κ, κ_T, C_t with s(j) free (see the module doc).
@@ -275,16 +337,17 @@ impl Stage for CompensationStage {
     }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
         let s = SepData::from_batch(ctx.artifacts.require("separation")?.as_ref())?;
-        let ps = ctx
+        let ps: PredictorSummary = ctx
             .artifacts
-            .summary("predictor")
-            .ok_or_else(|| anyhow!("the predictor stage's summary is missing"))?;
-        let d = ps["d"].as_u64().context("predictor summary: d")? as usize;
-        let coef: Vec<f64> = ps["coefficients"]
-            .as_array()
-            .context("predictor summary: coefficients")?
+            .summary_as("predictor")
+            .ok_or_else(|| anyhow!("the predictor stage's summary is missing"))??;
+        let d = ps.d;
+        // A coefficient that could not be computed (`null`) is left out.
+        let coef: Vec<f64> = ps
+            .coefficients
             .iter()
-            .filter_map(|v| v.as_f64())
+            .copied()
+            .filter(|c| c.is_finite())
             .collect();
         let cfg: &CompensationConfig = ctx.section()?;
         let mut fit = fit_thermal_reversal(
@@ -303,9 +366,13 @@ impl Stage for CompensationStage {
                     sparkout_pipeline::units::format::show_length(tg.k_mm_per_infeed),
                     tg.keys
                 ));
-                json!({"in_physics": tg.keys, "k_mm_per_infeed": tg.k_mm_per_infeed, "k_mm_per_infeed_run_fit": own})
+                Some(CompensationAugmented {
+                    in_physics: tg.keys,
+                    k_mm_per_infeed: tg.k_mm_per_infeed,
+                    k_mm_per_infeed_run_fit: own,
+                })
             }
-            None => Value::Null,
+            None => None,
         };
         let infeed = cfg.infeed_mm.unwrap_or_else(|| {
             ctx.run
@@ -332,23 +399,22 @@ impl Stage for CompensationStage {
         }
         let offset: Vec<f64> = c.big_f.iter().zip(&c.f).map(|(a, b)| a - b).collect();
         let rms = |v: &[f64]| (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt();
-        let summary = json!({
-            "rows": c.rows.len(),
-            "d": d,
-            "order": coef.len(),
-            "infeed_mm": infeed,
-            "backlash_mm": backlash,
-            "fit": fit.to_json(),
-            // g per mm of cumulative infeed (value × count), when the infeed is known.
-            "thermal_k_per_mm_infeed": fit
+        let summary = CompensationSummary {
+            rows: c.rows.len(),
+            d,
+            order: coef.len(),
+            infeed_mm: infeed,
+            backlash_mm: backlash,
+            fit: fit.to_summary(),
+            thermal_k_per_mm_infeed: fit
                 .k_mm_per_infeed
                 .filter(|_| infeed > 0.0)
                 .map(|k| k / infeed),
-            "dz_rms_mm": rms(&offset),
-            "prediction_residual_rms_mm": rms(&c.residual),
-            "replay_columns": ["t_s", "dz_mm"],
-            "augmented": augmented,
-        });
+            dz_rms_mm: rms(&offset),
+            prediction_residual_rms_mm: rms(&c.residual),
+            replay_columns: vec!["t_s".into(), "dz_mm".into()],
+            augmented,
+        };
         let pick = |v: &[f64]| c.rows.iter().map(|&i| v[i]).collect::<Vec<f64>>();
         let batch = BatchBuilder::new()
             .i64("n", c.rows.iter().map(|&i| s.n[i]).collect())
@@ -363,7 +429,7 @@ impl Stage for CompensationStage {
             .f64("F_mm", c.big_f.clone())
             .f64("dz_mm", offset)
             .build();
-        Ok(StageOutput::new(summary).with("compensation", batch))
+        Ok(StageOutput::typed(&summary)?.with("compensation", batch))
     }
 }
 

@@ -18,13 +18,13 @@
 
 use std::collections::BTreeMap;
 
-use serde_json::json;
+use serde::{Deserialize, Serialize};
 use sparkout_pipeline::config_check::SectionCheck;
 use sparkout_pipeline::contracts::BatchBuilder;
 use sparkout_pipeline::{Result, Stage, StageContext, StageOutput, StageSpec};
 
 use super::augment::ThermalGrowth;
-use super::compensation::ThermalReversal;
+use super::compensation::{CompensationSummary, ThermalReversal};
 use super::config::ObserveConfig;
 use super::separate::SepData;
 
@@ -72,6 +72,35 @@ const SPEC: StageSpec = StageSpec {
     config: SectionCheck::of::<ObserveConfig>(),
 };
 
+/// `observe.json`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct ObserveSummary {
+    pub rows: usize,
+    /// Where `sim` came from (`straightness`, `model`).
+    pub sim: String,
+    pub motion_error: ObservableGap,
+    /// Samples whose grid point no other pass saw.
+    pub skipped_no_other_pass: usize,
+    /// `null` without a thermal growth from `run --augment`.
+    pub augmented: Option<ObserveAugmented>,
+}
+
+/// `observe.json` `motion_error`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct ObservableGap {
+    pub n: usize,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub rms_gap_mm: f64,
+}
+
+/// `observe.json` `augmented`: the fleet's thermal growth in the model's g.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct ObserveAugmented {
+    pub in_physics: String,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub k_mm_per_infeed: f64,
+}
+
 impl Stage for ObserveStage {
     fn spec(&self) -> &'static StageSpec {
         &SPEC
@@ -81,8 +110,9 @@ impl Stage for ObserveStage {
         let mode = ctx.section::<ObserveConfig>()?.sim.clone();
         let model = if mode == "model" {
             ctx.artifacts
-                .summary("compensation")
-                .map(|c| ThermalReversal::from_json(&c["fit"]))
+                .summary_as::<CompensationSummary>("compensation")
+                .transpose()?
+                .map(|c| ThermalReversal::from_summary(&c.fit))
         } else {
             None
         };
@@ -119,23 +149,29 @@ impl Stage for ObserveStage {
                             .map(|&i| aug[i].map(|_| tg.keys.as_str()))
                             .collect(),
                     );
-                json!({"in_physics": tg.keys, "k_mm_per_infeed": tg.k_mm_per_infeed})
+                Some(ObserveAugmented {
+                    in_physics: tg.keys,
+                    k_mm_per_infeed: tg.k_mm_per_infeed,
+                })
             }
-            None => serde_json::Value::Null,
+            None => None,
         };
         let gap: Vec<f64> = rows
             .iter()
             .map(|&i| s.dz_mm[i] - sim[i].expect("kept"))
             .collect();
         let rms = (gap.iter().map(|g| g * g).sum::<f64>() / gap.len().max(1) as f64).sqrt();
-        let summary = json!({
-            "rows": rows.len(),
-            "sim": mode,
-            "motion_error": {"n": rows.len(), "rms_gap_mm": rms},
-            "skipped_no_other_pass": s.len() - rows.len(),
-            "augmented": augmented,
-        });
-        Ok(StageOutput::new(summary).with("observations", b.build()))
+        let summary = ObserveSummary {
+            rows: rows.len(),
+            sim: mode,
+            motion_error: ObservableGap {
+                n: rows.len(),
+                rms_gap_mm: rms,
+            },
+            skipped_no_other_pass: s.len() - rows.len(),
+            augmented,
+        };
+        Ok(StageOutput::typed(&summary)?.with("observations", b.build()))
     }
 }
 

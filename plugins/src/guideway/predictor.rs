@@ -15,10 +15,10 @@ use crate::guideway::tables::GUIDEWAY;
 use anyhow::anyhow;
 use arrow::array::{Array, Float64Array};
 use arrow::record_batch::RecordBatch;
-use serde_json::{json, Value};
+use serde::{Deserialize, Serialize};
+use serde_json::Value;
 use sparkout_pipeline::config_check::SectionCheck;
 use sparkout_pipeline::contracts::{read_parquet, BatchBuilder};
-use sparkout_pipeline::json_f64;
 use sparkout_pipeline::{
     InputError, Result, Stage, StageArgs, StageContext, StageOutput, StageSpec,
 };
@@ -125,35 +125,96 @@ pub fn predict(dz: &[f64], cfg: &PredictorConfig) -> Result<Prediction> {
     })
 }
 
-/// `--json` of the stage (method summary plus the online model and Kalman).
-pub fn summary(p: &Prediction, cfg: &PredictorConfig, n: usize) -> Value {
-    json!({
-        "d": p.d,
-        "p_max": cfg.p_max,
-        "fpe": p.search.fpe.iter().map(|v| json_f64(*v)).collect::<Vec<_>>(),
-        "bic": p.search.bic.iter().map(|v| json_f64(*v)).collect::<Vec<_>>(),
-        "hq": p.search.hq.iter().map(|v| json_f64(*v)).collect::<Vec<_>>(),
-        "criterion": p.search.criterion.as_str(),
-        "order": p.search.order,
-        "orders": Criterion::ALL
-            .iter()
-            .map(|c| (c.as_str().to_string(), json!(p.search.order_by(*c))))
-            .collect::<serde_json::Map<_, _>>(),
-        "coefficients": p.search.chosen(),
-        "sigma2_mm2": json_f64(p.search.sigma2_chosen()),
-        "rls_coefficients": p.rls_coefficients,
-        "prediction_error_var_mm2": json_f64(p.prediction_error_var_mm2),
-        "n": n,
-        "n_eff": p.search.n_eff,
-        "kalman": {
-            "q_mm2": json_f64(p.q_mm2),
-            "r_mm2": json_f64(p.r_mm2),
-            "gain_final": p.kalman_gain.iter().rev().flatten().next().copied().map_or(Value::Null, json_f64),
-            "residual_var_mm2": json_f64(p.kalman_residual_var_mm2),
+/// `predictor.json` (and `stage predictor --json`): the order search,
+/// the chosen AR model, the online model and the Kalman filter. Numbers
+/// that cannot be computed are `null` (NaN when read).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct PredictorSummary {
+    /// Times δz is differenced.
+    pub d: usize,
+    pub p_max: usize,
+    /// Per order p = 1..=p_max.
+    #[serde(deserialize_with = "crate::typed_summary::vec_f64_or_nan")]
+    pub fpe: Vec<f64>,
+    #[serde(deserialize_with = "crate::typed_summary::vec_f64_or_nan")]
+    pub bic: Vec<f64>,
+    #[serde(deserialize_with = "crate::typed_summary::vec_f64_or_nan")]
+    pub hq: Vec<f64>,
+    pub criterion: Criterion,
+    /// The order the criterion chose.
+    pub order: usize,
+    /// The order each criterion would choose.
+    pub orders: Orders,
+    /// a_1..a_p of the chosen order.
+    #[serde(deserialize_with = "crate::typed_summary::vec_f64_or_nan")]
+    pub coefficients: Vec<f64>,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub sigma2_mm2: f64,
+    /// The online (RLS) coefficients after the last sample.
+    #[serde(deserialize_with = "crate::typed_summary::vec_f64_or_nan")]
+    pub rls_coefficients: Vec<f64>,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub prediction_error_var_mm2: f64,
+    pub n: usize,
+    pub n_eff: usize,
+    pub kalman: KalmanSummary,
+    #[serde(deserialize_with = "crate::typed_summary::vec_f64_or_nan")]
+    pub forecast_dz_mm: Vec<f64>,
+    #[serde(deserialize_with = "crate::typed_summary::vec_f64_or_nan")]
+    pub forecast_sigma_mm: Vec<f64>,
+}
+
+/// `predictor.json` `orders`: the AR order by each criterion.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Orders {
+    pub fpe: usize,
+    pub bic: usize,
+    pub hq: usize,
+}
+
+/// `predictor.json` `kalman`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct KalmanSummary {
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub q_mm2: f64,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub r_mm2: f64,
+    /// The last gain (`null`: the filter never ran).
+    pub gain_final: Option<f64>,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub residual_var_mm2: f64,
+}
+
+/// The stage's summary of a prediction over `n` samples.
+pub fn summary(p: &Prediction, cfg: &PredictorConfig, n: usize) -> PredictorSummary {
+    PredictorSummary {
+        d: p.d,
+        p_max: cfg.p_max,
+        fpe: p.search.fpe.clone(),
+        bic: p.search.bic.clone(),
+        hq: p.search.hq.clone(),
+        criterion: p.search.criterion,
+        order: p.search.order,
+        orders: Orders {
+            fpe: p.search.order_by(Criterion::Fpe),
+            bic: p.search.order_by(Criterion::Bic),
+            hq: p.search.order_by(Criterion::Hq),
         },
-        "forecast_dz_mm": p.forecast.iter().map(|f| json_f64(f.0)).collect::<Vec<_>>(),
-        "forecast_sigma_mm": p.forecast.iter().map(|f| json_f64(f.1)).collect::<Vec<_>>(),
-    })
+        coefficients: p.search.chosen().to_vec(),
+        sigma2_mm2: p.search.sigma2_chosen(),
+        rls_coefficients: p.rls_coefficients.clone(),
+        prediction_error_var_mm2: p.prediction_error_var_mm2,
+        n,
+        n_eff: p.search.n_eff,
+        kalman: KalmanSummary {
+            q_mm2: p.q_mm2,
+            r_mm2: p.r_mm2,
+            gain_final: p.kalman_gain.iter().rev().flatten().next().copied(),
+            residual_var_mm2: p.kalman_residual_var_mm2,
+        },
+        forecast_dz_mm: p.forecast.iter().map(|f| f.0).collect(),
+        forecast_sigma_mm: p.forecast.iter().map(|f| f.1).collect(),
+    }
 }
 
 fn batches(s: &SepData, p: &Prediction) -> (RecordBatch, RecordBatch, RecordBatch) {
@@ -229,7 +290,7 @@ impl Stage for PredictorStage {
         }
         let p = predict(&s.dz_mm, &cfg)?;
         let (per, fpe, fc) = batches(&s, &p);
-        Ok(StageOutput::new(summary(&p, &cfg, s.len()))
+        Ok(StageOutput::typed(&summary(&p, &cfg, s.len()))?
             .with("predictor", per)
             .with("ar_fpe", fpe)
             .with("forecast", fc))
@@ -277,7 +338,7 @@ fn standalone(args: &StageArgs) -> Result<Value> {
         .into());
     }
     let p = predict(v, &cfg)?;
-    Ok(summary(&p, &cfg, v.len()))
+    Ok(serde_json::to_value(summary(&p, &cfg, v.len()))?)
 }
 
 #[cfg(test)]

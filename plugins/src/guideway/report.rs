@@ -4,7 +4,6 @@
 
 use arrow::array::{Array, Float64Array};
 use arrow::record_batch::RecordBatch;
-use serde_json::Value;
 use sparkout_pipeline::contracts::{batch_f64, batch_i32};
 use sparkout_pipeline::report::svg::{bar_chart, xy_chart, Mark, Series};
 use sparkout_pipeline::report::{esc, fmt_um, table, warn_fit_above_floor, Verdict};
@@ -13,6 +12,11 @@ use sparkout_pipeline::report::{esc, fmt_um, table, warn_fit_above_floor, Verdic
 const FIT_FLOOR_FACTOR: f64 = 5.0;
 use sparkout_pipeline::{ArtifactStore, ReportSection, Run};
 
+use super::compensation::CompensationSummary;
+use super::predictor::PredictorSummary;
+use super::separate::SeparateSummary;
+use crate::typed_summary::{finite, read};
+
 /// At most this many points per drawn series (inline SVG stays small).
 const MAX_POINTS: usize = 1500;
 
@@ -20,8 +24,14 @@ fn stride(n: usize) -> usize {
     n.div_ceil(MAX_POINTS).max(1)
 }
 
-fn um(v: &Value) -> String {
-    fmt_um(v.as_f64(), 3)
+fn um(v: Option<f64>) -> String {
+    fmt_um(v.and_then(finite), 3)
+}
+
+/// A number as JSON writes it (`30.0`, `null` for NaN), as the report
+/// has always printed these.
+fn json_number(x: f64) -> String {
+    serde_json::Value::from(x).to_string()
 }
 
 fn col(b: &RecordBatch, name: &str) -> Option<Vec<f64>> {
@@ -83,7 +93,7 @@ fn chart(title: &str, xl: &str, yl: &str, names: &[&str], data: &[Vec<(f64, f64)
     xy_chart(title, xl, yl, &series)
 }
 
-fn separation(s: &Value, b: &RecordBatch) -> Option<ReportSection> {
+fn separation(s: &SeparateSummary, b: &RecordBatch) -> Option<ReportSection> {
     let x = col(b, "x_mm")?;
     let n = n_col(b);
     let j: Vec<i32> = batch_i32(b, "j").ok()?.to_vec();
@@ -94,7 +104,7 @@ fn separation(s: &Value, b: &RecordBatch) -> Option<ReportSection> {
         col(b, "beta_sigma_rad"),
     );
     // h per workpiece point (first sample that saw it), along the workpiece.
-    let step = s["sample_step_mm"].as_f64().unwrap_or(1.0);
+    let step = finite(s.sample_step_mm).unwrap_or(1.0);
     let mut seen = std::collections::BTreeMap::new();
     for (i, jj) in j.iter().enumerate() {
         seen.entry(*jj).or_insert(i);
@@ -105,26 +115,26 @@ fn separation(s: &Value, b: &RecordBatch) -> Option<ReportSection> {
     let names = ["estimate", "+2σ", "−2σ"];
     let mut html = format!(
         "<p>Method <b>{}</b> (reference: {}), {} samples over {} passes, {} workpiece points, probe spacing {} mm = {} × ΔL{}. Reading noise σ = {} µm ({}). h RMS about its line {} µm, δz RMS {} µm.</p>",
-        esc(s["method"].as_str().unwrap_or("?")),
-        esc(s["reference"].as_str().unwrap_or("?")),
-        s["n"],
-        s["passes"],
-        s["positions"],
-        s["probe_spacing_mm"],
-        s["k"],
-        if s["resampled"].as_bool() == Some(true) { " (resampled)" } else { "" },
-        um(&s["sigma_mm"]),
-        esc(s["sigma_source"].as_str().unwrap_or("—")),
-        um(&s["h_rms_mm"]),
-        um(&s["dz_rms_mm"]),
+        esc(&s.method),
+        esc(&s.reference),
+        s.n,
+        s.passes,
+        s.positions,
+        json_number(s.probe_spacing_mm),
+        s.k,
+        if s.resampled { " (resampled)" } else { "" },
+        um(s.sigma_mm),
+        esc(s.sigma_source.as_deref().unwrap_or("—")),
+        um(Some(s.h_rms_mm)),
+        um(Some(s.dz_rms_mm)),
     );
-    if let Some(o) = s["other"].as_object() {
+    if let Some(o) = &s.other {
         html.push_str(&format!(
             "<p class=\"note\">The {} solution: h RMS {} µm, δz RMS {} µm; the two h differ by {} µm RMS beyond a line.</p>",
-            esc(o.get("method").and_then(|v| v.as_str()).unwrap_or("?")),
-            um(&o["h_rms_mm"]),
-            um(&o["dz_rms_mm"]),
-            um(&o["h_difference_rms_mm"]),
+            esc(&o.method),
+            um(Some(o.h_rms_mm)),
+            um(Some(o.dz_rms_mm)),
+            um(Some(o.h_difference_rms_mm)),
         ));
     }
     html.push_str(&chart(
@@ -155,43 +165,28 @@ fn separation(s: &Value, b: &RecordBatch) -> Option<ReportSection> {
     })
 }
 
-fn fpe(s: &Value) -> Option<ReportSection> {
-    let f = s["fpe"].as_array()?;
-    let bars: Vec<(String, f64)> = f
+fn fpe(s: &PredictorSummary) -> Option<ReportSection> {
+    let bars: Vec<(String, f64)> = s
+        .fpe
         .iter()
         .enumerate()
-        .map(|(i, v)| {
-            (
-                format!("p = {}", i + 1),
-                v.as_f64().unwrap_or(f64::NAN) * 1e6,
-            )
-        })
+        .map(|(i, v)| (format!("p = {}", i + 1), v * 1e6))
         .collect();
-    // A JSON array of coefficients as text, 4 decimals each.
-    let coefficients = |key: &str| -> Vec<String> {
-        s[key]
-            .as_array()
-            .map(|a| {
-                a.iter()
-                    .map(|v| format!("{:.4}", v.as_f64().unwrap_or(f64::NAN)))
-                    .collect()
-            })
-            .unwrap_or_default()
-    };
-    let coef = coefficients("coefficients");
-    let rls = coefficients("rls_coefficients");
+    // Coefficients as text, 4 decimals each.
+    let coefficients = |c: &[f64]| -> Vec<String> { c.iter().map(|v| format!("{v:.4}")).collect() };
+    let coef = coefficients(&s.coefficients);
+    let rls = coefficients(&s.rls_coefficients);
     let mut html = format!(
         "<p>δz differenced d = {} times; AR order by {}: <b>p = {}</b> (FPE would choose {}, BIC {}, HQ {}). Batch coefficients ({}), online RLS after the last sample ({}). One-step prediction-error variance {} µm² (source: below 1 µm).</p>",
-        s["d"],
-        s["criterion"].as_str().unwrap_or("fpe").to_uppercase(),
-        s["order"],
-        s["orders"]["fpe"],
-        s["orders"]["bic"],
-        s["orders"]["hq"],
+        s.d,
+        s.criterion.as_str().to_uppercase(),
+        s.order,
+        s.orders.fpe,
+        s.orders.bic,
+        s.orders.hq,
         esc(&coef.join(", ")),
         esc(&rls.join(", ")),
-        s["prediction_error_var_mm2"]
-            .as_f64()
+        finite(s.prediction_error_var_mm2)
             .map(|v| format!("{:.4}", v * 1e6))
             .unwrap_or_else(|| "—".into()),
     );
@@ -237,13 +232,13 @@ fn prediction(b: &RecordBatch, fc: Option<&RecordBatch>) -> Option<ReportSection
     })
 }
 
-fn compensation(s: &Value, b: &RecordBatch) -> Option<ReportSection> {
+fn compensation(s: &CompensationSummary, b: &RecordBatch) -> Option<ReportSection> {
     let n = n_col(b);
     let total = col(b, "dz_mm")?;
     let g = col(b, "g_mm")?;
     let p = col(b, "dz_pred_mm")?;
     let r = col(b, "reversal_mm")?;
-    let fit = &s["fit"];
+    let fit = &s.fit;
     let mut html = chart(
         "Compensation curve F − f and its parts",
         "sample n",
@@ -261,13 +256,13 @@ fn compensation(s: &Value, b: &RecordBatch) -> Option<ReportSection> {
             pts(&n, &r, 1e3),
         ],
     );
-    let cell = |k: &str, ks: &str, scale: f64| -> Vec<String> {
-        let v = fit[k].as_f64();
-        let e = fit[ks].as_f64();
+    let cell = |v: Option<f64>, e: Option<f64>, scale: f64| -> Vec<String> {
         vec![
-            v.map(|x| format!("{:.4}", x * scale))
+            v.and_then(finite)
+                .map(|x| format!("{:.4}", x * scale))
                 .unwrap_or_else(|| "not fitted".into()),
-            e.map(|x| format!("{:.4}", x * scale))
+            e.and_then(finite)
+                .map(|x| format!("{:.4}", x * scale))
                 .unwrap_or_else(|| "—".into()),
         ]
     };
@@ -275,18 +270,18 @@ fn compensation(s: &Value, b: &RecordBatch) -> Option<ReportSection> {
     for (label, k, ks) in [
         (
             "thermal growth per infeed (µm)",
-            "thermal_k_mm_per_infeed",
-            "thermal_k_sigma_mm_per_infeed",
+            fit.thermal_k_mm_per_infeed,
+            fit.thermal_k_sigma_mm_per_infeed,
         ),
         (
             "thermal expansion per °C (µm)",
-            "thermal_k_mm_per_c",
-            "thermal_k_sigma_mm_per_c",
+            fit.thermal_k_mm_per_c,
+            fit.thermal_k_sigma_mm_per_c,
         ),
         (
             "table reversal C (µm)",
-            "reversal_c_mm",
-            "reversal_c_sigma_mm",
+            fit.reversal_c_mm,
+            fit.reversal_c_sigma_mm,
         ),
     ] {
         let mut r = vec![label.to_string()];
@@ -296,13 +291,11 @@ fn compensation(s: &Value, b: &RecordBatch) -> Option<ReportSection> {
     html.push_str(&table(&["term", "estimate", "1σ"], &rows));
     html.push_str(&format!(
         "<p class=\"note\">Headstock reversal constant C = {} µm; infeed {} µm per pass. dz_mm (with t_s) is the offset CAN replay reads.</p>",
-        um(&s["backlash_mm"]),
-        um(&s["infeed_mm"]),
+        um(Some(s.backlash_mm)),
+        um(Some(s.infeed_mm)),
     ));
-    if let Some(notes) = fit["notes"].as_array() {
-        for nt in notes.iter().filter_map(|v| v.as_str()) {
-            html.push_str(&format!("<p class=\"note\">{}</p>", esc(nt)));
-        }
+    for nt in &fit.notes {
+        html.push_str(&format!("<p class=\"note\">{}</p>", esc(nt)));
     }
     Some(ReportSection {
         title: "Compensation curve".into(),
@@ -316,10 +309,13 @@ fn compensation(s: &Value, b: &RecordBatch) -> Option<ReportSection> {
 /// reaches its floor within [`FIT_FLOOR_FACTOR`] × the noise (the same
 /// rule as the fit warning of the compensation section).
 pub fn verdicts(run: &Run, a: &ArtifactStore) -> Vec<Verdict> {
-    let (Some(s), Ok(Some(b))) = (a.summary("compensation"), a.get("compensation")) else {
+    let (Some(s), Ok(Some(b))) = (
+        read::<CompensationSummary>(a, "compensation"),
+        a.get("compensation"),
+    ) else {
         return Vec::new();
     };
-    let after = s["prediction_residual_rms_mm"].as_f64().unwrap_or(f64::NAN) * 1e3;
+    let after = s.prediction_residual_rms_mm * 1e3;
     let before = col(&b, "dz_mm").map(|v| {
         let v: Vec<f64> = v.into_iter().filter(|x| x.is_finite()).collect();
         let m = v.iter().sum::<f64>() / v.len().max(1) as f64;
@@ -338,9 +334,8 @@ pub fn verdicts(run: &Run, a: &ArtifactStore) -> Vec<Verdict> {
     if let Some(bf) = before {
         v = v.before("uncompensated F − f", bf);
     }
-    if let Some(floor) = a
-        .summary("separate")
-        .and_then(|p| p["sigma_mm"].as_f64())
+    if let Some(floor) = read::<SeparateSummary>(a, "separate")
+        .and_then(|p| p.sigma_mm)
         .filter(|f| f.is_finite() && *f > 0.0)
     {
         let floor = floor * 1e3;
@@ -351,26 +346,28 @@ pub fn verdicts(run: &Run, a: &ArtifactStore) -> Vec<Verdict> {
 
 pub fn sections(_run: &Run, a: &ArtifactStore) -> Vec<ReportSection> {
     let mut out = Vec::new();
-    if let (Some(s), Ok(Some(b))) = (a.summary("separate"), a.get("separation")) {
+    if let (Some(s), Ok(Some(b))) = (read::<SeparateSummary>(a, "separate"), a.get("separation")) {
         out.extend(separation(&s, &b));
     }
-    if let Some(s) = a.summary("predictor") {
+    if let Some(s) = read::<PredictorSummary>(a, "predictor") {
         out.extend(fpe(&s));
     }
     if let Ok(Some(b)) = a.get("predictor") {
         let fc = a.get("forecast").ok().flatten();
         out.extend(prediction(&b, fc.as_deref()));
     }
-    if let (Some(s), Ok(Some(b))) = (a.summary("compensation"), a.get("compensation")) {
+    if let (Some(s), Ok(Some(b))) = (
+        read::<CompensationSummary>(a, "compensation"),
+        a.get("compensation"),
+    ) {
         let mut sec = compensation(&s, &b);
         // The compensation's predictor should reach the reading noise of
         // the separation (docs/models.md §3); far above it, the offsets it
         // writes carry a systematic error.
-        let floor = a
-            .summary("separate")
-            .and_then(|p| p["sigma_mm"].as_f64())
+        let floor = read::<SeparateSummary>(a, "separate")
+            .and_then(|p| p.sigma_mm)
             .unwrap_or(f64::NAN);
-        let rms = s["prediction_residual_rms_mm"].as_f64().unwrap_or(f64::NAN);
+        let rms = s.prediction_residual_rms_mm;
         if let (Some(sec), Some(w)) = (
             sec.as_mut(),
             warn_fit_above_floor("compensation predictor", rms, floor, FIT_FLOOR_FACTOR),

@@ -13,10 +13,10 @@ use crate::guideway::tables::GUIDEWAY;
 use anyhow::{anyhow, Context};
 use arrow::array::{Array, Float64Array, Int32Array, Int64Array, Int8Array};
 use arrow::record_batch::RecordBatch;
-use serde_json::{json, Value};
+use serde::{Deserialize, Serialize};
+use serde_json::Value;
 use sparkout_pipeline::config_check::{read_section, SectionCheck};
 use sparkout_pipeline::contracts::{batch_f64, batch_i32, BatchBuilder};
-use sparkout_pipeline::json_f64 as num;
 use sparkout_pipeline::{Result, Stage, StageArgs, StageContext, StageOutput, StageSpec};
 
 use super::config::{flags_to_table, machine_f64, SeparateSection};
@@ -137,47 +137,100 @@ impl SepData {
     }
 }
 
-/// The stage's JSON summary (method, n, h_rms_mm,
-/// dz_rms_mm; plus geometry, noise and the other method's figures).
-pub fn summary(r: &Readings, s: &Separation, other: Option<&Separation>) -> Value {
-    let max = |v: &Option<Vec<f64>>| {
-        v.as_ref()
-            .map(|v| num(v.iter().cloned().fold(0.0, f64::max)))
-            .unwrap_or(Value::Null)
-    };
+/// `separate.json` (and what `stage separate --json` prints): method, n,
+/// h_rms_mm, dz_rms_mm; plus geometry, noise and the other method's
+/// figures. Numbers that cannot be computed are `null` (NaN when read).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct SeparateSummary {
+    /// `lsq` or `recursion`.
+    pub method: String,
+    /// Samples.
+    pub n: usize,
+    /// RMS of h about its line, of δz, and of β.
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub h_rms_mm: f64,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub dz_rms_mm: f64,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub beta_rms_rad: f64,
+    /// Reference of h (`first_readings`: the recursion's own start values).
+    pub reference: String,
+    /// Workpiece grid points.
+    pub positions: usize,
+    pub passes: usize,
+    /// Probe spacing in sample steps.
+    pub k: usize,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub sample_step_mm: f64,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub probe_spacing_mm: f64,
+    pub resampled: bool,
+    pub t_recorded: bool,
+    /// Reading noise behind the bands (`null`: none), and where it came from.
+    pub sigma_mm: Option<f64>,
+    pub sigma_source: Option<String>,
+    /// Residual degrees of freedom of the LS solve.
+    pub dof: usize,
+    /// Largest 1σ of h and of δz (`null` without uncertainties).
+    pub h_sigma_max_mm: Option<f64>,
+    pub dz_sigma_max_mm: Option<f64>,
+    /// The other method's figures (`null` when it failed).
+    pub other: Option<OtherMethod>,
+}
+
+/// `separate.json` `other`: the other method on the same readings.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct OtherMethod {
+    pub method: String,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub h_rms_mm: f64,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub dz_rms_mm: f64,
+    /// RMS of the two h's difference beyond a line.
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub h_difference_rms_mm: f64,
+}
+
+/// The stage's summary of a separation `s` (and the other method's).
+pub fn summary(r: &Readings, s: &Separation, other: Option<&Separation>) -> SeparateSummary {
+    let max = |v: &Option<Vec<f64>>| v.as_ref().map(|v| v.iter().cloned().fold(0.0, f64::max));
     let other = other.map(|o| {
         let dh: f64 = {
             let a: Vec<f64> = s.h_mm.iter().zip(&o.h_mm).map(|(a, b)| a - b).collect();
             straightness_rms(&a)
         };
-        json!({
-            "method": o.method.as_str(),
-            "h_rms_mm": num(straightness_rms(&o.h_mm)),
-            "dz_rms_mm": num(rms(&o.dz_mm)),
-            "h_difference_rms_mm": num(dh),
-        })
+        OtherMethod {
+            method: o.method.as_str().to_string(),
+            h_rms_mm: straightness_rms(&o.h_mm),
+            dz_rms_mm: rms(&o.dz_mm),
+            h_difference_rms_mm: dh,
+        }
     });
-    json!({
-        "method": s.method.as_str(),
-        "n": r.len(),
-        "h_rms_mm": num(straightness_rms(&s.h_mm)),
-        "dz_rms_mm": num(rms(&s.dz_mm)),
-        "beta_rms_rad": num(rms(&s.beta_rad)),
-        "reference": s.reference.map(|x| x.as_str()).unwrap_or("first_readings"),
-        "positions": s.h_mm.len(),
-        "passes": r.passes(),
-        "k": r.k,
-        "sample_step_mm": r.step_mm,
-        "probe_spacing_mm": r.spacing_mm,
-        "resampled": r.resampled,
-        "t_recorded": r.t_recorded,
-        "sigma_mm": s.sigma_mm.map(num).unwrap_or(Value::Null),
-        "sigma_source": s.sigma_source,
-        "dof": s.dof,
-        "h_sigma_max_mm": max(&s.h_sigma_mm),
-        "dz_sigma_max_mm": max(&s.dz_sigma_mm),
-        "other": other.unwrap_or(Value::Null),
-    })
+    SeparateSummary {
+        method: s.method.as_str().to_string(),
+        n: r.len(),
+        h_rms_mm: straightness_rms(&s.h_mm),
+        dz_rms_mm: rms(&s.dz_mm),
+        beta_rms_rad: rms(&s.beta_rad),
+        reference: s
+            .reference
+            .map(|x| x.as_str())
+            .unwrap_or("first_readings")
+            .to_string(),
+        positions: s.h_mm.len(),
+        passes: r.passes(),
+        k: r.k,
+        sample_step_mm: r.step_mm,
+        probe_spacing_mm: r.spacing_mm,
+        resampled: r.resampled,
+        t_recorded: r.t_recorded,
+        sigma_mm: s.sigma_mm,
+        sigma_source: s.sigma_source.map(String::from),
+        dof: s.dof,
+        h_sigma_max_mm: max(&s.h_sigma_mm),
+        dz_sigma_max_mm: max(&s.dz_sigma_mm),
+        other,
+    }
 }
 
 const SPEC: StageSpec = StageSpec {
@@ -207,7 +260,7 @@ impl Stage for SeparateStage {
             Method::Recursion => Method::Lsq,
         };
         let other = three_probe::separate(&r, other_method, cfg.reference, sigma_mm).ok();
-        Ok(StageOutput::new(summary(&r, &s, other.as_ref())).with("separation", batch(&r, &s)))
+        Ok(StageOutput::typed(&summary(&r, &s, other.as_ref()))?.with("separation", batch(&r, &s)))
     }
     fn run_standalone(&self, args: &StageArgs) -> Option<Result<Value>> {
         Some(standalone(args))
@@ -252,5 +305,5 @@ fn standalone(args: &StageArgs) -> Result<Value> {
         Method::Lsq => three_probe::separate_recursion(&r).ok(),
         Method::Recursion => three_probe::separate_lsq(&r, cfg.reference, sigma_mm).ok(),
     };
-    Ok(summary(&r, &s, other.as_ref()))
+    Ok(serde_json::to_value(summary(&r, &s, other.as_ref()))?)
 }

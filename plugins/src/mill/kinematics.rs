@@ -20,7 +20,6 @@
 //! artifacts and the tracker reader share the identified model's layout;
 //! the numerics live in identify.rs and chain.rs.
 
-use sparkout_pipeline::json_opt_f64;
 use std::collections::BTreeMap;
 
 use crate::mill::tables::TRACKER;
@@ -28,7 +27,6 @@ use arrow::array::{Array, Int64Array};
 use arrow::compute::cast;
 use arrow::datatypes::DataType;
 use arrow::record_batch::RecordBatch;
-use serde_json::{json, Value};
 use sparkout_pipeline::config_check::SectionCheck;
 use sparkout_pipeline::contracts::schema::THERMAL;
 use sparkout_pipeline::contracts::{batch_f64, batch_i32, batch_str, BatchBuilder, Table};
@@ -41,6 +39,9 @@ use super::chain::{
 };
 use super::config::{KinematicsConfig, MillMachine};
 use super::identify::{function_sigma, identify, split, IdentOptions, Identified, Obs};
+use super::summary::{
+    AugmentedGrowth, Coefficient, ErrorFunction, KinematicsSummary, Squareness, TrackerFrame,
+};
 
 /// The tracker points of a run, checked.
 #[derive(Debug, Clone)]
@@ -234,7 +235,7 @@ pub struct KinematicsResult {
     pub data: TrackerData,
     pub holdout: Vec<bool>,
     pub table: CompTable,
-    pub summary: Value,
+    pub summary: KinematicsSummary,
     pub artifacts: Vec<(String, RecordBatch)>,
 }
 
@@ -360,15 +361,15 @@ fn summary(
     [fit, hold, before, after]: [Option<f64>; 4],
     (n_ident, n_hold): (usize, usize),
     path_written: bool,
-) -> Value {
+) -> KinematicsSummary {
     let model = &id.model;
     let layout = &model.layout;
-    let mut functions = serde_json::Map::new();
+    let mut functions = BTreeMap::new();
     for f in 0..N_FUNCTIONS {
         let a = function_axis(f);
         let (lo, hi) = layout.travels[a];
         let grid: Vec<f64> = (0..=20).map(|i| lo + (hi - lo) * i as f64 / 20.0).collect();
-        let coefs: serde_json::Map<String, Value> = layout
+        let coefs: BTreeMap<String, Coefficient> = layout
             .coef
             .iter()
             .enumerate()
@@ -376,7 +377,10 @@ fn summary(
             .map(|(i, (_, m))| {
                 (
                     format!("P{m}"),
-                    json!({"value": model.params[i], "sigma": id.std(i)}),
+                    Coefficient {
+                        value: model.params[i],
+                        sigma: id.std(i),
+                    },
                 )
             })
             .collect();
@@ -390,21 +394,24 @@ fn summary(
             .fold(0.0, f64::max);
         functions.insert(
             function_name(f),
-            json!({
-                "unit": super::identify::unit_of(f),
-                "fixed": coefs.is_empty(),
-                "max_abs": max_abs,
-                "max_sigma": max_sigma,
-                "coefficients": coefs,
-            }),
+            ErrorFunction {
+                unit: super::identify::unit_of(f).to_string(),
+                fixed: coefs.is_empty(),
+                max_abs,
+                max_sigma,
+                coefficients: coefs,
+            },
         );
     }
     let si = layout.sq_index();
-    let sq: serde_json::Map<String, Value> = (0..3)
+    let sq: BTreeMap<String, Squareness> = (0..3)
         .map(|k| {
             (
                 SQUARENESS[k].to_string(),
-                json!({"value_rad": model.params[si + k], "sigma_rad": id.std(si + k)}),
+                Squareness {
+                    value_rad: model.params[si + k],
+                    sigma_rad: id.std(si + k),
+                },
             )
         })
         .collect();
@@ -421,43 +428,46 @@ fn summary(
             machine.tracker_sigma_mm
         ));
     }
-    json!({
-        "warnings": warnings,
-        "params": layout.n_params(),
-        "fit_rms_mm": json_opt_f64(fit),
-        "holdout_rms_mm": json_opt_f64(hold),
-        "before_rms_mm": json_opt_f64(before),
-        "after_rms_mm": json_opt_f64(after),
-        "sigma_mm": id.sigma_mm,
-        "points": n_ident + n_hold,
-        "points_identification": n_ident,
-        "points_holdout": n_hold,
-        "holdout_fraction": machine.holdout_fraction,
-        "seed": machine.seed,
-        "degree": layout.degree,
-        "tools": machine.tools.len(),
-        "fixed": machine.fixed.iter().map(|f| function_name(*f)).collect::<Vec<_>>(),
-        "gauge": [
+    KinematicsSummary {
+        warnings,
+        params: layout.n_params(),
+        fit_rms_mm: fit,
+        holdout_rms_mm: hold,
+        before_rms_mm: before,
+        after_rms_mm: after,
+        sigma_mm: id.sigma_mm,
+        points: n_ident + n_hold,
+        points_identification: n_ident,
+        points_holdout: n_hold,
+        holdout_fraction: machine.holdout_fraction,
+        seed: machine.seed,
+        degree: layout.degree,
+        tools: machine.tools.len(),
+        fixed: machine.fixed.iter().map(|f| function_name(*f)).collect(),
+        gauge: [
             "P0 of the nine translations → tracker translation",
             "P0 of the rotations of X → tracker rotation",
             "P0 of the rotations of Y → squareness sq_xz, sq_yz and the constant rotation of Z",
-            "P1 of the six straightness functions → squareness and tracker rotation (ISO 230-1 reference line)"
-        ],
-        "dof": id.dof,
-        "rcond": id.rcond,
-        "evaluations": id.evaluations,
-        "termination": id.termination,
-        "squareness": sq,
-        "tracker": {
-            "rotation_vector_rad": [w.x, w.y, w.z],
-            "angle_rad": w.norm(),
-            "translation_mm": [t.x, t.y, t.z],
+            "P1 of the six straightness functions → squareness and tracker rotation (ISO 230-1 reference line)",
+        ]
+        .map(String::from)
+        .to_vec(),
+        dof: id.dof,
+        rcond: id.rcond,
+        evaluations: id.evaluations,
+        termination: id.termination.clone(),
+        squareness: sq,
+        tracker: TrackerFrame {
+            rotation_vector_rad: [w.x, w.y, w.z],
+            angle_rad: w.norm(),
+            translation_mm: [t.x, t.y, t.z],
         },
-        "functions": functions,
-        "table_step_mm": cfg.table_step_mm,
-        "map_grid": cfg.map_grid,
-        "compensation_path": path_written,
-    })
+        functions,
+        table_step_mm: cfg.table_step_mm,
+        map_grid: cfg.map_grid,
+        compensation_path: path_written,
+        augmented: None,
+    }
 }
 
 /// One row per identified parameter (the model observe re-reads).
@@ -647,7 +657,7 @@ impl Stage for KinematicsStage {
         let data = tracker_points(ctx.run, &machine)?;
         let r = analyse(data, &machine, cfg)?;
         let mut summary = r.summary;
-        let mut out = StageOutput::new(serde_json::Value::Null);
+        let mut artifacts = Vec::new();
         let growth = SpindleGrowth::of(ctx);
         for (name, batch) in r.artifacts {
             let batch = match (&growth, name.as_str()) {
@@ -662,14 +672,18 @@ impl Stage for KinematicsStage {
                         _ => None,
                     };
                     let (b, g_max) = without_growth(&batch, sg, temp.as_deref())?;
-                    summary["augmented"] = json!({"in_physics": sg.keys(), "growth_max_mm": g_max});
+                    summary.augmented = Some(AugmentedGrowth {
+                        in_physics: sg.keys(),
+                        growth_max_mm: g_max,
+                    });
                     b
                 }
                 _ => batch,
             };
-            out = out.with(&name, batch);
+            artifacts.push((name, batch));
         }
-        out.summary = summary;
+        let mut out = StageOutput::typed(&summary)?;
+        out.artifacts = artifacts;
         Ok(out)
     }
 }

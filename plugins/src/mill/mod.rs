@@ -28,6 +28,7 @@ pub mod identify;
 pub mod kinematics;
 pub mod observe;
 pub mod report;
+pub mod summary;
 pub mod tables;
 
 /// The XFYZ mill of the volumetric verification, built into the binary.

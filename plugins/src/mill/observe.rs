@@ -20,7 +20,6 @@
 use std::collections::BTreeMap;
 
 use crate::mill::tables::TRACKER;
-use serde_json::json;
 use sparkout_pipeline::config_check::SectionCheck;
 use sparkout_pipeline::contracts::schema::THERMAL;
 use sparkout_pipeline::contracts::{BatchBuilder, Table};
@@ -29,6 +28,7 @@ use sparkout_pipeline::{InputError, Result, Stage, StageContext, StageOutput, St
 use super::augment::SpindleGrowth;
 use super::config::{MillMachine, ObserveConfig};
 use super::kinematics::{model_from_params, tracker_points};
+use super::summary::{AugmentedGrowth, ObservableGap, ObserveCovariates, ObserveSummary};
 
 pub const OBSERVABLES: [&str; 3] = ["tracker_dx", "tracker_dy", "tracker_dz"];
 
@@ -140,7 +140,7 @@ impl Stage for ObserveStage {
             b = b.f64("temp_c", rows.iter().map(|&i| temp[i]).collect());
         }
         // `run --augment`: the spindle's growth along z (mill/augment.rs).
-        let mut augmented = serde_json::Value::Null;
+        let mut augmented = None;
         if let (Some(sg), Some(t)) = (SpindleGrowth::of(ctx), &data.t_s) {
             if let Some((g, offset)) = sg.growth_and_offset(t, temp.as_deref()) {
                 let keys = sg.keys();
@@ -158,10 +158,13 @@ impl Stage for ObserveStage {
                             .map(|r| (r >= dz).then_some(keys.as_str()))
                             .collect(),
                     );
-                augmented = json!({"in_physics": keys, "growth_max_mm": g.iter().fold(0.0f64, |m, v| m.max(v.abs()))});
+                augmented = Some(AugmentedGrowth {
+                    in_physics: keys,
+                    growth_max_mm: g.iter().fold(0.0f64, |m, v| m.max(v.abs())),
+                });
             }
         }
-        let mut per = serde_json::Map::new();
+        let mut per = BTreeMap::new();
         for (k, name) in OBSERVABLES.iter().enumerate() {
             let g = &(k * n..(k + 1) * n);
             let ms = real[g.clone()]
@@ -170,18 +173,24 @@ impl Stage for ObserveStage {
                 .map(|(r, s)| (r - s) * (r - s))
                 .sum::<f64>()
                 / n as f64;
-            per.insert(name.to_string(), json!({"n": n, "rms_gap_mm": ms.sqrt()}));
+            per.insert(
+                name.to_string(),
+                ObservableGap {
+                    n,
+                    rms_gap_mm: ms.sqrt(),
+                },
+            );
         }
-        let summary = json!({
-            "rows": rows.len(),
-            "observables": per,
-            "covariates": {
-                "t_s": data.t_s.is_some(),
-                "temp_c": temp.is_some(),
+        let summary = ObserveSummary {
+            rows: rows.len(),
+            observables: per,
+            covariates: ObserveCovariates {
+                t_s: data.t_s.is_some(),
+                temp_c: temp.is_some(),
             },
-            "augmented": augmented,
-        });
-        Ok(StageOutput::new(summary).with("observations", b.build()))
+            augmented,
+        };
+        Ok(StageOutput::typed(&summary)?.with("observations", b.build()))
     }
 }
 

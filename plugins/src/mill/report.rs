@@ -2,71 +2,70 @@
 //! tracker frame), the identified error functions, the volumetric error map
 //! before and after compensation, and the residuals (docs/models.md §5).
 
-use serde_json::Value;
 use sparkout_pipeline::contracts::{batch_f64, batch_i32};
 use sparkout_pipeline::report::svg::{heat, shared_vmax, xy_chart, Heat, Mark, Series};
 use sparkout_pipeline::report::{fmt_fixed, fmt_um, table, warning, Verdict};
 use sparkout_pipeline::{ArtifactStore, ReportSection, Run};
 
 use super::chain::{AXES, KINDS};
+use super::summary::KinematicsSummary;
+use crate::typed_summary::finite;
 
-fn um(v: &Value) -> String {
-    fmt_um(v.as_f64(), 2)
+/// A length in mm as µm; `None` (not computed) and NaN print as such.
+fn um(v: Option<f64>) -> String {
+    fmt_um(v.and_then(finite), 2)
 }
 
-fn urad(v: &Value) -> String {
-    fmt_fixed(v.as_f64().map(|x| x * 1e6), 2)
+fn urad(v: f64) -> String {
+    fmt_fixed(finite(v).map(|x| x * 1e6), 2)
 }
 
-fn identification(s: &Value) -> ReportSection {
+fn identification(s: &KinematicsSummary) -> ReportSection {
     let mut html = table(
         &["quantity", "value"],
         &[
-            vec!["parameters".into(), s["params"].to_string()],
+            vec!["parameters".into(), s.params.to_string()],
             vec![
                 "points (identification / held out)".into(),
-                format!("{} / {}", s["points_identification"], s["points_holdout"]),
+                format!("{} / {}", s.points_identification, s.points_holdout),
             ],
-            vec!["fit RMS (µm, 3-D)".into(), um(&s["fit_rms_mm"])],
-            vec!["held-out RMS (µm, 3-D)".into(), um(&s["holdout_rms_mm"])],
-            vec!["residual σ per coordinate (µm)".into(), um(&s["sigma_mm"])],
+            vec!["fit RMS (µm, 3-D)".into(), um(s.fit_rms_mm)],
+            vec!["held-out RMS (µm, 3-D)".into(), um(s.holdout_rms_mm)],
+            vec![
+                "residual σ per coordinate (µm)".into(),
+                um(Some(s.sigma_mm)),
+            ],
             vec![
                 "volumetric error before (µm RMS)".into(),
-                um(&s["before_rms_mm"]),
+                um(s.before_rms_mm),
             ],
             vec![
                 "volumetric error after table compensation (µm RMS)".into(),
-                um(&s["after_rms_mm"]),
+                um(s.after_rms_mm),
             ],
             vec![
                 "degree / tools".into(),
-                format!("{} / {}", s["degree"], s["tools"]),
+                format!("{} / {}", s.degree, s.tools),
             ],
             vec![
                 "rcond (scaled Jacobian)".into(),
                 // Two significant digits, never scientific notation.
-                sparkout_pipeline::units::format::plain_number(
-                    s["rcond"].as_f64().unwrap_or(f64::NAN),
-                    2,
-                ),
+                sparkout_pipeline::units::format::plain_number(s.rcond, 2),
             ],
             vec![
                 "solver".into(),
-                format!(
-                    "{} evaluations, {}",
-                    s["evaluations"],
-                    s["termination"].as_str().unwrap_or("?")
-                ),
+                format!("{} evaluations, {}", s.evaluations, s.termination),
             ],
         ],
     );
-    for w in s["warnings"].as_array().into_iter().flatten() {
-        if let Some(w) = w.as_str() {
-            html.push_str(&warning(w));
-        }
+    for w in &s.warnings {
+        html.push_str(&warning(w));
     }
     // Compensation exists to shrink the volumetric error.
-    if let (Some(b), Some(a)) = (s["before_rms_mm"].as_f64(), s["after_rms_mm"].as_f64()) {
+    if let (Some(b), Some(a)) = (
+        s.before_rms_mm.and_then(finite),
+        s.after_rms_mm.and_then(finite),
+    ) {
         if a > b {
             html.push_str(&warning(&format!(
                 "the compensation table makes the volumetric error worse: {:.1} → {:.1} µm RMS. Do not load it; check the tracker data and the identification.",
@@ -75,27 +74,23 @@ fn identification(s: &Value) -> ReportSection {
             )));
         }
     }
-    let sq = &s["squareness"];
-    let rows: Vec<Vec<String>> = ["sq_xy", "sq_xz", "sq_yz"]
+    let rows: Vec<Vec<String>> = super::chain::SQUARENESS
         .iter()
         .map(|k| {
+            let sq = s.squareness.get(*k);
             vec![
                 k.to_string(),
-                urad(&sq[k]["value_rad"]),
-                urad(&sq[k]["sigma_rad"]),
+                sq.map_or_else(|| urad(f64::NAN), |q| urad(q.value_rad)),
+                sq.map_or_else(|| urad(f64::NAN), |q| urad(q.sigma_rad)),
             ]
         })
         .collect();
     html.push_str(&table(&["squareness", "value (µrad)", "σ (µrad)"], &rows));
-    let gauge: Vec<String> = s["gauge"]
-        .as_array()
-        .map(|a| {
-            a.iter()
-                .filter_map(|g| g.as_str())
-                .map(|g| format!("<li>{}</li>", sparkout_pipeline::report::esc(g)))
-                .collect()
-        })
-        .unwrap_or_default();
+    let gauge: Vec<String> = s
+        .gauge
+        .iter()
+        .map(|g| format!("<li>{}</li>", sparkout_pipeline::report::esc(g)))
+        .collect();
     html.push_str(&format!(
         "<p class=\"note\">Fixed gauge freedoms (not identifiable from any tracker data, held at zero):</p><ul class=\"note\">{}</ul>",
         gauge.join("")
@@ -107,24 +102,22 @@ fn identification(s: &Value) -> ReportSection {
 }
 
 /// Per error function: largest |value| over the travel and its largest σ.
-fn function_table(s: &Value) -> String {
-    let Some(f) = s["functions"].as_object() else {
-        return String::new();
-    };
-    let rows: Vec<Vec<String>> = f
+fn function_table(s: &KinematicsSummary) -> String {
+    let rows: Vec<Vec<String>> = s
+        .functions
         .iter()
         .map(|(name, v)| {
-            let rot = v["unit"].as_str() == Some("rad");
-            let fmt = |x: &Value| if rot { urad(x) } else { um(x) };
+            let rot = v.unit == "rad";
+            let fmt = |x: f64| if rot { urad(x) } else { um(Some(x)) };
             vec![
                 name.clone(),
                 if rot { "µrad" } else { "µm" }.to_string(),
-                if v["fixed"].as_bool() == Some(true) {
+                if v.fixed {
                     "held at 0".into()
                 } else {
-                    fmt(&v["max_abs"])
+                    fmt(v.max_abs)
                 },
-                fmt(&v["max_sigma"]),
+                fmt(v.max_sigma),
             ]
         })
         .collect();
@@ -143,8 +136,7 @@ fn functions(a: &ArtifactStore) -> Option<ReportSection> {
     if vals.len() != 6 {
         return None;
     }
-    let mut html = a
-        .summary("kinematics")
+    let mut html = crate::typed_summary::read::<KinematicsSummary>(a, "kinematics")
         .map(|s| function_table(&s))
         .unwrap_or_default();
     for ax in AXES {
@@ -292,17 +284,17 @@ fn idw(pts: &[([f64; 3], f64)], q: [f64; 3]) -> f64 {
 /// The verdict: RMS volumetric error before → after table compensation,
 /// both measured at the tracker points, against the tolerance.
 pub fn verdicts(run: &Run, a: &ArtifactStore) -> Vec<Verdict> {
-    let Some(s) = a.summary("kinematics") else {
+    let Some(s) = crate::typed_summary::read::<KinematicsSummary>(a, "kinematics") else {
         return Vec::new();
     };
-    let um = |k: &str| s[k].as_f64().map(|v| v * 1e3).unwrap_or(f64::NAN);
+    let um = |v: Option<f64>| v.map(|v| v * 1e3).unwrap_or(f64::NAN);
     vec![Verdict::new(
         "volumetric error (RMS, measured)",
         "µm",
         "after table compensation",
-        um("after_rms_mm"),
+        um(s.after_rms_mm),
     )
-    .before("before compensation", um("before_rms_mm"))
+    .before("before compensation", um(s.before_rms_mm))
     .limit("volumetric_um", run.tolerance("volumetric_um"))]
 }
 
@@ -361,7 +353,7 @@ fn residuals(a: &ArtifactStore) -> Option<ReportSection> {
 
 pub fn sections(_run: &Run, artifacts: &ArtifactStore) -> Vec<ReportSection> {
     let mut out = Vec::new();
-    if let Some(s) = artifacts.summary("kinematics") {
+    if let Some(s) = crate::typed_summary::read::<KinematicsSummary>(artifacts, "kinematics") {
         out.push(identification(&s));
     }
     out.extend(functions(artifacts));

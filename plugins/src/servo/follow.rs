@@ -9,7 +9,9 @@
 //! logging resolution implies (config.rs `Resolution`): quantised positions
 //! cannot show a following error finer than their step.
 
-use serde_json::json;
+use std::collections::BTreeMap;
+
+use serde::{Deserialize, Serialize};
 use sparkout_pipeline::config_check::{NoKeys, SectionCheck};
 use sparkout_pipeline::contracts::schema::MOTION;
 use sparkout_pipeline::contracts::BatchBuilder;
@@ -129,6 +131,43 @@ const SPEC: StageSpec = StageSpec {
     config: SectionCheck::of::<NoKeys>(),
 };
 
+/// `follow.json`, which the report reads back.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct FollowSummary {
+    pub samples: usize,
+    /// Per axis with actual positions, by axis name.
+    pub axes: BTreeMap<String, AxisFollow>,
+    /// Axes without actual positions (not compared).
+    pub skipped_axes: Vec<String>,
+    pub all_axes: Vec<String>,
+}
+
+/// One axis of `follow.json`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct AxisFollow {
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub model_kv_1_s: f64,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub model_ff: f64,
+    /// The model's lag (1 − ff)/Kv, s.
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub model_lag_s: f64,
+    /// The measured lag (`null` when the axis never moved).
+    pub effective_lag_s: Option<f64>,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub rms_real_following_error_mm: f64,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub rms_sim_following_error_mm: f64,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub rms_following_gap_mm: f64,
+    #[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]
+    pub rms_velocity_gap_mm_s: f64,
+    /// Where the commanded velocity came from (`logged`, `derived`).
+    pub cmd_velocity: String,
+    pub cmd_acceleration: String,
+    pub velocity_error: String,
+}
+
 impl Stage for FollowStage {
     fn spec(&self) -> &'static StageSpec {
         &SPEC
@@ -137,25 +176,33 @@ impl Stage for FollowStage {
         let machine = ServoMachine::from_config(&ctx.run.machine)?;
         let trace = Trace::read(ctx.run)?;
         let mut b = BatchBuilder::new().f64("t_s", trace.t_s.clone());
-        let mut per = serde_json::Map::new();
+        let mut per = BTreeMap::new();
         for a in &trace.axes {
             let c = compare(&trace.t_s, a, &machine);
             let s = machine.axes[a.index];
             per.insert(
                 a.axis.to_string(),
-                json!({
-                    "model_kv_1_s": s.kv_1_s,
-                    "model_ff": s.ff,
-                    "model_lag_s": s.lag_s(),
-                    "effective_lag_s": effective_lag_s(&c.real_e_mm, &a.cmd_v_mm_s, 1e-3),
-                    "rms_real_following_error_mm": rms(c.real_e_mm.iter().copied()),
-                    "rms_sim_following_error_mm": rms(c.sim_e_mm.iter().copied()),
-                    "rms_following_gap_mm": rms(c.real_e_mm.iter().zip(&c.sim_e_mm).map(|(r, s)| r - s)),
-                    "rms_velocity_gap_mm_s": rms(c.real_ve_mm_s.iter().zip(&c.sim_ve_mm_s).map(|(r, s)| r - s)),
-                    "cmd_velocity": a.cmd_v_source.as_str(),
-                    "cmd_acceleration": a.cmd_a_source.as_str(),
-                    "velocity_error": c.ve_source.as_str(),
-                }),
+                AxisFollow {
+                    model_kv_1_s: s.kv_1_s,
+                    model_ff: s.ff,
+                    model_lag_s: s.lag_s(),
+                    effective_lag_s: effective_lag_s(&c.real_e_mm, &a.cmd_v_mm_s, 1e-3),
+                    rms_real_following_error_mm: rms(c.real_e_mm.iter().copied()),
+                    rms_sim_following_error_mm: rms(c.sim_e_mm.iter().copied()),
+                    rms_following_gap_mm: rms(c
+                        .real_e_mm
+                        .iter()
+                        .zip(&c.sim_e_mm)
+                        .map(|(r, s)| r - s)),
+                    rms_velocity_gap_mm_s: rms(c
+                        .real_ve_mm_s
+                        .iter()
+                        .zip(&c.sim_ve_mm_s)
+                        .map(|(r, s)| r - s)),
+                    cmd_velocity: a.cmd_v_source.as_str().to_string(),
+                    cmd_acceleration: a.cmd_a_source.as_str().to_string(),
+                    velocity_error: c.ve_source.as_str().to_string(),
+                },
             );
             let ax = a.axis;
             b = b
@@ -167,13 +214,13 @@ impl Stage for FollowStage {
                 .f64(&format!("sim_ve_{ax}_mm_s"), c.sim_ve_mm_s)
                 .f64(&format!("u_ve_{ax}_mm_s"), c.u_ve_mm_s);
         }
-        let summary = json!({
-            "samples": trace.t_s.len(),
-            "axes": per,
-            "skipped_axes": trace.skipped,
-            "all_axes": AXES,
-        });
-        Ok(StageOutput::new(summary).with("following_error", b.build()))
+        let summary = FollowSummary {
+            samples: trace.t_s.len(),
+            axes: per,
+            skipped_axes: trace.skipped.iter().map(|a| a.to_string()).collect(),
+            all_axes: AXES.iter().map(|a| a.to_string()).collect(),
+        };
+        Ok(StageOutput::typed(&summary)?.with("following_error", b.build()))
     }
 }
 
@@ -181,6 +228,45 @@ impl Stage for FollowStage {
 mod tests {
     use super::*;
     use crate::servo::model::AxisServo;
+
+    #[test]
+    fn summaries_round_trip() {
+        let axis = AxisFollow {
+            model_kv_1_s: 30.0,
+            model_ff: 0.0,
+            model_lag_s: 1.0 / 30.0,
+            effective_lag_s: None,
+            rms_real_following_error_mm: 0.5,
+            rms_sim_following_error_mm: f64::NAN,
+            rms_following_gap_mm: 0.1,
+            rms_velocity_gap_mm_s: 0.2,
+            cmd_velocity: "logged".into(),
+            cmd_acceleration: "derived".into(),
+            velocity_error: "logged".into(),
+        };
+        let mut x = axis.clone();
+        x.effective_lag_s = Some(0.028);
+        let s = FollowSummary {
+            samples: 10,
+            axes: [("x".to_string(), x), ("y".to_string(), axis)].into(),
+            skipped_axes: vec!["z".into()],
+            all_axes: vec!["x".into(), "y".into(), "z".into()],
+        };
+        let v = crate::typed_summary::round_trip(&s);
+        assert!(v["axes"]["y"]["rms_sim_following_error_mm"].is_null());
+        crate::typed_summary::round_trip(&crate::servo::observe::ObserveSummary {
+            rows: 4,
+            axes: [(
+                "x".to_string(),
+                crate::servo::observe::AxisReversals { reversals: 2 },
+            )]
+            .into(),
+            covariates: crate::servo::observe::Covariates {
+                feed_mm_s: true,
+                segment: false,
+            },
+        });
+    }
 
     #[test]
     fn effective_lag_of_a_pure_lag() {

@@ -14,7 +14,9 @@
 //! `y_mm`, `z_mm` (scale, bow, periodic, squareness); and, when logged,
 //! the path feed `feed_mm_s` and the program `segment` (line).
 
-use serde_json::json;
+use std::collections::BTreeMap;
+
+use serde::{Deserialize, Serialize};
 use sparkout_pipeline::config_check::SectionCheck;
 use sparkout_pipeline::contracts::schema::MOTION;
 use sparkout_pipeline::contracts::{batch_f64, BatchBuilder};
@@ -44,6 +46,29 @@ const SPEC: StageSpec = StageSpec {
     config: SectionCheck::of::<ObserveConfig>(),
 };
 
+/// `observe.json`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct ObserveSummary {
+    pub rows: usize,
+    /// Per axis with actual positions, by axis name.
+    pub axes: BTreeMap<String, AxisReversals>,
+    /// Which optional covariates the run logged.
+    pub covariates: Covariates,
+}
+
+/// One axis of `observe.json`: how often its commanded direction reversed.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct AxisReversals {
+    pub reversals: usize,
+}
+
+/// `observe.json` `covariates`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Covariates {
+    pub feed_mm_s: bool,
+    pub segment: bool,
+}
+
 impl Stage for ObserveStage {
     fn spec(&self) -> &'static StageSpec {
         &SPEC
@@ -59,7 +84,7 @@ impl Stage for ObserveStage {
         let mut units: Vec<&str> = Vec::new();
         let (mut v, mut a, mut dir, mut rev) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
         let mut rows: Vec<usize> = Vec::new();
-        let mut per = serde_json::Map::new();
+        let mut per = BTreeMap::new();
         for ax in &trace.axes {
             let (d, r) = direction(&trace.t_s, &ax.cmd_v_mm_s, cfg.standstill_mm_s);
             let reversals = d.windows(2).filter(|w| w[0] != w[1]).count();
@@ -80,7 +105,7 @@ impl Stage for ObserveStage {
                 rev.extend_from_slice(&r);
                 rows.extend(0..n);
             }
-            per.insert(ax.axis.to_string(), json!({"reversals": reversals}));
+            per.insert(ax.axis.to_string(), AxisReversals { reversals });
         }
         let pick = |col: &[f64]| -> Vec<f64> { rows.iter().map(|&i| col[i]).collect() };
         let mut b = BatchBuilder::new()
@@ -104,14 +129,14 @@ impl Stage for ObserveStage {
         if let Some(s) = &trace.segment {
             b = b.i32("segment", rows.iter().map(|&i| s[i]).collect());
         }
-        let summary = json!({
-            "rows": rows.len(),
-            "axes": per,
-            "covariates": {
-                "feed_mm_s": trace.feed_mm_s.is_some(),
-                "segment": trace.segment.is_some(),
+        let summary = ObserveSummary {
+            rows: rows.len(),
+            axes: per,
+            covariates: Covariates {
+                feed_mm_s: trace.feed_mm_s.is_some(),
+                segment: trace.segment.is_some(),
             },
-        });
-        Ok(StageOutput::new(summary).with("observations", b.build()))
+        };
+        Ok(StageOutput::typed(&summary)?.with("observations", b.build()))
     }
 }

@@ -6,12 +6,12 @@
 //! following error against `[tolerance].following_error_um` and against
 //! what the model predicts.
 
-use serde_json::Value;
 use sparkout_pipeline::contracts::batch_f64;
 use sparkout_pipeline::report::svg::{polar_chart, xy_chart, Mark, Series};
 use sparkout_pipeline::report::{fmt_fixed, table, Verdict};
 use sparkout_pipeline::{ArtifactStore, ReportSection, Run};
 
+use super::follow::FollowSummary;
 use super::trace::Trace;
 
 /// At most this many points per trace line (a night's trace has 10⁵).
@@ -42,11 +42,11 @@ struct AxisErr {
     sim: Vec<f64>,
 }
 
-fn axis_errors(a: &ArtifactStore, s: &Value) -> Option<(Vec<f64>, Vec<AxisErr>)> {
+fn axis_errors(a: &ArtifactStore, s: &FollowSummary) -> Option<(Vec<f64>, Vec<AxisErr>)> {
     let b = a.get("following_error").ok()??;
     let t = batch_f64(&b, "t_s").ok()?.to_vec();
-    let axes = s["axes"].as_object()?;
-    let out = axes
+    let out = s
+        .axes
         .keys()
         .filter_map(|ax| {
             Some(AxisErr {
@@ -68,7 +68,7 @@ const LAG_AGREEMENT: f64 = 0.1;
 /// — the following error itself grows with feed and is what the model is
 /// for; and the effective lag against the model's.
 pub fn verdicts(run: &Run, a: &ArtifactStore) -> Vec<Verdict> {
-    let Some(s) = a.summary("follow") else {
+    let Some(s) = crate::typed_summary::read::<FollowSummary>(a, "follow") else {
         return Vec::new();
     };
     let Some((_, axes)) = axis_errors(a, &s) else {
@@ -90,9 +90,11 @@ pub fn verdicts(run: &Run, a: &ArtifactStore) -> Vec<Verdict> {
             )
             .limit("following_error_um", limit),
         );
-        let p = &s["axes"][&e.axis];
-        if let (Some(eff), Some(model)) = (p["effective_lag_s"].as_f64(), p["model_lag_s"].as_f64())
-        {
+        let p = s.axes.get(&e.axis);
+        if let (Some(eff), Some(model)) = (
+            p.and_then(|p| p.effective_lag_s),
+            p.map(|p| p.model_lag_s).filter(|m| m.is_finite()),
+        ) {
             out.push(
                 Verdict::new(
                     &format!("effective lag, axis {}", e.axis),
@@ -107,19 +109,19 @@ pub fn verdicts(run: &Run, a: &ArtifactStore) -> Vec<Verdict> {
     out
 }
 
-fn ms(v: &Value) -> String {
-    fmt_fixed(v.as_f64().map(|x| x * 1e3), 2)
+fn ms(v: Option<f64>) -> String {
+    fmt_fixed(v.map(|x| x * 1e3), 2)
 }
 
-fn lag_and_error(s: &Value, axes: &[AxisErr]) -> String {
+fn lag_and_error(s: &FollowSummary, axes: &[AxisErr]) -> String {
     let rows: Vec<Vec<String>> = axes
         .iter()
         .map(|e| {
-            let p = &s["axes"][&e.axis];
+            let p = s.axes.get(&e.axis);
             vec![
                 e.axis.clone(),
-                ms(&p["effective_lag_s"]),
-                ms(&p["model_lag_s"]),
+                ms(p.and_then(|p| p.effective_lag_s)),
+                ms(p.map(|p| p.model_lag_s).filter(|m| m.is_finite())),
                 fmt_fixed(Some(rms(&e.real) * 1e3), 2),
                 fmt_fixed(Some(rms(&e.sim) * 1e3), 2),
                 fmt_fixed(Some(peak(&e.real) * 1e3), 2),
@@ -339,7 +341,7 @@ fn ballbar(run: &Run) -> Option<ReportSection> {
 
 pub fn sections(run: &Run, a: &ArtifactStore) -> Vec<ReportSection> {
     let mut out = Vec::new();
-    if let Some(s) = a.summary("follow") {
+    if let Some(s) = crate::typed_summary::read::<FollowSummary>(a, "follow") {
         if let Some((t, axes)) = axis_errors(a, &s) {
             out.push(ReportSection {
                 title: "Lag and following error per axis".into(),

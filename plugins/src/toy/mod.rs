@@ -13,7 +13,7 @@
 
 use std::sync::Arc;
 
-use serde_json::json;
+use serde::{Deserialize, Serialize};
 use sparkout_pipeline::config_check::{NoKeys, SectionCheck};
 use sparkout_pipeline::contracts::plausible::MetresRule;
 use sparkout_pipeline::contracts::schema::{opt, req, ColumnKind::*, TableSchema};
@@ -84,6 +84,12 @@ const SPEC: StageSpec = StageSpec {
     config: SectionCheck::of::<NoKeys>(),
 };
 
+/// `observe.json`: how many observations the stage wrote.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ObserveSummary {
+    pub rows: usize,
+}
+
 impl Stage for ObserveStage {
     fn spec(&self) -> &'static StageSpec {
         &SPEC
@@ -121,7 +127,7 @@ impl Stage for ObserveStage {
                 (0..3).flat_map(|_| nominal[a].iter().copied()).collect(),
             );
         }
-        Ok(StageOutput::new(json!({"rows": 3 * n})).with("observations", b.build()))
+        Ok(StageOutput::typed(&ObserveSummary { rows: 3 * n })?.with("observations", b.build()))
     }
 }
 
@@ -214,6 +220,29 @@ mod tests {
     /// A stage that reports the gain its typed config holds.
     struct CountedStage;
 
+    /// `counted.json`: the config the stage was given.
+    #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+    struct CountedSummary {
+        gain: f64,
+        label: String,
+    }
+
+    fn counted_summary(out: &Path) -> CountedSummary {
+        serde_json::from_slice(&std::fs::read(out.join("toy-cmm/r003/counted.json")).unwrap())
+            .unwrap()
+    }
+
+    #[test]
+    fn summaries_round_trip() {
+        crate::typed_summary::round_trip(&ObserveSummary { rows: 180 });
+        let c = CountedSummary {
+            gain: 2.0,
+            label: "plain".into(),
+        };
+        let v = crate::typed_summary::round_trip(&c);
+        assert_eq!(v.to_string(), r#"{"gain":2.0,"label":"plain"}"#);
+    }
+
     const COUNTED: StageSpec = StageSpec {
         name: "counted",
         version: 1,
@@ -231,9 +260,10 @@ mod tests {
         }
         fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
             let cfg: &CountedConfig = ctx.section()?;
-            Ok(StageOutput::new(
-                json!({"gain": cfg.gain, "label": cfg.label}),
-            ))
+            StageOutput::typed(&CountedSummary {
+                gain: cfg.gain,
+                label: cfg.label.clone(),
+            })
         }
     }
 
@@ -318,10 +348,7 @@ mod tests {
             before + 1,
             "{runs} runs read no section again"
         );
-        let summary: serde_json::Value =
-            serde_json::from_slice(&std::fs::read(out.join("toy-cmm/r003/counted.json")).unwrap())
-                .unwrap();
-        assert_eq!(summary["gain"], 2.0);
+        assert_eq!(counted_summary(&out).gain, 2.0);
         let written = counted_records(&first);
         assert!(written.iter().all(|(_, cached)| !cached));
 
@@ -343,10 +370,7 @@ mod tests {
             assert_ne!(k1, k3);
             assert!(!cached);
         }
-        let summary: serde_json::Value =
-            serde_json::from_slice(&std::fs::read(out.join("toy-cmm/r003/counted.json")).unwrap())
-                .unwrap();
-        assert_eq!(summary["gain"], 3.0);
+        assert_eq!(counted_summary(&out).gain, 3.0);
     }
 
     #[test]
