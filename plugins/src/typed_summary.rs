@@ -70,6 +70,12 @@ pub(crate) fn present<'de, D: Deserializer<'de>, T: Deserialize<'de>>(
     T::deserialize(d).map(Some)
 }
 
+/// A number as serde_json prints it (`8.0`, `null` for NaN), for text that
+/// has always shown the JSON value itself.
+pub(crate) fn json_number(x: f64) -> String {
+    serde_json::to_string(&x).unwrap_or_else(|_| "null".into())
+}
+
 /// A number for a report to show: `None` for NaN or ±∞ (written as
 /// `null`: not computed).
 pub(crate) fn finite(x: f64) -> Option<f64> {

@@ -7,25 +7,11 @@
 //! field reads `null` back as NaN ([`nan`]), an `Option<f64>` as `None`.
 //! Field order is the order the keys were written in.
 
-use serde::{Deserialize, Deserializer, Serialize};
+use serde::{Deserialize, Serialize};
 
-/// `Some(x)` for a finite `x`: what a JSON summary can hold.
-pub fn fin(x: f64) -> Option<f64> {
-    x.is_finite().then_some(x)
-}
-
-/// A plain `f64` field: `null` (a NaN or infinity written) reads back as NaN.
-pub fn nan<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
-    Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NAN))
-}
-
-/// [`nan`] element by element.
-pub fn nan_vec<'de, D: Deserializer<'de>>(d: D) -> Result<Vec<f64>, D::Error> {
-    Ok(Vec::<Option<f64>>::deserialize(d)?
-        .into_iter()
-        .map(|x| x.unwrap_or(f64::NAN))
-        .collect())
-}
+pub(crate) use crate::typed_summary::{
+    f64_or_nan as nan, finite as fin, vec_f64_or_nan as nan_vec,
+};
 
 // --------------------------------------------------------------- segment
 

@@ -28,11 +28,7 @@ fn um(v: Option<f64>) -> String {
     fmt_um(v.and_then(finite), 3)
 }
 
-/// A number as JSON writes it (`30.0`, `null` for NaN), as the report
-/// has always printed these.
-fn json_number(x: f64) -> String {
-    serde_json::Value::from(x).to_string()
-}
+use crate::typed_summary::json_number;
 
 fn col(b: &RecordBatch, name: &str) -> Option<Vec<f64>> {
     batch_f64(b, name).ok().map(|v| v.to_vec())

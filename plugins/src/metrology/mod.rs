@@ -18,7 +18,7 @@
 //! | [`readers`] | profile tables (Parquet, CSV, instrument text) and height matrices |
 //! | [`stage`] | `sparkout stage profile` and the matrix form of `flatness --surface` |
 
-use serde::{Deserialize, Deserializer, Serialize};
+use serde::{Deserialize, Serialize};
 
 pub mod areal;
 pub mod gaussian;
@@ -71,24 +71,7 @@ pub enum OrWhy<T> {
     NotComputed { not_computed: String },
 }
 
-/// A plain `f64` field: `null` (a NaN or infinity written) reads back as NaN.
-pub fn nan<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
-    Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NAN))
-}
-
-/// [`nan`] element by element.
-pub fn nan_vec<'de, D: Deserializer<'de>>(d: D) -> Result<Vec<f64>, D::Error> {
-    Ok(Vec::<Option<f64>>::deserialize(d)?
-        .into_iter()
-        .map(|x| x.unwrap_or(f64::NAN))
-        .collect())
-}
-
-/// A number as serde_json prints it (`6.0`, `null`), for console text that
-/// showed the JSON value itself.
-pub fn json_number(x: f64) -> String {
-    serde_json::to_string(&x).unwrap_or_else(|_| "null".into())
-}
+pub(crate) use crate::typed_summary::{f64_or_nan as nan, json_number, vec_f64_or_nan as nan_vec};
 
 /// A length for the console, in nm, µm or mm by magnitude (4 significant
 /// digits). The one place console lengths are formatted, so a shared

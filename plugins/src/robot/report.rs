@@ -443,18 +443,7 @@ fn ae_detection(s: &IngestSummary) -> Option<ReportSection> {
     })
 }
 
-/// A stage's summary read through its type; a summary of another shape
-/// (a bug, or a cache from another build) is named in the log and its
-/// sections left out.
-fn read<T: serde::de::DeserializeOwned>(a: &ArtifactStore, stage: &str) -> Option<T> {
-    match a.summary_as::<T>(stage)? {
-        Ok(v) => Some(v),
-        Err(e) => {
-            tracing::warn!("robot report: {e:#}");
-            None
-        }
-    }
-}
+use crate::typed_summary::read;
 
 pub fn sections(_run: &Run, a: &ArtifactStore) -> Vec<ReportSection> {
     let mut out = Vec::new();

@@ -10,32 +10,15 @@
 
 use std::collections::BTreeMap;
 
-use serde::{Deserialize, Deserializer, Serialize};
+use serde::{Deserialize, Serialize};
 
-/// `Some(x)` for a finite `x`: what a JSON summary can hold.
-pub fn fin(x: f64) -> Option<f64> {
-    x.is_finite().then_some(x)
-}
+pub(crate) use crate::typed_summary::{
+    arr_or_nan as nan3, f64_or_nan as nan, finite as fin, json_number,
+};
 
 /// [`fin`] of an optional number.
 pub fn fin_opt(x: Option<f64>) -> Option<f64> {
     x.and_then(fin)
-}
-
-/// A plain `f64` field: `null` (a NaN or infinity written) reads back as NaN.
-pub fn nan<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
-    Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NAN))
-}
-
-/// [`nan`] element by element of a 3-vector.
-pub fn nan3<'de, D: Deserializer<'de>>(d: D) -> Result<[f64; 3], D::Error> {
-    Ok(<[Option<f64>; 3]>::deserialize(d)?.map(|x| x.unwrap_or(f64::NAN)))
-}
-
-/// A number as serde_json prints it (`8.0`, `null`), for text that showed
-/// the JSON value itself.
-pub fn json_number(x: f64) -> String {
-    serde_json::to_string(&x).unwrap_or_else(|_| "null".into())
 }
 
 // ---------------------------------------------------------------- ingest
