@@ -274,13 +274,7 @@ impl RunSpec {
         self.tolerance
             .get(key)
             .copied()
-            .or_else(|| {
-                machine
-                    .table
-                    .get("tolerance")
-                    .and_then(|t| t.get(key))
-                    .and_then(toml_f64)
-            })
+            .or_else(|| machine.tolerance.get(key).copied())
             .or_else(|| super::tolerance::tolerance_default(key))
             .unwrap_or(f64::NAN)
     }
@@ -291,16 +285,32 @@ impl RunSpec {
     }
 }
 
-/// A resolved machine config: where it came from and its TOML.
-#[derive(Debug, Clone)]
+/// A resolved machine config: where it came from, its TOML and, once it
+/// is loaded for a run ([`super::config_keys::load_machine`]), its checked
+/// typed values: `[tolerance]` and each section the plugin declares
+/// ([`crate::MachinePlugin::machine_sections`]).
+#[derive(Debug, Clone, Default)]
 pub struct MachineConfig {
     pub id: String,
     pub source: String,
     pub table: toml::Table,
     pub text: String,
+    /// `[tolerance]`, checked (empty until loaded, or when absent).
+    pub tolerance: BTreeMap<String, f64>,
+    /// The plugin's declared sections by name, read into their serde
+    /// structs once when the machine is loaded.
+    pub sections: BTreeMap<String, crate::config_check::CheckedSection>,
 }
 
 impl MachineConfig {
+    /// A declared section as its serde struct, as it was read and checked
+    /// when the machine was loaded (absent keys at their defaults); None
+    /// when no section of that type was loaded (a config not loaded
+    /// through [`super::config_keys::load_machine`]).
+    pub fn section<T: crate::config_check::Section>(&self) -> Option<&T> {
+        self.sections.values().find_map(|s| s.get::<T>())
+    }
+
     /// Where the config came from, without any directory (a per-run output
     /// must not depend on the working directory or where a shard ran): the
     /// file name or "built-in" or "inline", and a hash of the text.
@@ -406,6 +416,7 @@ impl MachineResolver {
                 source,
                 table,
                 text: text.to_string(),
+                ..MachineConfig::default()
             })
         };
         for dir in &self.dirs {
@@ -420,6 +431,7 @@ impl MachineResolver {
                 source: format!("{} [machine]", spec.run_toml_path().display()),
                 text: toml::to_string(t).unwrap_or_default(),
                 table: t.clone(),
+                ..MachineConfig::default()
             });
         }
         if let Some(text) = self.builtins.get(id) {

@@ -241,9 +241,14 @@ impl Engine {
                 .into());
             }
         }
-        let machine = self.resolver.resolve(&spec)?;
+        let mut machine = self.resolver.resolve(&spec)?;
         let builtins: Vec<&str> = plugin.builtin_machines().iter().map(|(_, t)| *t).collect();
-        config_keys::check_machine(&machine, plugin.name(), &builtins)?;
+        config_keys::load_machine(
+            &mut machine,
+            plugin.name(),
+            &builtins,
+            plugin.machine_sections(),
+        )?;
         config_keys::check_process(&spec, plugin.name(), plugin.process_keys())?;
         let run = Run::new(spec, machine);
         // Every present table is checked against the contract up front, the

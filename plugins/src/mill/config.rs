@@ -292,6 +292,7 @@ mod tests {
             source: "m.toml".into(),
             table: text.parse().unwrap(),
             text: text.into(),
+            ..Default::default()
         })
     }
 

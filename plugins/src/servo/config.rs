@@ -193,6 +193,7 @@ mod tests {
             source: "m.toml".into(),
             table: text.parse().unwrap(),
             text: text.into(),
+            ..Default::default()
         })
     }
 
