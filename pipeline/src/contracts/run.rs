@@ -375,6 +375,23 @@ impl MachineConfig {
         self.sections.values().find_map(|s| s.get::<T>())
     }
 
+    /// Section `name` as its serde struct: the value read when the machine
+    /// was loaded, or — for a config not loaded for a run (a generator's,
+    /// a run-less stage's) — read now through the same reader. An absent
+    /// section holds the struct's defaults; an error names the file and
+    /// `name.key`.
+    pub fn typed_section<T: Section + Clone>(&self, name: &str) -> Result<T, InputError> {
+        if let Some(v) = self.section::<T>() {
+            return Ok(v.clone());
+        }
+        let empty = toml::Value::Table(toml::Table::new());
+        read_file_section::<T>(
+            Path::new(&self.source),
+            name,
+            self.table.get(name).unwrap_or(&empty),
+        )
+    }
+
     /// Where the config came from, without any directory (a per-run output
     /// must not depend on the working directory or where a shard ran): the
     /// file name or "built-in" or "inline", and a hash of the text.
