@@ -435,6 +435,16 @@ pub trait MachinePlugin: Send + Sync {
     fn builtin_machines(&self) -> Vec<(&'static str, &'static str)> {
         Vec::new()
     }
+    /// The sections of this plugin's machine config that its stages read,
+    /// each as its serde struct (`("wheel", SectionCheck::of::<Wheel>())`):
+    /// read and checked once when a run's machine is loaded, an error
+    /// naming the machine config and `<section>.<key>`; a stage takes the
+    /// value with [`MachineConfig::section`]. Every key of a machine config
+    /// is also checked against the built-in machines (names, types,
+    /// ranges), declared or not.
+    fn machine_sections(&self) -> &'static [(&'static str, crate::config_check::SectionCheck)] {
+        &[]
+    }
     /// Physically named composite effects for the diagnosis. They apply
     /// only to the observables this plugin produces.
     fn effects(&self) -> Vec<Box<dyn Effect>> {

@@ -288,6 +288,7 @@ fn generate_run(
             source: "generator".into(),
             table: APLM_GANTRY_TOML.parse()?,
             text: APLM_GANTRY_TOML.into(),
+            ..Default::default()
         }
     };
     let g = Gantry::from_run(&m, &spec)?;

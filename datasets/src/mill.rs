@@ -202,6 +202,7 @@ pub fn machine() -> Result<MillMachine> {
         source: "built-in machine `xfyz-mill`".into(),
         table: XFYZ_MILL_TOML.parse()?,
         text: XFYZ_MILL_TOML.into(),
+        ..Default::default()
     };
     Ok(MillMachine::from_config(&cfg)?)
 }

@@ -177,6 +177,7 @@ pub fn machine() -> Result<ServoMachine> {
         source: "built-in machine `servo-mill`".into(),
         table: SERVO_MILL_TOML.parse()?,
         text: SERVO_MILL_TOML.into(),
+        ..Default::default()
     };
     Ok(ServoMachine::from_config(&cfg)?)
 }

@@ -7,7 +7,7 @@
 
 use std::path::Path;
 
-use crate::contracts::config_keys::{check_machine, check_process};
+use crate::contracts::config_keys::{check_process, load_machine};
 use crate::contracts::{AeStream, MachineConfig, RunSpec, Table, TableRegistry};
 
 /// Any text as run.toml, and its `[process]` against a plugin's keys.
@@ -80,13 +80,14 @@ pub fn machine_config(data: &[u8], builtins: &[(&str, &str)]) {
         return;
     }
     let (plugin, builtin) = builtins[pick as usize % builtins.len()];
-    let m = MachineConfig {
+    let mut m = MachineConfig {
         id: "fuzz".into(),
         source: "fuzz.toml".into(),
         table,
         text: text.to_string(),
+        ..MachineConfig::default()
     };
-    let _ = check_machine(&m, plugin, &[builtin]);
+    let _ = load_machine(&mut m, plugin, &[builtin], &[]);
 }
 
 /// Any text as candump -l lines: what parses formats back to itself.

@@ -114,7 +114,7 @@ fn diagnosis_notes(d: &Diagnosis) -> String {
 
 /// The fleet report.
 pub fn fleet_page(
-    cfg: &toml::Table,
+    cfg: &super::ReportConfig,
     outcome: &FleetOutcome,
     diagnosis: Option<&Diagnosis>,
     diagnosis_html: Option<&str>,

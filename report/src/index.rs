@@ -64,7 +64,7 @@ fn run_files(r: &RunResult) -> Vec<String> {
 }
 
 /// The index page of an output root.
-pub fn index_page(cfg: &toml::Table, outcome: &FleetOutcome) -> String {
+pub fn index_page(cfg: &super::ReportConfig, outcome: &FleetOutcome) -> String {
     let out = &outcome.out_dir;
     // 0. The night's news: its date, trend alerts, rejected and FAIL/CHECK runs.
     let mut body = super::news::banner(outcome, "");

@@ -121,17 +121,26 @@ pub fn warn_fit_above_floor(what: &str, rms_mm: f64, floor_mm: f64, factor: f64)
         })
 }
 
-fn title_of(cfg: &toml::Table, default: &str) -> String {
-    cfg.get("title")
-        .and_then(|v| v.as_str())
-        .unwrap_or(default)
-        .to_string()
+/// `[report]` of the pipeline config: what the report pages take from it,
+/// read and checked once when the engine is built and handed to each page
+/// typed.
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ReportConfig {
+    /// The pages' title (each page has its own default).
+    pub title: Option<String>,
+}
+
+impl crate::config_check::Section for ReportConfig {}
+
+fn title_of(cfg: &ReportConfig, default: &str) -> String {
+    cfg.title.as_deref().unwrap_or(default).to_string()
 }
 
 /// A run's report: header, the verdict, each plugin section, then every
 /// stage's summary.
 pub fn run_page(
-    cfg: &toml::Table,
+    cfg: &ReportConfig,
     run: &Run,
     summaries: &BTreeMap<String, serde_json::Value>,
     verdicts: &[Verdict],

@@ -168,14 +168,21 @@ fn unknown_machine_says_where_it_looked() {
         e.to_string().contains("unknown machine `no-such-machine`"),
         "{e}"
     );
-    // An inline [machine] table resolves it.
+    // An inline [machine] table (a machine config one level down) resolves it.
     let spec = RunSpec::parse(
         d.path(),
-        "[run]\nid = \"r1\"\nmachine = \"m\"\nplugin = \"robot\"\n[machine]\nwheel_radius_mm = 50.0\n",
+        "[run]\nid = \"r1\"\nmachine = \"m\"\nplugin = \"robot\"\n[machine.wheel]\nradius_mm = 50.0\n",
     )
     .unwrap();
     let m = r.resolve(&spec).unwrap();
-    assert_eq!(m.f64("wheel_radius_mm"), Some(50.0));
+    assert_eq!(m.f64("wheel.radius_mm"), Some(50.0));
+    // A key of [machine] that is not a section is refused when run.toml is read.
+    let e = RunSpec::parse(
+        d.path(),
+        "[run]\nid = \"r1\"\nmachine = \"m\"\nplugin = \"robot\"\n[machine]\nwheel_radius_mm = 50.0\n",
+    )
+    .unwrap_err();
+    assert_eq!(e.column.as_deref(), Some("machine.wheel_radius_mm"), "{e}");
 }
 
 /// Writes an AE log with `groups` row groups of `per_group` rows each.

@@ -8,7 +8,7 @@
 use std::path::Path;
 
 use proptest::prelude::*;
-use sparkout_pipeline::contracts::config_keys::{check_machine, check_process};
+use sparkout_pipeline::contracts::config_keys::{check_process, load_machine};
 use sparkout_pipeline::contracts::{
     write_parquet_atomic, BatchBuilder, MachineConfig, RunSpec, Table,
 };
@@ -104,10 +104,10 @@ proptest! {
         let text = text.replace("NaN", "nan");
         // The appended table may redefine an existing one: not valid TOML.
         if let Ok(table) = text.parse::<toml::Table>() {
-            let m = MachineConfig { id: "g".into(), source: "g.toml".into(), table, text: text.clone() };
+            let mut m = MachineConfig { id: "g".into(), source: "g.toml".into(), table, text: text.clone(), ..MachineConfig::default() };
             let builtin: toml::Table = GUIDEWAY_MACHINE.parse().unwrap();
             let known = builtin.get(&section).and_then(|s| s.get(&key)).is_some();
-            let r = check_machine(&m, "guideway", &[GUIDEWAY_MACHINE]);
+            let r = load_machine(&mut m, "guideway", &[GUIDEWAY_MACHINE], &[]);
             if r.is_ok() {
                 prop_assert!(known && v.is_finite());
             }
@@ -120,8 +120,8 @@ proptest! {
     #[test]
     fn machine_config_text_never_panics(s in "\\PC{0,200}") {
         if let Ok(table) = s.parse::<toml::Table>() {
-            let m = MachineConfig { id: "g".into(), source: "g.toml".into(), table, text: s.clone() };
-            let _ = check_machine(&m, "guideway", &[GUIDEWAY_MACHINE]);
+            let mut m = MachineConfig { id: "g".into(), source: "g.toml".into(), table, text: s.clone(), ..MachineConfig::default() };
+            let _ = load_machine(&mut m, "guideway", &[GUIDEWAY_MACHINE], &[]);
         }
     }
 

@@ -7,8 +7,8 @@
 use std::collections::BTreeMap;
 
 use super::run::{MachineConfig, RunSpec};
-use crate::config_check::Check;
-use crate::error::InputError;
+use crate::config_check::{Check, SectionCheck};
+use crate::error::{ConfigError, InputError};
 use crate::{toml_f64, ProcessKeys};
 
 /// Dotted leaf keys of a TOML table with their values.
@@ -88,6 +88,7 @@ pub fn machine_check(key: &str, reference: &toml::Value) -> Check {
 
 /// Check a resolved machine config against the built-in machines of the
 /// run's plugin (`builtins`: their TOML texts). Built-in machines pass.
+/// `[tolerance]` and `[replay]` are left to their own readers.
 pub fn check_machine(m: &MachineConfig, plugin: &str, builtins: &[&str]) -> Result<(), InputError> {
     let err = |key: &str, msg: String| InputError::new(&m.source, msg).column(key.to_string());
     if m.table.is_empty() {
@@ -121,16 +122,12 @@ pub fn check_machine(m: &MachineConfig, plugin: &str, builtins: &[&str]) -> Resu
     if known.is_empty() {
         return Ok(()); // nothing to compare against
     }
-    // `[tolerance]` is the same table in every machine type: checked by
-    // its own list, not against the built-in machines.
-    if let Some(t) = m.table.get("tolerance") {
-        super::tolerance::check_tolerance(t).map_err(|(key, msg)| err(&key, msg))?;
-    }
     let mut mine = BTreeMap::new();
     leaves(&m.table, "", &mut mine);
     // [replay] (EDS files per node, drive axes) is checked by the replay
-    // that reads it; no plugin's built-in machine has one. [tolerance] was
-    // checked above.
+    // that reads it; no plugin's built-in machine has one. `[tolerance]` is
+    // the same table in every machine type: read by its own list
+    // ([`load_machine`]), not against the built-in machines.
     mine.retain(|k, _| !k.starts_with("replay.") && !k.starts_with("tolerance."));
     for (key, v) in &mine {
         if !all_finite(v) {
@@ -191,6 +188,47 @@ pub fn check_machine(m: &MachineConfig, plugin: &str, builtins: &[&str]) -> Resu
     Ok(())
 }
 
+/// Load a resolved machine config for a run, once: [`check_machine`]
+/// against the plugin's built-in machines (every key known, of the
+/// built-in's type, in the range its value implies), then `[tolerance]`
+/// and each section the plugin declares (`sections`: name and serde
+/// struct) read into their typed values, kept in the config for the
+/// stages ([`MachineConfig::section`]). An absent declared section holds
+/// its struct's defaults. Any error names the machine config and the key
+/// as the column `<section>.<key>`.
+pub fn load_machine(
+    m: &mut MachineConfig,
+    plugin: &str,
+    builtins: &[&str],
+    sections: &[(&str, SectionCheck)],
+) -> Result<(), InputError> {
+    check_machine(m, plugin, builtins)?;
+    let err = |key: String, msg: String| InputError::new(&m.source, msg).column(key);
+    let tolerance = match m.table.get("tolerance") {
+        None => BTreeMap::new(),
+        Some(t) => super::tolerance::check_tolerance(t).map_err(|(k, msg)| err(k, msg))?,
+    };
+    let mut typed = BTreeMap::new();
+    for (name, check) in sections {
+        let table = match m.table.get(*name) {
+            None => toml::Table::new(),
+            Some(toml::Value::Table(t)) => t.clone(),
+            Some(_) => return Err(err(name.to_string(), format!("[{name}] must be a table"))),
+        };
+        let value = check.read(&table).map_err(|e| {
+            let column = e
+                .downcast_ref::<ConfigError>()
+                .and_then(|c| c.key())
+                .map_or_else(|| name.to_string(), |k| format!("{name}.{k}"));
+            err(column, format!("[{name}]: {e:#}"))
+        })?;
+        typed.insert(name.to_string(), value);
+    }
+    m.tolerance = tolerance;
+    m.sections = typed;
+    Ok(())
+}
+
 /// Check run.toml `[process]` against the keys the plugin reads and their
 /// ranges (a plugin that reads none declares none): an unknown key, a
 /// wrong type or a value out of range is an error naming run.toml and the
@@ -240,6 +278,7 @@ mod tests {
             source: "g.toml".into(),
             table: text.parse().unwrap(),
             text: text.into(),
+            ..MachineConfig::default()
         }
     }
 
@@ -302,12 +341,95 @@ mod tests {
         assert!(e.to_string().contains("unknown key [process].gain"), "{e}");
     }
 
+    /// `[probes]` as a plugin declares it: a serde struct, a range per key.
+    #[derive(Debug, Clone, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+    #[serde(deny_unknown_fields, default)]
+    struct Probes {
+        spacing_mm: Option<f64>,
+        count: Option<u32>,
+    }
+
+    impl crate::config_check::Section for Probes {
+        const CHECKS: &'static [(&'static str, Check)] = &[
+            ("spacing_mm", Check::Positive),
+            ("count", Check::WholeIn(3, 3)),
+        ];
+    }
+
+    const SECTIONS: &[(&str, SectionCheck)] = &[("probes", SectionCheck::of::<Probes>())];
+
+    fn load(text: &str) -> Result<MachineConfig, InputError> {
+        let builtin = format!("{BUILTIN}count = 3\n");
+        let mut m = machine(text);
+        load_machine(&mut m, "guideway", &[&builtin], SECTIONS).map(|()| m)
+    }
+
+    #[test]
+    fn machine_sections_are_read_once_into_their_types() {
+        let m = load(&format!(
+            "{BUILTIN}count = 3\n[tolerance]\nguideway_residual_um = 4.0\n"
+        ))
+        .unwrap();
+        let p = m.section::<Probes>().unwrap();
+        assert_eq!((p.spacing_mm, p.count), (Some(30.0), Some(3)));
+        assert_eq!(m.tolerance.get("guideway_residual_um"), Some(&4.0));
+        // An absent section holds its struct's defaults.
+        let m = load("[machine]\nid = \"g\"\nplugin = \"guideway\"\n").unwrap();
+        assert_eq!(m.section::<Probes>(), Some(&Probes::default()));
+        assert!(m.tolerance.is_empty());
+        // An unknown key, a wrong type, a value out of range (the built-in
+        // machine's range, or the section's own), a section that is not a
+        // table: each refused naming the file and `section.key`.
+        for (bad, column, needle) in [
+            (
+                "[probes]\nspacing = 30.0\n",
+                "probes.spacing",
+                "unknown key `probes.spacing`",
+            ),
+            (
+                "[probes]\nspacing_mm = \"30 mm\"\n",
+                "probes.spacing_mm",
+                "must be a number",
+            ),
+            (
+                "[probes]\ncount = 3.5\n",
+                "probes.count",
+                "must be a whole number in 3..=3",
+            ),
+            (
+                "[probes]\nspacing_mm = 0\n",
+                "probes.spacing_mm",
+                "must be a number > 0",
+            ),
+            (
+                "[probes]\ncount = 4\n",
+                "probes.count",
+                "must be a whole number in 3..=3",
+            ),
+            (
+                "[tolerance]\nflatnes_um = 5\n",
+                "tolerance.flatnes_um",
+                "unknown key [tolerance].flatnes_um",
+            ),
+        ] {
+            let text = format!("[machine]\nid = \"g\"\nplugin = \"guideway\"\n{bad}");
+            let e = load(&text).unwrap_err();
+            assert_eq!(e.column.as_deref(), Some(column), "{bad}: {e}");
+            let msg = e.to_string();
+            assert!(
+                msg.contains("g.toml") && msg.contains(needle),
+                "{bad}: {msg}"
+            );
+        }
+    }
+
     #[test]
     fn builtin_passes_typos_do_not() {
         check_machine(&machine(BUILTIN), "guideway", &[BUILTIN]).unwrap();
         // `[tolerance]` is accepted in any machine, checked by its own list.
         let with_tol = format!("{BUILTIN}[tolerance]\nguideway_residual_um = 4.0\n");
-        check_machine(&machine(&with_tol), "guideway", &[BUILTIN]).unwrap();
+        let mut m = machine(&with_tol);
+        load_machine(&mut m, "guideway", &[BUILTIN], &[]).unwrap();
         for (bad, needle) in [
             (
                 "[tabel]\nrepeatability_mm = 0.5\n",
@@ -333,7 +455,7 @@ mod tests {
                 "unknown key [tolerance].flatnes_um",
             ),
         ] {
-            let e = check_machine(&machine(bad), "guideway", &[BUILTIN])
+            let e = load_machine(&mut machine(bad), "guideway", &[BUILTIN], &[])
                 .unwrap_err()
                 .to_string();
             assert!(e.contains(needle), "{bad:?}: {e}");

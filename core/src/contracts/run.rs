@@ -39,8 +39,13 @@ pub struct RunSpec {
     /// `[process]`: plugin-specific parameters.
     pub process: toml::Table,
     pub ae: Option<AeSpec>,
-    /// An inline `[machine]` table, if the run carries its own machine config.
+    /// An inline `[machine]` table, if the run carries its own machine
+    /// config: a table of sections (`[machine.<section>]`), checked like a
+    /// machine config file when the run is opened ([`MachineResolver::inline`]).
     pub inline_machine: Option<toml::Table>,
+    /// `[replay]`: where a run recorded by `sparkout replay --record` came
+    /// from (provenance; no stage reads it).
+    pub replay: Option<ReplayProvenance>,
     /// `[tolerance]`: the run's own verdict limits (checked keys).
     pub tolerance: BTreeMap<String, f64>,
     /// The file's text (hashed into cache keys).
@@ -86,6 +91,37 @@ impl Section for AeSection {
         }
         Ok(())
     }
+}
+
+/// `[replay]` of run.toml: the provenance `sparkout replay --record`
+/// writes into the run it records (replay/record.rs), read and checked like
+/// the other sections.
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ReplayProvenance {
+    /// The replayed run's directory.
+    pub source_run: Option<String>,
+    /// The compensation table applied, if any.
+    pub compensation: Option<String>,
+    /// The CAN bus (an interface, or a log file for a dry run).
+    pub bus: Option<String>,
+    pub cycle_s: Option<f64>,
+    pub counts_per_mm: Option<f64>,
+    pub cycles_streamed: Option<u64>,
+    pub rows_recorded: Option<u64>,
+    /// How the replay ended.
+    pub outcome: Option<String>,
+    /// The source's tables copied beside the recorded motion.
+    pub copied_tables: Option<Vec<String>>,
+}
+
+impl Section for ReplayProvenance {
+    const CHECKS: &'static [(&'static str, Check)] = &[
+        ("cycle_s", Check::Positive),
+        ("counts_per_mm", Check::Positive),
+        ("cycles_streamed", Check::WholeIn(0, i64::MAX)),
+        ("rows_recorded", Check::WholeIn(0, i64::MAX)),
+    ];
 }
 
 /// A section of a config file read as its [`Section`] struct, an error
@@ -231,7 +267,34 @@ impl RunSpec {
                 })
             }
         };
-        let inline_machine = doc.get("machine").and_then(|v| v.as_table()).cloned();
+        let inline_machine = match doc.get("machine") {
+            None => None,
+            Some(toml::Value::Table(t)) => {
+                // Each key is a section of a machine config; its keys are
+                // checked against the plugin's machines when the run opens.
+                if let Some((k, _)) = t.iter().find(|(_, v)| !v.is_table()) {
+                    return Err(InputError::new(
+                        &path,
+                        format!(
+                            "[machine].{k}: the inline [machine] table holds the sections of a machine config, each a table ([machine.{k}] …), e.g. [machine.machine] id = \"{machine}\""
+                        ),
+                    )
+                    .column(format!("machine.{k}")));
+                }
+                Some(t.clone())
+            }
+            Some(_) => {
+                return Err(InputError::new(
+                    &path,
+                    "[machine] must be a table (an inline machine config: [machine.machine], [machine.<section>] …)",
+                )
+                .column("machine"))
+            }
+        };
+        let replay = match doc.get("replay") {
+            None => None,
+            Some(v) => Some(read_file_section::<ReplayProvenance>(&path, "replay", v)?),
+        };
         let tolerance = match doc.get("tolerance") {
             None => BTreeMap::new(),
             Some(t) => super::tolerance::check_tolerance(t)
@@ -246,6 +309,7 @@ impl RunSpec {
             process,
             ae,
             inline_machine,
+            replay,
             tolerance,
             text: text.to_string(),
         })
@@ -274,13 +338,7 @@ impl RunSpec {
         self.tolerance
             .get(key)
             .copied()
-            .or_else(|| {
-                machine
-                    .table
-                    .get("tolerance")
-                    .and_then(|t| t.get(key))
-                    .and_then(toml_f64)
-            })
+            .or_else(|| machine.tolerance.get(key).copied())
             .or_else(|| super::tolerance::tolerance_default(key))
             .unwrap_or(f64::NAN)
     }
@@ -291,16 +349,49 @@ impl RunSpec {
     }
 }
 
-/// A resolved machine config: where it came from and its TOML.
-#[derive(Debug, Clone)]
+/// A resolved machine config: where it came from, its TOML and, once it
+/// is loaded for a run ([`super::config_keys::load_machine`]), its checked
+/// typed values: `[tolerance]` and each section the plugin declares
+/// ([`crate::MachinePlugin::machine_sections`]).
+#[derive(Debug, Clone, Default)]
 pub struct MachineConfig {
     pub id: String,
     pub source: String,
     pub table: toml::Table,
     pub text: String,
+    /// `[tolerance]`, checked (empty until loaded, or when absent).
+    pub tolerance: BTreeMap<String, f64>,
+    /// The plugin's declared sections by name, read into their serde
+    /// structs once when the machine is loaded.
+    pub sections: BTreeMap<String, crate::config_check::CheckedSection>,
 }
 
 impl MachineConfig {
+    /// A declared section as its serde struct, as it was read and checked
+    /// when the machine was loaded (absent keys at their defaults); None
+    /// when no section of that type was loaded (a config not loaded
+    /// through [`super::config_keys::load_machine`]).
+    pub fn section<T: crate::config_check::Section>(&self) -> Option<&T> {
+        self.sections.values().find_map(|s| s.get::<T>())
+    }
+
+    /// Section `name` as its serde struct: the value read when the machine
+    /// was loaded, or — for a config not loaded for a run (a generator's,
+    /// a run-less stage's) — read now through the same reader. An absent
+    /// section holds the struct's defaults; an error names the file and
+    /// `name.key`.
+    pub fn typed_section<T: Section + Clone>(&self, name: &str) -> Result<T, InputError> {
+        if let Some(v) = self.section::<T>() {
+            return Ok(v.clone());
+        }
+        let empty = toml::Value::Table(toml::Table::new());
+        read_file_section::<T>(
+            Path::new(&self.source),
+            name,
+            self.table.get(name).unwrap_or(&empty),
+        )
+    }
+
     /// Where the config came from, without any directory (a per-run output
     /// must not depend on the working directory or where a shard ran): the
     /// file name or "built-in" or "inline", and a hash of the text.
@@ -395,6 +486,18 @@ impl MachineResolver {
         h.finalize().to_hex().to_string()
     }
 
+    /// The run's inline `[machine]` table as a machine config (not yet
+    /// loaded), its errors naming `run.toml [machine]`.
+    pub fn inline(spec: &RunSpec) -> Option<MachineConfig> {
+        spec.inline_machine.as_ref().map(|t| MachineConfig {
+            id: spec.machine.clone(),
+            source: format!("{} [machine]", spec.run_toml_path().display()),
+            text: toml::to_string(t).unwrap_or_default(),
+            table: t.clone(),
+            ..MachineConfig::default()
+        })
+    }
+
     pub fn resolve(&self, spec: &RunSpec) -> Result<MachineConfig, InputError> {
         let id = &spec.machine;
         let parse = |text: &str, source: String| -> Result<MachineConfig, InputError> {
@@ -406,6 +509,7 @@ impl MachineResolver {
                 source,
                 table,
                 text: text.to_string(),
+                ..MachineConfig::default()
             })
         };
         for dir in &self.dirs {
@@ -414,13 +518,8 @@ impl MachineResolver {
                 return parse(&text, p.display().to_string());
             }
         }
-        if let Some(t) = &spec.inline_machine {
-            return Ok(MachineConfig {
-                id: id.clone(),
-                source: format!("{} [machine]", spec.run_toml_path().display()),
-                text: toml::to_string(t).unwrap_or_default(),
-                table: t.clone(),
-            });
+        if let Some(m) = Self::inline(spec) {
+            return Ok(m);
         }
         if let Some(text) = self.builtins.get(id) {
             return parse(text, format!("built-in machine `{id}`"));
@@ -738,5 +837,59 @@ mod tests {
         let blank = RUN.replace("id = \"r1\"", "id = \" \"");
         let e = RunSpec::parse(Path::new("runs/r1"), &blank).unwrap_err();
         assert_eq!(e.column.as_deref(), Some("run.id"), "{e}");
+    }
+
+    #[test]
+    fn run_toml_machine_and_replay_are_checked_by_key_and_type() {
+        let ok = parse(
+            "[replay]\nsource_run = \"runs/r0\"\nbus = \"vcan0\"\ncycle_s = 0.004\ncounts_per_mm = 1000.0\ncycles_streamed = 10\nrows_recorded = 10\noutcome = \"completed\"\ncopied_tables = [\"plan\"]\n[machine.machine]\nid = \"kr16-lab\"\n[machine.wheel]\nradius_mm = 40.0\n",
+        )
+        .unwrap();
+        let replay = ok.replay.unwrap();
+        assert_eq!(
+            (replay.cycle_s, replay.rows_recorded, replay.copied_tables),
+            (Some(0.004), Some(10), Some(vec!["plan".to_string()]))
+        );
+        assert!(ok.inline_machine.unwrap().contains_key("wheel"));
+        assert!(parse("").unwrap().replay.is_none());
+        for (extra, column, needle) in [
+            // An unknown key, a wrong type, a value out of range.
+            (
+                "[replay]\nsorce_run = \"runs/r0\"\n",
+                "replay.sorce_run",
+                "unknown key",
+            ),
+            (
+                "[replay]\ncycle_s = \"4 ms\"\n",
+                "replay.cycle_s",
+                "a number > 0",
+            ),
+            ("[replay]\ncycle_s = 0\n", "replay.cycle_s", "a number > 0"),
+            (
+                "[replay]\nrows_recorded = -1\n",
+                "replay.rows_recorded",
+                "a whole number",
+            ),
+            (
+                "[replay]\ncopied_tables = \"plan\"\n",
+                "replay.copied_tables",
+                "copied_tables",
+            ),
+            ("replay = 5\n", "replay", "must be a table"),
+            ("machine = \"kr16-lab\"\n", "machine", "must be a table"),
+            (
+                "[machine]\nradius_mm = 40.0\n",
+                "machine.radius_mm",
+                "each a table",
+            ),
+        ] {
+            let e = parse(extra).unwrap_err();
+            assert_eq!(e.column.as_deref(), Some(column), "{extra}: {e}");
+            let text = e.to_string();
+            assert!(
+                text.contains("runs/r1/run.toml") && text.contains(needle),
+                "{extra}: {text}"
+            );
+        }
     }
 }

@@ -206,9 +206,11 @@ pub fn check_finite(stage: &str, artifact: &str, batch: &RecordBatch) -> Result<
 }
 
 /// What a plugin declares, checked when the engine is built: every stage's
-/// spec on its own, stage names unique within the plugin, and the DAG its
+/// spec on its own, stage names unique within the plugin, the DAG its
 /// stages form (each artifact read is written by exactly one stage, no
-/// cycle).
+/// cycle), and its built-in machines loaded through its declared machine
+/// sections (a section struct that refuses a built-in value is a plugin
+/// bug).
 pub(super) fn check_plugin(
     plugin: &dyn MachinePlugin,
     tables: &crate::contracts::TableRegistry,
@@ -232,6 +234,26 @@ pub(super) fn check_plugin(
         if let Some(t) = set.iter().find(|t| tables.get(t).is_none()) {
             bail!("plugin `{}` requires unknown table `{t}`", plugin.name());
         }
+    }
+    let builtins = plugin.builtin_machines();
+    let texts: Vec<&str> = builtins.iter().map(|(_, t)| *t).collect();
+    for (id, text) in &builtins {
+        let mut m = crate::contracts::MachineConfig {
+            id: id.to_string(),
+            source: format!("built-in machine `{id}`"),
+            table: text
+                .parse()
+                .with_context(|| format!("plugin `{}`: built-in machine `{id}`", plugin.name()))?,
+            text: text.to_string(),
+            ..Default::default()
+        };
+        crate::contracts::config_keys::load_machine(
+            &mut m,
+            plugin.name(),
+            &texts,
+            plugin.machine_sections(),
+        )
+        .with_context(|| format!("plugin `{}`: its built-in machine `{id}`", plugin.name()))?;
     }
     Ok(())
 }

@@ -94,15 +94,9 @@ pub struct PipelineSection {
 
 impl Section for PipelineSection {}
 
-/// `[report]`: what the report pages take from the config.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct ReportSection {
-    /// The pages' title (each page has its own default).
-    pub title: Option<String>,
-}
-
-impl Section for ReportSection {}
+/// `[report]`: what the report pages take from the config (defined with
+/// the pages, which receive it typed).
+pub use crate::report::ReportConfig as ReportSection;
 
 /// The pipeline config read and checked once, when the engine is built
 /// (before any run): each section as its typed, checked value. Runs and
@@ -156,6 +150,40 @@ mod tests {
         assert_eq!(c.section("report")["title"].as_str(), Some("night shift"));
         assert!(c.set("nokey").is_err());
         assert!(c.set("robot..x=1").is_err());
+    }
+
+    #[test]
+    fn report_and_pipeline_sections_are_checked_naming_file_and_key() {
+        let check = |text: &str| {
+            let c = PipelineConfig::parse(text, "night.toml").unwrap();
+            super::super::checks::check_config(&[], &c)
+        };
+        let ok = check("[report]\ntitle = \"night shift\"\n[pipeline]\nstages = [\"report\"]\n")
+            .unwrap();
+        assert_eq!(ok.report.title.as_deref(), Some("night shift"));
+        assert_eq!(ok.pipeline.stages, Some(vec!["report".to_string()]));
+        // An unknown key, a wrong type, a value outside what the key takes.
+        for (text, needle) in [
+            ("[report]\ntitel = \"x\"\n", "unknown key `titel`"),
+            ("[report]\ntitle = 5\n", "key `title`"),
+            ("[pipeline]\nstages = \"report\"\n", "key `stages`"),
+            ("[pipeline]\nplugin = [\"robot\"]\n", "unknown key `plugin`"),
+            (
+                "[pipeline]\nplugins = [\"robotx\"]\n",
+                "[pipeline].plugins names unknown plugin `robotx`",
+            ),
+            (
+                "[pipeline]\nstages = [\"injest\"]\n",
+                "[pipeline].stages names unknown stage `injest`",
+            ),
+            ("report = 5\n", "[report] must be a table"),
+        ] {
+            let e = format!("{:#}", check(text).unwrap_err());
+            assert!(
+                e.contains("night.toml") && e.contains(needle),
+                "{text}: {e}"
+            );
+        }
     }
 
     #[test]

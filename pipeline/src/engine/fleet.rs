@@ -303,7 +303,7 @@ impl Engine {
         let rkey = rkey.finish();
         if !cache.reuse("report", fleet_dir, &rkey) {
             let html = report::fleet_page(
-                &self.config.section("report"),
+                &self.checked.report,
                 outcome,
                 diagnosis.as_ref(),
                 diagnosis_html.as_deref(),
@@ -336,7 +336,7 @@ impl Engine {
         );
         let ikey = ikey.finish();
         if !cache.reuse("index", out, &ikey) {
-            let html = report::index_page(&self.config.section("report"), outcome);
+            let html = report::index_page(&self.checked.report, outcome);
             cache.write(
                 "index",
                 report::REPORT_VERSION,

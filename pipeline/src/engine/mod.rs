@@ -250,9 +250,26 @@ impl Engine {
                 .into());
             }
         }
-        let machine = self.resolver.resolve(&spec)?;
+        let mut machine = self.resolver.resolve(&spec)?;
         let builtins: Vec<&str> = plugin.builtin_machines().iter().map(|(_, t)| *t).collect();
-        config_keys::check_machine(&machine, plugin.name(), &builtins)?;
+        config_keys::load_machine(
+            &mut machine,
+            plugin.name(),
+            &builtins,
+            plugin.machine_sections(),
+        )?;
+        // An inline [machine] that a machine config file shadows is checked
+        // all the same: a typo in it is never silent.
+        if let Some(mut inline) = MachineResolver::inline(&spec) {
+            if inline.source != machine.source {
+                config_keys::load_machine(
+                    &mut inline,
+                    plugin.name(),
+                    &builtins,
+                    plugin.machine_sections(),
+                )?;
+            }
+        }
         config_keys::check_process(&spec, plugin.name(), plugin.process_keys())?;
         let run = Run::new(spec, machine);
         // Every present table is checked against the contract up front, the

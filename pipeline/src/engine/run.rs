@@ -248,7 +248,7 @@ impl Engine {
             let sections = plugin.report_sections(&run, &store);
             let verdicts = plugin.verdicts(&run, &store);
             let html = report::run_page(
-                &self.config.section("report"),
+                &self.checked.report,
                 &run,
                 &store.summaries(),
                 &verdicts,

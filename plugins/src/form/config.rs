@@ -145,3 +145,52 @@ impl Section for SegmentSection {
 pub fn curvature(window_points: usize) -> CurvatureConfig {
     CurvatureConfig { window_points }
 }
+
+/// `[wheel]` of a form machine config (configs/machines/form-grinder.toml),
+/// read once when the machine is loaded. None: the machine does not say
+/// (the stage that needs the value names the key).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct MachineWheel {
+    /// A new wheel's radius (mm).
+    pub radius_max_mm: Option<f64>,
+    /// How far dressing may take the radius down (mm).
+    pub usable_range_mm: Option<f64>,
+    pub width_mm: Option<f64>,
+    /// Segments of the radius range (a `[form.segment]` key wins).
+    pub segments: Option<usize>,
+}
+
+impl Section for MachineWheel {
+    const CHECKS: &'static [(&'static str, Check)] = &[
+        ("radius_max_mm", Check::Positive),
+        ("usable_range_mm", Check::Positive),
+        ("width_mm", Check::Positive),
+        ("segments", Check::WholeIn(1, MAX_SEGMENTS as i64)),
+    ];
+}
+
+/// `[process]` of a form machine config: the machine's defaults for what
+/// a run's `[process]` may give.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct MachineProcess {
+    /// Path speed along the profile (mm/s).
+    pub feed_mm_s: Option<f64>,
+}
+
+impl Section for MachineProcess {
+    const CHECKS: &'static [(&'static str, Check)] = &[("feed_mm_s", Check::Positive)];
+}
+
+/// The form machine config's sections the stages read.
+pub const MACHINE_SECTIONS: &[(&str, sparkout_pipeline::config_check::SectionCheck)] = &[
+    (
+        "wheel",
+        sparkout_pipeline::config_check::SectionCheck::of::<MachineWheel>(),
+    ),
+    (
+        "process",
+        sparkout_pipeline::config_check::SectionCheck::of::<MachineProcess>(),
+    ),
+];

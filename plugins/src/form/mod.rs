@@ -77,6 +77,11 @@ impl MachinePlugin for FormPlugin {
     fn builtin_machines(&self) -> Vec<(&'static str, &'static str)> {
         vec![("form-grinder", FORM_GRINDER_TOML)]
     }
+    fn machine_sections(
+        &self,
+    ) -> &'static [(&'static str, sparkout_pipeline::config_check::SectionCheck)] {
+        config::MACHINE_SECTIONS
+    }
     /// `wheel_wear` = wear on the volume removed since the last dressing:
     /// the wheel loses radius in proportion to the volume it grinds
     /// (grinding ratio), the controller only knows the dressed radius, so

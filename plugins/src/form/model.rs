@@ -187,7 +187,11 @@ pub fn delta_at(p: &Profile, path: &CentrePath, phi: f64, r_k: f64, wear_mm: f64
 /// run.toml gives removed_before_mm3 and stock_mm and a width is known
 /// (`[process] width_mm`, else the machine's `wheel.width_mm`).
 pub fn wheel_usage(run: &Run) -> Option<(f64, f64)> {
-    let width = process_f64(run, "width_mm").or_else(|| run.machine.f64("wheel.width_mm"));
+    let width = process_f64(run, "width_mm").or_else(|| {
+        run.machine
+            .section::<super::config::MachineWheel>()
+            .and_then(|w| w.width_mm)
+    });
     match (
         process_f64(run, "removed_before_mm3"),
         process_f64(run, "stock_mm"),
@@ -212,8 +216,12 @@ impl WheelRange {
         self.r_max_mm - self.range_mm
     }
     pub fn from_machine(m: &MachineConfig) -> Result<WheelRange> {
-        let get = |k: &str| {
-            m.f64(k).ok_or_else(|| {
+        let wheel = m
+            .section::<super::config::MachineWheel>()
+            .cloned()
+            .unwrap_or_default();
+        let get = |k: &str, v: Option<f64>| {
+            v.ok_or_else(|| {
                 InputError::new(
                     &m.source,
                     format!(
@@ -225,8 +233,8 @@ impl WheelRange {
             })
         };
         let w = WheelRange {
-            r_max_mm: get("wheel.radius_max_mm")?,
-            range_mm: get("wheel.usable_range_mm")?,
+            r_max_mm: get("wheel.radius_max_mm", wheel.radius_max_mm)?,
+            range_mm: get("wheel.usable_range_mm", wheel.usable_range_mm)?,
         };
         w.check()
             .map_err(|m2| InputError::new(&m.source, m2).column("wheel"))?;
@@ -376,7 +384,11 @@ pub fn process_f64(run: &Run, key: &str) -> Option<f64> {
 /// machine's `[process] feed_mm_s`, else 10 mm/s; must be > 0.
 pub fn feed_mm_s(run: &Run) -> Result<f64> {
     let feed = process_f64(run, "feed_mm_s")
-        .or_else(|| run.machine.f64("process.feed_mm_s"))
+        .or_else(|| {
+            run.machine
+                .section::<super::config::MachineProcess>()
+                .and_then(|p| p.feed_mm_s)
+        })
         .unwrap_or(10.0);
     if !(feed > 0.0 && feed.is_finite()) {
         return Err(InputError::new(

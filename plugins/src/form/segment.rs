@@ -334,10 +334,13 @@ impl Stage for SegmentStage {
             None => ctx.run.spec.process_f64("z_mm", 0.0),
         };
         // Segment count: stage config, else the machine's `[wheel] segments`.
-        let segments = match (cfg.segments, ctx.run.machine.f64("wheel.segments")) {
-            (None, Some(m)) if m >= 1.0 && m.fract() == 0.0 && m <= MAX_SEGMENTS as f64 => {
-                m as usize
-            }
+        let machine_segments = ctx
+            .run
+            .machine
+            .section::<super::config::MachineWheel>()
+            .and_then(|w| w.segments);
+        let segments = match (cfg.segments, machine_segments) {
+            (None, Some(m)) if (1..=MAX_SEGMENTS).contains(&m) => m,
             _ => sc.segments,
         };
         let sc = SegmentConfig {

@@ -49,6 +49,7 @@ pub fn builtin_machine() -> anyhow::Result<MachineConfig> {
         source: "built-in machine `aplm-gantry`".into(),
         table: APLM_GANTRY_TOML.parse()?,
         text: APLM_GANTRY_TOML.to_string(),
+        ..Default::default()
     })
 }
 

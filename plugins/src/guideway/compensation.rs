@@ -38,7 +38,9 @@ use sparkout_pipeline::{InputError, Result, Stage, StageContext, StageOutput, St
 
 use super::ar_fpe;
 use super::augment::ThermalGrowth;
-use super::config::{machine_f64, AutoOff, CompensationConfig};
+use super::config::{
+    machine_f64, machine_section, AutoOff, CompensationConfig, MachineHeadstock, MachineProcess,
+};
 use super::predictor::PredictorSummary;
 use super::separate::SepData;
 
@@ -375,13 +377,17 @@ impl Stage for CompensationStage {
             None => None,
         };
         let infeed = cfg.infeed_mm.unwrap_or_else(|| {
-            ctx.run
-                .spec
-                .process_f64("infeed_mm", machine_f64(ctx.run, "process.infeed_mm", 0.0))
+            ctx.run.spec.process_f64(
+                "infeed_mm",
+                machine_f64(machine_section::<MachineProcess>(ctx.run).infeed_mm, 0.0),
+            )
         });
-        let backlash = cfg
-            .backlash_mm
-            .unwrap_or_else(|| machine_f64(ctx.run, "headstock.backlash_mm", 0.0));
+        let backlash = cfg.backlash_mm.unwrap_or_else(|| {
+            machine_f64(
+                machine_section::<MachineHeadstock>(ctx.run).backlash_mm,
+                0.0,
+            )
+        });
         let c = curve(&s, &fit, d, &coef, infeed, backlash);
         let t: Vec<f64> = c.rows.iter().map(|&i| s.t_s[i]).collect();
         if let Some(w) = t.windows(2).position(|w| w[1] <= w[0]) {

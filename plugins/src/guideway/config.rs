@@ -4,7 +4,7 @@
 //! them with defaults from the machine config where the source (docs/models.md §3) gives one.
 
 use serde::{Deserialize, Serialize};
-use sparkout_pipeline::config_check::{read_section, Check, Section};
+use sparkout_pipeline::config_check::{read_section, Check, Section, SectionCheck};
 use sparkout_pipeline::{Result, Run};
 
 use super::ar_fpe::Criterion;
@@ -117,8 +117,13 @@ impl PredictorConfig {
     /// when the section gives none.
     pub fn resolve(mut self, run: Option<&Run>) -> PredictorConfig {
         self.repeatability_mm = Some(self.repeatability_mm.unwrap_or_else(|| {
-            run.map(|r| machine_f64(r, "table.repeatability_mm", DEFAULT_REPEATABILITY_MM))
-                .unwrap_or(DEFAULT_REPEATABILITY_MM)
+            run.map(|r| {
+                machine_f64(
+                    machine_section::<MachineTable>(r).repeatability_mm,
+                    DEFAULT_REPEATABILITY_MM,
+                )
+            })
+            .unwrap_or(DEFAULT_REPEATABILITY_MM)
         }));
         self
     }
@@ -194,13 +199,95 @@ impl Section for ObserveConfig {
 
 pub use sparkout_pipeline::config_check::flags_to_table;
 
-/// A positive number from the machine config, with a default.
-pub fn machine_f64(run: &Run, dotted: &str, default: f64) -> f64 {
-    run.machine
-        .f64(dotted)
+/// A number ≥ 0 from the machine config, with a default.
+pub fn machine_f64(value: Option<f64>, default: f64) -> f64 {
+    value
         .filter(|v| v.is_finite() && *v >= 0.0)
         .unwrap_or(default)
 }
+
+/// A section of the run's machine config as its serde struct, as read and
+/// checked when the machine was loaded (its defaults when the machine was
+/// not loaded with it).
+pub fn machine_section<T: Section + Clone>(run: &Run) -> T {
+    run.machine.section::<T>().cloned().unwrap_or_default()
+}
+
+/// `[probes]` of a guideway machine config
+/// (configs/machines/guideway-grinder.toml).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct MachineProbes {
+    /// Distance between neighbouring probes (mm).
+    pub spacing_mm: Option<f64>,
+    /// Table travel between two readings (mm).
+    pub sample_step_mm: Option<f64>,
+    /// Measuring range of a probe (mm).
+    pub range_mm: Option<f64>,
+    /// Resolution of the probes' converter (bits).
+    pub adc_bits: Option<u32>,
+    /// Probe noise σ (mm).
+    pub sigma_mm: Option<f64>,
+}
+
+impl Section for MachineProbes {
+    const CHECKS: &'static [(&'static str, Check)] = &[
+        ("spacing_mm", Check::Positive),
+        ("sample_step_mm", Check::Positive),
+        ("range_mm", Check::Positive),
+        ("adc_bits", Check::WholeIn(1, 64)),
+        ("sigma_mm", Check::NonNegative),
+    ];
+}
+
+/// `[table]` of a guideway machine config.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct MachineTable {
+    pub speed_mm_s: Option<f64>,
+    pub travel_mm: Option<f64>,
+    /// Positioning repeatability (mm): the predictor's default noise.
+    pub repeatability_mm: Option<f64>,
+}
+
+impl Section for MachineTable {
+    const CHECKS: &'static [(&'static str, Check)] = &[
+        ("speed_mm_s", Check::Positive),
+        ("travel_mm", Check::Positive),
+        ("repeatability_mm", Check::NonNegative),
+    ];
+}
+
+/// `[headstock]` of a guideway machine config.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct MachineHeadstock {
+    pub backlash_mm: Option<f64>,
+}
+
+impl Section for MachineHeadstock {
+    const CHECKS: &'static [(&'static str, Check)] = &[("backlash_mm", Check::NonNegative)];
+}
+
+/// `[process]` of a guideway machine config: the machine's defaults for
+/// what a run's `[process]` may give.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct MachineProcess {
+    pub infeed_mm: Option<f64>,
+}
+
+impl Section for MachineProcess {
+    const CHECKS: &'static [(&'static str, Check)] = &[("infeed_mm", Check::NonNegative)];
+}
+
+/// The guideway machine config's sections the stages read.
+pub const MACHINE_SECTIONS: &[(&str, SectionCheck)] = &[
+    ("probes", SectionCheck::of::<MachineProbes>()),
+    ("table", SectionCheck::of::<MachineTable>()),
+    ("headstock", SectionCheck::of::<MachineHeadstock>()),
+    ("process", SectionCheck::of::<MachineProcess>()),
+];
 
 #[cfg(test)]
 mod tests {

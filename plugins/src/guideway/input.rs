@@ -10,6 +10,7 @@
 
 use std::path::{Path, PathBuf};
 
+use super::config::{machine_section, MachineProbes, MachineTable};
 use crate::guideway::tables::GUIDEWAY;
 use arrow::array::{Array, Int64Array};
 use arrow::compute::cast;
@@ -126,7 +127,8 @@ fn positive(v: Option<f64>) -> Option<f64> {
 /// Probe geometry of a run; a missing or bad value names run.toml's key.
 pub fn geometry(run: &Run) -> Result<Geometry> {
     let toml_path = run.spec.run_toml_path();
-    let get = |process_key: &str, machine_key: &str| -> Result<f64> {
+    let probes: MachineProbes = machine_section(run);
+    let get = |process_key: &str, machine_key: &str, machine_value: Option<f64>| -> Result<f64> {
         match run.spec.process.get(process_key) {
             Some(v) => {
                 let x = match v {
@@ -143,7 +145,7 @@ pub fn geometry(run: &Run) -> Result<Geometry> {
                     )
                 })
             }
-            None => positive(run.machine.f64(machine_key)).ok_or_else(|| {
+            None => positive(machine_value).ok_or_else(|| {
                 bad(
                     &toml_path,
                     &format!("process.{process_key}"),
@@ -158,9 +160,14 @@ pub fn geometry(run: &Run) -> Result<Geometry> {
         }
     };
     Ok(Geometry {
-        spacing_mm: get("probe_spacing_mm", "probes.spacing_mm")?,
-        step_mm: get("sample_step_mm", "probes.sample_step_mm")?,
-        speed_mm_s: positive(run.machine.f64("table.speed_mm_s")).unwrap_or(20_000.0 / 60.0),
+        spacing_mm: get("probe_spacing_mm", "probes.spacing_mm", probes.spacing_mm)?,
+        step_mm: get(
+            "sample_step_mm",
+            "probes.sample_step_mm",
+            probes.sample_step_mm,
+        )?,
+        speed_mm_s: positive(machine_section::<MachineTable>(run).speed_mm_s)
+            .unwrap_or(20_000.0 / 60.0),
     })
 }
 

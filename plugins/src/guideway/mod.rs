@@ -71,6 +71,11 @@ impl MachinePlugin for GuidewayPlugin {
     fn builtin_machines(&self) -> Vec<(&'static str, &'static str)> {
         vec![("guideway-grinder", GUIDEWAY_GRINDER_TOML)]
     }
+    fn machine_sections(
+        &self,
+    ) -> &'static [(&'static str, sparkout_pipeline::config_check::SectionCheck)] {
+        config::MACHINE_SECTIONS
+    }
     /// `thermal_infeed` = wear on `infeed_count`: the source (docs/models.md
     /// §3.4) says the workpiece's thermal deformation grows mainly with the
     /// number of infeeds, so a gap linear in the infeed count is named for

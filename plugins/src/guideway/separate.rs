@@ -19,7 +19,7 @@ use sparkout_pipeline::config_check::{read_section, SectionCheck};
 use sparkout_pipeline::contracts::{batch_f64, batch_i32, BatchBuilder};
 use sparkout_pipeline::{Result, Stage, StageArgs, StageContext, StageOutput, StageSpec};
 
-use super::config::{flags_to_table, machine_f64, SeparateSection};
+use super::config::{flags_to_table, machine_f64, machine_section, MachineProbes, SeparateSection};
 use super::input::{self, Geometry, Readings};
 use super::three_probe::{self, straightness_rms, Method, Separation};
 
@@ -250,9 +250,9 @@ impl Stage for SeparateStage {
     }
     fn run(&self, ctx: &StageContext) -> Result<StageOutput> {
         let cfg: &SeparateSection = ctx.section()?;
-        let sigma_mm = cfg
-            .probe_sigma_mm
-            .unwrap_or_else(|| machine_f64(ctx.run, "probes.sigma_mm", 1e-4));
+        let sigma_mm = cfg.probe_sigma_mm.unwrap_or_else(|| {
+            machine_f64(machine_section::<MachineProbes>(ctx.run).sigma_mm, 1e-4)
+        });
         let r = input::load(ctx.run, &cfg.input())?;
         let s = three_probe::separate(&r, cfg.method, cfg.reference, sigma_mm)?;
         let other_method = match cfg.method {

@@ -11,8 +11,8 @@ use sparkout_pipeline::{ConfigError, InputError, Result};
 use super::chain::{function_index, function_name, Layout, N_FUNCTIONS, V3};
 
 /// `[axes]`: travels (min, max) in mm.
-#[derive(Debug, Clone, Deserialize)]
-#[serde(deny_unknown_fields)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
 struct AxesToml {
     x_mm: [f64; 2],
     y_mm: [f64; 2],
@@ -20,15 +20,15 @@ struct AxesToml {
 }
 
 /// `[tool]`: the reflector offsets in the spindle (Z carriage) frame.
-#[derive(Debug, Clone, Deserialize)]
-#[serde(deny_unknown_fields)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
 struct ToolToml {
     offsets_mm: Vec<[f64; 3]>,
 }
 
 /// `[identification]` defaults (a `[mill.kinematics]` key overrides them).
-#[derive(Debug, Clone, Default, Deserialize)]
-#[serde(deny_unknown_fields)]
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
 struct IdentToml {
     degree: Option<i64>,
     holdout_fraction: Option<f64>,
@@ -37,8 +37,8 @@ struct IdentToml {
 }
 
 /// `[tracker]`: the instrument.
-#[derive(Debug, Clone, Default, Deserialize)]
-#[serde(deny_unknown_fields)]
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
 struct TrackerToml {
     sigma_mm: Option<f64>,
 }
@@ -57,24 +57,35 @@ pub struct MillMachine {
     pub tracker_sigma_mm: f64,
 }
 
-fn section<T: serde::de::DeserializeOwned + Default>(
-    m: &MachineConfig,
-    name: &str,
-    required: bool,
-) -> Result<T, InputError> {
-    match m.table.get(name) {
-        None if required => Err(InputError::new(
-            &m.source,
-            format!("the mill machine config needs a [{name}] table"),
-        )
-        .column(name)),
-        None => Ok(T::default()),
-        Some(v) => v
-            .clone()
-            .try_into()
-            .map_err(|e| InputError::new(&m.source, format!("[{name}]: {e}")).column(name)),
-    }
+impl Section for AxesToml {}
+impl Section for ToolToml {}
+impl Section for IdentToml {
+    const CHECKS: &'static [(&'static str, Check)] = &[("seed", Check::WholeIn(0, i64::MAX))];
 }
+impl Section for TrackerToml {
+    const CHECKS: &'static [(&'static str, Check)] = &[("sigma_mm", Check::Positive)];
+}
+
+/// The mill machine config's sections, read once when a run's machine is
+/// loaded ([`MillMachine::from_config`] takes them from there).
+pub const MACHINE_SECTIONS: &[(&str, sparkout_pipeline::config_check::SectionCheck)] = &[
+    (
+        "axes",
+        sparkout_pipeline::config_check::SectionCheck::of::<AxesToml>(),
+    ),
+    (
+        "tool",
+        sparkout_pipeline::config_check::SectionCheck::of::<ToolToml>(),
+    ),
+    (
+        "identification",
+        sparkout_pipeline::config_check::SectionCheck::of::<IdentToml>(),
+    ),
+    (
+        "tracker",
+        sparkout_pipeline::config_check::SectionCheck::of::<TrackerToml>(),
+    ),
+];
 
 impl Default for AxesToml {
     fn default() -> Self {
@@ -127,10 +138,34 @@ fn check_holdout(f: f64) -> Result<f64> {
 impl MillMachine {
     pub fn from_config(m: &MachineConfig) -> Result<MillMachine, InputError> {
         let bad = |key: &str, msg: String| InputError::new(&m.source, msg).column(key);
-        let axes: AxesToml = section(m, "axes", true)?;
-        let tool: ToolToml = section(m, "tool", false)?;
-        let ident: IdentToml = section(m, "identification", false)?;
-        let tracker: TrackerToml = section(m, "tracker", false)?;
+        if !m.table.contains_key("axes") {
+            return Err(bad(
+                "axes",
+                "the mill machine config needs a [axes] table".into(),
+            ));
+        }
+        // Keys without a default: required when their section is given.
+        for (section, key) in [
+            ("axes", "x_mm"),
+            ("axes", "y_mm"),
+            ("axes", "z_mm"),
+            ("tool", "offsets_mm"),
+        ] {
+            if m.table
+                .get(section)
+                .and_then(|t| t.as_table())
+                .is_some_and(|t| !t.contains_key(key))
+            {
+                return Err(bad(
+                    &format!("{section}.{key}"),
+                    format!("required key [{section}].{key} is missing"),
+                ));
+            }
+        }
+        let axes: AxesToml = m.typed_section("axes")?;
+        let tool: ToolToml = m.typed_section("tool")?;
+        let ident: IdentToml = m.typed_section("identification")?;
+        let tracker: TrackerToml = m.typed_section("tracker")?;
         let mut travels = [(0.0, 0.0); 3];
         for (a, (name, t)) in [
             ("x_mm", axes.x_mm),
@@ -292,6 +327,7 @@ mod tests {
             source: "m.toml".into(),
             table: text.parse().unwrap(),
             text: text.into(),
+            ..Default::default()
         })
     }
 
@@ -316,6 +352,20 @@ mod tests {
         )
         .unwrap_err();
         assert!(e.message.contains("ex_q"), "{e}");
+        // Unknown key, wrong type, out of range, a required key left out:
+        // each names `section.key`.
+        let axes = "[axes]\nx_mm = [0, 600]\ny_mm = [0, 400]\nz_mm = [0, 300]\n";
+        for (extra, column) in [
+            ("[tracker]\nsigma = 0.002\n", "tracker.sigma"),
+            ("[tracker]\nsigma_mm = \"2 um\"\n", "tracker.sigma_mm"),
+            ("[tracker]\nsigma_mm = 0\n", "tracker.sigma_mm"),
+            ("[identification]\nseed = -1\n", "identification.seed"),
+            ("[tool]\n", "tool.offsets_mm"),
+        ] {
+            let e = machine(&format!("{axes}{extra}")).unwrap_err();
+            assert_eq!(e.column.as_deref(), Some(column), "{extra}: {e}");
+            assert!(e.to_string().contains("m.toml"), "{e}");
+        }
     }
 
     #[test]

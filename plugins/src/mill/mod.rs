@@ -65,6 +65,11 @@ impl MachinePlugin for MillPlugin {
     fn builtin_machines(&self) -> Vec<(&'static str, &'static str)> {
         vec![("xfyz-mill", XFYZ_MILL_TOML)]
     }
+    fn machine_sections(
+        &self,
+    ) -> &'static [(&'static str, sparkout_pipeline::config_check::SectionCheck)] {
+        config::MACHINE_SECTIONS
+    }
     /// `thermal_growth` = drift in time (warm-up): the spindle
     /// and column grow towards a steady state as A·(1 − e^(−t/τ)) while the
     /// tracker points are taken; the identified geometric model is static,

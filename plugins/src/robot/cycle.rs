@@ -444,7 +444,8 @@ pub fn contact_area_mm2(ctx: &StageContext, cfg: &CycleConfig) -> f64 {
     }
     ctx.run
         .machine
-        .f64("process.contact_area_mm2")
+        .section::<super::machine::MachineProcess>()
+        .and_then(|p| p.contact_area_mm2)
         .unwrap_or(100.0)
 }
 

@@ -26,6 +26,7 @@ pub mod ae;
 pub mod cycle;
 pub mod datum;
 pub mod ingest;
+pub mod machine;
 pub mod observe;
 pub mod planes;
 pub mod repeatability;
@@ -80,6 +81,11 @@ impl MachinePlugin for RobotPlugin {
     }
     fn builtin_machines(&self) -> Vec<(&'static str, &'static str)> {
         vec![("kr16-lab", KR16_LAB_TOML)]
+    }
+    fn machine_sections(
+        &self,
+    ) -> &'static [(&'static str, sparkout_pipeline::config_check::SectionCheck)] {
+        machine::MACHINE_SECTIONS
     }
     /// `trigger_latency` = lag on the signed normal approach speed (docs/design.md
     /// §7, point 2): a touch registered L seconds

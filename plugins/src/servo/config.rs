@@ -14,8 +14,8 @@ use super::model::AxisServo;
 pub const AXES: [&str; 3] = ["x", "y", "z"];
 
 /// `[servo]` and `[servo.<axis>]`.
-#[derive(Debug, Clone, Default, Deserialize)]
-#[serde(deny_unknown_fields)]
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
 struct ServoToml {
     kv_1_s: Option<f64>,
     ff: Option<f64>,
@@ -24,7 +24,7 @@ struct ServoToml {
     z: Option<AxisToml>,
 }
 
-#[derive(Debug, Clone, Default, Deserialize)]
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct AxisToml {
     kv_1_s: Option<f64>,
@@ -33,8 +33,8 @@ struct AxisToml {
 
 /// `[logging]`: how finely the controller logs (the measurement's own
 /// resolution, which no model can beat: docs/servo.md "Noise floor").
-#[derive(Debug, Clone, Default, Deserialize)]
-#[serde(deny_unknown_fields)]
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
 struct LoggingToml {
     position_resolution_mm: Option<f64>,
     position_significant_digits: Option<i64>,
@@ -78,18 +78,29 @@ pub struct ServoMachine {
     pub velocity: Resolution,
 }
 
-fn section<T: serde::de::DeserializeOwned + Default>(
-    m: &MachineConfig,
-    name: &str,
-) -> Result<T, InputError> {
-    match m.table.get(name) {
-        None => Ok(T::default()),
-        Some(v) => v
-            .clone()
-            .try_into()
-            .map_err(|e| InputError::new(&m.source, format!("[{name}]: {e}")).column(name)),
-    }
+impl Section for ServoToml {}
+
+impl Section for LoggingToml {
+    const CHECKS: &'static [(&'static str, Check)] = &[
+        ("position_resolution_mm", Check::NonNegative),
+        ("velocity_resolution_mm_s", Check::NonNegative),
+        ("position_significant_digits", Check::WholeIn(1, 17)),
+        ("velocity_significant_digits", Check::WholeIn(1, 17)),
+    ];
 }
+
+/// The servo machine config's sections, read once when a run's machine is
+/// loaded ([`ServoMachine::from_config`] takes them from there).
+pub const MACHINE_SECTIONS: &[(&str, sparkout_pipeline::config_check::SectionCheck)] = &[
+    (
+        "servo",
+        sparkout_pipeline::config_check::SectionCheck::of::<ServoToml>(),
+    ),
+    (
+        "logging",
+        sparkout_pipeline::config_check::SectionCheck::of::<LoggingToml>(),
+    ),
+];
 
 /// Default position-loop gain when the machine config gives none: 30 1/s
 /// (a lag of 33 ms), typical of a machine tool's position loop.
@@ -98,8 +109,8 @@ pub const DEFAULT_KV_1_S: f64 = 30.0;
 impl ServoMachine {
     pub fn from_config(m: &MachineConfig) -> Result<ServoMachine, InputError> {
         let bad = |key: &str, msg: String| InputError::new(&m.source, msg).column(key);
-        let s: ServoToml = section(m, "servo")?;
-        let log: LoggingToml = section(m, "logging")?;
+        let s: ServoToml = m.typed_section("servo")?;
+        let log: LoggingToml = m.typed_section("logging")?;
         let mut axes = [AxisServo {
             kv_1_s: DEFAULT_KV_1_S,
             ff: 0.0,
@@ -193,6 +204,7 @@ mod tests {
             source: "m.toml".into(),
             table: text.parse().unwrap(),
             text: text.into(),
+            ..Default::default()
         })
     }
 
@@ -214,7 +226,19 @@ mod tests {
         assert_eq!(e.column.as_deref(), Some("servo.y.ff"));
         let e = machine("[servo]\nkv = 3\n").unwrap_err();
         assert!(e.message.contains("kv"), "{e}");
-        assert!(machine("[logging]\nposition_significant_digits = 0\n").is_err());
+        // Unknown key, wrong type, out of range: each names `section.key`.
+        for (text, column) in [
+            ("[servo]\nkv = 3\n", "servo.kv"),
+            ("[servo]\nff = \"half\"\n", "servo.ff"),
+            (
+                "[logging]\nposition_significant_digits = 0\n",
+                "logging.position_significant_digits",
+            ),
+        ] {
+            let e = machine(text).unwrap_err();
+            assert_eq!(e.column.as_deref(), Some(column), "{text}: {e}");
+            assert!(e.to_string().contains("m.toml"), "{e}");
+        }
         let t = |s: &str| s.parse::<toml::Table>().unwrap();
         let observe = read_section::<ObserveConfig>;
         assert!(observe(&t("standstill_mm_s = 0.01")).is_ok());

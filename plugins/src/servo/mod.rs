@@ -66,6 +66,11 @@ impl MachinePlugin for ServoPlugin {
     fn builtin_machines(&self) -> Vec<(&'static str, &'static str)> {
         builtin_machines()
     }
+    fn machine_sections(
+        &self,
+    ) -> &'static [(&'static str, sparkout_pipeline::config_check::SectionCheck)] {
+        config::MACHINE_SECTIONS
+    }
     fn report_sections(&self, run: &Run, artifacts: &ArtifactStore) -> Vec<ReportSection> {
         report::sections(run, artifacts)
     }

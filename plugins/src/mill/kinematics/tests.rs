@@ -22,6 +22,7 @@ fn machine() -> MillMachine {
         source: "built-in".into(),
         table: super::super::XFYZ_MILL_TOML.parse().unwrap(),
         text: String::new(),
+        ..Default::default()
     })
     .unwrap()
 }

@@ -110,17 +110,16 @@ pub fn default_dir(
     machine: &sparkout_pipeline::contracts::MachineConfig,
     face: Face,
 ) -> Vector3<f64> {
-    let key = format!("probing.approach_dir_{}", face.label());
-    if let Some(a) = machine.get(&key).and_then(|v| v.as_array()) {
-        let v: Vec<f64> = a
-            .iter()
-            .filter_map(|x| x.as_float().or_else(|| x.as_integer().map(|i| i as f64)))
-            .collect();
-        if v.len() == 3 {
-            let d = Vector3::new(v[0], v[1], v[2]);
-            if d.norm() > 0.0 {
-                return d.normalize();
-            }
+    let probing = machine.section::<crate::robot::machine::MachineProbing>();
+    let dir = probing.and_then(|p| match face {
+        Face::Xy => p.approach_dir_xy,
+        Face::Yz => p.approach_dir_yz,
+        Face::Zx => p.approach_dir_zx,
+    });
+    if let Some(v) = dir {
+        let d = Vector3::new(v[0], v[1], v[2]);
+        if d.norm() > 0.0 {
+            return d.normalize();
         }
     }
     let mut d = Vector3::zeros();
