@@ -2,6 +2,7 @@
 //! and names checked before they become paths (docs/formats.md "Names").
 //! Below the contracts and object storage, which both write through it.
 
+pub mod json;
 pub mod names;
 pub mod write;
 
