@@ -84,7 +84,7 @@ pub struct Accum {
     pub effects: Vec<EffectEntry>,
     pub summaries: Vec<ObservableSummary>,
     pub cells: Vec<ObsCell>,
-    pub augmented: Vec<serde_json::Value>,
+    pub augmented: Vec<augment::ModelEffect>,
     pub blocked: bool,
     pub folds_used: usize,
 }
