@@ -15,7 +15,9 @@ use std::time::Instant;
 use rayon::prelude::*;
 use serde::Serialize;
 use sparkout_pipeline::config_check::Checked;
-use sparkout_pipeline::diagnose::{diagnose_checked, DiagnoseConfig, Diagnosis, WhereCell};
+use sparkout_pipeline::diagnose::{
+    diagnose_checked, CellBound, DiagnoseConfig, Diagnosis, WhereCell,
+};
 use sparkout_pipeline::{EffectSpec, Result};
 
 use crate::observations::{
@@ -316,7 +318,7 @@ fn run_fleet(
     let machine_localised = (job.kind == "one_machine").then(|| {
         d.where_
             .iter()
-            .any(|c| c.covariate == "machine" && c.lo.as_str() == Some(EFFECT_MACHINE))
+            .any(|c| c.covariate == "machine" && c.lo.as_label() == Some(EFFECT_MACHINE))
     });
     let machine_named = (job.kind == "one_machine").then(|| {
         d.machine_effects

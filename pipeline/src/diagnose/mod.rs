@@ -43,8 +43,8 @@ pub use effect::{
 };
 pub use observations::read_observations;
 pub use output::{
-    CvInfo, Diagnosis, DiagnosisOutput, EffectEntry, GapSummary, MachineFit, ObservableSummary,
-    Unexplained, WhereCell,
+    CellBound, CvInfo, Diagnosis, DiagnosisOutput, EffectEntry, GapSummary, MachineFit,
+    ObservableSummary, Unexplained, WhereCell,
 };
 
 use crate::config_check::Checked;

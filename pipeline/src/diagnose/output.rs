@@ -29,8 +29,41 @@ fn fin(x: f64) -> Option<f64> {
 
 /// A number as diagnosis.json holds it: serde_json writes a non-finite f64
 /// as `null`, which reads back as NaN (not an error).
-pub(crate) fn f64_or_nan<'de, D: serde::Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
-    Ok(<Option<f64> as serde::Deserialize>::deserialize(d)?.unwrap_or(f64::NAN))
+pub(crate) use crate::files::json::f64_or_nan;
+
+/// A bound (`lo` or `hi`) of a `where` cell: a number for a 1-D cell, an
+/// `[x, y]` pair for an x/y tile, the label of a discrete cell (a
+/// `machine`). Written as the bare number, array or string
+/// (docs/formats.md); a number that is not finite is `null`, read back as
+/// NaN.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum CellBound {
+    Number(#[serde(deserialize_with = "crate::files::json::f64_or_nan")] f64),
+    Point(#[serde(deserialize_with = "crate::files::json::vec_f64_or_nan")] Vec<f64>),
+    Label(String),
+}
+
+impl CellBound {
+    /// A discrete cell's label (`machine`'s id).
+    pub fn as_label(&self) -> Option<&str> {
+        match self {
+            CellBound::Label(l) => Some(l),
+            _ => None,
+        }
+    }
+    /// An x/y tile's corner.
+    pub fn as_point(&self) -> Option<&[f64]> {
+        match self {
+            CellBound::Point(p) => Some(p),
+            _ => None,
+        }
+    }
+    /// The bound as diagnosis.json writes it (compact JSON text): the
+    /// `where` lists' last tie-break.
+    pub fn json_text(&self) -> String {
+        serde_json::to_string(self).unwrap_or_default()
+    }
 }
 
 /// diagnosis.json `gap`.
@@ -50,8 +83,8 @@ pub struct GapSummary {
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct WhereCell {
     pub covariate: String,
-    pub lo: serde_json::Value,
-    pub hi: serde_json::Value,
+    pub lo: CellBound,
+    pub hi: CellBound,
     pub observable: String,
     #[serde(deserialize_with = "crate::diagnose::output::f64_or_nan")]
     pub share: f64,
