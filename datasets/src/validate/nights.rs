@@ -16,7 +16,7 @@ use std::time::Instant;
 use rayon::prelude::*;
 use serde::Serialize;
 use sparkout_pipeline::config_check::Checked;
-use sparkout_pipeline::diagnose::{diagnose_checked, DiagnoseConfig};
+use sparkout_pipeline::diagnose::{diagnose_checked, DiagnoseConfig, Diagnosis};
 use sparkout_pipeline::report::trend::{rows_of, trend, Event, HistoryRow, TrendConfig};
 use sparkout_pipeline::{EffectSpec, Result};
 
@@ -219,7 +219,7 @@ fn night_diagnosis(
     specs: &[EffectSpec],
     seed: u64,
     factor: f64,
-) -> Result<serde_json::Value> {
+) -> Result<Diagnosis> {
     let mut batches = Vec::new();
     // Machine → its observable and the indices of its effects.
     let mut machines: BTreeMap<&str, (&str, Vec<usize>)> = BTreeMap::new();
@@ -250,7 +250,7 @@ fn night_diagnosis(
     }
     let batch = arrow::compute::concat_batches(&batches[0].schema(), &batches)?;
     let out = diagnose_checked(&batch, dcfg, &[])?;
-    Ok(serde_json::to_value(&out.diagnosis)?)
+    Ok(out.diagnosis)
 }
 
 fn run_sequence(

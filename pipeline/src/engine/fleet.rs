@@ -373,9 +373,7 @@ impl Engine {
         settings.remove("report");
         settings.remove("trend");
         let config = report::trend::fingerprint(&super::config_text(&settings));
-        // The history keeps diagnosis.json as JSON.
-        let diagnosis = serde_json::to_value(diagnosis).context("diagnosis.json as JSON")?;
-        let file = report::trend::append_night(dir, &night, &diagnosis, &config)?;
+        let file = report::trend::append_night(dir, &night, diagnosis, &config)?;
         report::trend::append_events(dir, &events)?;
         progress.message(&format!("history: {}", file.display()));
         let t = report::trend::write_trend(dir, &out.join("trend"), &[], &self.checked.trend)?;
