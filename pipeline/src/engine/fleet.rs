@@ -395,21 +395,19 @@ impl Engine {
         out: &Path,
         o: &FleetOutcome,
     ) -> Result<()> {
-        let config: serde_json::Value =
-            serde_json::to_value(&self.config.table).unwrap_or(serde_json::Value::Null);
-        let manifest = serde_json::json!({
-            "version": MANIFEST_VERSION,
-            "sparkout_version": env!("CARGO_PKG_VERSION"),
-            "input_root": input_root.display().to_string(),
-            "config_source": self.config.source,
-            "config": config,
-            "runs": o.runs,
-            "fleet": o.fleet,
-            "failures": o.failures.len(),
-            "stages_computed": o.stages_computed(),
-            "stages_cached": o.stages_cached(),
-        });
-        write_json_atomic(&out.join("manifest.json"), &manifest)
+        let manifest = crate::outcome::Manifest {
+            config: serde_json::to_value(&self.config.table).unwrap_or(serde_json::Value::Null),
+            config_source: self.config.source.clone(),
+            failures: o.failures.len(),
+            fleet: o.fleet.clone(),
+            input_root: input_root.display().to_string(),
+            runs: o.runs.clone(),
+            sparkout_version: env!("CARGO_PKG_VERSION").to_string(),
+            stages_cached: o.stages_cached(),
+            stages_computed: o.stages_computed(),
+            version: MANIFEST_VERSION,
+        };
+        manifest.write(&out.join("manifest.json"))
     }
 }
 

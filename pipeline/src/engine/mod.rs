@@ -47,7 +47,7 @@ type RunSpecs = BTreeMap<PathBuf, RunSpec>;
 pub type PluginEffects = (&'static str, Vec<Box<dyn Effect>>);
 
 /// Version of the manifest/failures layout.
-pub const MANIFEST_VERSION: u32 = 1;
+pub use crate::outcome::MANIFEST_VERSION;
 
 /// Where `run --history` appends the night, and the events it records.
 pub struct History {
