@@ -255,9 +255,7 @@ impl Engine {
                 &sections,
             );
             let bytes = html.into_bytes();
-            let mut verdict =
-                serde_json::to_vec_pretty(&report::verdict::RunVerdict::of(&verdicts))?;
-            verdict.push(b'\n');
+            let verdict = report::verdict::RunVerdict::of(&verdicts).to_bytes()?;
             let mut files = BTreeMap::new();
             files.insert("report.html".to_string(), hash_bytes(&bytes));
             files.insert(
