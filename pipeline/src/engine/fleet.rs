@@ -148,7 +148,7 @@ impl Engine {
             let recorded = r
                 .stages
                 .iter()
-                .find_map(|s| s.files.get("observations.parquet").cloned());
+                .find_map(|s| s.files.get(OBSERVATIONS_FILE).cloned());
             let h = match recorded {
                 Some(h) => h,
                 None => hash_file(p)?,
@@ -166,7 +166,7 @@ impl Engine {
             2,
             okey.clone(),
             fleet_dir,
-            &[("observations.parquet", &bytes)],
+            &[(OBSERVATIONS_FILE, &bytes)],
         )?;
         Ok((okey, Some((batch, produced))))
     }
@@ -250,7 +250,7 @@ impl Engine {
     /// previous one so the page never shows a stale comparison.
     fn fleet_augment(&self, fleet_dir: &Path, progress: &dyn Progress) -> Result<()> {
         let augment_file = fleet_dir.join("augment.json");
-        let obs_file = fleet_dir.join("observations.parquet");
+        let obs_file = fleet_dir.join(OBSERVATIONS_FILE);
         match (&self.augment, obs_file.is_file()) {
             (Some(model), true) => {
                 progress.message("re-simulating with the augmented model");

@@ -10,5 +10,9 @@ pub mod write;
 /// computed and the key they computed it for.
 pub const RUN_CACHE_FILE: &str = ".sparkout-cache.json";
 
+/// A run's paired observations (its `observe` stage's artifact) and the
+/// fleet's, joined (docs/formats.md §7).
+pub const OBSERVATIONS_FILE: &str = "observations.parquet";
+
 /// The lock file that holds an output directory for one batch.
 pub const LOCK_FILE: &str = ".sparkout.lock";

@@ -136,7 +136,7 @@ pub fn fleet_page(
         .flat_map(|d| &d.per_observable)
         .map(|p| (p.observable.as_str(), p))
         .collect();
-    let obs_file = fleet_dir.join("observations.parquet");
+    let obs_file = fleet_dir.join(crate::files::OBSERVATIONS_FILE);
     let diag_file = fleet_dir.join("diagnosis.parquet");
     let rows = if obs_file.is_file() {
         match FleetRows::load(

@@ -16,7 +16,6 @@ pub use fleet::fleet_page;
 pub use index::index_page;
 pub use verdict::{verdict_box, Status, Verdict};
 
-use std::collections::BTreeMap;
 use std::fmt::Write;
 
 use crate::diagnose::Diagnosis;
@@ -123,12 +122,12 @@ fn title_of(cfg: &toml::Table, default: &str) -> String {
         .to_string()
 }
 
-/// A run's report: header, the verdict, each plugin section, then every
-/// stage's summary.
+/// A run's report: header, the verdict, each plugin section, then a link
+/// to every stage's summary (`stages`: the stages that wrote one).
 pub fn run_page(
     cfg: &toml::Table,
     run: &Run,
-    summaries: &BTreeMap<String, serde_json::Value>,
+    stages: &[String],
     verdicts: &[Verdict],
     sections: &[ReportSection],
 ) -> String {
@@ -161,7 +160,7 @@ pub fn run_page(
     // Raw stage summaries stay files beside the page (`<stage>.json`),
     // linked, not dumped inline.
     body.push_str("<section><h2>Stage outputs</h2><ul class=\"files\">");
-    for stage in summaries.keys() {
+    for stage in stages {
         let _ = write!(
             body,
             "<li><a href=\"{f}\">{f}</a></li>",
