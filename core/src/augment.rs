@@ -19,10 +19,189 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use arrow::array::RecordBatch;
-use serde_json::{json, Value};
+use serde::{Deserialize, Serialize};
 
 use super::effect::{rebuild_linear_form, shape_value, CovStats, EffectData, Kind};
 use crate::contracts::batch::{batch_f64, batch_str};
+use crate::files::json::{f64_or_nan, parse_json, FileHeader};
+
+/// `kind` of augmented_model.json.
+pub const MODEL_KIND: &str = "sparkout.augmented_model";
+/// `kind` of augment.json.
+pub const AUGMENT_KIND: &str = "sparkout.augment";
+
+/// fleet/augmented_model.json (docs/formats.md): the selected effects as a
+/// model to add to the simulator, written by the diagnosis and read back by
+/// `run --augment` through this type. The fields are in the order the
+/// file has always had them (alphabetical, at every level).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct AugmentedModelFile {
+    #[serde(default)]
+    pub applies_as: String,
+    pub effects: Vec<ModelEffect>,
+    /// `machine/run` of every run the model was fitted on (since diagnose
+    /// step version 5; absent before: nothing counts as held out by id).
+    #[serde(default)]
+    pub fitted_on_runs: Vec<String>,
+    pub kind: String,
+    pub version: u32,
+}
+
+/// One selected effect of augmented_model.json.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ModelEffect {
+    /// `covariate[,covariate2]`; null for an effect without one.
+    #[serde(default)]
+    pub covariate: Option<String>,
+    /// The catalogue form it evaluates as; null for a product of forms
+    /// (since diagnose step version 5).
+    #[serde(default)]
+    pub form: Option<String>,
+    /// The covariates' statistics over the rows it was fitted on (null
+    /// where the diagnosis had none).
+    #[serde(default)]
+    pub frame: BTreeMap<String, Option<ModelFrame>>,
+    /// `name:covariates`, as diagnosis.json spells it.
+    pub key: String,
+    /// The fit exactly as the diagnosis predicts with it; null for an
+    /// effect without a linear form (since diagnose step version 6).
+    #[serde(default)]
+    pub linear: Option<ModelLinear>,
+    #[serde(default)]
+    pub name: String,
+    pub observable: String,
+    #[serde(default)]
+    pub offset_mm: Option<f64>,
+    #[serde(default)]
+    pub params: BTreeMap<String, f64>,
+}
+
+/// A covariate's frame in augmented_model.json (a [`CovStats`] in the
+/// file's field order).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct ModelFrame {
+    #[serde(deserialize_with = "f64_or_nan")]
+    pub max: f64,
+    #[serde(deserialize_with = "f64_or_nan")]
+    pub max_abs: f64,
+    #[serde(deserialize_with = "f64_or_nan")]
+    pub min: f64,
+    #[serde(deserialize_with = "f64_or_nan")]
+    pub step: f64,
+}
+
+impl From<CovStats> for ModelFrame {
+    fn from(c: CovStats) -> Self {
+        ModelFrame {
+            max: c.max,
+            max_abs: c.max_abs,
+            min: c.min,
+            step: c.step,
+        }
+    }
+}
+
+impl ModelFrame {
+    /// The statistics, when every one is a number.
+    fn stats(&self) -> Option<CovStats> {
+        [self.min, self.max, self.step, self.max_abs]
+            .iter()
+            .all(|x| x.is_finite())
+            .then_some(CovStats {
+                min: self.min,
+                max: self.max,
+                step: self.step,
+                max_abs: self.max_abs,
+            })
+    }
+}
+
+/// The `linear` block of an effect: `intercept + Σ coef_j · feature_j`,
+/// the features built from `factors` and scaled by the effect's `frame`.
+/// A number that was not finite is null.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ModelLinear {
+    pub coef: Vec<Option<f64>>,
+    pub factors: Vec<ModelFactor>,
+    pub intercept: Option<f64>,
+    /// The nonlinear parameter; null when the form has none.
+    pub theta: Option<f64>,
+}
+
+/// One catalogue form of a linear block.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ModelFactor {
+    pub covariates: Vec<String>,
+    pub form: String,
+}
+
+/// fleet/augment.json (docs/formats.md, `run --augment`): the plain and
+/// the augmented simulator's gap per observable and machine, written by
+/// [`evaluate`] and read by the fleet page through this type. Fields in
+/// the file's (alphabetical) order.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct AugmentReport {
+    pub applies_as: String,
+    pub entries: Vec<AugmentEntry>,
+    pub kind: String,
+    /// The model file given to `--augment`.
+    pub model: String,
+    pub not_applied: Vec<NotApplied>,
+    pub version: u32,
+}
+
+/// One observable and machine of augment.json.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct AugmentEntry {
+    /// Keys of the effects applied.
+    pub effects: Vec<String>,
+    /// True: the figures are over runs the model was not fitted on; false:
+    /// every run was in `fitted_on_runs` (in-sample).
+    pub held_out: bool,
+    /// RMS of real − sim_augmented (null when there is no row to measure).
+    #[serde(deserialize_with = "f64_or_nan")]
+    pub heldout_rms_augmented: f64,
+    /// RMS of real − sim.
+    #[serde(deserialize_with = "f64_or_nan")]
+    pub heldout_rms_plain: f64,
+    /// The effects a plugin put into its physics rather than added.
+    pub in_physics: Vec<String>,
+    /// "" without a machine column.
+    pub machine: String,
+    pub observable: String,
+    pub rows: usize,
+    pub runs: usize,
+    /// 1 − augmented/plain.
+    #[serde(deserialize_with = "f64_or_nan")]
+    pub shrink: f64,
+    /// The observable's unit, when the observations name one.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub unit: Option<String>,
+}
+
+/// An effect of the model that was not applied, and why.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct NotApplied {
+    pub effect: String,
+    pub observable: String,
+    pub why: String,
+}
+
+impl AugmentReport {
+    /// `<out>/fleet/augment.json` as written by `run --augment`.
+    pub fn read(path: &Path) -> Result<AugmentReport> {
+        let r: AugmentReport = crate::files::json::read_json(path)?;
+        if r.kind != AUGMENT_KIND || r.version != 1 {
+            bail!(
+                "{}: kind {:?} version {}, expected {AUGMENT_KIND:?} version 1",
+                path.display(),
+                r.kind,
+                r.version
+            );
+        }
+        Ok(r)
+    }
+}
 
 /// One selected effect of an augmented model.
 #[derive(Debug, Clone)]
@@ -80,40 +259,28 @@ impl LinearFit {
 
 /// The `linear` block of an augmented-model effect, if present and whole
 /// (a model from before it, or one with a non-finite number, has none).
-fn linear_fit(e: &Value, covariates: &[String]) -> Option<LinearFit> {
-    let l = e.get("linear").filter(|l| !l.is_null())?;
+fn linear_fit(e: &ModelEffect, covariates: &[String]) -> Option<LinearFit> {
+    let l = e.linear.as_ref()?;
     let factors = l
-        .get("factors")?
-        .as_array()?
+        .factors
         .iter()
-        .map(|f| {
-            let kind = Kind::from_name(f.get("form")?.as_str()?)?;
-            let covs = f
-                .get("covariates")?
-                .as_array()?
-                .iter()
-                .map(|c| c.as_str().map(str::to_string))
-                .collect::<Option<Vec<String>>>()?;
-            Some((kind, covs))
-        })
+        .map(|f| Some((Kind::from_name(&f.form)?, f.covariates.clone())))
         .collect::<Option<Vec<_>>>()?;
-    let frames = e.get("frame")?.as_object()?;
     let frame = covariates
         .iter()
-        .map(|c| serde_json::from_value::<CovStats>(frames.get(c)?.clone()).ok())
+        .map(|c| e.frame.get(c)?.as_ref()?.stats())
         .collect::<Option<Vec<_>>>()?;
-    let num = |v: &Value| v.as_f64().filter(|x| x.is_finite());
+    let num = |v: Option<f64>| v.filter(|x| x.is_finite());
     Some(LinearFit {
         factors,
         frame,
         // No θ (a purely linear form) is null.
-        theta: l.get("theta").and_then(num).unwrap_or(f64::NAN),
-        intercept: num(l.get("intercept")?)?,
+        theta: num(l.theta).unwrap_or(f64::NAN),
+        intercept: num(l.intercept)?,
         coef: l
-            .get("coef")?
-            .as_array()?
+            .coef
             .iter()
-            .map(num)
+            .map(|c| num(*c))
             .collect::<Option<Vec<f64>>>()?,
     })
 }
@@ -173,44 +340,36 @@ pub struct AugmentedModel {
 
 impl AugmentedModel {
     /// Read and check a model written by `sparkout run`/`diagnose`
-    /// (`fleet/augmented_model.json`); errors name the file and the field.
+    /// (`fleet/augmented_model.json`) through [`AugmentedModelFile`];
+    /// errors name the file and the field.
     pub fn load(path: &Path) -> Result<AugmentedModel> {
+        const HINT: &str =
+            "--augment takes the fleet/augmented_model.json of an earlier `sparkout run`";
         let bytes = std::fs::read(path)
             .with_context(|| format!("{}: cannot read the augmented model", path.display()))?;
-        let v: Value = serde_json::from_slice(&bytes).with_context(|| {
-            format!(
-                "{}: not JSON; --augment takes the fleet/augmented_model.json of an earlier `sparkout run`",
-                path.display()
+        let here = |field: &str, what: &str| -> anyhow::Error {
+            anyhow::anyhow!("{}: field `{field}`: {what} ({HINT})", path.display())
+        };
+        // Kind and version first: another file is refused by name.
+        let header: FileHeader = parse_json(path, &bytes).map_err(|e| {
+            anyhow::anyhow!(
+                "{}: not an augmented model ({}); {HINT}",
+                path.display(),
+                e.message
             )
         })?;
-        let here = |field: &str, what: &str| -> anyhow::Error {
-            anyhow::anyhow!(
-                "{}: field `{field}`: {what} (--augment takes the fleet/augmented_model.json of an earlier `sparkout run`)",
-                path.display()
-            )
-        };
-        if v.get("kind").and_then(|k| k.as_str()) != Some("sparkout.augmented_model") {
-            return Err(here("kind", "expected \"sparkout.augmented_model\""));
+        if header.kind.as_deref() != Some(MODEL_KIND) {
+            return Err(here("kind", &format!("expected \"{MODEL_KIND}\"")));
         }
-        if v.get("version").and_then(|k| k.as_u64()) != Some(1) {
+        if header.version != Some(1) {
             return Err(here("version", "expected 1"));
         }
-        let Some(list) = v.get("effects").and_then(|e| e.as_array()) else {
-            return Err(here("effects", "expected an array"));
-        };
+        let file: AugmentedModelFile =
+            parse_json(path, &bytes).map_err(|e| anyhow::anyhow!("{e} ({HINT})"))?;
         let mut effects = Vec::new();
-        for (i, e) in list.iter().enumerate() {
+        for (i, e) in file.effects.iter().enumerate() {
             let field = |k: &str| format!("effects[{i}].{k}");
-            let text = |k: &str| -> Result<String> {
-                e.get(k)
-                    .and_then(|x| x.as_str())
-                    .map(str::to_string)
-                    .ok_or_else(|| here(&field(k), "expected text"))
-            };
-            let observable = text("observable")?;
-            let key = text("key")?;
-            let form = e.get("form").and_then(|f| f.as_str());
-            let kind = match form {
+            let kind = match &e.form {
                 Some(f) => Some(
                     Kind::from_name(f)
                         .ok_or_else(|| here(&field("form"), &format!("unknown form `{f}`")))?,
@@ -218,59 +377,31 @@ impl AugmentedModel {
                 None => None,
             };
             let covariates: Vec<String> = e
-                .get("covariate")
-                .and_then(|c| c.as_str())
+                .covariate
+                .as_deref()
                 .map(|c| c.split(',').map(str::to_string).collect())
                 .unwrap_or_default();
-            let mut params = BTreeMap::new();
-            if let Some(p) = e.get("params").and_then(|p| p.as_object()) {
-                for (k, x) in p {
-                    let x = x.as_f64().filter(|x| x.is_finite()).ok_or_else(|| {
-                        here(&field(&format!("params.{k}")), "expected a finite number")
-                    })?;
-                    params.insert(k.clone(), x);
-                }
-            }
-            // Frame constants (bow's c0/c1) the parameters leave out.
-            if let Some(fr) = e.get("frame").and_then(|f| f.as_object()) {
-                for (_, f) in fr {
-                    for (k, x) in f.as_object().into_iter().flatten() {
-                        if let Some(x) = x.as_f64() {
-                            params.entry(k.clone()).or_insert(x);
-                        }
-                    }
-                }
-            }
-            let offset_mm = match e.get("offset_mm") {
-                None | Some(Value::Null) => 0.0,
-                Some(x) => x
-                    .as_f64()
-                    .filter(|x| x.is_finite())
-                    .ok_or_else(|| here(&field("offset_mm"), "expected a finite number"))?,
+            let offset_mm = match e.offset_mm {
+                None => 0.0,
+                Some(x) if x.is_finite() => x,
+                Some(_) => return Err(here(&field("offset_mm"), "expected a finite number")),
             };
             let linear = linear_fit(e, &covariates);
             effects.push(AugmentEffect {
-                observable,
-                key,
+                observable: e.observable.clone(),
+                key: e.key.clone(),
                 kind,
                 covariates,
-                params,
+                params: e.params.clone(),
                 offset_mm,
                 linear,
             });
         }
-        let fitted_on = v
-            .get("fitted_on_runs")
-            .and_then(|r| r.as_array())
-            .into_iter()
-            .flatten()
-            .filter_map(|r| r.as_str().map(str::to_string))
-            .collect();
         Ok(AugmentedModel {
             path: path.to_path_buf(),
             content_hash: blake3::hash(&bytes).to_hex().to_string(),
             effects,
-            fitted_on,
+            fitted_on: file.fitted_on_runs.into_iter().collect(),
         })
     }
 
@@ -343,7 +474,7 @@ fn resimulated(obs: &RecordBatch, sim: &[f64]) -> Result<(Vec<f64>, Vec<Vec<Stri
 /// The augmented simulator on the joined observations: one entry per
 /// (observable, machine) the model has applicable effects for, in the shape
 /// the fleet page reads (`fleet/augment.json`).
-pub fn evaluate(model: &AugmentedModel, obs: &RecordBatch) -> Result<Value> {
+pub fn evaluate(model: &AugmentedModel, obs: &RecordBatch) -> Result<AugmentReport> {
     let observable = batch_str(obs, "observable")?;
     let run = batch_str(obs, "run")?;
     let machine = if obs.schema().index_of("machine").is_ok() {
@@ -363,11 +494,11 @@ pub fn evaluate(model: &AugmentedModel, obs: &RecordBatch) -> Result<Value> {
     let mut by_obs: BTreeMap<&str, Vec<&AugmentEffect>> = BTreeMap::new();
     for e in &model.effects {
         if e.kind.is_none() && e.linear.is_none() {
-            not_applied.push(json!({
-                "observable": e.observable,
-                "effect": e.key,
-                "why": "neither one catalogue form nor a replayable linear fit (a model written before diagnose step version 6): re-run the diagnosis",
-            }));
+            not_applied.push(NotApplied {
+                observable: e.observable.clone(),
+                effect: e.key.clone(),
+                why: "neither one catalogue form nor a replayable linear fit (a model written before diagnose step version 6): re-run the diagnosis".into(),
+            });
             continue;
         }
         by_obs.entry(e.observable.as_str()).or_default().push(e);
@@ -389,21 +520,24 @@ pub fn evaluate(model: &AugmentedModel, obs: &RecordBatch) -> Result<Value> {
             let cols: Option<Vec<Vec<f64>>> =
                 e.covariates.iter().map(|c| float_column(obs, c)).collect();
             let Some(cols) = cols else {
-                not_applied.push(json!({
-                    "observable": o,
-                    "effect": e.key,
-                    "why": format!("tonight's observations lack its covariate ({})", e.covariates.join(", ")),
-                }));
+                not_applied.push(NotApplied {
+                    observable: o.to_string(),
+                    effect: e.key.clone(),
+                    why: format!(
+                        "tonight's observations lack its covariate ({})",
+                        e.covariates.join(", ")
+                    ),
+                });
                 continue;
             };
             let pick = |c: &Vec<f64>| rows.iter().map(|&i| c[i]).collect::<Vec<f64>>();
             let picked: Vec<Vec<f64>> = cols.iter().map(pick).collect();
             let Some(effect) = e.predict(&picked) else {
-                not_applied.push(json!({
-                    "observable": o,
-                    "effect": e.key,
-                    "why": "its fitted form could not be rebuilt from the model",
-                }));
+                not_applied.push(NotApplied {
+                    observable: o.to_string(),
+                    effect: e.key.clone(),
+                    why: "its fitted form could not be rebuilt from the model".into(),
+                });
                 continue;
             };
             // Rows whose plugin put the effect into its physics
@@ -449,26 +583,29 @@ pub fn evaluate(model: &AugmentedModel, obs: &RecordBatch) -> Result<Value> {
             let aug = rms(use_rows
                 .iter()
                 .map(|&k| real[rows[k]] - sim_base[rows[k]] - added[k]));
-            let mut entry = json!({
-                "observable": o,
-                "machine": m,
-                "effects": applied,
-                "in_physics": applied_in_physics,
-                "runs": runs.len(),
-                "rows": use_rows.len(),
-                "held_out": held_out,
-                "heldout_rms_plain": plain,
-                "heldout_rms_augmented": aug,
-                "shrink": if plain > 0.0 { 1.0 - aug / plain } else { f64::NAN },
-            });
-            if let Some(u) = unit.as_ref().and_then(|u| {
+            let unit = unit.as_ref().and_then(|u| {
                 use_rows
                     .first()
                     .map(|&k| u[rows[k]].clone())
                     .filter(|s| !s.is_empty())
-            }) {
-                entry["unit"] = json!(u);
-            }
+            });
+            let entry = AugmentEntry {
+                effects: applied.clone(),
+                held_out,
+                heldout_rms_augmented: aug,
+                heldout_rms_plain: plain,
+                in_physics: applied_in_physics.clone(),
+                machine: m.to_string(),
+                observable: o.to_string(),
+                rows: use_rows.len(),
+                runs: runs.len(),
+                shrink: if plain > 0.0 {
+                    1.0 - aug / plain
+                } else {
+                    f64::NAN
+                },
+                unit,
+            };
             entries.push(entry);
         }
     }
@@ -478,12 +615,12 @@ pub fn evaluate(model: &AugmentedModel, obs: &RecordBatch) -> Result<Value> {
             model.path.display()
         );
     }
-    Ok(json!({
-        "version": 1,
-        "kind": "sparkout.augment",
-        "model": model.path.display().to_string(),
-        "applies_as": "sim_augmented = the plugin's re-simulation with the effects listed in `in_physics` inside its physics (else sim) + Σ the other effects, each as the diagnosis fitted it (its linear form replayed; else offset_mm + form(covariates; params)); figures on the runs the model was not fitted on (held_out = true), else on all runs (held_out = false: in-sample)",
-        "entries": entries,
-        "not_applied": not_applied,
-    }))
+    Ok(AugmentReport {
+        applies_as: "sim_augmented = the plugin's re-simulation with the effects listed in `in_physics` inside its physics (else sim) + Σ the other effects, each as the diagnosis fitted it (its linear form replayed; else offset_mm + form(covariates; params)); figures on the runs the model was not fitted on (held_out = true), else on all runs (held_out = false: in-sample)".into(),
+        entries,
+        kind: AUGMENT_KIND.into(),
+        model: model.path.display().to_string(),
+        not_applied,
+        version: 1,
+    })
 }

@@ -35,7 +35,7 @@ pub struct Quiet;
 impl Progress for Quiet {}
 
 /// A rejected run, as failures.json lists it.
-#[derive(Debug, Clone, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Failure {
     pub run_dir: String,
     pub machine: Option<String>,
@@ -69,7 +69,7 @@ impl Failure {
 }
 
 /// One run that went through.
-#[derive(Debug, Clone, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct RunResult {
     pub machine: String,
     pub run: String,
@@ -89,6 +89,53 @@ impl RunResult {
     pub fn cached(&self) -> usize {
         self.stages.iter().filter(|s| s.cached).count()
     }
+}
+
+/// Layout version of manifest.json.
+pub const MANIFEST_VERSION: u32 = 1;
+
+/// manifest.json (docs/formats.md): written last, so its presence means the
+/// batch completed; the provenance of everything under the output. Read
+/// back through this type ([`Manifest::read`]).
+///
+/// Its keys are in alphabetical order at every level, the run and stage
+/// records included (which the per-run cache files and shard.json write in
+/// their own field order): [`Manifest::write`] serialises it through
+/// serde_json's sorted map, as it always has been.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Manifest {
+    /// The whole resolved pipeline config (the TOML tables as JSON),
+    /// passed through as it is.
+    pub config: serde_json::Value,
+    pub config_source: String,
+    /// Number of rejected runs (failures.json lists them).
+    pub failures: usize,
+    /// The fleet steps (observations, diagnosis, reports, index).
+    pub fleet: Vec<StageRecord>,
+    pub input_root: String,
+    pub runs: Vec<RunResult>,
+    pub sparkout_version: String,
+    pub stages_cached: usize,
+    pub stages_computed: usize,
+    pub version: u32,
+}
+
+impl Manifest {
+    /// Writes `path` atomically, keys sorted at every level.
+    pub fn write(&self, path: &Path) -> crate::Result<()> {
+        let sorted = serde_json::to_value(self)?;
+        crate::files::write::write_json_atomic(path, &sorted)
+    }
+
+    /// A manifest.json as [`Manifest::write`] wrote it.
+    pub fn read(path: &Path) -> crate::Result<Manifest> {
+        crate::files::json::read_json(path)
+    }
+}
+
+/// The failures.json of an output directory (`[]` when none).
+pub fn read_failures(path: &Path) -> crate::Result<Vec<Failure>> {
+    crate::files::json::read_json(path)
 }
 
 /// What a whole batch did.
@@ -202,4 +249,87 @@ impl FleetOutcome {
 pub struct Problem {
     pub run_dir: String,
     pub message: String,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn record(stage: &str, cached: bool) -> StageRecord {
+        StageRecord {
+            stage: stage.into(),
+            version: 3,
+            key: "ab12".into(),
+            files: [(format!("{stage}.json"), "cd34".to_string())].into(),
+            cached,
+        }
+    }
+
+    fn run() -> RunResult {
+        RunResult {
+            machine: "kr16-lab".into(),
+            run: "r0001".into(),
+            plugin: "robot".into(),
+            run_dir: "runs/kr16-lab/r0001".into(),
+            out_dir: "out/kr16-lab/r0001".into(),
+            inputs: [("probe".to_string(), "ef56".to_string())].into(),
+            stages: vec![record("ingest", false), record("datum", true)],
+            observations: None,
+        }
+    }
+
+    /// manifest.json, failures.json and the cache's stage records: written,
+    /// read back through the same types, equal.
+    #[test]
+    fn the_batch_files_round_trip_through_their_types() {
+        let d = tempfile::tempdir().unwrap();
+        let m = Manifest {
+            config: serde_json::json!({"diagnose": {"folds": 5, "alpha": 0.01}}),
+            config_source: "built-in configs/nightly.toml".into(),
+            failures: 1,
+            fleet: vec![record("diagnose", false)],
+            input_root: "runs".into(),
+            runs: vec![run()],
+            sparkout_version: "0.1.0".into(),
+            stages_cached: 1,
+            stages_computed: 2,
+            version: MANIFEST_VERSION,
+        };
+        let path = d.path().join("manifest.json");
+        m.write(&path).unwrap();
+        assert_eq!(Manifest::read(&path).unwrap(), m);
+        // Sorted at every level: a run record's `inputs` before `machine`,
+        // a stage record's `cached` before `stage`, as manifest.json has
+        // always been.
+        let text = std::fs::read_to_string(&path).unwrap();
+        let at = |k: &str| text.find(&format!("\"{k}\":")).unwrap();
+        assert!(at("config") < at("config_source") && at("sparkout_version") < at("stages_cached"));
+        assert!(text.rfind("\"version\":") > Some(at("stages_computed")));
+        assert!(
+            at("inputs") < at("machine") && at("cached") < at("stage"),
+            "{text}"
+        );
+
+        let failures = vec![Failure {
+            run_dir: "runs/kr16-lab/r0003".into(),
+            machine: Some("kr16-lab".into()),
+            run: Some("r0003".into()),
+            stage: None,
+            file: Some("runs/kr16-lab/r0003/probe.parquet".into()),
+            column: Some("z_mm".into()),
+            row: Some(17),
+            error: "NaN in a required column".into(),
+        }];
+        let path = d.path().join("failures.json");
+        crate::files::write::write_json_atomic(&path, &failures).unwrap();
+        assert_eq!(read_failures(&path).unwrap(), failures);
+        let text = std::fs::read_to_string(&path).unwrap();
+        assert!(text.contains("\"stage\": null"), "{text}");
+
+        let records = vec![record("ingest", false), record("datum", true)];
+        let path = d.path().join(crate::files::RUN_CACHE_FILE);
+        crate::files::write::write_json_atomic(&path, &records).unwrap();
+        let back: Vec<StageRecord> = crate::files::json::read_json(&path).unwrap();
+        assert_eq!(back, records);
+    }
 }

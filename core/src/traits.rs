@@ -121,6 +121,15 @@ impl ArtifactStore {
     pub fn summary(&self, stage: &str) -> Option<serde_json::Value> {
         self.summaries.lock().expect("store").get(stage).cloned()
     }
+    /// The stages that left a summary, by name.
+    pub fn summary_names(&self) -> Vec<String> {
+        self.summaries
+            .lock()
+            .expect("store")
+            .keys()
+            .cloned()
+            .collect()
+    }
     pub fn summaries(&self) -> BTreeMap<String, serde_json::Value> {
         self.summaries.lock().expect("store").clone()
     }

@@ -28,13 +28,6 @@ pub fn json_opt_f64(x: Option<f64>) -> Value {
     x.map_or(Value::Null, json_f64)
 }
 
-/// A number as a JSON artifact holds it: serde_json writes a non-finite f64
-/// as `null`, which reads back as NaN (not an error). For
-/// `#[serde(deserialize_with = "…")]` on an `f64` field.
-pub fn f64_or_nan<'de, D: serde::Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
-    Ok(<Option<f64> as serde::Deserialize>::deserialize(d)?.unwrap_or(f64::NAN))
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;

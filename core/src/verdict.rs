@@ -241,6 +241,14 @@ impl RunVerdict {
         }
     }
 
+    /// verdict.json's bytes (pretty, newline-terminated): what the engine
+    /// writes and [`RunVerdict::read`] reads back.
+    pub fn to_bytes(&self) -> crate::Result<Vec<u8>> {
+        let mut b = serde_json::to_vec_pretty(self)?;
+        b.push(b'\n');
+        Ok(b)
+    }
+
     /// The verdict a run's output directory holds, if it has one.
     pub fn read(run_out: &std::path::Path) -> Option<RunVerdict> {
         let bytes = std::fs::read(run_out.join(RUN_VERDICT_FILE)).ok()?;
@@ -323,6 +331,18 @@ pub fn verdict_box(verdicts: &[Verdict]) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// verdict.json: written, read back through the same type, equal.
+    #[test]
+    fn the_run_verdict_round_trips_through_its_type() {
+        let v = RunVerdict::of(&[Verdict::new("flatness", "µm", "after polishing", 90.6)
+            .before("after grinding", 60.8)
+            .limit("flatness_um", 100.0)]);
+        assert_eq!(v.status, "FAIL");
+        let d = tempfile::tempdir().unwrap();
+        std::fs::write(d.path().join(RUN_VERDICT_FILE), v.to_bytes().unwrap()).unwrap();
+        assert_eq!(RunVerdict::read(d.path()), Some(v));
+    }
 
     #[test]
     fn rules() {

@@ -25,7 +25,7 @@ use arrow::record_batch::RecordBatch;
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use sparkout_pipeline::contracts::{write_atomic, write_json_atomic, write_parquet_atomic};
 use sparkout_pipeline::diagnose::{shape_value, Kind};
 use sparkout_pipeline::EffectSpec;
@@ -174,7 +174,8 @@ fn resolve(effects: &[EffectSpec]) -> Result<Effects> {
     Ok(fx)
 }
 
-#[derive(Serialize)]
+/// truth.json, written and read back through this type.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 struct RunTruth {
     run: String,
     run_index: usize,
@@ -457,14 +458,18 @@ mod tests {
                 assert_eq!(a, b, "{r}/{f}");
             }
         }
-        let t: serde_json::Value = serde_json::from_slice(
-            &std::fs::read(d.path().join("a/form-grinder/r0006/truth.json")).unwrap(),
+        assert_eq!(
+            crate::generator::truth_files_round_trip::<RunTruth>(&d.path().join("a")),
+            7
+        );
+        let t: RunTruth = sparkout_pipeline::files::json::read_json(
+            &d.path().join("a/form-grinder/r0006/truth.json"),
         )
         .unwrap();
-        assert_eq!(t["dressing"], 2);
-        assert_eq!(t["dressed_radius_mm"], 172.0);
-        assert_eq!(t["nominal_radius_mm"], 170.0);
-        assert!(t["wear_max_mm"].as_f64().unwrap() > 0.0);
+        assert_eq!(t.dressing, 2);
+        assert_eq!(t.dressed_radius_mm, 172.0);
+        assert_eq!(t.nominal_radius_mm, 170.0);
+        assert!(t.wear_max_mm > 0.0);
     }
 
     #[test]

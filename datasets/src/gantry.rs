@@ -27,7 +27,7 @@ use anyhow::{bail, Context, Result};
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use sparkout_pipeline::contracts::{
     write_atomic, write_json_atomic, write_parquet_atomic, BatchBuilder, MachineConfig,
     MotionColumns,
@@ -167,7 +167,8 @@ fn resolve(specs: &[EffectSpec]) -> Result<Effects> {
     Ok(e)
 }
 
-#[derive(Serialize)]
+/// truth.json, written and read back through this type.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 struct RunTruth {
     run: String,
     run_index: usize,
@@ -399,6 +400,10 @@ mod tests {
         let e: EffectSpec = "thermal_bow".parse().unwrap();
         let c = generate_fleet(&d.path().join("c"), &cfg, &[e]).unwrap();
         assert_ne!(read(&a[0]), read(&c[0]));
+        assert_eq!(
+            crate::generator::truth_files_round_trip::<RunTruth>(&d.path().join("c")),
+            1
+        );
         assert!(generate_fleet(&d.path().join("x"), &cfg, &["nope".parse().unwrap()]).is_err());
     }
 }

@@ -179,6 +179,40 @@ pub fn fleet_summary(name: &str, dirs: usize, out: &Path) -> Generated {
     }
 }
 
+/// Test support: every `truth.json` under `root` reads back through `T`,
+/// the generator's truth type, and writes back every field it holds.
+/// Returns how many were read.
+#[cfg(test)]
+pub(crate) fn truth_files_round_trip<T>(root: &Path) -> usize
+where
+    T: serde::de::DeserializeOwned + serde::Serialize,
+{
+    fn walk(d: &Path, out: &mut Vec<std::path::PathBuf>) {
+        for e in std::fs::read_dir(d).unwrap().flatten() {
+            let p = e.path();
+            if p.is_dir() {
+                walk(&p, out);
+            } else if p.file_name().is_some_and(|n| n == "truth.json") {
+                out.push(p);
+            }
+        }
+    }
+    let mut files = Vec::new();
+    walk(root, &mut files);
+    for f in &files {
+        let bytes = std::fs::read(f).unwrap();
+        let t: T = sparkout_pipeline::files::json::parse_json(f, &bytes)
+            .unwrap_or_else(|e| panic!("truth.json does not read back through its type: {e}"));
+        assert_eq!(
+            sparkout_pipeline::files::json::reads_back_whole(&t, &bytes),
+            None,
+            "{}",
+            f.display()
+        );
+    }
+    files.len()
+}
+
 #[cfg(test)]
 mod tests {
     use crate::{all_generators, generator};

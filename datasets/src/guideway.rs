@@ -38,7 +38,7 @@ use anyhow::{bail, Context, Result};
 use arrow::record_batch::RecordBatch;
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use sparkout_pipeline::contracts::{
     write_atomic, write_json_atomic, write_parquet_atomic, BatchBuilder,
 };
@@ -281,10 +281,10 @@ pub struct GuidewayRun {
     pub truth: Truth,
 }
 
-/// truth.json.
-#[derive(Debug, Clone, Serialize)]
+/// truth.json, written and read back through this type.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Truth {
-    pub generator: &'static str,
+    pub generator: String,
     pub seed: u64,
     pub run: String,
     pub effects: Vec<String>,
@@ -405,7 +405,7 @@ pub fn simulate(
         temp_c: Vec::with_capacity(len),
         infeed_count: Vec::with_capacity(len),
         truth: Truth {
-            generator: "sparkout-datasets guideway",
+            generator: "sparkout-datasets guideway".into(),
             seed: cfg.seed,
             run: format!("r{index:04}"),
             effects: specs.iter().map(|s| s.to_string()).collect(),
@@ -608,5 +608,19 @@ mod tests {
         let rms = (t.ar_mm.iter().map(|x| x * x).sum::<f64>() / t.ar_mm.len() as f64).sqrt();
         assert!((rms - cfg.ar_rms_mm).abs() < 1e-12);
         assert!(a.t_s.windows(2).all(|w| w[1] > w[0]));
+    }
+
+    #[test]
+    fn truth_json_reads_back_through_its_type() {
+        let d = tempfile::tempdir().unwrap();
+        let cfg = GuidewayFleetConfig {
+            runs: 2,
+            ..Default::default()
+        };
+        generate_fleet(d.path(), &cfg, &["thermal_infeed".parse().unwrap()]).unwrap();
+        assert_eq!(
+            crate::generator::truth_files_round_trip::<Truth>(d.path()),
+            2
+        );
     }
 }

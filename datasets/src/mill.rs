@@ -37,7 +37,7 @@ use anyhow::{bail, Context, Result};
 use nalgebra::Vector3;
 use rand::Rng;
 use rayon::prelude::*;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use sparkout_pipeline::contracts::{
     write_atomic, write_json_atomic, write_parquet_atomic, BatchBuilder, MachineConfig,
 };
@@ -234,13 +234,14 @@ pub fn true_machine(m: &MillMachine, seed: u64) -> Model {
     model
 }
 
-#[derive(Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 struct Param {
     name: String,
     value: f64,
 }
 
-#[derive(Serialize)]
+/// truth.json, written and read back through this type.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 struct RunTruth {
     run: String,
     run_index: usize,
@@ -483,6 +484,10 @@ mod tests {
         let fx: Vec<EffectSpec> = vec!["thermal_growth".parse().unwrap()];
         generate_fleet(a.path(), &cfg, &fx).unwrap();
         generate_fleet(b.path(), &cfg, &fx).unwrap();
+        assert_eq!(
+            crate::generator::truth_files_round_trip::<RunTruth>(a.path()),
+            2
+        );
         for f in [
             "tracker.parquet",
             "thermal.parquet",

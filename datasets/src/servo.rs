@@ -27,7 +27,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
 use rayon::prelude::*;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use sparkout_pipeline::contracts::{
     write_atomic, write_json_atomic, write_parquet_atomic, BatchBuilder, MachineConfig,
 };
@@ -109,7 +109,7 @@ pub fn known_effects() -> Vec<(&'static str, &'static str)> {
     ]
 }
 
-#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
 struct Effects {
     lag_k_s: Option<f64>,
     backlash_mm: Option<f64>,
@@ -350,15 +350,16 @@ fn quantise(v: f64, step: f64) -> f64 {
     }
 }
 
-#[derive(Serialize)]
-struct RunTruth<'a> {
+/// truth.json, written and read back through this type.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+struct RunTruth {
     run: String,
     seed: u64,
-    machine: &'a str,
+    machine: String,
     samples: usize,
     sample_rate_hz: f64,
     noise_mm: f64,
-    effects: &'a [EffectSpec],
+    effects: Vec<EffectSpec>,
     resolved: Effects,
 }
 
@@ -484,11 +485,11 @@ fn generate_run(
         &RunTruth {
             run: run_id,
             seed: cfg.seed,
-            machine: MACHINE_ID,
+            machine: MACHINE_ID.to_string(),
             samples: n,
             sample_rate_hz: cfg.sample_rate_hz,
             noise_mm: cfg.noise_mm,
-            effects: specs,
+            effects: specs.to_vec(),
             resolved: *fx,
         },
     )?;
@@ -544,5 +545,20 @@ mod tests {
         assert!(e("servo_lag=k_s=0.1").is_err());
         assert!(e("backlash=c=1").is_err());
         assert!(e("wobble").is_err());
+    }
+
+    #[test]
+    fn truth_json_reads_back_through_its_type() {
+        let d = tempfile::tempdir().unwrap();
+        let cfg = ServoFleetConfig {
+            runs: 2,
+            circles: 1,
+            ..Default::default()
+        };
+        generate_fleet(d.path(), &cfg, &["servo_lag".parse().unwrap()]).unwrap();
+        assert_eq!(
+            crate::generator::truth_files_round_trip::<RunTruth>(d.path()),
+            2
+        );
     }
 }

@@ -13,9 +13,11 @@ use std::fmt::Write;
 use std::time::Instant;
 
 use rayon::prelude::*;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use sparkout_pipeline::config_check::Checked;
-use sparkout_pipeline::diagnose::{diagnose_checked, DiagnoseConfig, Diagnosis, WhereCell};
+use sparkout_pipeline::diagnose::{
+    diagnose_checked, CellBound, DiagnoseConfig, Diagnosis, WhereCell,
+};
 use sparkout_pipeline::{EffectSpec, Result};
 
 use crate::observations::{
@@ -62,7 +64,7 @@ pub const ONE_MACHINE_CASES: [&str; 1] = ["wear:removed_mm3"];
 /// The machine that carries the effect in one-machine fleets (of m0, m1, m2).
 const EFFECT_MACHINE: &str = "m1";
 
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct ValidateConfig {
     pub quick: bool,
     pub seed: u64,
@@ -106,11 +108,12 @@ impl Default for ValidateConfig {
 }
 
 /// One diagnosed fleet.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct FleetResult {
     /// `effect:covariate`, or "none" for effect-free fleets.
     pub truth: String,
     pub kind: String,
+    #[serde(deserialize_with = "sparkout_pipeline::files::json::f64_or_nan")]
     pub snr: f64,
     pub seed: u64,
     /// First selected effect, or "none".
@@ -118,8 +121,11 @@ pub struct FleetResult {
     pub selected: Vec<String>,
     pub localisation: Option<f64>,
     pub param_rel_error: Option<f64>,
+    #[serde(deserialize_with = "sparkout_pipeline::files::json::f64_or_nan")]
     pub shrink: f64,
+    #[serde(deserialize_with = "sparkout_pipeline::files::json::f64_or_nan")]
     pub oracle_shrink: f64,
+    #[serde(deserialize_with = "sparkout_pipeline::files::json::f64_or_nan")]
     pub unexplained_over_sigma: f64,
     /// Parameters of the named true effect whose 95 % interval was checked,
     /// and how many held the true value.
@@ -140,29 +146,36 @@ pub struct FleetResult {
     /// machine.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub machine_named: Option<bool>,
+    #[serde(deserialize_with = "sparkout_pipeline::files::json::f64_or_nan")]
     pub seconds: f64,
 }
 
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct CaseSummary {
     pub truth: String,
+    #[serde(deserialize_with = "sparkout_pipeline::files::json::f64_or_nan")]
     pub snr: f64,
     pub fleets: usize,
     pub top1_correct: usize,
+    #[serde(deserialize_with = "sparkout_pipeline::files::json::f64_or_nan")]
     pub accuracy: f64,
     pub localisation_mean: Option<f64>,
     pub param_rel_error_median: Option<f64>,
+    #[serde(deserialize_with = "sparkout_pipeline::files::json::f64_or_nan")]
     pub shrink_mean: f64,
+    #[serde(deserialize_with = "sparkout_pipeline::files::json::f64_or_nan")]
     pub oracle_shrink: f64,
     /// Mean over fleets of shrink / oracle.
+    #[serde(deserialize_with = "sparkout_pipeline::files::json::f64_or_nan")]
     pub shrink_over_oracle: f64,
 }
 
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct ValidationReport {
     pub quick: bool,
     pub seed: u64,
     pub fleets: usize,
+    #[serde(deserialize_with = "sparkout_pipeline::files::json::f64_or_nan")]
     pub seconds: f64,
     pub cases: Vec<CaseSummary>,
     /// SNR label → true effect → named effect → count.
@@ -170,10 +183,14 @@ pub struct ValidationReport {
     /// Top-1 accuracy per SNR label.
     pub accuracy_by_snr: BTreeMap<String, f64>,
     /// Over SNR ≥ 3.
+    #[serde(deserialize_with = "sparkout_pipeline::files::json::f64_or_nan")]
     pub accuracy_snr_ge3: f64,
+    #[serde(deserialize_with = "sparkout_pipeline::files::json::f64_or_nan")]
     pub shrink_over_oracle_snr_ge3: f64,
+    #[serde(deserialize_with = "sparkout_pipeline::files::json::f64_or_nan")]
     pub false_alarm_rate: f64,
     pub free_fleets: usize,
+    #[serde(deserialize_with = "sparkout_pipeline::files::json::f64_or_nan")]
     pub confident_wrong_rate: f64,
     pub ooc_fleets: usize,
     /// Out-of-catalogue: mean share of the effect's energy inside `where`.
@@ -316,7 +333,7 @@ fn run_fleet(
     let machine_localised = (job.kind == "one_machine").then(|| {
         d.where_
             .iter()
-            .any(|c| c.covariate == "machine" && c.lo.as_str() == Some(EFFECT_MACHINE))
+            .any(|c| c.covariate == "machine" && c.lo.as_label() == Some(EFFECT_MACHINE))
     });
     let machine_named = (job.kind == "one_machine").then(|| {
         d.machine_effects

@@ -1,12 +1,10 @@
 //! The augmented model (sparkout-core `augment`) against the diagnosis that
 //! fills it: every selected effect replays exactly as it was fitted.
 
-use crate::augment::{evaluate, AugmentedModel};
+use crate::augment::*;
 use crate::contracts::BatchBuilder;
-use crate::effect::Kind;
-use crate::effect::{catalogue_effect, product};
+use crate::effect::{catalogue_effect, product, Kind};
 use arrow::array::RecordBatch;
-use serde_json::{json, Value};
 
 /// Two observables: `surface_z` carries a product of forms (the
 /// gantry's bow(y)·drift(t)), `probe_z` a catalogue drift on t_s; 1 µm
@@ -42,13 +40,11 @@ fn table() -> RecordBatch {
         .build()
 }
 
-fn entry<'a>(v: &'a Value, observable: &str) -> &'a Value {
-    v["entries"]
-        .as_array()
-        .unwrap()
+fn entry<'a>(v: &'a AugmentReport, observable: &str) -> &'a AugmentEntry {
+    v.entries
         .iter()
-        .find(|e| e["observable"] == observable)
-        .unwrap_or_else(|| panic!("no entry for {observable}: {v:#}"))
+        .find(|e| e.observable == observable)
+        .unwrap_or_else(|| panic!("no entry for {observable}: {v:#?}"))
 }
 
 /// The augmented model replays every selected effect exactly as the
@@ -78,14 +74,14 @@ fn every_linear_effect_replays_and_agrees_with_its_contract_form() {
     );
 
     let v = evaluate(&model, &batch).unwrap();
-    assert_eq!(v["not_applied"], json!([]), "{v:#}");
+    assert_eq!(v.not_applied, [], "{v:#?}");
     for o in ["surface_z", "probe_z"] {
         let e = entry(&v, o);
-        let aug = e["heldout_rms_augmented"].as_f64().unwrap();
+        let aug = e.heldout_rms_augmented;
         // In-sample here (every run was fitted on): what is left is the
         // 1 µm noise.
-        assert!(aug < 1.2e-3, "{o}: augmented {aug} {e:#}");
-        assert!(e["shrink"].as_f64().unwrap() > 0.8, "{e:#}");
+        assert!(aug < 1.2e-3, "{o}: augmented {aug} {e:#?}");
+        assert!(e.shrink > 0.8, "{e:#?}");
     }
 
     // The catalogue drift from its contract parameters instead.
@@ -97,12 +93,8 @@ fn every_linear_effect_replays_and_agrees_with_its_contract_form() {
     }
     let w = evaluate(&by_form, &batch).unwrap();
     let (a, b) = (
-        entry(&v, "probe_z")["heldout_rms_augmented"]
-            .as_f64()
-            .unwrap(),
-        entry(&w, "probe_z")["heldout_rms_augmented"]
-            .as_f64()
-            .unwrap(),
+        entry(&v, "probe_z").heldout_rms_augmented,
+        entry(&w, "probe_z").heldout_rms_augmented,
     );
     assert!(
         (a - b).abs() <= 1e-9 * a.max(1e-12),
@@ -114,10 +106,102 @@ fn every_linear_effect_replays_and_agrees_with_its_contract_form() {
     let mut old = model.clone();
     old.effects.iter_mut().for_each(|e| e.linear = None);
     let x = evaluate(&old, &batch).unwrap();
-    let na = x["not_applied"].as_array().unwrap();
     assert!(
-        na.iter().any(|n| n["effect"] == "thermal_bow:y_mm,t_s"
-            && n["why"].as_str().unwrap().contains("re-run the diagnosis")),
-        "{x:#}"
+        x.not_applied
+            .iter()
+            .any(|n| n.effect == "thermal_bow:y_mm,t_s" && n.why.contains("re-run the diagnosis")),
+        "{x:#?}"
     );
+}
+
+/// augmented_model.json and augment.json: written, read back through
+/// the same type, equal; null numbers are None/NaN, and the file keeps
+/// its alphabetical field order.
+#[test]
+fn the_model_and_the_report_round_trip_through_their_types() {
+    let batch = table();
+    let out = crate::diagnose(&batch, &Default::default(), &[]).unwrap();
+    let m = &out.augmented_model;
+    assert!(!m.effects.is_empty());
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("augmented_model.json");
+    sparkout_core::files::write::write_json_atomic(&path, m).unwrap();
+    let text = std::fs::read_to_string(&path).unwrap();
+    let back: AugmentedModelFile =
+        sparkout_core::files::json::parse_json(&path, text.as_bytes()).unwrap();
+    assert_eq!(
+        sparkout_core::files::json::reads_back_whole(&back, text.as_bytes()),
+        None
+    );
+    assert_eq!(back.effects.len(), m.effects.len());
+    // Alphabetical, as the hand-built JSON of earlier versions was.
+    let keys = |t: &str| -> Vec<usize> {
+        [
+            "\"applies_as\"",
+            "\"effects\"",
+            "\"fitted_on_runs\"",
+            "\"kind\"",
+            "\"version\"",
+        ]
+        .iter()
+        .map(|k| t.find(k).unwrap())
+        .collect()
+    };
+    assert!(keys(&text).windows(2).all(|w| w[0] < w[1]), "{text}");
+
+    let model = AugmentedModel::load(&path).unwrap();
+    let report = evaluate(&model, &batch).unwrap();
+    let rpath = dir.path().join("augment.json");
+    sparkout_core::files::write::write_json_atomic(&rpath, &report).unwrap();
+    let read = AugmentReport::read(&rpath).unwrap();
+    let text = std::fs::read(&rpath).unwrap();
+    assert_eq!(
+        sparkout_core::files::json::reads_back_whole(&read, &text),
+        None
+    );
+    assert_eq!(read.entries.len(), report.entries.len());
+    // A NaN figure (no row measured) is null in the file, NaN again.
+    let mut r = report.clone();
+    r.entries[0].shrink = f64::NAN;
+    r.entries[0].unit = Some("mm/s".into());
+    sparkout_core::files::write::write_json_atomic(&rpath, &r).unwrap();
+    let text = std::fs::read_to_string(&rpath).unwrap();
+    assert!(text.contains("\"shrink\": null") && text.contains("\"unit\": \"mm/s\""));
+    let read = AugmentReport::read(&rpath).unwrap();
+    assert!(read.entries[0].shrink.is_nan());
+    assert_eq!(read.entries[0].unit.as_deref(), Some("mm/s"));
+}
+
+/// A model from before `form`, `linear` and `fitted_on_runs` still
+/// loads; a wrong field is named.
+#[test]
+fn an_old_model_loads_and_a_bad_one_names_its_field() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("m.json");
+    std::fs::write(
+        &path,
+        r#"{"version": 1, "kind": "sparkout.augmented_model", "effects": [
+            {"observable": "probe_z", "key": "drift:t_s", "covariate": "t_s",
+             "params": {"amplitude_mm": 0.01, "tau_s": 150.0}, "offset_mm": null}]}"#,
+    )
+    .unwrap();
+    let m = AugmentedModel::load(&path).unwrap();
+    assert_eq!(m.effects[0].covariates, ["t_s"]);
+    assert!(m.effects[0].kind.is_none() && m.effects[0].linear.is_none());
+    assert!(m.fitted_on.is_empty() && m.effects[0].offset_mm == 0.0);
+    std::fs::write(
+        &path,
+        r#"{"version": 1, "kind": "sparkout.augmented_model", "effects": [
+            {"observable": "x", "key": "lag:v", "form": "lag", "params": {"k": null}}]}"#,
+    )
+    .unwrap();
+    let e = AugmentedModel::load(&path).unwrap_err().to_string();
+    assert!(e.contains("field `effects[0].params.k`"), "{e}");
+    std::fs::write(
+        &path,
+        r#"{"version": 2, "kind": "sparkout.augmented_model"}"#,
+    )
+    .unwrap();
+    let e = AugmentedModel::load(&path).unwrap_err().to_string();
+    assert!(e.contains("field `version`: expected 1"), "{e}");
 }

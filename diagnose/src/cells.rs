@@ -21,7 +21,7 @@ use polars::prelude as pl;
 use polars::prelude::{col, len, IntoLazy};
 use statrs::distribution::{ContinuousCDF, FisherSnedecor, Normal};
 
-use super::document::WhereCell;
+use super::document::{CellBound, WhereCell};
 use crate::Result;
 
 /// Number of quantile bins per covariate and per axis of the x/y tiles.
@@ -223,9 +223,9 @@ pub fn where_lists(
 ) -> (Vec<WhereCell>, Vec<WhereCell>) {
     let m_cells = all.len().max(1) as f64;
     let bound = |c: &Cell, v: &[f64]| match &c.label {
-        Some(l) => serde_json::json!(l),
-        None if v.len() == 1 => serde_json::json!(v[0]),
-        None => serde_json::json!(v),
+        Some(l) => CellBound::Label(l.clone()),
+        None if v.len() == 1 => CellBound::Number(v[0]),
+        None => CellBound::Point(v.to_vec()),
     };
     let mk = |o: &str, c: &Cell, ss: f64, total: f64, p: f64| WhereCell {
         covariate: c.covariate.clone(),
@@ -262,7 +262,7 @@ pub fn where_lists(
             .total_cmp(&a.rms_mm)
             .then(a.observable.cmp(&b.observable))
             .then(a.covariate.cmp(&b.covariate))
-            .then(a.lo.to_string().cmp(&b.lo.to_string()))
+            .then(a.lo.json_text().cmp(&b.lo.json_text()))
     };
     where_.sort_by(order);
     where_after.sort_by(order);

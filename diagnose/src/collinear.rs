@@ -27,7 +27,7 @@ pub struct Collinearity {
     pub moves_with: BTreeMap<String, f64>,
     /// Within-run variance inflation factor against every other covariate
     /// (1e6 when it is a linear combination of them).
-    #[serde(deserialize_with = "sparkout_core::values::f64_or_nan")]
+    #[serde(deserialize_with = "sparkout_core::files::json::f64_or_nan")]
     pub vif: f64,
     /// What an engineer can change so the next runs tell the effects apart.
     pub advice: String,

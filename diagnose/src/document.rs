@@ -9,6 +9,7 @@ use std::collections::BTreeMap;
 use arrow::array::RecordBatch;
 use serde::{Deserialize, Serialize};
 
+use crate::augment::AugmentedModelFile;
 use crate::collinear::Collinearity;
 use crate::intervals::ParamInterval;
 use crate::outliers::OutlierReport;
@@ -17,14 +18,49 @@ pub(crate) fn fin(x: f64) -> Option<f64> {
     x.is_finite().then_some(x)
 }
 
+/// A bound (`lo` or `hi`) of a `where` cell: a number for a 1-D cell, an
+/// `[x, y]` pair for an x/y tile, the label of a discrete cell (a
+/// `machine`). Written as the bare number, array or string
+/// (docs/formats.md); a number that is not finite is `null`, read back as
+/// NaN.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum CellBound {
+    Number(#[serde(deserialize_with = "sparkout_core::files::json::f64_or_nan")] f64),
+    Point(#[serde(deserialize_with = "sparkout_core::files::json::vec_f64_or_nan")] Vec<f64>),
+    Label(String),
+}
+
+impl CellBound {
+    /// A discrete cell's label (`machine`'s id).
+    pub fn as_label(&self) -> Option<&str> {
+        match self {
+            CellBound::Label(l) => Some(l),
+            _ => None,
+        }
+    }
+    /// An x/y tile's corner.
+    pub fn as_point(&self) -> Option<&[f64]> {
+        match self {
+            CellBound::Point(p) => Some(p),
+            _ => None,
+        }
+    }
+    /// The bound as diagnosis.json writes it (compact JSON text): the
+    /// `where` lists' last tie-break.
+    pub fn json_text(&self) -> String {
+        serde_json::to_string(self).unwrap_or_default()
+    }
+}
+
 /// diagnosis.json `gap`.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct GapSummary {
-    #[serde(deserialize_with = "sparkout_core::values::f64_or_nan")]
+    #[serde(deserialize_with = "sparkout_core::files::json::f64_or_nan")]
     pub rms_mm: f64,
-    #[serde(deserialize_with = "sparkout_core::values::f64_or_nan")]
+    #[serde(deserialize_with = "sparkout_core::files::json::f64_or_nan")]
     pub max_abs_mm: f64,
-    #[serde(deserialize_with = "sparkout_core::values::f64_or_nan")]
+    #[serde(deserialize_with = "sparkout_core::files::json::f64_or_nan")]
     pub noise_floor_mm: f64,
     pub n: usize,
 }
@@ -34,15 +70,15 @@ pub struct GapSummary {
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct WhereCell {
     pub covariate: String,
-    pub lo: serde_json::Value,
-    pub hi: serde_json::Value,
+    pub lo: CellBound,
+    pub hi: CellBound,
     pub observable: String,
-    #[serde(deserialize_with = "sparkout_core::values::f64_or_nan")]
+    #[serde(deserialize_with = "sparkout_core::files::json::f64_or_nan")]
     pub share: f64,
-    #[serde(deserialize_with = "sparkout_core::values::f64_or_nan")]
+    #[serde(deserialize_with = "sparkout_core::files::json::f64_or_nan")]
     pub rms_mm: f64,
     /// Bonferroni-adjusted over all cells of all observables.
-    #[serde(deserialize_with = "sparkout_core::values::f64_or_nan")]
+    #[serde(deserialize_with = "sparkout_core::files::json::f64_or_nan")]
     pub p_value: f64,
     pub n: usize,
     /// Only in `unexplained.where`: the cell's gap RMS before the selection
@@ -224,9 +260,9 @@ pub struct MachineFit {
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Unexplained {
-    #[serde(deserialize_with = "sparkout_core::values::f64_or_nan")]
+    #[serde(deserialize_with = "sparkout_core::files::json::f64_or_nan")]
     pub rms_mm: f64,
-    #[serde(deserialize_with = "sparkout_core::values::f64_or_nan")]
+    #[serde(deserialize_with = "sparkout_core::files::json::f64_or_nan")]
     pub share: f64,
     #[serde(rename = "where")]
     pub where_: Vec<WhereCell>,
@@ -256,13 +292,13 @@ pub struct ObservableSummary {
     /// `machine` column).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub machines: Vec<String>,
-    #[serde(deserialize_with = "sparkout_core::values::f64_or_nan")]
+    #[serde(deserialize_with = "sparkout_core::files::json::f64_or_nan")]
     pub rms_mm: f64,
-    #[serde(deserialize_with = "sparkout_core::values::f64_or_nan")]
+    #[serde(deserialize_with = "sparkout_core::files::json::f64_or_nan")]
     pub noise_floor_mm: f64,
     pub noise_floor_source: String,
     pub gap_above_noise: bool,
-    #[serde(deserialize_with = "sparkout_core::values::f64_or_nan")]
+    #[serde(deserialize_with = "sparkout_core::files::json::f64_or_nan")]
     pub p_value: f64,
     pub selected: Vec<String>,
     /// Effects that passed the held-out test but not the stability or
@@ -273,11 +309,11 @@ pub struct ObservableSummary {
     /// with advice (collinear.rs).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub collinear: Vec<Collinearity>,
-    #[serde(deserialize_with = "sparkout_core::values::f64_or_nan")]
+    #[serde(deserialize_with = "sparkout_core::files::json::f64_or_nan")]
     pub cv_rms_before_mm: f64,
-    #[serde(deserialize_with = "sparkout_core::values::f64_or_nan")]
+    #[serde(deserialize_with = "sparkout_core::files::json::f64_or_nan")]
     pub cv_rms_after_mm: f64,
-    #[serde(deserialize_with = "sparkout_core::values::f64_or_nan")]
+    #[serde(deserialize_with = "sparkout_core::files::json::f64_or_nan")]
     pub shrink: f64,
     /// 95 % bootstrap interval of `shrink` over held-out runs.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -344,8 +380,9 @@ pub struct DiagnosisOutput {
     /// contrib_<name:cov>…, residual_after — one row per observation, in
     /// input order.
     pub per_row: RecordBatch,
-    /// The selected effects fitted on all runs, for a simulator to add.
-    pub augmented_model: serde_json::Value,
+    /// The selected effects fitted on all runs, for a simulator to add
+    /// (augmented_model.json).
+    pub augmented_model: AugmentedModelFile,
     /// Self-contained `<section>` for the fleet report.
     pub report_html: String,
 }

@@ -39,12 +39,12 @@ use super::select::{params_of, CandEval, CandFit, Problem};
 /// A parameter's uncertainty (diagnosis.json `effects[].intervals`).
 #[derive(Debug, Clone, Serialize, serde::Deserialize)]
 pub struct ParamInterval {
-    #[serde(deserialize_with = "sparkout_core::values::f64_or_nan")]
+    #[serde(deserialize_with = "sparkout_core::files::json::f64_or_nan")]
     pub se: f64,
     /// 95 % interval.
-    #[serde(deserialize_with = "sparkout_core::values::f64_or_nan")]
+    #[serde(deserialize_with = "sparkout_core::files::json::f64_or_nan")]
     pub lo: f64,
-    #[serde(deserialize_with = "sparkout_core::values::f64_or_nan")]
+    #[serde(deserialize_with = "sparkout_core::files::json::f64_or_nan")]
     pub hi: f64,
     /// Where the standard error came from: "pooled", "runs" or "folds".
     pub from: String,

@@ -52,8 +52,8 @@ pub use effect::{
 };
 pub use observations::read_observations;
 pub use output::{
-    CvInfo, Diagnosis, DiagnosisOutput, EffectEntry, GapSummary, MachineFit, ObservableSummary,
-    Unexplained, WhereCell,
+    CellBound, CvInfo, Diagnosis, DiagnosisOutput, EffectEntry, GapSummary, MachineFit,
+    ObservableSummary, Unexplained, WhereCell,
 };
 
 use crate::config_check::Checked;
@@ -92,7 +92,7 @@ pub struct Accum {
     pub effects: Vec<EffectEntry>,
     pub summaries: Vec<ObservableSummary>,
     pub cells: Vec<ObsCell>,
-    pub augmented: Vec<serde_json::Value>,
+    pub augmented: Vec<augment::ModelEffect>,
     pub blocked: bool,
     pub folds_used: usize,
 }

@@ -166,7 +166,7 @@ pub fn localised_effects(
         .where_
         .iter()
         .filter(|c| c.covariate == "machine")
-        .filter_map(|c| Some((c.observable.clone(), c.lo.as_str()?.to_string())))
+        .filter_map(|c| Some((c.observable.clone(), c.lo.as_label()?.to_string())))
         .collect();
     pairs.sort();
     pairs.dedup();

@@ -32,17 +32,17 @@ pub const MAX_SHARE: f64 = 0.05;
 #[derive(Debug, Clone, Serialize, serde::Deserialize)]
 pub struct OutlierReport {
     pub n: usize,
-    #[serde(deserialize_with = "sparkout_core::values::f64_or_nan")]
+    #[serde(deserialize_with = "sparkout_core::files::json::f64_or_nan")]
     pub share: f64,
     /// Robust σ̂ of the residual and the threshold K_SIGMA·σ̂ (mm).
-    #[serde(deserialize_with = "sparkout_core::values::f64_or_nan")]
+    #[serde(deserialize_with = "sparkout_core::files::json::f64_or_nan")]
     pub sigma_robust_mm: f64,
-    #[serde(deserialize_with = "sparkout_core::values::f64_or_nan")]
+    #[serde(deserialize_with = "sparkout_core::files::json::f64_or_nan")]
     pub threshold_mm: f64,
     /// Where: count per run (`machine/run` when the table has machines).
     pub by_run: BTreeMap<String, usize>,
     /// Largest |residual| among them (mm).
-    #[serde(deserialize_with = "sparkout_core::values::f64_or_nan")]
+    #[serde(deserialize_with = "sparkout_core::files::json::f64_or_nan")]
     pub max_abs_mm: f64,
 }
 

@@ -8,6 +8,7 @@ use std::sync::Arc;
 use arrow::array::{ArrayRef, Float64Array, RecordBatch};
 use arrow::datatypes::{DataType, Field, Schema};
 
+use super::augment::{AugmentedModelFile, ModelEffect, ModelFactor, ModelFrame, ModelLinear};
 use super::effect::Effect;
 use super::gather::ObsRows;
 use super::intervals::ChosenIntervals;
@@ -232,26 +233,40 @@ pub fn record_selected(
             (super::select::CandFit::Fast { theta, beta }, Some(form))
                 if !form.factors().is_empty() =>
             {
-                serde_json::json!({
-                    "factors": form.factors().iter().map(|(k, c)| serde_json::json!({"form": k.name(), "covariates": c})).collect::<Vec<_>>(),
-                    "theta": fin(theta[prob.k]),
-                    "intercept": fin(beta[prob.k][0]),
-                    "coef": beta[prob.k][1..].iter().map(|b| fin(*b)).collect::<Vec<_>>(),
+                Some(ModelLinear {
+                    coef: beta[prob.k][1..].iter().map(|b| fin(*b)).collect(),
+                    factors: form
+                        .factors()
+                        .iter()
+                        .map(|(k, c)| ModelFactor {
+                            covariates: c.clone(),
+                            form: k.name().to_string(),
+                        })
+                        .collect(),
+                    intercept: fin(beta[prob.k][0]),
+                    theta: fin(theta[prob.k]),
                 })
             }
-            _ => serde_json::Value::Null,
+            _ => None,
         };
-        acc.augmented.push(serde_json::json!({
-            "observable": o.name,
-            "name": e.name(),
-            "form": form,
-            "covariate": if covs.is_empty() { serde_json::Value::Null } else { covs.join(",").into() },
-            "key": key,
-            "params": params.iter().filter(|(_, v)| v.is_finite()).map(|(k, v)| (k.clone(), serde_json::json!(v))).collect::<serde_json::Map<_, _>>(),
-            "offset_mm": fin(*off),
-            "frame": covs.iter().map(|c| (c.clone(), serde_json::json!(prob.frames.get(c)))).collect::<serde_json::Map<_, _>>(),
-            "linear": linear,
-        }));
+        acc.augmented.push(ModelEffect {
+            covariate: (!covs.is_empty()).then(|| covs.join(",")),
+            form: form.map(str::to_string),
+            frame: covs
+                .iter()
+                .map(|c| (c.clone(), prob.frames.get(c).copied().map(ModelFrame::from)))
+                .collect(),
+            key,
+            linear,
+            name: e.name().to_string(),
+            observable: o.name.to_string(),
+            offset_mm: fin(*off),
+            params: params
+                .iter()
+                .filter(|(_, v)| v.is_finite())
+                .map(|(k, v)| (k.clone(), *v))
+                .collect(),
+        });
     }
     for (pos, &i) in o.rows.iter().enumerate() {
         acc.residual_all[i] = sel.residual[pos];
@@ -379,15 +394,15 @@ pub fn assemble(
         &acc.selected_keys,
         &acc.residual_all,
     )?;
-    let augmented_model = serde_json::json!({
-        "version": 1,
-        "kind": "sparkout.augmented_model",
-        "applies_as": "real ≈ sim + Σ over effects of (offset_mm + form(covariates; params)), per observable; forms as in the effect catalogue of docs/formats.md",
+    let augmented_model = AugmentedModelFile {
+        applies_as: "real ≈ sim + Σ over effects of (offset_mm + form(covariates; params)), per observable; forms as in the effect catalogue of docs/formats.md".into(),
+        effects: acc.augmented,
         // `run --augment` reports the augmented gap on the runs not listed
         // here (held out by construction).
-        "fitted_on_runs": table.run_names,
-        "effects": acc.augmented,
-    });
+        fitted_on_runs: table.run_names.clone(),
+        kind: super::augment::MODEL_KIND.into(),
+        version: 1,
+    };
     let report_html = report::section(&diagnosis);
     Ok(DiagnosisOutput {
         diagnosis,

@@ -5,7 +5,7 @@ use std::fmt::Write;
 
 use std::collections::BTreeMap;
 
-use super::document::param_text;
+use super::document::{param_text, CellBound};
 use super::Diagnosis;
 use crate::html::esc;
 use crate::units::format::{
@@ -50,31 +50,26 @@ impl Figures {
 /// A cell's bounds in the covariate's unit, both in one (`0 … 300 mm`,
 /// not `0 nm … 300 mm`); an x/y tile's corners as `(x, y)` with each
 /// coordinate in its own unit; a machine id as written.
-fn bounds(covariate: &str, lo: &serde_json::Value, hi: &serde_json::Value) -> (String, String) {
-    use serde_json::Value;
+fn bounds(covariate: &str, lo: &CellBound, hi: &CellBound) -> (String, String) {
     match (lo, hi) {
-        (Value::Number(a), Value::Number(b)) => {
-            let v = [
-                a.as_f64().unwrap_or(f64::NAN),
-                b.as_f64().unwrap_or(f64::NAN),
-            ];
-            let unit = covariate_unit(covariate);
-            // A count or index without a unit (`segment`, `pass`) as an
-            // integer.
-            if unit.canonical() == "1" && v.iter().all(|x| x.fract() == 0.0 && x.abs() < 1e15) {
-                return (format!("{:.0}", v[0]), format!("{:.0}", v[1]));
-            }
-            let [l, h] = <[String; 2]>::try_from(show_group_in(&v, &unit)).expect("two figures");
-            (l, h)
+        (CellBound::Number(a), CellBound::Number(b)) if a.is_finite() && b.is_finite() => {
+            number_bounds(covariate, [*a, *b])
         }
-        (Value::Array(a), Value::Array(b)) if a.len() == b.len() => {
+        (CellBound::Point(a), CellBound::Point(b)) if a.len() == b.len() => {
             // An x/y tile: `x_mm,y_mm` names the two coordinates.
             let covs: Vec<&str> = covariate.split(',').collect();
             let (l, h): (Vec<String>, Vec<String>) = a
                 .iter()
                 .zip(b)
                 .enumerate()
-                .map(|(i, (x, y))| bounds(covs.get(i).copied().unwrap_or(covariate), x, y))
+                .map(|(i, (x, y))| {
+                    let cov = covs.get(i).copied().unwrap_or(covariate);
+                    if x.is_finite() && y.is_finite() {
+                        number_bounds(cov, [*x, *y])
+                    } else {
+                        (esc(&number_text(*x)), esc(&number_text(*y)))
+                    }
+                })
                 .unzip();
             (format!("({})", l.join(", ")), format!("({})", h.join(", ")))
         }
@@ -82,10 +77,27 @@ fn bounds(covariate: &str, lo: &serde_json::Value, hi: &serde_json::Value) -> (S
     }
 }
 
-fn as_text(v: &serde_json::Value) -> String {
+/// A 1-D cell's bounds in the covariate's unit.
+fn number_bounds(covariate: &str, v: [f64; 2]) -> (String, String) {
+    let unit = covariate_unit(covariate);
+    // A count or index without a unit (`segment`, `pass`) as an
+    // integer.
+    if unit.canonical() == "1" && v.iter().all(|x| x.fract() == 0.0 && x.abs() < 1e15) {
+        return (format!("{:.0}", v[0]), format!("{:.0}", v[1]));
+    }
+    let [l, h] = <[String; 2]>::try_from(show_group_in(&v, &unit)).expect("two figures");
+    (l, h)
+}
+
+/// A number as diagnosis.json writes it (`null` when not finite).
+fn number_text(x: f64) -> String {
+    CellBound::Number(x).json_text()
+}
+
+fn as_text(v: &CellBound) -> String {
     match v {
-        serde_json::Value::String(t) => esc(t),
-        other => esc(&other.to_string()),
+        CellBound::Label(t) => esc(t),
+        other => esc(&other.json_text()),
     }
 }
 

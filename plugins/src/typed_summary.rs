@@ -25,18 +25,10 @@ pub(crate) fn read<T: DeserializeOwned>(a: &ArtifactStore, stage: &str) -> Optio
     }
 }
 
-/// `#[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]`: `null` → NaN.
-pub(crate) fn f64_or_nan<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
-    Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NAN))
-}
-
-/// The same for a list of numbers: each `null` → NaN.
-pub(crate) fn vec_f64_or_nan<'de, D: Deserializer<'de>>(d: D) -> Result<Vec<f64>, D::Error> {
-    Ok(Vec::<Option<f64>>::deserialize(d)?
-        .into_iter()
-        .map(|x| x.unwrap_or(f64::NAN))
-        .collect())
-}
+/// `#[serde(deserialize_with = "crate::typed_summary::f64_or_nan")]`:
+/// `null` → NaN; `vec_f64_or_nan` the same element-wise (the one pair of
+/// readers every sparkout JSON uses).
+pub(crate) use sparkout_pipeline::files::json::{f64_or_nan, vec_f64_or_nan};
 
 /// The same for a map of numbers by name: each `null` → NaN.
 pub(crate) fn map_f64_or_nan<'de, D: Deserializer<'de>>(

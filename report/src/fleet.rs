@@ -10,8 +10,6 @@
 use std::collections::{BTreeMap, BTreeSet};
 use std::fmt::Write;
 
-use serde_json::Value;
-
 use super::fleet_data::{binned_means, grid_means, per_run_rms, FleetRows, RunRms};
 use super::svg::{heat, mini_curve, mini_heat, shared_vmax, xy_chart_sized, Heat, Mark, Series};
 use super::{esc, page, title_of};
@@ -138,7 +136,7 @@ pub fn fleet_page(
         .flat_map(|d| &d.per_observable)
         .map(|p| (p.observable.as_str(), p))
         .collect();
-    let obs_file = fleet_dir.join("observations.parquet");
+    let obs_file = fleet_dir.join(crate::files::OBSERVATIONS_FILE);
     let diag_file = fleet_dir.join("diagnosis.parquet");
     let rows = if obs_file.is_file() {
         match FleetRows::load(
@@ -164,14 +162,14 @@ pub fn fleet_page(
     } else {
         BTreeMap::new()
     };
-    let augment_json = augment_file(out);
-    let augment = augment_entries(augment_json.as_ref());
+    let augment_file = augment_file(out);
+    let augment = augment_entries(augment_file.as_ref());
     let tree = machine_tree(rows.as_ref(), &per_obs, &type_of);
     body.push_str(&glance_table(
         &tree,
         &per_obs,
         rows.as_ref(),
-        augment_json.as_ref(),
+        augment_file.as_ref(),
     ));
     if let Some(d) = diagnosis {
         body.push_str(&diagnosis_notes(d));
@@ -200,7 +198,7 @@ pub fn fleet_page(
                     let _ = write!(
                         body,
                         "<p class=\"verdict\">{}</p>",
-                        verdict(d, p, &augment, m)
+                        verdict(d, p, augment, m)
                     );
                 }
                 if let Some(r) = &rows {
@@ -239,7 +237,7 @@ pub fn fleet_page(
                         anchor(&[m, o]),
                         esc(o),
                         u.data,
-                        verdict(d, p, &augment, m)
+                        verdict(d, p, augment, m)
                     );
                 }
                 body.push_str("</details>");

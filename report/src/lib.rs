@@ -13,7 +13,7 @@ pub mod trend;
 pub use sparkout_core::verdict;
 // The crates below, by the module names the pages use (`crate::contracts`…).
 pub(crate) use sparkout_core::{
-    config_check, contracts, error, html, outcome, traits, units, InputError,
+    config_check, contracts, error, files, html, outcome, traits, units, InputError,
 };
 pub(crate) use sparkout_diagnose as diagnose;
 
@@ -21,7 +21,6 @@ pub use fleet::fleet_page;
 pub use index::index_page;
 pub use verdict::{verdict_box, Status, Verdict};
 
-use std::collections::BTreeMap;
 use std::fmt::Write;
 
 use crate::diagnose::Diagnosis;
@@ -137,12 +136,12 @@ fn title_of(cfg: &ReportConfig, default: &str) -> String {
     cfg.title.as_deref().unwrap_or(default).to_string()
 }
 
-/// A run's report: header, the verdict, each plugin section, then every
-/// stage's summary.
+/// A run's report: header, the verdict, each plugin section, then a link
+/// to every stage's summary (`stages`: the stages that wrote one).
 pub fn run_page(
     cfg: &ReportConfig,
     run: &Run,
-    summaries: &BTreeMap<String, serde_json::Value>,
+    stages: &[String],
     verdicts: &[Verdict],
     sections: &[ReportSection],
 ) -> String {
@@ -175,7 +174,7 @@ pub fn run_page(
     // Raw stage summaries stay files beside the page (`<stage>.json`),
     // linked, not dumped inline.
     body.push_str("<section><h2>Stage outputs</h2><ul class=\"files\">");
-    for stage in summaries.keys() {
+    for stage in stages {
         let _ = write!(
             body,
             "<li><a href=\"{f}\">{f}</a></li>",

@@ -15,6 +15,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::contracts::{write_atomic, write_json_atomic};
 use crate::error::Result;
+use crate::files::json::{parse_json, FileHeader};
 
 /// Where the trend page is, relative to the output root (written by the
 /// diagnosis history step when it ran).
@@ -145,24 +146,25 @@ impl Trend {
     }
 }
 
-/// Reads a trend.json written by this version (another is refused).
+/// Reads a trend.json written by this version (another is refused) through
+/// [`Trend`].
 pub fn read_trend(path: &Path) -> Result<Trend> {
     let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
-    let v: serde_json::Value = serde_json::from_slice(&bytes)
-        .map_err(|e| crate::InputError::new(path, format!("not JSON: {e}")))?;
-    let version = v.get("version").and_then(|x| x.as_u64());
-    if version != Some(TREND_VERSION as u64) {
+    // The version first: a file of another version is refused by it, not
+    // by the first field this version does not know.
+    let header: FileHeader = parse_json(path, &bytes)?;
+    if header.version != Some(TREND_VERSION as u64) {
         return Err(crate::InputError::new(
             path,
             format!(
                 "trend.json version {}: this sparkout reads version {TREND_VERSION}; rewrite it with `sparkout trend`",
-                version.map_or("missing".into(), |v| v.to_string())
+                header.version.map_or("missing".into(), |v| v.to_string())
             ),
         )
         .column("version")
         .into());
     }
-    Ok(serde_json::from_value(v).map_err(|e| crate::InputError::new(path, e.to_string()))?)
+    Ok(parse_json(path, &bytes)?)
 }
 
 /// Reads a history and its events (plus `extra` events), writes
@@ -186,10 +188,69 @@ pub fn write_trend(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::diagnose::Diagnosis;
+
+    /// A diagnosis.json of `per_observable` and `effects` only, the rest
+    /// of its fields (and of theirs) filled in, read through its type.
+    pub(super) fn diagnosis(v: serde_json::Value) -> Diagnosis {
+        let fill = |base: serde_json::Value, over: &serde_json::Value| {
+            let mut b = base;
+            let b_map = b.as_object_mut().unwrap();
+            for (k, x) in over.as_object().unwrap() {
+                b_map.insert(k.clone(), x.clone());
+            }
+            b
+        };
+        let per: Vec<serde_json::Value> = v["per_observable"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|p| {
+                fill(
+                    serde_json::json!({"observable": "", "unit": "mm", "n": 0, "runs": 0,
+                        "rms_mm": null, "noise_floor_mm": null, "noise_floor_source": "replicates",
+                        "gap_above_noise": true, "p_value": null, "selected": [],
+                        "cv_rms_before_mm": null, "cv_rms_after_mm": null, "shrink": null,
+                        "stop_reason": ""}),
+                    p,
+                )
+            })
+            .collect();
+        let effects: Vec<serde_json::Value> = v["effects"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|e| {
+                let mut e = fill(
+                    serde_json::json!({"name": "", "observable": "", "params": {},
+                        "param_units": {}, "n_params": 1, "selected": false, "step": 1}),
+                    e,
+                );
+                // An interval's every field.
+                if let Some(iv) = e.get_mut("intervals").and_then(|i| i.as_object_mut()) {
+                    for i in iv.values_mut() {
+                        *i = fill(
+                            serde_json::json!({"se": null, "lo": null, "hi": null, "from": "pooled"}),
+                            i,
+                        );
+                    }
+                }
+                e
+            })
+            .collect();
+        serde_json::from_value(serde_json::json!({
+            "version": 1, "observables": [], "where": [], "selected": [],
+            "gap": {"rms_mm": null, "max_abs_mm": null, "noise_floor_mm": null, "n": 0},
+            "unexplained": {"rms_mm": null, "share": null, "where": []},
+            "noise_floor_source": "replicates",
+            "cv": {"folds": 5, "by": "run", "test": "", "seed": 0},
+            "notes": [], "per_observable": per, "effects": effects}))
+        .unwrap()
+    }
 
     /// One night's diagnosis.json: wear (dominant, k) and, when `extra`,
     /// a secondary offset on the same observable.
-    fn night(k: f64, se: f64, extra: Option<f64>) -> serde_json::Value {
+    fn night(k: f64, se: f64, extra: Option<f64>) -> Diagnosis {
         let mut effects = vec![serde_json::json!({
             "name": "wear", "covariate": "removed_mm3", "observable": "cut_depth",
             "selected": true, "shrink": 0.7, "params": {"k": k}, "p_value": 1e-9,
@@ -202,12 +263,12 @@ mod tests {
                 "cv_rms_before_mm": 0.003, "cv_rms_after_mm": 0.0022,
                 "intervals": {"a": {"se": 1e-5, "lo": a - 2e-5, "hi": a + 2e-5}}}));
         }
-        serde_json::json!({
+        diagnosis(serde_json::json!({
             "per_observable": [{"observable": "cut_depth", "unit": "mm", "rms_mm": 0.01,
                                 "noise_floor_mm": 0.002, "runs": 8, "shrink": 0.7,
                                 "machines": ["form-1"]}],
             "effects": effects,
-        })
+        }))
     }
 
     fn date(i: usize) -> String {
@@ -361,7 +422,7 @@ mod tests {
         .iter()
         .enumerate()
         {
-            let d = serde_json::json!({
+            let d = diagnosis(serde_json::json!({
                 "per_observable": [
                     {"observable": "a_um", "unit": "um", "rms_mm": 10.0, "runs": 4},
                     {"observable": "b_deg", "unit": "deg", "rms_mm": 0.1, "runs": 4}],
@@ -373,7 +434,7 @@ mod tests {
                     {"name": "drift", "covariate": "t_s", "observable": "b_deg",
                      "selected": true, "params": {"a": g}, "p_value": 1e-9,
                      "cv_rms_before_mm": 0.1, "cv_rms_after_mm": 0.02,
-                     "intervals": {"a": {"se": 0.001}}}]});
+                     "intervals": {"a": {"se": 0.001}}}]}));
             rows.extend(rows_of(&d, &date(i), ""));
         }
         let t = run(&rows, &[]);

@@ -88,11 +88,7 @@ pub fn diagnose(observations: &Path, out: &Path, flags: &Flags) -> anyhow::Resul
     if flags.json {
         println!("{}", serde_json::to_string_pretty(&d.diagnosis)?);
     } else {
-        let v = serde_json::to_value(&d.diagnosis)?;
-        let sel: Vec<&str> = v["selected"]
-            .as_array()
-            .map(|a| a.iter().filter_map(|x| x.as_str()).collect())
-            .unwrap_or_default();
+        let sel = &d.diagnosis.selected;
         // The pooled gap is in the observables' unit when they share one
         // (each is in its contract unit: mm, or mm/s for a velocity).
         let units: std::collections::BTreeSet<&str> = d
@@ -105,13 +101,12 @@ pub fn diagnose(observations: &Path, out: &Path, flags: &Flags) -> anyhow::Resul
             1 => units.first().copied().unwrap_or("mm"),
             _ => "mm",
         };
-        let f = |p: &str| v.pointer(p).and_then(|x| x.as_f64()).unwrap_or(f64::NAN);
         let [gap, noise, after] =
             <[String; 3]>::try_from(sparkout_pipeline::units::format::show_group(
                 &[
-                    f("/gap/rms_mm"),
-                    f("/gap/noise_floor_mm"),
-                    f("/unexplained/rms_mm"),
+                    d.diagnosis.gap.rms_mm,
+                    d.diagnosis.gap.noise_floor_mm,
+                    d.diagnosis.unexplained.rms_mm,
                 ],
                 unit,
             ))

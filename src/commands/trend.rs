@@ -4,6 +4,8 @@
 use std::path::Path;
 
 use anyhow::Context;
+use sparkout_pipeline::diagnose::Diagnosis;
+use sparkout_pipeline::files::json::read_json;
 use sparkout_pipeline::report::trend::{
     append_events, append_night, fingerprint, parse_event, write_trend, Trend, TrendConfig,
 };
@@ -91,14 +93,13 @@ pub fn append(
         .iter()
         .map(|e| parse_event(e, Some(n.night)))
         .collect::<anyhow::Result<Vec<_>>>()?;
-    let bytes = std::fs::read(diagnosis)
-        .with_context(|| format!("cannot read {} for the history", diagnosis.display()))?;
-    let v: serde_json::Value = serde_json::from_slice(&bytes)?;
+    let d: Diagnosis =
+        read_json(diagnosis).with_context(|| format!("{} for the history", diagnosis.display()))?;
     // The settings the diagnosis ran with: a change between nights is an
     // event, not an alert.
     let dcfg = super::diagnose::config(flags)?;
     let settings = serde_json::to_string(&(&*dcfg, &flags.plugins))?;
-    let file = append_night(n.history, n.night, &v, &fingerprint(&settings))?;
+    let file = append_night(n.history, n.night, &d, &fingerprint(&settings))?;
     append_events(n.history, &events)?;
     println!("history: {}", file.display());
     let t = write_trend(n.history, trend_out, &[], &cfg)?;

@@ -139,28 +139,57 @@ fn demo_artifacts_hold_no_non_finite_number() {
         "non-finite numbers in demo artifacts:\n{}",
         problems.join("\n")
     );
-    // diagnosis.json reads back through the serde type that wrote it into
-    // the same JSON: no field the type does not know, none it would drop
-    // or rename. (Compared as parsed JSON: serde_json's default float
-    // parser may land one ulp off a printed shortest float, the same way on
-    // both sides.)
-    let path = tmp.path().join("out/fleet/diagnosis.json");
-    let bytes = std::fs::read(&path).expect("fleet/diagnosis.json");
-    let typed: sparkout_pipeline::diagnose::Diagnosis =
-        serde_json::from_slice(&bytes).expect("diagnosis.json reads as its serde type");
-    let file: serde_json::Value = serde_json::from_slice(&bytes).unwrap();
-    let back = serde_json::to_value(&typed).unwrap();
-    if let Some(k) = file
-        .as_object()
-        .unwrap()
-        .iter()
-        .find(|(k, v)| back.get(k.as_str()) != Some(v))
-        .map(|(k, _)| k)
-    {
-        panic!("diagnosis.json `{k}` does not round-trip through its type");
+    // Every JSON file sparkout's own types write reads back through the
+    // type that wrote it into the same JSON: no field the type does not
+    // know, none it would drop or rename. (Stage summaries are the
+    // plugins' own; truth.json is the generators', checked by their tests.)
+    let out = tmp.path().join("out");
+    let diagnosis: sparkout_pipeline::diagnose::Diagnosis =
+        reads_back(&out.join("fleet/diagnosis.json"));
+    assert!(!diagnosis.per_observable.is_empty());
+    let model: sparkout_pipeline::diagnose::augment::AugmentedModelFile =
+        reads_back(&out.join("fleet/augmented_model.json"));
+    assert!(!model.effects.is_empty());
+    sparkout_pipeline::diagnose::augment::AugmentedModel::load(
+        &out.join("fleet/augmented_model.json"),
+    )
+    .expect("the demo's model loads for --augment");
+    let manifest: sparkout_pipeline::outcome::Manifest = reads_back(&out.join("manifest.json"));
+    assert_eq!(manifest.runs.len(), 35, "{:?}", manifest.runs.len());
+    let failures: Vec<sparkout_pipeline::outcome::Failure> = reads_back(&out.join("failures.json"));
+    assert!(failures.is_empty(), "{failures:?}");
+    let (mut caches, mut verdicts) = (0, 0);
+    for f in &files {
+        match f.file_name().and_then(|n| n.to_str()) {
+            Some(sparkout_pipeline::files::RUN_CACHE_FILE) => {
+                let r: Vec<sparkout_pipeline::outcome::StageRecord> = reads_back(f);
+                assert!(!r.is_empty(), "{}", f.display());
+                caches += 1;
+            }
+            Some(sparkout_pipeline::verdict::RUN_VERDICT_FILE) => {
+                let _: sparkout_pipeline::verdict::RunVerdict = reads_back(f);
+                verdicts += 1;
+            }
+            _ => {}
+        }
     }
-    assert_eq!(file, back);
-    assert!(!typed.per_observable.is_empty());
+    // A cache file per run and one for the fleet; a verdict per run.
+    assert_eq!((caches, verdicts), (36, 35));
+}
+
+/// `path` read through `T`, which must write back every field the file
+/// holds.
+fn reads_back<T: serde::de::DeserializeOwned + serde::Serialize>(path: &Path) -> T {
+    let bytes = std::fs::read(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let typed: T = sparkout_pipeline::files::json::parse_json(path, &bytes)
+        .unwrap_or_else(|e| panic!("does not read as its serde type: {e}"));
+    if let Some(d) = sparkout_pipeline::files::json::reads_back_whole(&typed, &bytes) {
+        panic!(
+            "{} does not round-trip through its type: {d}",
+            path.display()
+        );
+    }
+    typed
 }
 
 #[test]

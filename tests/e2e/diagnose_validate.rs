@@ -33,6 +33,13 @@ fn validation_subset_meets_the_bar() {
     let r = validate::run(&cfg).unwrap();
     let text = validate::render_text(&r);
     println!("{text}");
+    // validation.json reads back through the type that wrote it.
+    let json = serde_json::to_string_pretty(&r).unwrap();
+    let back: validate::ValidationReport = serde_json::from_str(&json).unwrap();
+    assert_eq!(
+        sparkout_pipeline::files::json::reads_back_whole(&back, json.as_bytes()),
+        None
+    );
     assert!(text.contains("confusion matrix"));
     assert!(
         r.accuracy_snr_ge3 >= 0.9,

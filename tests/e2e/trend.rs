@@ -294,20 +294,21 @@ fn validate_nights_quick_measures_false_alerts_and_a_40_per_cent_step() {
         out.to_str().unwrap(),
     ]));
     assert!(text.contains("stationary:"), "{text}");
-    let r: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(out.join("nights.json")).unwrap()).unwrap();
+    // nights.json, read back through the type that wrote it.
+    let r: sparkout_datasets::validate::nights::NightsReport =
+        sparkout_pipeline::files::json::read_json(&out.join("nights.json")).unwrap();
     // Six stationary nights of a four-machine fleet: no false alert.
-    assert_eq!(r["stationary_night_fleets"], 6, "{r:#}");
-    assert_eq!(r["stationary_false_alerts"], 0, "{text}");
+    assert_eq!(r.stationary_night_fleets, 6, "{r:#?}");
+    assert_eq!(r.stationary_false_alerts, 0, "{text}");
     // A 40 % step in the form machine's wear rate: raised the night it
     // happens, as that night's first alert.
-    let step = &r["steps"][0];
-    assert_eq!(step["size"], 0.4);
-    assert_eq!(step["same_night"], 1, "{text}");
-    assert_eq!(step["first_of_night"], 1, "{text}");
-    assert_eq!(r["other_false_alerts"], 0, "{text}");
+    let step = &r.steps[0];
+    assert_eq!(step.size, 0.4);
+    assert_eq!(step.same_night, 1, "{text}");
+    assert_eq!(step.first_of_night, 1, "{text}");
+    assert_eq!(r.other_false_alerts, 0, "{text}");
     // The same step at a recorded wheel change: no alert.
-    assert_eq!(r["event_alerts"], 0, "{text}");
+    assert_eq!(r.event_alerts, 0, "{text}");
 }
 
 /// The index page leads with the night's news: on a quiet night that no

@@ -260,7 +260,7 @@ pub(super) fn generate_run(
         .map(|&f| {
             let (n, d) = pose.plane(f);
             let normal = [n.x, n.y, n.z];
-            (f.label(), FaceTruth { normal, d })
+            (f.label().to_string(), FaceTruth { normal, d })
         })
         .collect();
     let truth = RunTruth {
@@ -274,7 +274,7 @@ pub(super) fn generate_run(
         // A trigger latency is the controller's: every registered method has it.
         trigger_latency_s: std::iter::once("ae")
             .chain(cfg.other_methods.iter().map(ProbeMethod::label))
-            .map(|m| (m, fx.latency_s))
+            .map(|m| (m.to_string(), fx.latency_s))
             .collect(),
         touch_sigma_mm: cfg
             .speeds_mm_s
@@ -296,7 +296,7 @@ pub(super) fn generate_run(
         },
         ae_clock_offset_s: clock_offset_s,
         ae_sample_rate_hz: fs,
-        ae_signal: (cfg.ae_signal == AeSignal::Rms).then_some("rms"),
+        ae_signal: (cfg.ae_signal == AeSignal::Rms).then(|| "rms".to_string()),
         ae_carrier_hz: carrier,
         ae_noise_v: cfg.ae_noise_v,
         has_probe,

@@ -57,7 +57,7 @@ use nalgebra::{Rotation3, Vector3};
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use sparkout_pipeline::contracts::{
     write_atomic, write_json_atomic, write_parquet_atomic, write_parquet_batches_atomic,
     BatchBuilder, MotionColumns,

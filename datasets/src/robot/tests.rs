@@ -153,3 +153,17 @@ fn predicted_size_follows_rate_and_runs() {
     assert!(many.write_bytes > 10_000_000_000_000);
     assert!(many.peak_memory_bytes < 100 * RUN_MEMORY_BYTES);
 }
+
+#[test]
+fn truth_json_reads_back_through_its_type() {
+    let d = tempfile::tempdir().unwrap();
+    let cfg = RobotFleetConfig {
+        runs: 1,
+        ..RobotFleetConfig::demo()
+    };
+    generate_fleet(d.path(), &cfg, &[]).unwrap();
+    assert_eq!(
+        crate::generator::truth_files_round_trip::<RunTruth>(d.path()),
+        1
+    );
+}

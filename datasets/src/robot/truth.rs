@@ -4,7 +4,7 @@ use super::*;
 
 // Truth
 
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub(super) struct FaceTruth {
     /// Outward unit normal of the true face.
     pub(super) normal: [f64; 3],
@@ -12,7 +12,7 @@ pub(super) struct FaceTruth {
     pub(super) d: f64,
 }
 
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub(super) struct ContactTruth {
     pub(super) seq: i32,
     /// Controller time of the true contact, s.
@@ -40,11 +40,11 @@ pub(super) struct ContactTruth {
     pub(super) ae_amplitude_v: f64,
     /// Conditioned RMS logs only: recorder time the wheel leaves the
     /// surface (the cut's end; the exit decays after it), s.
-    #[serde(skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub(super) ae_leave_t_s: Option<f64>,
 }
 
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub(super) struct PassTruth {
     pub(super) pass: i32,
     /// True cut of the pass, mm.
@@ -55,7 +55,7 @@ pub(super) struct PassTruth {
     pub(super) removed_mm3: f64,
 }
 
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub(super) struct RunTruth {
     pub(super) run: String,
     pub(super) run_index: usize,
@@ -63,8 +63,8 @@ pub(super) struct RunTruth {
     pub(super) block_origin_mm: [f64; 3],
     pub(super) block_rotation_rad: [f64; 3],
     pub(super) block_offset_mm: [f64; 3],
-    pub(super) faces: BTreeMap<&'static str, FaceTruth>,
-    pub(super) trigger_latency_s: BTreeMap<&'static str, f64>,
+    pub(super) faces: BTreeMap<String, FaceTruth>,
+    pub(super) trigger_latency_s: BTreeMap<String, f64>,
     /// σ of the registered AE touches' normal coordinate per approach speed.
     pub(super) touch_sigma_mm: BTreeMap<String, f64>,
     /// σ of the comparison methods' registered touches, per method.
@@ -73,8 +73,8 @@ pub(super) struct RunTruth {
     pub(super) ae_sample_rate_hz: f64,
     /// `rms` for a conditioned RMS log; absent for raw (the files of raw
     /// fleets stay as they were).
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub(super) ae_signal: Option<&'static str>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub(super) ae_signal: Option<String>,
     pub(super) ae_carrier_hz: f64,
     pub(super) ae_noise_v: f64,
     pub(super) has_probe: bool,

@@ -14,9 +14,9 @@ use std::fmt::Write;
 use std::time::Instant;
 
 use rayon::prelude::*;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use sparkout_pipeline::config_check::Checked;
-use sparkout_pipeline::diagnose::{diagnose_checked, DiagnoseConfig};
+use sparkout_pipeline::diagnose::{diagnose_checked, DiagnoseConfig, Diagnosis};
 use sparkout_pipeline::report::trend::{rows_of, trend, Event, HistoryRow, TrendConfig};
 use sparkout_pipeline::{EffectSpec, Result};
 
@@ -39,7 +39,7 @@ pub const NIGHT_FLEET: [(&str, &str, &str, f64); 5] = [
 const STEP_OBSERVABLE: &str = "profile_error";
 const STEP_EFFECT: &str = "wear:removed_mm3";
 
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct NightsConfig {
     pub quick: bool,
     pub seed: u64,
@@ -53,6 +53,7 @@ pub struct NightsConfig {
     pub before_nights: usize,
     pub after_nights: usize,
     /// Drift: relative growth of the wear rate per night; sequences.
+    #[serde(deserialize_with = "sparkout_pipeline::files::json::f64_or_nan")]
     pub drift_per_night: f64,
     pub drift_sequences: usize,
     /// Event sequences: a 100 % step at a recorded wheel change.
@@ -93,7 +94,7 @@ impl NightsConfig {
 }
 
 /// An alert as the harness scores it.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct AlertBrief {
     /// Night index in the sequence (0 = first).
     pub night: usize,
@@ -106,11 +107,12 @@ pub struct AlertBrief {
     pub z: Option<f64>,
 }
 
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct SequenceResult {
     /// "stationary", "step", "drift" or "event".
     pub kind: String,
     /// Step size, or drift per night (relative).
+    #[serde(deserialize_with = "sparkout_pipeline::files::json::f64_or_nan")]
     pub size: f64,
     pub seed: u64,
     pub nights: usize,
@@ -127,11 +129,13 @@ pub struct SequenceResult {
     pub false_alerts: usize,
     /// Nights that could alert (all but the first).
     pub tested_nights: usize,
+    #[serde(deserialize_with = "sparkout_pipeline::files::json::f64_or_nan")]
     pub seconds: f64,
 }
 
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct StepSummary {
+    #[serde(deserialize_with = "sparkout_pipeline::files::json::f64_or_nan")]
     pub size: f64,
     pub sequences: usize,
     pub detected: usize,
@@ -143,14 +147,16 @@ pub struct StepSummary {
     pub delay_max: Option<usize>,
 }
 
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct NightsReport {
     pub config: NightsConfig,
+    #[serde(deserialize_with = "sparkout_pipeline::files::json::f64_or_nan")]
     pub seconds: f64,
     pub stationary_night_fleets: usize,
     pub stationary_tested: usize,
     pub stationary_false_alerts: usize,
     /// Alerts per 100 stationary night-fleets that could alert.
+    #[serde(deserialize_with = "sparkout_pipeline::files::json::f64_or_nan")]
     pub false_alerts_per_100: f64,
     pub steps: Vec<StepSummary>,
     pub drift: Option<StepSummary>,
@@ -219,7 +225,7 @@ fn night_diagnosis(
     specs: &[EffectSpec],
     seed: u64,
     factor: f64,
-) -> Result<serde_json::Value> {
+) -> Result<Diagnosis> {
     let mut batches = Vec::new();
     // Machine → its observable and the indices of its effects.
     let mut machines: BTreeMap<&str, (&str, Vec<usize>)> = BTreeMap::new();
@@ -250,7 +256,7 @@ fn night_diagnosis(
     }
     let batch = arrow::compute::concat_batches(&batches[0].schema(), &batches)?;
     let out = diagnose_checked(&batch, dcfg, &[])?;
-    Ok(serde_json::to_value(&out.diagnosis)?)
+    Ok(out.diagnosis)
 }
 
 fn run_sequence(

@@ -14,20 +14,12 @@ pub(super) fn in_cells(cells: &[WhereCell], l: &ObsLayout) -> Vec<bool> {
     for c in cells {
         let names: Vec<&str> = c.covariate.split(',').collect();
         let bounds: Vec<(f64, f64)> = match (&c.lo, &c.hi) {
-            (serde_json::Value::Array(lo), serde_json::Value::Array(hi)) => lo
-                .iter()
-                .zip(hi)
-                .map(|(a, b)| {
-                    (
-                        a.as_f64().unwrap_or(f64::NAN),
-                        b.as_f64().unwrap_or(f64::NAN),
-                    )
-                })
-                .collect(),
-            (lo, hi) => vec![(
-                lo.as_f64().unwrap_or(f64::NAN),
-                hi.as_f64().unwrap_or(f64::NAN),
-            )],
+            (CellBound::Point(lo), CellBound::Point(hi)) => {
+                lo.iter().copied().zip(hi.iter().copied()).collect()
+            }
+            (CellBound::Number(lo), CellBound::Number(hi)) => vec![(*lo, *hi)],
+            // A labelled cell (a machine) bounds no number.
+            _ => vec![(f64::NAN, f64::NAN)],
         };
         let cols: Vec<&[f64]> = match names.iter().map(|n| l.col(n)).collect::<Result<Vec<_>>>() {
             Ok(c) => c,

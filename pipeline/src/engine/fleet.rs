@@ -148,7 +148,7 @@ impl Engine {
             let recorded = r
                 .stages
                 .iter()
-                .find_map(|s| s.files.get("observations.parquet").cloned());
+                .find_map(|s| s.files.get(OBSERVATIONS_FILE).cloned());
             let h = match recorded {
                 Some(h) => h,
                 None => hash_file(p)?,
@@ -166,7 +166,7 @@ impl Engine {
             2,
             okey.clone(),
             fleet_dir,
-            &[("observations.parquet", &bytes)],
+            &[(OBSERVATIONS_FILE, &bytes)],
         )?;
         Ok((okey, Some((batch, produced))))
     }
@@ -250,7 +250,7 @@ impl Engine {
     /// previous one so the page never shows a stale comparison.
     fn fleet_augment(&self, fleet_dir: &Path, progress: &dyn Progress) -> Result<()> {
         let augment_file = fleet_dir.join("augment.json");
-        let obs_file = fleet_dir.join("observations.parquet");
+        let obs_file = fleet_dir.join(OBSERVATIONS_FILE);
         match (&self.augment, obs_file.is_file()) {
             (Some(model), true) => {
                 progress.message("re-simulating with the augmented model");
@@ -373,9 +373,7 @@ impl Engine {
         settings.remove("report");
         settings.remove("trend");
         let config = report::trend::fingerprint(&super::config_text(&settings));
-        // The history keeps diagnosis.json as JSON.
-        let diagnosis = serde_json::to_value(diagnosis).context("diagnosis.json as JSON")?;
-        let file = report::trend::append_night(dir, &night, &diagnosis, &config)?;
+        let file = report::trend::append_night(dir, &night, diagnosis, &config)?;
         report::trend::append_events(dir, &events)?;
         progress.message(&format!("history: {}", file.display()));
         let t = report::trend::write_trend(dir, &out.join("trend"), &[], &self.checked.trend)?;
@@ -397,21 +395,19 @@ impl Engine {
         out: &Path,
         o: &FleetOutcome,
     ) -> Result<()> {
-        let config: serde_json::Value =
-            serde_json::to_value(&self.config.table).unwrap_or(serde_json::Value::Null);
-        let manifest = serde_json::json!({
-            "version": MANIFEST_VERSION,
-            "sparkout_version": env!("CARGO_PKG_VERSION"),
-            "input_root": input_root.display().to_string(),
-            "config_source": self.config.source,
-            "config": config,
-            "runs": o.runs,
-            "fleet": o.fleet,
-            "failures": o.failures.len(),
-            "stages_computed": o.stages_computed(),
-            "stages_cached": o.stages_cached(),
-        });
-        write_json_atomic(&out.join("manifest.json"), &manifest)
+        let manifest = crate::outcome::Manifest {
+            config: serde_json::to_value(&self.config.table).unwrap_or(serde_json::Value::Null),
+            config_source: self.config.source.clone(),
+            failures: o.failures.len(),
+            fleet: o.fleet.clone(),
+            input_root: input_root.display().to_string(),
+            runs: o.runs.clone(),
+            sparkout_version: env!("CARGO_PKG_VERSION").to_string(),
+            stages_cached: o.stages_cached(),
+            stages_computed: o.stages_computed(),
+            version: MANIFEST_VERSION,
+        };
+        manifest.write(&out.join("manifest.json"))
     }
 }
 

@@ -32,6 +32,7 @@ use crate::contracts::{
 };
 use crate::diagnose::{self, DiagnoseConfig, Effect};
 use crate::error::{InputError, Result};
+use crate::files::OBSERVATIONS_FILE;
 use crate::report;
 use crate::traits::{ArtifactStore, MachinePlugin, Run, Stage, StageContext, StageOutput};
 use cache::{hash_bytes, hash_file, hash_input, read_run_cache, record_valid, KeyBuilder};
@@ -47,7 +48,7 @@ type RunSpecs = BTreeMap<PathBuf, RunSpec>;
 pub type PluginEffects = (&'static str, Vec<Box<dyn Effect>>);
 
 /// Version of the manifest/failures layout.
-pub const MANIFEST_VERSION: u32 = 1;
+pub use crate::outcome::MANIFEST_VERSION;
 
 /// Where `run --history` appends the night, and the events it records.
 pub struct History {
@@ -573,7 +574,7 @@ impl Engine {
                     .map_err(|e| anyhow!("{}: {e}", shard_file.display()))?;
                 shard::copy_run_dir(&from, &to)?;
                 r.out_dir = to.display().to_string();
-                r.observations = Some(to.join("observations.parquet")).filter(|o| o.is_file());
+                r.observations = Some(to.join(OBSERVATIONS_FILE)).filter(|o| o.is_file());
                 let rel = PathBuf::from(&r.run_dir)
                     .strip_prefix(&input_dir)
                     .map(Path::to_path_buf)

@@ -4,6 +4,9 @@
 
 use super::*;
 
+/// The run's report step, as the cache records it beside the stages.
+const REPORT_STEP: &str = "report";
+
 impl Engine {
     /// One run through its plugin's stages. `None` when its plugin is not
     /// enabled by `[pipeline].plugins`.
@@ -224,7 +227,7 @@ impl Engine {
                 abort_if_fault_injected(stage.name());
             }
         }
-        *failed_stage = Some("report".into());
+        *failed_stage = Some(REPORT_STEP.into());
         // The run's report: a step of its own, cached on every stage's key.
         let mut rkey = KeyBuilder::new("run-report");
         rkey.part("version", &report::REPORT_VERSION.to_string())
@@ -236,12 +239,12 @@ impl Engine {
             rkey.part(&r.stage, &r.key);
         }
         let rkey = rkey.finish();
-        let report_cached = match (run_out, previous.get("report")) {
-            (Some(run_out), Some(p)) => record_valid(run_out, p, &rkey),
-            _ => false,
+        let cached_report = match (run_out, previous.get(REPORT_STEP)) {
+            (Some(run_out), Some(p)) if record_valid(run_out, p, &rkey) => Some(p),
+            _ => None,
         };
-        if report_cached {
-            let mut rec = previous["report"].clone();
+        if let Some(p) = cached_report {
+            let mut rec = p.clone();
             rec.cached = true;
             records.push(rec);
         } else {
@@ -250,14 +253,12 @@ impl Engine {
             let html = report::run_page(
                 &self.checked.report,
                 &run,
-                &store.summaries(),
+                &store.summary_names(),
                 &verdicts,
                 &sections,
             );
             let bytes = html.into_bytes();
-            let mut verdict =
-                serde_json::to_vec_pretty(&report::verdict::RunVerdict::of(&verdicts))?;
-            verdict.push(b'\n');
+            let verdict = report::verdict::RunVerdict::of(&verdicts).to_bytes()?;
             let mut files = BTreeMap::new();
             files.insert("report.html".to_string(), hash_bytes(&bytes));
             files.insert(
@@ -265,7 +266,7 @@ impl Engine {
                 hash_bytes(&verdict),
             );
             records.push(StageRecord {
-                stage: "report".into(),
+                stage: REPORT_STEP.into(),
                 version: report::REPORT_VERSION,
                 key: rkey,
                 files,
@@ -283,7 +284,7 @@ impl Engine {
             }
         }
         *failed_stage = None;
-        let observations = run_out.map(|d| d.join("observations.parquet"));
+        let observations = run_out.map(|d| d.join(OBSERVATIONS_FILE));
         Ok(RunResult {
             machine: run.spec.machine.clone(),
             run: run.spec.id.clone(),

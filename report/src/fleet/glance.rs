@@ -3,6 +3,7 @@
 //! per machine; with `--augment`, last night's model on tonight's runs.
 
 use super::*;
+use crate::diagnose::augment::AugmentReport;
 
 /// Gap RMS over noise floor of an observable (NaN when either is unknown).
 pub(super) fn gap_over_floor(p: Option<&ObservableSummary>) -> f64 {
@@ -66,22 +67,17 @@ pub(super) fn split_at_floor<'a>(
 /// "Last night's model on tonight's runs" of one row: the held-out gap of
 /// the plain simulator → the simulator augmented with the model's effects
 /// (fleet/augment.json), or why there is none.
-fn augment_cell(augment: &Value, o: &str, m: &str, u: &Unit) -> String {
-    let entries = augment.get("entries").and_then(|e| e.as_array());
-    let entry = entries.into_iter().flatten().find(|a| {
-        s(a, "observable") == o
-            && a.get("machine")
-                .and_then(|x| x.as_str())
-                .is_none_or(|x| x.is_empty() || x == m)
-    });
+fn augment_cell(augment: &AugmentReport, o: &str, m: &str, u: &Unit) -> String {
+    let entry = augment
+        .entries
+        .iter()
+        .find(|a| a.observable == o && (a.machine.is_empty() || a.machine == m));
     let Some(a) = entry else {
         let why = augment
-            .get("not_applied")
-            .and_then(|n| n.as_array())
-            .into_iter()
-            .flatten()
-            .filter(|n| s(n, "observable") == o)
-            .map(|n| format!("{}: {}", s(n, "effect"), s(n, "why")))
+            .not_applied
+            .iter()
+            .filter(|n| n.observable == o)
+            .map(|n| format!("{}: {}", n.effect, n.why))
             .collect::<Vec<_>>();
         let why = if why.is_empty() {
             "the model has no effect for this observable".to_string()
@@ -90,7 +86,7 @@ fn augment_cell(augment: &Value, o: &str, m: &str, u: &Unit) -> String {
         };
         return format!("<span title=\"{}\">—</span>", esc(&why));
     };
-    let au = a.get("unit").and_then(|x| x.as_str()).unwrap_or(&u.data);
+    let au = a.unit.as_deref().unwrap_or(&u.data);
     let show = |v: f64| {
         if au == u.data {
             u.show(v)
@@ -98,12 +94,11 @@ fn augment_cell(augment: &Value, o: &str, m: &str, u: &Unit) -> String {
             format!("{} {au}", crate::svg::tick(v))
         }
     };
-    let held = a.get("held_out").and_then(|x| x.as_bool()) == Some(true);
     format!(
         "{} → <b>{}</b>{}",
-        show(f(a, "heldout_rms_plain")),
-        show(f(a, "heldout_rms_augmented")),
-        if held {
+        show(a.heldout_rms_plain),
+        show(a.heldout_rms_augmented),
+        if a.held_out {
             String::new()
         } else {
             " <span class=\"note\">in-sample</span>".into()
@@ -119,7 +114,7 @@ pub(super) fn glance_table(
     tree: &Tree,
     per_obs: &BTreeMap<&str, &ObservableSummary>,
     rows: Option<&FleetRows>,
-    augment: Option<&Value>,
+    augment: Option<&AugmentReport>,
 ) -> String {
     if tree.is_empty() {
         return String::new();

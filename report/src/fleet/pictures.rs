@@ -12,10 +12,10 @@ pub(super) fn xy_tiles(d: &Diagnosis, observable: &str) -> Vec<[(f64, f64); 2]> 
         .filter(|c| c.observable == observable && c.covariate == "x_mm,y_mm")
         .filter_map(|c| {
             // An x/y tile's bounds are [x, y] pairs (a 1-D cell's are numbers).
-            let lo = c.lo.as_array()?;
-            let hi = c.hi.as_array()?;
-            let (x0, y0) = (lo.first()?.as_f64()?, lo.get(1)?.as_f64()?);
-            let (x1, y1) = (hi.first()?.as_f64()?, hi.get(1)?.as_f64()?);
+            let (lo, hi) = (c.lo.as_point()?, c.hi.as_point()?);
+            let finite = |x: f64| x.is_finite().then_some(x);
+            let (x0, y0) = (finite(*lo.first()?)?, finite(*lo.get(1)?)?);
+            let (x1, y1) = (finite(*hi.first()?)?, finite(*hi.get(1)?)?);
             Some([(x0.min(x1), y0.min(y1)), (x0.max(x1), y0.max(y1))])
         })
         .collect()

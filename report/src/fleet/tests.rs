@@ -1,4 +1,6 @@
 use super::*;
+use crate::diagnose::augment::{AugmentEntry, AugmentReport, NotApplied};
+use serde_json::Value;
 
 /// An `effects` entry: its required fields, then `fields` over them.
 fn effect(fields: Value) -> EffectEntry {
@@ -124,7 +126,7 @@ fn at_a_glance_thumbnails_are_readable() {
     );
 }
 
-fn glance_of(augment: Option<&Value>) -> String {
+fn glance_of(augment: Option<&AugmentReport>) -> String {
     let per = [
         summary(
             serde_json::json!({"observable": "a", "rms_mm": 0.01, "noise_floor_mm": 0.005,
@@ -179,11 +181,30 @@ fn glance_rows_rank_by_gap_over_floor_and_the_floor_is_one_line() {
 
 #[test]
 fn last_nights_model_on_tonights_runs_is_a_column_with_augment() {
-    let augment = serde_json::json!({
-        "entries": [{"observable": "a", "machine": "m1", "unit": "mm", "held_out": true,
-                     "heldout_rms_plain": 0.01, "heldout_rms_augmented": 0.002}],
-        "not_applied": [{"observable": "b", "effect": "lag:feed_mm_s",
-                         "why": "tonight's observations lack its covariate (feed_mm_s)"}]});
+    let augment = AugmentReport {
+        applies_as: String::new(),
+        entries: vec![AugmentEntry {
+            effects: vec!["drift:t_s".into()],
+            held_out: true,
+            heldout_rms_augmented: 0.002,
+            heldout_rms_plain: 0.01,
+            in_physics: Vec::new(),
+            machine: "m1".into(),
+            observable: "a".into(),
+            rows: 10,
+            runs: 2,
+            shrink: 0.8,
+            unit: Some("mm".into()),
+        }],
+        kind: crate::diagnose::augment::AUGMENT_KIND.into(),
+        model: "m.json".into(),
+        not_applied: vec![NotApplied {
+            observable: "b".into(),
+            effect: "lag:feed_mm_s".into(),
+            why: "tonight's observations lack its covariate (feed_mm_s)".into(),
+        }],
+        version: 1,
+    };
     let html = glance_of(Some(&augment));
     assert!(html.contains("<th class=\"why\">last night's model on tonight's runs</th>"));
     let row = |o: &str| {

@@ -3,6 +3,7 @@
 //! and intervals, the held-out shrink, the augmented simulator's gap.
 
 use super::*;
+use crate::diagnose::augment::{AugmentEntry, AugmentReport};
 use crate::diagnose::intervals::ParamInterval;
 
 /// An observable's unit and how it is shown: gaps in mm are shown in µm;
@@ -64,14 +65,6 @@ impl Unit {
         }
         crate::units::format::show_in(v, &self.data)
     }
-}
-
-pub(super) fn f(v: &Value, k: &str) -> f64 {
-    v.get(k).and_then(|x| x.as_f64()).unwrap_or(f64::NAN)
-}
-
-pub(super) fn s<'a>(v: &'a Value, k: &str) -> &'a str {
-    v.get(k).and_then(|x| x.as_str()).unwrap_or("")
 }
 
 /// `k = 4.92 ± 0.08 ms (95 % 4.76 … 5.07 ms)` for each parameter of an
@@ -214,61 +207,51 @@ pub(super) fn candidates(d: &Diagnosis, observable: &str, stop: &str, u: &Unit) 
 }
 
 /// fleet/augment.json (written by the augmentation step when `run
-/// --augment` ran).
-pub(super) fn augment_file(out_dir: &std::path::Path) -> Option<Value> {
-    std::fs::read(out_dir.join("fleet").join("augment.json"))
+/// --augment` ran), read through its type; none when absent or unreadable.
+pub(super) fn augment_file(out_dir: &std::path::Path) -> Option<AugmentReport> {
+    let path = out_dir.join("fleet").join("augment.json");
+    if !path.is_file() {
+        return None;
+    }
+    AugmentReport::read(&path)
+        .map_err(|e| tracing::warn!("fleet report without the augmented simulator: {e:#}"))
         .ok()
-        .and_then(|b| serde_json::from_slice::<Value>(&b).ok())
 }
 
 /// augment.json's entries (none without it).
-pub(super) fn augment_entries(augment: Option<&Value>) -> Vec<Value> {
-    augment
-        .and_then(|v| v.get("entries").and_then(|o| o.as_array()).cloned())
-        .unwrap_or_default()
+pub(super) fn augment_entries(augment: Option<&AugmentReport>) -> &[AugmentEntry] {
+    augment.map_or(&[], |a| a.entries.as_slice())
 }
 
 /// The augmented simulator's lines of a verdict (`fleet/augment.json`
 /// entries for this observable and machine).
-fn augment_lines(augment: &[Value], obs: &str, machine: &str, u: &Unit) -> String {
+fn augment_lines(augment: &[AugmentEntry], obs: &str, machine: &str, u: &Unit) -> String {
     let mut v = String::new();
-    for a in augment.iter().filter(|a| {
-        s(a, "observable") == obs
-            && a.get("machine")
-                .and_then(|m| m.as_str())
-                .is_none_or(|m| m == machine)
-    }) {
-        let au = a.get("unit").and_then(|x| x.as_str()).unwrap_or(&u.data);
+    for a in augment
+        .iter()
+        .filter(|a| a.observable == obs && a.machine == machine)
+    {
+        let au = a.unit.as_deref().unwrap_or(&u.data);
         let scale = if au == u.data { u.scale } else { 1.0 };
         let shown = if au == u.data { u.shown.as_str() } else { au };
-        let held = a.get("held_out").and_then(|x| x.as_bool()) == Some(true);
         let _ = write!(
             v,
             " Augmented simulator (+ {}), on {} {}: gap {} {shown} plain → <b>{} {shown}</b> augmented.",
-            esc(&a
-                .get("effects")
-                .and_then(|e| e.as_array())
-                .map(|e| e.iter().filter_map(|x| x.as_str()).collect::<Vec<_>>().join(", "))
-                .unwrap_or_default()),
-            a.get("runs").and_then(|x| x.as_u64()).unwrap_or(0),
-            if held {
+            esc(&a.effects.join(", ")),
+            a.runs,
+            if a.held_out {
                 "runs it was not fitted on"
             } else {
                 "runs it was fitted on (in-sample: no other run tonight)"
             },
-            super::super::svg::tick(f(a, "heldout_rms_plain") * scale),
-            super::super::svg::tick(f(a, "heldout_rms_augmented") * scale),
+            super::super::svg::tick(a.heldout_rms_plain * scale),
+            super::super::svg::tick(a.heldout_rms_augmented * scale),
         );
-        let physics: Vec<&str> = a
-            .get("in_physics")
-            .and_then(|e| e.as_array())
-            .map(|e| e.iter().filter_map(|x| x.as_str()).collect())
-            .unwrap_or_default();
-        if !physics.is_empty() {
+        if !a.in_physics.is_empty() {
             let _ = write!(
                 v,
                 " Re-simulated in the plugin's physics: {} (its compensation too).",
-                esc(&physics.join(", "))
+                esc(&a.in_physics.join(", "))
             );
         }
     }
@@ -280,7 +263,7 @@ fn augment_lines(augment: &[Value], obs: &str, machine: &str, u: &Unit) -> Strin
 pub(super) fn verdict(
     d: &Diagnosis,
     po: &ObservableSummary,
-    augment: &[Value],
+    augment: &[AugmentEntry],
     machine: &str,
 ) -> String {
     let obs = po.observable.as_str();

@@ -16,6 +16,7 @@ use arrow::datatypes::{DataType, Field, Float64Type, Schema, UInt32Type};
 
 use super::{check_night, Z95};
 use crate::contracts::write_parquet_atomic;
+use crate::diagnose::{Diagnosis, ObservableSummary};
 use crate::error::Result;
 
 /// Version of a history row. 1: no version column, no explained RMS,
@@ -61,10 +62,6 @@ pub struct HistoryRow {
     pub config: String,
 }
 
-fn f(v: &serde_json::Value, k: &str) -> f64 {
-    v.get(k).and_then(|x| x.as_f64()).unwrap_or(f64::NAN)
-}
-
 /// √(before² − after²): what an effect explains of the held-out gap.
 fn explained(before: f64, after: f64) -> f64 {
     if before.is_finite() && after.is_finite() {
@@ -74,24 +71,17 @@ fn explained(before: f64, after: f64) -> f64 {
     }
 }
 
-/// The rows of one night's diagnosis.json; `config` fingerprints the
-/// settings it ran with.
-pub fn rows_of(diagnosis: &serde_json::Value, night: &str, config: &str) -> Vec<HistoryRow> {
+/// The rows of one night's diagnosis (diagnosis.json through its type);
+/// `config` fingerprints the settings it ran with.
+pub fn rows_of(diagnosis: &Diagnosis, night: &str, config: &str) -> Vec<HistoryRow> {
     let mut rows = Vec::new();
-    let per: BTreeMap<&str, &serde_json::Value> = diagnosis
-        .get("per_observable")
-        .and_then(|p| p.as_array())
-        .into_iter()
-        .flatten()
-        .filter_map(|o| Some((o.get("observable")?.as_str()?, o)))
+    let per: BTreeMap<&str, &ObservableSummary> = diagnosis
+        .per_observable
+        .iter()
+        .map(|o| (o.observable.as_str(), o))
         .collect();
-    let unit_of = |o: &str| -> String {
-        per.get(o)
-            .and_then(|p| p.get("unit"))
-            .and_then(|u| u.as_str())
-            .unwrap_or("mm")
-            .to_string()
-    };
+    let unit_of = |o: &str| -> String { per.get(o).map_or("mm", |p| p.unit.as_str()).to_string() };
+    let nan = |x: Option<f64>| x.unwrap_or(f64::NAN);
     let blank = HistoryRow {
         version: HISTORY_VERSION,
         night: night.into(),
@@ -115,78 +105,52 @@ pub fn rows_of(diagnosis: &serde_json::Value, night: &str, config: &str) -> Vec<
         config: config.into(),
     };
     for (o, p) in &per {
-        let machines: Vec<&str> = p
-            .get("machines")
-            .and_then(|m| m.as_array())
-            .into_iter()
-            .flatten()
-            .filter_map(|m| m.as_str())
-            .collect();
         rows.push(HistoryRow {
             observable: o.to_string(),
             unit: unit_of(o),
-            shrink: f(p, "shrink"),
-            gap_rms: f(p, "rms_mm"),
-            noise_floor: f(p, "noise_floor_mm"),
-            n_runs: f(p, "runs"),
-            machines: machines.join(","),
+            shrink: p.shrink,
+            gap_rms: p.rms_mm,
+            noise_floor: p.noise_floor_mm,
+            n_runs: p.runs as f64,
+            machines: p.machines.join(","),
             ..blank.clone()
         });
     }
-    let effects = diagnosis.get("effects").and_then(|e| e.as_array());
-    for e in effects.into_iter().flatten() {
-        let selected = e.get("selected").and_then(|s| s.as_bool()) == Some(true);
-        let minor = e.get("minor").and_then(|s| s.as_bool()) == Some(true);
-        if !selected && !minor {
-            continue;
-        }
-        let obs = e.get("observable").and_then(|x| x.as_str()).unwrap_or("");
-        let name = e.get("name").and_then(|x| x.as_str()).unwrap_or("");
-        let key = match e.get("covariate").and_then(|c| c.as_str()) {
-            Some(c) => format!("{name}:{c}"),
-            None => name.to_string(),
-        };
+    for e in diagnosis.effects.iter().filter(|e| e.selected || e.minor) {
+        let obs = e.observable.as_str();
         let p = per.get(obs);
         let base = HistoryRow {
             observable: obs.into(),
             unit: unit_of(obs),
-            effect: key.clone(),
-            shrink: f(e, "shrink"),
-            gap_rms: p.map_or(f64::NAN, |p| f(p, "rms_mm")),
-            noise_floor: p.map_or(f64::NAN, |p| f(p, "noise_floor_mm")),
-            n_runs: p.map_or(f64::NAN, |p| f(p, "runs")),
-            explained_rms: explained(f(e, "cv_rms_before_mm"), f(e, "cv_rms_after_mm")),
-            p_value: f(e, "p_value"),
-            minor,
+            effect: e.key(),
+            shrink: nan(e.shrink),
+            gap_rms: p.map_or(f64::NAN, |p| p.rms_mm),
+            noise_floor: p.map_or(f64::NAN, |p| p.noise_floor_mm),
+            n_runs: p.map_or(f64::NAN, |p| p.runs as f64),
+            explained_rms: explained(nan(e.cv_rms_before_mm), nan(e.cv_rms_after_mm)),
+            p_value: nan(e.p_value),
+            minor: e.minor,
             ..blank.clone()
         };
-        let params = e.get("params").and_then(|p| p.as_object());
-        let intervals = e.get("intervals");
-        for (k, v) in params.into_iter().flatten() {
-            let iv = intervals.and_then(|i| i.get(k));
+        for (k, &value) in &e.params {
+            let iv = e.intervals.as_ref().and_then(|i| i.get(k));
             rows.push(HistoryRow {
                 param: k.clone(),
-                value: v.as_f64().unwrap_or(f64::NAN),
-                se: iv.map_or(f64::NAN, |i| f(i, "se")),
-                lo95: iv.map_or(f64::NAN, |i| f(i, "lo")),
-                hi95: iv.map_or(f64::NAN, |i| f(i, "hi")),
+                value,
+                se: iv.map_or(f64::NAN, |i| i.se),
+                lo95: iv.map_or(f64::NAN, |i| i.lo),
+                hi95: iv.map_or(f64::NAN, |i| i.hi),
                 ..base.clone()
             });
         }
-        // A machine's own fit, where the diagnosis reports one.
-        let per_machine = e.get("per_machine").and_then(|m| m.as_array());
-        for m in per_machine.into_iter().flatten() {
-            let machine = m.get("machine").and_then(|x| x.as_str()).unwrap_or("");
-            let mparams = m.get("params").and_then(|p| p.as_object());
-            for (k, v) in mparams.into_iter().flatten() {
-                let se = m
-                    .get("se")
-                    .and_then(|s| s.get(k))
-                    .and_then(|s| s.as_f64())
-                    .unwrap_or(f64::NAN);
-                let value = v.as_f64().unwrap_or(f64::NAN);
+        // A machine's own fit, where the diagnosis reports one. It carries
+        // no standard error (diagnosis.json `per_machine` has none), so its
+        // interval is unknown.
+        for m in e.per_machine.iter().flatten() {
+            for (k, &value) in &m.params {
+                let se = f64::NAN;
                 rows.push(HistoryRow {
-                    machine: machine.into(),
+                    machine: m.machine.clone(),
                     param: k.clone(),
                     value,
                     se,
@@ -273,11 +237,11 @@ pub fn write_night(history: &Path, night: &str, rows: &[HistoryRow]) -> Result<P
 }
 
 /// Appends (or replaces, atomically) one night's partition from its
-/// diagnosis.json.
+/// diagnosis.
 pub fn append_night(
     history: &Path,
     night: &str,
-    diagnosis: &serde_json::Value,
+    diagnosis: &Diagnosis,
     config: &str,
 ) -> Result<PathBuf> {
     write_night(history, night, &rows_of(diagnosis, night, config))
