@@ -93,3 +93,16 @@ where
     assert_eq!(written, again, "a summary read back writes the same JSON");
     written
 }
+
+/// Write → read → write gives the same JSON (a NaN figure is `null` both
+/// times); the value read back, for further checks.
+#[cfg(test)]
+pub(crate) fn reads_back<T>(v: &T) -> T
+where
+    T: serde::Serialize + serde::de::DeserializeOwned + std::fmt::Debug,
+{
+    let j = serde_json::to_value(v).unwrap();
+    let back: T = serde_json::from_value(j.clone()).unwrap();
+    assert_eq!(serde_json::to_value(&back).unwrap(), j, "{v:?}");
+    back
+}

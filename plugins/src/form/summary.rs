@@ -169,15 +169,7 @@ pub struct ObserveAugmented {
 mod tests {
     use super::*;
 
-    fn round_trip<T>(v: &T) -> T
-    where
-        T: Serialize + serde::de::DeserializeOwned + std::fmt::Debug,
-    {
-        let j = serde_json::to_value(v).unwrap();
-        let back: T = serde_json::from_value(j.clone()).unwrap();
-        assert_eq!(serde_json::to_value(&back).unwrap(), j, "{v:?}");
-        back
-    }
+    use crate::typed_summary::reads_back as round_trip;
 
     #[test]
     fn every_form_summary_reads_back_what_it_wrote() {

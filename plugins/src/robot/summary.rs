@@ -468,17 +468,7 @@ pub struct ObservableGap {
 mod tests {
     use super::*;
 
-    /// Write → read → write gives the same JSON, and the read value equals
-    /// the written one (NaN compared as null).
-    pub(crate) fn round_trip<T>(v: &T) -> T
-    where
-        T: Serialize + serde::de::DeserializeOwned + std::fmt::Debug,
-    {
-        let j = serde_json::to_value(v).unwrap();
-        let back: T = serde_json::from_value(j.clone()).unwrap();
-        assert_eq!(serde_json::to_value(&back).unwrap(), j, "{v:?}");
-        back
-    }
+    pub(crate) use crate::typed_summary::reads_back as round_trip;
 
     fn params() -> AeParamsSummary {
         AeParamsSummary {
