@@ -122,6 +122,7 @@ pub enum Error {
     /// The source run's run.toml did not parse.
     #[error("source run.toml")]
     SourceRunToml(#[source] toml::de::Error),
+    /// The recorded run's run.toml could not be written out as TOML.
     #[error(transparent)]
     TomlWrite(#[from] toml::ser::Error),
     /// A bad input file (run, motion, compensation, EDS, candump log).
@@ -154,7 +155,9 @@ impl Error {
     }
 }
 
-/// A drive axis as `canopen::AxisRef` shows it (`node 1`, `node 1 axis 2`).
+/// A drive axis as `canopen::AxisRef` shows it (`node 1`, `node 1 axis 2`);
+/// the error keeps node and axis as numbers so that this module, which
+/// every other one uses, depends on none of them (no import cycle).
 fn drive_name(node: u8, axis: u8) -> String {
     if axis == 1 {
         format!("node {node}")
