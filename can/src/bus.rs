@@ -6,7 +6,7 @@
 //! of 4 ms is 4000 µs, every cycle) and the candump `(sec.usec)` stamp
 //! round-trips without rounding.
 
-use anyhow::Result;
+use crate::error::Result;
 
 /// Linux `CAN_ERR_FLAG`: set in the id of an error frame (as candump prints it).
 pub const CAN_ERR_FLAG: u32 = 0x2000_0000;

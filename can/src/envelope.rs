@@ -2,7 +2,7 @@
 //! that fails any check is never sent (docs/design.md §11:
 //! "Replay never sends a frame outside the envelope, whatever the input").
 
-use anyhow::{bail, Result};
+use crate::error::{Error, Result};
 
 /// Limits, all in mm (per axis, per cycle where it says so).
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
@@ -34,7 +34,10 @@ impl Envelope {
             ("--max-following-mm", self.max_following_mm),
         ] {
             if !(v.is_finite() && v > 0.0) {
-                bail!("envelope limit {name} = {v}: it must be a finite number > 0 (mm)");
+                return Err(Error::EnvelopeLimit {
+                    limit: name,
+                    value: v,
+                });
             }
         }
         Ok(())

@@ -10,7 +10,7 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 // The ground floor, by the module names the replay uses (`crate::contracts`…).
-pub(crate) use sparkout_core::{contracts, error};
+pub(crate) use sparkout_core::contracts;
 
 pub mod bus;
 pub mod canopen;
@@ -18,6 +18,7 @@ pub mod compare;
 pub mod decode;
 pub mod eds;
 pub mod envelope;
+pub mod error;
 pub mod log_bus;
 pub mod record;
 pub mod sim;
@@ -29,11 +30,10 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 
-use anyhow::{bail, Result};
-
 pub use bus::{CanBus, CanFrame, Dir};
 pub use canopen::{MasterConfig, Outcome, StopKind};
 pub use envelope::Envelope;
+pub use error::{Error, Result};
 pub use sim::{SimBus, SimConfig, SimFault};
 pub use source::Plan;
 
@@ -52,17 +52,29 @@ impl BusSpec {
         }
         if let Some(f) = s.strip_prefix("log:") {
             if f.is_empty() {
-                bail!("--bus log:FILE needs a file name");
+                return Err(Error::bad_option(
+                    "--bus",
+                    s,
+                    "--bus log:FILE needs a file name".into(),
+                ));
             }
             return Ok(BusSpec::Log(PathBuf::from(f)));
         }
         if let Some(i) = s.strip_prefix("socketcan:") {
             if i.is_empty() {
-                bail!("--bus socketcan:IFACE needs an interface name, e.g. socketcan:can0");
+                return Err(Error::bad_option(
+                    "--bus",
+                    s,
+                    "--bus socketcan:IFACE needs an interface name, e.g. socketcan:can0".into(),
+                ));
             }
             return Ok(BusSpec::SocketCan(i.to_string()));
         }
-        bail!("--bus `{s}`: use sim, log:FILE or socketcan:IFACE")
+        Err(Error::bad_option(
+            "--bus",
+            s,
+            format!("--bus `{s}`: use sim, log:FILE or socketcan:IFACE"),
+        ))
     }
 }
 
@@ -136,57 +148,92 @@ impl ReplayOptions {
 
     pub fn validate(&self) -> Result<()> {
         if !(self.cycle_ms.is_finite() && self.cycle_ms >= 1.0) {
-            bail!(
-                "--cycle-ms {}: the cycle must be at least 1 ms (CANopen drives sync at 1–10 ms; default 4)",
-                self.cycle_ms
-            );
+            return Err(Error::bad_option(
+                "--cycle-ms",
+                self.cycle_ms,
+                format!(
+                    "--cycle-ms {}: the cycle must be at least 1 ms (CANopen drives sync at 1–10 ms; default 4)",
+                    self.cycle_ms
+                ),
+            ));
         }
         self.envelope.validate()?;
         if !(self.counts_per_mm.is_finite() && self.counts_per_mm > 0.0) {
-            bail!("--counts-per-mm {} must be > 0", self.counts_per_mm);
+            return Err(Error::bad_option(
+                "--counts-per-mm",
+                self.counts_per_mm,
+                format!("--counts-per-mm {} must be > 0", self.counts_per_mm),
+            ));
         }
         let n = self.nodes;
         let same = |a: usize, b: usize| n[a] == n[b] && self.drive_axes[a] == self.drive_axes[b];
         if n.iter().any(|&x| !(1..=127).contains(&x)) || same(0, 1) || same(1, 2) || same(0, 2) {
-            bail!("--nodes {n:?} (drive axes {:?}): three distinct drive axes, node ids 1–127 (x, y, z)", self.drive_axes);
+            return Err(Error::bad_option(
+                "--nodes",
+                format!("{},{},{}", n[0], n[1], n[2]),
+                format!("--nodes {n:?} (drive axes {:?}): three distinct drive axes, node ids 1–127 (x, y, z)", self.drive_axes),
+            ));
         }
         if self.drive_axes.iter().any(|a| !(1..=4).contains(a)) {
-            bail!("--axis: a drive axis is 1–4, found {:?}", self.drive_axes);
+            return Err(Error::bad_option(
+                "--axis",
+                format!("{:?}", self.drive_axes),
+                format!("--axis: a drive axis is 1–4, found {:?}", self.drive_axes),
+            ));
         }
         for node in self.eds.keys() {
             if !n.contains(node) {
-                bail!(
-                    "--eds {node}=…: node {node} drives no axis (nodes {},{},{})",
-                    n[0],
-                    n[1],
-                    n[2]
-                );
+                return Err(Error::bad_option(
+                    "--eds",
+                    node,
+                    format!(
+                        "--eds {node}=…: node {node} drives no axis (nodes {},{},{})",
+                        n[0], n[1], n[2]
+                    ),
+                ));
             }
         }
         let descriptions = self.descriptions()?;
         for (node, axis) in n.iter().zip(self.drive_axes) {
             if let Some(d) = descriptions.get(node) {
-                canopen::pdo::check_description(d, canopen::AxisRef::new(*node, axis))
-                    .map_err(|e| anyhow::anyhow!(e))?;
+                canopen::pdo::check_description(d, canopen::AxisRef::new(*node, axis))?;
             }
         }
         if self.heartbeat_ms == 0 || !(self.heartbeat_timeout_periods >= 1.0) {
-            bail!("heartbeat period must be > 0 ms and its timeout ≥ 1 period");
+            return Err(Error::bad_option(
+                "--heartbeat-ms",
+                self.heartbeat_ms,
+                "heartbeat period must be > 0 ms and its timeout ≥ 1 period".into(),
+            ));
         }
         if !(self.sim_lag_s >= 0.0 && self.sim_max_speed_mm_s > 0.0) {
-            bail!("--sim-lag-s must be ≥ 0 and --sim-max-speed-mm-s > 0");
+            return Err(Error::bad_option(
+                "--sim-lag-s",
+                format!(
+                    "{} (--sim-max-speed-mm-s {})",
+                    self.sim_lag_s, self.sim_max_speed_mm_s
+                ),
+                "--sim-lag-s must be ≥ 0 and --sim-max-speed-mm-s > 0".into(),
+            ));
         }
         if self.dry_run && self.record.is_some() {
-            bail!(
+            return Err(Error::bad_option(
+                "--record",
+                self.record.as_deref().unwrap_or(Path::new("")).display(),
                 "--dry-run drives no real axis, so there is nothing to --record; drop one of them"
-            );
+                    .into(),
+            ));
         }
         if let Some(r) = &self.record {
             if r.join("run.toml").exists() {
-                bail!(
-                    "--record {}: already holds a run (run.toml); choose a new directory",
-                    r.display()
-                );
+                return Err(Error::bad_option(
+                    "--record",
+                    r.display(),
+                    format!(
+                        "--record {}: already holds a run (run.toml); choose a new directory",
+                        r.display()
+                    ),
+                ));
             }
         }
         Ok(())
@@ -201,23 +248,29 @@ impl ReplayOptions {
         for f in &self.sim_faults {
             if let Some(node) = f.node() {
                 if !self.nodes.contains(&node) {
-                    bail!(
-                        "--sim-fault {f:?}: node {node} is not one of the drives (--nodes {},{},{})",
-                        self.nodes[0],
-                        self.nodes[1],
-                        self.nodes[2]
-                    );
+                    return Err(Error::bad_option(
+                        "--sim-fault",
+                        format!("{f:?}"),
+                        format!(
+                            "--sim-fault {f:?}: node {node} is not one of the drives (--nodes {},{},{})",
+                            self.nodes[0], self.nodes[1], self.nodes[2]
+                        ),
+                    ));
                 }
             }
             if let Some(at) = f.at_us() {
                 if at >= streamed_us {
-                    bail!(
-                        "--sim-fault {f:?}: at {} s, after the end of the path ({} cycles of {} ms = {} s); it would never fire",
-                        at as f64 * 1e-6,
-                        plan.cmd_mm.len(),
-                        self.cycle_ms,
-                        streamed_us as f64 * 1e-6
-                    );
+                    return Err(Error::bad_option(
+                        "--sim-fault",
+                        format!("{f:?}"),
+                        format!(
+                            "--sim-fault {f:?}: at {} s, after the end of the path ({} cycles of {} ms = {} s); it would never fire",
+                            at as f64 * 1e-6,
+                            plan.cmd_mm.len(),
+                            self.cycle_ms,
+                            streamed_us as f64 * 1e-6
+                        ),
+                    ));
                 }
             }
         }
@@ -299,7 +352,11 @@ pub fn apply_machine_replay(
     };
     let src = &m.source;
     let Some(t) = t.as_table() else {
-        bail!("{src}: [replay] must be a table");
+        return Err(machine(
+            src,
+            "replay",
+            format!("{src}: [replay] must be a table"),
+        ));
     };
     let base = Path::new(src)
         .parent()
@@ -310,7 +367,7 @@ pub fn apply_machine_replay(
         match key.as_str() {
             "eds" => {
                 let Some(map) = v.as_table() else {
-                    bail!("{src}: replay.eds must be a table of node = \"file\", e.g. eds = {{ \"1\" = \"drive.eds\" }}");
+                    return Err(machine(src, "replay.eds", format!("{src}: replay.eds must be a table of node = \"file\", e.g. eds = {{ \"1\" = \"drive.eds\" }}")));
                 };
                 for (node, file) in map {
                     let n: u8 = node
@@ -318,51 +375,91 @@ pub fn apply_machine_replay(
                         .ok()
                         .filter(|n| (1..=127).contains(n))
                         .ok_or_else(|| {
-                            anyhow::anyhow!("{src}: replay.eds key `{node}` is not a node id 1–127")
+                            machine(
+                                src,
+                                format!("replay.eds.\"{node}\""),
+                                format!("{src}: replay.eds key `{node}` is not a node id 1–127"),
+                            )
                         })?;
                     let Some(f) = file.as_str() else {
-                        bail!("{src}: replay.eds.\"{node}\" must be a file name (a string)");
+                        return Err(machine(
+                            src,
+                            format!("replay.eds.\"{node}\""),
+                            format!("{src}: replay.eds.\"{node}\" must be a file name (a string)"),
+                        ));
                     };
                     let path = base.join(f);
                     if !path.is_file() {
-                        bail!(
-                            "{src}: replay.eds.\"{node}\" = \"{f}\": no file {}",
-                            path.display()
-                        );
+                        return Err(machine(
+                            src,
+                            format!("replay.eds.\"{node}\""),
+                            format!(
+                                "{src}: replay.eds.\"{node}\" = \"{f}\": no file {}",
+                                path.display()
+                            ),
+                        ));
                     }
                     opts.eds.insert(n, path);
                 }
             }
             "axes" => {
                 let Some(map) = v.as_table() else {
-                    bail!("{src}: replay.axes must be a table like axes = {{ x = \"1\", y = \"1:2\" }}");
+                    return Err(machine(src, "replay.axes", format!("{src}: replay.axes must be a table like axes = {{ x = \"1\", y = \"1:2\" }}")));
                 };
                 for (axis, spec) in map {
                     let a = ["x", "y", "z"]
                         .iter()
                         .position(|n| n.eq_ignore_ascii_case(axis))
                         .ok_or_else(|| {
-                            anyhow::anyhow!("{src}: replay.axes key `{axis}` is not x, y or z")
+                            machine(
+                                src,
+                                format!("replay.axes.{axis}"),
+                                format!("{src}: replay.axes key `{axis}` is not x, y or z"),
+                            )
                         })?;
                     let text = match spec {
                         toml::Value::String(s) => s.clone(),
                         toml::Value::Integer(i) => i.to_string(),
-                        other => bail!(
-                            "{src}: replay.axes.{axis} = {other}: use \"NODE\" or \"NODE:AXIS\""
-                        ),
+                        other => {
+                            return Err(machine(
+                                src,
+                                format!("replay.axes.{axis}"),
+                                format!("{src}: replay.axes.{axis} = {other}: use \"NODE\" or \"NODE:AXIS\""),
+                            ))
+                        }
                     };
-                    let r = canopen::AxisRef::parse(&text)
-                        .map_err(|e| anyhow::anyhow!("{src}: replay.axes.{axis} {e}"))?;
+                    let r = canopen::AxisRef::parse(&text).map_err(|e| {
+                        machine(
+                            src,
+                            format!("replay.axes.{axis}"),
+                            format!("{src}: replay.axes.{axis} {e}"),
+                        )
+                    })?;
                     opts.nodes[a] = r.node;
                     opts.drive_axes[a] = r.axis;
                 }
             }
             other => {
-                bail!("{src}: unknown key replay.{other} (a machine's [replay] has: eds, axes)")
+                return Err(machine(
+                    src,
+                    format!("replay.{other}"),
+                    format!(
+                        "{src}: unknown key replay.{other} (a machine's [replay] has: eds, axes)"
+                    ),
+                ))
             }
         }
     }
     Ok(())
+}
+
+/// A bad key of a machine config's `[replay]`.
+fn machine(file: &str, key: impl Into<String>, message: String) -> Error {
+    Error::MachineConfig {
+        file: file.to_string(),
+        key: key.into(),
+        message,
+    }
 }
 
 /// What happened, for the CLI (printed and as JSON).
@@ -436,12 +533,13 @@ pub fn preflight(plan: &Plan, env: &Envelope, cpm: f64, cycle_us: u64) -> Result
                 }
                 prev = Some(t);
             }
-            Err(v) => bail!(
-                "the replay would leave the safety envelope at setpoint {k} (t = {:.6} s): {}; nothing was sent. \
-                 Check the compensation or widen the limit (--max-comp-mm, --max-step-mm, --max-step-change-mm)",
-                plan.t0_s + k as f64 * cycle_us as f64 * 1e-6,
-                v.0
-            ),
+            Err(v) => {
+                return Err(Error::EnvelopeRefused {
+                    setpoint: k,
+                    t_s: plan.t0_s + k as f64 * cycle_us as f64 * 1e-6,
+                    why: v.0,
+                })
+            }
         }
     }
     Ok(())
@@ -468,9 +566,7 @@ pub fn run(
         #[cfg(all(target_os = "linux", feature = "socketcan"))]
         (BusSpec::SocketCan(iface), false) => Box::new(socketcan_bus::SocketCanBus::open(iface)?),
         #[cfg(not(all(target_os = "linux", feature = "socketcan")))]
-        (BusSpec::SocketCan(_), false) => {
-            bail!("this sparkout binary has no SocketCAN support: the backend is the cargo feature `socketcan`, off by default — rebuild with `cargo build --release --features socketcan` (Linux), or use --bus sim / --dry-run")
-        }
+        (BusSpec::SocketCan(_), false) => return Err(Error::NoSocketCan),
     };
     let describe = if opts.dry_run {
         format!(
@@ -543,6 +639,8 @@ pub fn run(
     Ok((report, outcome))
 }
 
+#[cfg(test)]
+mod error_tests;
 #[cfg(test)]
 mod pdo_tests;
 #[cfg(test)]

@@ -13,10 +13,8 @@ use std::fs::File;
 use std::io::{BufRead, BufReader, BufWriter, Write};
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context, Result};
-
 use super::bus::{CanBus, CanFrame, CAN_ERR_FLAG};
-use crate::error::InputError;
+use crate::error::{Error, InputError, Result};
 
 /// Interface name written into the log (candump needs one; replay has one bus).
 pub const LOG_IFACE: &str = "can0";
@@ -139,29 +137,24 @@ impl LogWriter {
     /// replaced at the end (atomically, by rename), never a directory or a link.
     pub fn create_with(path: &Path, force: bool) -> Result<LogWriter> {
         if force && (path.is_dir() || path.is_symlink()) {
-            anyhow::bail!(
-                "{}: --force replaces a regular file only, not a directory or a link",
-                path.display()
-            );
+            return Err(Error::LogNotAFile {
+                path: path.to_path_buf(),
+            });
         }
         if !force && (path.exists() || path.is_symlink()) {
-            anyhow::bail!(
-                "{} already exists; a bus log is never overwritten — name a new file (e.g. {}) or move the old one away (--force replaces it)",
-                path.display(),
-                path.with_extension("2.log").display()
-            );
+            return Err(Error::LogExists {
+                path: path.to_path_buf(),
+            });
         }
         if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-            std::fs::create_dir_all(dir)
-                .with_context(|| format!("cannot create {}", dir.display()))?;
+            std::fs::create_dir_all(dir).map_err(Error::io("cannot create", dir))?;
         }
         let name = path
             .file_name()
             .map(|n| n.to_string_lossy().into_owned())
             .unwrap_or_else(|| "replay.log".into());
         let tmp = path.with_file_name(format!(".{name}.{}.tmp", std::process::id()));
-        let file =
-            File::create(&tmp).with_context(|| format!("cannot create {}", tmp.display()))?;
+        let file = File::create(&tmp).map_err(Error::io("cannot create", &tmp))?;
         Ok(LogWriter {
             path: path.to_path_buf(),
             tmp,
@@ -173,21 +166,26 @@ impl LogWriter {
     pub fn write(&mut self, f: &CanFrame) -> Result<()> {
         if let Some(out) = self.out.as_mut() {
             writeln!(out, "{}", format_line(f, LOG_IFACE))
-                .with_context(|| format!("cannot write {}", self.tmp.display()))?;
+                .map_err(Error::io("cannot write", &self.tmp))?;
             self.frames += 1;
         }
         Ok(())
     }
     pub fn finish(&mut self) -> Result<()> {
         if let Some(out) = self.out.take() {
-            let file = out
-                .into_inner()
-                .map_err(|e| anyhow::anyhow!("cannot flush {}: {e}", self.tmp.display()))?;
-            file.sync_all()?;
+            let file = out.into_inner().map_err(|e| Error::Bus {
+                target: self.tmp.display().to_string(),
+                message: format!("cannot flush {}: {e}", self.tmp.display()),
+                source: None,
+            })?;
+            file.sync_all().map_err(|error| Error::IoAt {
+                path: self.tmp.clone(),
+                error,
+            })?;
             if self.force {
                 // Asked for: the old log is replaced in one rename.
                 return std::fs::rename(&self.tmp, &self.path)
-                    .with_context(|| format!("cannot write {}", self.path.display()));
+                    .map_err(Error::io("cannot write", &self.path));
             }
             // A hard link fails where a file appeared meanwhile: never
             // clobbered, even by a race.
@@ -196,20 +194,16 @@ impl LogWriter {
                     let _ = std::fs::remove_file(&self.tmp);
                 }
                 Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {
-                    return Err(e).with_context(|| {
-                        format!(
-                            "{} appeared while the replay ran; not overwritten (the new log is kept as {})",
-                            self.path.display(),
-                            self.tmp.display()
-                        )
+                    return Err(Error::LogAppeared {
+                        path: self.path.clone(),
+                        kept: self.tmp.clone(),
+                        source: e,
                     });
                 }
                 // A file system without hard links.
                 Err(_) if !self.path.exists() => std::fs::rename(&self.tmp, &self.path)
-                    .with_context(|| format!("cannot write {}", self.path.display()))?,
-                Err(e) => {
-                    return Err(e).with_context(|| format!("cannot write {}", self.path.display()))
-                }
+                    .map_err(Error::io("cannot write", &self.path))?,
+                Err(e) => return Err(Error::io("cannot write", &self.path)(e)),
             }
         }
         Ok(())

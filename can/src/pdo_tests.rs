@@ -559,8 +559,12 @@ fn a_missing_object_is_refused_before_anything_is_sent() {
         keep_traffic: true,
     })
     .err()
-    .unwrap()
-    .to_string();
+    .unwrap();
+    assert!(
+        matches!(&err, crate::Error::EdsMissingObject { file, index: 0x1A00, sub: 0, .. } if file == "vendor.eds"),
+        "{err:?}"
+    );
+    let err = err.to_string();
     assert!(
         err.contains("vendor.eds") && err.contains("0x1A00:00"),
         "{err}"

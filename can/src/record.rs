@@ -16,7 +16,7 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context, Result};
+use crate::error::{Error, Result};
 
 use super::canopen::Outcome;
 use super::source::Plan;
@@ -64,10 +64,9 @@ pub fn write_recorded_run(
         }
     }
     if t.is_empty() {
-        anyhow::bail!(
-            "nothing to record: no cycle was streamed with feedback from every drive ({})",
-            info.outcome
-        );
+        return Err(Error::NothingToRecord {
+            outcome: info.outcome.clone(),
+        });
     }
     let rows = t.len();
     let motion = MotionColumns {
@@ -77,14 +76,14 @@ pub fn write_recorded_run(
         feed_mm_s: plan.feed_mm_s.is_some().then_some(feed),
         segment: plan.segment.is_some().then_some(seg),
     };
-    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
-    write_parquet_atomic(&out.join("motion.parquet"), &motion.into_batch())?;
+    std::fs::create_dir_all(out).map_err(Error::io("cannot create", out))?;
+    write_parquet_atomic(&out.join("motion.parquet"), &motion.into_batch()).map_err(Error::Core)?;
 
     // The run's other tables, byte for byte (whatever machine type recorded
     // them: the replay knows no plugin's tables): every regular
     // `<table>.parquet` beside run.toml but the motion log it replaced.
     let mut tables: Vec<String> = std::fs::read_dir(&source.dir)
-        .with_context(|| format!("cannot list {}", source.dir.display()))?
+        .map_err(Error::io("cannot list", &source.dir))?
         .filter_map(|e| e.ok())
         .filter(|e| e.file_type().map(|t| t.is_file()).unwrap_or(false))
         .filter_map(|e| {
@@ -102,14 +101,13 @@ pub fn write_recorded_run(
         if table == "ae" {
             link_or_copy(&src, &dst)?;
         } else {
-            let bytes =
-                std::fs::read(&src).with_context(|| format!("cannot read {}", src.display()))?;
-            write_atomic(&dst, &bytes)?;
+            let bytes = std::fs::read(&src).map_err(Error::io("cannot read", &src))?;
+            write_atomic(&dst, &bytes).map_err(Error::Core)?;
         }
         copied.push(table);
     }
 
-    let mut doc: toml::Table = source.text.parse().context("source run.toml")?;
+    let mut doc: toml::Table = source.text.parse().map_err(Error::SourceRunToml)?;
     if !copied.iter().any(|t| t == "ae") {
         doc.remove("ae");
     }
@@ -140,7 +138,7 @@ pub fn write_recorded_run(
         source.dir.display(),
         toml::to_string(&doc)?
     );
-    write_atomic(&out.join(RunSpec::FILE), text.as_bytes())?;
+    write_atomic(&out.join(RunSpec::FILE), text.as_bytes()).map_err(Error::Core)?;
     Ok(rows)
 }
 
@@ -155,9 +153,12 @@ fn link_or_copy(src: &Path, dst: &Path) -> Result<()> {
     let tmp = dst.with_file_name(format!(".{name}.{}.tmp", std::process::id()));
     let _ = std::fs::remove_file(&tmp);
     if std::fs::hard_link(src, &tmp).is_err() {
-        std::fs::copy(src, &tmp)
-            .with_context(|| format!("cannot copy {} to {}", src.display(), tmp.display()))?;
+        std::fs::copy(src, &tmp).map_err(|source| Error::Copy {
+            from: src.to_path_buf(),
+            to: tmp.clone(),
+            source,
+        })?;
     }
-    std::fs::rename(&tmp, dst).with_context(|| format!("cannot write {}", dst.display()))?;
+    std::fs::rename(&tmp, dst).map_err(Error::io("cannot write", dst))?;
     Ok(())
 }

@@ -10,7 +10,7 @@ use std::collections::VecDeque;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 
-use anyhow::{bail, Result};
+use crate::error::{Error, Result};
 
 use super::bus::{CanBus, CanFrame, CAN_ERR_BUSOFF};
 use super::canopen::pdo::{self, split_axis, Mapped, PdoMap, COB_INVALID};
@@ -60,11 +60,14 @@ impl SimFault {
     /// `busoff@1s`, `following@0.5s:1`, `refuse:3`, `sigint@2s`. TIME takes
     /// `s` or `ms`; NODE defaults to the first axis' node.
     pub fn parse(spec: &str, default_node: u8) -> Result<SimFault> {
+        let bad = |message: String| Error::bad_option("--sim-fault", spec, message);
         let (head, node) = match spec.rsplit_once(':') {
             Some((h, n)) => (
                 h,
                 n.parse::<u8>().map_err(|_| {
-                    anyhow::anyhow!("--sim-fault `{spec}`: node `{n}` is not a number 1–127")
+                    bad(format!(
+                        "--sim-fault `{spec}`: node `{n}` is not a number 1–127"
+                    ))
                 })?,
             ),
             None => (spec, default_node),
@@ -84,17 +87,21 @@ impl SimFault {
                     (t, 1e6)
                 };
                 let v: f64 = num.parse().map_err(|_| {
-                    anyhow::anyhow!("--sim-fault `{spec}`: time `{t}` is not like 1.5s or 200ms")
+                    bad(format!(
+                        "--sim-fault `{spec}`: time `{t}` is not like 1.5s or 200ms"
+                    ))
                 })?;
                 if !(v.is_finite() && v >= 0.0) {
-                    bail!("--sim-fault `{spec}`: time must be ≥ 0");
+                    return Err(bad(format!("--sim-fault `{spec}`: time must be ≥ 0")));
                 }
                 Some((v * scale).round() as u64)
             }
         };
         let need_at = || {
             at_us.ok_or_else(|| {
-                anyhow::anyhow!("--sim-fault `{spec}`: needs a time, e.g. {kind}@1.5s")
+                bad(format!(
+                    "--sim-fault `{spec}`: needs a time, e.g. {kind}@1.5s"
+                ))
             })
         };
         Ok(match kind {
@@ -104,9 +111,11 @@ impl SimFault {
             "following" => SimFault::FollowingError { node, at_us: need_at()?, mm: 1.0 },
             "refuse" => SimFault::RefuseEnable { node },
             "sigint" => SimFault::Interrupt { at_us: need_at()? },
-            other => bail!(
+            other => {
+                return Err(bad(format!(
                 "--sim-fault `{spec}`: unknown fault `{other}` (heartbeat, emcy, busoff, following, refuse, sigint)"
-            ),
+            )))
+            }
         })
     }
 }

@@ -9,7 +9,7 @@
 
 use std::time::{Duration, Instant};
 
-use anyhow::{Context, Result};
+use crate::error::{Error, Result};
 use socketcan::{CanError, EmbeddedFrame, ErrorCause, Socket, SocketOptions, StandardId};
 
 use super::bus::{CanBus, CanFrame, CAN_ERR_BUSOFF};
@@ -22,18 +22,38 @@ pub struct SocketCanBus {
 
 impl SocketCanBus {
     pub fn open(iface: &str) -> Result<SocketCanBus> {
-        let socket = socketcan::CanSocket::open(iface).with_context(|| {
-            format!(
-                "cannot open SocketCAN interface `{iface}` (is it up? `ip link set {iface} up type can bitrate 1000000`)"
+        let failed = |message: String, source: std::io::Error| Error::Bus {
+            target: format!("socketcan:{iface}"),
+            message,
+            source: Some(source),
+        };
+        let socket = socketcan::CanSocket::open(iface).map_err(|e| {
+            failed(
+                format!("cannot open SocketCAN interface `{iface}` (is it up? `ip link set {iface} up type can bitrate 1000000`)"),
+                e,
             )
         })?;
-        socket.set_nonblocking(true)?;
-        socket.set_error_filter_accept_all()?;
+        // Set up an open socket: the io error was the whole message.
+        let setup = |error: std::io::Error| Error::IoAt {
+            path: iface.into(),
+            error,
+        };
+        socket.set_nonblocking(true).map_err(setup)?;
+        socket.set_error_filter_accept_all().map_err(setup)?;
         Ok(SocketCanBus {
             iface: iface.to_string(),
             socket,
             start: Instant::now(),
         })
+    }
+
+    /// The bus failed: `message` as the CLI prints it, the cause if any.
+    fn bus_error(&self, message: String, source: Option<std::io::Error>) -> Error {
+        Error::Bus {
+            target: format!("socketcan:{}", self.iface),
+            message,
+            source,
+        }
     }
 }
 
@@ -45,13 +65,18 @@ impl CanBus for SocketCanBus {
         self.start.elapsed().as_micros() as u64
     }
     fn send(&mut self, frame: CanFrame) -> Result<()> {
-        let id = StandardId::new(frame.id as u16)
-            .ok_or_else(|| anyhow::anyhow!("id 0x{:X} is not an 11-bit id", frame.id))?;
-        let f = socketcan::CanFrame::new(id, frame.payload())
-            .ok_or_else(|| anyhow::anyhow!("cannot build a CAN frame of {} bytes", frame.len))?;
+        let id = StandardId::new(frame.id as u16).ok_or_else(|| {
+            self.bus_error(format!("id 0x{:X} is not an 11-bit id", frame.id), None)
+        })?;
+        let f = socketcan::CanFrame::new(id, frame.payload()).ok_or_else(|| {
+            self.bus_error(
+                format!("cannot build a CAN frame of {} bytes", frame.len),
+                None,
+            )
+        })?;
         self.socket
             .write_frame(&f)
-            .with_context(|| format!("cannot send on {}", self.iface))
+            .map_err(|e| self.bus_error(format!("cannot send on {}", self.iface), Some(e)))
     }
     fn recv(&mut self) -> Result<Option<CanFrame>> {
         match self.socket.read_frame() {
@@ -71,7 +96,7 @@ impl CanBus for SocketCanBus {
                 Ok(Some(CanFrame::error(self.now_us(), class)))
             }
             Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => Ok(None),
-            Err(e) => Err(e).with_context(|| format!("cannot read from {}", self.iface)),
+            Err(e) => Err(self.bus_error(format!("cannot read from {}", self.iface), Some(e))),
         }
     }
     fn wait_until(&mut self, t_us: u64) -> Result<()> {

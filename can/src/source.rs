@@ -12,7 +12,7 @@ use arrow::datatypes::DataType;
 
 use crate::contracts::schema::MOTION;
 use crate::contracts::{read_parquet, RunSpec, Table};
-use crate::error::InputError;
+use crate::error::{Error, InputError, Result};
 
 /// Compensation columns, one per axis (x, y, z).
 pub const COMP_COLUMNS: [&str; 3] = ["dx_mm", "dy_mm", "dz_mm"];
@@ -76,8 +76,12 @@ fn grid(t_first: f64, t_last: f64, cycle_s: f64) -> Vec<f64> {
 pub type AxisOffsets = [Option<Vec<f64>>; 3];
 
 /// Read and check a compensation Parquet; (t_s, per-axis offsets).
-pub fn read_compensation(path: &Path) -> anyhow::Result<(Vec<f64>, AxisOffsets)> {
-    let batch = read_parquet(path)?;
+pub fn read_compensation(path: &Path) -> Result<(Vec<f64>, AxisOffsets)> {
+    // read_parquet is sparkout-core's, still anyhow: its InputError stays one.
+    let batch = read_parquet(path).map_err(|e| match e.downcast::<InputError>() {
+        Ok(ie) => Error::Input(ie),
+        Err(e) => Error::Core(e),
+    })?;
     let names: Vec<String> = batch
         .schema()
         .fields()
@@ -184,7 +188,7 @@ pub fn load_plan(
     run_dir: &Path,
     compensation: Option<&Path>,
     cycle_s: f64,
-) -> anyhow::Result<(RunSpec, Plan)> {
+) -> Result<(RunSpec, Plan)> {
     let spec = RunSpec::load(run_dir)?;
     let motion_path = run_dir.join("motion.parquet");
     if !motion_path.is_file() {

@@ -63,7 +63,7 @@ pub fn replay(args: &ReplayArgs) -> anyhow::Result<u8> {
         .sim_faults
         .iter()
         .map(|s| SimFault::parse(s, nodes[0]))
-        .collect::<anyhow::Result<_>>()?;
+        .collect::<replay::Result<_>>()?;
     if !opts.sim_faults.is_empty() && matches!(opts.bus, BusSpec::SocketCan(_)) && !opts.dry_run {
         bail!("--sim-fault injects faults into simulated drives: use --bus sim or log:FILE (or --dry-run)");
     }

@@ -689,3 +689,49 @@ fn the_json_rule_tells_json_from_toml_and_code_from_comments() {
     // Without serde_json, a string-keyed map lookup is not JSON.
     assert!(json_offences("fn f(m: &BTreeMap<String, f64>) -> f64 { m[\"k\"] }").is_empty());
 }
+
+/// Library crates that return typed errors (thiserror): anyhow stays at
+/// the binary's edge. More crates join this list as they are converted.
+const TYPED_ERROR_CRATES: [&str; 1] = ["can/src"];
+
+/// Files of those crates that may still name anyhow, and why.
+const ANYHOW_ALLOWED: [(&str, &str); 1] = [(
+    "can/src/error.rs",
+    "Error::Core carries sparkout-core's anyhow errors whole until core is converted",
+)];
+
+#[test]
+fn typed_error_crates_do_not_use_anyhow() {
+    let mut bad = Vec::new();
+    let mut scanned = 0;
+    for f in files() {
+        let rel = f.to_string_lossy().replace('\\', "/");
+        if f.extension().is_none_or(|e| e != "rs")
+            || !TYPED_ERROR_CRATES
+                .iter()
+                .any(|r| rel.starts_with(&format!("{r}/")))
+            || ANYHOW_ALLOWED.iter().any(|(p, _)| *p == rel)
+        {
+            continue;
+        }
+        let Ok(text) = std::fs::read_to_string(root().join(&f)) else {
+            continue;
+        };
+        scanned += 1;
+        for (n, line) in code_only(&text).lines().enumerate() {
+            if has_word(line, "anyhow") {
+                bad.push(format!("{rel}:{}: `{}`", n + 1, line.trim()));
+            }
+        }
+    }
+    assert!(
+        scanned > 10,
+        "only {scanned} files scanned: the walk looks in the wrong place"
+    );
+    assert!(
+        bad.is_empty(),
+        "these crates return their own error type (`crate::Error`, thiserror); anyhow stays \
+         in the binary:\n{}",
+        bad.join("\n")
+    );
+}

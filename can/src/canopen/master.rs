@@ -8,8 +8,8 @@ use super::protocol::*;
 use crate::bus::{CanBus, CanFrame, Dir};
 use crate::eds::DeviceDescription;
 use crate::envelope::{Envelope, Violation};
+use crate::error::{Error, Result};
 use crate::source::Plan;
-use anyhow::{bail, Result};
 use std::collections::{BTreeMap, VecDeque};
 use std::sync::atomic::{AtomicBool, Ordering};
 
@@ -336,10 +336,15 @@ pub struct Master {
 impl Master {
     pub fn new(cfg: MasterConfig) -> Result<Master> {
         if cfg.cycle_us < 1000 {
-            bail!("cycle of {} µs is shorter than 1 ms", cfg.cycle_us);
+            return Err(Error::Master(format!(
+                "cycle of {} µs is shorter than 1 ms",
+                cfg.cycle_us
+            )));
         }
         if cfg.stop_hold_cycles < 2 {
-            bail!("the quick stop must be held for at least 2 cycles");
+            return Err(Error::Master(
+                "the quick stop must be held for at least 2 cycles".into(),
+            ));
         }
         check_eds(DRIVE_EDS)?;
         let mut descriptions = cfg.descriptions.clone();
@@ -347,19 +352,19 @@ impl Master {
         for (a, axis_name) in AXIS_NAMES.iter().enumerate() {
             let drive = AxisRef::new(cfg.nodes[a], cfg.drive_axes[a]);
             if !(1..=4).contains(&drive.axis) {
-                bail!(
+                return Err(Error::Master(format!(
                     "axis {axis_name}: drive axis {} of node {} — a drive has axes 1–4 (one RPDO/TPDO pair each)",
                     drive.axis,
                     drive.node
-                );
+                )));
             }
             if let Some(b) = (0..a)
                 .find(|&b| cfg.nodes[b] == cfg.nodes[a] && cfg.drive_axes[b] == cfg.drive_axes[a])
             {
-                bail!(
+                return Err(Error::Master(format!(
                     "axes {} and {axis_name} are both {drive}: each machine axis needs its own drive axis",
                     AXIS_NAMES[b]
-                );
+                )));
             }
             if let std::collections::btree_map::Entry::Vacant(e) = descriptions.entry(drive.node) {
                 e.insert(DeviceDescription::parse(
@@ -369,7 +374,7 @@ impl Master {
                 )?);
             }
             let d = &descriptions[&drive.node];
-            check_description(d, drive).map_err(|e| anyhow::anyhow!(e))?;
+            check_description(d, drive)?;
             nodes.push(NodeInfo {
                 drive,
                 rpdo: needed_rpdo(drive, d),
@@ -595,11 +600,11 @@ impl Master {
         let cpm = self.cfg.counts_per_mm;
         env.validate()?;
         if plan.cmd_mm.len() != plan.comp_mm.len() {
-            bail!(
+            return Err(Error::Master(format!(
                 "plan: {} setpoints but {} compensation rows",
                 plan.cmd_mm.len(),
                 plan.comp_mm.len()
-            );
+            )));
         }
         self.following_limit_mm = Some(env.max_following_mm);
         let cycle_s = self.cfg.cycle_us as f64 * 1e-6;

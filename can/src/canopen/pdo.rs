@@ -344,7 +344,7 @@ pub fn required_objects(a: AxisRef) -> Vec<(u16, u8, String)> {
 
 /// Check that a description holds everything the master needs for `a`;
 /// the error names the file and the first missing object.
-pub fn check_description(d: &DeviceDescription, a: AxisRef) -> Result<(), String> {
+pub fn check_description(d: &DeviceDescription, a: AxisRef) -> crate::Result<()> {
     let read_only = |index: u16| {
         d.entries
             .iter()
@@ -361,10 +361,14 @@ pub fn check_description(d: &DeviceDescription, a: AxisRef) -> Result<(), String
         }
         let present = d.entries.iter().any(|e| e.index == index && e.sub == sub);
         if !present {
-            return Err(format!(
-                "{}: no object 0x{index:04X}:{sub:02X} ({what}); the replay master needs it to drive {a}",
-                d.file
-            ));
+            return Err(crate::Error::EdsMissingObject {
+                file: d.file.clone(),
+                index,
+                sub,
+                what,
+                node: a.node,
+                drive_axis: a.axis,
+            });
         }
     }
     Ok(())

@@ -4,7 +4,7 @@
 //! against them. No state, no bus: the [`super::Master`] drives these.
 
 use crate::bus::CanFrame;
-use anyhow::{bail, Result};
+use crate::error::{Error, Result};
 
 pub const NMT_ID: u32 = 0x000;
 pub const SYNC_ID: u32 = 0x080;
@@ -327,16 +327,17 @@ pub fn check_eds(text: &str) -> Result<()> {
                 .insert(k.trim().to_ascii_lowercase(), v.trim().to_ascii_lowercase());
         }
     }
-    let expect = |section: &str, value: &str| -> Result<()> {
+    let expect = |section: &'static str, value: &'static str| -> Result<()> {
         let got = sections
             .get(section)
             .and_then(|s| s.get("defaultvalue"))
             .map(|s| s.as_str());
         if got != Some(value) {
-            bail!(
-                "EDS [{section}] DefaultValue is {got:?}, the replay master encodes {value}: \
-                 fix configs/can/cia402_drive.eds or the master together"
-            );
+            return Err(Error::EdsMapping {
+                section,
+                got: got.map(str::to_string),
+                expected: value,
+            });
         }
         Ok(())
     };
@@ -351,7 +352,7 @@ pub fn check_eds(text: &str) -> Result<()> {
     expect("1a00sub2", "0x60640020")?;
     for o in ["6040", "6041", "6060", "6061", "6064", "607a", "1017"] {
         if !sections.contains_key(o) {
-            bail!("EDS has no object [{o}] (the replay master uses it)");
+            return Err(Error::EdsNoObject { object: o });
         }
     }
     Ok(())
