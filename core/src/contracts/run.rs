@@ -381,7 +381,8 @@ impl MachineConfig {
     /// section holds the struct's defaults; an error names the file and
     /// `name.key`.
     pub fn typed_section<T: Section + Clone>(&self, name: &str) -> Result<T, InputError> {
-        if let Some(v) = self.section::<T>() {
+        // By name: two sections may share a type (a gantry's bodies).
+        if let Some(v) = self.sections.get(name).and_then(|s| s.get::<T>()) {
             return Ok(v.clone());
         }
         let empty = toml::Value::Table(toml::Table::new());

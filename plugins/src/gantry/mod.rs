@@ -63,6 +63,11 @@ impl MachinePlugin for GantryPlugin {
     fn tables(&self) -> &'static [sparkout_pipeline::contracts::TableSchema] {
         tables::TABLES
     }
+    fn machine_sections(
+        &self,
+    ) -> &'static [(&'static str, sparkout_pipeline::config_check::SectionCheck)] {
+        machine::MACHINE_SECTIONS
+    }
     fn required_tables(&self) -> Vec<Vec<&'static str>> {
         vec![vec!["topography"]]
     }

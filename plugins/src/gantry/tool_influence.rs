@@ -45,43 +45,47 @@ impl PolishTool {
     /// the same name wins. Negative or zero pressure and k_p are errors.
     pub fn read(
         source: &str,
-        t: &toml::Table,
+        t: &super::machine::MachinePolishing,
         process: &toml::Table,
         run_toml: &Path,
     ) -> Result<PolishTool, InputError> {
         let get = |key: &str, default: Option<f64>| -> Result<f64, InputError> {
-            let (v, file, col) = match process.get(key) {
-                Some(v) => (
-                    Some(v),
-                    run_toml.display().to_string(),
-                    format!("process.{key}"),
-                ),
-                None => (t.get(key), source.to_string(), format!("polishing.{key}")),
+            let Some(v) = process.get(key) else {
+                // The machine's value, read and checked (> 0) at load.
+                return match (t.value(key), default) {
+                    (Some(x), _) | (None, Some(x)) => Ok(x),
+                    (None, None) => Err(InputError::new(
+                        source,
+                        format!("required key [polishing].{key} is missing"),
+                    )
+                    .column(format!("polishing.{key}"))),
+                };
             };
-            match (v, default) {
-                (None, Some(d)) => Ok(d),
-                (None, None) => Err(InputError::new(
-                    source,
-                    format!("required key [polishing].{key} is missing"),
+            let col = format!("process.{key}");
+            match toml_f64(v) {
+                Some(x) if x.is_finite() && x > 0.0 => Ok(x),
+                _ => Err(InputError::new(
+                    run_toml.display().to_string(),
+                    format!("{col} must be a positive number (found {v}); pressure, k_p, speeds and sizes of the polishing tool cannot be zero or negative"),
                 )
                 .column(col)),
-                (Some(v), _) => match toml_f64(v) {
-                    Some(x) if x.is_finite() && x > 0.0 => Ok(x),
-                    _ => Err(InputError::new(
-                        file,
-                        format!("{col} must be a positive number (found {v}); pressure, k_p, speeds and sizes of the polishing tool cannot be zero or negative"),
-                    )
-                    .column(col)),
-                },
             }
         };
         let k_p_per_pa = get("k_p_per_pa", None)?;
-        let radius_mm = match process.get("tool_radius_mm").or(t.get("tool_radius_mm")) {
+        let radius_mm = match process
+            .get("tool_radius_mm")
+            .map(|_| ())
+            .or(t.tool_radius_mm.map(|_| ()))
+        {
             Some(_) => get("tool_radius_mm", None)?,
             None => (get("tool_area_mm2", None)? / PI).sqrt(),
         };
         let spring_compression_mm = get("spring_compression_mm", Some(0.5))?;
-        let pressure_pa = match process.get("pressure_pa").or(t.get("pressure_pa")) {
+        let pressure_pa = match process
+            .get("pressure_pa")
+            .map(|_| ())
+            .or(t.pressure_pa.map(|_| ()))
+        {
             Some(_) => get("pressure_pa", None)?,
             None => {
                 // p = k_s·(l_f − l_i)/area (docs/models.md §2.5), N/mm² → Pa.
