@@ -1,51 +1,73 @@
 #!/usr/bin/env bash
-# Reproducible: for each N, a generated servo fleet of N runs
-# (≈ 14 600 observation rows per run) in 8 shards as local processes
-# (`--jobs 1` each), then `aggregate`; for N = $SINGLE_AT also a single-node
-# `run` (its fleet outputs compared with the aggregate's) and its no-change
-# re-run (every stage cached). Prints one line per measurement. No effect is
-# injected unless EFFECT is set.
+# The scale figures of docs/scale.md, reproducible on one machine:
 #   scripts/measure-scale.sh target/release/sparkout /tmp/scale 500 1000 2000
+#
+# For each N: a generated servo fleet of N runs (≈ 14 600 observation rows
+# per run) with a real effect (EFFECT, default servo_lag; EFFECT= for none);
+# SHARDS shards (default 4) run one after another, each with `--jobs 1`,
+# then `aggregate`; and a single-node `run --jobs 1`. The sharded night's
+# time is the slowest shard's wall time plus aggregate's (what a cluster
+# with one node per shard would see). Every step's wall time and peak RSS
+# come from /usr/bin/time. The single node's fleet outputs are compared
+# byte for byte with the aggregate's. One line per measurement, then a
+# summary line per N; cost exponents between consecutive N at the end.
 set -euo pipefail
 export SPARKOUT_LOG=${SPARKOUT_LOG:-warn}
 bin=$(realpath "$1"); work=$2; shift 2
-single_at=${SINGLE_AT:-1000}
-shards=${SHARDS:-8}
-now() { date +%s.%N; }
-secs() { awk -v a="$1" -v b="$2" 'BEGIN { printf "%.1f", b - a }'; }
-ok2() { "$@" >/dev/null || [ $? -eq 2 ]; }
+shards=${SHARDS:-4}
+effect=${EFFECT-servo_lag}
+single=${SINGLE:-1}
+# Runs `$@` under /usr/bin/time; exit code 2 (some runs rejected, listed
+# in failures.json) counts as success. Prints "<wall s> <peak MB>".
+timed() {
+  local f rc=0
+  f=$(mktemp)
+  /usr/bin/time -f '%e %M' -o "$f" "$@" >/dev/null 2>&1 || rc=$?
+  if [ "$rc" -ne 0 ] && [ "$rc" -ne 2 ]; then
+    echo "failed ($rc): $*" >&2
+    exit 1
+  fi
+  awk '{ printf "%.1f %.0f", $1, $2 / 1024 }' "$f"
+  rm -f "$f"
+}
+declare -A night agg_mb single_s
+ns=()
 for n in "$@"; do
+  ns+=("$n")
   d="$work/n$n"
   rm -rf "$d"; mkdir -p "$d"
-  t=$(now)
-  # EFFECT (e.g. servo_lag=k_s=0.004) makes the diagnosis select effects:
-  # far more work (every catalogue candidate × folds × rounds).
-  "$bin" generate servo --runs "$n" --seed 7 --out "$d/runs" ${EFFECT:+--effect "$EFFECT"} >/dev/null
-  echo "n=$n generate $(secs "$t" "$(now)") s"
-  t=$(now)
-  pids=()
-  for i in $(seq 0 $((shards - 1))); do
-    ok2 "$bin" run --input "$d/runs" --out "$d/shard-$i" --shard "$i/$shards" --jobs 1 &
-    pids+=($!)
-  done
-  for p in "${pids[@]}"; do wait "$p"; done
-  echo "n=$n shards($shards) $(secs "$t" "$(now)") s"
+  "$bin" generate servo --runs "$n" --seed 7 --out "$d/runs" \
+    ${effect:+--effect "$effect"} >/dev/null
+  slowest=0
   list=()
-  for i in $(seq 0 $((shards - 1))); do list+=("$d/shard-$i"); done
-  t=$(now)
-  ok2 "$bin" aggregate --shards "${list[@]}" --out "$d/agg"
-  echo "n=$n aggregate $(secs "$t" "$(now)") s"
+  for i in $(seq 0 $((shards - 1))); do
+    read -r s mb < <(timed "$bin" run --input "$d/runs" --out "$d/shard-$i" \
+      --shard "$i/$shards" --jobs 1)
+    echo "n=$n shard $i/$shards ${s} s ${mb} MB"
+    slowest=$(awk -v a="$slowest" -v b="$s" 'BEGIN { print (b > a) ? b : a }')
+    list+=("$d/shard-$i")
+  done
+  read -r a amb < <(timed "$bin" aggregate --shards "${list[@]}" --out "$d/agg")
+  echo "n=$n aggregate ${a} s ${amb} MB"
   rows=$(python3 -c 'import json,sys; print(sum(p["n"] for p in json.load(open(sys.argv[1]))["per_observable"]))' "$d/agg/fleet/diagnosis.json")
-  echo "n=$n observation_rows $rows"
-  if [ "$n" = "$single_at" ]; then
-    t=$(now)
-    ok2 "$bin" run --input "$d/runs" --out "$d/single"
-    echo "n=$n single $(secs "$t" "$(now)") s"
-    t=$(now)
-    ok2 "$bin" run --input "$d/runs" --out "$d/single"
-    echo "n=$n cached_rerun $(secs "$t" "$(now)") s"
+  night[$n]=$(awk -v a="$slowest" -v b="$a" 'BEGIN { printf "%.1f", a + b }')
+  agg_mb[$n]=$amb
+  line="n=$n rows=$rows sharded_night=${night[$n]} s (slowest shard $slowest + aggregate $a) aggregate_peak=${amb} MB"
+  if [ "$single" = 1 ]; then
+    read -r s smb < <(timed "$bin" run --input "$d/runs" --out "$d/single" --jobs 1)
+    single_s[$n]=$s
     for f in fleet/diagnosis.json fleet/observations.parquet; do
-      cmp -s "$d/agg/$f" "$d/single/$f" && echo "n=$n $f identical" || echo "n=$n $f DIFFERS"
+      cmp -s "$d/agg/$f" "$d/single/$f" || echo "n=$n $f DIFFERS between single node and shards"
     done
+    line="$line single=${s} s (${smb} MB) speedup=$(awk -v a="$s" -v b="${night[$n]}" 'BEGIN { printf "%.2f", a / b }')"
   fi
+  echo "$line"
+done
+# Cost exponents: log(t2/t1) / log(n2/n1) between consecutive sizes.
+for ((k = 1; k < ${#ns[@]}; k++)); do
+  n1=${ns[k-1]}; n2=${ns[k]}
+  exp() { awk -v a="$1" -v b="$2" -v m="$n1" -v n="$n2" 'BEGIN { printf "%.2f", log(b / a) / log(n / m) }'; }
+  out="exponent $n1→$n2: sharded night $(exp "${night[$n1]}" "${night[$n2]}"), aggregate memory $(exp "${agg_mb[$n1]}" "${agg_mb[$n2]}")"
+  [ "$single" = 1 ] && out="$out, single node $(exp "${single_s[$n1]}" "${single_s[$n2]}")"
+  echo "$out"
 done

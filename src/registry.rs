@@ -17,7 +17,9 @@ pub fn plugins() -> Vec<Arc<dyn MachinePlugin>> {
 /// The tables every registered plugin records, with the shared ones.
 pub fn tables() -> anyhow::Result<sparkout_pipeline::contracts::TableRegistry> {
     let plugins = plugins();
-    sparkout_pipeline::contracts::TableRegistry::of(plugins.iter().map(|p| (p.name(), p.tables())))
+    Ok(sparkout_pipeline::contracts::TableRegistry::of(
+        plugins.iter().map(|p| (p.name(), p.tables())),
+    )?)
 }
 
 pub fn resolver(machines: Option<PathBuf>) -> MachineResolver {
@@ -63,5 +65,9 @@ fn machines_dir(args: &ConfigArgs) -> anyhow::Result<Option<PathBuf>> {
 
 /// An engine with the config checked against every plugin and stage.
 pub fn engine(args: &ConfigArgs) -> anyhow::Result<Engine> {
-    Engine::new(plugins(), resolver(machines_dir(args)?), load_config(args)?)
+    Ok(Engine::new(
+        plugins(),
+        resolver(machines_dir(args)?),
+        load_config(args)?,
+    )?)
 }

@@ -128,10 +128,10 @@ pub enum Error {
     /// A bad input file (run, motion, compensation, EDS, candump log).
     #[error(transparent)]
     Input(#[from] InputError),
-    /// An error from sparkout-core, which still speaks anyhow (the next
-    /// crate to convert): kept whole, its chain is this error's.
+    /// An error from sparkout-core (writing a file, reading a Parquet):
+    /// kept whole, its chain is this error's.
     #[error(transparent)]
-    Core(anyhow::Error),
+    Core(sparkout_core::Error),
 }
 
 impl Error {

@@ -77,10 +77,10 @@ pub type AxisOffsets = [Option<Vec<f64>>; 3];
 
 /// Read and check a compensation Parquet; (t_s, per-axis offsets).
 pub fn read_compensation(path: &Path) -> Result<(Vec<f64>, AxisOffsets)> {
-    // read_parquet is sparkout-core's, still anyhow: its InputError stays one.
-    let batch = read_parquet(path).map_err(|e| match e.downcast::<InputError>() {
-        Ok(ie) => Error::Input(ie),
-        Err(e) => Error::Core(e),
+    // A bad file read by sparkout-core stays this crate's bad input.
+    let batch = read_parquet(path).map_err(|e| match e.input() {
+        Some(ie) => Error::Input(ie.clone()),
+        None => Error::Core(e),
     })?;
     let names: Vec<String> = batch
         .schema()

@@ -17,7 +17,7 @@
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 
-use anyhow::{bail, Context, Result};
+use crate::{bail, Context, Result};
 use arrow::array::RecordBatch;
 use serde::{Deserialize, Serialize};
 
@@ -347,12 +347,12 @@ impl AugmentedModel {
             "--augment takes the fleet/augmented_model.json of an earlier `sparkout run`";
         let bytes = std::fs::read(path)
             .with_context(|| format!("{}: cannot read the augmented model", path.display()))?;
-        let here = |field: &str, what: &str| -> anyhow::Error {
-            anyhow::anyhow!("{}: field `{field}`: {what} ({HINT})", path.display())
+        let here = |field: &str, what: &str| -> crate::Error {
+            crate::err!("{}: field `{field}`: {what} ({HINT})", path.display())
         };
         // Kind and version first: another file is refused by name.
         let header: FileHeader = parse_json(path, &bytes).map_err(|e| {
-            anyhow::anyhow!(
+            crate::err!(
                 "{}: not an augmented model ({}); {HINT}",
                 path.display(),
                 e.message
@@ -365,7 +365,7 @@ impl AugmentedModel {
             return Err(here("version", "expected 1"));
         }
         let file: AugmentedModelFile =
-            parse_json(path, &bytes).map_err(|e| anyhow::anyhow!("{e} ({HINT})"))?;
+            parse_json(path, &bytes).map_err(|e| crate::err!("{e} ({HINT})"))?;
         let mut effects = Vec::new();
         for (i, e) in file.effects.iter().enumerate() {
             let field = |k: &str| format!("effects[{i}].{k}");

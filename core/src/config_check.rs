@@ -167,8 +167,8 @@ fn type_error<T: Section>(table: &toml::Table, e: toml::de::Error) -> ConfigErro
 pub fn check_settings<T: Section>(settings: &T) -> crate::Result<()> {
     let table = match toml::Value::try_from(settings) {
         Ok(toml::Value::Table(t)) => t,
-        Ok(_) => anyhow::bail!("settings do not serialise to a section"),
-        Err(e) => anyhow::bail!("settings do not serialise to a section: {e}"),
+        Ok(_) => crate::bail!("settings do not serialise to a section"),
+        Err(e) => crate::bail!("settings do not serialise to a section: {e}"),
     };
     read_section::<T>(&table).map(drop)
 }
@@ -276,8 +276,8 @@ impl<T> std::ops::Deref for Checked<T> {
 /// writes them (shortest round-trip form). Independent of the order the
 /// keys were written in the config and of whether a default was written.
 pub fn effective_config<T: Serialize>(value: &T) -> crate::Result<String> {
-    let v = serde_json::to_value(value)
-        .map_err(|e| anyhow::anyhow!("config does not serialise: {e}"))?;
+    let v =
+        serde_json::to_value(value).map_err(|e| crate::err!("config does not serialise: {e}"))?;
     let mut out = String::new();
     write_canonical(&v, &mut out);
     Ok(out)
@@ -416,7 +416,7 @@ pub fn read_flags(
     for (k, v) in table {
         let flag = k.replace('_', "-");
         let Some((_, check)) = flags.iter().find(|(name, _)| *name == flag) else {
-            anyhow::bail!(
+            crate::bail!(
                 "stage {stage}: unknown option --{flag} (known: {})",
                 flags
                     .iter()
@@ -426,7 +426,7 @@ pub fn read_flags(
             );
         };
         if !check.accepts(&v) {
-            anyhow::bail!(
+            crate::bail!(
                 "stage {stage}: --{flag} must be {}, got {}",
                 check.describe(),
                 args.get(&flag).map(String::as_str).unwrap_or("?")
@@ -514,7 +514,7 @@ mod tests {
         ];
         fn validate(&self) -> crate::Result<()> {
             if self.tol_mm.is_some_and(|t| t > self.window as f64) {
-                anyhow::bail!("tol_mm must not exceed window");
+                crate::bail!("tol_mm must not exceed window");
             }
             Ok(())
         }
@@ -570,7 +570,7 @@ mod tests {
         let e = read_section::<Typo>(&t("tol_mm = \"many\"")).unwrap_err();
         assert!(
             matches!(
-                e.downcast_ref::<ConfigError>(),
+                e.config(),
                 Some(ConfigError::WrongType { key, .. }) if key == "tol_mm"
             ),
             "{e}"

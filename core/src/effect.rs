@@ -16,7 +16,7 @@ use std::collections::BTreeMap;
 use std::f64::consts::PI;
 use std::sync::Arc;
 
-use anyhow::{anyhow, bail};
+use crate::{bail, err};
 
 use crate::Result;
 
@@ -61,7 +61,7 @@ impl<'a> EffectData<'a> {
     /// table lacks).
     pub fn require(&self, name: &str) -> Result<&'a [f64]> {
         self.col(name)
-            .ok_or_else(|| anyhow!("effect needs covariate `{name}`, which the data lack"))
+            .ok_or_else(|| err!("effect needs covariate `{name}`, which the data lack"))
     }
     pub fn len(&self) -> usize {
         self.n

@@ -25,7 +25,7 @@ pub mod values;
 pub mod verdict;
 
 pub use effect_spec::EffectSpec;
-pub use error::{ConfigError, InputError, Result};
+pub use error::{ConfigError, Context, Error, InputError, Kind, Result};
 pub use traits::{
     ArtifactStore, MachinePlugin, ProcessKeys, ReportSection, Run, Stage, StageArgs, StageContext,
     StageOutput, StageSpec,

@@ -8,7 +8,6 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use crate::contracts::RunSpec;
-use crate::error::InputError;
 
 /// What one stage left on disk for one run (the per-run cache file records
 /// these; manifest.json repeats them).
@@ -52,9 +51,9 @@ impl Failure {
         run_dir: &Path,
         spec: Option<&RunSpec>,
         stage: Option<&str>,
-        e: &anyhow::Error,
+        e: &crate::Error,
     ) -> Self {
-        let input = e.chain().find_map(|c| c.downcast_ref::<InputError>());
+        let input = e.input();
         Failure {
             run_dir: run_dir.display().to_string(),
             machine: spec.map(|s| s.machine.clone()),
@@ -206,7 +205,7 @@ pub fn check_night(night: &str) -> crate::error::Result<()> {
         && (1..=12).contains(&night[5..7].parse::<u32>().unwrap_or(0))
         && (1..=31).contains(&night[8..10].parse::<u32>().unwrap_or(0));
     if !ok {
-        anyhow::bail!("night `{night}`: expected a date YYYY-MM-DD, e.g. 2026-11-25");
+        crate::bail!("night `{night}`: expected a date YYYY-MM-DD, e.g. 2026-11-25");
     }
     Ok(())
 }

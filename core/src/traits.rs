@@ -140,7 +140,7 @@ impl ArtifactStore {
         let v = self.summary(stage)?;
         Some(
             serde_json::from_value(v)
-                .map_err(|e| anyhow::anyhow!("summary of stage `{stage}` ({stage}.json): {e}")),
+                .map_err(|e| crate::err!("summary of stage `{stage}` ({stage}.json): {e}")),
         )
     }
     /// The artifacts looked up since the last call.
@@ -181,7 +181,7 @@ impl ArtifactStore {
     /// An artifact a stage cannot do without.
     pub fn require(&self, name: &str) -> Result<Arc<RecordBatch>> {
         self.get(name)?
-            .ok_or_else(|| anyhow::anyhow!("upstream artifact `{name}` was not produced"))
+            .ok_or_else(|| crate::err!("upstream artifact `{name}` was not produced"))
     }
 }
 
@@ -208,7 +208,7 @@ impl StageContext<'_> {
     /// [`Section`]: crate::config_check::Section
     pub fn section<T: crate::config_check::Section>(&self) -> Result<&T> {
         self.config.get::<T>().ok_or_else(|| {
-            anyhow::anyhow!(
+            crate::err!(
                 "stage config is not a `{}` (a bug in the plugin: StageSpec.config declares another struct)",
                 std::any::type_name::<T>()
             )
@@ -292,16 +292,16 @@ impl StageSpec {
                     .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-')
         };
         if !stem(name) {
-            anyhow::bail!("stage name `{name}` must be letters, digits, `_` or `-`");
+            crate::bail!("stage name `{name}` must be letters, digits, `_` or `-`");
         }
         let mut seen = std::collections::BTreeSet::new();
         for t in self.reads {
             if !seen.insert(t.name) {
-                anyhow::bail!("stage `{name}` declares table `{}` twice", t.name);
+                crate::bail!("stage `{name}` declares table `{}` twice", t.name);
             }
         }
         if let Some(k) = (self.config.undeclared_checks)().first() {
-            anyhow::bail!(
+            crate::bail!(
                 "stage `{name}` checks config key `{k}`, which its section struct does not have"
             );
         }
@@ -309,7 +309,7 @@ impl StageSpec {
             let mut seen = std::collections::BTreeSet::new();
             for a in list {
                 if !stem(a) || !seen.insert(*a) {
-                    anyhow::bail!(
+                    crate::bail!(
                         "stage `{name}`: artifact `{a}` is declared twice or is not a file stem"
                     );
                 }
@@ -320,7 +320,7 @@ impl StageSpec {
             .iter()
             .find(|a| self.writes.contains(a))
         {
-            anyhow::bail!("stage `{name}` reads its own output `{a}`");
+            crate::bail!("stage `{name}` reads its own output `{a}`");
         }
         Ok(())
     }
@@ -332,7 +332,7 @@ impl StageSpec {
     /// undeclared input would be missing from its cache key.
     pub fn check_reads(&self, tables: &BTreeSet<&str>, artifacts: &BTreeSet<String>) -> Result<()> {
         if let Some(t) = tables.iter().find(|t| !self.reads_table(t)) {
-            anyhow::bail!(
+            crate::bail!(
                 "stage `{}` read table `{t}`, which its StageSpec.reads does not declare (a bug in the plugin: the cache key would miss it)",
                 self.name
             );
@@ -341,7 +341,7 @@ impl StageSpec {
             .iter()
             .find(|a| !self.reads_artifacts.contains(&a.as_str()))
         {
-            anyhow::bail!(
+            crate::bail!(
                 "stage `{}` read artifact `{a}`, which its StageSpec.reads_artifacts does not declare (a bug in the plugin: the DAG edge and cache key would miss it)",
                 self.name
             );

@@ -18,7 +18,7 @@ use std::path::{Path, PathBuf};
 
 use crate::generator::{DemoFleet, FleetGenerator, RunSize};
 use crate::rng::{normal, stream_rng};
-use anyhow::{bail, Context, Result};
+use crate::{bail, Context, Result};
 use arrow::array::{ArrayRef, Float64Array, StringArray};
 use arrow::datatypes::{DataType, Field, Schema};
 use arrow::record_batch::RecordBatch;
@@ -90,7 +90,7 @@ impl FormFleetConfig {
         if self.parts_per_dressing == 0 {
             bail!("parts_per_dressing must be ≥ 1");
         }
-        self.range.check().map_err(|m| anyhow::anyhow!(m))?;
+        self.range.check().map_err(|m| crate::err!(m))?;
         let dressings = (self.runs - 1) / self.parts_per_dressing;
         if dressings as f64 * self.dressing_mm > self.range.range_mm {
             bail!(
@@ -234,7 +234,7 @@ fn design(
             nose: 12.0 + 4.0 * rng.random::<f64>(),
             lift_centre: 36.0,
         };
-        cam.check().map_err(|m| anyhow::anyhow!(m))?;
+        cam.check().map_err(|m| crate::err!(m))?;
         let (phi, r) = sample(cfg.points, |p| cam.r(p));
         Ok((
             "tangent_cam".into(),
@@ -310,11 +310,10 @@ fn generate_run(
     let seg = (((cfg.range.r_max_mm - rk) / width).floor() as usize).min(cfg.segments - 1);
     let r_kn = cfg.range.r_max_mm - (seg as f64 + 0.5) * width;
 
-    let p =
-        Profile::new(&phi, &r, &CurvatureConfig::default()).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let p = Profile::new(&phi, &r, &CurvatureConfig::default()).map_err(|e| crate::err!("{e}"))?;
     let path = centre_path(&p, r_kn);
     let delta = profile_error(&p, &path, rk)
-        .map_err(|i| anyhow::anyhow!("wheel cannot follow the profile at point {i}"))?;
+        .map_err(|i| crate::err!("wheel cannot follow the profile at point {i}"))?;
     let arc = p.arc_length_mm();
     let perimeter = arc[arc.len() - 1] + {
         let (a, b) = (p.point(p.len() - 1), p.point(0));

@@ -23,7 +23,7 @@ use std::path::{Path, PathBuf};
 
 use crate::generator::{DemoFleet, FleetGenerator, RunSize};
 use crate::rng::{normal, stream_rng};
-use anyhow::{bail, Context, Result};
+use crate::{bail, Context, Result};
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;

@@ -6,7 +6,7 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{bail, Result};
+use crate::{bail, Result};
 use sparkout_pipeline::EffectSpec;
 
 /// What `sparkout generate` passes to every generator.

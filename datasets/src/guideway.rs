@@ -34,7 +34,7 @@ use std::path::{Path, PathBuf};
 
 use crate::generator::{DemoFleet, FleetGenerator, RunSize};
 use crate::rng::{normal, stream_rng, uniform};
-use anyhow::{bail, Context, Result};
+use crate::{bail, Context, Result};
 use arrow::record_batch::RecordBatch;
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
@@ -190,7 +190,7 @@ pub struct Effects {
 }
 
 fn check_keys(spec: &EffectSpec, known: &[&str]) -> Result<()> {
-    spec.check_params(known).map_err(anyhow::Error::msg)
+    spec.check_params(known).map_err(crate::Error::msg)
 }
 
 /// Check the `--effect` specs and fill defaults.
@@ -212,13 +212,13 @@ pub fn resolve_effects(specs: &[EffectSpec]) -> Result<Effects> {
             }
             (name, cov) => {
                 let kind = Kind::from_name(name).ok_or_else(|| {
-                    anyhow::anyhow!(
+                    crate::err!(
                         "unknown effect `{name}` (known: thermal_infeed, reversal, or a catalogue shape on {})",
                         COVARIATES.join(", ")
                     )
                 })?;
                 let cov = cov.ok_or_else(|| {
-                    anyhow::anyhow!(
+                    crate::err!(
                         "effect `{name}`: a catalogue shape needs a covariate, e.g. `{name}:t_s` (one of {})",
                         COVARIATES.join(", ")
                     )

@@ -2,6 +2,10 @@
 //! injected effects from the catalogue of docs/models.md §8.4 + noise), seeded and
 //! deterministic, and the `sparkout validate` harness.
 
+// Typed errors (sparkout-core `error`) by the names every generator uses.
+#[allow(unused_imports)]
+pub(crate) use sparkout_pipeline::{bail, err, Context, Error, Result};
+
 pub mod form;
 pub mod gantry;
 pub mod generator;

@@ -33,7 +33,7 @@ use std::path::{Path, PathBuf};
 
 use crate::generator::{DemoFleet, FleetGenerator, RunSize};
 use crate::rng::{normal, stream_rng, uniform};
-use anyhow::{bail, Context, Result};
+use crate::{bail, Context, Result};
 use nalgebra::Vector3;
 use rand::Rng;
 use rayon::prelude::*;
@@ -129,7 +129,7 @@ struct Effects {
 }
 
 fn check_keys(spec: &EffectSpec, known: &[&str]) -> Result<()> {
-    spec.check_params(known).map_err(anyhow::Error::msg)
+    spec.check_params(known).map_err(crate::Error::msg)
 }
 
 fn resolve(specs: &[EffectSpec]) -> Result<Effects> {

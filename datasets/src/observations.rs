@@ -25,7 +25,7 @@ use std::path::Path;
 use std::sync::Arc;
 
 use crate::generator::{no_ae_rate, GenerateOptions, Generated, Generator, Predicted};
-use anyhow::{anyhow, bail, Context};
+use crate::{bail, err, Context};
 use arrow::array::{ArrayRef, Float64Array, Int32Array, RecordBatch, StringArray};
 use arrow::datatypes::{DataType, Field, Schema};
 use parquet::arrow::ArrowWriter;
@@ -94,7 +94,7 @@ impl ObsLayout {
         self.cols
             .get(name)
             .map(|v| v.as_slice())
-            .ok_or_else(|| anyhow!("no covariate `{name}` in the generated layout"))
+            .ok_or_else(|| err!("no covariate `{name}` in the generated layout"))
     }
 }
 
@@ -291,7 +291,7 @@ pub fn apply_effect(spec: &EffectSpec, l: &ObsLayout) -> Result<Vec<f64>> {
     let c = |i: usize| -> Result<&[f64]> {
         let name = covs
             .get(i)
-            .ok_or_else(|| anyhow!("effect `{}` needs a covariate", spec.name))?;
+            .ok_or_else(|| err!("effect `{}` needs a covariate", spec.name))?;
         l.col(name)
     };
     let range = |v: &[f64]| {
@@ -330,7 +330,7 @@ pub fn apply_effect(spec: &EffectSpec, l: &ObsLayout) -> Result<Vec<f64>> {
         }
         name => {
             let kind = Kind::from_name(name).ok_or_else(|| {
-                anyhow!("unknown effect `{name}` (catalogue kinds, step, bump or product)")
+                err!("unknown effect `{name}` (catalogue kinds, step, bump or product)")
             })?;
             let v = c(0)?;
             let (lo, hi) = range(v);

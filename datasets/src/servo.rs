@@ -22,7 +22,7 @@
 use std::f64::consts::PI;
 use std::path::{Path, PathBuf};
 
-use anyhow::{bail, Context, Result};
+use crate::{bail, Context, Result};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
@@ -120,9 +120,9 @@ struct Effects {
 
 fn resolve(specs: &[EffectSpec], m: &ServoMachine) -> Result<Effects> {
     let mut fx = Effects::default();
-    let twice = |name: &str| anyhow::anyhow!("effect `{name}` given twice");
+    let twice = |name: &str| crate::err!("effect `{name}` given twice");
     for s in specs {
-        let keys = |k: &[&str]| s.check_params(k).map_err(anyhow::Error::msg);
+        let keys = |k: &[&str]| s.check_params(k).map_err(crate::Error::msg);
         match (s.name.as_str(), s.covariate.as_deref()) {
             ("servo_lag", None | Some("cmd_v_mm_s")) => {
                 keys(&["k_s"])?;

@@ -256,7 +256,7 @@ fn run_fleet(
     let mut spec = None;
     let mut effect = vec![0.0; l.len()];
     for part in &parts {
-        let s: EffectSpec = part.parse().map_err(anyhow::Error::msg)?;
+        let s: EffectSpec = part.parse().map_err(crate::Error::msg)?;
         let s = resolved_spec(&s, &l)?;
         let (s, v) = scale_to_snr(&s, &l, part_snr, sigma)?;
         debug_assert_eq!(apply_effect(&s, &l)?.len(), v.len());

@@ -3,7 +3,7 @@
 //! a plugin's physically named effects apply only to the observables that
 //! plugin produces; the catalogue applies everywhere.
 
-use anyhow::bail;
+use crate::bail;
 
 use super::effect::{Effect, Kind};
 use super::{DiagnoseConfig, Notes};

@@ -3,7 +3,7 @@
 //! `sparkout validate` — a [`Section`] like every stage's: defaults here
 //! only, ranges as data, checked before anything runs.
 
-use anyhow::bail;
+use crate::bail;
 use serde::{Deserialize, Serialize};
 
 use crate::config_check::{check_settings, read_section, Check, Checked, Section};

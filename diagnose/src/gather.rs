@@ -95,7 +95,7 @@ pub fn gather(table: &Table, oi: usize, notes: &mut Notes) -> ObsRows {
     let mut cols = Vec::new();
     for c in gathered {
         // A covariate belongs to the observables whose rows carry it
-        // (CONTRACTS §2: a fleet table mixes observables, each with its
+        // (docs/formats.md §7: a fleet table mixes observables, each with its
         // own covariates; the others are null there). Absent for every
         // row of this observable → not applicable; absent for some →
         // skipped and said.

@@ -14,6 +14,10 @@
 //! pure and deterministic for a given seed: names are sorted, folds come
 //! from a seeded shuffle, rayon only fills vectors whose order is fixed.
 
+// Typed errors (sparkout-core `error`) by the names every step uses.
+#[allow(unused_imports)]
+pub(crate) use sparkout_core::{bail, err, Context, Error};
+
 pub mod candidates;
 pub mod cells;
 pub mod collinear;

@@ -294,7 +294,7 @@ fn predict_rows(
             table
                 .cov(c)
                 .map(|v| rows.iter().map(|&i| v[i]).collect())
-                .ok_or_else(|| anyhow::anyhow!("covariate `{c}` not in the table"))
+                .ok_or_else(|| crate::err!("covariate `{c}` not in the table"))
         })
         .collect::<Result<_>>()?;
     let mut xd = super::effect::EffectData::new(rows.len());

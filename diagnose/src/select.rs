@@ -34,7 +34,7 @@ use std::collections::BTreeMap;
 use std::ops::Range;
 use std::sync::Arc;
 
-use anyhow::anyhow;
+use crate::err;
 use rayon::prelude::*;
 use statrs::distribution::{ContinuousCDF, StudentsT};
 
@@ -81,7 +81,7 @@ impl Problem<'_> {
                 self.frames
                     .get(c)
                     .copied()
-                    .ok_or_else(|| anyhow!("covariate `{c}` not available"))
+                    .ok_or_else(|| err!("covariate `{c}` not available"))
             })
             .collect()
     }

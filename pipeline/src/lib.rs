@@ -20,6 +20,7 @@ pub use sparkout_core::{
 pub use sparkout_diagnose as diagnose;
 pub use sparkout_report as report;
 
+pub use sparkout_core::{bail, err, Context, Error, Kind};
 pub use sparkout_core::{
     json_f64, json_opt_f64, toml_f64, ArtifactStore, ConfigError, EffectSpec, InputError,
     MachinePlugin, ProcessKeys, ReportSection, Result, Run, Stage, StageArgs, StageContext,

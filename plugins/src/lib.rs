@@ -1,6 +1,10 @@
 //! sparkout-plugins: one module per machine type, each implementing the
 //! pipeline's traits. A plugin knows no other plugin.
 
+// Typed errors (sparkout-core `error`) by the names every stage uses.
+#[allow(unused_imports)]
+pub(crate) use sparkout_pipeline::{bail, err, Context, Error, Result};
+
 use std::sync::Arc;
 
 use sparkout_pipeline::MachinePlugin;

@@ -32,7 +32,7 @@ pub struct FleetRows {
 /// The named columns of a Parquet file (those it has), one batch: only
 /// what is drawn is read (a 1000-run fleet has millions of rows).
 fn read_columns(path: &Path, wanted: impl Fn(&str) -> bool) -> Result<RecordBatch> {
-    use anyhow::Context;
+    use crate::Context;
     use arrow::record_batch::RecordBatchReader;
     use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
     use parquet::arrow::ProjectionMask;
@@ -88,7 +88,7 @@ impl FleetRows {
             keys.contains(&n) || covariates.iter().any(|c| c == n)
         })?;
         let need = |name: &str| {
-            anyhow::anyhow!(
+            crate::err!(
                 "{}: no column `{name}`; rerun `sparkout run` to rewrite the fleet tables",
                 observations.display()
             )
@@ -136,7 +136,7 @@ impl FleetRows {
                     .map(|r| r.as_string::<i32>().iter().eq(run_s.iter()))
                     .unwrap_or(false);
             if !aligned {
-                anyhow::bail!(
+                crate::bail!(
                     "{}: its {} rows do not line up with the {} rows of {}; rerun `sparkout run` to recompute the diagnosis",
                     dp.display(),
                     d.num_rows(),

@@ -2,6 +2,10 @@
 //! and for the fleet. Plugins contribute sections; the diagnosis contributes
 //! its own. Same inputs → same bytes (no timestamps).
 
+// Typed errors (sparkout-core `error`) by the names every page uses.
+#[allow(unused_imports)]
+pub(crate) use sparkout_core::{bail, err, Context, Error, Result};
+
 pub mod fleet;
 pub mod fleet_data;
 pub mod index;

@@ -10,7 +10,7 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 
-use anyhow::Context;
+use crate::Context;
 use serde::{Deserialize, Serialize};
 
 use crate::contracts::{write_atomic, write_json_atomic};

@@ -27,17 +27,21 @@ pub struct ImportArgs<'a> {
 /// A mapping by built-in name or TOML path.
 fn load_mapping(name: &str) -> anyhow::Result<Mapping> {
     if let Some((_, text)) = BUILTIN_MAPPINGS.iter().find(|(n, _)| *n == name) {
-        return Mapping::from_toml(
+        return Ok(Mapping::from_toml(
             text,
             &format!("`{name}` (built in)"),
             &crate::registry::tables()?,
-        );
+        )?);
     }
     let p = Path::new(name);
     if p.is_file() {
         let text = std::fs::read_to_string(p)
             .with_context(|| format!("cannot read mapping {}", p.display()))?;
-        return Mapping::from_toml(&text, &p.display().to_string(), &crate::registry::tables()?);
+        return Ok(Mapping::from_toml(
+            &text,
+            &p.display().to_string(),
+            &crate::registry::tables()?,
+        )?);
     }
     let known: Vec<&str> = BUILTIN_MAPPINGS.iter().map(|(n, _)| *n).collect();
     bail!(

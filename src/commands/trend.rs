@@ -32,7 +32,7 @@ pub fn trend(
     let events = events
         .iter()
         .map(|e| parse_event(e, None))
-        .collect::<anyhow::Result<Vec<_>>>()?;
+        .collect::<sparkout_pipeline::Result<Vec<_>>>()?;
     let t = write_trend(history, out, &events, &cfg)?;
     if json {
         println!("{}", serde_json::to_string_pretty(&t)?);
@@ -92,7 +92,7 @@ pub fn append(
         .events
         .iter()
         .map(|e| parse_event(e, Some(n.night)))
-        .collect::<anyhow::Result<Vec<_>>>()?;
+        .collect::<sparkout_pipeline::Result<Vec<_>>>()?;
     let d: Diagnosis =
         read_json(diagnosis).with_context(|| format!("{} for the history", diagnosis.display()))?;
     // The settings the diagnosis ran with: a change between nights is an

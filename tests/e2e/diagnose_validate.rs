@@ -9,7 +9,7 @@ use arrow::datatypes::{DataType, Field, Schema};
 use sparkout_datasets::observations::{generate, write_parquet, ObsFleetConfig};
 use sparkout_datasets::validate::{self, ValidateConfig};
 use sparkout_pipeline::diagnose::{diagnose, read_observations, DiagnoseConfig};
-use sparkout_pipeline::{EffectSpec, InputError};
+use sparkout_pipeline::EffectSpec;
 
 fn fleet(runs: usize, seed: u64, effects: &[&str]) -> RecordBatch {
     let cfg = ObsFleetConfig {
@@ -95,7 +95,7 @@ fn nan_in_real_is_rejected_naming_the_row() {
     let path = dir.path().join("observations.parquet");
     write_parquet(&bad, &path).unwrap();
     let err = read_observations(&path).unwrap_err();
-    let ie = err.downcast_ref::<InputError>().expect("an InputError");
+    let ie = err.input().expect("an InputError");
     assert_eq!(ie.column.as_deref(), Some("real"));
     assert_eq!(ie.row, Some(7));
     assert!(ie.to_string().contains("observations.parquet"));
@@ -103,7 +103,7 @@ fn nan_in_real_is_rejected_naming_the_row() {
     let err = diagnose(&bad, &DiagnoseConfig::default(), &[])
         .err()
         .unwrap();
-    assert_eq!(err.downcast_ref::<InputError>().unwrap().row, Some(7));
+    assert_eq!(err.input().unwrap().row, Some(7));
 }
 
 #[test]

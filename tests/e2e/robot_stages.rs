@@ -396,13 +396,12 @@ fn engine(config: &str) -> Engine {
     Engine::new(plugins, resolver, cfg).unwrap()
 }
 
-fn stage(dir: &Path, name: &str) -> anyhow::Result<StageOutput> {
+fn stage(dir: &Path, name: &str) -> sparkout_pipeline::Result<StageOutput> {
     engine("").run_single_stage(dir, name).map(|(_, o)| o)
 }
 
-fn input_error(e: &anyhow::Error) -> &InputError {
-    e.chain()
-        .find_map(|c| c.downcast_ref::<InputError>())
+fn input_error(e: &sparkout_pipeline::Error) -> &InputError {
+    e.input()
         .unwrap_or_else(|| panic!("not an input error: {e:#}"))
 }
 

@@ -71,33 +71,33 @@ impl BatchBuilder {
 }
 
 /// Read a float64 column out of a batch (artifacts written by sparkout).
-pub fn batch_f64<'a>(batch: &'a RecordBatch, name: &str) -> anyhow::Result<&'a [f64]> {
+pub fn batch_f64<'a>(batch: &'a RecordBatch, name: &str) -> crate::Result<&'a [f64]> {
     batch
         .column_by_name(name)
         .and_then(|c| c.as_any().downcast_ref::<Float64Array>())
         .map(|a| a.values().as_ref())
-        .ok_or_else(|| anyhow::anyhow!("artifact has no float64 column `{name}`"))
+        .ok_or_else(|| crate::err!("artifact has no float64 column `{name}`"))
 }
 
-pub fn batch_i32<'a>(batch: &'a RecordBatch, name: &str) -> anyhow::Result<&'a [i32]> {
+pub fn batch_i32<'a>(batch: &'a RecordBatch, name: &str) -> crate::Result<&'a [i32]> {
     batch
         .column_by_name(name)
         .and_then(|c| c.as_any().downcast_ref::<Int32Array>())
         .map(|a| a.values().as_ref())
-        .ok_or_else(|| anyhow::anyhow!("artifact has no int32 column `{name}`"))
+        .ok_or_else(|| crate::err!("artifact has no int32 column `{name}`"))
 }
 
-pub fn batch_str(batch: &RecordBatch, name: &str) -> anyhow::Result<Vec<String>> {
+pub fn batch_str(batch: &RecordBatch, name: &str) -> crate::Result<Vec<String>> {
     let a = batch
         .column_by_name(name)
         .and_then(|c| c.as_any().downcast_ref::<StringArray>())
-        .ok_or_else(|| anyhow::anyhow!("artifact has no utf8 column `{name}`"))?;
+        .ok_or_else(|| crate::err!("artifact has no utf8 column `{name}`"))?;
     Ok((0..a.len()).map(|i| a.value(i).to_string()).collect())
 }
 
 /// Read a whole Parquet file (artifacts sparkout wrote, or any small table),
 /// with the same truthful errors as the contract readers.
-pub fn read_parquet(path: &std::path::Path) -> anyhow::Result<RecordBatch> {
+pub fn read_parquet(path: &std::path::Path) -> crate::Result<RecordBatch> {
     let builder = super::parquet_file::open_parquet(path)?;
     Ok(super::parquet_file::read_all(path, builder)?)
 }

@@ -8,7 +8,7 @@ use std::collections::BTreeMap;
 
 use super::run::{MachineConfig, RunSpec};
 use crate::config_check::{Check, SectionCheck};
-use crate::error::{ConfigError, InputError};
+use crate::error::InputError;
 use crate::{toml_f64, ProcessKeys};
 
 /// Dotted leaf keys of a TOML table with their values.
@@ -217,7 +217,7 @@ pub fn load_machine(
         };
         let value = check.read(&table).map_err(|e| {
             let column = e
-                .downcast_ref::<ConfigError>()
+                .config()
                 .and_then(|c| c.key())
                 .map_or_else(|| name.to_string(), |k| format!("{name}.{k}"));
             err(column, format!("[{name}]: {e:#}"))

@@ -137,7 +137,7 @@ pub fn read_file_section<T: Section>(
         .ok_or_else(|| InputError::new(path, format!("[{name}] must be a table")).column(name))?;
     read_section::<T>(table).map_err(|e| {
         let column = e
-            .downcast_ref::<ConfigError>()
+            .config()
             .and_then(|c| c.key())
             .map_or_else(|| name.to_string(), |k| format!("{name}.{k}"));
         InputError::new(path, format!("[{name}]: {e:#}")).column(column)

@@ -175,7 +175,7 @@ impl TableRegistry {
     pub fn register(&mut self, owner: &str, tables: &'static [TableSchema]) -> crate::Result<()> {
         for t in tables {
             if self.get(t.name).is_some() {
-                anyhow::bail!(
+                crate::bail!(
                     "{owner} declares table `{}`, which is already declared (a table name is one schema: rename the plugin's table)",
                     t.name
                 );

@@ -14,7 +14,7 @@
 
 use std::ops::Range;
 
-use anyhow::bail;
+use crate::bail;
 use nalgebra::{DMatrix, DVector};
 
 use super::{EffectData, Frame, LinearForm, ThetaRange};
@@ -568,7 +568,7 @@ pub fn fit_form(
     form.features(frame, x, theta, &mut buf)?;
     let g = design_gram(&buf, None, 0..n);
     let h = design_xy(&buf, y, 0..n);
-    let beta = solve(&g, &h).ok_or_else(|| anyhow::anyhow!("fit: singular normal equations"))?;
+    let beta = solve(&g, &h).ok_or_else(|| crate::err!("fit: singular normal equations"))?;
     Ok(FormFit {
         theta,
         coef: beta[1..].to_vec(),

@@ -6,7 +6,7 @@
 
 use std::path::Path;
 
-use anyhow::Context;
+use crate::Context;
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 

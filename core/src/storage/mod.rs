@@ -36,7 +36,7 @@ pub use sync::{
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, OnceLock};
 
-use anyhow::{bail, Context, Result};
+use crate::{bail, Context, Result};
 use object_store::path::Path as ObjectPath;
 use object_store::ObjectStore;
 

@@ -75,7 +75,7 @@ impl std::fmt::Debug for RemoteObject {
 impl RemoteObject {
     /// Connect to the object a stub names. The store is built once per base
     /// URL and process (a batch opens hundreds of stubs).
-    pub fn open(stub: &RemoteStub) -> anyhow::Result<RemoteObject> {
+    pub fn open(stub: &RemoteStub) -> crate::Result<RemoteObject> {
         let prefix = connected(&stub.base_url)?;
         Ok(RemoteObject {
             key: prefix.key(&stub.rel),
@@ -138,7 +138,7 @@ impl RemoteObject {
 }
 
 /// Stores by base URL, built once per process.
-fn connected(base_url: &str) -> anyhow::Result<RemotePrefix> {
+fn connected(base_url: &str) -> crate::Result<RemotePrefix> {
     use std::collections::HashMap;
     use std::sync::Mutex;
     static STORES: Mutex<Option<HashMap<String, RemotePrefix>>> = Mutex::new(None);

@@ -4,7 +4,7 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context, Result};
+use crate::{Context, Result};
 use futures::TryStreamExt;
 use object_store::{ObjectMeta, ObjectStoreExt, PutPayload};
 use serde::{Deserialize, Serialize};
@@ -85,7 +85,7 @@ fn local_path(root: &Path, rel: &str) -> Result<PathBuf> {
     let mut p = root.to_path_buf();
     for part in rel.split('/') {
         if !crate::files::names::is_plain_file_name(part) {
-            anyhow::bail!(
+            crate::bail!(
                 "object key `{rel}` has a segment `{part}` that is not a plain name; it would be written outside {} — not transferred",
                 root.display()
             );
@@ -127,7 +127,7 @@ pub fn stage_down_selected(
         .unwrap_or_default();
     let objects = list(remote)?;
     if objects.is_empty() {
-        anyhow::bail!(
+        crate::bail!(
             "`{}` holds no objects (upload the runs first, e.g. `sparkout sync runs/ {}`)",
             remote.url,
             remote.url

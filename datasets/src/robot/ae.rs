@@ -67,7 +67,7 @@ impl Iterator for AeBatches {
                     Arc::new(Float32Array::from(v)),
                 ],
             )
-            .map_err(anyhow::Error::from),
+            .map_err(crate::Error::from),
         )
     }
 }
@@ -163,7 +163,7 @@ impl Iterator for RmsBatches {
                     Arc::new(Float32Array::from(v)),
                 ],
             )
-            .map_err(anyhow::Error::from),
+            .map_err(crate::Error::from),
         )
     }
 }

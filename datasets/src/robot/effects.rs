@@ -86,7 +86,7 @@ impl Effects {
 }
 
 pub(super) fn check_keys(spec: &EffectSpec, known: &[&str]) -> Result<()> {
-    spec.check_params(known).map_err(anyhow::Error::msg)
+    spec.check_params(known).map_err(crate::Error::msg)
 }
 
 pub(super) fn check_cov(spec: &EffectSpec, allowed: &[&str]) -> Result<()> {
@@ -165,7 +165,7 @@ pub(super) fn resolve_effects(
             }
             (name, cov) => {
                 let kind = Kind::from_name(name).ok_or_else(|| {
-                    anyhow::anyhow!("unknown effect `{name}` (known: {})", known_names())
+                    crate::err!("unknown effect `{name}` (known: {})", known_names())
                 })?;
                 let (keys, required): (&[&str], &[&str]) = match kind {
                     Kind::Offset => (&["offset_mm"], &["offset_mm"]),
@@ -213,7 +213,7 @@ pub(super) fn resolve_effects(
                     ),
                     (Kind::Squareness, Some(c)) => {
                         let (a, b) = c.split_once(',').ok_or_else(|| {
-                            anyhow::anyhow!("effect `squareness` needs two positions, e.g. squareness:x_mm,y_mm")
+                            crate::err!("effect `squareness` needs two positions, e.g. squareness:x_mm,y_mm")
                         })?;
                         (a.trim().to_string(), Some(b.trim().to_string()))
                     }

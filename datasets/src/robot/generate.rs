@@ -79,7 +79,7 @@ fn fleet_config(opts: &GenerateOptions) -> Result<RobotFleetConfig> {
     if let Some(s) = &opts.ae_signal {
         cfg.ae_signal = s
             .parse()
-            .map_err(|e: String| anyhow::anyhow!("--ae-signal: {e}"))?;
+            .map_err(|e: String| crate::err!("--ae-signal: {e}"))?;
         if cfg.ae_signal == AeSignal::Rms {
             cfg.ae_sample_rate_hz = AE_RMS_DEFAULT_RATE_HZ;
         }

@@ -49,7 +49,7 @@ use crate::generator::{
     fleet_summary, DemoFleet, GenerateOptions, Generated, Generator, Predicted, RunSize,
 };
 use crate::rng::{normal, stream_rng, symmetric, uniform};
-use anyhow::{bail, Context, Result};
+use crate::{bail, Context, Result};
 use arrow::array::{Float32Array, Float64Array};
 use arrow::datatypes::{DataType, Field, Schema, SchemaRef};
 use arrow::record_batch::RecordBatch;

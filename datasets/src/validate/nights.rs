@@ -211,7 +211,7 @@ fn fleet_specs(cfg: &NightsConfig) -> Result<Vec<EffectSpec>> {
                 seed: mix(cfg.seed, 7000 + i as u64, 0, 0),
                 ..cfg.fleet.clone()
             })?;
-            let s: EffectSpec = effect.parse().map_err(anyhow::Error::msg)?;
+            let s: EffectSpec = effect.parse().map_err(crate::Error::msg)?;
             Ok(scale_to_snr(&s, &l, *snr, cfg.fleet.noise_mm)?.0)
         })
         .collect()

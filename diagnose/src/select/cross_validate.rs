@@ -149,7 +149,7 @@ pub fn evaluate(e: &dyn Effect, prob: &Problem, tg: &Targets) -> Result<CandEval
                     add_into(&mut h, &h_u[u]);
                 }
             }
-            let b = fit::solve(&g, &h).ok_or_else(|| anyhow!("singular normal equations"))?;
+            let b = fit::solve(&g, &h).ok_or_else(|| err!("singular normal equations"))?;
             for (u, tr) in masks[f].iter().enumerate() {
                 if !*tr {
                     unit_sse[u] = fit::sse(&g_u[u], &h_u[u], tg.yy_u[t][u], &b);

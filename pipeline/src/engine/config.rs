@@ -2,7 +2,7 @@
 
 use std::path::Path;
 
-use anyhow::{anyhow, bail, Context};
+use crate::{bail, err, Context};
 use serde::{Deserialize, Serialize};
 
 use std::collections::BTreeMap;
@@ -37,7 +37,7 @@ impl PipelineConfig {
     pub fn parse(text: &str, source: &str) -> Result<Self> {
         let table: toml::Table = text
             .parse()
-            .map_err(|e| anyhow!("config {source} is not valid TOML: {e}"))?;
+            .map_err(|e| err!("config {source} is not valid TOML: {e}"))?;
         Ok(PipelineConfig {
             table,
             source: source.to_string(),
@@ -48,7 +48,7 @@ impl PipelineConfig {
     /// arrays; anything else is a string).
     pub fn set(&mut self, assignment: &str) -> Result<()> {
         let (key, raw) = assignment.split_once('=').ok_or_else(|| {
-            anyhow!("--set `{assignment}`: expected KEY=VALUE, e.g. --set robot.ingest.k_sigma=8")
+            err!("--set `{assignment}`: expected KEY=VALUE, e.g. --set robot.ingest.k_sigma=8")
         })?;
         let key = key.trim();
         if key.is_empty() || key.split('.').any(|p| p.is_empty()) {
@@ -61,9 +61,9 @@ impl PipelineConfig {
             let entry = cur
                 .entry(p.to_string())
                 .or_insert_with(|| toml::Value::Table(toml::Table::new()));
-            cur = entry.as_table_mut().ok_or_else(|| {
-                anyhow!("--set `{assignment}`: `{p}` is not a table in the config")
-            })?;
+            cur = entry
+                .as_table_mut()
+                .ok_or_else(|| err!("--set `{assignment}`: `{p}` is not a table in the config"))?;
         }
         cur.insert(parts[parts.len() - 1].to_string(), value);
         Ok(())
@@ -121,7 +121,7 @@ impl CheckedConfig {
             .iter()
             .find(|((p, s), _)| *p == plugin && *s == stage)
             .map(|(_, c)| c)
-            .ok_or_else(|| anyhow!("stage `{plugin}.{stage}` has no checked config section"))
+            .ok_or_else(|| err!("stage `{plugin}.{stage}` has no checked config section"))
     }
 }
 

@@ -3,7 +3,7 @@
 use std::collections::{BTreeMap, BTreeSet};
 use std::sync::Arc;
 
-use anyhow::bail;
+use crate::bail;
 
 use crate::error::Result;
 use crate::traits::Stage;

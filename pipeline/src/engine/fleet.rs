@@ -360,7 +360,7 @@ impl Engine {
     ) -> Result<()> {
         let dir = &h.dir;
         let night = outcome.night.date.clone().ok_or_else(|| {
-            anyhow!("--history: no run's [run].started begins with a date YYYY-MM-DD, so the night is unknown — give --night YYYY-MM-DD")
+            err!("--history: no run's [run].started begins with a date YYYY-MM-DD, so the night is unknown — give --night YYYY-MM-DD")
         })?;
         let events = h
             .events

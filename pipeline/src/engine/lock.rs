@@ -17,7 +17,7 @@ use std::fs::{File, OpenOptions};
 use std::io::{Read, Seek, Write};
 use std::path::{Path, PathBuf};
 
-use anyhow::{bail, Context};
+use crate::{bail, Context};
 
 use crate::error::Result;
 
@@ -237,9 +237,9 @@ fn write_holder(file: &mut File, path: &Path, me: &Holder) -> Result<()> {
     Ok(())
 }
 
-fn held_by(out: &Path, path: &Path, h: Option<Holder>) -> anyhow::Error {
+fn held_by(out: &Path, path: &Path, h: Option<Holder>) -> crate::Error {
     match h {
-        Some(h) if h.host != host_name() => anyhow::anyhow!(
+        Some(h) if h.host != host_name() => crate::err!(
             "another sparkout batch (pid {} on host {}) holds {}; a lock written on another host is never taken over automatically. Wait for that batch or choose another --out; if you know no batch runs on {} any more, delete {}",
             h.pid,
             h.host,
@@ -247,13 +247,13 @@ fn held_by(out: &Path, path: &Path, h: Option<Holder>) -> anyhow::Error {
             h.host,
             path.display()
         ),
-        Some(h) => anyhow::anyhow!(
+        Some(h) => crate::err!(
             "another sparkout batch (pid {} on host {}) is writing to {}; wait for it to finish or choose another --out",
             h.pid,
             h.host,
             out.display()
         ),
-        None => anyhow::anyhow!(
+        None => crate::err!(
             "another sparkout batch is writing to {} (it holds {}); wait for it to finish or choose another --out",
             out.display(),
             path.display()

@@ -21,7 +21,7 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use anyhow::{anyhow, bail, Context};
+use crate::{bail, err, Context};
 use arrow::record_batch::RecordBatch;
 use serde::Serialize;
 
@@ -390,7 +390,7 @@ impl Engine {
         shard: Option<&shard::ShardSpec>,
         progress: &dyn Progress,
     ) -> Result<FleetOutcome> {
-        names::check_out_apart(input_root, out, "--input").map_err(|e| anyhow!(e))?;
+        names::check_out_apart(input_root, out, "--input").map_err(|e| err!(e))?;
         let (found, late) = self.discover_night(input_root)?;
         if !late.is_empty() {
             tracing::warn!(
@@ -556,8 +556,7 @@ impl Engine {
         }
         let input_root = PathBuf::from(&manifests[0].input_root);
         if input_root.is_dir() {
-            names::check_out_apart(&input_root, out, "the shards' input")
-                .map_err(|e| anyhow!(e))?;
+            names::check_out_apart(&input_root, out, "the shards' input").map_err(|e| err!(e))?;
         }
         let _lock = lock::BatchLock::acquire(out)?;
         let mut runs = Vec::new();
@@ -569,9 +568,9 @@ impl Engine {
                 // Names in a shard manifest are input like any other.
                 let shard_file = dir.join(shard::SHARD_FILE);
                 let from = run_out_dir(dir, &r.machine, &r.run)
-                    .map_err(|e| anyhow!("{}: {e}", shard_file.display()))?;
+                    .map_err(|e| err!("{}: {e}", shard_file.display()))?;
                 let to = run_out_dir(out, &r.machine, &r.run)
-                    .map_err(|e| anyhow!("{}: {e}", shard_file.display()))?;
+                    .map_err(|e| err!("{}: {e}", shard_file.display()))?;
                 shard::copy_run_dir(&from, &to)?;
                 r.out_dir = to.display().to_string();
                 r.observations = Some(to.join(OBSERVATIONS_FILE)).filter(|o| o.is_file());

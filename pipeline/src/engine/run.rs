@@ -59,7 +59,7 @@ impl Engine {
                 .cloned()
                 .or_else(|| panic.downcast_ref::<&str>().map(|s| s.to_string()))
                 .unwrap_or_else(|| "unknown panic".into());
-            Err(anyhow!(
+            Err(err!(
                 "internal error (a bug in sparkout, please report it): {msg}"
             ))
         });
@@ -311,7 +311,7 @@ impl Engine {
             .find(|s| s.name() == stage_name)
             .cloned()
             .ok_or_else(|| {
-                anyhow!(
+                err!(
                     "plugin `{}` has no stage `{stage_name}` (its stages: {})",
                     plugin.name(),
                     ordered

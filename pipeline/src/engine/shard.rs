@@ -11,7 +11,7 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{bail, Context};
+use crate::{bail, Context};
 use serde::{Deserialize, Serialize};
 
 use super::{Failure, RunResult};

@@ -11,7 +11,7 @@
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 
-use anyhow::{bail, Context};
+use crate::{bail, Context};
 use serde::{Deserialize, Serialize};
 
 use crate::contracts::{write_json_atomic, Discovery, Skipped};

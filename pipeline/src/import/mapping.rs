@@ -5,7 +5,7 @@
 
 use std::collections::BTreeMap;
 
-use anyhow::{anyhow, bail, Context};
+use crate::{bail, err, Context};
 use serde::Deserialize;
 
 use crate::contracts::{ColumnKind, TableRegistry};
@@ -243,14 +243,14 @@ impl Mapping {
     /// mapping of DEST). `SRC` may be `#N` for the N-th column (0-based).
     pub fn apply_flag(&mut self, flag: &str) -> Result<()> {
         let (src, rest) = flag.split_once('=').ok_or_else(|| {
-            anyhow!("--map {flag:?}: expected SRC=DEST or SRC=DEST*FACTOR, e.g. --map X1_CommandPosition=cmd_x_mm or --map feed=feed_mm_s*0.0166667")
+            err!("--map {flag:?}: expected SRC=DEST or SRC=DEST*FACTOR, e.g. --map X1_CommandPosition=cmd_x_mm or --map feed=feed_mm_s*0.0166667")
         })?;
         let (dest, factor) = match rest.split_once('*') {
             None => (rest, 1.0),
             Some((d, f)) => (
                 d,
                 f.trim().parse::<f64>().map_err(|_| {
-                    anyhow!("--map {flag:?}: the factor after `*` must be a number, found {f:?}")
+                    err!("--map {flag:?}: the factor after `*` must be a number, found {f:?}")
                 })?,
             ),
         };
@@ -311,7 +311,7 @@ impl Mapping {
                 SourceRef::Index(i) => format!("#{i}"),
             };
             let got = resolve(&name, kind, &stated)
-                .map_err(|e| anyhow!("column `{}` (source {}): {e}", c.dest, c.source))?;
+                .map_err(|e| err!("column `{}` (source {}): {e}", c.dest, c.source))?;
             c.unit = got.map(|(u, _)| u).filter(|u| Some(*u) != dest);
         }
         Ok(())
@@ -335,7 +335,7 @@ impl Mapping {
     pub fn validate(&self) -> Result<()> {
         let schema = self.tables.get(&self.table).ok_or_else(|| {
             let known = self.tables.names();
-            anyhow!(
+            err!(
                 "unknown contract table `{}` (known: {})",
                 self.table,
                 known.join(", ")

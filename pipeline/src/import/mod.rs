@@ -409,7 +409,7 @@ mod tests {
         let p = d.path().join("bad.csv");
         std::fs::write(&p, ",xc,yc,zc,seg\n0,1,1,0,1\n1,1,x1,0,1\n").unwrap();
         let e = import_file(&p, &mapping(), d.path()).unwrap_err();
-        let e = e.downcast::<InputError>().unwrap();
+        let e = e.input().unwrap().clone();
         assert_eq!(e.column.as_deref(), Some("cmd_y_mm"));
         assert_eq!(e.row, Some(1));
         assert!(
@@ -424,7 +424,7 @@ mod tests {
         assert!(e.contains("segment") && e.contains("integer"), "{e}");
         std::fs::write(&p, ",xc,yc,zc,seg\n1,1,1,0,1\n0,1,1,0,1\n").unwrap();
         let e = import_file(&p, &mapping(), d.path()).unwrap_err();
-        let e = e.downcast::<InputError>().unwrap();
+        let e = e.input().unwrap().clone();
         assert_eq!((e.column.as_deref(), e.row), (Some("t_s"), Some(1)));
     }
 

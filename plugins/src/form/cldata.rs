@@ -13,7 +13,7 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use crate::form::tables::PROFILE;
-use anyhow::{anyhow, bail, Context};
+use crate::{bail, err, Context};
 use arrow::record_batch::RecordBatch;
 use serde_json::Value;
 use sparkout_pipeline::config_check::{read_section, NoKeys, SectionCheck};
@@ -150,7 +150,7 @@ fn standalone(args: &StageArgs) -> Result<Value> {
         }
     }
     let file = PathBuf::from(args.get("profile").ok_or_else(|| {
-        anyhow!("stage form_cldata: --profile <profile.parquet> (with `design` rows) is required")
+        err!("stage form_cldata: --profile <profile.parquet> (with `design` rows) is required")
     })?);
     // Flags become the same config keys `[form.segment]` takes, checked the
     // same way.
@@ -165,9 +165,9 @@ fn standalone(args: &StageArgs) -> Result<Value> {
         ("window-points", "window_points"),
     ] {
         if let Some(v) = args.get(flag) {
-            let x: f64 = v.parse().map_err(|_| {
-                anyhow!("stage form_cldata: --{flag} must be a number, found `{v}`")
-            })?;
+            let x: f64 = v
+                .parse()
+                .map_err(|_| err!("stage form_cldata: --{flag} must be a number, found `{v}`"))?;
             cfg.insert(key.into(), toml::Value::Float(x));
         }
     }
@@ -188,7 +188,7 @@ fn standalone(args: &StageArgs) -> Result<Value> {
             .iter()
             .find(|(n, _)| n == "toolpath")
             .map(|(_, b)| b)
-            .ok_or_else(|| anyhow!("segment produced no toolpath"))?;
+            .ok_or_else(|| err!("segment produced no toolpath"))?;
         let mut files = Vec::new();
         for (s, text) in programs(tp)? {
             let path = Path::new(dir).join(format!("segment_{s:02}.cls"));

@@ -135,7 +135,7 @@ impl Section for SegmentSection {
         if let (Some(r_max_mm), Some(range_mm)) = (self.r_max_mm, self.range_mm) {
             WheelRange { r_max_mm, range_mm }
                 .check()
-                .map_err(|m| anyhow::anyhow!(m))?;
+                .map_err(|m| crate::err!(m))?;
         }
         Ok(())
     }

@@ -414,7 +414,7 @@ pub fn nominal_radius(run: &Run, nominal_mm: Option<f64>, range: &WheelRange) ->
     };
     if let Some(r) = nominal_mm {
         if !range.contains(r) {
-            anyhow::bail!("stage config nominal_mm: {}", outside(r));
+            crate::bail!("stage config nominal_mm: {}", outside(r));
         }
         return Ok(r);
     }

@@ -19,8 +19,8 @@
 use std::collections::BTreeMap;
 
 use super::summary::{ObserveAugmented, ObserveSummary};
+use crate::bail;
 use crate::form::tables::PROFILE;
-use anyhow::bail;
 use sparkout_pipeline::config_check::SectionCheck;
 use sparkout_pipeline::contracts::BatchBuilder;
 use sparkout_pipeline::{InputError, Result, Stage, StageContext, StageOutput, StageSpec};

@@ -6,8 +6,8 @@
 use std::collections::BTreeSet;
 
 use super::summary::{fin, ProfileErrorSummary, RadiusError, WearApplied};
+use crate::bail;
 use crate::form::tables::PROFILE;
-use anyhow::bail;
 use arrow::record_batch::RecordBatch;
 use sparkout_pipeline::config_check::SectionCheck;
 use sparkout_pipeline::contracts::BatchBuilder;

@@ -7,7 +7,7 @@
 
 use crate::form::summary::{SegmentRow, SegmentSummary, SweepPoint};
 use crate::form::tables::PROFILE;
-use anyhow::{anyhow, bail};
+use crate::{bail, err};
 use arrow::record_batch::RecordBatch;
 use sparkout_pipeline::config_check::SectionCheck;
 use sparkout_pipeline::contracts::BatchBuilder;
@@ -247,7 +247,7 @@ pub fn config_for(cfg: &SegmentSection, machine: Option<WheelRange>) -> Result<S
         bail!("the wheel's usable range is unknown: give r_max_mm and range_mm (--r-max-mm, --range-mm) or a machine with [wheel] radius_max_mm and usable_range_mm");
     };
     let range = WheelRange { r_max_mm, range_mm };
-    range.check().map_err(|m| anyhow!(m))?;
+    range.check().map_err(|m| err!(m))?;
     Ok(SegmentConfig {
         range,
         segments: cfg.segments.unwrap_or(5),
@@ -275,7 +275,7 @@ pub fn compute(
     file: &std::path::Path,
     rows: &[usize],
 ) -> Result<SegmentResult> {
-    let fail = |(i, rk): (usize, f64)| -> anyhow::Error {
+    let fail = |(i, rk): (usize, f64)| -> crate::Error {
         InputError::new(
             file,
             format!(

@@ -7,7 +7,7 @@
 //! with the profile and spike figures).
 
 use crate::gantry::tables::TOPOGRAPHY;
-use anyhow::{anyhow, Context};
+use crate::{err, Context};
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
 use sparkout_pipeline::config_check::SectionCheck;
@@ -54,7 +54,7 @@ pub fn analyse(
         None => states
             .last()
             .cloned()
-            .ok_or_else(|| anyhow!("topography has no rows"))?,
+            .ok_or_else(|| err!("topography has no rows"))?,
     };
     if !states.contains(&chosen) {
         return Err(sparkout_pipeline::InputError::new(
@@ -181,7 +181,7 @@ impl Stage for FlatnessStage {
         Some((|| {
             for k in args.keys() {
                 if k != "topography" && k != "state" {
-                    anyhow::bail!("unknown flag --{k} for `flatness` (known: --topography FILE, --state NAME; or --surface FILE, --x/--y/--z COL, --x-unit/--y-unit/--z-unit U)");
+                    crate::bail!("unknown flag --{k} for `flatness` (known: --topography FILE, --state NAME; or --surface FILE, --x/--y/--z COL, --x-unit/--y-unit/--z-unit U)");
                 }
             }
             let t = Table::read(std::path::Path::new(file), &TOPOGRAPHY)?;
@@ -208,13 +208,13 @@ fn surface_flatness(args: &StageArgs) -> Result<Value> {
         "unit-scale",
     ];
     if let Some(k) = args.keys().find(|k| !KNOWN.contains(&k.as_str())) {
-        anyhow::bail!("unknown flag --{k} for `flatness --surface` (known: --surface FILE, --x COL, --y COL, --z COL, --x-unit U, --y-unit U, --z-unit U)");
+        crate::bail!("unknown flag --{k} for `flatness --surface` (known: --surface FILE, --x COL, --y COL, --z COL, --x-unit U, --y-unit U, --z-unit U)");
     }
     let unit_scale = match args.get("unit-scale") {
         Some(s) => {
             eprintln!("warning: --unit-scale is deprecated: give each axis its unit (--x-unit um --y-unit um --z-unit nm) or name it in the column (x_um, z_nm)");
             s.parse::<f64>()
-                .map_err(|_| anyhow!("--unit-scale `{s}` is not a number"))?
+                .map_err(|_| err!("--unit-scale `{s}` is not a number"))?
         }
         None => 1.0,
     };

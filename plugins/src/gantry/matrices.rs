@@ -17,8 +17,8 @@
 //! run along x, the bridge along y) by the moving-load series at the path
 //! velocity. Γ = τ − τ_pattern for both.
 
+use crate::err;
 use crate::gantry::tables::TOPOGRAPHY;
-use anyhow::anyhow;
 use std::collections::BTreeMap;
 
 use serde::{Deserialize, Serialize};
@@ -66,9 +66,9 @@ fn unit_response(body: &Body, g: f64, v: f64, tol_rel: f64) -> Result<(f64, f64,
         moment_n_mm,
     };
     let f = moving_load::series(b, unit(1.0, 0.0), tol_rel * scale)
-        .map_err(|e| anyhow!("{}: {e}", body.name))?;
+        .map_err(|e| err!("{}: {e}", body.name))?;
     let m = moving_load::series(b, unit(0.0, 1.0), tol_rel * scale / b.span_mm)
-        .map_err(|e| anyhow!("{}: {e}", body.name))?;
+        .map_err(|e| err!("{}: {e}", body.name))?;
     Ok((f.w_mm, m.w_mm, f.terms.max(m.terms)))
 }
 
@@ -365,7 +365,7 @@ impl Stage for MatricesStage {
         let file = args.get("topography")?;
         Some((|| {
             if let Some(k) = args.keys().find(|k| *k != "topography") {
-                anyhow::bail!("unknown flag --{k} for `matrices` (known: --topography FILE)");
+                crate::bail!("unknown flag --{k} for `matrices` (known: --topography FILE)");
             }
             let mc = super::builtin_machine()?;
             let g = Gantry::read(&mc, &toml::Table::new(), std::path::PathBuf::from(file))?;
@@ -416,9 +416,9 @@ impl Stage for MatricesStage {
                         last = ts[k];
                     }
                 }
-                let growth = bow.growth(&ys_out, &t_out).ok_or_else(|| {
-                    anyhow!("the augmented model's thermal bow cannot be evaluated")
-                })?;
+                let growth = bow
+                    .growth(&ys_out, &t_out)
+                    .ok_or_else(|| err!("the augmented model's thermal bow cannot be evaluated"))?;
                 let lift_per_growth = g.polish.spring_compression_mm / r;
                 for (d, gr) in dz.iter_mut().zip(&growth) {
                     *d -= gr * lift_per_growth;

@@ -43,7 +43,7 @@ pub mod tool_influence;
 pub const APLM_GANTRY_TOML: &str = include_str!("../../machines/aplm-gantry.toml");
 
 /// The built-in machine as a resolved config (run-less stage forms).
-pub fn builtin_machine() -> anyhow::Result<MachineConfig> {
+pub fn builtin_machine() -> crate::Result<MachineConfig> {
     Ok(MachineConfig {
         id: "aplm-gantry".into(),
         source: "built-in machine `aplm-gantry`".into(),

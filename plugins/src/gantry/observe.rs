@@ -12,8 +12,8 @@
 //! the gantry's `thermal_bow` composite reads (composites apply only to
 //! their plugin's observables).
 
+use crate::err;
 use crate::gantry::tables::TOPOGRAPHY;
-use anyhow::anyhow;
 use serde::{Deserialize, Serialize};
 use sparkout_pipeline::config_check::SectionCheck;
 use sparkout_pipeline::contracts::schema::MOTION;
@@ -91,7 +91,7 @@ impl Stage for ObserveStage {
         let rem = ctx.artifacts.require("removal")?;
         let sim = batch_f64(&rem, "final_mm")?;
         if sim.len() != real.z.len() {
-            return Err(anyhow!(
+            return Err(err!(
                 "removal artifact has {} nodes, the `{state}` state {}",
                 sim.len(),
                 real.z.len()
@@ -100,7 +100,7 @@ impl Stage for ObserveStage {
         let grid = real.grid;
         let (path, _) = polishing_path(ctx.run, &g, &grid, cfg.path == "motion")?;
         if path.is_empty() {
-            return Err(anyhow!("the polishing path has no samples"));
+            return Err(err!("the polishing path has no samples"));
         }
         let near = nearest_samples(&grid, &path);
         // Cumulative contact time before each sample.

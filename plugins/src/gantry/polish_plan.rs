@@ -579,10 +579,10 @@ impl Stage for PolishPlanStage {
                         cfg.insert("state".into(), toml::Value::String(v.clone()));
                     }
                     "tolerance-mm" | "tolerance_mm" => {
-                        let x: f64 = v.parse().map_err(|_| anyhow::anyhow!("--tolerance-mm must be a number, got `{v}`"))?;
+                        let x: f64 = v.parse().map_err(|_| crate::err!("--tolerance-mm must be a number, got `{v}`"))?;
                         cfg.insert("tolerance_mm".into(), toml::Value::Float(x));
                     }
-                    other => anyhow::bail!("unknown flag --{other} for `polish_plan` (known: --topography FILE, --state NAME, --tolerance-mm MM)"),
+                    other => crate::bail!("unknown flag --{other} for `polish_plan` (known: --topography FILE, --state NAME, --tolerance-mm MM)"),
                 }
             }
             let cfg: PlanConfig = read_section(&cfg)?;

@@ -4,7 +4,7 @@
 //! influence function, and the predicted final topography (docs/models.md §2.5).
 
 use crate::gantry::tables::TOPOGRAPHY;
-use anyhow::Context;
+use crate::Context;
 use serde::{Deserialize, Serialize};
 use sparkout_pipeline::config_check::SectionCheck;
 use sparkout_pipeline::contracts::schema::MOTION;

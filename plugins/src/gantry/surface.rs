@@ -98,12 +98,12 @@ impl<'a> Units<'a> {
             });
         }
         if !(f.is_finite() && f > 0.0) {
-            anyhow::bail!(
+            crate::bail!(
                 "--unit-scale must be a number > 0 (deprecated: give the unit per axis, --x-unit um --y-unit um --z-unit nm)"
             );
         }
         if flags.iter().any(Option::is_some) {
-            anyhow::bail!(
+            crate::bail!(
                 "--unit-scale is deprecated and cannot be combined with --x-unit/--y-unit/--z-unit: give every axis its unit instead"
             );
         }
@@ -501,7 +501,7 @@ fn grid(
             Unit::parse(t)
                 .filter(|u| u.kind == Kind::Length)
                 .ok_or_else(|| {
-                    anyhow::anyhow!(
+                    crate::err!(
                         "--x-unit `{t}` is not a length unit sparkout converts (nm, um, mm, m)"
                     )
                 })?,

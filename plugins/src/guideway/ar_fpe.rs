@@ -18,7 +18,7 @@
 //! shift identity G[i][j] = G[i−1][j−1] + (entering) − (leaving) — and each
 //! order is then a p×p Cholesky solve (nalgebra): O(N·p_max + p_max⁴).
 
-use anyhow::bail;
+use crate::bail;
 use nalgebra::{DMatrix, DVector};
 use sparkout_pipeline::Result;
 
@@ -190,7 +190,7 @@ pub fn fpe_search(y: &[f64], p_max: usize) -> Result<FpeSearch> {
             None => a
                 .svd(true, true)
                 .solve(&b, 1e-12)
-                .map_err(|e| anyhow::anyhow!("AR({p}) fit: {e}"))?,
+                .map_err(|e| crate::err!("AR({p}) fit: {e}"))?,
         };
         let rss = (g[(0, 0)] - coef.dot(&b)).max(0.0);
         let s2 = rss / nf / (scale * scale);

@@ -28,8 +28,8 @@
 //! F − f, the offset to add to the nominal path — with t_s strictly
 //! increasing this is the shape CAN replay reads (t_s + dz_mm).
 
+use crate::err;
 use crate::guideway::tables::GUIDEWAY;
-use anyhow::anyhow;
 use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
 use sparkout_pipeline::config_check::SectionCheck;
@@ -342,7 +342,7 @@ impl Stage for CompensationStage {
         let ps: PredictorSummary = ctx
             .artifacts
             .summary_as("predictor")
-            .ok_or_else(|| anyhow!("the predictor stage's summary is missing"))??;
+            .ok_or_else(|| err!("the predictor stage's summary is missing"))??;
         let d = ps.d;
         // A coefficient that could not be computed (`null`) is left out.
         let coef: Vec<f64> = ps

@@ -112,7 +112,7 @@ impl Readings {
     }
 }
 
-fn bad(path: &Path, column: &str, row: Option<usize>, msg: String) -> anyhow::Error {
+fn bad(path: &Path, column: &str, row: Option<usize>, msg: String) -> crate::Error {
     let mut e = InputError::new(path, msg).column(column);
     if let Some(r) = row {
         e = e.row(r);
@@ -573,8 +573,9 @@ pub(crate) mod tests {
 
     fn err_of(r: Result<Readings>) -> InputError {
         r.expect_err("an error")
-            .downcast::<InputError>()
+            .input()
             .expect("an InputError")
+            .clone()
     }
 
     #[test]

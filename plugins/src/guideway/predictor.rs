@@ -11,8 +11,8 @@
 //! (p, fpe_mm2, bic, hq, sigma2_mm2, selected — by the chosen criterion), `forecast` (step, n, dz_mm,
 //! dz_sigma_mm).
 
+use crate::err;
 use crate::guideway::tables::GUIDEWAY;
-use anyhow::anyhow;
 use arrow::array::{Array, Float64Array};
 use arrow::record_batch::RecordBatch;
 use serde::{Deserialize, Serialize};
@@ -304,13 +304,13 @@ impl Stage for PredictorStage {
 /// [--p-max 20] [--d 2] --json`: the predictor on any float64 column.
 fn standalone(args: &StageArgs) -> Result<Value> {
     let path = args.get("series").ok_or_else(|| {
-        anyhow!("stage predictor: give --run DIR, or --series FILE.parquet [--column dz_mm]")
+        err!("stage predictor: give --run DIR, or --series FILE.parquet [--column dz_mm]")
     })?;
     let path = std::path::Path::new(path);
     let column = args.get("column").map(|s| s.as_str()).unwrap_or("dz_mm");
     let t = flags_to_table(args, &["series", "column"]);
     let cfg =
-        PredictorConfig::from_table(&t, None).map_err(|e| anyhow!("stage predictor: flag {e}"))?;
+        PredictorConfig::from_table(&t, None).map_err(|e| err!("stage predictor: flag {e}"))?;
     let b = read_parquet(path)?;
     let a = b
         .column_by_name(column)

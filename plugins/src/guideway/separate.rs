@@ -10,7 +10,7 @@
 //! on this artifact, so a resampled run stays consistent downstream.
 
 use crate::guideway::tables::GUIDEWAY;
-use anyhow::{anyhow, Context};
+use crate::{err, Context};
 use arrow::array::{Array, Float64Array, Int32Array, Int64Array, Int8Array};
 use arrow::record_batch::RecordBatch;
 use serde::{Deserialize, Serialize};
@@ -274,7 +274,7 @@ const INPUTS: &[&str] = &["guideway", "spacing-mm", "step-mm", "speed-mm-s"];
 /// [--method recursion] [--reference ends] [--interpolate true] --json`.
 fn standalone(args: &StageArgs) -> Result<Value> {
     let path = args.get("guideway").ok_or_else(|| {
-        anyhow!("stage separate: give --run DIR, or --guideway FILE.parquet --spacing-mm L --step-mm ΔL")
+        err!("stage separate: give --run DIR, or --guideway FILE.parquet --spacing-mm L --step-mm ΔL")
     })?;
     let num = |k: &str| -> Result<Option<f64>> {
         match args.get(k) {
@@ -284,11 +284,11 @@ fn standalone(args: &StageArgs) -> Result<Value> {
                 .ok()
                 .filter(|x| x.is_finite() && *x > 0.0)
                 .map(Some)
-                .ok_or_else(|| anyhow!("stage separate: --{k} must be a number > 0, got `{v}`")),
+                .ok_or_else(|| err!("stage separate: --{k} must be a number > 0, got `{v}`")),
         }
     };
     let need = |k: &str| -> Result<f64> {
-        num(k)?.ok_or_else(|| anyhow!("stage separate: --{k} is required with --guideway"))
+        num(k)?.ok_or_else(|| err!("stage separate: --{k} is required with --guideway"))
     };
     let g = Geometry {
         spacing_mm: need("spacing-mm")?,
@@ -296,8 +296,7 @@ fn standalone(args: &StageArgs) -> Result<Value> {
         speed_mm_s: num("speed-mm-s")?.unwrap_or(20_000.0 / 60.0),
     };
     let t = flags_to_table(args, INPUTS);
-    let cfg =
-        read_section::<SeparateSection>(&t).map_err(|e| anyhow!("stage separate: flag {e}"))?;
+    let cfg = read_section::<SeparateSection>(&t).map_err(|e| err!("stage separate: flag {e}"))?;
     let sigma_mm = cfg.probe_sigma_mm.unwrap_or(1e-4);
     let r = input::load_file(std::path::Path::new(path), &g, &cfg.input())?;
     let s = three_probe::separate(&r, cfg.method, cfg.reference, sigma_mm)?;

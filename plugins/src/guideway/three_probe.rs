@@ -50,7 +50,7 @@
 //! zero offset o_A − 2o_B + o_C adds a constant to D, which is exactly a
 //! parabola in h — indistinguishable from a curved workpiece in one setup.
 
-use anyhow::bail;
+use crate::bail;
 use sparkout_pipeline::{InputError, Result};
 
 use super::input::Readings;

@@ -12,7 +12,7 @@
 //! definition; on scattered points a dense cluster counts for more, and the
 //! output says so rather than guessing a tessellation.
 
-use anyhow::{anyhow, bail};
+use crate::{bail, err};
 use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
 use sparkout_pipeline::Result;
@@ -83,7 +83,7 @@ pub fn residuals(x: &[f64], y: &[f64], z: &[f64], form: Form) -> Result<Vec<f64>
     }
     let c = r
         .solve_upper_triangular(&qtb)
-        .ok_or_else(|| anyhow!("{}: singular fit", form_name(form)))?;
+        .ok_or_else(|| err!("{}: singular fit", form_name(form)))?;
     let fit = a * c;
     Ok((0..n).map(|i| (z[i] - mz) - fit[i]).collect())
 }

@@ -10,7 +10,7 @@
 //! (µm over metres), so the zone measured normal to the planes differs by a
 //! factor 1/sqrt(1 + a² + b²), below 1e-9 relative for slopes < 4e-5.
 
-use anyhow::anyhow;
+use crate::err;
 use microlp::{ComparisonOp, OptimizationDirection, Problem};
 use nalgebra::{Matrix3, Vector3};
 use sparkout_pipeline::Result;
@@ -52,7 +52,7 @@ pub fn least_squares(x: &[f64], y: &[f64], z: &[f64]) -> Result<PlaneFit> {
     let s = m
         .lu()
         .solve(&r)
-        .ok_or_else(|| anyhow!("least-squares plane: the points are collinear"))?;
+        .ok_or_else(|| err!("least-squares plane: the points are collinear"))?;
     let (a, b) = (s[0], s[1]);
     let c = mz + s[2] - a * mx - b * my;
     let (lo, hi) = width(x, y, z, a, b);
@@ -144,9 +144,7 @@ fn min_zone_of(x: &[f64], y: &[f64], z: &[f64], idx: &[usize]) -> Result<PlaneFi
         p.add_constraint([(a, u), (b, v), (hi, 1.0)], ComparisonOp::Ge, w);
         p.add_constraint([(a, u), (b, v), (lo, 1.0)], ComparisonOp::Le, w);
     }
-    let sol = p
-        .solve()
-        .map_err(|e| anyhow!("minimum-zone LP failed: {e}"))?;
+    let sol = p.solve().map_err(|e| err!("minimum-zone LP failed: {e}"))?;
     let (aa, bb) = (sol[a] / sx, sol[b] / sy);
     let (rlo, rhi) = width_of(x, y, z, aa, bb, idx);
     Ok(PlaneFit {

@@ -22,7 +22,7 @@
 //! - Rz = mean over the sampling lengths of (max − min) of R's points in
 //!   each (half-open [a, a + λc), the last one closed)
 
-use anyhow::bail;
+use crate::bail;
 use serde::{Deserialize, Serialize};
 use sparkout_pipeline::Result;
 

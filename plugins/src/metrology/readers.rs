@@ -122,7 +122,7 @@ fn is_parquet(path: &Path) -> Result<bool> {
 fn flag_unit(flag: &str, text: &str) -> Result<Unit> {
     match Unit::parse(text) {
         Some(u) if u.kind == Kind::Length => Ok(u),
-        _ => anyhow::bail!("--{flag} `{text}` is not a length unit (nm, um or µm, mm, m)"),
+        _ => crate::bail!("--{flag} `{text}` is not a length unit (nm, um or µm, mm, m)"),
     }
 }
 

@@ -13,7 +13,7 @@
 
 use std::path::Path;
 
-use anyhow::{anyhow, Context};
+use crate::{err, Context};
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
 use sparkout_pipeline::config_check::{NoKeys, SectionCheck};
@@ -54,7 +54,7 @@ impl Stage for ProfileStage {
         &SPEC
     }
     fn run(&self, _ctx: &StageContext) -> Result<StageOutput> {
-        anyhow::bail!("stage `profile` has only a run-less form: sparkout stage profile --profile FILE [--lambda-c MM]")
+        crate::bail!("stage `profile` has only a run-less form: sparkout stage profile --profile FILE [--lambda-c MM]")
     }
     fn run_standalone(&self, args: &StageArgs) -> Option<Result<Value>> {
         Some(profile_standalone(args))
@@ -67,12 +67,12 @@ impl Stage for ProfileStage {
 
 fn profile_standalone(args: &StageArgs) -> Result<Value> {
     if let Some(k) = args.keys().find(|k| !FLAGS.contains(&k.as_str())) {
-        anyhow::bail!(
+        crate::bail!(
             "unknown flag --{k} for `profile` (known: --profile FILE, --lambda-c MM, --sampling-lengths N, --x COL, --z COL, --x-unit U, --z-unit U)"
         );
     }
     let file = args.get("profile").ok_or_else(|| {
-        anyhow!("stage `profile` needs --profile FILE (a Parquet, CSV or instrument text profile)")
+        err!("stage `profile` needs --profile FILE (a Parquet, CSV or instrument text profile)")
     })?;
     let number = |flag: &str| -> Result<Option<f64>> {
         args.get(flag)
@@ -80,7 +80,7 @@ fn profile_standalone(args: &StageArgs) -> Result<Value> {
                 s.parse::<f64>()
                     .ok()
                     .filter(|v| v.is_finite() && *v > 0.0)
-                    .ok_or_else(|| anyhow!("--{flag} `{s}` is not a number > 0"))
+                    .ok_or_else(|| err!("--{flag} `{s}` is not a number > 0"))
             })
             .transpose()
     };
@@ -91,7 +91,7 @@ fn profile_standalone(args: &StageArgs) -> Result<Value> {
             .parse::<usize>()
             .ok()
             .filter(|&n| n >= 1)
-            .ok_or_else(|| anyhow!("--sampling-lengths `{s}` is not a whole number ≥ 1"))?,
+            .ok_or_else(|| err!("--sampling-lengths `{s}` is not a whole number ≥ 1"))?,
     };
     let spec = ProfileSpec {
         x: args.get("x").map(String::as_str),
@@ -127,7 +127,7 @@ pub fn matrix_flatness(args: &StageArgs) -> Option<Result<Value>> {
     Some((|| {
         const KNOWN: [&str; 4] = ["surface", "x-unit", "y-unit", "z-unit"];
         if let Some(k) = args.keys().find(|k| !KNOWN.contains(&k.as_str())) {
-            anyhow::bail!("unknown flag --{k} for `flatness --surface` on a text height matrix (known: --surface FILE, --x-unit U, --y-unit U, --z-unit U)");
+            crate::bail!("unknown flag --{k} for `flatness --surface` on a text height matrix (known: --surface FILE, --x-unit U, --y-unit U, --z-unit U)");
         }
         let path = Path::new(file);
         let m = read_matrix(
@@ -140,7 +140,7 @@ pub fn matrix_flatness(args: &StageArgs) -> Option<Result<Value>> {
             .filter(|&i| m.z_mm[i].is_finite())
             .collect();
         if keep.len() < 3 {
-            anyhow::bail!(
+            crate::bail!(
                 "{}: {} measured points; flatness needs at least 3",
                 path.display(),
                 keep.len()

@@ -12,7 +12,7 @@
 //! checked against every vertex, the worst violators added, until none
 //! is left.
 
-use anyhow::{anyhow, bail};
+use crate::{bail, err};
 use microlp::{ComparisonOp, OptimizationDirection, Problem};
 use sparkout_pipeline::Result;
 
@@ -111,7 +111,7 @@ fn zone_slope(x: &[f64], z: &[f64], idx: &[usize]) -> Result<f64> {
     }
     let sol = p
         .solve()
-        .map_err(|e| anyhow!("minimum-zone straightness LP failed: {e}"))?;
+        .map_err(|e| err!("minimum-zone straightness LP failed: {e}"))?;
     Ok(sol[a] / sx)
 }
 

@@ -2,7 +2,7 @@
 //! sections (`[mill.kinematics]`, `[mill.observe]`), each checked before use:
 //! unknown keys and bad values are errors that say what to do.
 
-use anyhow::{anyhow, bail};
+use crate::{bail, err};
 use serde::{Deserialize, Serialize};
 use sparkout_pipeline::config_check::{Check, Section};
 use sparkout_pipeline::contracts::MachineConfig;
@@ -112,7 +112,7 @@ pub fn parse_fixed(names: &[String]) -> Result<Vec<usize>> {
         .map(|n| {
             function_index(n).ok_or_else(|| {
                 let known: Vec<String> = (0..N_FUNCTIONS).map(function_name).collect();
-                anyhow!(
+                err!(
                     "`fixed`: unknown error function `{n}` (known: {})",
                     known.join(", ")
                 )

@@ -511,7 +511,7 @@ pub fn model_from_params(b: &RecordBatch, travels: [(f64, f64); 3]) -> Result<Mo
     let degree = batch_i32(b, "degree")?
         .first()
         .copied()
-        .ok_or_else(|| anyhow::anyhow!("kinematic_params is empty"))? as usize;
+        .ok_or_else(|| crate::err!("kinematic_params is empty"))? as usize;
     let mut coef = Vec::new();
     let mut rest = Vec::new();
     for i in 0..b.num_rows() {
@@ -535,7 +535,7 @@ pub fn model_from_params(b: &RecordBatch, travels: [(f64, f64); 3]) -> Result<Mo
             .iter()
             .find(|(n, _)| n == name)
             .map(|(_, v)| *v)
-            .ok_or_else(|| anyhow::anyhow!("kinematic_params lacks `{name}`"))?;
+            .ok_or_else(|| crate::err!("kinematic_params lacks `{name}`"))?;
         model.params[model.layout.sq_index() + k] = v;
     }
     Ok(model)
@@ -697,9 +697,9 @@ fn without_growth(
 ) -> Result<(RecordBatch, f64)> {
     use sparkout_pipeline::contracts::batch_f64;
     let t = batch_f64(path, "t_s")?;
-    let (g, _) = sg.growth_and_offset(t, temp_c).ok_or_else(|| {
-        anyhow::anyhow!("the augmented model's spindle growth cannot be evaluated")
-    })?;
+    let (g, _) = sg
+        .growth_and_offset(t, temp_c)
+        .ok_or_else(|| crate::err!("the augmented model's spindle growth cannot be evaluated"))?;
     let mut b = BatchBuilder::new();
     for (f, c) in path.schema().fields().iter().zip(path.columns()) {
         if f.name() == "dz_mm" {

@@ -28,7 +28,7 @@ use std::collections::BTreeMap;
 
 use super::summary::{fin, fin_opt, CyclePass, CyclePasses, CycleSummary, NoPasses, Remaining};
 use crate::robot::tables::PASSES;
-use anyhow::{anyhow, bail};
+use crate::{bail, err};
 use serde_json::Value;
 use sparkout_pipeline::config_check::{read_flags, whole_number, Check, Section, SectionCheck};
 use sparkout_pipeline::contracts::BatchBuilder;
@@ -236,10 +236,10 @@ pub struct CycleResult {
 /// Run the model over passes (sorted by pass number). `weld_mm`: initial
 /// stock above the finished surface, when known.
 pub fn model(passes: &[Pass], weld_mm: Option<f64>, alpha_max: f64) -> Result<CycleResult> {
-    let first = passes.first().ok_or_else(|| anyhow!("no passes"))?;
+    let first = passes.first().ok_or_else(|| err!("no passes"))?;
     let first_cut = first
         .measured_cut_mm
-        .ok_or_else(|| anyhow!("the first pass has no measured cut; α cannot be estimated"))?;
+        .ok_or_else(|| err!("the first pass has no measured cut; α cannot be estimated"))?;
     let alpha_first_pass = alpha_from_first_cut(first.nominal_doc_mm, first_cut)?;
     let docs: Vec<f64> = passes.iter().map(|p| p.nominal_doc_mm).collect();
     let measured: Vec<Option<f64>> = passes.iter().map(|p| p.measured_cut_mm).collect();

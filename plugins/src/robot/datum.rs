@@ -9,7 +9,7 @@
 //! writes (summary JSON and the `planes`/`datum` artifacts).
 
 use crate::robot::tables::PROBE;
-use anyhow::{anyhow, bail};
+use crate::{bail, err};
 use nalgebra::{Matrix3, SymmetricEigen, Vector3};
 use serde_json::Value;
 use sparkout_pipeline::config_check::{Check, Section, SectionCheck};
@@ -328,7 +328,7 @@ pub fn analyse(raw: &[Touch], cfg: &DatumConfig, file: &std::path::Path) -> Resu
         (raw.to_vec(), Default::default())
     };
     let all = &corrected[..];
-    let bad = |msg: String| -> anyhow::Error { InputError::new(file, msg).column("face").into() };
+    let bad = |msg: String| -> crate::Error { InputError::new(file, msg).column("face").into() };
     let mut face_touches: [Vec<usize>; 3] = Default::default();
     for (i, t) in all.iter().enumerate() {
         face_touches[t.face.index()].push(i);
@@ -339,7 +339,7 @@ pub fn analyse(raw: &[Touch], cfg: &DatumConfig, file: &std::path::Path) -> Resu
         let pts: Vec<Vector3<f64>> = idx.iter().map(|&i| all[i].p).collect();
         fits.push(fit_face(face, &pts, cfg, cfg.robust).map_err(|e| bad(e.0))?);
     }
-    let fits: [FaceFit; 3] = fits.try_into().map_err(|_| anyhow!("three faces"))?;
+    let fits: [FaceFit; 3] = fits.try_into().map_err(|_| err!("three faces"))?;
     let planes = |tls: bool| [fits[0].plane(tls), fits[1].plane(tls), fits[2].plane(tls)];
     let main = datum_of(planes(cfg.use_tls()), cfg).map_err(|e| bad(e.0))?;
     let ols = datum_of(planes(!cfg.use_tls()), cfg).ok();
@@ -362,7 +362,7 @@ pub fn analyse(raw: &[Touch], cfg: &DatumConfig, file: &std::path::Path) -> Resu
             }
         }
         if sfits.len() == 3 {
-            let sfits: [FaceFit; 3] = sfits.try_into().map_err(|_| anyhow!("three faces"))?;
+            let sfits: [FaceFit; 3] = sfits.try_into().map_err(|_| err!("three faces"))?;
             let d = datum_of(
                 [
                     sfits[0].plane(cfg.use_tls()),
@@ -429,16 +429,14 @@ fn standalone(args: &StageArgs) -> Result<Value> {
         }
     }
     let spec = args.get("planes").ok_or_else(|| {
-        anyhow!("stage datum: give --run DIR, or --planes \"a,b,c,d;a,b,c,d;a,b,c,d\"")
+        err!("stage datum: give --run DIR, or --planes \"a,b,c,d;a,b,c,d;a,b,c,d\"")
     })?;
     let parse = |s: &str, n: usize, what: &str| -> Result<Vec<f64>> {
         let v: Vec<f64> = s
             .split(',')
             .map(|x| x.trim().parse::<f64>())
             .collect::<std::result::Result<_, _>>()
-            .map_err(|_| {
-                anyhow!("stage datum: {what} `{s}` must be {n} comma-separated numbers")
-            })?;
+            .map_err(|_| err!("stage datum: {what} `{s}` must be {n} comma-separated numbers"))?;
         if v.len() != n || !v.iter().all(|x| x.is_finite()) {
             bail!("stage datum: {what} `{s}` must be {n} comma-separated finite numbers");
         }
@@ -456,7 +454,7 @@ fn standalone(args: &StageArgs) -> Result<Value> {
         let v = parse(p, 4, &format!("plane {}", i + 1))?;
         planes.push(
             Plane::from_coefficients(v[0], v[1], v[2], v[3])
-                .map_err(|e| anyhow!("stage datum: {e}"))?,
+                .map_err(|e| err!("stage datum: {e}"))?,
         );
     }
     // Label planes by their dominant normal axis when that is unambiguous.
@@ -477,7 +475,7 @@ fn standalone(args: &StageArgs) -> Result<Value> {
                 .parse::<f64>()
                 .ok()
                 .filter(|x| *x >= 1.0)
-                .ok_or_else(|| anyhow!("stage datum: --max-condition must be a number ≥ 1"))?,
+                .ok_or_else(|| err!("stage datum: --max-condition must be a number ≥ 1"))?,
             None => DatumConfig::default().max_condition,
         },
         ..DatumConfig::default()
@@ -486,7 +484,7 @@ fn standalone(args: &StageArgs) -> Result<Value> {
         [&planes[order[0]], &planes[order[1]], &planes[order[2]]],
         &cfg,
     )
-    .map_err(|e| anyhow!("stage datum: {e}"))?;
+    .map_err(|e| err!("stage datum: {e}"))?;
     let mut pj = std::collections::BTreeMap::new();
     for (k, &i) in order.iter().enumerate() {
         let p = &planes[i];

@@ -16,7 +16,7 @@ use std::path::Path;
 
 use crate::robot::tables::PLAN;
 use crate::robot::tables::PROBE;
-use anyhow::Context;
+use crate::Context;
 use nalgebra::Vector3;
 use serde_json::Value;
 use sparkout_pipeline::config_check::{flags_to_table, read_section, Check, Section, SectionCheck};
@@ -360,21 +360,21 @@ pub fn detect_stream(
 fn standalone(args: &StageArgs) -> Result<Value> {
     const INPUTS: [&str; 3] = ["ae", "sample-rate-hz", "column"];
     let path = Path::new(args.get("ae").ok_or_else(|| {
-        anyhow::anyhow!(
+        crate::err!(
             "stage ingest: give --run DIR, or --ae FILE.parquet --sample-rate-hz F [--column ae_v]"
         )
     })?);
     let fs_hz = args
         .get("sample-rate-hz")
-        .ok_or_else(|| anyhow::anyhow!("stage ingest --ae: --sample-rate-hz F is required"))?
+        .ok_or_else(|| crate::err!("stage ingest --ae: --sample-rate-hz F is required"))?
         .parse::<f64>()
         .ok()
         .filter(|f| f.is_finite() && *f > 0.0)
-        .ok_or_else(|| anyhow::anyhow!("stage ingest: --sample-rate-hz must be a number > 0"))?;
+        .ok_or_else(|| crate::err!("stage ingest: --sample-rate-hz must be a number > 0"))?;
     let column = args.get("column").map(|s| s.as_str()).unwrap_or("ae_v");
     let t = flags_to_table(args, &INPUTS);
     let cfg: IngestConfig = read_section(&t).map_err(|e| {
-        anyhow::anyhow!("stage ingest: flag {e} (flags: --ae, --sample-rate-hz, --column and the detector keys with dashes)")
+        crate::err!("stage ingest: flag {e} (flags: --ae, --sample-rate-hz, --column and the detector keys with dashes)")
     })?;
     let kind = cfg.signal_kind().map(|k| (k, KindSource::Config));
     let r = detect_stream(

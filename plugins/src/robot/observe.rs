@@ -49,7 +49,7 @@ fn touch_observable(source: &str, method: &str) -> String {
 }
 use std::sync::Arc;
 
-use anyhow::anyhow;
+use crate::err;
 use arrow::array::Int32Array;
 use arrow::datatypes::{DataType, Field};
 use nalgebra::Vector3;
@@ -118,8 +118,8 @@ fn face_planes(b: &arrow::record_batch::RecordBatch, fit: &str) -> Result<BTreeM
     let mut out = BTreeMap::new();
     for i in 0..b.num_rows() {
         if fits[i] == fit && scope[i] == "all" {
-            let f = Face::parse(&face[i])
-                .ok_or_else(|| anyhow!("planes: unknown face `{}`", face[i]))?;
+            let f =
+                Face::parse(&face[i]).ok_or_else(|| err!("planes: unknown face `{}`", face[i]))?;
             out.insert(
                 f,
                 Plane {
@@ -198,7 +198,7 @@ impl Stage for ObserveStage {
         for t in &all {
             let plane = planes
                 .get(&t.face)
-                .ok_or_else(|| anyhow!("no fitted plane for face {}", t.face.label()))?;
+                .ok_or_else(|| err!("no fitted plane for face {}", t.face.label()))?;
             rows.push(Row {
                 observable: touch_observable(&t.source, &t.method),
                 sim: plane.normal_coordinate_at(t.face, &t.p),

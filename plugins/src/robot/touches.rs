@@ -2,7 +2,7 @@
 //! what later stages need — the plan `seq`, the unit approach direction and
 //! the sign of the move that preceded the approach along the face normal.
 
-use anyhow::anyhow;
+use crate::err;
 use arrow::array::{Array, Float64Array};
 use arrow::record_batch::RecordBatch;
 use nalgebra::Vector3;
@@ -88,7 +88,7 @@ pub fn opt_col(b: &RecordBatch, name: &str) -> Result<Vec<Option<f64>>> {
     let a = b
         .column_by_name(name)
         .and_then(|c| c.as_any().downcast_ref::<Float64Array>())
-        .ok_or_else(|| anyhow!("artifact has no float64 column `{name}`"))?;
+        .ok_or_else(|| err!("artifact has no float64 column `{name}`"))?;
     Ok((0..a.len())
         .map(|i| (!a.is_null(i)).then(|| a.value(i)))
         .collect())
@@ -119,7 +119,7 @@ pub fn from_batch(b: &RecordBatch) -> Result<Vec<Touch>> {
             Ok(Touch {
                 t_s: t[i],
                 face: Face::parse(&face[i])
-                    .ok_or_else(|| anyhow!("touches: unknown face `{}` in row {i}", face[i]))?,
+                    .ok_or_else(|| err!("touches: unknown face `{}` in row {i}", face[i]))?,
                 point: point[i],
                 trial: trial[i],
                 method: method[i].clone(),

@@ -7,7 +7,7 @@
 
 use std::path::Path;
 
-use anyhow::{bail, Context};
+use crate::{bail, Context};
 use serde::{Deserialize, Serialize};
 
 use super::check_night;
@@ -98,7 +98,7 @@ pub fn parse_event(spec: &str, default_night: Option<&str>) -> Result<Event> {
         bail!("--event `{spec}`: no night; {usage}");
     }
     e.check()
-        .map_err(|m| anyhow::anyhow!("--event `{spec}`: {m}; {usage}"))?;
+        .map_err(|m| crate::err!("--event `{spec}`: {m}; {usage}"))?;
     Ok(e)
 }
 

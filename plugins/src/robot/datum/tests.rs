@@ -83,7 +83,7 @@ fn bad_faces_are_input_errors() {
         .cloned()
         .collect();
     let e = analyse(&few, &cfg, f).err().unwrap();
-    let ie = e.downcast_ref::<InputError>().unwrap();
+    let ie = e.input().unwrap();
     assert!(
         ie.message.contains("at least 3") && ie.message.contains("zx"),
         "{ie}"
