@@ -27,7 +27,7 @@ timed() {
     echo "failed ($rc): $*" >&2
     exit 1
   fi
-  awk '{ printf "%.1f %.0f", $1, $2 / 1024 }' "$f"
+  awk '{ printf "%.1f %.0f\n", $1, $2 / 1024 }' "$f"
   rm -f "$f"
 }
 declare -A night agg_mb single_s

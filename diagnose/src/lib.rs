@@ -203,8 +203,9 @@ fn run_diagnosis(
     for oi in 0..table.obs_names.len() {
         diagnose_observable(&table, oi, cfg, scopes, &mut acc, &mut notes)?;
     }
-    let mut out = output::assemble(&batch, &table, cfg, acc, notes)?;
-    if table.machine_names.len() > 1 {
+    let several_machines = table.machine_names.len() > 1;
+    let mut out = output::assemble(&batch, table, cfg, acc, notes)?;
+    if several_machines {
         out.diagnosis.machine_effects =
             machines::localised_effects(&batch, &out.diagnosis, cfg, scopes)?;
     }

@@ -5,6 +5,7 @@ use std::path::Path;
 use std::sync::Arc;
 
 use arrow::array::{Array, ArrayRef, AsArray, Float64Array, RecordBatch};
+use arrow::buffer::ScalarBuffer;
 use arrow::compute::cast;
 use arrow::datatypes::{DataType, Field, Schema};
 
@@ -274,15 +275,16 @@ pub struct Table {
     /// `unit` column, else "mm".
     pub obs_units: Vec<String>,
     pub gap: Vec<f64>,
-    /// Covariates with only finite values, sorted by name.
-    pub covs: Vec<(String, Vec<f64>)>,
+    /// Covariates with only finite values, sorted by name (sharing the
+    /// input batch's buffers where they are Float64 without nulls).
+    pub covs: Vec<(String, ScalarBuffer<f64>)>,
     /// Covariates dropped for non-finite values (reported as notes).
     pub dropped: Vec<String>,
     pub trial: Option<Vec<i64>>,
     pub point: Option<Vec<i64>>,
     /// `real_u`: each row's stated standard uncertainty of `real` (e.g. a
     /// logging resolution step/√12); NaN where not stated.
-    pub real_u: Option<Vec<f64>>,
+    pub real_u: Option<ScalarBuffer<f64>>,
 }
 
 /// Sorted distinct strings of a text column and each row's index into
@@ -396,9 +398,15 @@ fn observable_units(b: &RecordBatch, obs_names: &[String], obs: &[u32]) -> Vec<S
     units
 }
 
-fn f64s(a: &ArrayRef) -> Result<Vec<f64>> {
+/// A numeric column as f64, nulls as NaN. A Float64 column without nulls
+/// (what sparkout and pandas write) shares the batch's buffer instead of
+/// being copied: a fleet's covariates are most of the diagnosis' memory.
+fn f64s(a: &ArrayRef) -> Result<ScalarBuffer<f64>> {
     let c = cast(a, &DataType::Float64)?;
     let v = c.as_any().downcast_ref::<Float64Array>().expect("cast");
+    if v.null_count() == 0 {
+        return Ok(v.values().clone());
+    }
     Ok((0..v.len())
         .map(|i| if v.is_null(i) { f64::NAN } else { v.value(i) })
         .collect())
@@ -498,6 +506,6 @@ impl Table {
         self.covs
             .iter()
             .find(|(n, _)| n == name)
-            .map(|(_, v)| v.as_slice())
+            .map(|(_, v)| &v[..])
     }
 }

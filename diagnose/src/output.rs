@@ -13,7 +13,7 @@ use super::effect::Effect;
 use super::gather::ObsRows;
 use super::intervals::ChosenIntervals;
 use super::machines::{self, MachineTest};
-use super::observations::{self, Table};
+use super::observations::Table;
 use super::select::{Problem, Record, Selection};
 use super::{cells, report, Accum, DiagnoseConfig, Notes};
 use crate::Result;
@@ -25,10 +25,11 @@ pub use crate::document::*;
 
 pub fn per_row_batch(
     batch: &RecordBatch,
-    table: &observations::Table,
-    contrib: &BTreeMap<String, Vec<f64>>,
+    has_machine: bool,
+    gap: Vec<f64>,
+    mut contrib: BTreeMap<String, Vec<f64>>,
     keys: &[String],
-    residual: &[f64],
+    residual: Vec<f64>,
 ) -> Result<RecordBatch> {
     let to_utf8 = |name: &str| -> Result<ArrayRef> {
         let a = batch.column_by_name(name).expect("validated");
@@ -36,7 +37,7 @@ pub fn per_row_batch(
     };
     let mut fields = Vec::new();
     let mut cols: Vec<ArrayRef> = Vec::new();
-    if table.has_machine {
+    if has_machine {
         fields.push(Field::new("machine", DataType::Utf8, false));
         cols.push(to_utf8("machine")?);
     }
@@ -45,17 +46,19 @@ pub fn per_row_batch(
         Field::new("observable", DataType::Utf8, false),
         Field::new("gap", DataType::Float64, false),
     ]);
+    // The columns move into the batch (no copy of a fleet-sized vector).
     cols.extend([
         to_utf8("run")?,
         to_utf8("observable")?,
-        Arc::new(Float64Array::from(table.gap.clone())) as ArrayRef,
+        Arc::new(Float64Array::from(gap)) as ArrayRef,
     ]);
     for k in keys {
         fields.push(Field::new(format!("contrib_{k}"), DataType::Float64, false));
-        cols.push(Arc::new(Float64Array::from(contrib[k].clone())));
+        let c = contrib.remove(k).expect("a selected key has its column");
+        cols.push(Arc::new(Float64Array::from(c)));
     }
     fields.push(Field::new("residual_after", DataType::Float64, false));
-    cols.push(Arc::new(Float64Array::from(residual.to_vec())));
+    cols.push(Arc::new(Float64Array::from(residual)));
     Ok(RecordBatch::try_new(Arc::new(Schema::new(fields)), cols)?)
 }
 
@@ -308,7 +311,7 @@ fn predict_rows(
 /// The fleet-level diagnosis from the per-observable results.
 pub fn assemble(
     batch: &RecordBatch,
-    table: &Table,
+    mut table: Table,
     cfg: &DiagnoseConfig,
     mut acc: Accum,
     mut notes: Notes,
@@ -389,10 +392,11 @@ pub fn assemble(
     };
     let per_row = per_row_batch(
         batch,
-        table,
-        &acc.contrib_cols,
+        table.has_machine,
+        std::mem::take(&mut table.gap),
+        std::mem::take(&mut acc.contrib_cols),
         &acc.selected_keys,
-        &acc.residual_all,
+        std::mem::take(&mut acc.residual_all),
     )?;
     let augmented_model = AugmentedModelFile {
         applies_as: "real ≈ sim + Σ over effects of (offset_mm + form(covariates; params)), per observable; forms as in the effect catalogue of docs/formats.md".into(),

@@ -378,3 +378,48 @@ fn a_null_figure_in_diagnosis_json_reads_as_nan() {
     let back = serde_json::to_value(&g).unwrap();
     assert!(back["rms_mm"].is_null());
 }
+
+/// The covariates of a Float64 column without nulls are the input batch's
+/// own buffer (a fleet's covariates are most of the diagnosis' memory);
+/// one with nulls is copied with NaN where null.
+#[test]
+fn covariates_share_the_input_buffer_and_nulls_read_as_nan() {
+    use std::sync::Arc;
+
+    use arrow::array::{ArrayRef, Float64Array, RecordBatch, StringArray};
+
+    use super::observations::{validate_observations, Table};
+
+    let n = 6;
+    let s = |v: &str| Arc::new(StringArray::from(vec![v; n])) as ArrayRef;
+    let f = |v: Vec<Option<f64>>| Arc::new(Float64Array::from(v)) as ArrayRef;
+    let x_mm: Vec<Option<f64>> = (0..n).map(|i| Some(i as f64)).collect();
+    let mut temp_c: Vec<Option<f64>> = (0..n).map(|i| Some(20.0 + i as f64)).collect();
+    temp_c[2] = None;
+    let batch = RecordBatch::try_from_iter([
+        ("run", s("r0")),
+        ("observable", s("z")),
+        ("sim", f(vec![Some(0.0); n])),
+        ("real", f(vec![Some(0.001); n])),
+        ("temp_c", f(temp_c)),
+        ("x_mm", f(x_mm)),
+    ])
+    .unwrap();
+    let valid = validate_observations(&batch, std::path::Path::new("obs.parquet")).unwrap();
+    let table = Table::from_batch(&valid).unwrap();
+    let input = valid
+        .column_by_name("x_mm")
+        .unwrap()
+        .as_any()
+        .downcast_ref::<Float64Array>()
+        .unwrap()
+        .values()
+        .as_ptr();
+    assert_eq!(
+        table.cov("x_mm").unwrap().as_ptr(),
+        input,
+        "x_mm was copied"
+    );
+    let t = table.cov("temp_c").unwrap();
+    assert!(t[2].is_nan() && t[3] == 23.0, "{t:?}");
+}
