@@ -110,7 +110,8 @@ fn the_citation_check_catches_each_form() {
         assert!(forbidden(&format!("// see {doc}{md} §2")).is_some());
         assert!(forbidden(&format!("// ({doc} §2: a fleet table)")).is_some());
     }
-    assert!(forbidden(&format!("// as in {}", format!("../{}/x", "shared"))).is_some());
+    let outside = format!("../{}/x", "shared");
+    assert!(forbidden(&format!("// as in {outside}")).is_some());
     assert!(forbidden(&format!("// fixes {}ssue 12", "i")).is_some());
     assert!(forbidden("// see docs/formats.md §7 and docs/models.md §8").is_none());
 }
