@@ -213,6 +213,33 @@ pub type ParamsAndOffset = (BTreeMap<String, f64>, f64);
 /// Feature columns, `out[j][i]` = feature j at row i.
 pub type Columns = [Vec<f64>];
 
+thread_local! {
+    /// Feature columns kept for reuse by this thread (see [`with_columns`]).
+    static SPARE_COLUMNS: std::cell::RefCell<Vec<Vec<f64>>> =
+        const { std::cell::RefCell::new(Vec::new()) };
+}
+
+/// Runs `f` on `n` empty feature columns that keep the capacity of this
+/// thread's earlier calls. A form's features are as long as the fleet's
+/// rows and are computed once per candidate and per θ value tried; above
+/// 32 MiB each fresh vector is fresh pages from the kernel (`alloc.rs`),
+/// which made page faults and page clearing a fifth of a 2 000-run
+/// diagnosis. Re-entrant: a nested call takes its own columns.
+pub fn with_columns<T>(n: usize, f: impl FnOnce(&mut Columns) -> T) -> T {
+    let mut cols: Vec<Vec<f64>> = SPARE_COLUMNS.with(|s| {
+        let mut spare = s.borrow_mut();
+        let keep = spare.len().saturating_sub(n);
+        spare.split_off(keep)
+    });
+    cols.resize_with(n, Vec::new);
+    for c in cols.iter_mut() {
+        c.clear();
+    }
+    let out = f(&mut cols);
+    SPARE_COLUMNS.with(|s| s.borrow_mut().extend(cols));
+    out
+}
+
 /// An effect that is linear in its amplitudes given θ.
 pub trait LinearForm: Send + Sync {
     fn covariates(&self) -> Vec<String>;
@@ -372,4 +399,30 @@ pub fn periodic_lambda_bounds(s: &CovStats) -> (f64, f64) {
     let range = s.range();
     let lo = (3.0 * s.step).max(range / PERIODIC_MAX_CYCLES);
     (lo.min(range), range)
+}
+
+#[cfg(test)]
+mod with_columns_tests {
+    use super::with_columns;
+
+    #[test]
+    fn columns_come_back_empty_with_their_capacity_and_nest() {
+        let first = with_columns(2, |c| {
+            c[0].extend([1.0; 1000]);
+            c[0].as_ptr() as usize
+        });
+        with_columns(2, |c| {
+            assert!(c.iter().all(|v| v.is_empty()), "handed out dirty");
+            assert!(c.iter().any(|v| v.capacity() >= 1000), "capacity not kept");
+            let outer: Vec<usize> = c.iter().map(|v| v.as_ptr() as usize).collect();
+            assert!(outer.contains(&first));
+            // A nested call (a product of forms) gets columns of its own.
+            with_columns(3, |d| {
+                assert_eq!(d.len(), 3);
+                assert!(d
+                    .iter()
+                    .all(|v| !outer.contains(&(v.as_ptr() as usize)) || v.capacity() == 0));
+            });
+        });
+    }
 }

@@ -38,7 +38,7 @@ use crate::err;
 use rayon::prelude::*;
 use statrs::distribution::{ContinuousCDF, StudentsT};
 
-use super::effect::{CovStats, Effect, EffectData, FittedEffect, Frame};
+use super::effect::{with_columns, CovStats, Effect, EffectData, FittedEffect, Frame};
 use super::fit::{self, add_into, choose_theta, dot, scan_rows, FoldSpec};
 use crate::Result;
 

@@ -75,19 +75,20 @@ impl FittedEffect for FittedForm {
     /// prediction minus the contract offset (features are standardised, so
     /// part of the feature-space offset belongs to the shape).
     fn predict(&self, x: &EffectData) -> Vec<f64> {
-        let mut feats = vec![Vec::new(); self.form.n_linear()];
         let mut out = vec![self.offset - self.offset_mm(); x.len()];
-        if self
-            .form
-            .features(&self.frame, x, self.theta, &mut feats)
-            .is_ok()
-        {
-            for (f, b) in feats.iter().zip(&self.coef) {
-                for (o, v) in out.iter_mut().zip(f) {
-                    *o += b * v;
+        with_columns(self.form.n_linear(), |feats| {
+            if self
+                .form
+                .features(&self.frame, x, self.theta, feats)
+                .is_ok()
+            {
+                for (f, b) in feats.iter().zip(&self.coef) {
+                    for (o, v) in out.iter_mut().zip(f) {
+                        *o += b * v;
+                    }
                 }
             }
-        }
+        });
         out
     }
 }

@@ -108,19 +108,23 @@ impl LinearForm for ProductForm {
     fn features(&self, frame: &Frame, x: &EffectData, theta: f64, out: &mut Columns) -> Result<()> {
         let (fa, fb) = self.split(frame);
         let (ta, tb) = self.thetas(&fa, theta);
-        let mut va = vec![Vec::new(); self.a.n_linear()];
-        let mut vb = vec![Vec::new(); self.b.n_linear()];
-        self.a.features(&fa, x, ta, &mut va)?;
-        self.b.features(&fb, x, tb, &mut vb)?;
-        let mut j = 0;
-        for ca in &va {
-            for cb in &vb {
-                out[j].clear();
-                out[j].extend(ca.iter().zip(cb).map(|(p, q)| p * q));
-                j += 1;
+        // The factors' columns are reused between calls (`with_columns`):
+        // a product's θ scan runs over rows, one call per θ value tried.
+        let (na, nb) = (self.a.n_linear(), self.b.n_linear());
+        with_columns(na + nb, |cols| {
+            let (va, vb) = cols.split_at_mut(na);
+            self.a.features(&fa, x, ta, va)?;
+            self.b.features(&fb, x, tb, vb)?;
+            let mut j = 0;
+            for ca in va.iter() {
+                for cb in vb.iter() {
+                    out[j].clear();
+                    out[j].extend(ca.iter().zip(cb).map(|(p, q)| p * q));
+                    j += 1;
+                }
             }
-        }
-        Ok(())
+            Ok(())
+        })
     }
     fn params(&self, frame: &Frame, theta: f64, coef: &[f64], offset: f64) -> ParamsAndOffset {
         // Report the product's joint amplitudes and each factor's shape

@@ -12,12 +12,13 @@
 //! bins, not rows; the chosen θ is then refined by golden section and the
 //! held-out score is computed exactly on rows.
 
+use std::borrow::Cow;
 use std::ops::Range;
 
 use crate::bail;
 use nalgebra::{DMatrix, DVector};
 
-use super::{EffectData, Frame, LinearForm, ThetaRange};
+use super::{Columns, EffectData, Frame, LinearForm, ThetaRange};
 use crate::Result;
 
 /// X'WX (p×p, p = 1 + n_linear; column 0 is the offset).
@@ -148,8 +149,9 @@ pub fn sse(g: &[f64], h: &[f64], yy: f64, beta: &[f64]) -> f64 {
 pub struct ScanRows<'a> {
     pub x: EffectData<'a>,
     pub w: Option<Vec<f64>>,
-    /// Σy per (pseudo-)row for each distinct target.
-    pub sy: Vec<Vec<f64>>,
+    /// Σy per (pseudo-)row for each distinct target: the targets
+    /// themselves when rows are not pooled (fleet-sized: not copied).
+    pub sy: Vec<Cow<'a, [f64]>>,
     /// The rows of each scan unit (a group of units, [`fold_groups`]).
     pub units: Vec<Vec<Range<usize>>>,
 }
@@ -324,7 +326,7 @@ fn in_lanes<const F: usize>(a: &[f64], f: [&[f64]; F], mut row: impl FnMut(f64, 
 fn unit_moments<const F: usize>(
     feats: &[Vec<f64>],
     w: &[f64],
-    sy: &[Vec<f64>],
+    sy: &[Cow<[f64]>],
     r: Range<usize>,
 ) -> (Vec<f64>, Vec<Vec<f64>>) {
     let w = &w[r.clone()];
@@ -406,11 +408,25 @@ pub fn choose_theta(
     yy_u: &[Vec<f64>],
     folds: &FoldSpec,
 ) -> Result<Vec<f64>> {
+    super::with_columns(form.n_linear(), |buf| {
+        choose_theta_in(form, frame, tr, rows, yy_u, folds, buf)
+    })
+}
+
+/// [`choose_theta`] with the feature columns it fills.
+fn choose_theta_in(
+    form: &dyn LinearForm,
+    frame: &Frame,
+    tr: &ThetaRange,
+    rows: &ScanRows,
+    yy_u: &[Vec<f64>],
+    folds: &FoldSpec,
+    buf: &mut Columns,
+) -> Result<Vec<f64>> {
     let p = form.n_linear() + 1;
     let nf = folds.train.len();
-    let mut buf = vec![Vec::new(); form.n_linear()];
     let mut best = vec![(f64::INFINITY, 0usize); nf];
-    form.features_grid(frame, &rows.x, &tr.grid, &mut buf, &mut |gi, feats| {
+    form.features_grid(frame, &rows.x, &tr.grid, buf, &mut |gi, feats| {
         let (g_u, h_u) = unit_stats_of(feats, rows);
         for (f, b) in best.iter_mut().enumerate() {
             let t = folds.target_of_fold[f];
@@ -452,7 +468,7 @@ pub fn choose_theta(
             let (g_u, h_u) = match refined.entry(z.to_bits()) {
                 std::collections::hash_map::Entry::Occupied(e) => e.into_mut(),
                 std::collections::hash_map::Entry::Vacant(e) => {
-                    e.insert(unit_stats(form, frame, rows, from(z), &mut buf)?)
+                    e.insert(unit_stats(form, frame, rows, from(z), buf)?)
                 }
             };
             Ok(train_sse(g_u, &h_u[t], &yy_u[t], &folds.train[f], p))
@@ -498,7 +514,7 @@ pub fn scan_rows<'a>(
     tr: &ThetaRange,
     x: &EffectData<'a>,
     units: &[Vec<Range<usize>>],
-    targets: &[&[f64]],
+    targets: &[&'a [f64]],
     pooled_store: &'a mut Vec<f64>,
 ) -> Result<ScanRows<'a>> {
     let covs = form.covariates();
@@ -511,14 +527,14 @@ pub fn scan_rows<'a>(
         Ok(ScanRows {
             x: xd,
             w: Some(w),
-            sy,
+            sy: sy.into_iter().map(Cow::Owned).collect(),
             units: pu.into_iter().map(|r| vec![r]).collect(),
         })
     } else {
         Ok(ScanRows {
             x: x.clone(),
             w: None,
-            sy: targets.iter().map(|t| t.to_vec()).collect(),
+            sy: targets.iter().map(|t| Cow::Borrowed(*t)).collect(),
             units: units.to_vec(),
         })
     }
@@ -564,10 +580,10 @@ pub fn fit_form(
             choose_theta(form, frame, &tr, &rows, &yy, &spec)?[0]
         }
     };
-    let mut buf = vec![Vec::new(); form.n_linear()];
-    form.features(frame, x, theta, &mut buf)?;
-    let g = design_gram(&buf, None, 0..n);
-    let h = design_xy(&buf, y, 0..n);
+    let (g, h) = super::with_columns(form.n_linear(), |buf| -> Result<_> {
+        form.features(frame, x, theta, buf)?;
+        Ok((design_gram(buf, None, 0..n), design_xy(buf, y, 0..n)))
+    })?;
     let beta = solve(&g, &h).ok_or_else(|| crate::err!("fit: singular normal equations"))?;
     Ok(FormFit {
         theta,
@@ -600,9 +616,10 @@ mod tests {
         let feats = vec![col(0.37), col(1.3)];
         let w: Vec<f64> = (0..n).map(|i| 1.0 + (i % 5) as f64).collect();
         let sy = vec![col(0.11), col(2.9)];
+        let sy_cow: Vec<Cow<[f64]>> = sy.iter().map(|v| Cow::Borrowed(&v[..])).collect();
         for r in [0..n, 17..18, 40..131, 5..5] {
-            let one = super::unit_moments::<1>(&feats[..1], &w, &sy, r.clone());
-            let two = super::unit_moments::<2>(&feats, &w, &sy, r.clone());
+            let one = super::unit_moments::<1>(&feats[..1], &w, &sy_cow, r.clone());
+            let two = super::unit_moments::<2>(&feats, &w, &sy_cow, r.clone());
             for (fused, f) in [(one, &feats[..1]), (two, &feats[..])] {
                 let g = design_gram(f, Some(&w), r.clone());
                 let close = |a: &[f64], b: &[f64]| {

@@ -116,48 +116,51 @@ pub fn evaluate(e: &dyn Effect, prob: &Problem, tg: &Targets) -> Result<CandEval
     let mut beta = vec![Vec::new(); nf];
     let mut unit_sse = vec![f64::NAN; prob.units.len()];
     let mut done = vec![false; nf];
-    let mut buf = vec![Vec::new(); form.n_linear()];
-    for f0 in 0..nf {
-        if done[f0] {
-            continue;
-        }
-        let th = thetas[f0];
-        let same: Vec<usize> = (f0..nf)
-            .filter(|&f| !done[f] && (thetas[f].to_bits() == th.to_bits()))
-            .collect();
-        form.features(&frame, &prob.x, th, &mut buf)?;
-        let g_u: Vec<Vec<f64>> = prob
-            .units
-            .iter()
-            .map(|u| fit::design_gram(&buf, None, u.clone()))
-            .collect();
-        let mut h_cache: BTreeMap<usize, Vec<Vec<f64>>> = BTreeMap::new();
-        for &f in &same {
-            done[f] = true;
-            let t = tg.of_fold[f];
-            let h_u = h_cache.entry(t).or_insert_with(|| {
-                prob.units
-                    .iter()
-                    .map(|u| fit::design_xy(&buf, tslices[t], u.clone()))
-                    .collect()
-            });
-            let mut g = vec![0.0; p * p];
-            let mut h = vec![0.0; p];
-            for (u, tr) in masks[f].iter().enumerate() {
-                if *tr {
-                    add_into(&mut g, &g_u[u]);
-                    add_into(&mut h, &h_u[u]);
-                }
+    // Fleet-sized feature columns, reused between candidates (`with_columns`).
+    with_columns(form.n_linear(), |buf| -> Result<()> {
+        for f0 in 0..nf {
+            if done[f0] {
+                continue;
             }
-            let b = fit::solve(&g, &h).ok_or_else(|| err!("singular normal equations"))?;
-            for (u, tr) in masks[f].iter().enumerate() {
-                if !*tr {
-                    unit_sse[u] = fit::sse(&g_u[u], &h_u[u], tg.yy_u[t][u], &b);
+            let th = thetas[f0];
+            let same: Vec<usize> = (f0..nf)
+                .filter(|&f| !done[f] && (thetas[f].to_bits() == th.to_bits()))
+                .collect();
+            form.features(&frame, &prob.x, th, buf)?;
+            let g_u: Vec<Vec<f64>> = prob
+                .units
+                .iter()
+                .map(|u| fit::design_gram(buf, None, u.clone()))
+                .collect();
+            let mut h_cache: BTreeMap<usize, Vec<Vec<f64>>> = BTreeMap::new();
+            for &f in &same {
+                done[f] = true;
+                let t = tg.of_fold[f];
+                let h_u = h_cache.entry(t).or_insert_with(|| {
+                    prob.units
+                        .iter()
+                        .map(|u| fit::design_xy(buf, tslices[t], u.clone()))
+                        .collect()
+                });
+                let mut g = vec![0.0; p * p];
+                let mut h = vec![0.0; p];
+                for (u, tr) in masks[f].iter().enumerate() {
+                    if *tr {
+                        add_into(&mut g, &g_u[u]);
+                        add_into(&mut h, &h_u[u]);
+                    }
                 }
+                let b = fit::solve(&g, &h).ok_or_else(|| err!("singular normal equations"))?;
+                for (u, tr) in masks[f].iter().enumerate() {
+                    if !*tr {
+                        unit_sse[u] = fit::sse(&g_u[u], &h_u[u], tg.yy_u[t][u], &b);
+                    }
+                }
+                beta[f] = b;
             }
-            beta[f] = b;
         }
-    }
+        Ok(())
+    })?;
     Ok(CandEval {
         fit: CandFit::Fast {
             theta: thetas,
@@ -228,15 +231,17 @@ pub fn predict_fold(e: &dyn Effect, prob: &Problem, ev: &CandEval, f: usize) -> 
         CandFit::Fast { theta, beta } => {
             let form = e.linear_form().expect("fast fit has a form");
             let frame = prob.frame(e)?;
-            let mut buf = vec![Vec::new(); form.n_linear()];
-            form.features(&frame, &prob.x, theta[f], &mut buf)?;
             let b = &beta[f];
             let mut out = vec![b[0]; prob.x.len()];
-            for (col, bj) in buf.iter().zip(&b[1..]) {
-                for (o, v) in out.iter_mut().zip(col) {
-                    *o += bj * v;
+            with_columns(form.n_linear(), |buf| -> Result<()> {
+                form.features(&frame, &prob.x, theta[f], buf)?;
+                for (col, bj) in buf.iter().zip(&b[1..]) {
+                    for (o, v) in out.iter_mut().zip(col.iter()) {
+                        *o += bj * v;
+                    }
                 }
-            }
+                Ok(())
+            })?;
             Ok(out)
         }
         CandFit::Slow { fitted } => {
