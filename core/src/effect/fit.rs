@@ -615,7 +615,7 @@ mod tests {
             |k: f64| -> Vec<f64> { (0..n).map(|i| ((i as f64) * k).sin() + 0.1 * k).collect() };
         let feats = vec![col(0.37), col(1.3)];
         let w: Vec<f64> = (0..n).map(|i| 1.0 + (i % 5) as f64).collect();
-        let sy = vec![col(0.11), col(2.9)];
+        let sy = [col(0.11), col(2.9)];
         let sy_cow: Vec<Cow<[f64]>> = sy.iter().map(|v| Cow::Borrowed(&v[..])).collect();
         for r in [0..n, 17..18, 40..131, 5..5] {
             let one = super::unit_moments::<1>(&feats[..1], &w, &sy_cow, r.clone());
