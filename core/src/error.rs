@@ -280,26 +280,14 @@ impl From<Box<dyn std::error::Error + Send + Sync + 'static>> for Kind {
     }
 }
 
-/// Errors of libraries `?` meets without a kind of their own.
-macro_rules! other_kinds {
-    ($($t:ty),*) => {$(
-        impl From<$t> for Kind {
-            fn from(e: $t) -> Self {
-                Kind::Other(Box::new(e))
-            }
-        }
-    )*};
+/// A thread pool that could not be built (`?` in the validation runners);
+/// any other library's error reaches `Other` through [`Error::other`] or
+/// `.context(…)`.
+impl From<rayon::ThreadPoolBuildError> for Kind {
+    fn from(e: rayon::ThreadPoolBuildError) -> Self {
+        Kind::Other(Box::new(e))
+    }
 }
-other_kinds!(
-    std::fmt::Error,
-    std::num::ParseIntError,
-    std::num::ParseFloatError,
-    std::str::Utf8Error,
-    std::string::FromUtf8Error,
-    url::ParseError,
-    object_store::path::Error,
-    rayon::ThreadPoolBuildError
-);
 
 /// `.context(…)` and `.with_context(|| …)` on a result or an option: the
 /// error (or the absence) said one level up.
