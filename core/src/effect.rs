@@ -72,6 +72,15 @@ impl<'a> EffectData<'a> {
     pub fn names(&self) -> impl Iterator<Item = &str> {
         self.cols.iter().map(|(n, _)| n.as_str())
     }
+    /// Rows `r` of the columns `names` (views, nothing copied); an error
+    /// names a covariate the data lack.
+    pub fn rows_of(&self, names: &[String], r: std::ops::Range<usize>) -> Result<EffectData<'a>> {
+        let mut d = EffectData::new(r.len());
+        for c in names {
+            d.push(c, &self.require(c)?[r.clone()]);
+        }
+        Ok(d)
+    }
 }
 
 /// A candidate unmodelled effect. `fit` must fit the shape *together with a
@@ -263,6 +272,14 @@ pub trait LinearForm: Send + Sync {
         each: &mut dyn FnMut(usize, &Columns) -> Result<()>,
     ) -> Result<()> {
         features_each(self, frame, x, grid, out, each)
+    }
+    /// Covariate widths (one per covariate, in `covariates()` order) within
+    /// which rows may be pooled at their mean without changing a feature
+    /// by more than ~1 % (the θ scan and the CV folds' fits,
+    /// `fit::scan_rows`); `None`: never pool (the default — a form must
+    /// know its features are smooth at that width).
+    fn pool_resolutions(&self, _frame: &Frame) -> Option<Vec<f64>> {
+        None
     }
     /// Reported parameters (contract units) from θ, the feature
     /// coefficients and the fitted offset; returns the parameters and the

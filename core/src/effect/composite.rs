@@ -96,14 +96,15 @@ impl LinearForm for ProductForm {
     }
     fn theta(&self, frame: &Frame) -> Option<ThetaRange> {
         let (fa, fb) = self.split(frame);
-        self.a
-            .theta(&fa)
-            .or_else(|| self.b.theta(&fb))
-            .map(|mut t| {
-                // Rows are not pooled for products: features depend on two covariates.
-                t.resolution = 0.0;
-                t
-            })
+        self.a.theta(&fa).or_else(|| self.b.theta(&fb))
+    }
+    /// Cells of both factors' covariates: a product of two features each
+    /// smooth within its factor's cell.
+    fn pool_resolutions(&self, frame: &Frame) -> Option<Vec<f64>> {
+        let (fa, fb) = self.split(frame);
+        let mut r = self.a.pool_resolutions(&fa)?;
+        r.extend(self.b.pool_resolutions(&fb)?);
+        Some(r)
     }
     fn features(&self, frame: &Frame, x: &EffectData, theta: f64, out: &mut Columns) -> Result<()> {
         let (fa, fb) = self.split(frame);

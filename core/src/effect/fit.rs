@@ -6,11 +6,12 @@
 //! y'y once per *unit* (a run, or a block of a run) lets every fold of the
 //! leave-runs-out cross-validation fit from the sum over its training units
 //! and score each held-out unit exactly as y'y − 2β'X'y + β'X'Xβ — no row is
-//! touched per fold ("Speed"). For the θ scan of a one-covariate
-//! form, rows are first pooled into bins of the covariate finer than θ's
-//! resolution (`ThetaRange::resolution`), so each grid value costs a pass over
-//! bins, not rows; the chosen θ is then refined by golden section and the
-//! held-out score is computed exactly on rows.
+//! touched per fold ("Speed"). For the θ scan, rows are first pooled into
+//! cells of the form's covariates (`LinearForm::pool_resolutions`: θ's
+//! resolution, or a thousandth of a linear covariate's range), so each grid
+//! value costs a pass over cells, not rows; the chosen θ is then refined by
+//! golden section. The CV folds fit at their θ on finer cells and score
+//! their held-out units exactly on rows (docs/models.md §8.1).
 
 use std::borrow::Cow;
 use std::ops::Range;
@@ -178,27 +179,101 @@ pub fn fold_groups(train: &[Vec<bool>], n_units: usize) -> Vec<Vec<usize>> {
     groups
 }
 
-/// Pooled covariate, counts, Σy per target, pooled unit ranges.
-pub type Pooled = (Vec<f64>, Vec<f64>, Vec<Vec<f64>>, Vec<Range<usize>>);
+/// Pooled covariates (a column each), counts, Σy per target, pooled unit
+/// ranges.
+pub type Pooled = (Vec<Vec<f64>>, Vec<f64>, Vec<Vec<f64>>, Vec<Range<usize>>);
 
 /// Per-unit X'X, and X'y per target per unit.
 type UnitStats = (Vec<Vec<f64>>, Vec<Vec<Vec<f64>>>);
 
+/// At most this many bins per covariate: beyond that pooling saves nothing.
+const MAX_POOL_BINS: f64 = 65_536.0;
+
 /// Pools the rows of each unit — a unit being one or more row ranges —
-/// into bins of width `res` of one covariate (bin value = mean covariate
-/// inside). Returns the pooled covariate, the counts, Σy per target and the
-/// pooled unit ranges (one per unit).
+/// into cells of width `res[j]` of each covariate `cols[j]` counted from
+/// `mins[j]` (cell value = the mean of each covariate inside). Returns the
+/// pooled covariates, the counts, Σy per target and the pooled unit ranges
+/// (one per unit); cells in ascending order, sums in row order.
 pub fn pool_rows(
-    c: &[f64],
-    c_min: f64,
-    res: f64,
+    cols: &[&[f64]],
+    mins: &[f64],
+    res: &[f64],
     units: &[Vec<Range<usize>>],
     targets: &[&[f64]],
 ) -> Pooled {
-    let span = c.iter().fold(0.0f64, |m, v| m.max(v - c_min));
-    // At most 1<<16 bins: beyond that pooling saves nothing.
-    let res = res.max(span / 65_536.0).max(1e-300);
-    let nb = (span / res) as usize + 1;
+    let dims: Vec<(f64, f64, usize)> = cols
+        .iter()
+        .zip(mins)
+        .zip(res)
+        .map(|((c, &c_min), &r)| {
+            let span = c.iter().fold(0.0f64, |m, v| m.max(v - c_min));
+            let r = r.max(span / MAX_POOL_BINS).max(1e-300);
+            (c_min, r, (span / r) as usize + 1)
+        })
+        .collect();
+    if let ([c], [(c_min, r, nb)]) = (cols, dims.as_slice()) {
+        return pool_rows_1d(c, *c_min, *r, *nb, units, targets);
+    }
+    let bin = |j: usize, i: usize| -> u128 {
+        let (c_min, r, nb) = dims[j];
+        (((cols[j][i] - c_min) / r) as usize).min(nb - 1) as u128
+    };
+    let nd = cols.len();
+    let mut xc: Vec<Vec<f64>> = vec![Vec::new(); nd];
+    let (mut w, mut out_units) = (Vec::new(), Vec::new());
+    let mut sy: Vec<Vec<f64>> = vec![Vec::new(); targets.len()];
+    let mut keyed: Vec<(u128, usize)> = Vec::new();
+    let mut sc = vec![0.0f64; nd];
+    let mut st = vec![0.0f64; targets.len()];
+    for u in units {
+        // Several covariates: too many cells for dense sums, so the unit's
+        // rows are sorted by (cell, row) and equal cells summed in row order.
+        keyed.clear();
+        keyed.extend(u.iter().flat_map(Range::clone).map(|i| {
+            let key = (0..nd).fold(0u128, |k, j| (k << 20) | bin(j, i));
+            (key, i)
+        }));
+        keyed.sort_unstable();
+        let start = w.len();
+        let mut a = 0;
+        while a < keyed.len() {
+            let key = keyed[a].0;
+            let mut cnt = 0.0;
+            sc.iter_mut().for_each(|v| *v = 0.0);
+            st.iter_mut().for_each(|v| *v = 0.0);
+            while a < keyed.len() && keyed[a].0 == key {
+                let i = keyed[a].1;
+                cnt += 1.0;
+                for (s, c) in sc.iter_mut().zip(cols) {
+                    *s += c[i];
+                }
+                for (s, y) in st.iter_mut().zip(targets) {
+                    *s += y[i];
+                }
+                a += 1;
+            }
+            for (x, s) in xc.iter_mut().zip(&sc) {
+                x.push(s / cnt);
+            }
+            w.push(cnt);
+            for (t, s) in sy.iter_mut().zip(&st) {
+                t.push(*s);
+            }
+        }
+        out_units.push(start..w.len());
+    }
+    (xc, w, sy, out_units)
+}
+
+/// [`pool_rows`] of one covariate: dense bins, no sort.
+fn pool_rows_1d(
+    c: &[f64],
+    c_min: f64,
+    res: f64,
+    nb: usize,
+    units: &[Vec<Range<usize>>],
+    targets: &[&[f64]],
+) -> Pooled {
     let (mut xc, mut w, mut out_units) = (Vec::new(), Vec::new(), Vec::new());
     let mut sy: Vec<Vec<f64>> = vec![Vec::new(); targets.len()];
     let mut cnt = vec![0.0f64; nb];
@@ -232,7 +307,7 @@ pub fn pool_rows(
         }
         out_units.push(start..xc.len());
     }
-    (xc, w, sy, out_units)
+    (vec![xc], w, sy, out_units)
 }
 
 /// Folds as seen by the fitter: which units train each fold, and which
@@ -505,39 +580,93 @@ fn choose_theta_in(
     Ok(out)
 }
 
-/// Builds the scan rows of a form over `x` (pooled when the form has one
-/// covariate and a positive resolution). `units`: the row ranges of each
-/// scan unit (a group of [`fold_groups`]).
+/// Coefficients [offset, coefs…] of each fold `f < thetas.len()` fitted at
+/// its θ on the pooled scan rows of its training groups (`folds.train[f]`
+/// over the groups of `rows`). The held-out score needs only the fold's
+/// own rows at its θ, so each row is evaluated once for all folds instead
+/// of once per fold (`ThetaRange::resolution` bounds what pooling changes;
+/// docs/models.md §8 "Cross-validation").
+pub fn pooled_fold_betas(
+    form: &dyn LinearForm,
+    frame: &Frame,
+    rows: &ScanRows,
+    thetas: &[f64],
+    folds: &FoldSpec,
+) -> Result<Vec<Vec<f64>>> {
+    let p = form.n_linear() + 1;
+    super::with_columns(form.n_linear(), |buf| {
+        let mut at: Vec<(u64, UnitStats)> = Vec::new();
+        let mut out = Vec::with_capacity(thetas.len());
+        for (f, &th) in thetas.iter().enumerate() {
+            let i = match at.iter().position(|(b, _)| *b == th.to_bits()) {
+                Some(i) => i,
+                None => {
+                    at.push((th.to_bits(), unit_stats(form, frame, rows, th, buf)?));
+                    at.len() - 1
+                }
+            };
+            let (g_u, h_u) = &at[i].1;
+            let t = folds.target_of_fold[f];
+            let mut g = vec![0.0; p * p];
+            let mut h = vec![0.0; p];
+            for (u, train) in folds.train[f].iter().enumerate() {
+                if *train {
+                    add_into(&mut g, &g_u[u]);
+                    add_into(&mut h, &h_u[t][u]);
+                }
+            }
+            match solve(&g, &h) {
+                Some(b) => out.push(b),
+                None => bail!("singular normal equations"),
+            }
+        }
+        Ok(out)
+    })
+}
+
+/// Builds the scan rows of a form over `x`: pooled into cells of the
+/// covariates at the form's pooling resolutions divided by `finer`
+/// ([`LinearForm::pool_resolutions`]), or the original rows when it has
+/// none. `units`: the row ranges of each scan unit (a group of
+/// [`fold_groups`]).
+#[allow(clippy::too_many_arguments)]
 pub fn scan_rows<'a>(
     form: &dyn LinearForm,
     frame: &Frame,
-    tr: &ThetaRange,
     x: &EffectData<'a>,
     units: &[Vec<Range<usize>>],
     targets: &[&'a [f64]],
-    pooled_store: &'a mut Vec<f64>,
+    finer: f64,
+    pooled_store: &'a mut Vec<Vec<f64>>,
 ) -> Result<ScanRows<'a>> {
     let covs = form.covariates();
-    if covs.len() == 1 && tr.resolution > 0.0 {
-        let c = x.require(&covs[0])?;
-        let (xc, w, sy, pu) = pool_rows(c, frame[0].min, tr.resolution, units, targets);
-        *pooled_store = xc;
-        let pooled: &'a Vec<f64> = pooled_store;
-        let xd = EffectData::new(pooled.len()).with(&covs[0], pooled);
-        Ok(ScanRows {
-            x: xd,
-            w: Some(w),
-            sy: sy.into_iter().map(Cow::Owned).collect(),
-            units: pu.into_iter().map(|r| vec![r]).collect(),
-        })
-    } else {
-        Ok(ScanRows {
+    let res = form
+        .pool_resolutions(frame)
+        .filter(|r| r.len() == covs.len() && r.iter().all(|v| *v > 0.0 && v.is_finite()));
+    let Some(res) = res else {
+        return Ok(ScanRows {
             x: x.clone(),
             w: None,
             sy: targets.iter().map(|t| Cow::Borrowed(*t)).collect(),
             units: units.to_vec(),
-        })
+        });
+    };
+    let cols: Vec<&[f64]> = covs.iter().map(|c| x.require(c)).collect::<Result<_>>()?;
+    let mins: Vec<f64> = frame.iter().map(|s| s.min).collect();
+    let res: Vec<f64> = res.iter().map(|r| r / finer).collect();
+    let (xc, w, sy, pu) = pool_rows(&cols, &mins, &res, units, targets);
+    *pooled_store = xc;
+    let pooled: &'a Vec<Vec<f64>> = pooled_store;
+    let mut xd = EffectData::new(w.len());
+    for (c, v) in covs.iter().zip(pooled) {
+        xd.push(c, v);
     }
+    Ok(ScanRows {
+        x: xd,
+        w: Some(w),
+        sy: sy.into_iter().map(Cow::Owned).collect(),
+        units: pu.into_iter().map(|r| vec![r]).collect(),
+    })
 }
 
 /// One least-squares fit of a form: θ (NaN when linear), coefficients of
@@ -570,7 +699,7 @@ pub fn fit_form(
         None => f64::NAN,
         Some(tr) => {
             let mut store = Vec::new();
-            let rows = scan_rows(form, frame, &tr, x, &units, &[y], &mut store)?;
+            let rows = scan_rows(form, frame, x, &units, &[y], 1.0, &mut store)?;
             let yy = vec![vec![dot(y, y)]];
             let train = vec![vec![true]];
             let spec = FoldSpec {
@@ -641,18 +770,91 @@ mod tests {
         let c: Vec<f64> = (0..100).map(|i| (i % 10) as f64).collect();
         let y: Vec<f64> = (0..100).map(|i| i as f64).collect();
         let unit = |r: Range<usize>| vec![r];
-        let (xc, w, sy, u) = pool_rows(&c, 0.0, 0.5, &[unit(0..50), unit(50..100)], &[&y]);
+        let (xc, w, sy, u) = pool_rows(&[&c], &[0.0], &[0.5], &[unit(0..50), unit(50..100)], &[&y]);
         assert_eq!(u.len(), 2);
-        assert_eq!(xc.len(), 20);
+        assert_eq!(xc[0].len(), 20);
         assert_eq!(w.iter().sum::<f64>(), 100.0);
         assert!((sy[0].iter().sum::<f64>() - y.iter().sum::<f64>()).abs() < 1e-9);
         // A unit of two ranges pools them into one set of bins.
-        let (xc, w, sy, u) = pool_rows(&c, 0.0, 0.5, &[vec![0..30, 70..100]], &[&y]);
+        let (xc, w, sy, u) = pool_rows(&[&c], &[0.0], &[0.5], &[vec![0..30, 70..100]], &[&y]);
         assert_eq!(u, vec![0..10]);
-        assert_eq!(xc, (0..10).map(f64::from).collect::<Vec<_>>());
+        assert_eq!(xc[0], (0..10).map(f64::from).collect::<Vec<_>>());
         assert_eq!(w, vec![6.0; 10]);
         let want: f64 = (0..30).chain(70..100).map(f64::from).sum();
         assert_eq!(sy[0].iter().sum::<f64>(), want);
+    }
+
+    /// Two covariates: one cell per (a, b) pair that occurs, cells in
+    /// ascending (a, b) order, each holding its rows' count, mean
+    /// covariates and Σy — what a product form's scan is computed on.
+    #[test]
+    fn pooling_on_two_covariates_keeps_each_cells_sums() {
+        let a: Vec<f64> = (0..100).map(|i| (i % 10) as f64).collect();
+        let b: Vec<f64> = (0..100)
+            .map(|i| if i % 3 == 0 { -1.0 } else { 1.0 })
+            .collect();
+        let y: Vec<f64> = (0..100).map(|i| (i * i) as f64).collect();
+        let (xc, w, sy, u) =
+            pool_rows(&[&a, &b], &[0.0, -1.0], &[0.5, 0.5], &[vec![0..100]], &[&y]);
+        assert_eq!(u, vec![0..20]);
+        let mut cells: Vec<(f64, f64)> = a.iter().copied().zip(b.iter().copied()).collect();
+        cells.sort_by(|p, q| p.partial_cmp(q).unwrap());
+        cells.dedup();
+        assert_eq!(cells.len(), 20);
+        for (c, (va, vb)) in cells.iter().enumerate() {
+            let rows: Vec<usize> = (0..100).filter(|&i| a[i] == *va && b[i] == *vb).collect();
+            assert_eq!((xc[0][c], xc[1][c]), (*va, *vb));
+            assert_eq!(w[c], rows.len() as f64);
+            assert_eq!(sy[0][c], rows.iter().map(|&i| y[i]).sum::<f64>());
+        }
+    }
+
+    /// Folds fitted on pooled cells land on the exact least squares of the
+    /// rows within what pooling changes (a drift shape, θ fixed).
+    #[test]
+    fn pooled_fold_fits_are_the_row_fits() {
+        let n = 20_000;
+        let t: Vec<f64> = (0..n)
+            .map(|i| (i as f64 * 0.618_034).fract() * 50.0)
+            .collect();
+        let y: Vec<f64> = t
+            .iter()
+            .enumerate()
+            .map(|(i, v)| {
+                // The halves differ, so a fold that trained on the wrong
+                // units would be far off.
+                let amp = if i < n / 2 { 2.0 } else { 3.0 };
+                0.3 + amp * (1.0 - (-v / 7.0).exp()) + 0.01 * ((i * 7919) % 13) as f64
+            })
+            .collect();
+        let form = super::super::Shape {
+            kind: super::super::Kind::Drift,
+            covs: vec!["t_s".into()],
+        };
+        let frame = vec![super::super::CovStats::from_values(&t)];
+        let x = EffectData::new(n).with("t_s", &t);
+        let units = [vec![0..n / 2], vec![n / 2..n]];
+        let train = [vec![true, false], vec![true, true]];
+        let spec = FoldSpec {
+            train: &train,
+            target_of_fold: &[0, 0],
+        };
+        let mut store = Vec::new();
+        let rows = scan_rows(&form, &frame, &x, &units, &[&y], 8.0, &mut store).unwrap();
+        assert!(rows.w.is_some() && rows.x.len() < n);
+        let pooled = pooled_fold_betas(&form, &frame, &rows, &[7.0, 7.0], &spec).unwrap();
+        let exact = |r: Range<usize>| {
+            super::super::with_columns(1, |buf| {
+                form.features(&frame, &x, 7.0, buf).unwrap();
+                let (g, h) = (design_gram(buf, None, r.clone()), design_xy(buf, &y, r));
+                solve(&g, &h).unwrap()
+            })
+        };
+        for (b, want) in pooled.iter().zip([exact(0..n / 2), exact(0..n)]) {
+            for (p, q) in b.iter().zip(&want) {
+                assert!((p - q).abs() < 1e-4 * (1.0 + q.abs()), "{b:?} vs {want:?}");
+            }
+        }
     }
 
     /// Units are grouped by the folds that train on them (here: the units

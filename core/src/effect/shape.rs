@@ -10,6 +10,9 @@ pub struct Shape {
     pub covs: Vec<String>,
 }
 
+/// Cells over a covariate's range within which a form without θ pools rows.
+const LINEAR_POOL_BINS: f64 = 1024.0;
+
 /// Grid values between exact sin_cos evaluations of the periodic scan.
 const ROTATION_ANCHOR: usize = 256;
 
@@ -93,6 +96,24 @@ impl LinearForm for Shape {
         }
     }
 
+    /// θ forms: θ's resolution; the others (linear in their covariates,
+    /// or the bow's parabola) a thousandth of each covariate's range —
+    /// pooled at the cell mean, a linear feature's sum is exact.
+    fn pool_resolutions(&self, frame: &Frame) -> Option<Vec<f64>> {
+        if let Some(t) = self.theta(frame) {
+            return Some(vec![t.resolution]);
+        }
+        Some(
+            frame
+                .iter()
+                .map(|s| match s.range() {
+                    r if r > 0.0 && r.is_finite() => r / LINEAR_POOL_BINS,
+                    // A constant covariate: one cell, whatever its width.
+                    _ => 1.0,
+                })
+                .collect(),
+        )
+    }
     fn features(&self, frame: &Frame, x: &EffectData, theta: f64, out: &mut Columns) -> Result<()> {
         let n = x.len();
         for o in out.iter_mut() {

@@ -61,6 +61,10 @@ pub struct CandEval {
     pub unit_sse: Vec<f64>,
 }
 
+/// How much finer than a form's θ-scan resolution the CV folds' training
+/// rows are pooled: a feature changes by well under 1 % inside a bin.
+const TRAIN_POOL_FINER: f64 = 8.0;
+
 /// Cross-validates one candidate against the current targets.
 pub fn evaluate(e: &dyn Effect, prob: &Problem, tg: &Targets) -> Result<CandEval> {
     let masks = prob.train_masks();
@@ -70,6 +74,9 @@ pub fn evaluate(e: &dyn Effect, prob: &Problem, tg: &Targets) -> Result<CandEval
     };
     let nf = masks.len();
     let tslices: Vec<&[f64]> = tg.distinct.iter().map(|t| t.as_slice()).collect();
+    // Coefficients of folds 0..k fitted on pooled rows (one-covariate θ
+    // forms; see below); `None` for a fold fitted on rows.
+    let mut pooled_beta: Vec<Option<Vec<f64>>> = vec![None; nf];
     let thetas: Vec<f64> = match form.theta(&frame) {
         None => vec![f64::NAN; nf],
         Some(tr) => {
@@ -99,17 +106,41 @@ pub fn evaluate(e: &dyn Effect, prob: &Problem, tg: &Targets) -> Result<CandEval
             let rows = scan_rows(
                 form.as_ref(),
                 &frame,
-                &tr,
                 &prob.x,
                 &group_rows,
                 &tslices,
+                1.0,
                 &mut store,
             )?;
             let spec = FoldSpec {
                 train: &group_train,
                 target_of_fold: &tg.of_fold,
             };
-            choose_theta(form.as_ref(), &frame, &tr, &rows, &group_yy, &spec)?
+            let thetas = choose_theta(form.as_ref(), &frame, &tr, &rows, &group_yy, &spec)?;
+            if rows.w.is_some() {
+                // The CV folds fit at their own θ on the training groups'
+                // rows pooled finer than the scan's (`TRAIN_POOL_FINER`),
+                // so a row is evaluated once for every fold's held-out
+                // score instead of once per fold; fold k (all runs: the
+                // reported fit) stays exact on rows.
+                let mut fine_store = Vec::new();
+                let fine_rows = scan_rows(
+                    form.as_ref(),
+                    &frame,
+                    &prob.x,
+                    &group_rows,
+                    &tslices,
+                    TRAIN_POOL_FINER,
+                    &mut fine_store,
+                )?;
+                let k = prob.k;
+                let betas =
+                    fit::pooled_fold_betas(form.as_ref(), &frame, &fine_rows, &thetas[..k], &spec)?;
+                for (slot, b) in pooled_beta.iter_mut().zip(betas) {
+                    *slot = Some(b);
+                }
+            }
+            thetas
         }
     };
     let p = form.n_linear() + 1;
@@ -123,8 +154,27 @@ pub fn evaluate(e: &dyn Effect, prob: &Problem, tg: &Targets) -> Result<CandEval
                 continue;
             }
             let th = thetas[f0];
+            if let Some(b) = pooled_beta[f0].take() {
+                // Held-out units only, each on its own rows at the fold's θ.
+                done[f0] = true;
+                let t = tg.of_fold[f0];
+                let covs = form.covariates();
+                for (u, train) in masks[f0].iter().enumerate() {
+                    if !*train {
+                        let r = prob.units[u].clone();
+                        form.features(&frame, &prob.x.rows_of(&covs, r.clone())?, th, buf)?;
+                        let g = fit::design_gram(buf, None, 0..r.len());
+                        let h = fit::design_xy(buf, &tslices[t][r.clone()], 0..r.len());
+                        unit_sse[u] = fit::sse(&g, &h, tg.yy_u[t][u], &b);
+                    }
+                }
+                beta[f0] = b;
+                continue;
+            }
             let same: Vec<usize> = (f0..nf)
-                .filter(|&f| !done[f] && (thetas[f].to_bits() == th.to_bits()))
+                .filter(|&f| {
+                    !done[f] && pooled_beta[f].is_none() && thetas[f].to_bits() == th.to_bits()
+                })
                 .collect();
             form.features(&frame, &prob.x, th, buf)?;
             let g_u: Vec<Vec<f64>> = prob
