@@ -191,16 +191,20 @@ const MAX_POOL_BINS: f64 = 65_536.0;
 
 /// Pools the rows of each unit — a unit being one or more row ranges —
 /// into cells of width `res[j]` of each covariate `cols[j]` counted from
-/// `mins[j]` (cell value = the mean of each covariate inside). Returns the
+/// `mins[j]` (cell value = the mean of each covariate inside). Rows may
+/// themselves be pooled cells: `weights` are their counts and `targets`
+/// their Σy, so coarse cells come from fine ones without the rows. Returns the
 /// pooled covariates, the counts, Σy per target and the pooled unit ranges
 /// (one per unit); cells in ascending order, sums in row order.
 pub fn pool_rows(
     cols: &[&[f64]],
     mins: &[f64],
     res: &[f64],
+    weights: Option<&[f64]>,
     units: &[Vec<Range<usize>>],
     targets: &[&[f64]],
 ) -> Pooled {
+    let wt = |i: usize| weights.map_or(1.0, |w| w[i]);
     let dims: Vec<(f64, f64, usize)> = cols
         .iter()
         .zip(mins)
@@ -212,7 +216,7 @@ pub fn pool_rows(
         })
         .collect();
     if let ([c], [(c_min, r, nb)]) = (cols, dims.as_slice()) {
-        return pool_rows_1d(c, *c_min, *r, *nb, units, targets);
+        return pool_rows_1d(c, (*c_min, *r, *nb), weights, units, targets);
     }
     let bin = |j: usize, i: usize| -> u128 {
         let (c_min, r, nb) = dims[j];
@@ -243,9 +247,10 @@ pub fn pool_rows(
             st.iter_mut().for_each(|v| *v = 0.0);
             while a < keyed.len() && keyed[a].0 == key {
                 let i = keyed[a].1;
-                cnt += 1.0;
+                let wi = wt(i);
+                cnt += wi;
                 for (s, c) in sc.iter_mut().zip(cols) {
-                    *s += c[i];
+                    *s += wi * c[i];
                 }
                 for (s, y) in st.iter_mut().zip(targets) {
                     *s += y[i];
@@ -268,9 +273,8 @@ pub fn pool_rows(
 /// [`pool_rows`] of one covariate: dense bins, no sort.
 fn pool_rows_1d(
     c: &[f64],
-    c_min: f64,
-    res: f64,
-    nb: usize,
+    (c_min, res, nb): (f64, f64, usize),
+    weights: Option<&[f64]>,
     units: &[Vec<Range<usize>>],
     targets: &[&[f64]],
 ) -> Pooled {
@@ -287,8 +291,10 @@ fn pool_rows_1d(
             if cnt[b] == 0.0 {
                 touched.push(b);
             }
-            cnt[b] += 1.0;
-            sc[b] += c[i];
+            // × 1.0 is exact: rows pool to the same bits with or without weights.
+            let wi = weights.map_or(1.0, |w| w[i]);
+            cnt[b] += wi;
+            sc[b] += wi * c[i];
             for (t, y) in targets.iter().enumerate() {
                 st[t][b] += y[i];
             }
@@ -654,19 +660,51 @@ pub fn scan_rows<'a>(
     let cols: Vec<&[f64]> = covs.iter().map(|c| x.require(c)).collect::<Result<_>>()?;
     let mins: Vec<f64> = frame.iter().map(|s| s.min).collect();
     let res: Vec<f64> = res.iter().map(|r| r / finer).collect();
-    let (xc, w, sy, pu) = pool_rows(&cols, &mins, &res, units, targets);
-    *pooled_store = xc;
-    let pooled: &'a Vec<Vec<f64>> = pooled_store;
-    let mut xd = EffectData::new(w.len());
-    for (c, v) in covs.iter().zip(pooled) {
-        xd.push(c, v);
+    let pooled = pool_rows(&cols, &mins, &res, None, units, targets);
+    Ok(pooled_scan_rows(&covs, pooled, pooled_store))
+}
+
+/// Scan rows over pooled cells, their covariate columns kept in `store`.
+fn pooled_scan_rows<'a>(
+    covs: &[String],
+    (xc, w, sy, pu): Pooled,
+    store: &'a mut Vec<Vec<f64>>,
+) -> ScanRows<'a> {
+    *store = xc;
+    let columns: &'a Vec<Vec<f64>> = store;
+    let mut x = EffectData::new(w.len());
+    for (c, v) in covs.iter().zip(columns) {
+        x.push(c, v);
     }
-    Ok(ScanRows {
-        x: xd,
+    ScanRows {
+        x,
         w: Some(w),
         sy: sy.into_iter().map(Cow::Owned).collect(),
         units: pu.into_iter().map(|r| vec![r]).collect(),
-    })
+    }
+}
+
+/// Pooled scan rows pooled again into the form's own (coarser) cells:
+/// the θ scan's rows from the CV folds' finer ones without another pass
+/// over the rows. `rows` must be pooled ([`scan_rows`] with `finer` ≥ 1).
+pub fn coarser<'a>(
+    form: &dyn LinearForm,
+    frame: &Frame,
+    rows: &ScanRows,
+    pooled_store: &'a mut Vec<Vec<f64>>,
+) -> Result<ScanRows<'a>> {
+    let covs = form.covariates();
+    let (Some(res), Some(w)) = (form.pool_resolutions(frame), rows.w.as_deref()) else {
+        bail!("coarser cells of rows that are not pooled");
+    };
+    let cols: Vec<&[f64]> = covs
+        .iter()
+        .map(|c| rows.x.require(c))
+        .collect::<Result<_>>()?;
+    let mins: Vec<f64> = frame.iter().map(|s| s.min).collect();
+    let targets: Vec<&[f64]> = rows.sy.iter().map(|t| t.as_ref()).collect();
+    let pooled = pool_rows(&cols, &mins, &res, Some(w), &rows.units, &targets);
+    Ok(pooled_scan_rows(&covs, pooled, pooled_store))
 }
 
 /// One least-squares fit of a form: θ (NaN when linear), coefficients of
@@ -770,13 +808,20 @@ mod tests {
         let c: Vec<f64> = (0..100).map(|i| (i % 10) as f64).collect();
         let y: Vec<f64> = (0..100).map(|i| i as f64).collect();
         let unit = |r: Range<usize>| vec![r];
-        let (xc, w, sy, u) = pool_rows(&[&c], &[0.0], &[0.5], &[unit(0..50), unit(50..100)], &[&y]);
+        let (xc, w, sy, u) = pool_rows(
+            &[&c],
+            &[0.0],
+            &[0.5],
+            None,
+            &[unit(0..50), unit(50..100)],
+            &[&y],
+        );
         assert_eq!(u.len(), 2);
         assert_eq!(xc[0].len(), 20);
         assert_eq!(w.iter().sum::<f64>(), 100.0);
         assert!((sy[0].iter().sum::<f64>() - y.iter().sum::<f64>()).abs() < 1e-9);
         // A unit of two ranges pools them into one set of bins.
-        let (xc, w, sy, u) = pool_rows(&[&c], &[0.0], &[0.5], &[vec![0..30, 70..100]], &[&y]);
+        let (xc, w, sy, u) = pool_rows(&[&c], &[0.0], &[0.5], None, &[vec![0..30, 70..100]], &[&y]);
         assert_eq!(u, vec![0..10]);
         assert_eq!(xc[0], (0..10).map(f64::from).collect::<Vec<_>>());
         assert_eq!(w, vec![6.0; 10]);
@@ -794,8 +839,14 @@ mod tests {
             .map(|i| if i % 3 == 0 { -1.0 } else { 1.0 })
             .collect();
         let y: Vec<f64> = (0..100).map(|i| (i * i) as f64).collect();
-        let (xc, w, sy, u) =
-            pool_rows(&[&a, &b], &[0.0, -1.0], &[0.5, 0.5], &[vec![0..100]], &[&y]);
+        let (xc, w, sy, u) = pool_rows(
+            &[&a, &b],
+            &[0.0, -1.0],
+            &[0.5, 0.5],
+            None,
+            &[vec![0..100]],
+            &[&y],
+        );
         assert_eq!(u, vec![0..20]);
         let mut cells: Vec<(f64, f64)> = a.iter().copied().zip(b.iter().copied()).collect();
         cells.sort_by(|p, q| p.partial_cmp(q).unwrap());

@@ -102,37 +102,36 @@ pub fn evaluate(e: &dyn Effect, prob: &Problem, tg: &Targets) -> Result<CandEval
                         .collect()
                 })
                 .collect();
-            let mut store = Vec::new();
-            let rows = scan_rows(
+            // The CV folds' training cells first (`TRAIN_POOL_FINER`), the
+            // θ scan's coarser cells from them: one pass over the rows.
+            let mut fine_store = Vec::new();
+            let fine_rows = scan_rows(
                 form.as_ref(),
                 &frame,
                 &prob.x,
                 &group_rows,
                 &tslices,
-                1.0,
-                &mut store,
+                TRAIN_POOL_FINER,
+                &mut fine_store,
             )?;
+            let mut store = Vec::new();
+            let coarse_rows;
+            let rows = if fine_rows.w.is_some() {
+                coarse_rows = fit::coarser(form.as_ref(), &frame, &fine_rows, &mut store)?;
+                &coarse_rows
+            } else {
+                &fine_rows
+            };
             let spec = FoldSpec {
                 train: &group_train,
                 target_of_fold: &tg.of_fold,
             };
-            let thetas = choose_theta(form.as_ref(), &frame, &tr, &rows, &group_yy, &spec)?;
-            if rows.w.is_some() {
-                // The CV folds fit at their own θ on the training groups'
-                // rows pooled finer than the scan's (`TRAIN_POOL_FINER`),
-                // so a row is evaluated once for every fold's held-out
-                // score instead of once per fold; fold k (all runs: the
-                // reported fit) stays exact on rows.
-                let mut fine_store = Vec::new();
-                let fine_rows = scan_rows(
-                    form.as_ref(),
-                    &frame,
-                    &prob.x,
-                    &group_rows,
-                    &tslices,
-                    TRAIN_POOL_FINER,
-                    &mut fine_store,
-                )?;
+            let thetas = choose_theta(form.as_ref(), &frame, &tr, rows, &group_yy, &spec)?;
+            if fine_rows.w.is_some() {
+                // Each CV fold fits at its own θ on its training groups'
+                // fine cells, so a row is evaluated once for every fold's
+                // held-out score instead of once per fold; fold k (all
+                // runs: the reported fit) stays exact on rows.
                 let k = prob.k;
                 let betas =
                     fit::pooled_fold_betas(form.as_ref(), &frame, &fine_rows, &thetas[..k], &spec)?;

@@ -96,7 +96,7 @@ impl Engine {
         if let (Some(h), Some(d)) = (&self.history, diagnosis.0.as_ref()) {
             self.append_history(h, d, outcome, out, progress)?;
         }
-        let rkey = self.fleet_report(&mut cache, &fleet_dir, outcome, &diagnosis)?;
+        let rkey = self.fleet_report(&mut cache, &fleet_dir, outcome, &diagnosis, progress)?;
         self.fleet_index(&mut cache, out, outcome, &rkey)?;
         let records: Vec<&StageRecord> = cache.records.iter().collect();
         write_json_atomic(&fleet_dir.join(cache::RUN_CACHE_FILE), &records)?;
@@ -230,6 +230,7 @@ impl Engine {
             .collect();
         progress.message("diagnosing the sim-to-real gap");
         let d = diagnose::diagnose_checked(&joined, dcfg, &scopes).context("fleet diagnosis")?;
+        progress.message("writing the diagnosis");
         cache.write(
             "diagnose",
             DIAGNOSE_STAGE_VERSION,
@@ -273,6 +274,7 @@ impl Engine {
         fleet_dir: &Path,
         outcome: &mut FleetOutcome,
         (diagnosis, diagnosis_html): &(Option<diagnose::Diagnosis>, Option<String>),
+        progress: &dyn Progress,
     ) -> Result<String> {
         let mut rkey = KeyBuilder::new("fleet-report");
         rkey.part("version", &report::REPORT_VERSION.to_string())
@@ -302,6 +304,7 @@ impl Engine {
         rkey.part("trend", &trend);
         let rkey = rkey.finish();
         if !cache.reuse("report", fleet_dir, &rkey) {
+            progress.message("writing the fleet report");
             let html = report::fleet_page(
                 &self.checked.report,
                 outcome,
