@@ -27,3 +27,24 @@ pub fn keep_freed_memory() {
         }
     }
 }
+
+/// Gives the pages of freed allocations back to the kernel, in every
+/// malloc arena. Called between the fleet steps of `aggregate` and `run`:
+/// the join reads thousands of per-run tables in small buffers that are
+/// freed once concatenated; kept by the allocator (they sit between live
+/// allocations, so no ordinary trim reaches them), they were ≈ 150 B per
+/// observation row of resident memory through the diagnosis and the
+/// report. A no-op off glibc.
+pub fn release_freed_memory() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    {
+        extern "C" {
+            fn malloc_trim(pad: usize) -> std::ffi::c_int;
+        }
+        // SAFETY: malloc_trim only returns free pages to the kernel; it is
+        // thread-safe (it locks each arena in turn).
+        unsafe {
+            malloc_trim(0);
+        }
+    }
+}

@@ -101,8 +101,9 @@ fn bin_ids(v: &[f64], sorted: &[f64], bins: usize) -> Vec<u32> {
 }
 
 /// Aggregates every binning of one observable. `covs`: (name, values in
-/// row order, the same values sorted); `g`/`r`: gap and held-out residual.
-pub fn cells(covs: &[(&str, &[f64], &[f64])], g: &[f64], r: &[f64]) -> Result<Vec<Cell>> {
+/// row order); `g`/`r`: gap and held-out residual. Each covariate is sorted
+/// here for its quantile edges and the sorted copy let go at once.
+pub fn cells(covs: &[(&str, &[f64])], g: &[f64], r: &[f64]) -> Result<Vec<Cell>> {
     let n = g.len();
     let g2: Vec<f64> = g.iter().map(|v| v * v).collect();
     let r2: Vec<f64> = r.iter().map(|v| v * v).collect();
@@ -111,22 +112,25 @@ pub fn cells(covs: &[(&str, &[f64], &[f64])], g: &[f64], r: &[f64]) -> Result<Ve
         pl::Column::new("g2".into(), g2),
         pl::Column::new("r2".into(), r2),
     ];
-    // 1-D binnings.
+    // 1-D binnings, and the position tiles' axes while each is sorted.
     let mut plans: Vec<(String, Vec<String>)> = Vec::new();
-    for (i, (name, v, s)) in covs.iter().enumerate() {
+    let (mut tile_x, mut tile_y) = (None, None);
+    for (i, (name, v)) in covs.iter().enumerate() {
+        let s = super::gather::sorted(v);
         base.push(pl::Column::new(
             format!("b{i}").into(),
-            bin_ids(v, s, QUANTILE_BINS),
+            bin_ids(v, &s, QUANTILE_BINS),
         ));
+        match *name {
+            "x_mm" => tile_x = Some(bin_ids(v, &s, TILE_BINS)),
+            "y_mm" => tile_y = Some(bin_ids(v, &s, TILE_BINS)),
+            _ => {}
+        }
         base.push(pl::Column::new(format!("v{i}").into(), v.to_vec()));
         plans.push((format!("b{i}"), vec![name.to_string()]));
     }
     // 2-D tiles over the positions x_mm, y_mm.
-    let ix = covs.iter().position(|c| c.0 == "x_mm");
-    let iy = covs.iter().position(|c| c.0 == "y_mm");
-    if let (Some(ix), Some(iy)) = (ix, iy) {
-        let bx = bin_ids(covs[ix].1, covs[ix].2, TILE_BINS);
-        let by = bin_ids(covs[iy].1, covs[iy].2, TILE_BINS);
+    if let (Some(bx), Some(by)) = (tile_x, tile_y) {
         let t: Vec<u32> = bx.iter().zip(&by).map(|(a, b)| a * 64 + b).collect();
         base.push(pl::Column::new("bxy".into(), t));
         plans.push(("bxy".into(), vec!["x_mm".into(), "y_mm".into()]));
@@ -279,13 +283,11 @@ mod tests {
         let d: Vec<f64> = (0..120)
             .map(|i| if i % 2 == 0 { -1.0 } else { 1.0 })
             .collect();
-        let mut ds = d.clone();
-        ds.sort_by(f64::total_cmp);
         let g: Vec<f64> = v
             .iter()
             .map(|x| if *x >= 100.0 { 1.0 } else { 0.0 })
             .collect();
-        let c = cells(&[("x_mm", &v, &v), ("dir", &d, &ds)], &g, &g).unwrap();
+        let c = cells(&[("x_mm", &v), ("dir", &d)], &g, &g).unwrap();
         let xs: Vec<&Cell> = c.iter().filter(|c| c.covariate == "x_mm").collect();
         assert_eq!(xs.len(), QUANTILE_BINS);
         assert_eq!(xs.iter().map(|c| c.n).sum::<usize>(), 120);

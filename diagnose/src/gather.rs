@@ -10,12 +10,29 @@ use super::effect::CovStats;
 use super::observations::Table;
 use super::Notes;
 
-/// One covariate of an observable: values in row order, sorted, constants.
+/// One covariate of an observable: values in row order and constants (its
+/// sorted values are not kept: the cells sort again, one covariate at a
+/// time, rather than hold a second copy of every covariate through the
+/// analysis).
 pub struct Cov {
     pub name: String,
     pub v: Vec<f64>,
-    pub sorted: Vec<f64>,
     pub stats: CovStats,
+}
+
+impl Cov {
+    /// A covariate and its constants (from its values sorted).
+    pub fn new(name: String, v: Vec<f64>) -> Cov {
+        let stats = CovStats::from_sorted(&sorted(&v));
+        Cov { name, v, stats }
+    }
+}
+
+/// The values ascending (NaN last).
+pub fn sorted(v: &[f64]) -> Vec<f64> {
+    let mut s = v.to_vec();
+    s.sort_unstable_by(f64::total_cmp);
+    s
 }
 
 /// The rows of one observable and what the later steps read from them.
@@ -75,22 +92,11 @@ pub fn gather(table: &Table, oi: usize, notes: &mut Notes) -> ObsRows {
             s = i;
         }
     }
-    // Covariates: gathered, sorted once (frames and cell edges).
+    // Covariates: gathered, with their constants (frames).
     let gathered: Vec<Cov> = table
         .covs
         .par_iter()
-        .map(|(name, v)| {
-            let v: Vec<f64> = rows.iter().map(|&i| v[i]).collect();
-            let mut sorted = v.clone();
-            sorted.sort_unstable_by(f64::total_cmp);
-            let stats = CovStats::from_sorted(&sorted);
-            Cov {
-                name: name.clone(),
-                v,
-                sorted,
-                stats,
-            }
-        })
+        .map(|(name, v)| Cov::new(name.clone(), rows.iter().map(|&i| v[i]).collect()))
         .collect();
     let mut cols = Vec::new();
     for c in gathered {

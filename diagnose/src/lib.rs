@@ -117,18 +117,17 @@ impl Accum {
         }
     }
 
-    /// Adds one observable's results (its table rows `rows`).
+    /// Adds one observable's results: its accumulator's slot p is table
+    /// row `rows[p]`.
     fn merge(&mut self, o: Accum, rows: &[usize]) {
-        for &i in rows {
-            self.residual_all[i] = o.residual_all[i];
+        for (&i, r) in rows.iter().zip(&o.residual_all) {
+            self.residual_all[i] = *r;
         }
+        let n = self.residual_all.len();
         for (k, v) in o.contrib_cols {
-            let col = self
-                .contrib_cols
-                .entry(k)
-                .or_insert_with(|| vec![0.0; v.len()]);
-            for &i in rows {
-                col[i] = v[i];
+            let col = self.contrib_cols.entry(k).or_insert_with(|| vec![0.0; n]);
+            for (&i, c) in rows.iter().zip(&v) {
+                col[i] = *c;
             }
         }
         for k in o.selected_keys {
@@ -222,9 +221,17 @@ fn diagnose_observable(
     acc: &mut Accum,
     notes: &mut Notes,
 ) -> Result<()> {
-    let o = gather::gather(table, oi, notes);
-    let mut plain = Accum::new(table.n);
+    let mut o = gather::gather(table, oi, notes);
+    // Each pass's accumulator holds a slot per row of the observable (not
+    // per row of the fleet): slot p is table row `o.rows[p]`.
+    let every: Vec<usize> = (0..o.n()).collect();
+    let mut plain = Accum::new(o.n());
     let mut plain_notes = Notes::default();
+    let slots = Slots {
+        analysed: &every,
+        trimmed: &[],
+        trimmed_slots: &[],
+    };
     analyse(
         table,
         &o,
@@ -233,9 +240,9 @@ fn diagnose_observable(
         scopes,
         &mut plain,
         &mut plain_notes,
-        &[],
+        &slots,
     )?;
-    let resid: Vec<f64> = o.rows.iter().map(|&i| plain.residual_all[i]).collect();
+    let resid: Vec<f64> = plain.residual_all.clone();
     let (out, sigma, thr) = match outliers::detect(&o, &resid) {
         Ok(found) => found,
         Err(why) => {
@@ -251,11 +258,21 @@ fn diagnose_observable(
         return Ok(());
     }
     let kept = o.without(&out);
+    // The robust pass reads `kept`'s covariates; the full rows' copies go.
+    o.cols = Vec::new();
+    let kept_slots: Vec<usize> = (0..o.n())
+        .filter(|p| out.binary_search(p).is_err())
+        .collect();
     let trimmed: Vec<usize> = out.iter().map(|&p| o.rows[p]).collect();
-    let mut robust = Accum::new(table.n);
-    analyse(table, &kept, oi, cfg, scopes, &mut robust, notes, &trimmed)?;
+    let mut robust = Accum::new(o.n());
+    let slots = Slots {
+        analysed: &kept_slots,
+        trimmed: &trimmed,
+        trimmed_slots: &out,
+    };
+    analyse(table, &kept, oi, cfg, scopes, &mut robust, notes, &slots)?;
     let before: f64 = o.gap.iter().map(|g| g * g).sum();
-    let after: f64 = o.rows.iter().map(|&i| robust.residual_all[i].powi(2)).sum();
+    let after: f64 = robust.residual_all.iter().map(|r| r.powi(2)).sum();
     let rep = outliers::report(&o, &out, &resid, &table.run_names, &table.run, sigma, thr);
     notes.add(format!(
         "{}: {} isolated outliers ({:.2} % of rows, |residual| > {}σ robust = {}) trimmed from fits and scores",
@@ -273,9 +290,18 @@ fn diagnose_observable(
     Ok(())
 }
 
+/// Where one pass over an observable writes its per-row results in its
+/// accumulator (a slot per row of the observable's gather): analysed row
+/// p to slot `analysed[p]`, trimmed outlier k (table row `trimmed[k]`),
+/// which gets the all-runs fits' contributions, to `trimmed_slots[k]`.
+pub struct Slots<'a> {
+    pub analysed: &'a [usize],
+    pub trimmed: &'a [usize],
+    pub trimmed_slots: &'a [usize],
+}
+
 /// noise → folds → candidates → select → intervals → machines → cells for
-/// the rows of `o`, into `acc`; `extra_rows` (table rows trimmed as
-/// outliers) get the all-runs fits' contributions.
+/// the rows of `o`, into `acc` at `slots`.
 #[allow(clippy::too_many_arguments)]
 fn analyse(
     table: &Table,
@@ -285,7 +311,7 @@ fn analyse(
     scopes: &[EffectScope],
     acc: &mut Accum,
     notes: &mut Notes,
-    extra_rows: &[usize],
+    slots: &Slots,
 ) -> Result<()> {
     let n = o.n();
     let nf = noise::floor_of(table, o);
@@ -340,7 +366,7 @@ fn analyse(
         cfg,
     ));
     let obs_selected =
-        output::record_selected(table, o, &prob, &cands, &sel, nf.sigma_mm, extra_rows, acc)?;
+        output::record_selected(table, o, &prob, &cands, &sel, nf.sigma_mm, slots, acc)?;
     if !above {
         notes.add(format!("{}: no gap above noise", o.name));
     }
@@ -420,10 +446,10 @@ fn analyse(
         stop_reason: sel.stop_reason.clone(),
     });
     // Cells of this observable: covariates, then machines.
-    let cov_refs: Vec<(&str, &[f64], &[f64])> = o
+    let cov_refs: Vec<(&str, &[f64])> = o
         .cols
         .iter()
-        .map(|c| (c.name.as_str(), c.v.as_slice(), c.sorted.as_slice()))
+        .map(|c| (c.name.as_str(), c.v.as_slice()))
         .collect();
     let mut cs = if cov_refs.is_empty() {
         Vec::new()

@@ -139,17 +139,7 @@ impl ObsRows {
             cols: self
                 .cols
                 .iter()
-                .map(|c| {
-                    let v = pick(&c.v);
-                    let mut sorted = v.clone();
-                    sorted.sort_unstable_by(f64::total_cmp);
-                    super::gather::Cov {
-                        name: c.name.clone(),
-                        stats: super::effect::CovStats::from_sorted(&sorted),
-                        v,
-                        sorted,
-                    }
-                })
+                .map(|c| super::gather::Cov::new(c.name.clone(), pick(&c.v)))
                 .collect(),
         }
     }

@@ -176,7 +176,7 @@ pub fn effect_entries(
 
 /// Selected effects of one observable into the fleet accumulators: keys,
 /// explained variance, per-row contributions, augmented model, residual.
-/// `extra_rows` (trimmed outliers) get the all-runs fits' predictions.
+/// Trimmed outliers (`slots.trimmed`) get the all-runs fits' predictions.
 /// Returns the observable's selected keys.
 #[allow(clippy::too_many_arguments)]
 pub fn record_selected(
@@ -186,9 +186,11 @@ pub fn record_selected(
     cands: &[&dyn Effect],
     sel: &Selection,
     sigma_mm: f64,
-    extra_rows: &[usize],
+    slots: &crate::Slots,
     acc: &mut Accum,
 ) -> Result<Vec<String>> {
+    let extra_rows = slots.trimmed;
+    let n_slots = acc.residual_all.len();
     let mut extra_resid: Vec<f64> = extra_rows.iter().map(|&i| table.gap[i]).collect();
     let mut obs_selected = Vec::new();
     for (j, &ci) in sel.chosen.iter().enumerate() {
@@ -206,14 +208,19 @@ pub fn record_selected(
         let col = acc
             .contrib_cols
             .entry(key.clone())
-            .or_insert_with(|| vec![0.0; table.n]);
-        for (pos, &i) in o.rows.iter().enumerate() {
-            col[i] = sel.contrib[j][pos];
+            .or_insert_with(|| vec![0.0; n_slots]);
+        for (&slot, c) in slots.analysed.iter().zip(&sel.contrib[j]) {
+            col[slot] = *c;
         }
         if !extra_rows.is_empty() {
             let pred = predict_rows(e, &prob.x, &sel.final_targets[j], table, extra_rows)?;
-            for ((&i, p), r) in extra_rows.iter().zip(pred).zip(extra_resid.iter_mut()) {
-                col[i] = p;
+            for ((&slot, p), r) in slots
+                .trimmed_slots
+                .iter()
+                .zip(pred)
+                .zip(extra_resid.iter_mut())
+            {
+                col[slot] = p;
                 *r -= p;
             }
         }
@@ -271,11 +278,11 @@ pub fn record_selected(
                 .collect(),
         });
     }
-    for (pos, &i) in o.rows.iter().enumerate() {
-        acc.residual_all[i] = sel.residual[pos];
+    for (&slot, r) in slots.analysed.iter().zip(&sel.residual) {
+        acc.residual_all[slot] = *r;
     }
-    for (&i, r) in extra_rows.iter().zip(extra_resid) {
-        acc.residual_all[i] = r;
+    for (&slot, r) in slots.trimmed_slots.iter().zip(extra_resid) {
+        acc.residual_all[slot] = r;
     }
     Ok(obs_selected)
 }

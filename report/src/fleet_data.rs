@@ -9,7 +9,6 @@ use std::path::Path;
 
 use arrow::array::{Array, AsArray, RecordBatch};
 use arrow::datatypes::DataType as ArrowType;
-use polars::prelude::*;
 
 use crate::error::Result;
 
@@ -29,11 +28,12 @@ pub struct FleetRows {
     pub num: BTreeMap<String, Vec<f64>>,
 }
 
-/// The named columns of a Parquet file (those it has), one batch: only
-/// what is drawn is read (a 1000-run fleet has millions of rows).
-fn read_columns(path: &Path, wanted: impl Fn(&str) -> bool) -> Result<RecordBatch> {
+/// The named columns of a Parquet file (those it has), in batches: only
+/// what is drawn is read (a 1000-run fleet has millions of rows), and the
+/// batches are not concatenated — the page copies what it keeps out of
+/// them, so the fleet's columns are never held twice.
+fn read_columns(path: &Path, wanted: impl Fn(&str) -> bool) -> Result<Vec<RecordBatch>> {
     use crate::Context;
-    use arrow::record_batch::RecordBatchReader;
     use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
     use parquet::arrow::ProjectionMask;
     let file = std::fs::File::open(path)
@@ -50,11 +50,30 @@ fn read_columns(path: &Path, wanted: impl Fn(&str) -> bool) -> Result<RecordBatc
         .collect();
     let mask = ProjectionMask::roots(b.parquet_schema(), idx);
     let reader = b.with_projection(mask).with_batch_size(65_536).build()?;
-    let schema = reader.schema();
     let batches = reader
         .collect::<std::result::Result<Vec<_>, _>>()
         .with_context(|| format!("{}: cannot read", path.display()))?;
-    Ok(arrow::compute::concat_batches(&schema, &batches)?)
+    Ok(batches)
+}
+
+/// Rows in all batches.
+fn rows_of(batches: &[RecordBatch]) -> usize {
+    batches.iter().map(RecordBatch::num_rows).sum()
+}
+
+/// Column `name` of every batch as text (None when a batch lacks it).
+fn utf8_all(batches: &[RecordBatch], name: &str) -> Option<Vec<arrow::array::ArrayRef>> {
+    batches.iter().map(|b| utf8(b, name)).collect()
+}
+
+/// Column `name` of every batch as one float column (None when it is not
+/// numeric or a batch lacks it).
+fn floats_all(batches: &[RecordBatch], name: &str) -> Option<Vec<f64>> {
+    let mut out = Vec::with_capacity(rows_of(batches));
+    for b in batches {
+        out.extend(floats(b.column_by_name(name)?.as_ref())?);
+    }
+    Some(out)
 }
 
 fn utf8(b: &RecordBatch, name: &str) -> Option<arrow::array::ArrayRef> {
@@ -93,66 +112,100 @@ impl FleetRows {
                 observations.display()
             )
         };
-        let run = utf8(&ob, "run").ok_or_else(|| need("run"))?;
-        let obs = utf8(&ob, "observable").ok_or_else(|| need("observable"))?;
-        let machine = utf8(&ob, "machine");
-        let (run_s, obs_s) = (run.as_string::<i32>(), obs.as_string::<i32>());
+        let n = rows_of(&ob);
+        let run = utf8_all(&ob, "run").ok_or_else(|| need("run"))?;
+        let obs = utf8_all(&ob, "observable").ok_or_else(|| need("observable"))?;
+        let machine = utf8_all(&ob, "machine");
         let mut groups: BTreeMap<(String, String), Vec<usize>> = BTreeMap::new();
         {
-            // Group ids through a small map of borrowed keys: one String
-            // pair per group, not per row.
-            let mut ids: std::collections::HashMap<(&str, &str), Vec<usize>> =
-                std::collections::HashMap::new();
-            let m_s = machine.as_ref().map(|m| m.as_string::<i32>());
-            for i in 0..ob.num_rows() {
-                let m = m_s.map(|m| m.value(i)).unwrap_or("");
-                ids.entry((m, obs_s.value(i))).or_default().push(i);
+            // Rows come in runs of one (machine, observable): one String
+            // pair per run of rows, not per row.
+            let mut current: Option<((String, String), Vec<usize>)> = None;
+            let mut row = 0;
+            for (bi, o) in obs.iter().enumerate() {
+                let o_s = o.as_string::<i32>();
+                let m_s = machine.as_ref().map(|m| m[bi].as_string::<i32>());
+                for i in 0..o_s.len() {
+                    let (m, o) = (m_s.map(|m| m.value(i)).unwrap_or(""), o_s.value(i));
+                    match &mut current {
+                        Some(((cm, co), rows)) if cm == m && co == o => rows.push(row),
+                        _ => {
+                            if let Some((k, rows)) = current.take() {
+                                groups.entry(k).or_default().extend(rows);
+                            }
+                            current = Some(((m.to_string(), o.to_string()), vec![row]));
+                        }
+                    }
+                    row += 1;
+                }
             }
-            for ((m, o), rows) in ids {
-                groups.insert((m.to_string(), o.to_string()), rows);
+            if let Some((k, rows)) = current {
+                groups.entry(k).or_default().extend(rows);
             }
         }
+        drop((obs, machine));
         let mut num = BTreeMap::new();
-        for (f, a) in ob.schema().fields().iter().zip(ob.columns()) {
-            if covariates.iter().any(|c| c == f.name()) {
-                if let Some(v) = floats(a.as_ref()) {
-                    num.insert(f.name().clone(), v);
+        if let Some(first) = ob.first() {
+            for f in first.schema().fields() {
+                if covariates.iter().any(|c| c == f.name()) {
+                    if let Some(v) = floats_all(&ob, f.name()) {
+                        num.insert(f.name().clone(), v);
+                    }
                 }
             }
         }
-        let col_of = |n: &str| ob.column_by_name(n).and_then(|a| floats(a.as_ref()));
-        let sim = col_of("sim").ok_or_else(|| need("sim"))?;
-        let real = col_of("real").ok_or_else(|| need("real"))?;
-        let mut gap: Vec<f64> = real.iter().zip(&sim).map(|(r, s)| r - s).collect();
-        let mut residual = vec![f64::NAN; ob.num_rows()];
+        let mut gap: Vec<f64> = Vec::with_capacity(n);
+        for b in &ob {
+            let col_of = |c: &str| b.column_by_name(c).and_then(|a| floats(a.as_ref()));
+            let sim = col_of("sim").ok_or_else(|| need("sim"))?;
+            let real = col_of("real").ok_or_else(|| need("real"))?;
+            gap.extend(real.iter().zip(&sim).map(|(r, s)| r - s));
+        }
+        drop(ob);
+        let mut residual = vec![f64::NAN; n];
         if let Some(dp) = diagnosis.filter(|p| p.is_file()) {
-            let d = read_columns(dp, |n| {
-                n == "run" || n == "gap" || n == "residual_after" || n.starts_with("contrib_")
+            let d = read_columns(dp, |c| {
+                c == "run" || c == "gap" || c == "residual_after" || c.starts_with("contrib_")
             })?;
             // Row-aligned by contract; a stale file from another batch is
             // not drawn rather than drawn against the wrong rows.
-            let aligned = d.num_rows() == ob.num_rows()
-                && utf8(&d, "run")
-                    .map(|r| r.as_string::<i32>().iter().eq(run_s.iter()))
+            let aligned = rows_of(&d) == n
+                && utf8_all(&d, "run")
+                    .map(|dr| {
+                        dr.iter()
+                            .flat_map(|x| x.as_string::<i32>().iter())
+                            .eq(run.iter().flat_map(|x| x.as_string::<i32>().iter()))
+                    })
                     .unwrap_or(false);
             if !aligned {
                 crate::bail!(
                     "{}: its {} rows do not line up with the {} rows of {}; rerun `sparkout run` to recompute the diagnosis",
                     dp.display(),
-                    d.num_rows(),
-                    ob.num_rows(),
+                    rows_of(&d),
+                    n,
                     observations.display()
                 );
             }
-            for (f, a) in d.schema().fields().iter().zip(d.columns()) {
-                let Some(v) = floats(a.as_ref()) else {
+            drop(run);
+            let names: Vec<String> = d
+                .first()
+                .map(|b| {
+                    b.schema()
+                        .fields()
+                        .iter()
+                        .map(|f| f.name().clone())
+                        .collect()
+                })
+                .unwrap_or_default();
+            for name in names {
+                let Some(v) = floats_all(&d, &name) else {
                     continue;
                 };
-                match f.name().as_str() {
+                match name.as_str() {
                     "gap" => gap = v,
                     "residual_after" => residual = v,
-                    n if n.starts_with("contrib_") => {
-                        num.insert(n.to_string(), v);
+                    c if c.starts_with("contrib_") => {
+                        num.insert(name.clone(), v);
                     }
                     _ => {}
                 }
@@ -190,60 +243,69 @@ pub struct RunRms {
 }
 
 /// Per (machine, observable): each run's RMS of the gap and of the
-/// held-out residual — a polars group-by over diagnosis.parquet, sorted by
-/// machine, observable, run.
+/// held-out residual, sorted by machine, observable, run. One pass over
+/// diagnosis.parquet's batches summing n, Σgap² and Σresidual² per key —
+/// a group-by whose state is the runs, not the rows: polars' in-memory
+/// group-by held the fleet's key strings and their row encoding at once,
+/// the peak of a 2 000-run `aggregate`'s memory.
 pub fn per_run_rms(diagnosis: &Path) -> Result<BTreeMap<(String, String), Vec<RunRms>>> {
-    let mut lf = LazyFrame::scan_parquet(
-        PlRefPath::new(diagnosis.to_string_lossy().as_ref()),
-        ScanArgsParquet::default(),
-    )?;
-    let has_machine = lf
-        .collect_schema()?
-        .iter_names()
-        .any(|n| n.as_str() == "machine");
-    let keys: Vec<&str> = if has_machine {
-        vec!["machine", "observable", "run"]
-    } else {
-        vec!["observable", "run"]
-    };
-    let df = lf
-        .group_by(keys.iter().map(|k| col(*k)).collect::<Vec<_>>())
-        .agg([
-            col("gap").count().alias("n"),
-            (col("gap") * col("gap")).mean().sqrt().alias("before"),
-            (col("residual_after") * col("residual_after"))
-                .mean()
-                .sqrt()
-                .alias("after"),
-        ])
-        .sort(keys.clone(), SortMultipleOptions::default())
-        .collect()?;
-    let machine = if has_machine {
-        Some(df.column("machine")?.str()?.clone())
-    } else {
-        None
-    };
-    let run = df.column("run")?.str()?.clone();
-    let obs = df.column("observable")?.str()?.clone();
-    let n = df.column("n")?.cast(&polars::prelude::DataType::Int64)?;
-    let n = n.i64()?.clone();
-    let before = df.column("before")?.f64()?.clone();
-    let after = df.column("after")?.f64()?.clone();
+    let batches = read_columns(diagnosis, |c| {
+        matches!(
+            c,
+            "machine" | "observable" | "run" | "gap" | "residual_after"
+        )
+    })?;
+    // (machine, observable, run) → (n, Σgap², Σresidual²)
+    type Sums = (usize, f64, f64);
+    let mut sums: BTreeMap<(String, String, String), Sums> = BTreeMap::new();
+    let mut current: Option<((String, String, String), Sums)> = None;
+    for b in &batches {
+        let text = |c: &str| {
+            utf8(b, c).ok_or_else(|| crate::err!("{}: no column `{c}`", diagnosis.display()))
+        };
+        let (obs, run) = (text("observable")?, text("run")?);
+        let machine = utf8(b, "machine");
+        let num = |c: &str| {
+            b.column_by_name(c)
+                .and_then(|a| floats(a.as_ref()))
+                .ok_or_else(|| crate::err!("{}: no numeric column `{c}`", diagnosis.display()))
+        };
+        let (gap, resid) = (num("gap")?, num("residual_after")?);
+        let (o_s, r_s) = (obs.as_string::<i32>(), run.as_string::<i32>());
+        let m_s = machine.as_ref().map(|m| m.as_string::<i32>());
+        for i in 0..b.num_rows() {
+            let (m, o, r) = (
+                m_s.map(|m| m.value(i)).unwrap_or(""),
+                o_s.value(i),
+                r_s.value(i),
+            );
+            let same = matches!(&current, Some(((cm, co, cr), _)) if cm == m && co == o && cr == r);
+            if !same {
+                if let Some((k, v)) = current.take() {
+                    let e = sums.entry(k).or_insert((0, 0.0, 0.0));
+                    *e = (e.0 + v.0, e.1 + v.1, e.2 + v.2);
+                }
+                current = Some(((m.to_string(), o.to_string(), r.to_string()), (0, 0.0, 0.0)));
+            }
+            if let Some((_, (n, g2, r2))) = &mut current {
+                *n += 1;
+                *g2 += gap[i] * gap[i];
+                *r2 += resid[i] * resid[i];
+            }
+        }
+    }
+    if let Some((k, v)) = current {
+        let e = sums.entry(k).or_insert((0, 0.0, 0.0));
+        *e = (e.0 + v.0, e.1 + v.1, e.2 + v.2);
+    }
     let mut out: BTreeMap<(String, String), Vec<RunRms>> = BTreeMap::new();
-    for i in 0..df.height() {
-        let m = machine
-            .as_ref()
-            .and_then(|m| m.get(i))
-            .unwrap_or("")
-            .to_string();
-        out.entry((m, obs.get(i).unwrap_or("").to_string()))
-            .or_default()
-            .push(RunRms {
-                run: run.get(i).unwrap_or("").to_string(),
-                n: n.get(i).unwrap_or(0) as usize,
-                before: before.get(i).unwrap_or(f64::NAN),
-                after: after.get(i).unwrap_or(f64::NAN),
-            });
+    for ((m, o, run), (n, g2, r2)) in sums {
+        out.entry((m, o)).or_default().push(RunRms {
+            run,
+            n,
+            before: (g2 / n as f64).sqrt(),
+            after: (r2 / n as f64).sqrt(),
+        });
     }
     Ok(out)
 }

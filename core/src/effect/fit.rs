@@ -839,12 +839,13 @@ mod tests {
             .map(|i| if i % 3 == 0 { -1.0 } else { 1.0 })
             .collect();
         let y: Vec<f64> = (0..100).map(|i| (i * i) as f64).collect();
+        let one = |r: Range<usize>| vec![r];
         let (xc, w, sy, u) = pool_rows(
             &[&a, &b],
             &[0.0, -1.0],
             &[0.5, 0.5],
             None,
-            &[vec![0..100]],
+            &[one(0..100)],
             &[&y],
         );
         assert_eq!(u, vec![0..20]);
@@ -884,7 +885,8 @@ mod tests {
         };
         let frame = vec![super::super::CovStats::from_values(&t)];
         let x = EffectData::new(n).with("t_s", &t);
-        let units = [vec![0..n / 2], vec![n / 2..n]];
+        let one = |r: Range<usize>| vec![r];
+        let units = [one(0..n / 2), one(n / 2..n)];
         let train = [vec![true, false], vec![true, true]];
         let spec = FoldSpec {
             train: &train,

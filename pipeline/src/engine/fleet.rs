@@ -96,6 +96,9 @@ impl Engine {
         if let (Some(h), Some(d)) = (&self.history, diagnosis.0.as_ref()) {
             self.append_history(h, d, outcome, out, progress)?;
         }
+        // The diagnosis' columns are freed: their pages go back before the
+        // report reads the fleet tables again.
+        crate::alloc::release_freed_memory();
         let rkey = self.fleet_report(&mut cache, &fleet_dir, outcome, &diagnosis, progress)?;
         self.fleet_index(&mut cache, out, outcome, &rkey)?;
         let records: Vec<&StageRecord> = cache.records.iter().collect();
@@ -114,7 +117,14 @@ impl Engine {
             .filter(|r| r.observations.is_some())
             .collect();
         progress.message(&format!("joining observations of {} runs", runs.len()));
-        let mut batches = Vec::new();
+        // Runs are joined into chunks of JOIN_CHUNK_ROWS rows and the chunks
+        // joined at the end: a run's table as read is many small buffers,
+        // which the allocator keeps once freed, so holding thousands of them
+        // cost twice the joined table's memory; a chunk's columns are each
+        // above glibc's mmap threshold and go back to the kernel when the
+        // final join lets them go (core/src/alloc.rs).
+        let mut chunks = Vec::new();
+        let (mut batches, mut batch_rows) = (Vec::new(), 0);
         let mut produced: BTreeMap<String, BTreeSet<String>> = BTreeMap::new();
         for r in runs {
             let p = r.observations.as_ref().expect("filtered");
@@ -123,9 +133,25 @@ impl Engine {
                 .entry(r.plugin.clone())
                 .or_default()
                 .extend(observable_names(&b));
+            batch_rows += b.num_rows();
             batches.push(b);
+            if batch_rows >= JOIN_CHUNK_ROWS {
+                chunks.push(union_concat(std::mem::take(&mut batches))?);
+                batch_rows = 0;
+            }
         }
-        Ok((union_concat(&batches)?, produced))
+        if !batches.is_empty() || chunks.is_empty() {
+            chunks.push(union_concat(batches)?);
+        }
+        let joined = if chunks.len() == 1 {
+            chunks.pop().expect("one chunk")
+        } else {
+            union_concat(chunks)?
+        };
+        // The per-run tables are freed; hand their pages back before the
+        // diagnosis allocates fleet-sized columns (core/src/alloc.rs).
+        crate::alloc::release_freed_memory();
+        Ok((joined, produced))
     }
 
     /// `fleet/observations.parquet`. The joined table is a function of each
@@ -231,6 +257,8 @@ impl Engine {
         progress.message("diagnosing the sim-to-real gap");
         let d = diagnose::diagnose_checked(&joined, dcfg, &scopes).context("fleet diagnosis")?;
         progress.message("writing the diagnosis");
+        drop(joined);
+        crate::alloc::release_freed_memory();
         cache.write(
             "diagnose",
             DIAGNOSE_STAGE_VERSION,
@@ -473,14 +501,18 @@ pub(super) fn observable_names(batch: &RecordBatch) -> BTreeSet<String> {
     }
 }
 
+/// Rows per partial join in `join_observations`: a float column of a
+/// chunk is 64 MB, above the 32 MiB mmap threshold.
+const JOIN_CHUNK_ROWS: usize = 8_000_000;
+
 /// Concatenate batches whose schemas may differ (different plugins emit
 /// different covariates): the union of columns in first-seen order, nulls
 /// where a batch lacks a column.
-pub fn union_concat(batches: &[RecordBatch]) -> Result<RecordBatch> {
+pub fn union_concat(batches: Vec<RecordBatch>) -> Result<RecordBatch> {
     use arrow::array::new_null_array;
     use arrow::datatypes::{Field, Schema};
     let mut fields: Vec<Field> = Vec::new();
-    for b in batches {
+    for b in &batches {
         for f in b.schema().fields() {
             match fields.iter().position(|g| g.name() == f.name()) {
                 Some(i) => {
@@ -506,14 +538,29 @@ pub fn union_concat(batches: &[RecordBatch]) -> Result<RecordBatch> {
         }
     }
     let schema = Arc::new(Schema::new(fields));
+    // Column by column, each batch's column is let go once it is copied
+    // into the union: the fleet's rows are held once plus one column, not
+    // twice (the join was the peak of `aggregate`'s memory).
+    let mut parts_of: Vec<(usize, BTreeMap<String, arrow::array::ArrayRef>)> = batches
+        .into_iter()
+        .map(|b| {
+            let n = b.num_rows();
+            let (schema, columns, _) = b.into_parts();
+            let named = schema
+                .fields()
+                .iter()
+                .map(|f| f.name().clone())
+                .zip(columns);
+            (n, named.collect())
+        })
+        .collect();
     let mut columns = Vec::new();
     for f in schema.fields() {
-        let parts: Vec<arrow::array::ArrayRef> = batches
-            .iter()
-            .map(|b| {
-                b.column_by_name(f.name())
-                    .cloned()
-                    .unwrap_or_else(|| new_null_array(f.data_type(), b.num_rows()))
+        let parts: Vec<arrow::array::ArrayRef> = parts_of
+            .iter_mut()
+            .map(|(n, cols)| {
+                cols.remove(f.name())
+                    .unwrap_or_else(|| new_null_array(f.data_type(), *n))
             })
             .collect();
         let refs: Vec<&dyn arrow::array::Array> = parts.iter().map(|a| a.as_ref()).collect();
