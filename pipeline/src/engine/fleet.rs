@@ -117,14 +117,7 @@ impl Engine {
             .filter(|r| r.observations.is_some())
             .collect();
         progress.message(&format!("joining observations of {} runs", runs.len()));
-        // Runs are joined into chunks of JOIN_CHUNK_ROWS rows and the chunks
-        // joined at the end: a run's table as read is many small buffers,
-        // which the allocator keeps once freed, so holding thousands of them
-        // cost twice the joined table's memory; a chunk's columns are each
-        // above glibc's mmap threshold and go back to the kernel when the
-        // final join lets them go (core/src/alloc.rs).
-        let mut chunks = Vec::new();
-        let (mut batches, mut batch_rows) = (Vec::new(), 0);
+        let mut joined = ChunkedUnion::new(JOIN_CHUNK_ROWS);
         let mut produced: BTreeMap<String, BTreeSet<String>> = BTreeMap::new();
         for r in runs {
             let p = r.observations.as_ref().expect("filtered");
@@ -133,21 +126,9 @@ impl Engine {
                 .entry(r.plugin.clone())
                 .or_default()
                 .extend(observable_names(&b));
-            batch_rows += b.num_rows();
-            batches.push(b);
-            if batch_rows >= JOIN_CHUNK_ROWS {
-                chunks.push(union_concat(std::mem::take(&mut batches))?);
-                batch_rows = 0;
-            }
+            joined.push(b)?;
         }
-        if !batches.is_empty() || chunks.is_empty() {
-            chunks.push(union_concat(batches)?);
-        }
-        let joined = if chunks.len() == 1 {
-            chunks.pop().expect("one chunk")
-        } else {
-            union_concat(chunks)?
-        };
+        let joined = joined.finish()?;
         // The per-run tables are freed; hand their pages back before the
         // diagnosis allocates fleet-sized columns (core/src/alloc.rs).
         crate::alloc::release_freed_memory();
@@ -505,6 +486,50 @@ pub(super) fn observable_names(batch: &RecordBatch) -> BTreeSet<String> {
 /// chunk is 64 MB, above the 32 MiB mmap threshold.
 const JOIN_CHUNK_ROWS: usize = 8_000_000;
 
+/// [`union_concat`] of many batches, joined into chunks of `chunk_rows`
+/// rows as they arrive and the chunks joined at the end — the same table.
+/// A run's table as read is many small buffers, which the allocator keeps
+/// once freed, so holding thousands of them at once cost twice the joined
+/// table's memory; a chunk's columns are each above glibc's mmap threshold
+/// and go back to the kernel when the final join lets them go
+/// (core/src/alloc.rs).
+pub struct ChunkedUnion {
+    chunk_rows: usize,
+    chunks: Vec<RecordBatch>,
+    pending: Vec<RecordBatch>,
+    pending_rows: usize,
+}
+
+impl ChunkedUnion {
+    pub fn new(chunk_rows: usize) -> ChunkedUnion {
+        ChunkedUnion {
+            chunk_rows,
+            chunks: Vec::new(),
+            pending: Vec::new(),
+            pending_rows: 0,
+        }
+    }
+    pub fn push(&mut self, b: RecordBatch) -> Result<()> {
+        self.pending_rows += b.num_rows();
+        self.pending.push(b);
+        if self.pending_rows >= self.chunk_rows {
+            self.chunks
+                .push(union_concat(std::mem::take(&mut self.pending))?);
+            self.pending_rows = 0;
+        }
+        Ok(())
+    }
+    pub fn finish(mut self) -> Result<RecordBatch> {
+        if !self.pending.is_empty() || self.chunks.is_empty() {
+            self.chunks.push(union_concat(self.pending)?);
+        }
+        match self.chunks.len() {
+            1 => Ok(self.chunks.pop().expect("one chunk")),
+            _ => union_concat(self.chunks),
+        }
+    }
+}
+
 /// Concatenate batches whose schemas may differ (different plugins emit
 /// different covariates): the union of columns in first-seen order, nulls
 /// where a batch lacks a column.
@@ -567,4 +592,54 @@ pub fn union_concat(batches: Vec<RecordBatch>) -> Result<RecordBatch> {
         columns.push(arrow::compute::concat(&refs)?);
     }
     Ok(RecordBatch::try_new(schema, columns)?)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use arrow::array::{ArrayRef, Float64Array, StringArray};
+    use arrow::datatypes::{Field, Schema};
+
+    fn batch(cols: &[(&str, ArrayRef)]) -> RecordBatch {
+        let fields: Vec<Field> = cols
+            .iter()
+            .map(|(n, a)| Field::new(*n, a.data_type().clone(), false))
+            .collect();
+        let arrays: Vec<ArrayRef> = cols.iter().map(|(_, a)| a.clone()).collect();
+        RecordBatch::try_new(Arc::new(Schema::new(fields)), arrays).unwrap()
+    }
+
+    /// Joined in chunks of any size, batches of differing columns give the
+    /// one-shot union: same columns in first-seen order, nullability,
+    /// values and nulls.
+    #[test]
+    fn a_union_joined_in_chunks_is_the_union() {
+        let f = |v: Vec<f64>| -> ArrayRef { Arc::new(Float64Array::from(v)) };
+        let t = |v: Vec<&str>| -> ArrayRef { Arc::new(StringArray::from(v)) };
+        let batches: Vec<RecordBatch> = (0..7)
+            .map(|i| {
+                let x = f(vec![i as f64; 3]);
+                let run = t(vec!["r"; 3]);
+                if i % 3 == 1 {
+                    batch(&[("run", run), ("x", x), ("load_n", f(vec![1.0, 2.0, 3.0]))])
+                } else {
+                    batch(&[("run", run), ("x", x)])
+                }
+            })
+            .collect();
+        let whole = union_concat(batches.clone()).unwrap();
+        assert_eq!(whole.num_rows(), 21);
+        assert!(whole
+            .schema()
+            .field_with_name("load_n")
+            .unwrap()
+            .is_nullable());
+        for chunk_rows in [1, 3, 5, 9, 21, 1000] {
+            let mut c = ChunkedUnion::new(chunk_rows);
+            for b in batches.clone() {
+                c.push(b).unwrap();
+            }
+            assert_eq!(c.finish().unwrap(), whole, "chunks of {chunk_rows} rows");
+        }
+    }
 }
