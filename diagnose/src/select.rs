@@ -39,7 +39,7 @@ use rayon::prelude::*;
 use statrs::distribution::{ContinuousCDF, StudentsT};
 
 use super::effect::{with_columns, CovStats, Effect, EffectData, FittedEffect, Frame};
-use super::fit::{self, add_into, choose_theta, dot, scan_rows, FoldSpec};
+use super::fit::{self, choose_theta, dot, scan_rows, FoldSpec};
 use crate::Result;
 
 mod cross_validate;

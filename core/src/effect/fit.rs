@@ -459,18 +459,34 @@ fn unit_moments<const F: usize>(
     (g, h)
 }
 
-/// Training SSE at the least-squares optimum: y'y − β'h.
-fn train_sse(g_u: &[Vec<f64>], h_u: &[Vec<f64>], yy_u: &[f64], train: &[bool], p: usize) -> f64 {
+/// X'X and X'y of a fold: the sums of its training units' (`train[u]`)
+/// per-unit statistics, in unit order.
+pub fn train_sums(
+    g_u: &[Vec<f64>],
+    h_u: &[Vec<f64>],
+    train: &[bool],
+    p: usize,
+) -> (Vec<f64>, Vec<f64>) {
     let mut g = vec![0.0; p * p];
     let mut h = vec![0.0; p];
-    let mut yy = 0.0;
     for (u, t) in train.iter().enumerate() {
         if *t {
             add_into(&mut g, &g_u[u]);
             add_into(&mut h, &h_u[u]);
-            yy += yy_u[u];
         }
     }
+    (g, h)
+}
+
+/// Training SSE at the least-squares optimum: y'y − β'h.
+fn train_sse(g_u: &[Vec<f64>], h_u: &[Vec<f64>], yy_u: &[f64], train: &[bool], p: usize) -> f64 {
+    let (g, h) = train_sums(g_u, h_u, train, p);
+    let yy: f64 = yy_u
+        .iter()
+        .zip(train)
+        .filter(|(_, t)| **t)
+        .map(|(y, _)| y)
+        .sum();
     match solve(&g, &h) {
         Some(b) => sse(&g, &h, yy, &b),
         None => f64::INFINITY,
@@ -590,8 +606,8 @@ fn choose_theta_in(
 /// its θ on the pooled scan rows of its training groups (`folds.train[f]`
 /// over the groups of `rows`). The held-out score needs only the fold's
 /// own rows at its θ, so each row is evaluated once for all folds instead
-/// of once per fold (`ThetaRange::resolution` bounds what pooling changes;
-/// docs/models.md §8 "Cross-validation").
+/// of once per fold (`LinearForm::pool_resolutions` bounds what pooling
+/// changes; docs/models.md §8.1).
 pub fn pooled_fold_betas(
     form: &dyn LinearForm,
     frame: &Frame,
@@ -613,14 +629,7 @@ pub fn pooled_fold_betas(
             };
             let (g_u, h_u) = &at[i].1;
             let t = folds.target_of_fold[f];
-            let mut g = vec![0.0; p * p];
-            let mut h = vec![0.0; p];
-            for (u, train) in folds.train[f].iter().enumerate() {
-                if *train {
-                    add_into(&mut g, &g_u[u]);
-                    add_into(&mut h, &h_u[t][u]);
-                }
-            }
+            let (g, h) = train_sums(g_u, &h_u[t], &folds.train[f], p);
             match solve(&g, &h) {
                 Some(b) => out.push(b),
                 None => bail!("singular normal equations"),

@@ -146,6 +146,7 @@ pub fn evaluate(e: &dyn Effect, prob: &Problem, tg: &Targets) -> Result<CandEval
     let mut beta = vec![Vec::new(); nf];
     let mut unit_sse = vec![f64::NAN; prob.units.len()];
     let mut done = vec![false; nf];
+    let covs = form.covariates();
     // Fleet-sized feature columns, reused between candidates (`with_columns`).
     with_columns(form.n_linear(), |buf| -> Result<()> {
         for f0 in 0..nf {
@@ -157,7 +158,6 @@ pub fn evaluate(e: &dyn Effect, prob: &Problem, tg: &Targets) -> Result<CandEval
                 // Held-out units only, each on its own rows at the fold's θ.
                 done[f0] = true;
                 let t = tg.of_fold[f0];
-                let covs = form.covariates();
                 for (u, train) in masks[f0].iter().enumerate() {
                     if !*train {
                         let r = prob.units[u].clone();
@@ -191,14 +191,7 @@ pub fn evaluate(e: &dyn Effect, prob: &Problem, tg: &Targets) -> Result<CandEval
                         .map(|u| fit::design_xy(buf, tslices[t], u.clone()))
                         .collect()
                 });
-                let mut g = vec![0.0; p * p];
-                let mut h = vec![0.0; p];
-                for (u, tr) in masks[f].iter().enumerate() {
-                    if *tr {
-                        add_into(&mut g, &g_u[u]);
-                        add_into(&mut h, &h_u[u]);
-                    }
-                }
+                let (g, h) = fit::train_sums(&g_u, h_u, &masks[f], p);
                 let b = fit::solve(&g, &h).ok_or_else(|| err!("singular normal equations"))?;
                 for (u, tr) in masks[f].iter().enumerate() {
                     if !*tr {
