@@ -295,7 +295,7 @@ fn run_fleet(
         batch = arrow::record_batch::RecordBatch::try_new(batch.schema(), cols)?;
     }
     let dcfg = DiagnoseConfig::reseeded(dcfg, job.seed)?;
-    let out = diagnose_checked(&batch, &dcfg, &[])?;
+    let out = diagnose_checked(batch, &dcfg, &[])?;
     let d = &out.diagnosis;
     let named = d.selected.first().cloned().unwrap_or_else(|| "none".into());
     let e_energy: f64 = effect.iter().map(|e| e * e).sum();

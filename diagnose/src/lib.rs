@@ -172,13 +172,15 @@ pub fn diagnose_scoped(
     scopes: &[EffectScope],
 ) -> Result<DiagnosisOutput> {
     cfg.check()?;
-    run_diagnosis(obs, cfg, scopes)
+    run_diagnosis(obs.clone(), cfg, scopes)
 }
 
 /// [`diagnose_scoped`] with settings already checked: nothing is checked
-/// or serialised again.
+/// or serialised again. Takes the observations by value: the text and
+/// sim/real columns are let go once the rows are indexed (a fleet's
+/// observations are most of the diagnosis' memory; docs/scale.md).
 pub fn diagnose_checked(
-    obs: &arrow::array::RecordBatch,
+    obs: arrow::array::RecordBatch,
     cfg: &Checked<DiagnoseConfig>,
     scopes: &[EffectScope],
 ) -> Result<DiagnosisOutput> {
@@ -187,12 +189,17 @@ pub fn diagnose_checked(
 
 /// The diagnosis proper, on settings its caller checked.
 fn run_diagnosis(
-    obs: &arrow::array::RecordBatch,
+    obs: arrow::array::RecordBatch,
     cfg: &DiagnoseConfig,
     scopes: &[EffectScope],
 ) -> Result<DiagnosisOutput> {
-    let batch = observations::validate_observations(obs, Path::new("<observations>"))?;
+    let batch = observations::validate_observations(&obs, Path::new("<observations>"))?;
+    drop(obs);
     let table = Table::from_batch(&batch)?;
+    // From here on the rows are the table's ids, gap and covariates; the
+    // later steps that need a batch (per-machine diagnoses) rebuild the
+    // rest from them (`Table::rebuild`).
+    let batch = observations::numeric_columns(batch);
     let mut notes = Notes::default();
     for d in &table.dropped {
         notes.add(format!("covariate {d} has no finite value: skipped"));
@@ -203,12 +210,15 @@ fn run_diagnosis(
         diagnose_observable(&table, oi, cfg, scopes, &mut acc, &mut notes)?;
     }
     let several_machines = table.machine_names.len() > 1;
-    let mut out = output::assemble(&batch, table, cfg, acc, notes)?;
-    if several_machines {
-        out.diagnosis.machine_effects =
-            machines::localised_effects(&batch, &out.diagnosis, cfg, scopes)?;
-    }
-    Ok(out)
+    // The per-machine diagnoses read the rows' covariates (`batch`, moved
+    // into the closure and let go when it returns).
+    output::assemble(table, cfg, acc, notes, move |table, d| {
+        if several_machines {
+            machines::localised_effects(table, &batch, d, cfg, scopes)
+        } else {
+            Ok(Vec::new())
+        }
+    })
 }
 
 /// One observable: gather, a plain pass, and — when it leaves isolated

@@ -156,12 +156,12 @@ pub fn per_machine(
 /// no held-out test there. The sub-table has one machine, so this never
 /// recurses.
 pub fn localised_effects(
-    batch: &arrow::array::RecordBatch,
+    table: &super::observations::Table,
+    numeric: &arrow::array::RecordBatch,
     d: &super::document::Diagnosis,
     cfg: &super::DiagnoseConfig,
     scopes: &[super::EffectScope],
 ) -> crate::Result<Vec<super::document::MachineEffect>> {
-    use arrow::array::{AsArray, BooleanArray};
     let mut pairs: Vec<(String, String)> = d
         .where_
         .iter()
@@ -170,23 +170,20 @@ pub fn localised_effects(
         .collect();
     pairs.sort();
     pairs.dedup();
-    let (Some(m_col), Some(o_col)) = (
-        batch.column_by_name("machine"),
-        batch.column_by_name("observable"),
-    ) else {
-        return Ok(Vec::new());
-    };
-    let m_col = arrow::compute::cast(m_col, &arrow::datatypes::DataType::Utf8)?;
-    let o_col = arrow::compute::cast(o_col, &arrow::datatypes::DataType::Utf8)?;
-    let (m_col, o_col) = (m_col.as_string::<i32>(), o_col.as_string::<i32>());
     let mut found = Vec::new();
     for (observable, machine) in pairs {
-        let keep: BooleanArray = (0..batch.num_rows())
-            .map(|i| Some(m_col.value(i) == machine && o_col.value(i) == observable))
+        let (Some(m), Some(o)) = (
+            table.machine_names.iter().position(|n| *n == machine),
+            table.obs_names.iter().position(|n| *n == observable),
+        ) else {
+            continue;
+        };
+        let rows: Vec<usize> = (0..table.n)
+            .filter(|&i| table.machine[i] as usize == m && table.obs[i] as usize == o)
             .collect();
-        let sub = arrow::compute::filter_record_batch(batch, &keep)?;
+        let sub = table.rebuild(numeric, &rows)?;
         // A machine's own diagnosis needs held-out runs.
-        let Ok(one) = super::run_diagnosis(&sub, cfg, scopes) else {
+        let Ok(one) = super::run_diagnosis(sub, cfg, scopes) else {
             continue;
         };
         let runs = one.diagnosis.per_observable.first().map_or(0, |p| p.runs);

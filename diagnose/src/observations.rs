@@ -139,11 +139,18 @@ pub fn validate_observations(batch: &RecordBatch, path: &Path) -> Result<RecordB
             }
         };
         let v = a.as_primitive::<arrow::datatypes::Float64Type>();
-        let mut out: Vec<Option<f64>> = Vec::with_capacity(v.len());
+        // Converted values are kept only where a `unit` column may convert
+        // them: a fleet's sim and real are 10⁷–10⁸ rows each.
+        let converted = units
+            .as_ref()
+            .is_some_and(|u| u.iter().flatten().any(|u| *u != u.kind.canonical()));
+        let mut out: Vec<Option<f64>> = Vec::with_capacity(if converted { v.len() } else { 0 });
         for i in 0..v.len() {
             if v.is_null(i) {
                 if optional {
-                    out.push(None);
+                    if converted {
+                        out.push(None);
+                    }
                     continue;
                 }
                 return Err(InputError::new(path, "null value")
@@ -154,7 +161,9 @@ pub fn validate_observations(batch: &RecordBatch, path: &Path) -> Result<RecordB
             let x = v.value(i);
             if !x.is_finite() {
                 if optional {
-                    out.push(Some(x));
+                    if converted {
+                        out.push(Some(x));
+                    }
                     continue;
                 }
                 let what = if x.is_nan() { "NaN" } else { "infinite value" };
@@ -183,11 +192,10 @@ pub fn validate_observations(batch: &RecordBatch, path: &Path) -> Result<RecordB
                 };
                 return Err(InputError::new(path, msg).column(name).row(i).into());
             }
-            out.push(Some(c));
+            if converted {
+                out.push(Some(c));
+            }
         }
-        let converted = units
-            .as_ref()
-            .is_some_and(|u| u.iter().flatten().any(|u| *u != u.kind.canonical()));
         if optional && !converted {
             continue;
         }
@@ -262,6 +270,8 @@ pub struct Table {
     /// machines are two runs. Named `machine/run` when the table has a
     /// `machine` column, else by the bare run id.
     pub run_names: Vec<String>,
+    /// Each run unit's `run` value as written (without the machine).
+    pub run_bare: Vec<String>,
     pub run: Vec<u32>,
     /// Sorted machine ids ([""] without a `machine` column) and each row's
     /// index into them.
@@ -285,6 +295,86 @@ pub struct Table {
     /// `real_u`: each row's stated standard uncertainty of `real` (e.g. a
     /// logging resolution step/√12); NaN where not stated.
     pub real_u: Option<ScalarBuffer<f64>>,
+}
+
+/// The observations without the columns [`Table`] holds as ids or as the
+/// gap (text keys, `sim`, `real`, `unit`, `sim_augmented`): what stays are
+/// the covariates and the optional numeric columns (`trial`, `point`,
+/// `real_u`), whose buffers the table shares. [`Table::rebuild`] puts the
+/// rest back for a subset of rows.
+pub fn numeric_columns(b: RecordBatch) -> RecordBatch {
+    let gone = [
+        "machine",
+        "run",
+        "observable",
+        "unit",
+        "sim",
+        "real",
+        "sim_augmented",
+    ];
+    let keep: Vec<usize> = (0..b.num_columns())
+        .filter(|&i| !gone.contains(&b.schema().field(i).name().as_str()))
+        .collect();
+    b.project(&keep).expect("indices are the batch's own")
+}
+
+impl Table {
+    /// A text key column (`machine`, `run` or `observable`) over `rows`,
+    /// from the ids: the values the input held (a run's id as written,
+    /// without its machine).
+    pub fn text_column(&self, name: &str, rows: &[usize]) -> ArrayRef {
+        let text: Vec<&str> = match name {
+            "machine" => rows
+                .iter()
+                .map(|&i| self.machine_names[self.machine[i] as usize].as_str())
+                .collect(),
+            "run" => rows
+                .iter()
+                .map(|&i| self.run_bare[self.run[i] as usize].as_str())
+                .collect(),
+            "observable" => rows
+                .iter()
+                .map(|&i| self.obs_names[self.obs[i] as usize].as_str())
+                .collect(),
+            other => unreachable!("`{other}` is not a key column"),
+        };
+        Arc::new(arrow::array::StringArray::from(text))
+    }
+
+    /// The observations of `rows` as a batch the diagnosis accepts:
+    /// `numeric` (from [`numeric_columns`], all rows) filtered to `rows`,
+    /// with the keys, each observable's unit, `sim` = 0 and `real` = the
+    /// gap (so real − sim is the gap, bit for bit).
+    pub fn rebuild(&self, numeric: &RecordBatch, rows: &[usize]) -> Result<RecordBatch> {
+        let idx = arrow::array::UInt32Array::from_iter_values(rows.iter().map(|&i| i as u32));
+        let mut fields: Vec<Arc<Field>> = Vec::new();
+        let mut cols: Vec<ArrayRef> = Vec::new();
+        let mut keys = vec!["run", "observable"];
+        if self.has_machine {
+            keys.insert(0, "machine");
+        }
+        for k in keys {
+            fields.push(Arc::new(Field::new(k, DataType::Utf8, false)));
+            cols.push(self.text_column(k, rows));
+        }
+        let unit: Vec<&str> = rows
+            .iter()
+            .map(|&i| self.obs_units[self.obs[i] as usize].as_str())
+            .collect();
+        fields.push(Arc::new(Field::new("unit", DataType::Utf8, false)));
+        cols.push(Arc::new(arrow::array::StringArray::from(unit)));
+        fields.push(Arc::new(Field::new("sim", DataType::Float64, false)));
+        cols.push(Arc::new(Float64Array::from(vec![0.0; rows.len()])));
+        fields.push(Arc::new(Field::new("real", DataType::Float64, false)));
+        cols.push(Arc::new(Float64Array::from_iter_values(
+            rows.iter().map(|&i| self.gap[i]),
+        )));
+        for (f, c) in numeric.schema().fields().iter().zip(numeric.columns()) {
+            fields.push(f.clone());
+            cols.push(arrow::compute::take(c, &idx, None)?);
+        }
+        Ok(RecordBatch::try_new(Arc::new(Schema::new(fields)), cols)?)
+    }
 }
 
 /// Sorted distinct strings of a text column and each row's index into
@@ -429,9 +519,11 @@ impl Table {
             pairs.entry((*m, *r)).or_insert(0);
         }
         let mut run_names = Vec::with_capacity(pairs.len());
+        let mut run_bare = Vec::with_capacity(pairs.len());
         for (i, ((m, r), v)) in pairs.iter_mut().enumerate() {
             *v = i as u32;
             let bare = &bare_names[*r as usize];
+            run_bare.push(bare.clone());
             run_names.push(if has_machine {
                 format!("{}/{bare}", machine_names[*m as usize])
             } else {
@@ -481,6 +573,7 @@ impl Table {
         Ok(Table {
             n: b.num_rows(),
             run_names,
+            run_bare,
             run,
             machine_names,
             machine,

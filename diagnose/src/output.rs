@@ -24,17 +24,15 @@ use crate::document::fin;
 pub use crate::document::*;
 
 pub fn per_row_batch(
-    batch: &RecordBatch,
-    has_machine: bool,
+    table: &Table,
     gap: Vec<f64>,
     mut contrib: BTreeMap<String, Vec<f64>>,
     keys: &[String],
     residual: Vec<f64>,
 ) -> Result<RecordBatch> {
-    let to_utf8 = |name: &str| -> Result<ArrayRef> {
-        let a = batch.column_by_name(name).expect("validated");
-        Ok(arrow::compute::cast(a, &DataType::Utf8)?)
-    };
+    let every: Vec<usize> = (0..table.n).collect();
+    let to_utf8 = |name: &str| -> Result<ArrayRef> { Ok(table.text_column(name, &every)) };
+    let has_machine = table.has_machine;
     let mut fields = Vec::new();
     let mut cols: Vec<ArrayRef> = Vec::new();
     if has_machine {
@@ -316,12 +314,15 @@ fn predict_rows(
 }
 
 /// The fleet-level diagnosis from the per-observable results.
+/// `localise` finds the per-machine effects once the document is known
+/// and before the per-row table is built: what it holds (the rows'
+/// covariates) is let go before that table takes its memory.
 pub fn assemble(
-    batch: &RecordBatch,
     mut table: Table,
     cfg: &DiagnoseConfig,
     mut acc: Accum,
     mut notes: Notes,
+    localise: impl FnOnce(&Table, &Diagnosis) -> Result<Vec<MachineEffect>>,
 ) -> Result<DiagnosisOutput> {
     let n_all = table.n;
     if acc.blocked {
@@ -360,7 +361,7 @@ pub fn assemble(
         let w = |k: &String| explained.get(k).copied().unwrap_or(0.0);
         w(b).total_cmp(&w(a))
     });
-    let diagnosis = Diagnosis {
+    let mut diagnosis = Diagnosis {
         version: 1,
         observables: table.obs_names.clone(),
         machines: if table.has_machine {
@@ -397,10 +398,13 @@ pub fn assemble(
         notes: notes.into_vec(),
         machine_effects: Vec::new(),
     };
+    diagnosis.machine_effects = localise(&table, &diagnosis)?;
+    table.covs = Vec::new();
+    table.real_u = None;
+    let gap = std::mem::take(&mut table.gap);
     let per_row = per_row_batch(
-        batch,
-        table.has_machine,
-        std::mem::take(&mut table.gap),
+        &table,
+        gap,
         std::mem::take(&mut acc.contrib_cols),
         &acc.selected_keys,
         std::mem::take(&mut acc.residual_all),

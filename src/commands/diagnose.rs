@@ -74,7 +74,7 @@ pub fn diagnose(observations: &Path, out: &Path, flags: &Flags) -> anyhow::Resul
             effects,
         })
         .collect();
-    let d = diagnose::diagnose_checked(&obs, &cfg, &scopes)?;
+    let d = diagnose::diagnose_checked(obs, &cfg, &scopes)?;
     write_parquet_atomic(&out.join("diagnosis.parquet"), &d.per_row)?;
     write_json_atomic(&out.join("augmented_model.json"), &d.augmented_model)?;
     let page = format!(

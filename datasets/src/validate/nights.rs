@@ -255,7 +255,7 @@ fn night_diagnosis(
         batches.push(sparkout_pipeline::engine::with_machine_column(b, machine)?);
     }
     let batch = arrow::compute::concat_batches(&batches[0].schema(), &batches)?;
-    let out = diagnose_checked(&batch, dcfg, &[])?;
+    let out = diagnose_checked(batch, dcfg, &[])?;
     Ok(out.diagnosis)
 }
 

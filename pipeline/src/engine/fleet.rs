@@ -236,9 +236,8 @@ impl Engine {
             })
             .collect();
         progress.message("diagnosing the sim-to-real gap");
-        let d = diagnose::diagnose_checked(&joined, dcfg, &scopes).context("fleet diagnosis")?;
+        let d = diagnose::diagnose_checked(joined, dcfg, &scopes).context("fleet diagnosis")?;
         progress.message("writing the diagnosis");
-        drop(joined);
         crate::alloc::release_freed_memory();
         cache.write(
             "diagnose",
