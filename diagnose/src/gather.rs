@@ -65,21 +65,29 @@ impl ObsRows {
     }
 }
 
-pub fn gather(table: &Table, oi: usize, notes: &mut Notes) -> ObsRows {
+pub fn gather(table: &Table, oi: usize, notes: &mut Notes) -> crate::Result<ObsRows> {
     let oname = &table.obs_names[oi];
-    let t = table.cov("t_s");
-    let mut rows: Vec<usize> = (0..table.n)
+    // The observable's rows in table order, their covariates read once.
+    let asc: Vec<usize> = (0..table.n)
         .filter(|&i| table.obs[i] as usize == oi)
         .collect();
-    rows.sort_by(|&a, &b| {
-        table.run[a]
-            .cmp(&table.run[b])
+    let names = table.covs.names();
+    let values = table.covs.gather(&asc)?;
+    let t = names.iter().position(|n| n == "t_s").map(|k| &values[k]);
+    // Sorted by run unit, then time, then table order: `order[p]` is the
+    // position in `asc` of the p-th row.
+    let mut order: Vec<usize> = (0..asc.len()).collect();
+    order.sort_by(|&a, &b| {
+        table.run[asc[a]]
+            .cmp(&table.run[asc[b]])
             .then_with(|| match t {
                 Some(t) => t[a].total_cmp(&t[b]),
                 None => std::cmp::Ordering::Equal,
             })
             .then(a.cmp(&b))
     });
+    let rows: Vec<usize> = order.iter().map(|&p| asc[p]).collect();
+    drop(asc);
     let n = rows.len();
     let gap: Vec<f64> = rows.iter().map(|&i| table.gap[i]).collect();
     let run: Vec<u32> = rows.iter().map(|&i| table.run[i]).collect();
@@ -92,11 +100,11 @@ pub fn gather(table: &Table, oi: usize, notes: &mut Notes) -> ObsRows {
             s = i;
         }
     }
-    // Covariates: gathered, with their constants (frames).
-    let gathered: Vec<Cov> = table
-        .covs
+    // Covariates: in the rows' order, with their constants (frames).
+    let gathered: Vec<Cov> = names
         .par_iter()
-        .map(|(name, v)| Cov::new(name.clone(), rows.iter().map(|&i| v[i]).collect()))
+        .zip(values.into_par_iter())
+        .map(|(name, v)| Cov::new(name.clone(), order.iter().map(|&p| v[p]).collect()))
         .collect();
     let mut cols = Vec::new();
     for c in gathered {
@@ -124,17 +132,17 @@ pub fn gather(table: &Table, oi: usize, notes: &mut Notes) -> ObsRows {
             cols.push(c);
         }
     }
-    if table.covs.is_empty() {
+    if table.covs.names().is_empty() {
         notes.add("no covariates: offset only".into());
     } else if cols.is_empty() {
         notes.add(format!("{oname}: no varying covariates: offset only"));
     }
-    ObsRows {
+    Ok(ObsRows {
         name: oname.clone(),
         rows,
         gap,
         run_ranges,
         machine,
         cols,
-    }
+    })
 }

@@ -196,10 +196,20 @@ fn run_diagnosis(
     let batch = observations::validate_observations(&obs, Path::new("<observations>"))?;
     drop(obs);
     let table = Table::from_batch(&batch)?;
-    // From here on the rows are the table's ids, gap and covariates; the
-    // later steps that need a batch (per-machine diagnoses) rebuild the
-    // rest from them (`Table::rebuild`).
-    let batch = observations::numeric_columns(batch);
+    // From here on the rows are the table's ids, gap and covariates (the
+    // batch's covariate buffers, shared); the per-machine diagnoses
+    // rebuild a batch from them (`Table::rebuild`).
+    drop(batch);
+    diagnose_table(table, cfg, scopes)
+}
+
+/// The diagnosis of an indexed table (its covariates in memory or read per
+/// observable from a file).
+pub fn diagnose_table(
+    table: Table,
+    cfg: &DiagnoseConfig,
+    scopes: &[EffectScope],
+) -> Result<DiagnosisOutput> {
     let mut notes = Notes::default();
     for d in &table.dropped {
         notes.add(format!("covariate {d} has no finite value: skipped"));
@@ -210,11 +220,9 @@ fn run_diagnosis(
         diagnose_observable(&table, oi, cfg, scopes, &mut acc, &mut notes)?;
     }
     let several_machines = table.machine_names.len() > 1;
-    // The per-machine diagnoses read the rows' covariates (`batch`, moved
-    // into the closure and let go when it returns).
-    output::assemble(table, cfg, acc, notes, move |table, d| {
+    output::assemble(table, cfg, acc, notes, |table, d| {
         if several_machines {
-            machines::localised_effects(table, &batch, d, cfg, scopes)
+            machines::localised_effects(table, d, cfg, scopes)
         } else {
             Ok(Vec::new())
         }
@@ -231,7 +239,7 @@ fn diagnose_observable(
     acc: &mut Accum,
     notes: &mut Notes,
 ) -> Result<()> {
-    let mut o = gather::gather(table, oi, notes);
+    let mut o = gather::gather(table, oi, notes)?;
     // Each pass's accumulator holds a slot per row of the observable (not
     // per row of the fleet): slot p is table row `o.rows[p]`.
     let every: Vec<usize> = (0..o.n()).collect();
@@ -241,6 +249,7 @@ fn diagnose_observable(
         analysed: &every,
         trimmed: &[],
         trimmed_slots: &[],
+        trimmed_covs: &[],
     };
     analyse(
         table,
@@ -268,7 +277,13 @@ fn diagnose_observable(
         return Ok(());
     }
     let kept = o.without(&out);
-    // The robust pass reads `kept`'s covariates; the full rows' copies go.
+    // The robust pass reads `kept`'s covariates and the trimmed rows'
+    // (their contributions); the full rows' copies go.
+    let trimmed_covs: Vec<(String, Vec<f64>)> = o
+        .cols
+        .iter()
+        .map(|c| (c.name.clone(), out.iter().map(|&p| c.v[p]).collect()))
+        .collect();
     o.cols = Vec::new();
     let kept_slots: Vec<usize> = (0..o.n())
         .filter(|p| out.binary_search(p).is_err())
@@ -279,6 +294,7 @@ fn diagnose_observable(
         analysed: &kept_slots,
         trimmed: &trimmed,
         trimmed_slots: &out,
+        trimmed_covs: &trimmed_covs,
     };
     analyse(table, &kept, oi, cfg, scopes, &mut robust, notes, &slots)?;
     let before: f64 = o.gap.iter().map(|g| g * g).sum();
@@ -308,6 +324,8 @@ pub struct Slots<'a> {
     pub analysed: &'a [usize],
     pub trimmed: &'a [usize],
     pub trimmed_slots: &'a [usize],
+    /// The trimmed rows' covariates (name, values in `trimmed` order).
+    pub trimmed_covs: &'a [(String, Vec<f64>)],
 }
 
 /// noise → folds → candidates → select → intervals → machines → cells for

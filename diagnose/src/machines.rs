@@ -157,7 +157,6 @@ pub fn per_machine(
 /// recurses.
 pub fn localised_effects(
     table: &super::observations::Table,
-    numeric: &arrow::array::RecordBatch,
     d: &super::document::Diagnosis,
     cfg: &super::DiagnoseConfig,
     scopes: &[super::EffectScope],
@@ -181,7 +180,7 @@ pub fn localised_effects(
         let rows: Vec<usize> = (0..table.n)
             .filter(|&i| table.machine[i] as usize == m && table.obs[i] as usize == o)
             .collect();
-        let sub = table.rebuild(numeric, &rows)?;
+        let sub = table.rebuild(&rows)?;
         // A machine's own diagnosis needs held-out runs.
         let Ok(one) = super::run_diagnosis(sub, cfg, scopes) else {
             continue;

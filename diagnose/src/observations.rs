@@ -285,9 +285,10 @@ pub struct Table {
     /// `unit` column, else "mm".
     pub obs_units: Vec<String>,
     pub gap: Vec<f64>,
-    /// Covariates with only finite values, sorted by name (sharing the
-    /// input batch's buffers where they are Float64 without nulls).
-    pub covs: Vec<(String, ScalarBuffer<f64>)>,
+    /// The covariates with a finite value somewhere, read per observable
+    /// (`gather`) from wherever the rows are: the input batch's buffers,
+    /// or the fleet's observations file read one observable at a time.
+    pub covs: Box<dyn Covariates>,
     /// Covariates dropped for non-finite values (reported as notes).
     pub dropped: Vec<String>,
     pub trial: Option<Vec<i64>>,
@@ -295,27 +296,6 @@ pub struct Table {
     /// `real_u`: each row's stated standard uncertainty of `real` (e.g. a
     /// logging resolution step/√12); NaN where not stated.
     pub real_u: Option<ScalarBuffer<f64>>,
-}
-
-/// The observations without the columns [`Table`] holds as ids or as the
-/// gap (text keys, `sim`, `real`, `unit`, `sim_augmented`): what stays are
-/// the covariates and the optional numeric columns (`trial`, `point`,
-/// `real_u`), whose buffers the table shares. [`Table::rebuild`] puts the
-/// rest back for a subset of rows.
-pub fn numeric_columns(b: RecordBatch) -> RecordBatch {
-    let gone = [
-        "machine",
-        "run",
-        "observable",
-        "unit",
-        "sim",
-        "real",
-        "sim_augmented",
-    ];
-    let keep: Vec<usize> = (0..b.num_columns())
-        .filter(|&i| !gone.contains(&b.schema().field(i).name().as_str()))
-        .collect();
-    b.project(&keep).expect("indices are the batch's own")
 }
 
 impl Table {
@@ -341,37 +321,60 @@ impl Table {
         Arc::new(arrow::array::StringArray::from(text))
     }
 
-    /// The observations of `rows` as a batch the diagnosis accepts:
-    /// `numeric` (from [`numeric_columns`], all rows) filtered to `rows`,
-    /// with the keys, each observable's unit, `sim` = 0 and `real` = the
-    /// gap (so real − sim is the gap, bit for bit).
-    pub fn rebuild(&self, numeric: &RecordBatch, rows: &[usize]) -> Result<RecordBatch> {
-        let idx = arrow::array::UInt32Array::from_iter_values(rows.iter().map(|&i| i as u32));
-        let mut fields: Vec<Arc<Field>> = Vec::new();
+    /// The observations of `rows` (ascending) as a batch the diagnosis
+    /// accepts: the keys, each observable's unit, `sim` = 0 and `real` =
+    /// the gap (so real − sim is the gap, bit for bit), the covariates
+    /// (null where a row has none) and the optional numeric columns.
+    pub fn rebuild(&self, rows: &[usize]) -> Result<RecordBatch> {
+        use arrow::array::Int64Array;
+        let mut fields: Vec<Field> = Vec::new();
         let mut cols: Vec<ArrayRef> = Vec::new();
         let mut keys = vec!["run", "observable"];
         if self.has_machine {
             keys.insert(0, "machine");
         }
         for k in keys {
-            fields.push(Arc::new(Field::new(k, DataType::Utf8, false)));
+            fields.push(Field::new(k, DataType::Utf8, false));
             cols.push(self.text_column(k, rows));
         }
         let unit: Vec<&str> = rows
             .iter()
             .map(|&i| self.obs_units[self.obs[i] as usize].as_str())
             .collect();
-        fields.push(Arc::new(Field::new("unit", DataType::Utf8, false)));
+        fields.push(Field::new("unit", DataType::Utf8, false));
         cols.push(Arc::new(arrow::array::StringArray::from(unit)));
-        fields.push(Arc::new(Field::new("sim", DataType::Float64, false)));
+        fields.push(Field::new("sim", DataType::Float64, false));
         cols.push(Arc::new(Float64Array::from(vec![0.0; rows.len()])));
-        fields.push(Arc::new(Field::new("real", DataType::Float64, false)));
+        fields.push(Field::new("real", DataType::Float64, false));
         cols.push(Arc::new(Float64Array::from_iter_values(
             rows.iter().map(|&i| self.gap[i]),
         )));
-        for (f, c) in numeric.schema().fields().iter().zip(numeric.columns()) {
-            fields.push(f.clone());
-            cols.push(arrow::compute::take(c, &idx, None)?);
+        let floats = |v: Vec<f64>| -> ArrayRef {
+            Arc::new(
+                v.into_iter()
+                    .map(|x| x.is_finite().then_some(x))
+                    .collect::<Float64Array>(),
+            )
+        };
+        for (name, v) in self.covs.names().iter().zip(self.covs.gather(rows)?) {
+            fields.push(Field::new(name, DataType::Float64, true));
+            cols.push(floats(v));
+        }
+        for (name, ints) in [("trial", &self.trial), ("point", &self.point)] {
+            if let Some(ints) = ints {
+                let v: Int64Array = rows
+                    .iter()
+                    .map(|&i| (ints[i] != i64::MIN).then_some(ints[i]))
+                    .collect();
+                fields.push(Field::new(name, DataType::Int64, true));
+                cols.push(Arc::new(v));
+            }
+        }
+        if let Some(u) = &self.real_u {
+            fields.push(Field::new("real_u", DataType::Float64, true));
+            cols.push(Arc::new(Float64Array::from_iter_values(
+                rows.iter().map(|&i| u[i]),
+            )));
         }
         Ok(RecordBatch::try_new(Arc::new(Schema::new(fields)), cols)?)
     }
@@ -559,6 +562,10 @@ impl Table {
         }
         covs.sort_by(|a, b| a.0.cmp(&b.0));
         dropped.sort();
+        let covs = Box::new(InMemory {
+            names: covs.iter().map(|(n, _)| n.clone()).collect(),
+            columns: covs.into_iter().map(|(_, v)| v).collect(),
+        });
         let int = |name: &str| -> Result<Option<Vec<i64>>> {
             match b.column_by_name(name) {
                 Some(a) if a.data_type().is_integer() || a.data_type().is_floating() => Ok(Some(
@@ -594,11 +601,44 @@ impl Table {
             },
         })
     }
+}
 
-    pub fn cov(&self, name: &str) -> Option<&[f64]> {
-        self.covs
-            .iter()
-            .find(|(n, _)| n == name)
-            .map(|(_, v)| &v[..])
+/// Where the diagnosis reads covariates: by table row, one observable at a
+/// time, so a fleet's covariates need not all be in memory at once.
+pub trait Covariates: Send + Sync {
+    /// The covariates, sorted by name: those with a finite value somewhere.
+    fn names(&self) -> &[String];
+    /// Every covariate's values (in [`Covariates::names`] order) on the
+    /// table rows `asc` (ascending); NaN where a row has none.
+    fn gather(&self, asc: &[usize]) -> Result<Vec<Vec<f64>>>;
+    /// A covariate's whole column where it is held in memory.
+    fn column(&self, _name: &str) -> Option<&[f64]> {
+        None
+    }
+}
+
+/// Covariates held in memory: the input batch's buffers, shared where
+/// they are Float64 without nulls (a fleet's covariates are most of the
+/// diagnosis' memory).
+pub struct InMemory {
+    names: Vec<String>,
+    columns: Vec<ScalarBuffer<f64>>,
+}
+
+impl Covariates for InMemory {
+    fn names(&self) -> &[String] {
+        &self.names
+    }
+    fn gather(&self, asc: &[usize]) -> Result<Vec<Vec<f64>>> {
+        use rayon::prelude::*;
+        Ok(self
+            .columns
+            .par_iter()
+            .map(|v| asc.iter().map(|&i| v[i]).collect())
+            .collect())
+    }
+    fn column(&self, name: &str) -> Option<&[f64]> {
+        let i = self.names.iter().position(|n| n == name)?;
+        Some(&self.columns[i][..])
     }
 }

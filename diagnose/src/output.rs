@@ -211,7 +211,7 @@ pub fn record_selected(
             col[slot] = *c;
         }
         if !extra_rows.is_empty() {
-            let pred = predict_rows(e, &prob.x, &sel.final_targets[j], table, extra_rows)?;
+            let pred = predict_rows(e, &prob.x, &sel.final_targets[j], slots)?;
             for ((&slot, p), r) in slots
                 .trimmed_slots
                 .iter()
@@ -286,22 +286,24 @@ pub fn record_selected(
 }
 
 /// The all-runs fit of `e` to `target` (over the rows of `x`), predicted on
-/// table rows `rows` (offset included).
+/// the trimmed rows of `slots` (offset included).
 fn predict_rows(
     e: &dyn Effect,
     x: &super::effect::EffectData,
     target: &[f64],
-    table: &Table,
-    rows: &[usize],
+    slots: &super::Slots,
 ) -> Result<Vec<f64>> {
     let fe = e.fit(x, target)?;
     let covs = e.covariates();
-    let store: Vec<Vec<f64>> = covs
+    let rows = slots.trimmed;
+    let store: Vec<&Vec<f64>> = covs
         .iter()
         .map(|c| {
-            table
-                .cov(c)
-                .map(|v| rows.iter().map(|&i| v[i]).collect())
+            slots
+                .trimmed_covs
+                .iter()
+                .find(|(n, _)| n == c)
+                .map(|(_, v)| v)
                 .ok_or_else(|| crate::err!("covariate `{c}` not in the table"))
         })
         .collect::<Result<_>>()?;
@@ -399,7 +401,6 @@ pub fn assemble(
         machine_effects: Vec::new(),
     };
     diagnosis.machine_effects = localise(&table, &diagnosis)?;
-    table.covs = Vec::new();
     table.real_u = None;
     let gap = std::mem::take(&mut table.gap);
     let per_row = per_row_batch(

@@ -416,11 +416,11 @@ fn covariates_share_the_input_buffer_and_nulls_read_as_nan() {
         .values()
         .as_ptr();
     assert_eq!(
-        table.cov("x_mm").unwrap().as_ptr(),
+        table.covs.column("x_mm").unwrap().as_ptr(),
         input,
         "x_mm was copied"
     );
-    let t = table.cov("temp_c").unwrap();
+    let t = table.covs.column("temp_c").unwrap();
     assert!(t[2].is_nan() && t[3] == 23.0, "{t:?}");
 }
 
@@ -432,7 +432,7 @@ fn covariates_share_the_input_buffer_and_nulls_read_as_nan() {
 #[test]
 fn a_batch_rebuilt_from_the_table_diagnoses_as_its_input() {
     use crate::contracts::BatchBuilder;
-    use crate::observations::{numeric_columns, validate_observations, Table};
+    use crate::observations::{validate_observations, Table};
     let mut normal = normal_rng(11);
     let (mut machine, mut run, mut obs, mut unit) = (vec![], vec![], vec![], vec![]);
     let (mut real, mut x, mut t) = (vec![], vec![], vec![]);
@@ -486,7 +486,7 @@ fn a_batch_rebuilt_from_the_table_diagnoses_as_its_input() {
         .unwrap();
         assert_eq!(&table.text_column(k, &every), &want, "{k}");
     }
-    let rebuilt = table.rebuild(&numeric_columns(valid), &every).unwrap();
+    let rebuilt = table.rebuild(&every).unwrap();
     let again = super::diagnose(&rebuilt, &cfg, &[]).unwrap();
     assert_eq!(
         serde_json::to_string(&direct.diagnosis).unwrap(),
