@@ -72,7 +72,7 @@ pub fn gather(table: &Table, oi: usize, notes: &mut Notes) -> crate::Result<ObsR
         .filter(|&i| table.obs[i] as usize == oi)
         .collect();
     let names = table.covs.names();
-    let values = table.covs.gather(&asc)?;
+    let values = table.covs.gather(&table.obs, &asc)?;
     let t = names.iter().position(|n| n == "t_s").map(|k| &values[k]);
     // Sorted by run unit, then time, then table order: `order[p]` is the
     // position in `asc` of the p-th row.

@@ -29,6 +29,7 @@ pub mod intervals;
 pub mod machines;
 pub mod noise;
 pub mod observations;
+pub mod observations_file;
 pub mod outliers;
 pub mod output;
 pub mod report;
@@ -55,6 +56,7 @@ pub use effect::{
     FittedEffect, Kind, LinearForm,
 };
 pub use observations::read_observations;
+pub use observations_file::diagnose_observations_file;
 pub use output::{
     CellBound, CvInfo, Diagnosis, DiagnosisOutput, EffectEntry, GapSummary, MachineFit,
     ObservableSummary, Unexplained, WhereCell,

@@ -1,7 +1,7 @@
 //! observations.parquet (docs/formats.md §7): validated reading, and the
 //! column-major table the diagnosis works on.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use arrow::array::{Array, ArrayRef, AsArray, Float64Array, RecordBatch};
@@ -298,6 +298,191 @@ pub struct Table {
     pub real_u: Option<ScalarBuffer<f64>>,
 }
 
+/// A [`Table`] built from consecutive parts of one table (each indexed by
+/// [`Table::from_batch`]): the fleet's keys are read in batches, never
+/// concatenated. Names are ids in first-seen order until [`TableParts::finish`]
+/// sorts them as [`Table::from_batch`] would have on the whole.
+pub struct TableParts {
+    path: PathBuf,
+    acc: Option<Table>,
+    /// Run units as (machine id, bare run) pairs, and their index.
+    units: std::collections::HashMap<(u32, String), u32>,
+    unit_keys: Vec<(u32, String)>,
+    real_u: Option<Vec<f64>>,
+}
+
+impl TableParts {
+    pub fn new(path: &Path) -> TableParts {
+        TableParts {
+            path: path.to_path_buf(),
+            acc: None,
+            units: Default::default(),
+            unit_keys: Vec::new(),
+            real_u: None,
+        }
+    }
+
+    /// Appends the next part (rows after the previous parts').
+    pub fn push(&mut self, part: Table) -> Result<()> {
+        fn id_of(names: &mut Vec<String>, name: &str) -> u32 {
+            match names.iter().position(|n| n == name) {
+                Some(i) => i as u32,
+                None => {
+                    names.push(name.to_string());
+                    (names.len() - 1) as u32
+                }
+            }
+        }
+        let acc = self.acc.get_or_insert_with(|| Table {
+            n: 0,
+            run_names: Vec::new(),
+            run_bare: Vec::new(),
+            run: Vec::new(),
+            machine_names: Vec::new(),
+            machine: Vec::new(),
+            has_machine: part.has_machine,
+            obs_names: Vec::new(),
+            obs: Vec::new(),
+            obs_units: Vec::new(),
+            gap: Vec::new(),
+            covs: Box::new(InMemory {
+                names: Vec::new(),
+                columns: Vec::new(),
+            }),
+            dropped: Vec::new(),
+            trial: part.trial.as_ref().map(|_| Vec::new()),
+            point: part.point.as_ref().map(|_| Vec::new()),
+            real_u: None,
+        });
+        if self.real_u.is_none() && part.real_u.is_some() && acc.n == 0 {
+            self.real_u = Some(Vec::new());
+        }
+        let machine_map: Vec<u32> = part
+            .machine_names
+            .iter()
+            .map(|m| id_of(&mut acc.machine_names, m))
+            .collect();
+        let mut obs_map = Vec::with_capacity(part.obs_names.len());
+        for (o, unit) in part.obs_names.iter().zip(&part.obs_units) {
+            let id = id_of(&mut acc.obs_names, o) as usize;
+            if id == acc.obs_units.len() {
+                acc.obs_units.push(unit.clone());
+            } else if acc.obs_units[id] != *unit {
+                return Err(InputError::new(
+                    &self.path,
+                    format!(
+                        "observable `{o}` has unit `{unit}` in a later part of the table but `{}` before: one observable, one unit",
+                        acc.obs_units[id]
+                    ),
+                )
+                .column("unit")
+                .into());
+            }
+            obs_map.push(id as u32);
+        }
+        // A part's run units, by their (machine, run) key.
+        let mut unit_map = Vec::with_capacity(part.run_bare.len());
+        let part_unit_machine: Vec<u32> = {
+            let mut m = vec![0u32; part.run_bare.len()];
+            for (&u, &mach) in part.run.iter().zip(&part.machine) {
+                m[u as usize] = mach;
+            }
+            m
+        };
+        for (u, bare) in part.run_bare.iter().enumerate() {
+            let key = (machine_map[part_unit_machine[u] as usize], bare.clone());
+            let next = self.unit_keys.len() as u32;
+            let id = *self.units.entry(key.clone()).or_insert_with(|| {
+                self.unit_keys.push(key);
+                next
+            });
+            unit_map.push(id);
+        }
+        acc.n += part.n;
+        acc.run
+            .extend(part.run.iter().map(|&u| unit_map[u as usize]));
+        acc.machine
+            .extend(part.machine.iter().map(|&m| machine_map[m as usize]));
+        acc.obs
+            .extend(part.obs.iter().map(|&o| obs_map[o as usize]));
+        acc.gap.extend_from_slice(&part.gap);
+        if let (Some(a), Some(p)) = (acc.trial.as_mut(), part.trial.as_ref()) {
+            a.extend_from_slice(p);
+        }
+        if let (Some(a), Some(p)) = (acc.point.as_mut(), part.point.as_ref()) {
+            a.extend_from_slice(p);
+        }
+        if let (Some(a), Some(p)) = (self.real_u.as_mut(), part.real_u.as_ref()) {
+            a.extend_from_slice(p);
+        }
+        Ok(())
+    }
+
+    /// The whole table, its names sorted and ids renumbered to match.
+    pub fn finish(self) -> Result<Table> {
+        let Some(mut t) = self.acc else {
+            return Err(InputError::new(&self.path, "no observations (empty table)").into());
+        };
+        t.real_u = self.real_u.map(ScalarBuffer::from);
+        fn sorted_ids(names: &[String]) -> (Vec<String>, Vec<u32>) {
+            let mut order: Vec<usize> = (0..names.len()).collect();
+            order.sort_by(|&a, &b| names[a].cmp(&names[b]));
+            let mut new_id = vec![0u32; names.len()];
+            for (new, &old) in order.iter().enumerate() {
+                new_id[old] = new as u32;
+            }
+            (order.iter().map(|&i| names[i].clone()).collect(), new_id)
+        }
+        let (machine_names, machine_id) = sorted_ids(&t.machine_names);
+        let (obs_names, obs_id) = sorted_ids(&t.obs_names);
+        t.obs_units = (0..obs_names.len())
+            .map(|new| {
+                let old = obs_id
+                    .iter()
+                    .position(|&i| i as usize == new)
+                    .expect("a permutation");
+                t.obs_units[old].clone()
+            })
+            .collect();
+        for m in t.machine.iter_mut() {
+            *m = machine_id[*m as usize];
+        }
+        for o in t.obs.iter_mut() {
+            *o = obs_id[*o as usize];
+        }
+        // Run units in (machine, run) order, as from_batch numbers them.
+        let keys: Vec<(u32, String)> = self
+            .unit_keys
+            .into_iter()
+            .map(|(m, r)| (machine_id[m as usize], r))
+            .collect();
+        let mut order: Vec<usize> = (0..keys.len()).collect();
+        order.sort_by(|&a, &b| keys[a].cmp(&keys[b]));
+        let mut unit_id = vec![0u32; keys.len()];
+        for (new, &old) in order.iter().enumerate() {
+            unit_id[old] = new as u32;
+        }
+        for u in t.run.iter_mut() {
+            *u = unit_id[*u as usize];
+        }
+        t.run_bare = order.iter().map(|&i| keys[i].1.clone()).collect();
+        t.run_names = order
+            .iter()
+            .map(|&i| {
+                let (m, bare) = &keys[i];
+                if t.has_machine {
+                    format!("{}/{bare}", machine_names[*m as usize])
+                } else {
+                    bare.clone()
+                }
+            })
+            .collect();
+        t.machine_names = machine_names;
+        t.obs_names = obs_names;
+        Ok(t)
+    }
+}
+
 impl Table {
     /// A text key column (`machine`, `run` or `observable`) over `rows`,
     /// from the ids: the values the input held (a run's id as written,
@@ -356,7 +541,12 @@ impl Table {
                     .collect::<Float64Array>(),
             )
         };
-        for (name, v) in self.covs.names().iter().zip(self.covs.gather(rows)?) {
+        for (name, v) in self
+            .covs
+            .names()
+            .iter()
+            .zip(self.covs.gather(&self.obs, rows)?)
+        {
             fields.push(Field::new(name, DataType::Float64, true));
             cols.push(floats(v));
         }
@@ -609,8 +799,10 @@ pub trait Covariates: Send + Sync {
     /// The covariates, sorted by name: those with a finite value somewhere.
     fn names(&self) -> &[String];
     /// Every covariate's values (in [`Covariates::names`] order) on the
-    /// table rows `asc` (ascending); NaN where a row has none.
-    fn gather(&self, asc: &[usize]) -> Result<Vec<Vec<f64>>>;
+    /// table rows `asc` (ascending); NaN where a row has none. `obs` is
+    /// the table's observable id per row (a source may keep each
+    /// observable's rows apart).
+    fn gather(&self, obs: &[u32], asc: &[usize]) -> Result<Vec<Vec<f64>>>;
     /// A covariate's whole column where it is held in memory.
     fn column(&self, _name: &str) -> Option<&[f64]> {
         None
@@ -629,7 +821,7 @@ impl Covariates for InMemory {
     fn names(&self) -> &[String] {
         &self.names
     }
-    fn gather(&self, asc: &[usize]) -> Result<Vec<Vec<f64>>> {
+    fn gather(&self, _obs: &[u32], asc: &[usize]) -> Result<Vec<Vec<f64>>> {
         use rayon::prelude::*;
         Ok(self
             .columns

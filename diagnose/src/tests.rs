@@ -424,15 +424,10 @@ fn covariates_share_the_input_buffer_and_nulls_read_as_nan() {
     assert!(t[2].is_nan() && t[3] == 23.0, "{t:?}");
 }
 
-/// The diagnosis lets its input's text and sim/real columns go once the
-/// rows are indexed, and rebuilds a batch from the table where a later
-/// step needs one (the per-machine diagnoses): a batch rebuilt from all
-/// rows must diagnose exactly as its input — units converted, nulls in a
-/// covariate kept, keys as written, two machines whose runs share ids.
-#[test]
-fn a_batch_rebuilt_from_the_table_diagnoses_as_its_input() {
+/// Two machines whose runs share ids (r0…r7), two observables: `a_um` in
+/// µm with a scale error on m2 alone, `b` a velocity without `x_mm`.
+fn two_machine_fleet() -> arrow::array::RecordBatch {
     use crate::contracts::BatchBuilder;
-    use crate::observations::{validate_observations, Table};
     let mut normal = normal_rng(11);
     let (mut machine, mut run, mut obs, mut unit) = (vec![], vec![], vec![], vec![]);
     let (mut real, mut x, mut t) = (vec![], vec![], vec![]);
@@ -462,7 +457,7 @@ fn a_batch_rebuilt_from_the_table_diagnoses_as_its_input() {
         }
     }
     let n = real.len();
-    let batch = BatchBuilder::new()
+    BatchBuilder::new()
         .str("machine", &machine)
         .str("run", &run)
         .str("observable", &obs)
@@ -471,7 +466,19 @@ fn a_batch_rebuilt_from_the_table_diagnoses_as_its_input() {
         .f64("real", real)
         .opt_f64("x_mm", x)
         .opt_f64("t_s", t)
-        .build();
+        .build()
+}
+
+/// The diagnosis lets its input's text and sim/real columns go once the
+/// rows are indexed, and rebuilds a batch from the table where a later
+/// step needs one (the per-machine diagnoses): a batch rebuilt from all
+/// rows must diagnose exactly as its input — units converted, nulls in a
+/// covariate kept, keys as written, two machines whose runs share ids.
+#[test]
+fn a_batch_rebuilt_from_the_table_diagnoses_as_its_input() {
+    use crate::observations::{validate_observations, Table};
+    let batch = two_machine_fleet();
+    let n = batch.num_rows();
     let cfg = super::DiagnoseConfig::default();
     let direct = super::diagnose(&batch, &cfg, &[]).unwrap();
     let valid = validate_observations(&batch, std::path::Path::new("obs.parquet")).unwrap();
@@ -510,4 +517,144 @@ fn a_batch_rebuilt_from_the_table_diagnoses_as_its_input() {
         "{:#?}",
         direct.diagnosis.where_
     );
+}
+
+/// The fleet's diagnosis reads its observations file one observable at a
+/// time: the same document and per-row table as the file read whole, over
+/// several row groups (some skipped for a machine's own diagnosis), with a
+/// covariate that is null on every row (dropped, with its note).
+#[test]
+fn the_file_read_per_observable_diagnoses_as_the_file_read_whole() {
+    use arrow::array::{Float64Array, RecordBatch};
+    use arrow::datatypes::{DataType, Field, Schema};
+    use std::sync::Arc;
+    let b = two_machine_fleet();
+    let n = b.num_rows();
+    let mut fields: Vec<Arc<Field>> = b.schema().fields().iter().cloned().collect();
+    let mut cols = b.columns().to_vec();
+    fields.push(Arc::new(Field::new("temp_c", DataType::Float64, true)));
+    cols.push(Arc::new(Float64Array::from(vec![None::<f64>; n])));
+    let b = RecordBatch::try_new(Arc::new(Schema::new(fields)), cols).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("observations.parquet");
+    let props = parquet::file::properties::WriterProperties::builder()
+        .set_max_row_group_row_count(Some(700))
+        .build();
+    let mut w = parquet::arrow::ArrowWriter::try_new(
+        std::fs::File::create(&path).unwrap(),
+        b.schema(),
+        Some(props),
+    )
+    .unwrap();
+    w.write(&b).unwrap();
+    w.close().unwrap();
+    let cfg = crate::config_check::Checked::check(super::DiagnoseConfig::default()).unwrap();
+    let whole =
+        super::diagnose_checked(crate::contracts::read_parquet(&path).unwrap(), &cfg, &[]).unwrap();
+    let by_observable = super::diagnose_observations_file(&path, &cfg, &[], None).unwrap();
+    let json = |d: &super::DiagnosisOutput| serde_json::to_string(&d.diagnosis).unwrap();
+    assert_eq!(json(&whole), json(&by_observable));
+    assert_eq!(whole.per_row, by_observable.per_row);
+    // The same with the covariates spilled per observable as the rows
+    // stream past (in two pieces); the spill goes with the diagnosis.
+    let spill_dir = dir.path().join(".spill");
+    let mut spill =
+        crate::observations_file::CovariateSpill::create(&spill_dir, &b.schema()).unwrap();
+    spill.push(&b.slice(0, 1000), &path).unwrap();
+    spill.push(&b.slice(1000, n - 1000), &path).unwrap();
+    let spilled = spill.finish().unwrap();
+    let from_spill = super::diagnose_observations_file(&path, &cfg, &[], Some(spilled)).unwrap();
+    assert_eq!(json(&whole), json(&from_spill));
+    assert_eq!(whole.per_row, from_spill.per_row);
+    assert!(!spill_dir.exists(), "the spill outlived the diagnosis");
+    assert!(
+        whole.diagnosis.notes.iter().any(|n| n.contains("temp_c")),
+        "{:?}",
+        whole.diagnosis.notes
+    );
+    assert!(!whole.diagnosis.machine_effects.is_empty());
+}
+
+/// A NaN covariate in the observations file is refused naming the file,
+/// the column and the row, as when the file is read whole.
+#[test]
+fn a_nan_covariate_in_the_file_names_file_column_and_row() {
+    use arrow::array::{Float64Array, RecordBatch};
+    use arrow::datatypes::{DataType, Field, Schema};
+    use std::sync::Arc;
+    let b = two_machine_fleet();
+    let n = b.num_rows();
+    let mut fields: Vec<Arc<Field>> = b.schema().fields().iter().cloned().collect();
+    let mut cols = b.columns().to_vec();
+    let mut v = vec![Some(1.0); n];
+    v[1234] = Some(f64::NAN);
+    fields.push(Arc::new(Field::new("temp_c", DataType::Float64, true)));
+    cols.push(Arc::new(Float64Array::from(v)));
+    let b = RecordBatch::try_new(Arc::new(Schema::new(fields)), cols).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("observations.parquet");
+    crate::contracts::write_parquet_atomic(&path, &b).unwrap();
+    let cfg = crate::config_check::Checked::check(super::DiagnoseConfig::default()).unwrap();
+    let e = super::diagnose_observations_file(&path, &cfg, &[], None)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(
+        e.contains("observations.parquet")
+            && e.contains("temp_c")
+            && e.contains("1234")
+            && e.contains("NaN"),
+        "{e}"
+    );
+    // …and by the spill, naming the file the rows came from.
+    let mut spill =
+        crate::observations_file::CovariateSpill::create(&dir.path().join(".spill"), &b.schema())
+            .unwrap();
+    let e = spill
+        .push(&b, std::path::Path::new("runs/r3/observations.parquet"))
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(
+        e.contains("runs/r3/observations.parquet") && e.contains("temp_c") && e.contains("1234"),
+        "{e}"
+    );
+}
+
+/// The fleet's keys are indexed batch by batch: parts that meet machines,
+/// runs and observables in another order than the whole give the table
+/// the whole would (names sorted, ids renumbered, run units in (machine,
+/// run) order).
+#[test]
+fn a_table_built_in_parts_is_the_whole_table() {
+    use crate::observations::{validate_observations, Table, TableParts};
+    let b = validate_observations(&two_machine_fleet(), std::path::Path::new("o.parquet")).unwrap();
+    let n = b.num_rows();
+    // Reversed, so the first part meets m2, r7 and `b` first.
+    let back = arrow::array::UInt32Array::from_iter_values((0..n as u32).rev());
+    let b = arrow::compute::take_record_batch(&b, &back).unwrap();
+    let whole = Table::from_batch(&b).unwrap();
+    let mut parts = TableParts::new(std::path::Path::new("o.parquet"));
+    let cuts = [0, 100, 2500, n];
+    let mut built = Vec::new();
+    for w in cuts.windows(2).rev() {
+        built.push(Table::from_batch(&b.slice(w[0], w[1] - w[0])).unwrap());
+    }
+    // Rows follow table order: the parts front to back; the first alone
+    // sees one machine and one run.
+    for t in built.into_iter().rev() {
+        parts.push(t).unwrap();
+    }
+    let t = parts.finish().unwrap();
+    assert_eq!(t.n, whole.n);
+    assert_eq!(t.machine_names, whole.machine_names);
+    assert_eq!(t.obs_names, whole.obs_names);
+    assert_eq!(t.obs_units, whole.obs_units);
+    assert_eq!(t.run_names, whole.run_names);
+    assert_eq!(t.run_bare, whole.run_bare);
+    assert_eq!(t.run, whole.run);
+    assert_eq!(t.machine, whole.machine);
+    assert_eq!(t.obs, whole.obs);
+    assert_eq!(t.gap, whole.gap);
+    assert_eq!(t.has_machine, whole.has_machine);
 }

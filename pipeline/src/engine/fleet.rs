@@ -53,8 +53,34 @@ impl FleetCache {
     }
 }
 
-/// The joined observations and, per plugin, the observables it produced.
-type Joined = (RecordBatch, BTreeMap<String, BTreeSet<String>>);
+impl FleetCache {
+    /// Record a step whose files were written in place (atomically, by a
+    /// stream) under `dir`.
+    fn record_written(
+        &mut self,
+        stage: &str,
+        version: u32,
+        key: String,
+        dir: &Path,
+        names: &[&str],
+    ) -> Result<()> {
+        let mut hashes = BTreeMap::new();
+        for name in names {
+            hashes.insert(name.to_string(), hash_file(&dir.join(name))?);
+        }
+        self.records.push(StageRecord {
+            stage: stage.into(),
+            version,
+            key,
+            files: hashes,
+            cached: false,
+        });
+        Ok(())
+    }
+}
+
+/// Per plugin, the observables it produced.
+type Produced = BTreeMap<String, BTreeSet<String>>;
 
 impl Engine {
     /// Fleet steps, in order: join observations, diagnose, the augmented
@@ -107,32 +133,73 @@ impl Engine {
         Ok(())
     }
 
-    /// Every run's observations with a `machine` column beside `run`
-    ///, and the observables each plugin produced — what its
-    /// composites apply to.
-    fn join_observations(&self, outcome: &FleetOutcome, progress: &dyn Progress) -> Result<Joined> {
+    /// `fleet/observations.parquet`, written as a stream: every run's
+    /// observations with a `machine` column beside `run`, conformed to the
+    /// union of the runs' columns (known from the files' schemas before a
+    /// row is read), one run at a time — the fleet's rows are never in
+    /// memory at once (docs/scale.md). Returns the observables each plugin
+    /// produced (what its composites apply to) and the covariates spilled
+    /// per observable for the diagnosis to read (removed when dropped).
+    fn join_observations(
+        &self,
+        outcome: &FleetOutcome,
+        path: &Path,
+        progress: &dyn Progress,
+    ) -> Result<(Produced, diagnose::observations_file::Spilled)> {
         let runs: Vec<&RunResult> = outcome
             .runs
             .iter()
             .filter(|r| r.observations.is_some())
             .collect();
         progress.message(&format!("joining observations of {} runs", runs.len()));
-        let mut joined = ChunkedUnion::new(JOIN_CHUNK_ROWS);
-        let mut produced: BTreeMap<String, BTreeSet<String>> = BTreeMap::new();
-        for r in runs {
-            let p = r.observations.as_ref().expect("filtered");
-            let b = with_machine_column(crate::contracts::read_parquet(p)?, &r.machine)?;
-            produced
-                .entry(r.plugin.clone())
-                .or_default()
-                .extend(observable_names(&b));
-            joined.push(b)?;
+        let schemas = runs
+            .iter()
+            .map(|r| {
+                let p = r.observations.as_ref().expect("filtered");
+                let builder = crate::contracts::parquet_file::open_parquet(p)?;
+                Ok(with_machine_field(builder.schema()))
+            })
+            .collect::<Result<Vec<_>>>()?;
+        let union = Arc::new(union_schema(schemas.iter().map(|s| s.as_ref()))?);
+        drop(schemas);
+        let mut produced = Produced::new();
+        let mut spill =
+            diagnose::observations_file::CovariateSpill::create(&spill_dir(path), &union)?;
+        crate::contracts::write::write_parquet_batches_atomic(
+            path,
+            union.clone(),
+            runs.iter().map(|r| {
+                let p = r.observations.as_ref().expect("filtered");
+                let b = with_machine_column(crate::contracts::read_parquet(p)?, &r.machine)?;
+                produced
+                    .entry(r.plugin.clone())
+                    .or_default()
+                    .extend(observable_names(&b));
+                let b = conform(b, &union)?;
+                spill.push(&b, p)?;
+                Ok(b)
+            }),
+        )?;
+        Ok((produced, spill.finish()?))
+    }
+
+    /// The observables each plugin's runs produced, read from the runs'
+    /// `observable` columns alone (a night whose joined table is cached).
+    fn produced_observables(&self, outcome: &FleetOutcome) -> Result<Produced> {
+        let mut produced = Produced::new();
+        for r in &outcome.runs {
+            let Some(p) = &r.observations else { continue };
+            let builder = crate::contracts::parquet_file::open_parquet(p)?;
+            let Some(i) = builder.schema().index_of("observable").ok() else {
+                continue;
+            };
+            let mask = parquet::arrow::ProjectionMask::roots(builder.parquet_schema(), [i]);
+            let names = produced.entry(r.plugin.clone()).or_default();
+            for b in builder.with_projection(mask).build()? {
+                names.extend(observable_names(&b?));
+            }
         }
-        let joined = joined.finish()?;
-        // The per-run tables are freed; hand their pages back before the
-        // diagnosis allocates fleet-sized columns (core/src/alloc.rs).
-        crate::alloc::release_freed_memory();
-        Ok((joined, produced))
+        Ok(produced)
     }
 
     /// `fleet/observations.parquet`. The joined table is a function of each
@@ -147,9 +214,12 @@ impl Engine {
         fleet_dir: &Path,
         outcome: &FleetOutcome,
         progress: &dyn Progress,
-    ) -> Result<(String, Option<Joined>)> {
+    ) -> Result<(
+        String,
+        Option<(Produced, diagnose::observations_file::Spilled)>,
+    )> {
         let mut okey = KeyBuilder::new("fleet-observations");
-        okey.part("version", "2");
+        okey.part("version", "3");
         for r in outcome.runs.iter().filter(|r| r.observations.is_some()) {
             let p = r.observations.as_ref().expect("filtered");
             let recorded = r
@@ -166,16 +236,16 @@ impl Engine {
         if cache.reuse("observations", fleet_dir, &okey) {
             return Ok((okey, None));
         }
-        let (batch, produced) = self.join_observations(outcome, progress)?;
-        let bytes = parquet_bytes(&batch)?;
-        cache.write(
+        let joined =
+            self.join_observations(outcome, &fleet_dir.join(OBSERVATIONS_FILE), progress)?;
+        cache.record_written(
             "observations",
-            2,
+            3,
             okey.clone(),
             fleet_dir,
-            &[(OBSERVATIONS_FILE, &bytes)],
+            &[OBSERVATIONS_FILE],
         )?;
-        Ok((okey, Some((batch, produced))))
+        Ok((okey, Some(joined)))
     }
 
     /// The fleet diagnosis (`fleet/diagnosis.*`, augmented_model.json), each
@@ -187,7 +257,7 @@ impl Engine {
         fleet_dir: &Path,
         outcome: &FleetOutcome,
         okey: &str,
-        joined: Option<Joined>,
+        joined: Option<(Produced, diagnose::observations_file::Spilled)>,
         progress: &dyn Progress,
     ) -> Result<(Option<diagnose::Diagnosis>, Option<String>)> {
         let dcfg = &self.checked.diagnose;
@@ -215,9 +285,11 @@ impl Engine {
                 std::fs::read_to_string(fleet_dir.join("diagnosis_section.html")).ok(),
             ));
         }
-        let (joined, produced) = match joined {
-            Some(j) => j,
-            None => self.join_observations(outcome, progress)?,
+        // Tonight's join hands its spilled covariates over; a cached join
+        // has none and the diagnosis reads the file's columns instead.
+        let (produced, spilled) = match joined {
+            Some((p, s)) => (p, Some(s)),
+            None => (self.produced_observables(outcome)?, None),
         };
         let scoped: Vec<(Vec<String>, &PluginEffects)> = effects
             .iter()
@@ -236,7 +308,15 @@ impl Engine {
             })
             .collect();
         progress.message("diagnosing the sim-to-real gap");
-        let d = diagnose::diagnose_checked(joined, dcfg, &scopes).context("fleet diagnosis")?;
+        // Read from the joined file one observable at a time: the fleet's
+        // covariates are never all in memory.
+        let d = diagnose::diagnose_observations_file(
+            &fleet_dir.join(OBSERVATIONS_FILE),
+            dcfg,
+            &scopes,
+            spilled,
+        )
+        .context("fleet diagnosis")?;
         progress.message("writing the diagnosis");
         crate::alloc::release_freed_memory();
         cache.write(
@@ -445,23 +525,35 @@ pub(super) fn json_bytes(v: &impl Serialize) -> Result<Vec<u8>> {
 /// plugin did not write one (runs are (machine, run) pairs).
 pub fn with_machine_column(batch: RecordBatch, machine: &str) -> Result<RecordBatch> {
     use arrow::array::{ArrayRef, StringArray};
-    use arrow::datatypes::{DataType, Field, Schema};
     if batch.column_by_name("machine").is_some() {
         return Ok(batch);
     }
-    let schema = batch.schema();
-    let at = schema.index_of("run").unwrap_or(0);
-    let mut fields: Vec<Arc<Field>> = schema.fields().iter().cloned().collect();
+    let schema = with_machine_field(&batch.schema());
+    let at = schema.index_of("machine").expect("just added");
     let mut cols: Vec<ArrayRef> = batch.columns().to_vec();
-    fields.insert(at, Arc::new(Field::new("machine", DataType::Utf8, false)));
     cols.insert(
         at,
         Arc::new(StringArray::from(vec![machine; batch.num_rows()])),
     );
-    Ok(RecordBatch::try_new(
-        Arc::new(Schema::new_with_metadata(fields, schema.metadata().clone())),
-        cols,
-    )?)
+    Ok(RecordBatch::try_new(Arc::new(schema), cols)?)
+}
+
+/// Where the join spills each observable's covariates for the diagnosis:
+/// a hidden folder beside the joined file, removed once diagnosed.
+fn spill_dir(observations: &Path) -> PathBuf {
+    observations.with_file_name(".observations-spill")
+}
+
+/// The schema [`with_machine_column`] gives a run's observations.
+pub fn with_machine_field(schema: &arrow::datatypes::Schema) -> arrow::datatypes::Schema {
+    use arrow::datatypes::{DataType, Field, Schema};
+    if schema.field_with_name("machine").is_ok() {
+        return schema.clone();
+    }
+    let at = schema.index_of("run").unwrap_or(0);
+    let mut fields: Vec<Arc<Field>> = schema.fields().iter().cloned().collect();
+    fields.insert(at, Arc::new(Field::new("machine", DataType::Utf8, false)));
+    Schema::new_with_metadata(fields, schema.metadata().clone())
 }
 
 /// Distinct values of a batch's `observable` column.
@@ -481,63 +573,16 @@ pub(super) fn observable_names(batch: &RecordBatch) -> BTreeSet<String> {
     }
 }
 
-/// Rows per partial join in `join_observations`: a float column of a
-/// chunk is 64 MB, above the 32 MiB mmap threshold.
-const JOIN_CHUNK_ROWS: usize = 8_000_000;
-
-/// [`union_concat`] of many batches, joined into chunks of `chunk_rows`
-/// rows as they arrive and the chunks joined at the end — the same table.
-/// A run's table as read is many small buffers, which the allocator keeps
-/// once freed, so holding thousands of them at once cost twice the joined
-/// table's memory; a chunk's columns are each above glibc's mmap threshold
-/// and go back to the kernel when the final join lets them go
-/// (core/src/alloc.rs).
-pub struct ChunkedUnion {
-    chunk_rows: usize,
-    chunks: Vec<RecordBatch>,
-    pending: Vec<RecordBatch>,
-    pending_rows: usize,
-}
-
-impl ChunkedUnion {
-    pub fn new(chunk_rows: usize) -> ChunkedUnion {
-        ChunkedUnion {
-            chunk_rows,
-            chunks: Vec::new(),
-            pending: Vec::new(),
-            pending_rows: 0,
-        }
-    }
-    pub fn push(&mut self, b: RecordBatch) -> Result<()> {
-        self.pending_rows += b.num_rows();
-        self.pending.push(b);
-        if self.pending_rows >= self.chunk_rows {
-            self.chunks
-                .push(union_concat(std::mem::take(&mut self.pending))?);
-            self.pending_rows = 0;
-        }
-        Ok(())
-    }
-    pub fn finish(mut self) -> Result<RecordBatch> {
-        if !self.pending.is_empty() || self.chunks.is_empty() {
-            self.chunks.push(union_concat(self.pending)?);
-        }
-        match self.chunks.len() {
-            1 => Ok(self.chunks.pop().expect("one chunk")),
-            _ => union_concat(self.chunks),
-        }
-    }
-}
-
-/// Concatenate batches whose schemas may differ (different plugins emit
-/// different covariates): the union of columns in first-seen order, nulls
-/// where a batch lacks a column.
-pub fn union_concat(batches: Vec<RecordBatch>) -> Result<RecordBatch> {
-    use arrow::array::new_null_array;
+/// The union of the runs' columns in first-seen order (different plugins
+/// emit different covariates); a column is nullable where any run's is or
+/// a run lacks it. Columns of one name must agree on their type.
+pub fn union_schema<'a>(
+    schemas: impl Iterator<Item = &'a arrow::datatypes::Schema> + Clone,
+) -> Result<arrow::datatypes::Schema> {
     use arrow::datatypes::{Field, Schema};
     let mut fields: Vec<Field> = Vec::new();
-    for b in &batches {
-        for f in b.schema().fields() {
+    for s in schemas.clone() {
+        for f in s.fields() {
             match fields.iter().position(|g| g.name() == f.name()) {
                 Some(i) => {
                     if fields[i].data_type() != f.data_type() {
@@ -557,11 +602,38 @@ pub fn union_concat(batches: Vec<RecordBatch>) -> Result<RecordBatch> {
         }
     }
     for f in fields.iter_mut() {
-        if batches.iter().any(|b| b.column_by_name(f.name()).is_none()) {
+        if schemas
+            .clone()
+            .any(|s| s.field_with_name(f.name()).is_err())
+        {
             *f = f.clone().with_nullable(true);
         }
     }
-    let schema = Arc::new(Schema::new(fields));
+    Ok(Schema::new(fields))
+}
+
+/// A run's batch with the columns of `union` (nulls where it lacks one).
+pub fn conform(b: RecordBatch, union: &arrow::datatypes::SchemaRef) -> Result<RecordBatch> {
+    let n = b.num_rows();
+    let cols = union
+        .fields()
+        .iter()
+        .map(|f| {
+            b.column_by_name(f.name())
+                .cloned()
+                .unwrap_or_else(|| arrow::array::new_null_array(f.data_type(), n))
+        })
+        .collect();
+    Ok(RecordBatch::try_new(union.clone(), cols)?)
+}
+
+/// Concatenate batches whose schemas may differ: the union of columns
+/// ([`union_schema`]), nulls where a batch lacks a column.
+pub fn union_concat(batches: Vec<RecordBatch>) -> Result<RecordBatch> {
+    use arrow::array::new_null_array;
+    let schema = Arc::new(union_schema(
+        batches.iter().map(|b| b.schema_ref().as_ref()),
+    )?);
     // Column by column, each batch's column is let go once it is copied
     // into the union: the fleet's rows are held once plus one column, not
     // twice (the join was the peak of `aggregate`'s memory).
@@ -608,11 +680,11 @@ mod tests {
         RecordBatch::try_new(Arc::new(Schema::new(fields)), arrays).unwrap()
     }
 
-    /// Joined in chunks of any size, batches of differing columns give the
-    /// one-shot union: same columns in first-seen order, nullability,
-    /// values and nulls.
+    /// Streamed to a file one at a time, batches of differing columns read
+    /// back as their one-shot union: same columns in first-seen order,
+    /// nullability, values and nulls.
     #[test]
-    fn a_union_joined_in_chunks_is_the_union() {
+    fn a_union_streamed_to_a_file_is_the_union() {
         let f = |v: Vec<f64>| -> ArrayRef { Arc::new(Float64Array::from(v)) };
         let t = |v: Vec<&str>| -> ArrayRef { Arc::new(StringArray::from(v)) };
         let batches: Vec<RecordBatch> = (0..7)
@@ -633,12 +705,18 @@ mod tests {
             .field_with_name("load_n")
             .unwrap()
             .is_nullable());
-        for chunk_rows in [1, 3, 5, 9, 21, 1000] {
-            let mut c = ChunkedUnion::new(chunk_rows);
-            for b in batches.clone() {
-                c.push(b).unwrap();
-            }
-            assert_eq!(c.finish().unwrap(), whole, "chunks of {chunk_rows} rows");
-        }
+        // The streamed join: each batch conformed to the union schema and
+        // written one after another reads back as the one-shot union.
+        let union =
+            Arc::new(union_schema(batches.iter().map(|b| b.schema_ref().as_ref())).unwrap());
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("observations.parquet");
+        crate::contracts::write::write_parquet_batches_atomic(
+            &path,
+            union.clone(),
+            batches.iter().map(|b| conform(b.clone(), &union)),
+        )
+        .unwrap();
+        assert_eq!(crate::contracts::read_parquet(&path).unwrap(), whole);
     }
 }

@@ -1,0 +1,485 @@
+//! The diagnosis of an observations file too large to hold: the keys, sim
+//! and real are read once into the [`Table`] (ids and the gap, ≈ 20 B a
+//! row), the covariates one observable at a time ([`ParquetCovariates`]),
+//! so the fleet's covariates are never all in memory (docs/scale.md).
+
+use std::fs::File;
+use std::path::{Path, PathBuf};
+
+use arrow::array::{Array, AsArray, RecordBatch};
+use arrow::compute::cast;
+use arrow::datatypes::{DataType, Float64Type};
+use parquet::arrow::arrow_reader::{ArrowReaderMetadata, ParquetRecordBatchReaderBuilder};
+use parquet::arrow::ProjectionMask;
+
+use crate::config_check::Checked;
+use crate::observations::{is_covariate, validate_observations, Covariates, Table, TableParts};
+use crate::{DiagnoseConfig, DiagnosisOutput, EffectScope, InputError, Result};
+
+/// Rows per batch read from the file.
+const READ_ROWS: usize = 1 << 16;
+
+/// Diagnoses the observations in the Parquet file `path` (the contract of
+/// docs/formats.md §7) without holding its covariates: the same diagnosis,
+/// byte for byte, as [`crate::diagnose_checked`] on the file read whole.
+/// `spilled`: the covariates kept apart per observable as the file was
+/// written ([`CovariateSpill`]), read instead of the file's covariate
+/// columns when given.
+pub fn diagnose_observations_file(
+    path: &Path,
+    cfg: &Checked<DiagnoseConfig>,
+    scopes: &[EffectScope],
+    spilled: Option<Spilled>,
+) -> Result<DiagnosisOutput> {
+    let covs = ParquetCovariates::open(path)?;
+    let builder = open(path)?;
+    let keep: Vec<usize> = (0..builder.schema().fields().len())
+        .filter(|i| !covs.indices.contains(i))
+        .collect();
+    let mask = ProjectionMask::roots(builder.parquet_schema(), keep);
+    // The keys, sim and real batch by batch into the table's ids and gap:
+    // never the fleet's text columns at once.
+    let mut parts = TableParts::new(path);
+    let mut offset = 0usize;
+    for b in builder
+        .with_projection(mask)
+        .with_batch_size(READ_ROWS)
+        .build()?
+    {
+        let b = b?;
+        let n = b.num_rows();
+        let at_row = |e: crate::Error| match e.input() {
+            Some(i) if i.row.is_some() => {
+                let mut i = i.clone();
+                i.row = i.row.map(|r| r + offset);
+                i.into()
+            }
+            _ => e,
+        };
+        let b = validate_observations(&b, path).map_err(at_row)?;
+        parts.push(Table::from_batch(&b)?)?;
+        offset += n;
+    }
+    let mut table = parts.finish()?;
+    match spilled {
+        Some(spilled) => {
+            let covs = SpilledCovariates::new(spilled, &table.obs_names);
+            table.dropped = covs.dropped();
+            table.covs = Box::new(covs);
+        }
+        None => {
+            table.dropped = covs.dropped.clone();
+            table.covs = Box::new(covs);
+        }
+    }
+    crate::diagnose_table(table, cfg, scopes)
+}
+
+fn open(path: &Path) -> Result<ParquetRecordBatchReaderBuilder<File>> {
+    let f = File::open(path).map_err(|e| InputError::new(path, format!("cannot open: {e}")))?;
+    Ok(ParquetRecordBatchReaderBuilder::try_new(f)?)
+}
+
+/// Covariates read from a Parquet file by table row (its row order), one
+/// call per observable: the row groups that hold none of the rows are
+/// skipped, and each value is checked as the in-memory path checks it
+/// (null = "not measured", never NaN or ±inf).
+pub struct ParquetCovariates {
+    path: PathBuf,
+    /// Covariates with a finite value somewhere, sorted by name, and their
+    /// column indices in the file.
+    names: Vec<String>,
+    indices: Vec<usize>,
+    /// Covariates with no value at all (every row null).
+    dropped: Vec<String>,
+    /// First table row of each row group.
+    group_starts: Vec<usize>,
+}
+
+impl ParquetCovariates {
+    pub fn open(path: &Path) -> Result<ParquetCovariates> {
+        let builder = open(path)?;
+        let meta = builder.metadata().clone();
+        let schema = builder.schema().clone();
+        let mut group_starts = Vec::with_capacity(meta.num_row_groups());
+        let mut at = 0usize;
+        for g in meta.row_groups() {
+            group_starts.push(at);
+            at += g.num_rows() as usize;
+        }
+        let mut named: Vec<(String, usize)> = Vec::new();
+        let mut dropped: Vec<String> = Vec::new();
+        let descr = meta.file_metadata().schema_descr();
+        for (i, f) in schema.fields().iter().enumerate() {
+            if !is_covariate(f.name(), f.data_type()) {
+                continue;
+            }
+            // Every row null ⇔ no finite value (a non-null NaN or ±inf is
+            // refused when read), known from the chunks' null counts where
+            // the writer kept them; otherwise read.
+            let leaf = (0..descr.num_columns()).find(|&j| descr.get_column_root_idx(j) == i);
+            let all_null = match leaf.and_then(|leaf| {
+                meta.row_groups().iter().try_fold(true, |all, g| {
+                    let c = g.column(leaf);
+                    let nulls = c.statistics().and_then(|s| s.null_count_opt())?;
+                    Some(all && nulls == g.num_rows() as u64)
+                })
+            }) {
+                Some(all) => all,
+                None => column_all_null(path, i)?,
+            };
+            if all_null {
+                dropped.push(f.name().clone());
+            } else {
+                named.push((f.name().clone(), i));
+            }
+        }
+        named.sort();
+        dropped.sort();
+        // Read order = name order; the dropped ones after (never read).
+        let mut indices: Vec<usize> = named.iter().map(|(_, i)| *i).collect();
+        indices.extend(
+            schema
+                .fields()
+                .iter()
+                .enumerate()
+                .filter(|(_, f)| dropped.contains(f.name()))
+                .map(|(i, _)| i),
+        );
+        Ok(ParquetCovariates {
+            path: path.to_path_buf(),
+            names: named.into_iter().map(|(n, _)| n).collect(),
+            indices,
+            dropped,
+            group_starts,
+        })
+    }
+}
+
+fn column_all_null(path: &Path, i: usize) -> Result<bool> {
+    let builder = open(path)?;
+    let mask = ProjectionMask::roots(builder.parquet_schema(), [i]);
+    for b in builder.with_projection(mask).build()? {
+        let b = b?;
+        if b.column(0).null_count() < b.num_rows() {
+            return Ok(false);
+        }
+    }
+    Ok(true)
+}
+
+impl Covariates for ParquetCovariates {
+    fn names(&self) -> &[String] {
+        &self.names
+    }
+
+    fn gather(&self, _obs: &[u32], asc: &[usize]) -> Result<Vec<Vec<f64>>> {
+        let k = self.names.len();
+        let mut out: Vec<Vec<f64>> = (0..k).map(|_| Vec::with_capacity(asc.len())).collect();
+        if k == 0 || asc.is_empty() {
+            return Ok(out);
+        }
+        // The row groups holding any of the rows, and where each starts.
+        let last = |g: usize| self.group_starts.get(g + 1).copied().unwrap_or(usize::MAX);
+        let mut groups = Vec::new();
+        let mut p = 0;
+        for g in 0..self.group_starts.len() {
+            while p < asc.len() && asc[p] < self.group_starts[g] {
+                p += 1;
+            }
+            if p < asc.len() && asc[p] < last(g) {
+                groups.push(g);
+            }
+        }
+        let file = File::open(&self.path)
+            .map_err(|e| InputError::new(&self.path, format!("cannot open: {e}")))?;
+        let meta = ArrowReaderMetadata::load(&file, Default::default())?;
+        let file_schema = meta.schema().clone();
+        let mask = ProjectionMask::roots(meta.parquet_schema(), self.indices[..k].to_vec());
+        // A projected batch holds the columns in file order.
+        let mut file_order: Vec<usize> = (0..k).collect();
+        file_order.sort_by_key(|&j| self.indices[j]);
+        for g in groups {
+            let reader =
+                ParquetRecordBatchReaderBuilder::new_with_metadata(file.try_clone()?, meta.clone())
+                    .with_projection(mask.clone())
+                    .with_row_groups(vec![g])
+                    .with_batch_size(READ_ROWS)
+                    .build()?;
+            let mut offset = self.group_starts[g];
+            let mut p = asc.partition_point(|&r| r < offset);
+            for b in reader {
+                let b = b?;
+                let n = b.num_rows();
+                let from = p;
+                while p < asc.len() && asc[p] < offset + n {
+                    p += 1;
+                }
+                offset += n;
+                if from == p {
+                    continue;
+                }
+                for (c, &j) in file_order.iter().enumerate() {
+                    let name = file_schema.field(self.indices[j]).name();
+                    let col = cast(b.column(c), &DataType::Float64)?;
+                    let v = col.as_primitive::<Float64Type>();
+                    let base = offset - n;
+                    for &r in &asc[from..p] {
+                        let i = r - base;
+                        if v.is_null(i) {
+                            out[j].push(f64::NAN);
+                            continue;
+                        }
+                        let x = v.value(i);
+                        if !x.is_finite() {
+                            let what = if x.is_nan() { "NaN" } else { "infinite value" };
+                            return Err(InputError::new(
+                                &self.path,
+                                format!(
+                                    "{what} in covariate `{name}` (use null for \"not measured\")"
+                                ),
+                            )
+                            .column(name)
+                            .row(r)
+                            .into());
+                        }
+                        out[j].push(x);
+                    }
+                }
+            }
+        }
+        Ok(out)
+    }
+}
+
+/// Each observable's covariates as the fleet's join streams past, kept
+/// apart on disk (raw little-endian f64, a record of every covariate per
+/// row, in table order) so the diagnosis reads each observable's rows once
+/// instead of decoding the whole observations file per observable. The
+/// files live in a hidden folder of the output the join writes to and go
+/// when the [`Spilled`] covariates are dropped.
+pub struct CovariateSpill {
+    dir: PathBuf,
+    covariates: Vec<String>,
+    writers: std::collections::BTreeMap<String, (std::io::BufWriter<File>, PathBuf)>,
+    any_finite: Vec<bool>,
+}
+
+impl CovariateSpill {
+    /// A spill under `dir` (created empty) for the covariates of `schema`
+    /// (the joined table's).
+    pub fn create(dir: &Path, schema: &arrow::datatypes::Schema) -> Result<CovariateSpill> {
+        if dir.exists() {
+            std::fs::remove_dir_all(dir)?;
+        }
+        std::fs::create_dir_all(dir)?;
+        let covariates: Vec<String> = schema
+            .fields()
+            .iter()
+            .filter(|f| is_covariate(f.name(), f.data_type()))
+            .map(|f| f.name().clone())
+            .collect();
+        Ok(CovariateSpill {
+            dir: dir.to_path_buf(),
+            any_finite: vec![false; covariates.len()],
+            covariates,
+            writers: Default::default(),
+        })
+    }
+
+    /// Appends a batch's rows (read from `source`, which errors name): the
+    /// covariates as f64, NaN where null; a NaN or ±inf value is refused.
+    pub fn push(&mut self, b: &RecordBatch, source: &Path) -> Result<()> {
+        use std::io::Write;
+        let Some(obs) = b.column_by_name("observable") else {
+            return Err(InputError::new(source, "missing required column")
+                .column("observable")
+                .into());
+        };
+        let obs = cast(obs, &DataType::Utf8)?;
+        let obs = obs.as_string::<i32>();
+        let cols: Vec<Option<arrow::array::ArrayRef>> = self
+            .covariates
+            .iter()
+            .map(|c| {
+                b.column_by_name(c)
+                    .map(|a| cast(a, &DataType::Float64))
+                    .transpose()
+            })
+            .collect::<std::result::Result<_, _>>()?;
+        let cols: Vec<Option<&arrow::array::Float64Array>> = cols
+            .iter()
+            .map(|c| c.as_ref().map(|a| a.as_primitive::<Float64Type>()))
+            .collect();
+        let mut record: Vec<u8> = Vec::with_capacity(8 * cols.len());
+        for i in 0..b.num_rows() {
+            let o = if obs.is_null(i) { "" } else { obs.value(i) };
+            record.clear();
+            for (k, c) in cols.iter().enumerate() {
+                let x = match c {
+                    Some(c) if !c.is_null(i) => {
+                        let x = c.value(i);
+                        if !x.is_finite() {
+                            let what = if x.is_nan() { "NaN" } else { "infinite value" };
+                            let name = &self.covariates[k];
+                            return Err(InputError::new(
+                                source,
+                                format!(
+                                    "{what} in covariate `{name}` (use null for \"not measured\")"
+                                ),
+                            )
+                            .column(name)
+                            .row(i)
+                            .into());
+                        }
+                        self.any_finite[k] = true;
+                        x
+                    }
+                    _ => f64::NAN,
+                };
+                record.extend_from_slice(&x.to_le_bytes());
+            }
+            if !self.writers.contains_key(o) {
+                let path = self.dir.join(format!("{}.f64", self.writers.len()));
+                let f = File::create(&path)?;
+                self.writers.insert(
+                    o.to_string(),
+                    (std::io::BufWriter::with_capacity(1 << 20, f), path),
+                );
+            }
+            let (w, _) = self.writers.get_mut(o).expect("just made");
+            w.write_all(&record)?;
+        }
+        Ok(())
+    }
+
+    /// The spilled covariates, flushed.
+    pub fn finish(self) -> Result<Spilled> {
+        use std::io::Write;
+        let mut files = std::collections::BTreeMap::new();
+        for (o, (mut w, path)) in self.writers {
+            w.flush()?;
+            files.insert(o, path);
+        }
+        Ok(Spilled {
+            dir: self.dir,
+            covariates: self.covariates,
+            files,
+            any_finite: self.any_finite,
+        })
+    }
+}
+
+/// Covariates spilled per observable ([`CovariateSpill`]); removed from
+/// disk when dropped.
+pub struct Spilled {
+    dir: PathBuf,
+    covariates: Vec<String>,
+    files: std::collections::BTreeMap<String, PathBuf>,
+    any_finite: Vec<bool>,
+}
+
+impl Drop for Spilled {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.dir);
+    }
+}
+
+/// [`Covariates`] read from a [`Spilled`]: an observable's rows from its
+/// own file, in one sequential read.
+struct SpilledCovariates {
+    spilled: Spilled,
+    /// Covariates with a finite value somewhere, sorted, and each one's
+    /// place in a record.
+    names: Vec<String>,
+    at: Vec<usize>,
+    /// The file of each table observable id.
+    file_of: Vec<Option<PathBuf>>,
+}
+
+impl SpilledCovariates {
+    fn new(spilled: Spilled, obs_names: &[String]) -> SpilledCovariates {
+        let mut named: Vec<(String, usize)> = spilled
+            .covariates
+            .iter()
+            .enumerate()
+            .filter(|(k, _)| spilled.any_finite[*k])
+            .map(|(k, c)| (c.clone(), k))
+            .collect();
+        named.sort();
+        let file_of = obs_names
+            .iter()
+            .map(|o| spilled.files.get(o).cloned())
+            .collect();
+        SpilledCovariates {
+            names: named.iter().map(|(n, _)| n.clone()).collect(),
+            at: named.iter().map(|(_, k)| *k).collect(),
+            spilled,
+            file_of,
+        }
+    }
+
+    fn dropped(&self) -> Vec<String> {
+        let mut d: Vec<String> = self
+            .spilled
+            .covariates
+            .iter()
+            .zip(&self.spilled.any_finite)
+            .filter(|(_, f)| !**f)
+            .map(|(c, _)| c.clone())
+            .collect();
+        d.sort();
+        d
+    }
+}
+
+impl Covariates for SpilledCovariates {
+    fn names(&self) -> &[String] {
+        &self.names
+    }
+
+    fn gather(&self, obs: &[u32], asc: &[usize]) -> Result<Vec<Vec<f64>>> {
+        use std::io::Read;
+        let k = self.names.len();
+        let width = self.spilled.covariates.len();
+        let mut out: Vec<Vec<f64>> = (0..k).map(|_| vec![f64::NAN; asc.len()]).collect();
+        if k == 0 || asc.is_empty() {
+            return Ok(out);
+        }
+        // Each wanted row's rank among its observable's rows (its record).
+        let mut seen = vec![0usize; self.file_of.len()];
+        let mut wanted: Vec<Vec<(usize, usize)>> = vec![Vec::new(); self.file_of.len()];
+        let mut p = 0;
+        for (i, &o) in obs.iter().enumerate().take(asc[asc.len() - 1] + 1) {
+            if asc[p] == i {
+                wanted[o as usize].push((seen[o as usize], p));
+                p += 1;
+            }
+            seen[o as usize] += 1;
+        }
+        let mut record = vec![0u8; 8 * width];
+        for (o, want) in wanted.iter().enumerate() {
+            if want.is_empty() {
+                continue;
+            }
+            let Some(path) = &self.file_of[o] else {
+                continue;
+            };
+            let mut r = std::io::BufReader::with_capacity(1 << 20, File::open(path)?);
+            let mut rank = 0usize;
+            for &(want_rank, pos) in want {
+                while rank < want_rank {
+                    r.read_exact(&mut record)?;
+                    rank += 1;
+                }
+                r.read_exact(&mut record)?;
+                rank += 1;
+                for (j, &at) in self.at.iter().enumerate() {
+                    let b: [u8; 8] = record[8 * at..8 * at + 8].try_into().expect("8 bytes");
+                    out[j][pos] = f64::from_le_bytes(b);
+                }
+            }
+        }
+        Ok(out)
+    }
+}
