@@ -519,22 +519,27 @@ fn a_batch_rebuilt_from_the_table_diagnoses_as_its_input() {
     );
 }
 
+/// [`two_machine_fleet`] with a `temp_c` covariate of the given values.
+fn with_temp_c(v: Vec<Option<f64>>) -> arrow::array::RecordBatch {
+    use arrow::array::{Float64Array, RecordBatch};
+    use arrow::datatypes::{DataType, Field, Schema};
+    use std::sync::Arc;
+    let b = two_machine_fleet();
+    let mut fields: Vec<Arc<Field>> = b.schema().fields().iter().cloned().collect();
+    let mut cols = b.columns().to_vec();
+    fields.push(Arc::new(Field::new("temp_c", DataType::Float64, true)));
+    cols.push(Arc::new(Float64Array::from(v)));
+    RecordBatch::try_new(Arc::new(Schema::new(fields)), cols).unwrap()
+}
+
 /// The fleet's diagnosis reads its observations file one observable at a
 /// time: the same document and per-row table as the file read whole, over
 /// several row groups (some skipped for a machine's own diagnosis), with a
 /// covariate that is null on every row (dropped, with its note).
 #[test]
 fn the_file_read_per_observable_diagnoses_as_the_file_read_whole() {
-    use arrow::array::{Float64Array, RecordBatch};
-    use arrow::datatypes::{DataType, Field, Schema};
-    use std::sync::Arc;
-    let b = two_machine_fleet();
-    let n = b.num_rows();
-    let mut fields: Vec<Arc<Field>> = b.schema().fields().iter().cloned().collect();
-    let mut cols = b.columns().to_vec();
-    fields.push(Arc::new(Field::new("temp_c", DataType::Float64, true)));
-    cols.push(Arc::new(Float64Array::from(vec![None::<f64>; n])));
-    let b = RecordBatch::try_new(Arc::new(Schema::new(fields)), cols).unwrap();
+    let n = two_machine_fleet().num_rows();
+    let b = with_temp_c(vec![None; n]);
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("observations.parquet");
     let props = parquet::file::properties::WriterProperties::builder()
@@ -579,18 +584,9 @@ fn the_file_read_per_observable_diagnoses_as_the_file_read_whole() {
 /// the column and the row, as when the file is read whole.
 #[test]
 fn a_nan_covariate_in_the_file_names_file_column_and_row() {
-    use arrow::array::{Float64Array, RecordBatch};
-    use arrow::datatypes::{DataType, Field, Schema};
-    use std::sync::Arc;
-    let b = two_machine_fleet();
-    let n = b.num_rows();
-    let mut fields: Vec<Arc<Field>> = b.schema().fields().iter().cloned().collect();
-    let mut cols = b.columns().to_vec();
-    let mut v = vec![Some(1.0); n];
+    let mut v = vec![Some(1.0); two_machine_fleet().num_rows()];
     v[1234] = Some(f64::NAN);
-    fields.push(Arc::new(Field::new("temp_c", DataType::Float64, true)));
-    cols.push(Arc::new(Float64Array::from(v)));
-    let b = RecordBatch::try_new(Arc::new(Schema::new(fields)), cols).unwrap();
+    let b = with_temp_c(v);
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("observations.parquet");
     crate::contracts::write_parquet_atomic(&path, &b).unwrap();

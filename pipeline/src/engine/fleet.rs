@@ -42,14 +42,24 @@ impl FleetCache {
             write_atomic(&dir.join(name), bytes)?;
             hashes.insert(name.to_string(), hash_bytes(bytes));
         }
+        self.push_record(stage, version, key, hashes);
+        Ok(())
+    }
+
+    fn push_record(
+        &mut self,
+        stage: &str,
+        version: u32,
+        key: String,
+        files: BTreeMap<String, String>,
+    ) {
         self.records.push(StageRecord {
             stage: stage.into(),
             version,
             key,
-            files: hashes,
+            files,
             cached: false,
         });
-        Ok(())
     }
 }
 
@@ -68,13 +78,7 @@ impl FleetCache {
         for name in names {
             hashes.insert(name.to_string(), hash_file(&dir.join(name))?);
         }
-        self.records.push(StageRecord {
-            stage: stage.into(),
-            version,
-            key,
-            files: hashes,
-            cached: false,
-        });
+        self.push_record(stage, version, key, hashes);
         Ok(())
     }
 }
@@ -160,7 +164,7 @@ impl Engine {
                 Ok(with_machine_field(builder.schema()))
             })
             .collect::<Result<Vec<_>>>()?;
-        let union = Arc::new(union_schema(schemas.iter().map(|s| s.as_ref()))?);
+        let union = Arc::new(union_schema(schemas.iter())?);
         drop(schemas);
         let mut produced = Produced::new();
         let mut spill =
@@ -289,7 +293,11 @@ impl Engine {
         // has none and the diagnosis reads the file's columns instead.
         let (produced, spilled) = match joined {
             Some((p, s)) => (p, Some(s)),
-            None => (self.produced_observables(outcome)?, None),
+            None => {
+                // A spill a killed night left behind is not tonight's.
+                let _ = std::fs::remove_dir_all(spill_dir(&fleet_dir.join(OBSERVATIONS_FILE)));
+                (self.produced_observables(outcome)?, None)
+            }
         };
         let scoped: Vec<(Vec<String>, &PluginEffects)> = effects
             .iter()
