@@ -17,6 +17,7 @@ mod confounding;
 mod contracts_bad_input;
 mod demo_artifacts;
 mod deploy_recipes;
+mod diagnose_file;
 mod diagnose_robust;
 mod diagnose_validate;
 mod docs_agree;
