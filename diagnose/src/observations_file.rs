@@ -31,10 +31,14 @@ pub fn diagnose_observations_file(
     scopes: &[EffectScope],
     spilled: Option<Spilled>,
 ) -> Result<DiagnosisOutput> {
-    let covs = ParquetCovariates::open(path)?;
     let builder = open(path)?;
-    let keep: Vec<usize> = (0..builder.schema().fields().len())
-        .filter(|i| !covs.indices.contains(i))
+    let keep: Vec<usize> = builder
+        .schema()
+        .fields()
+        .iter()
+        .enumerate()
+        .filter(|(_, f)| !is_covariate(f.name(), f.data_type()))
+        .map(|(i, _)| i)
         .collect();
     let mask = ProjectionMask::roots(builder.parquet_schema(), keep);
     // The keys, sim and real batch by batch into the table's ids and gap:
@@ -68,6 +72,7 @@ pub fn diagnose_observations_file(
             table.covs = Box::new(covs);
         }
         None => {
+            let covs = ParquetCovariates::open(path)?;
             table.dropped = covs.dropped.clone();
             table.covs = Box::new(covs);
         }
@@ -86,8 +91,8 @@ fn open(path: &Path) -> Result<ParquetRecordBatchReaderBuilder<File>> {
 /// (null = "not measured", never NaN or ±inf).
 pub struct ParquetCovariates {
     path: PathBuf,
-    /// Covariates with a finite value somewhere, sorted by name, and their
-    /// column indices in the file.
+    /// Covariates with a finite value somewhere, sorted by name, and each
+    /// one's column index in the file.
     names: Vec<String>,
     indices: Vec<usize>,
     /// Covariates with no value at all (every row null).
@@ -136,16 +141,7 @@ impl ParquetCovariates {
         }
         named.sort();
         dropped.sort();
-        // Read order = name order; the dropped ones after (never read).
-        let mut indices: Vec<usize> = named.iter().map(|(_, i)| *i).collect();
-        indices.extend(
-            schema
-                .fields()
-                .iter()
-                .enumerate()
-                .filter(|(_, f)| dropped.contains(f.name()))
-                .map(|(i, _)| i),
-        );
+        let indices: Vec<usize> = named.iter().map(|(_, i)| *i).collect();
         Ok(ParquetCovariates {
             path: path.to_path_buf(),
             names: named.into_iter().map(|(n, _)| n).collect(),
@@ -195,7 +191,7 @@ impl Covariates for ParquetCovariates {
             .map_err(|e| InputError::new(&self.path, format!("cannot open: {e}")))?;
         let meta = ArrowReaderMetadata::load(&file, Default::default())?;
         let file_schema = meta.schema().clone();
-        let mask = ProjectionMask::roots(meta.parquet_schema(), self.indices[..k].to_vec());
+        let mask = ProjectionMask::roots(meta.parquet_schema(), self.indices.clone());
         // A projected batch holds the columns in file order.
         let mut file_order: Vec<usize> = (0..k).collect();
         file_order.sort_by_key(|&j| self.indices[j]);

@@ -635,44 +635,6 @@ pub fn conform(b: RecordBatch, union: &arrow::datatypes::SchemaRef) -> Result<Re
     Ok(RecordBatch::try_new(union.clone(), cols)?)
 }
 
-/// Concatenate batches whose schemas may differ: the union of columns
-/// ([`union_schema`]), nulls where a batch lacks a column.
-pub fn union_concat(batches: Vec<RecordBatch>) -> Result<RecordBatch> {
-    use arrow::array::new_null_array;
-    let schema = Arc::new(union_schema(
-        batches.iter().map(|b| b.schema_ref().as_ref()),
-    )?);
-    // Column by column, each batch's column is let go once it is copied
-    // into the union: the fleet's rows are held once plus one column, not
-    // twice (the join was the peak of `aggregate`'s memory).
-    let mut parts_of: Vec<(usize, BTreeMap<String, arrow::array::ArrayRef>)> = batches
-        .into_iter()
-        .map(|b| {
-            let n = b.num_rows();
-            let (schema, columns, _) = b.into_parts();
-            let named = schema
-                .fields()
-                .iter()
-                .map(|f| f.name().clone())
-                .zip(columns);
-            (n, named.collect())
-        })
-        .collect();
-    let mut columns = Vec::new();
-    for f in schema.fields() {
-        let parts: Vec<arrow::array::ArrayRef> = parts_of
-            .iter_mut()
-            .map(|(n, cols)| {
-                cols.remove(f.name())
-                    .unwrap_or_else(|| new_null_array(f.data_type(), *n))
-            })
-            .collect();
-        let refs: Vec<&dyn arrow::array::Array> = parts.iter().map(|a| a.as_ref()).collect();
-        columns.push(arrow::compute::concat(&refs)?);
-    }
-    Ok(RecordBatch::try_new(schema, columns)?)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -689,8 +651,8 @@ mod tests {
     }
 
     /// Streamed to a file one at a time, batches of differing columns read
-    /// back as their one-shot union: same columns in first-seen order,
-    /// nullability, values and nulls.
+    /// back as their union: columns in first-seen order, nullable where a
+    /// batch lacks one, values and nulls.
     #[test]
     fn a_union_streamed_to_a_file_is_the_union() {
         let f = |v: Vec<f64>| -> ArrayRef { Arc::new(Float64Array::from(v)) };
@@ -706,7 +668,13 @@ mod tests {
                 }
             })
             .collect();
-        let whole = union_concat(batches.clone()).unwrap();
+        let union =
+            Arc::new(union_schema(batches.iter().map(|b| b.schema_ref().as_ref())).unwrap());
+        let conformed: Vec<RecordBatch> = batches
+            .iter()
+            .map(|b| conform(b.clone(), &union).unwrap())
+            .collect();
+        let whole = arrow::compute::concat_batches(&union, &conformed).unwrap();
         assert_eq!(whole.num_rows(), 21);
         assert!(whole
             .schema()
@@ -714,15 +682,13 @@ mod tests {
             .unwrap()
             .is_nullable());
         // The streamed join: each batch conformed to the union schema and
-        // written one after another reads back as the one-shot union.
-        let union =
-            Arc::new(union_schema(batches.iter().map(|b| b.schema_ref().as_ref())).unwrap());
+        // written one after another reads back as the union.
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("observations.parquet");
         crate::contracts::write::write_parquet_batches_atomic(
             &path,
             union.clone(),
-            batches.iter().map(|b| conform(b.clone(), &union)),
+            conformed.into_iter().map(Ok),
         )
         .unwrap();
         assert_eq!(crate::contracts::read_parquet(&path).unwrap(), whole);
