@@ -6,7 +6,6 @@
 
 use std::collections::BTreeMap;
 
-use arrow::array::RecordBatch;
 use serde::{Deserialize, Serialize};
 
 use crate::augment::AugmentedModelFile;
@@ -376,10 +375,8 @@ pub struct MachineEffect {
 
 pub struct DiagnosisOutput {
     pub diagnosis: Diagnosis,
-    /// diagnosis.parquet: [machine,] run, observable, gap,
-    /// contrib_<name:cov>…, residual_after — one row per observation, in
-    /// input order.
-    pub per_row: RecordBatch,
+    /// diagnosis.parquet, built a slice at a time as it is written.
+    pub per_row: crate::per_row::PerRow,
     /// The selected effects fitted on all runs, for a simulator to add
     /// (augmented_model.json).
     pub augmented_model: AugmentedModelFile,

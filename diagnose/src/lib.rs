@@ -32,6 +32,7 @@ pub mod observations;
 pub mod observations_file;
 pub mod outliers;
 pub mod output;
+pub mod per_row;
 pub mod report;
 pub mod select;
 
@@ -56,7 +57,9 @@ pub use effect::{
     FittedEffect, Kind, LinearForm,
 };
 pub use observations::read_observations;
-pub use observations_file::diagnose_observations_file;
+pub use observations_file::{
+    diagnose_indexed, diagnose_observations_file, index_observations_file, IndexedFile,
+};
 pub use output::{
     CellBound, CvInfo, Diagnosis, DiagnosisOutput, EffectEntry, GapSummary, MachineFit,
     ObservableSummary, Unexplained, WhereCell,

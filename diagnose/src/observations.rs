@@ -53,7 +53,7 @@ pub fn read_observations(path: &Path) -> Result<RecordBatch> {
 /// Text written as large_utf8 / utf8-view / dictionary (pandas, polars) →
 /// utf8, and sim/real written as integers or decimals → float64, with the
 /// same checked conversion as every contract table (docs/formats.md).
-fn normalise_types(batch: RecordBatch, path: &Path) -> Result<RecordBatch> {
+pub(crate) fn normalise_types(batch: RecordBatch, path: &Path) -> Result<RecordBatch> {
     use crate::contracts::convert::{normalise, type_accepted, TimeOrigin};
     use crate::contracts::ColumnKind;
     let schema = batch.schema();
@@ -812,6 +812,7 @@ pub trait Covariates: Send + Sync {
 /// Covariates held in memory: the input batch's buffers, shared where
 /// they are Float64 without nulls (a fleet's covariates are most of the
 /// diagnosis' memory).
+#[derive(Default)]
 pub struct InMemory {
     names: Vec<String>,
     columns: Vec<ScalarBuffer<f64>>,

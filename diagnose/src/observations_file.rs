@@ -13,7 +13,10 @@ use parquet::arrow::arrow_reader::{ArrowReaderMetadata, ParquetRecordBatchReader
 use parquet::arrow::ProjectionMask;
 
 use crate::config_check::Checked;
-use crate::observations::{is_covariate, validate_observations, Covariates, Table, TableParts};
+use crate::contracts::parquet_file::{checked_batches, corrupt_page, open_parquet};
+use crate::observations::{
+    is_covariate, normalise_types, validate_observations, Covariates, Table, TableParts,
+};
 use crate::{DiagnoseConfig, DiagnosisOutput, EffectScope, InputError, Result};
 
 /// Rows per batch read from the file.
@@ -31,7 +34,18 @@ pub fn diagnose_observations_file(
     scopes: &[EffectScope],
     spilled: Option<Spilled>,
 ) -> Result<DiagnosisOutput> {
-    let builder = open(path)?;
+    diagnose_indexed(index_observations_file(path)?, cfg, scopes, spilled)
+}
+
+/// The keys, sim and real of the Parquet file `path`, read batch by batch
+/// into a [`Table`] (never the file's text columns at once), each batch
+/// checked as [`crate::read_observations`] checks the whole table (text
+/// as large_utf8 or dictionary and integer sim/real accepted; a bad row is
+/// named by its row in the file). The covariates stay in the file:
+/// [`diagnose_indexed`] reads them one observable at a time.
+pub fn index_observations_file(path: &Path) -> Result<IndexedFile> {
+    let builder = open_parquet(path)?;
+    let meta = builder.metadata().clone();
     let keep: Vec<usize> = builder
         .schema()
         .fields()
@@ -41,15 +55,14 @@ pub fn diagnose_observations_file(
         .map(|(i, _)| i)
         .collect();
     let mask = ProjectionMask::roots(builder.parquet_schema(), keep);
-    // The keys, sim and real batch by batch into the table's ids and gap:
-    // never the fleet's text columns at once.
     let mut parts = TableParts::new(path);
     let mut offset = 0usize;
-    for b in builder
+    let reader = builder
         .with_projection(mask)
         .with_batch_size(READ_ROWS)
-        .build()?
-    {
+        .build()
+        .map_err(|e| corrupt_page(path, &meta, 0, e))?;
+    for b in checked_batches(path, &meta, 0, reader) {
         let b = b?;
         let n = b.num_rows();
         let at_row = |e: crate::Error| match e.input() {
@@ -60,11 +73,41 @@ pub fn diagnose_observations_file(
             }
             _ => e,
         };
-        let b = validate_observations(&b, path).map_err(at_row)?;
+        let b = normalise_types(b, path)
+            .and_then(|b| validate_observations(&b, path))
+            .map_err(at_row)?;
         parts.push(Table::from_batch(&b)?)?;
         offset += n;
     }
-    let mut table = parts.finish()?;
+    Ok(IndexedFile {
+        path: path.to_path_buf(),
+        table: parts.finish()?,
+    })
+}
+
+/// A file's table indexed by [`index_observations_file`], its covariates
+/// still in the file.
+pub struct IndexedFile {
+    path: PathBuf,
+    table: Table,
+}
+
+impl IndexedFile {
+    /// The observables of the file, sorted.
+    pub fn observables(&self) -> &[String] {
+        &self.table.obs_names
+    }
+}
+
+/// Diagnoses an indexed file, its covariates read from `spilled` when
+/// given, else from the file's columns ([`ParquetCovariates`]).
+pub fn diagnose_indexed(
+    file: IndexedFile,
+    cfg: &Checked<DiagnoseConfig>,
+    scopes: &[EffectScope],
+    spilled: Option<Spilled>,
+) -> Result<DiagnosisOutput> {
+    let IndexedFile { path, mut table } = file;
     match spilled {
         Some(spilled) => {
             let covs = SpilledCovariates::new(spilled, &table.obs_names);
@@ -72,17 +115,12 @@ pub fn diagnose_observations_file(
             table.covs = Box::new(covs);
         }
         None => {
-            let covs = ParquetCovariates::open(path)?;
+            let covs = ParquetCovariates::open(&path)?;
             table.dropped = covs.dropped.clone();
             table.covs = Box::new(covs);
         }
     }
     crate::diagnose_table(table, cfg, scopes)
-}
-
-fn open(path: &Path) -> Result<ParquetRecordBatchReaderBuilder<File>> {
-    let f = File::open(path).map_err(|e| InputError::new(path, format!("cannot open: {e}")))?;
-    Ok(ParquetRecordBatchReaderBuilder::try_new(f)?)
 }
 
 /// Covariates read from a Parquet file by table row (its row order), one
@@ -103,7 +141,7 @@ pub struct ParquetCovariates {
 
 impl ParquetCovariates {
     pub fn open(path: &Path) -> Result<ParquetCovariates> {
-        let builder = open(path)?;
+        let builder = open_parquet(path)?;
         let meta = builder.metadata().clone();
         let schema = builder.schema().clone();
         let mut group_starts = Vec::with_capacity(meta.num_row_groups());
@@ -153,9 +191,14 @@ impl ParquetCovariates {
 }
 
 fn column_all_null(path: &Path, i: usize) -> Result<bool> {
-    let builder = open(path)?;
+    let builder = open_parquet(path)?;
+    let meta = builder.metadata().clone();
     let mask = ProjectionMask::roots(builder.parquet_schema(), [i]);
-    for b in builder.with_projection(mask).build()? {
+    let reader = builder
+        .with_projection(mask)
+        .build()
+        .map_err(|e| corrupt_page(path, &meta, 0, e))?;
+    for b in checked_batches(path, &meta, 0, reader) {
         let b = b?;
         if b.column(0).null_count() < b.num_rows() {
             return Ok(false);
@@ -204,7 +247,7 @@ impl Covariates for ParquetCovariates {
                     .build()?;
             let mut offset = self.group_starts[g];
             let mut p = asc.partition_point(|&r| r < offset);
-            for b in reader {
+            for b in checked_batches(&self.path, meta.metadata(), offset, reader) {
                 let b = b?;
                 let n = b.num_rows();
                 let from = p;

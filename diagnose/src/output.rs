@@ -3,10 +3,6 @@
 //! field unchanged — and the per-row diagnosis.parquet.
 
 use std::collections::{BTreeMap, BTreeSet};
-use std::sync::Arc;
-
-use arrow::array::{ArrayRef, Float64Array, RecordBatch};
-use arrow::datatypes::{DataType, Field, Schema};
 
 use super::augment::{AugmentedModelFile, ModelEffect, ModelFactor, ModelFrame, ModelLinear};
 use super::effect::Effect;
@@ -22,43 +18,6 @@ const PAIRED_TEST: &str = "one-sided paired t-test on ln(rms_before/rms_after) o
 
 use crate::document::fin;
 pub use crate::document::*;
-
-pub fn per_row_batch(
-    table: &Table,
-    gap: Vec<f64>,
-    mut contrib: BTreeMap<String, Vec<f64>>,
-    keys: &[String],
-    residual: Vec<f64>,
-) -> Result<RecordBatch> {
-    let every: Vec<usize> = (0..table.n).collect();
-    let to_utf8 = |name: &str| -> Result<ArrayRef> { Ok(table.text_column(name, &every)) };
-    let has_machine = table.has_machine;
-    let mut fields = Vec::new();
-    let mut cols: Vec<ArrayRef> = Vec::new();
-    if has_machine {
-        fields.push(Field::new("machine", DataType::Utf8, false));
-        cols.push(to_utf8("machine")?);
-    }
-    fields.extend([
-        Field::new("run", DataType::Utf8, false),
-        Field::new("observable", DataType::Utf8, false),
-        Field::new("gap", DataType::Float64, false),
-    ]);
-    // The columns move into the batch (no copy of a fleet-sized vector).
-    cols.extend([
-        to_utf8("run")?,
-        to_utf8("observable")?,
-        Arc::new(Float64Array::from(gap)) as ArrayRef,
-    ]);
-    for k in keys {
-        fields.push(Field::new(format!("contrib_{k}"), DataType::Float64, false));
-        let c = contrib.remove(k).expect("a selected key has its column");
-        cols.push(Arc::new(Float64Array::from(c)));
-    }
-    fields.push(Field::new("residual_after", DataType::Float64, false));
-    cols.push(Arc::new(Float64Array::from(residual)));
-    Ok(RecordBatch::try_new(Arc::new(Schema::new(fields)), cols)?)
-}
 
 /// Per selected effect (in selection order): does it hold for every machine?
 /// Empty entries without a `machine` column or with one machine.
@@ -401,21 +360,21 @@ pub fn assemble(
         machine_effects: Vec::new(),
     };
     diagnosis.machine_effects = localise(&table, &diagnosis)?;
-    table.real_u = None;
     let gap = std::mem::take(&mut table.gap);
-    let per_row = per_row_batch(
-        &table,
+    let fitted_on_runs = table.run_names.clone();
+    let per_row = crate::per_row::PerRow::new(
+        table,
         gap,
         std::mem::take(&mut acc.contrib_cols),
         &acc.selected_keys,
         std::mem::take(&mut acc.residual_all),
-    )?;
+    );
     let augmented_model = AugmentedModelFile {
         applies_as: "real ≈ sim + Σ over effects of (offset_mm + form(covariates; params)), per observable; forms as in the effect catalogue of docs/formats.md".into(),
         effects: acc.augmented,
         // `run --augment` reports the augmented gap on the runs not listed
         // here (held out by construction).
-        fitted_on_runs: table.run_names.clone(),
+        fitted_on_runs,
         kind: super::augment::MODEL_KIND.into(),
         version: 1,
     };

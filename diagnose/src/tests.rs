@@ -499,7 +499,10 @@ fn a_batch_rebuilt_from_the_table_diagnoses_as_its_input() {
         serde_json::to_string(&direct.diagnosis).unwrap(),
         serde_json::to_string(&again.diagnosis).unwrap()
     );
-    assert_eq!(direct.per_row, again.per_row);
+    assert_eq!(
+        direct.per_row.to_batch().unwrap(),
+        again.per_row.to_batch().unwrap()
+    );
     // The fixture does exercise what it is meant to: a converted unit and
     // an effect localised to one machine.
     let po = &direct.diagnosis.per_observable;
@@ -559,7 +562,10 @@ fn the_file_read_per_observable_diagnoses_as_the_file_read_whole() {
     let by_observable = super::diagnose_observations_file(&path, &cfg, &[], None).unwrap();
     let json = |d: &super::DiagnosisOutput| serde_json::to_string(&d.diagnosis).unwrap();
     assert_eq!(json(&whole), json(&by_observable));
-    assert_eq!(whole.per_row, by_observable.per_row);
+    assert_eq!(
+        whole.per_row.to_batch().unwrap(),
+        by_observable.per_row.to_batch().unwrap()
+    );
     // The same with the covariates spilled per observable as the rows
     // stream past (in two pieces); the spill goes with the diagnosis.
     let spill_dir = dir.path().join(".spill");
@@ -570,7 +576,10 @@ fn the_file_read_per_observable_diagnoses_as_the_file_read_whole() {
     let spilled = spill.finish().unwrap();
     let from_spill = super::diagnose_observations_file(&path, &cfg, &[], Some(spilled)).unwrap();
     assert_eq!(json(&whole), json(&from_spill));
-    assert_eq!(whole.per_row, from_spill.per_row);
+    assert_eq!(
+        whole.per_row.to_batch().unwrap(),
+        from_spill.per_row.to_batch().unwrap()
+    );
     assert!(!spill_dir.exists(), "the spill outlived the diagnosis");
     assert!(
         whole.diagnosis.notes.iter().any(|n| n.contains("temp_c")),
@@ -653,4 +662,83 @@ fn a_table_built_in_parts_is_the_whole_table() {
     assert_eq!(t.obs, whole.obs);
     assert_eq!(t.gap, whole.gap);
     assert_eq!(t.has_machine, whole.has_machine);
+}
+
+/// The file read batch by batch accepts what the whole read accepts (text
+/// written as large_utf8 or dictionary, as polars and pandas write it) and
+/// gives the same diagnosis; a covariate page that does not decode is the
+/// file's error naming the page's row group, not a crash.
+#[test]
+fn the_file_read_in_batches_accepts_foreign_types_and_names_a_corrupt_covariate_page() {
+    use arrow::array::RecordBatch;
+    use arrow::datatypes::{DataType, Field, Schema};
+    use std::sync::Arc;
+    let b = with_temp_c(
+        (0..two_machine_fleet().num_rows())
+            .map(|i| Some(20.0 + (i % 7) as f64))
+            .collect(),
+    );
+    let dict = DataType::Dictionary(Box::new(DataType::Int32), Box::new(DataType::Utf8));
+    let mut fields: Vec<Arc<Field>> = Vec::new();
+    let mut cols = Vec::new();
+    for (f, c) in b.schema().fields().iter().zip(b.columns()) {
+        let to = match f.name().as_str() {
+            "run" | "machine" => DataType::LargeUtf8,
+            "observable" => dict.clone(),
+            _ => f.data_type().clone(),
+        };
+        cols.push(arrow::compute::cast(c, &to).unwrap());
+        fields.push(Arc::new(Field::new(f.name(), to, f.is_nullable())));
+    }
+    let foreign = RecordBatch::try_new(Arc::new(Schema::new(fields)), cols).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("foreign.parquet");
+    let props = parquet::file::properties::WriterProperties::builder()
+        .set_max_row_group_row_count(Some(1000))
+        .set_compression(parquet::basic::Compression::UNCOMPRESSED)
+        .set_dictionary_enabled(false)
+        .build();
+    let mut w = parquet::arrow::ArrowWriter::try_new(
+        std::fs::File::create(&path).unwrap(),
+        foreign.schema(),
+        Some(props),
+    )
+    .unwrap();
+    w.write(&foreign).unwrap();
+    w.close().unwrap();
+    let cfg = crate::config_check::Checked::check(super::DiagnoseConfig::default()).unwrap();
+    let whole =
+        super::diagnose_checked(super::read_observations(&path).unwrap(), &cfg, &[]).unwrap();
+    let file = super::index_observations_file(&path).unwrap();
+    assert_eq!(file.observables(), ["a_um", "b"]);
+    let by_file = super::diagnose_indexed(file, &cfg, &[], None).unwrap();
+    let json = |d: &super::DiagnosisOutput| serde_json::to_string(&d.diagnosis).unwrap();
+    assert_eq!(json(&whole), json(&by_file));
+    assert_eq!(
+        whole.per_row.to_batch().unwrap(),
+        by_file.per_row.to_batch().unwrap()
+    );
+    // Garbage over the page header of temp_c's third row group.
+    let meta = parquet::file::reader::FileReader::metadata(
+        &parquet::file::reader::SerializedFileReader::new(std::fs::File::open(&path).unwrap())
+            .unwrap(),
+    )
+    .clone();
+    let g = meta.row_group(2);
+    let leaf = (0..g.num_columns())
+        .find(|&j| g.column(j).column_path().string() == "temp_c")
+        .unwrap();
+    let at = g.column(leaf).data_page_offset() as usize;
+    let mut bytes = std::fs::read(&path).unwrap();
+    bytes[at..at + 24].fill(0xFF);
+    std::fs::write(&path, bytes).unwrap();
+    let e = super::diagnose_observations_file(&path, &cfg, &[], None)
+        .err()
+        .unwrap();
+    assert!(e.input().is_some(), "{e:#}");
+    let e = format!("{e:#}");
+    assert!(
+        e.contains("foreign.parquet") && e.contains("corrupt data page in row group 2"),
+        "{e}"
+    );
 }

@@ -7,10 +7,12 @@
 //! is pooled across observables of different scales (the touch probe's
 //! noise would swamp every real gap). Candidates stay, folded.
 
-use std::collections::{BTreeMap, BTreeSet};
+use std::collections::BTreeMap;
 use std::fmt::Write;
 
-use super::fleet_data::{binned_means, grid_means, per_run_rms, FleetRows, RunRms};
+use super::fleet_data::{
+    curve_covariate, per_run_rms, Bins, Cells, FleetFigures, GroupFigures, RunRms,
+};
 use super::svg::{heat, mini_curve, mini_heat, shared_vmax, xy_chart_sized, Heat, Mark, Series};
 use super::{esc, page, title_of};
 use crate::diagnose::{Diagnosis, EffectEntry, ObservableSummary};
@@ -46,7 +48,7 @@ type Tree<'a> = BTreeMap<&'a str, BTreeMap<String, Vec<String>>>;
 /// The page's outline from the rows (the diagnosis's observables when the
 /// rows could not be read).
 fn machine_tree<'a>(
-    rows: Option<&FleetRows>,
+    rows: Option<&FleetFigures>,
     per_obs: &BTreeMap<&str, &ObservableSummary>,
     type_of: &BTreeMap<&str, &'a str>,
 ) -> Tree<'a> {
@@ -139,10 +141,15 @@ pub fn fleet_page(
     let obs_file = fleet_dir.join(crate::files::OBSERVATIONS_FILE);
     let diag_file = fleet_dir.join("diagnosis.parquet");
     let rows = if obs_file.is_file() {
-        match FleetRows::load(
+        match FleetFigures::load(
             &obs_file,
-            diagnosis.map(|_| diag_file.as_path()),
-            &covariates_drawn(diagnosis),
+            diagnosis.map(|d| (diag_file.as_path(), d)),
+            Bins {
+                map: MAP_BINS,
+                mini_map: MINI_MAP_BINS,
+                curve: CURVE_BINS,
+                mini_curve: MINI_CURVE_BINS,
+            },
         ) {
             Ok(r) => Some(r),
             Err(e) => {
@@ -202,12 +209,11 @@ pub fn fleet_page(
                     );
                 }
                 if let Some(r) = &rows {
-                    if let Some(idx) = r.groups.get(&(m.clone(), o.clone())) {
+                    if let Some(fig) = r.groups.get(&(m.clone(), o.clone())) {
                         body.push_str(&pictures(
                             diagnosis,
                             p,
-                            r,
-                            idx,
+                            fig,
                             per_run.get(&(m.clone(), o.clone())),
                             o,
                         ));

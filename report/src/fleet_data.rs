@@ -10,29 +10,16 @@ use std::path::Path;
 use arrow::array::{Array, AsArray, RecordBatch};
 use arrow::datatypes::DataType as ArrowType;
 
+use crate::diagnose::Diagnosis;
 use crate::error::Result;
 
-/// The fleet's rows, the columns the page needs, grouped by (machine,
-/// observable).
-pub struct FleetRows {
-    /// Row indices per (machine, observable), in row order; machine is ""
-    /// when the table has no `machine` column (a v1 table).
-    pub groups: BTreeMap<(String, String), Vec<usize>>,
-    /// real − sim, in the observable's unit.
-    pub gap: Vec<f64>,
-    /// Held-out residual after the selected effects (each run's residual
-    /// from effects fitted on the other runs); NaN without a diagnosis.
-    pub residual: Vec<f64>,
-    /// The numeric columns asked for (covariates) and the diagnosis's
-    /// `contrib_<effect:covariate>` columns; NaN where null.
-    pub num: BTreeMap<String, Vec<f64>>,
-}
-
-/// The named columns of a Parquet file (those it has), in batches: only
-/// what is drawn is read (a 1000-run fleet has millions of rows), and the
-/// batches are not concatenated — the page copies what it keeps out of
-/// them, so the fleet's columns are never held twice.
-fn read_columns(path: &Path, wanted: impl Fn(&str) -> bool) -> Result<Vec<RecordBatch>> {
+/// The named columns of a Parquet file (those it has), batch by batch:
+/// only what is drawn is read, and never the whole file at once (a
+/// 2 000-run fleet has tens of millions of rows).
+fn batches(
+    path: &Path,
+    wanted: impl Fn(&str) -> bool,
+) -> Result<impl Iterator<Item = Result<RecordBatch>>> {
     use crate::Context;
     use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
     use parquet::arrow::ProjectionMask;
@@ -50,30 +37,21 @@ fn read_columns(path: &Path, wanted: impl Fn(&str) -> bool) -> Result<Vec<Record
         .collect();
     let mask = ProjectionMask::roots(b.parquet_schema(), idx);
     let reader = b.with_projection(mask).with_batch_size(65_536).build()?;
-    let batches = reader
-        .collect::<std::result::Result<Vec<_>, _>>()
-        .with_context(|| format!("{}: cannot read", path.display()))?;
-    Ok(batches)
+    let path = path.to_path_buf();
+    Ok(reader.map(move |b| {
+        use crate::Context;
+        b.with_context(|| format!("{}: cannot read", path.display()))
+    }))
 }
 
-/// Rows in all batches.
-fn rows_of(batches: &[RecordBatch]) -> usize {
-    batches.iter().map(RecordBatch::num_rows).sum()
-}
-
-/// Column `name` of every batch as text (None when a batch lacks it).
-fn utf8_all(batches: &[RecordBatch], name: &str) -> Option<Vec<arrow::array::ArrayRef>> {
-    batches.iter().map(|b| utf8(b, name)).collect()
-}
-
-/// Column `name` of every batch as one float column (None when it is not
-/// numeric or a batch lacks it).
-fn floats_all(batches: &[RecordBatch], name: &str) -> Option<Vec<f64>> {
-    let mut out = Vec::with_capacity(rows_of(batches));
-    for b in batches {
-        out.extend(floats(b.column_by_name(name)?.as_ref())?);
-    }
-    Some(out)
+/// Rows of a Parquet file, from its footer.
+fn rows_in(path: &Path) -> Result<usize> {
+    use crate::Context;
+    let file = std::fs::File::open(path)
+        .with_context(|| format!("cannot open {} for the fleet report", path.display()))?;
+    let b = parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder::try_new(file)
+        .with_context(|| format!("{}: not a readable Parquet file", path.display()))?;
+    Ok(b.metadata().file_metadata().num_rows().max(0) as usize)
 }
 
 fn utf8(b: &RecordBatch, name: &str) -> Option<arrow::array::ArrayRef> {
@@ -94,142 +72,543 @@ fn floats(a: &dyn Array) -> Option<Vec<f64>> {
     )
 }
 
-impl FleetRows {
-    /// Read the observations (key columns, sim, real and the covariates
-    /// in `covariates`) and, when present, the diagnosis rows.
+/// A numeric column of a batch (None when absent or not numeric).
+fn num_col(b: &RecordBatch, name: &str) -> Option<Vec<f64>> {
+    b.column_by_name(name).and_then(|a| floats(a.as_ref()))
+}
+
+/// The covariate an effect's curve is drawn against. A 2-D covariate
+/// (thermal_bow:y_mm,t_s): the map shows the positions, the curve the other.
+pub fn curve_covariate(effect_key: &str) -> &str {
+    let covs: Vec<&str> = effect_key
+        .split_once(':')
+        .map(|(_, c)| c.split(',').collect())
+        .unwrap_or_default();
+    covs.iter()
+        .find(|c| !matches!(**c, "x_mm" | "y_mm"))
+        .or(covs.first())
+        .copied()
+        .unwrap_or("")
+}
+
+/// Bins per axis the page draws: the gap map and its thumbnail over x/y,
+/// the curve against the named covariate and its thumbnail.
+#[derive(Clone, Copy, Debug)]
+pub struct Bins {
+    pub map: usize,
+    pub mini_map: usize,
+    pub curve: usize,
+    pub mini_curve: usize,
+}
+
+/// A map's cells: (x, y, mean of each series) for cells with data,
+/// ordered by x then y.
+pub type Cells = Vec<(f64, f64, Vec<f64>)>;
+/// A curve's bins: (bin centre, mean of each series), ascending.
+pub type Curve = Vec<(f64, Vec<f64>)>;
+
+/// What the page draws of one (machine, observable), reduced as the rows
+/// stream past: nothing here grows with the rows.
+#[derive(Debug, Default)]
+pub struct GroupFigures {
+    /// Some held-out residual is finite (there is an "after").
+    pub has_after: bool,
+    /// Over x_mm/y_mm when both have a value: the mean of [gap², held-out
+    /// residual²] per cell, at [`Bins::map`] and [`Bins::mini_map`].
+    pub map: Option<Cells>,
+    pub mini_map: Option<Cells>,
+    /// Against the named effect's covariate when it has a value: the mean
+    /// of [gap less the other selected effects, the named effect's
+    /// contribution, held-out residual, gap] per bin, at [`Bins::curve`]
+    /// and [`Bins::mini_curve`].
+    pub curve: Option<Curve>,
+    pub mini_curve: Option<Curve>,
+    /// The named effect's contribution has a value.
+    pub has_fit: bool,
+}
+
+/// The page's figures per (machine, observable); machine is "" when the
+/// table has no `machine` column (a v1 table).
+pub struct FleetFigures {
+    pub groups: BTreeMap<(String, String), GroupFigures>,
+}
+
+/// The distinct finite values of a covariate up to this many are kept per
+/// group: enough for every bin count drawn (the distinct values are the
+/// bins when there are no more than the bins).
+const AXIS_DISTINCT: usize = 64;
+
+/// The finite values of a covariate seen in one group, reduced to what
+/// its axis needs: the extremes and the first [`AXIS_DISTINCT`] distinct
+/// values (sorted). -0.0 counts as 0.0.
+#[derive(Clone, Debug, Default)]
+struct AxisScan {
+    uniq: Vec<f64>,
+    lo: f64,
+    hi: f64,
+    seen: bool,
+    more: bool,
+}
+
+impl AxisScan {
+    fn push(&mut self, x: f64) {
+        if !x.is_finite() {
+            return;
+        }
+        let x = x + 0.0;
+        if self.seen {
+            self.lo = self.lo.min(x);
+            self.hi = self.hi.max(x);
+        } else {
+            (self.lo, self.hi, self.seen) = (x, x, true);
+        }
+        if !self.more {
+            if let Err(p) = self.uniq.binary_search_by(|u| u.total_cmp(&x)) {
+                if self.uniq.len() < AXIS_DISTINCT {
+                    self.uniq.insert(p, x);
+                } else {
+                    self.more = true;
+                }
+            }
+        }
+    }
+
+    /// At most `max_bins` bins: the distinct values themselves when there
+    /// are no more than that, else equal-width bins over the range.
+    fn axis(&self, max_bins: usize) -> Option<Axis> {
+        assert!(max_bins < AXIS_DISTINCT, "an axis of {max_bins} bins");
+        if !self.seen {
+            return None;
+        }
+        if !self.more && self.uniq.len() <= max_bins {
+            return Some(Axis::Distinct(self.uniq.clone()));
+        }
+        Some(Axis::Width {
+            lo: self.lo,
+            w: (self.hi - self.lo) / max_bins as f64,
+            bins: max_bins,
+        })
+    }
+}
+
+#[derive(Clone, Debug)]
+enum Axis {
+    Distinct(Vec<f64>),
+    Width { lo: f64, w: f64, bins: usize },
+}
+
+impl Axis {
+    fn index(&self, x: f64) -> Option<usize> {
+        if !x.is_finite() {
+            return None;
+        }
+        let x = x + 0.0;
+        Some(match self {
+            Axis::Distinct(u) => u.partition_point(|v| v.total_cmp(&x).is_lt()),
+            Axis::Width { lo, w, bins } => (((x - lo) / w) as usize).min(bins - 1),
+        })
+    }
+
+    fn centre(&self, i: usize) -> f64 {
+        match self {
+            Axis::Distinct(u) => u[i],
+            Axis::Width { lo, w, .. } => lo + (i as f64 + 0.5) * w,
+        }
+    }
+}
+
+/// Per (x, y) cell, the sum and count of each series' finite values, in
+/// the order the rows come: the same sums whether the rows are at hand or
+/// streaming past.
+struct Grid {
+    x: Axis,
+    y: Axis,
+    cells: BTreeMap<(usize, usize), (Vec<f64>, Vec<usize>)>,
+    series: usize,
+}
+
+impl Grid {
+    fn new(x: Axis, y: Axis, series: usize) -> Grid {
+        Grid {
+            x,
+            y,
+            cells: BTreeMap::new(),
+            series,
+        }
+    }
+
+    fn push(&mut self, x: f64, y: f64, values: &[f64]) {
+        let (Some(i), Some(j)) = (self.x.index(x), self.y.index(y)) else {
+            return;
+        };
+        let n = self.series;
+        let e = self
+            .cells
+            .entry((i, j))
+            .or_insert_with(|| (vec![0.0; n], vec![0; n]));
+        for (k, v) in values.iter().enumerate() {
+            if v.is_finite() {
+                e.0[k] += v;
+                e.1[k] += 1;
+            }
+        }
+    }
+
+    fn finish(self) -> Cells {
+        let (x, y) = (self.x, self.y);
+        self.cells
+            .into_iter()
+            .map(|((i, j), (sum, n))| {
+                let means = sum
+                    .iter()
+                    .zip(&n)
+                    .map(|(s, &c)| if c > 0 { s / c as f64 } else { f64::NAN })
+                    .collect();
+                (x.centre(i), y.centre(j), means)
+            })
+            .collect()
+    }
+}
+
+/// Mean of each value series per (x, y) grid cell: (x, y, mean per series)
+/// for cells with data, ordered by x then y. At most `max_bins`² cells.
+pub fn grid_means(x: &[f64], y: &[f64], series: &[&[f64]], max_bins: usize) -> Cells {
+    let scan = |v: &[f64]| {
+        let mut s = AxisScan::default();
+        v.iter().for_each(|&x| s.push(x));
+        s.axis(max_bins)
+    };
+    let (Some(ax), Some(ay)) = (scan(x), scan(y)) else {
+        return Vec::new();
+    };
+    let mut g = Grid::new(ax, ay, series.len());
+    let mut row = vec![0.0; series.len()];
+    for r in 0..x.len() {
+        for (k, s) in series.iter().enumerate() {
+            row[k] = s[r];
+        }
+        g.push(x[r], y[r], &row);
+    }
+    g.finish()
+}
+
+/// Mean of each value series per bin of `c`: (bin centre, means), bins in
+/// ascending order, empty bins left out. At most `max_bins` bins.
+pub fn binned_means(c: &[f64], series: &[&[f64]], max_bins: usize) -> Curve {
+    let ones = vec![0.0; c.len()];
+    grid_means(c, &ones, series, max_bins)
+        .into_iter()
+        .map(|(x, _, m)| (x, m))
+        .collect()
+}
+
+/// What one observable's pictures read: the covariate its named effect
+/// is drawn against and the contribution columns of the named effect and
+/// of the other selected effects.
+#[derive(Clone, Debug, Default)]
+struct Drawn {
+    cov: Option<String>,
+    fit: Option<String>,
+    others: Vec<String>,
+}
+
+/// Rows in runs of one (machine, observable): the group of each row,
+/// without a String per row.
+struct GroupOf {
+    current: Option<(String, String)>,
+}
+
+impl GroupOf {
+    fn at(&mut self, m: &str, o: &str) -> (&(String, String), bool) {
+        let same = matches!(&self.current, Some((cm, co)) if cm == m && co == o);
+        if !same {
+            self.current = Some((m.to_string(), o.to_string()));
+        }
+        (self.current.as_ref().expect("set"), !same)
+    }
+}
+
+impl FleetFigures {
+    /// Two passes over fleet/observations.parquet and, when there is a
+    /// diagnosis, the row-aligned fleet/diagnosis.parquet (docs/formats.md
+    /// §8: one diagnosis row per observation, in input order): the first
+    /// finds each group's axes (the covariates' extremes and first
+    /// distinct values), the second sums each cell and bin in row order.
+    /// Memory is the groups' cells, not the rows.
     pub fn load(
         observations: &Path,
-        diagnosis: Option<&Path>,
-        covariates: &[String],
+        diagnosis: Option<(&Path, &Diagnosis)>,
+        bins: Bins,
     ) -> Result<Self> {
-        let keys = ["machine", "run", "observable", "sim", "real"];
-        let ob = read_columns(observations, |n| {
-            keys.contains(&n) || covariates.iter().any(|c| c == n)
-        })?;
         let need = |name: &str| {
             crate::err!(
                 "{}: no column `{name}`; rerun `sparkout run` to rewrite the fleet tables",
                 observations.display()
             )
         };
-        let n = rows_of(&ob);
-        let run = utf8_all(&ob, "run").ok_or_else(|| need("run"))?;
-        let obs = utf8_all(&ob, "observable").ok_or_else(|| need("observable"))?;
-        let machine = utf8_all(&ob, "machine");
-        let mut groups: BTreeMap<(String, String), Vec<usize>> = BTreeMap::new();
-        {
-            // Rows come in runs of one (machine, observable): one String
-            // pair per run of rows, not per row.
-            let mut current: Option<((String, String), Vec<usize>)> = None;
-            let mut row = 0;
-            for (bi, o) in obs.iter().enumerate() {
-                let o_s = o.as_string::<i32>();
-                let m_s = machine.as_ref().map(|m| m[bi].as_string::<i32>());
-                for i in 0..o_s.len() {
-                    let (m, o) = (m_s.map(|m| m.value(i)).unwrap_or(""), o_s.value(i));
-                    match &mut current {
-                        Some(((cm, co), rows)) if cm == m && co == o => rows.push(row),
-                        _ => {
-                            if let Some((k, rows)) = current.take() {
-                                groups.entry(k).or_default().extend(rows);
-                            }
-                            current = Some(((m.to_string(), o.to_string()), vec![row]));
+        // Per observable, what its pictures draw.
+        let mut drawn: BTreeMap<String, Drawn> = BTreeMap::new();
+        for p in diagnosis.iter().flat_map(|(_, d)| &d.per_observable) {
+            let Some(k) = p.selected.first() else {
+                continue;
+            };
+            drawn.insert(
+                p.observable.clone(),
+                Drawn {
+                    cov: Some(curve_covariate(k).to_string()),
+                    fit: Some(format!("contrib_{k}")),
+                    others: p
+                        .selected
+                        .iter()
+                        .filter(|o| *o != k)
+                        .map(|o| format!("contrib_{o}"))
+                        .collect(),
+                },
+            );
+        }
+        let covs: Vec<String> = drawn.values().filter_map(|d| d.cov.clone()).collect();
+        let ob_cols = |n: &str| {
+            [
+                "machine",
+                "run",
+                "observable",
+                "sim",
+                "real",
+                "x_mm",
+                "y_mm",
+            ]
+            .contains(&n)
+                || covs.iter().any(|c| c == n)
+        };
+        // Pass 1: the groups and their axes.
+        #[derive(Default)]
+        struct Scans {
+            x: AxisScan,
+            y: AxisScan,
+            c: AxisScan,
+        }
+        let mut scans: BTreeMap<(String, String), Scans> = BTreeMap::new();
+        let mut group = GroupOf { current: None };
+        for b in batches(observations, ob_cols)? {
+            let b = b?;
+            let obs = utf8(&b, "observable").ok_or_else(|| need("observable"))?;
+            let machine = utf8(&b, "machine");
+            let (o_s, m_s) = (
+                obs.as_string::<i32>(),
+                machine.as_ref().map(|m| m.as_string::<i32>()),
+            );
+            let (x, y) = (num_col(&b, "x_mm"), num_col(&b, "y_mm"));
+            let mut s: Option<&mut Scans> = None;
+            let mut c: Option<Vec<f64>> = None;
+            for i in 0..b.num_rows() {
+                let (key, new) = group.at(m_s.map_or("", |m| m.value(i)), o_s.value(i));
+                if new || s.is_none() {
+                    let cov = drawn.get(&key.1).and_then(|d| d.cov.as_deref());
+                    c = cov.and_then(|n| num_col(&b, n));
+                    s = Some(scans.entry(key.clone()).or_default());
+                }
+                let sc = s.as_deref_mut().expect("set");
+                if let (Some(x), Some(y)) = (&x, &y) {
+                    sc.x.push(x[i]);
+                    sc.y.push(y[i]);
+                }
+                if let Some(c) = &c {
+                    sc.c.push(c[i]);
+                }
+            }
+        }
+        // Pass 2: the sums, row by row, the diagnosis beside the rows.
+        struct Acc {
+            g: GroupFigures,
+            map: Option<Grid>,
+            mini_map: Option<Grid>,
+            curve: Option<Grid>,
+            mini_curve: Option<Grid>,
+        }
+        let zero = Axis::Distinct(vec![0.0]);
+        let mut acc: BTreeMap<(String, String), Acc> = scans
+            .into_iter()
+            .map(|(k, s)| {
+                let grid = |n: usize, series: usize| match (s.x.axis(n), s.y.axis(n)) {
+                    (Some(x), Some(y)) => Some(Grid::new(x, y, series)),
+                    _ => None,
+                };
+                let curve = |n: usize| s.c.axis(n).map(|c| Grid::new(c, zero.clone(), 4));
+                let a = Acc {
+                    g: GroupFigures::default(),
+                    map: grid(bins.map, 2),
+                    mini_map: grid(bins.mini_map, 2),
+                    curve: curve(bins.curve),
+                    mini_curve: curve(bins.mini_curve),
+                };
+                (k, a)
+            })
+            .collect();
+        let n_obs = rows_in(observations)?;
+        let mut diag = match diagnosis {
+            Some((dp, _)) if dp.is_file() => {
+                let n_diag = rows_in(dp)?;
+                let misaligned = move || {
+                    crate::err!(
+                        "{}: its {} rows do not line up with the {} rows of {}; rerun `sparkout run` to recompute the diagnosis",
+                        dp.display(),
+                        n_diag,
+                        n_obs,
+                        observations.display()
+                    )
+                };
+                if n_diag != n_obs {
+                    return Err(misaligned());
+                }
+                let it = batches(dp, |c| {
+                    c == "run" || c == "gap" || c == "residual_after" || c.starts_with("contrib_")
+                })?;
+                Some((Lockstep::new(Box::new(it)), misaligned))
+            }
+            _ => None,
+        };
+        let mut group = GroupOf { current: None };
+        for b in batches(observations, ob_cols)? {
+            let b = b?;
+            if b.num_rows() == 0 {
+                continue;
+            }
+            let obs = utf8(&b, "observable").ok_or_else(|| need("observable"))?;
+            let run = utf8(&b, "run").ok_or_else(|| need("run"))?;
+            let machine = utf8(&b, "machine");
+            let (o_s, r_s, m_s) = (
+                obs.as_string::<i32>(),
+                run.as_string::<i32>(),
+                machine.as_ref().map(|m| m.as_string::<i32>()),
+            );
+            let (x, y) = (num_col(&b, "x_mm"), num_col(&b, "y_mm"));
+            // The diagnosis's rows beside this batch's.
+            let d = match &mut diag {
+                Some((l, misaligned)) => {
+                    let d = l.take(b.num_rows())?.ok_or_else(&*misaligned)?;
+                    let d_run = utf8(&d, "run").ok_or_else(&*misaligned)?;
+                    if !d_run.as_string::<i32>().iter().eq(r_s.iter()) {
+                        return Err(misaligned());
+                    }
+                    Some(d)
+                }
+                None => None,
+            };
+            let (gap, residual) = match &d {
+                Some(d) => (num_col(d, "gap"), num_col(d, "residual_after")),
+                None => (None, None),
+            };
+            let gap = match gap {
+                Some(g) => g,
+                None => {
+                    let sim = num_col(&b, "sim").ok_or_else(|| need("sim"))?;
+                    let real = num_col(&b, "real").ok_or_else(|| need("real"))?;
+                    real.iter().zip(&sim).map(|(r, s)| r - s).collect()
+                }
+            };
+            let mut a: Option<&mut Acc> = None;
+            let (mut c, mut fit, mut others) = (None, None, Vec::new());
+            for i in 0..b.num_rows() {
+                let (key, new) = group.at(m_s.map_or("", |m| m.value(i)), o_s.value(i));
+                if new || a.is_none() {
+                    let dr = drawn.get(&key.1).cloned().unwrap_or_default();
+                    c = dr.cov.as_deref().and_then(|n| num_col(&b, n));
+                    let contrib = |n: &str| d.as_ref().and_then(|d| num_col(d, n));
+                    fit = dr.fit.as_deref().and_then(contrib);
+                    others = dr.others.iter().filter_map(|o| contrib(o)).collect();
+                    a = Some(acc.get_mut(key).expect("every group was scanned"));
+                }
+                let a = a.as_deref_mut().expect("set");
+                let (g, r) = (gap[i], residual.as_ref().map_or(f64::NAN, |r| r[i]));
+                a.g.has_after |= r.is_finite();
+                if let (Some(x), Some(y)) = (&x, &y) {
+                    let sq = [g * g, r * r];
+                    if let Some(m) = &mut a.map {
+                        m.push(x[i], y[i], &sq);
+                    }
+                    if let Some(m) = &mut a.mini_map {
+                        m.push(x[i], y[i], &sq);
+                    }
+                }
+                if let Some(c) = &c {
+                    // The gap less the other selected effects, in their order.
+                    let mut partial = g;
+                    for o in &others {
+                        if o[i].is_finite() {
+                            partial -= o[i];
                         }
                     }
-                    row += 1;
-                }
-            }
-            if let Some((k, rows)) = current {
-                groups.entry(k).or_default().extend(rows);
-            }
-        }
-        drop((obs, machine));
-        let mut num = BTreeMap::new();
-        if let Some(first) = ob.first() {
-            for f in first.schema().fields() {
-                if covariates.iter().any(|c| c == f.name()) {
-                    if let Some(v) = floats_all(&ob, f.name()) {
-                        num.insert(f.name().clone(), v);
+                    let f = fit.as_ref().map_or(f64::NAN, |f| f[i]);
+                    a.g.has_fit |= f.is_finite();
+                    let v = [partial, f, r, g];
+                    if let Some(k) = &mut a.curve {
+                        k.push(c[i], 0.0, &v);
+                    }
+                    if let Some(k) = &mut a.mini_curve {
+                        k.push(c[i], 0.0, &v);
                     }
                 }
             }
         }
-        let mut gap: Vec<f64> = Vec::with_capacity(n);
-        for b in &ob {
-            let col_of = |c: &str| b.column_by_name(c).and_then(|a| floats(a.as_ref()));
-            let sim = col_of("sim").ok_or_else(|| need("sim"))?;
-            let real = col_of("real").ok_or_else(|| need("real"))?;
-            gap.extend(real.iter().zip(&sim).map(|(r, s)| r - s));
-        }
-        drop(ob);
-        let mut residual = vec![f64::NAN; n];
-        if let Some(dp) = diagnosis.filter(|p| p.is_file()) {
-            let d = read_columns(dp, |c| {
-                c == "run" || c == "gap" || c == "residual_after" || c.starts_with("contrib_")
-            })?;
-            // Row-aligned by contract; a stale file from another batch is
-            // not drawn rather than drawn against the wrong rows.
-            let aligned = rows_of(&d) == n
-                && utf8_all(&d, "run")
-                    .map(|dr| {
-                        dr.iter()
-                            .flat_map(|x| x.as_string::<i32>().iter())
-                            .eq(run.iter().flat_map(|x| x.as_string::<i32>().iter()))
-                    })
-                    .unwrap_or(false);
-            if !aligned {
-                crate::bail!(
-                    "{}: its {} rows do not line up with the {} rows of {}; rerun `sparkout run` to recompute the diagnosis",
-                    dp.display(),
-                    rows_of(&d),
-                    n,
-                    observations.display()
-                );
-            }
-            drop(run);
-            let names: Vec<String> = d
-                .first()
-                .map(|b| {
-                    b.schema()
-                        .fields()
-                        .iter()
-                        .map(|f| f.name().clone())
-                        .collect()
-                })
-                .unwrap_or_default();
-            for name in names {
-                let Some(v) = floats_all(&d, &name) else {
-                    continue;
-                };
-                match name.as_str() {
-                    "gap" => gap = v,
-                    "residual_after" => residual = v,
-                    c if c.starts_with("contrib_") => {
-                        num.insert(name.clone(), v);
-                    }
-                    _ => {}
-                }
-            }
-        }
-        Ok(FleetRows {
-            groups,
-            gap,
-            residual,
-            num,
-        })
+        let curve =
+            |g: Option<Grid>| g.map(|g| g.finish().into_iter().map(|(x, _, m)| (x, m)).collect());
+        let groups = acc
+            .into_iter()
+            .map(|(k, a)| {
+                let mut g = a.g;
+                g.map = a.map.map(Grid::finish);
+                g.mini_map = a.mini_map.map(Grid::finish);
+                g.curve = curve(a.curve);
+                g.mini_curve = curve(a.mini_curve);
+                (k, g)
+            })
+            .collect();
+        Ok(FleetFigures { groups })
+    }
+}
+
+/// Batches of one file cut to the row counts of another's: the
+/// diagnosis's rows beside each batch of the observations, whatever the
+/// two files' batch boundaries.
+struct Lockstep {
+    it: Box<dyn Iterator<Item = Result<RecordBatch>>>,
+    pending: Option<RecordBatch>,
+}
+
+impl Lockstep {
+    fn new(it: Box<dyn Iterator<Item = Result<RecordBatch>>>) -> Lockstep {
+        Lockstep { it, pending: None }
     }
 
-    /// A numeric column's values at `rows` (None when the table lacks it
-    /// or every value there is missing).
-    pub fn values(&self, col: &str, rows: &[usize]) -> Option<Vec<f64>> {
-        let c = self.num.get(col)?;
-        let v: Vec<f64> = rows.iter().map(|&i| c[i]).collect();
-        v.iter().any(|x| x.is_finite()).then_some(v)
-    }
-
-    /// `v` (a full column) at `rows`.
-    pub fn at(v: &[f64], rows: &[usize]) -> Vec<f64> {
-        rows.iter().map(|&i| v[i]).collect()
+    /// The next `n` rows as one batch (None when the file ends first).
+    fn take(&mut self, n: usize) -> Result<Option<RecordBatch>> {
+        let mut parts: Vec<RecordBatch> = Vec::new();
+        let mut have = 0;
+        while have < n {
+            let b = match self.pending.take() {
+                Some(b) => b,
+                None => match self.it.next() {
+                    Some(b) => b?,
+                    None => return Ok(None),
+                },
+            };
+            let want = n - have;
+            if b.num_rows() > want {
+                self.pending = Some(b.slice(want, b.num_rows() - want));
+                parts.push(b.slice(0, want));
+                have = n;
+            } else {
+                have += b.num_rows();
+                parts.push(b);
+            }
+        }
+        match parts.len() {
+            1 => Ok(parts.pop()),
+            _ => Ok(Some(arrow::compute::concat_batches(
+                &parts[0].schema(),
+                &parts,
+            )?)),
+        }
     }
 }
 
@@ -249,7 +628,7 @@ pub struct RunRms {
 /// group-by held the fleet's key strings and their row encoding at once,
 /// the peak of a 2 000-run `aggregate`'s memory.
 pub fn per_run_rms(diagnosis: &Path) -> Result<BTreeMap<(String, String), Vec<RunRms>>> {
-    let batches = read_columns(diagnosis, |c| {
+    let batches = batches(diagnosis, |c| {
         matches!(
             c,
             "machine" | "observable" | "run" | "gap" | "residual_after"
@@ -259,7 +638,8 @@ pub fn per_run_rms(diagnosis: &Path) -> Result<BTreeMap<(String, String), Vec<Ru
     type Sums = (usize, f64, f64);
     let mut sums: BTreeMap<(String, String, String), Sums> = BTreeMap::new();
     let mut current: Option<((String, String, String), Sums)> = None;
-    for b in &batches {
+    for b in batches {
+        let b = &b?;
         let text = |c: &str| {
             utf8(b, c).ok_or_else(|| crate::err!("{}: no column `{c}`", diagnosis.display()))
         };
@@ -310,86 +690,6 @@ pub fn per_run_rms(diagnosis: &Path) -> Result<BTreeMap<(String, String), Vec<Ru
     Ok(out)
 }
 
-/// Equal-width bins of `v` (at most `max_bins`; the distinct values
-/// themselves when there are no more than that): each value's bin index
-/// and the bin centres.
-fn bin_axis(v: &[f64], max_bins: usize) -> (Vec<Option<usize>>, Vec<f64>) {
-    let mut uniq: Vec<f64> = v.iter().copied().filter(|x| x.is_finite()).collect();
-    uniq.sort_by(f64::total_cmp);
-    uniq.dedup();
-    if uniq.is_empty() {
-        return (vec![None; v.len()], Vec::new());
-    }
-    if uniq.len() <= max_bins {
-        let idx = v
-            .iter()
-            .map(|x| {
-                x.is_finite()
-                    .then(|| uniq.partition_point(|u| u.total_cmp(x).is_lt()))
-            })
-            .collect();
-        return (idx, uniq);
-    }
-    let (lo, hi) = (uniq[0], uniq[uniq.len() - 1]);
-    let w = (hi - lo) / max_bins as f64;
-    let idx = v
-        .iter()
-        .map(|x| {
-            x.is_finite()
-                .then(|| (((x - lo) / w) as usize).min(max_bins - 1))
-        })
-        .collect();
-    let centres = (0..max_bins).map(|k| lo + (k as f64 + 0.5) * w).collect();
-    (idx, centres)
-}
-
-/// Mean of each value series per (x, y) grid cell: (x, y, mean per series)
-/// for cells with data, ordered by x then y. At most `max_bins`² cells.
-pub fn grid_means(
-    x: &[f64],
-    y: &[f64],
-    series: &[&[f64]],
-    max_bins: usize,
-) -> Vec<(f64, f64, Vec<f64>)> {
-    let (ix, cx) = bin_axis(x, max_bins);
-    let (iy, cy) = bin_axis(y, max_bins);
-    let mut acc: BTreeMap<(usize, usize), (Vec<f64>, Vec<usize>)> = BTreeMap::new();
-    for r in 0..x.len() {
-        let (Some(i), Some(j)) = (ix[r], iy[r]) else {
-            continue;
-        };
-        let e = acc
-            .entry((i, j))
-            .or_insert_with(|| (vec![0.0; series.len()], vec![0; series.len()]));
-        for (k, s) in series.iter().enumerate() {
-            if s[r].is_finite() {
-                e.0[k] += s[r];
-                e.1[k] += 1;
-            }
-        }
-    }
-    acc.into_iter()
-        .map(|((i, j), (sum, n))| {
-            let means = sum
-                .iter()
-                .zip(&n)
-                .map(|(s, &c)| if c > 0 { s / c as f64 } else { f64::NAN })
-                .collect();
-            (cx[i], cy[j], means)
-        })
-        .collect()
-}
-
-/// Mean of each value series per bin of `c`: (bin centre, means), bins in
-/// ascending order, empty bins left out. At most `max_bins` bins.
-pub fn binned_means(c: &[f64], series: &[&[f64]], max_bins: usize) -> Vec<(f64, Vec<f64>)> {
-    let ones = vec![0.0; c.len()];
-    grid_means(c, &ones, series, max_bins)
-        .into_iter()
-        .map(|(x, _, m)| (x, m))
-        .collect()
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -413,6 +713,19 @@ mod tests {
         // Each cell's mean of x lies inside its x bin.
         let w = 999.0 * 0.37 / 10.0;
         assert!(g.iter().all(|c| (c.2[0] - c.0).abs() <= w / 2.0 + 1e-9));
+    }
+
+    /// -0.0 and 0.0 are one value: one cell, not an index past the
+    /// last distinct value.
+    #[test]
+    fn minus_zero_is_zero() {
+        let c = [-0.0, 0.0, 1.0, -0.0];
+        let v = [1.0, 3.0, 5.0, 7.0];
+        let b = binned_means(&c, &[&v], 40);
+        assert_eq!(
+            format!("{b:?}"),
+            "[(0.0, [3.6666666666666665]), (1.0, [5.0])]"
+        );
     }
 
     #[test]

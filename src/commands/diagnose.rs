@@ -4,7 +4,7 @@ use std::path::Path;
 
 use anyhow::{bail, Context};
 use sparkout_pipeline::config_check::Checked;
-use sparkout_pipeline::contracts::{write_atomic, write_json_atomic, write_parquet_atomic};
+use sparkout_pipeline::contracts::{write_atomic, write_json_atomic};
 use sparkout_pipeline::diagnose::{self, DiagnoseConfig, EffectScope};
 
 use crate::registry;
@@ -43,11 +43,11 @@ fn produced_by(declared: &[&str], observable: &str) -> bool {
 
 pub fn diagnose(observations: &Path, out: &Path, flags: &Flags) -> anyhow::Result<u8> {
     let cfg = config(flags)?;
-    let obs = diagnose::read_observations(observations)?;
-    let table_observables: Vec<String> = {
-        let t = diagnose::observations::Table::from_batch(&obs)?;
-        t.obs_names
-    };
+    // The keys, sim and real indexed batch by batch; the covariates are
+    // read from the file one observable at a time, so a table far larger
+    // than memory diagnoses (docs/scale.md).
+    let file = diagnose::index_observations_file(observations)?;
+    let table_observables = file.observables().to_vec();
     // A foreign table gets the catalogue only; `--plugin NAME` adds that
     // plugin's composites, scoped to the observables it produces when the
     // table has any of them (a sparkout fleet table), else to all.
@@ -74,8 +74,8 @@ pub fn diagnose(observations: &Path, out: &Path, flags: &Flags) -> anyhow::Resul
             effects,
         })
         .collect();
-    let d = diagnose::diagnose_checked(obs, &cfg, &scopes)?;
-    write_parquet_atomic(&out.join("diagnosis.parquet"), &d.per_row)?;
+    let d = diagnose::diagnose_indexed(file, &cfg, &scopes, None)?;
+    d.per_row.write_parquet(&out.join("diagnosis.parquet"))?;
     write_json_atomic(&out.join("augmented_model.json"), &d.augmented_model)?;
     let page = format!(
         "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>sparkout diagnosis</title></head><body>\n<h1>Sim-to-real gap diagnosis of {}</h1>\n{}\n</body></html>\n",

@@ -268,7 +268,7 @@ fn same_seed_gives_byte_identical_json_and_per_row_columns() {
         "{sel:?}"
     );
     // per-row table
-    let pr = &a.per_row;
+    let pr = &a.per_row.to_batch().unwrap();
     assert_eq!(pr.num_rows(), b.num_rows());
     let names: Vec<String> = pr
         .schema()

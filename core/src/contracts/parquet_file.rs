@@ -222,6 +222,60 @@ fn quiet_decoder_panics() {
     });
 }
 
+/// The batches of a Parquet reader, each decoder failure (an error or a
+/// panic, [`next_batch`]) a [`corrupt_page`] naming the row where it
+/// happened; the reader stops at the first. `first_row`: the file row of
+/// the reader's first row (a reader of selected row groups starts at its
+/// first group).
+pub struct CheckedBatches<'a, I> {
+    path: &'a Path,
+    meta: &'a ParquetMetaData,
+    reader: I,
+    row: usize,
+    failed: bool,
+}
+
+pub fn checked_batches<'a, I>(
+    path: &'a Path,
+    meta: &'a ParquetMetaData,
+    first_row: usize,
+    reader: I,
+) -> CheckedBatches<'a, I>
+where
+    I: Iterator<Item = Result<RecordBatch, arrow::error::ArrowError>>,
+{
+    CheckedBatches {
+        path,
+        meta,
+        reader,
+        row: first_row,
+        failed: false,
+    }
+}
+
+impl<I> Iterator for CheckedBatches<'_, I>
+where
+    I: Iterator<Item = Result<RecordBatch, arrow::error::ArrowError>>,
+{
+    type Item = Result<RecordBatch, InputError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        if self.failed {
+            return None;
+        }
+        match next_batch(&mut self.reader)? {
+            Ok(b) => {
+                self.row += b.num_rows();
+                Some(Ok(b))
+            }
+            Err(e) => {
+                self.failed = true;
+                Some(Err(corrupt_page(self.path, self.meta, self.row, e)))
+            }
+        }
+    }
+}
+
 /// Decode every row group of an opened file into one batch; a batch that
 /// does not decode is a [`corrupt_page`].
 pub fn read_all(
@@ -230,16 +284,10 @@ pub fn read_all(
 ) -> Result<RecordBatch, InputError> {
     let schema = builder.schema().clone();
     let meta = builder.metadata().clone();
-    let mut reader = builder
+    let reader = builder
         .build()
         .map_err(|e| corrupt_page(path, &meta, 0, e))?;
-    let mut batches = Vec::new();
-    let mut row = 0;
-    while let Some(b) = next_batch(&mut reader) {
-        let b = b.map_err(|e| corrupt_page(path, &meta, row, e))?;
-        row += b.num_rows();
-        batches.push(b);
-    }
+    let batches = checked_batches(path, &meta, 0, reader).collect::<Result<Vec<_>, _>>()?;
     arrow::compute::concat_batches(&schema, &batches)
         .map_err(|e| InputError::new(path, format!("cannot assemble table: {e}")))
 }

@@ -327,16 +327,27 @@ impl Engine {
         .context("fleet diagnosis")?;
         progress.message("writing the diagnosis");
         crate::alloc::release_freed_memory();
-        cache.write(
+        // The per-row table is built a slice at a time as it is written.
+        d.per_row
+            .write_parquet(&fleet_dir.join("diagnosis.parquet"))?;
+        let files: [(&str, &[u8]); 3] = [
+            ("diagnosis.json", &json_bytes(&d.diagnosis)?),
+            ("augmented_model.json", &json_bytes(&d.augmented_model)?),
+            ("diagnosis_section.html", d.report_html.as_bytes()),
+        ];
+        for (name, bytes) in files {
+            write_atomic(&fleet_dir.join(name), bytes)?;
+        }
+        cache.record_written(
             "diagnose",
             DIAGNOSE_STAGE_VERSION,
             dkey,
             fleet_dir,
             &[
-                ("diagnosis.json", &json_bytes(&d.diagnosis)?),
-                ("diagnosis.parquet", &parquet_bytes(&d.per_row)?),
-                ("augmented_model.json", &json_bytes(&d.augmented_model)?),
-                ("diagnosis_section.html", d.report_html.as_bytes()),
+                "diagnosis.json",
+                "diagnosis.parquet",
+                "augmented_model.json",
+                "diagnosis_section.html",
             ],
         )?;
         Ok((Some(d.diagnosis), Some(d.report_html)))

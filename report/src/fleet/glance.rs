@@ -113,7 +113,7 @@ fn augment_cell(augment: &AugmentReport, o: &str, m: &str, u: &Unit) -> String {
 pub(super) fn glance_table(
     tree: &Tree,
     per_obs: &BTreeMap<&str, &ObservableSummary>,
-    rows: Option<&FleetRows>,
+    rows: Option<&FleetFigures>,
     augment: Option<&AugmentReport>,
 ) -> String {
     if tree.is_empty() {

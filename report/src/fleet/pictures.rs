@@ -30,18 +30,11 @@ pub(super) struct RmsMaps {
     pub outlined: Vec<(f64, f64)>,
 }
 
-/// The RMS of each series per grid cell: a mean would cancel an effect
-/// whose sign alternates within a cell (a reversal spike, a ripple), so
-/// the map shows how large the gap is, not its average.
-pub(super) fn rms_maps(
-    (x, y): (&[f64], &[f64]),
-    (gap, res): (&[f64], &[f64]),
-    regions: &[[(f64, f64); 2]],
-    scale: f64,
-) -> RmsMaps {
-    let sq = |v: &[f64]| v.iter().map(|g| g * g).collect::<Vec<f64>>();
-    let (g2, r2) = (sq(gap), sq(res));
-    let cells = grid_means(x, y, &[&g2, &r2], MAP_BINS);
+/// [`RmsMaps`] from the mean gap² and held-out residual² per cell: the
+/// RMS, not the mean gap — a mean would cancel an effect whose sign
+/// alternates within a cell (a reversal spike, a ripple), so the map shows
+/// how large the gap is, not its average.
+pub(super) fn maps_of_cells(cells: &Cells, regions: &[[(f64, f64); 2]], scale: f64) -> RmsMaps {
     let pick = |k: usize| -> Vec<(f64, f64, f64)> {
         cells
             .iter()
@@ -113,18 +106,16 @@ pub(super) fn render_maps(m: &RmsMaps, observable: &str, unit: &str, has_after: 
 /// whether any cell is outlined.
 fn where_maps(
     d: Option<&Diagnosis>,
-    rows: &FleetRows,
-    idx: &[usize],
+    fig: &GroupFigures,
     observable: &str,
     u: &Unit,
-    (gap, res): (&[f64], &[f64]),
     has_after: bool,
 ) -> (String, bool) {
-    let (Some(x), Some(y)) = (rows.values("x_mm", idx), rows.values("y_mm", idx)) else {
+    let Some(cells) = &fig.map else {
         return (String::new(), false);
     };
     let tiles = d.map(|d| xy_tiles(d, observable)).unwrap_or_default();
-    let m = rms_maps((&x, &y), (gap, res), &tiles, u.scale);
+    let m = maps_of_cells(cells, &tiles, u.scale);
     (
         render_maps(&m, observable, &u.shown, has_after),
         !m.outlined.is_empty(),
@@ -135,44 +126,25 @@ fn where_maps(
 /// effect's covariate, with its fitted curve and the held-out gap after.
 fn which_curve(
     po: Option<&ObservableSummary>,
-    rows: &FleetRows,
-    idx: &[usize],
+    fig: &GroupFigures,
     observable: &str,
     u: &Unit,
-    (gap, res): (&[f64], &[f64]),
 ) -> String {
-    let has_after = res.iter().any(|r| r.is_finite());
+    let has_after = fig.has_after;
     let mut h = String::new();
     let selected: &[String] = po.map_or(&[], |p| &p.selected);
     let named = selected.first().map(String::as_str);
     if let Some(k) = named {
         let cov = curve_covariate(k);
-        let others: Vec<String> = selected
-            .iter()
-            .filter(|o| *o != k)
-            .map(|o| format!("contrib_{o}"))
-            .collect();
-        let c = rows.values(cov, idx);
-        let fit = rows.values(&format!("contrib_{k}"), idx);
-        if let (Some(c), Some(fit)) = (c, fit) {
+        let others = selected.iter().any(|o| o != k);
+        if let (Some(b), true) = (&fig.curve, fig.has_fit) {
             // Partial gap: the gap less the other selected effects, so the
             // named effect's curve is drawn against what it has to explain.
-            let mut partial = gap.to_vec();
-            for o in &others {
-                if let Some(v) = rows.values(o, idx) {
-                    for (p, x) in partial.iter_mut().zip(&v) {
-                        if x.is_finite() {
-                            *p -= x;
-                        }
-                    }
-                }
-            }
-            let b = binned_means(&c, &[&partial, &fit, res], CURVE_BINS);
             let pick = |k: usize| -> Vec<(f64, f64)> {
                 b.iter().map(|(x, m)| (*x, m[k] * u.scale)).collect()
             };
             let (pg, pf, pr) = (pick(0), pick(1), pick(2));
-            let gap_name = if others.is_empty() {
+            let gap_name = if !others {
                 "gap (mean per bin)".to_string()
             } else {
                 "gap less the other effects (mean per bin)".to_string()
@@ -315,29 +287,18 @@ fn how_far_runs(
 pub(super) fn pictures(
     d: Option<&Diagnosis>,
     po: Option<&ObservableSummary>,
-    rows: &FleetRows,
-    idx: &[usize],
+    fig: &GroupFigures,
     runs: Option<&Vec<RunRms>>,
     observable: &str,
 ) -> String {
     let u = unit_of(observable, po.map(|p| p.unit.as_str()));
     let mut h = String::from("<div class=\"figs\">");
-    let gap = FleetRows::at(&rows.gap, idx);
-    let res = FleetRows::at(&rows.residual, idx);
-    let has_after = res.iter().any(|r| r.is_finite());
+    let has_after = fig.has_after;
     // Nothing selected: the gap after is the gap before; one map.
     let selected = po.is_some_and(|p| !p.selected.is_empty());
-    let (maps, outlined) = where_maps(
-        d,
-        rows,
-        idx,
-        observable,
-        &u,
-        (&gap, &res),
-        has_after && selected,
-    );
+    let (maps, outlined) = where_maps(d, fig, observable, &u, has_after && selected);
     h.push_str(&maps);
-    h.push_str(&which_curve(po, rows, idx, observable, &u, (&gap, &res)));
+    h.push_str(&which_curve(po, fig, observable, &u));
     let few = runs.filter(|r| !r.is_empty() && r.len() < MIN_RUNS_CHARTED);
     if has_after && few.is_none() {
         h.push_str(&how_far_runs(po, runs, observable, &u));
@@ -352,20 +313,6 @@ pub(super) fn pictures(
     h
 }
 
-/// The covariate an effect's curve is drawn against. A 2-D covariate
-/// (thermal_bow:y_mm,t_s): the map shows the positions, the curve the other.
-pub(super) fn curve_covariate(effect_key: &str) -> &str {
-    let covs: Vec<&str> = effect_key
-        .split_once(':')
-        .map(|(_, c)| c.split(',').collect())
-        .unwrap_or_default();
-    covs.iter()
-        .find(|c| !matches!(**c, "x_mm" | "y_mm"))
-        .or(covs.first())
-        .copied()
-        .unwrap_or("")
-}
-
 /// Cells per axis of the at-a-glance gap map thumbnail.
 pub(super) const MINI_MAP_BINS: usize = 8;
 /// Size in px of the at-a-glance thumbnails: wide enough to read a
@@ -378,28 +325,18 @@ pub(super) const MINI_CURVE_BINS: usize = 16;
 /// answers above the fold): the gap map over x/y when the rows have
 /// positions, and the gap against the named effect's covariate.
 pub(super) fn glance_pictures(
-    rows: Option<&FleetRows>,
+    figs: Option<&FleetFigures>,
     machine: &str,
     observable: &str,
     named: Option<&str>,
 ) -> String {
-    let Some(rows) = rows else {
-        return String::new();
-    };
-    let Some(idx) = rows
-        .groups
-        .get(&(machine.to_string(), observable.to_string()))
+    let Some(fig) = figs.and_then(|f| f.groups.get(&(machine.to_string(), observable.to_string())))
     else {
         return String::new();
     };
-    let gap = FleetRows::at(&rows.gap, idx);
     let mut out = String::new();
-    if let (Some(x), Some(y)) = (rows.values("x_mm", idx), rows.values("y_mm", idx)) {
-        let sq: Vec<f64> = gap.iter().map(|g| g * g).collect();
-        let cells: Vec<(f64, f64, f64)> = grid_means(&x, &y, &[&sq], MINI_MAP_BINS)
-            .into_iter()
-            .map(|c| (c.0, c.1, c.2[0].sqrt()))
-            .collect();
+    if let Some(cells) = &fig.mini_map {
+        let cells: Vec<(f64, f64, f64)> = cells.iter().map(|c| (c.0, c.1, c.2[0].sqrt())).collect();
         out.push_str(&mini_heat(
             &cells,
             MINI_SIZE,
@@ -407,23 +344,19 @@ pub(super) fn glance_pictures(
             &format!("gap RMS of {observable} over x and y (darker: larger)"),
         ));
     }
-    if let Some(k) = named {
+    if let (Some(k), Some(curve)) = (named, &fig.mini_curve) {
         let cov = curve_covariate(k);
-        if let Some(c) = rows.values(cov, idx) {
-            let pts: Vec<(f64, f64)> = binned_means(&c, &[&gap], MINI_CURVE_BINS)
-                .into_iter()
-                .map(|(x, m)| (x, m[0]))
-                .collect();
-            if !out.is_empty() {
-                out.push(' ');
-            }
-            out.push_str(&mini_curve(
-                &pts,
-                MINI_SIZE.0,
-                MINI_SIZE.1,
-                &format!("gap of {observable} against {cov}"),
-            ));
+        // The curve's fourth series is the gap.
+        let pts: Vec<(f64, f64)> = curve.iter().map(|(x, m)| (*x, m[3])).collect();
+        if !out.is_empty() {
+            out.push(' ');
         }
+        out.push_str(&mini_curve(
+            &pts,
+            MINI_SIZE.0,
+            MINI_SIZE.1,
+            &format!("gap of {observable} against {cov}"),
+        ));
     }
     out
 }
@@ -487,16 +420,4 @@ pub(super) fn group_runs(runs: &[RunRms], max: usize) -> Vec<RunRms> {
             }
         })
         .collect()
-}
-
-/// Every covariate the pictures draw: positions and the covariates of
-/// the selected effects.
-pub(super) fn covariates_drawn(d: Option<&Diagnosis>) -> Vec<String> {
-    let mut c: BTreeSet<String> = ["x_mm".to_string(), "y_mm".to_string()].into();
-    for k in d.into_iter().flat_map(|d| &d.selected) {
-        if let Some((_, cov)) = k.split_once(':') {
-            c.extend(cov.split(',').map(String::from));
-        }
-    }
-    c.into_iter().collect()
 }

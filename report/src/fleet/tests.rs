@@ -1,5 +1,6 @@
 use super::*;
 use crate::diagnose::augment::{AugmentEntry, AugmentReport, NotApplied};
+use crate::fleet_data::{binned_means, grid_means};
 use serde_json::Value;
 
 /// An `effects` entry: its required fields, then `fields` over them.
@@ -81,6 +82,18 @@ fn alternating_field() -> (Vec<f64>, Vec<f64>, Vec<f64>, Vec<f64>) {
         }
     }
     (x, y, gap, res)
+}
+
+/// The maps of rows at hand: their mean gap² and residual² per cell.
+fn rms_maps(
+    (x, y): (&[f64], &[f64]),
+    (gap, res): (&[f64], &[f64]),
+    regions: &[[(f64, f64); 2]],
+    scale: f64,
+) -> RmsMaps {
+    let sq = |v: &[f64]| v.iter().map(|g| g * g).collect::<Vec<f64>>();
+    let (g2, r2) = (sq(gap), sq(res));
+    maps_of_cells(&grid_means(x, y, &[&g2, &r2], MAP_BINS), regions, scale)
 }
 
 #[test]
@@ -228,4 +241,183 @@ fn last_nights_model_on_tonights_runs_is_a_column_with_augment() {
     );
     // The floor line spans the extra column.
     assert!(html.contains("<td colspan=\"10\">"), "{html}");
+}
+
+/// A diagnosis document around `per` (the figures read `per_observable`).
+fn diagnosis_of(per: &[ObservableSummary]) -> Diagnosis {
+    serde_json::from_value(serde_json::json!({
+        "version": 1, "observables": [], "gap": {"rms_mm": 0.0, "max_abs_mm": 0.0,
+        "noise_floor_mm": 0.0, "n": 0}, "where": [], "effects": [], "selected": [],
+        "unexplained": {"rms_mm": 0.0, "share": 0.0, "where": []},
+        "noise_floor_source": "replicates",
+        "cv": {"folds": 5, "by": "run", "test": "", "seed": 0},
+        "per_observable": per, "notes": []
+    }))
+    .unwrap()
+}
+
+fn write_parquet(path: &std::path::Path, b: &arrow::array::RecordBatch, group_rows: usize) {
+    let props = parquet::file::properties::WriterProperties::builder()
+        .set_max_row_group_row_count(Some(group_rows))
+        .build();
+    let mut w = parquet::arrow::ArrowWriter::try_new(
+        std::fs::File::create(path).unwrap(),
+        b.schema(),
+        Some(props),
+    )
+    .unwrap();
+    w.write(b).unwrap();
+    w.close().unwrap();
+}
+
+/// The figures summed as the two fleet tables stream past (different row
+/// groups, so the diagnosis's batches are cut to the observations') are
+/// those of each group's rows at hand: the same cells, bins and means, bit
+/// for bit — with missing values, -0.0 beside 0.0, a covariate with few
+/// distinct values and one with many, and an observable without "after".
+/// A diagnosis whose runs do not line up with the rows is refused.
+#[test]
+fn figures_read_as_the_rows_stream_are_the_figures_of_the_rows_at_hand() {
+    use arrow::array::{ArrayRef, Float64Array, RecordBatch, StringArray};
+    use std::sync::Arc;
+    let n = 100_003usize;
+    let (mut machine, mut run, mut obs) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut x, mut y, mut v, mut gap, mut res) = (vec![], vec![], vec![], vec![], vec![]);
+    for i in 0..n {
+        let r = i / 500;
+        machine.push(format!("m{}", r % 2));
+        run.push(format!("r{r:04}"));
+        let o = if i % 500 < 250 { "a" } else { "b" };
+        obs.push(o);
+        let xi = match (i % 37, i % 101) {
+            (_, 0) => f64::NAN,
+            (0, _) if i % 2 == 1 => -0.0,
+            (k, _) => k as f64,
+        };
+        x.push(xi);
+        y.push(((i / 7) % 23) as f64 * 1.5);
+        v.push(if i % 53 == 0 {
+            f64::NAN
+        } else {
+            (i as f64 * 0.013).sin() * 100.0
+        });
+        let g = 0.001 * (i % 37) as f64 + 1e-5 * v[i].max(0.0) + 1e-4 * (i % 5) as f64;
+        gap.push(g);
+        res.push(if o == "a" { g * 0.1 } else { f64::NAN });
+    }
+    let text = |v: &[String]| Arc::new(StringArray::from(v.to_vec())) as ArrayRef;
+    let num = |v: &[f64]| Arc::new(Float64Array::from(v.to_vec())) as ArrayRef;
+    let contrib_v: Vec<f64> = v.iter().map(|v| 0.5e-5 * v).collect();
+    let contrib_x: Vec<f64> = x.iter().map(|x| 2e-4 * x).collect();
+    let observations = RecordBatch::try_from_iter([
+        ("machine", text(&machine)),
+        ("run", text(&run)),
+        (
+            "observable",
+            Arc::new(StringArray::from(obs.clone())) as ArrayRef,
+        ),
+        ("sim", num(&vec![0.0; n])),
+        ("real", num(&gap)),
+        ("x_mm", num(&x)),
+        ("y_mm", num(&y)),
+        ("v_mm_s", num(&v)),
+    ])
+    .unwrap();
+    let diagnosis_rows = |run: &[String]| {
+        RecordBatch::try_from_iter([
+            ("run", text(run)),
+            ("gap", num(&gap)),
+            ("contrib_drift:v_mm_s", num(&contrib_v)),
+            ("contrib_scale:x_mm", num(&contrib_x)),
+            ("residual_after", num(&res)),
+        ])
+        .unwrap()
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let (op, dp) = (
+        dir.path().join("obs.parquet"),
+        dir.path().join("diag.parquet"),
+    );
+    write_parquet(&op, &observations, 30_000);
+    write_parquet(&dp, &diagnosis_rows(&run), 45_000);
+    let per = [
+        summary(serde_json::json!({"observable": "a", "selected": ["drift:v_mm_s", "scale:x_mm"]})),
+        summary(serde_json::json!({"observable": "b", "selected": ["scale:x_mm"]})),
+    ];
+    let d = diagnosis_of(&per);
+    let bins = Bins {
+        map: MAP_BINS,
+        mini_map: MINI_MAP_BINS,
+        curve: CURVE_BINS,
+        mini_curve: MINI_CURVE_BINS,
+    };
+    let figs = FleetFigures::load(&op, Some((&dp, &d)), bins).unwrap();
+    assert_eq!(figs.groups.len(), 4);
+    for ((m, o), fig) in &figs.groups {
+        let idx: Vec<usize> = (0..n)
+            .filter(|&i| &machine[i] == m && obs[i] == o)
+            .collect();
+        let at = |v: &[f64]| idx.iter().map(|&i| v[i]).collect::<Vec<f64>>();
+        let (gx, gy, gg, gr) = (at(&x), at(&y), at(&gap), at(&res));
+        let sq = |v: &[f64]| v.iter().map(|g| g * g).collect::<Vec<f64>>();
+        let want_map = grid_means(&gx, &gy, &[&sq(&gg), &sq(&gr)], MAP_BINS);
+        assert_eq!(
+            format!("{:?}", fig.map.as_ref().unwrap()),
+            format!("{want_map:?}")
+        );
+        let want_mini = grid_means(&gx, &gy, &[&sq(&gg), &sq(&gr)], MINI_MAP_BINS);
+        assert_eq!(
+            format!("{:?}", fig.mini_map.as_ref().unwrap()),
+            format!("{want_mini:?}")
+        );
+        // Against the named effect's covariate: the gap less the others.
+        let (c, fit, partial) = if o == "a" {
+            // (a missing contribution subtracts nothing)
+            let p: Vec<f64> = idx
+                .iter()
+                .map(|&i| {
+                    gap[i]
+                        - if contrib_x[i].is_finite() {
+                            contrib_x[i]
+                        } else {
+                            0.0
+                        }
+                })
+                .collect();
+            (at(&v), at(&contrib_v), p)
+        } else {
+            (at(&x), at(&contrib_x), gg.clone())
+        };
+        let want = binned_means(&c, &[&partial, &fit, &gr, &gg], CURVE_BINS);
+        assert_eq!(
+            format!("{:?}", fig.curve.as_ref().unwrap()),
+            format!("{want:?}")
+        );
+        let want = binned_means(&c, &[&partial, &fit, &gr, &gg], MINI_CURVE_BINS);
+        assert_eq!(
+            format!("{:?}", fig.mini_curve.as_ref().unwrap()),
+            format!("{want:?}")
+        );
+        assert!(fig.has_fit);
+        assert_eq!(fig.has_after, o == "a");
+    }
+    // A few distinct x: the cells are the values (0, not -0).
+    let fig = &figs.groups[&("m0".to_string(), "b".to_string())];
+    let xs: std::collections::BTreeSet<String> = fig
+        .curve
+        .as_ref()
+        .unwrap()
+        .iter()
+        .map(|c| format!("{}", c.0))
+        .collect();
+    assert_eq!(xs.len(), 37);
+    assert!(xs.contains("0") && !xs.contains("-0"));
+    // A run that does not line up.
+    let mut shifted = run.clone();
+    shifted[80_000] = "r9999".into();
+    write_parquet(&dp, &diagnosis_rows(&shifted), 45_000);
+    let e = FleetFigures::load(&op, Some((&dp, &d)), bins)
+        .err()
+        .unwrap();
+    assert!(format!("{e}").contains("do not line up"), "{e}");
 }
