@@ -105,82 +105,87 @@ fn bin_ids(v: &[f64], sorted: &[f64], bins: usize) -> Vec<u32> {
 /// here for its quantile edges and the sorted copy let go at once.
 pub fn cells(covs: &[(&str, &[f64])], g: &[f64], r: &[f64]) -> Result<Vec<Cell>> {
     let n = g.len();
-    let g2: Vec<f64> = g.iter().map(|v| v * v).collect();
-    let r2: Vec<f64> = r.iter().map(|v| v * v).collect();
+    let g2 = pl::Column::new("g2".into(), g.iter().map(|v| v * v).collect::<Vec<f64>>());
+    let r2 = pl::Column::new("r2".into(), r.iter().map(|v| v * v).collect::<Vec<f64>>());
     let mut out = Vec::new();
-    let mut base = vec![
-        pl::Column::new("g2".into(), g2),
-        pl::Column::new("r2".into(), r2),
-    ];
-    // 1-D binnings, and the position tiles' axes while each is sorted.
-    let mut plans: Vec<(String, Vec<String>)> = Vec::new();
+    // One frame per binning, holding only its own columns: a frame of
+    // every covariate at once held a copy of the observable's covariates.
     let (mut tile_x, mut tile_y) = (None, None);
-    for (i, (name, v)) in covs.iter().enumerate() {
+    for (name, v) in covs {
         let s = super::gather::sorted(v);
-        base.push(pl::Column::new(
-            format!("b{i}").into(),
-            bin_ids(v, &s, QUANTILE_BINS),
-        ));
+        let bins = bin_ids(v, &s, QUANTILE_BINS);
         match *name {
             "x_mm" => tile_x = Some(bin_ids(v, &s, TILE_BINS)),
             "y_mm" => tile_y = Some(bin_ids(v, &s, TILE_BINS)),
             _ => {}
         }
-        base.push(pl::Column::new(format!("v{i}").into(), v.to_vec()));
-        plans.push((format!("b{i}"), vec![name.to_string()]));
+        drop(s);
+        let frame = vec![
+            g2.clone(),
+            r2.clone(),
+            pl::Column::new("b".into(), bins),
+            pl::Column::new("v0".into(), v.to_vec()),
+        ];
+        aggregate_cells(pl::DataFrame::new(n, frame)?, &[name], &mut out)?;
     }
     // 2-D tiles over the positions x_mm, y_mm.
     if let (Some(bx), Some(by)) = (tile_x, tile_y) {
         let t: Vec<u32> = bx.iter().zip(&by).map(|(a, b)| a * 64 + b).collect();
-        base.push(pl::Column::new("bxy".into(), t));
-        plans.push(("bxy".into(), vec!["x_mm".into(), "y_mm".into()]));
-    }
-    let df = pl::DataFrame::new(n, base)?;
-    for (bcol, names) in plans {
-        let vcols: Vec<String> = names
-            .iter()
-            .map(|nm| format!("v{}", covs.iter().position(|c| c.0 == nm).expect("cov")))
-            .collect();
-        let mut aggs = vec![
-            col("g2").sum().alias("sg2"),
-            col("r2").sum().alias("sr2"),
-            len().cast(pl::DataType::Float64).alias("n"),
+        let value = |nm: &str| covs.iter().find(|c| c.0 == nm).expect("cov").1.to_vec();
+        let frame = vec![
+            g2,
+            r2,
+            pl::Column::new("b".into(), t),
+            pl::Column::new("v0".into(), value("x_mm")),
+            pl::Column::new("v1".into(), value("y_mm")),
         ];
-        for (j, vc) in vcols.iter().enumerate() {
-            aggs.push(col(vc.as_str()).min().alias(format!("lo{j}")));
-            aggs.push(col(vc.as_str()).max().alias(format!("hi{j}")));
-        }
-        let agg = df
-            .clone()
-            .lazy()
-            .group_by_stable([col(bcol.as_str())])
-            .agg(aggs)
-            .sort([bcol.as_str()], Default::default())
-            .collect()?;
-        let f = |name: &str| -> Result<Vec<f64>> {
-            let c = agg.column(name)?.f64()?;
-            Ok((0..c.len()).map(|i| c.get(i).unwrap_or(f64::NAN)).collect())
-        };
-        let (sg2, sr2, cnt) = (f("sg2")?, f("sr2")?, f("n")?);
-        let los: Vec<Vec<f64>> = (0..vcols.len())
-            .map(|j| f(&format!("lo{j}")))
-            .collect::<Result<_>>()?;
-        let his: Vec<Vec<f64>> = (0..vcols.len())
-            .map(|j| f(&format!("hi{j}")))
-            .collect::<Result<_>>()?;
-        for k in 0..sg2.len() {
-            out.push(Cell {
-                covariate: names.join(","),
-                lo: los.iter().map(|l| l[k]).collect(),
-                hi: his.iter().map(|h| h[k]).collect(),
-                n: cnt[k] as usize,
-                sum_g2: sg2[k],
-                sum_r2: sr2[k],
-                label: None,
-            });
-        }
+        aggregate_cells(pl::DataFrame::new(n, frame)?, &["x_mm", "y_mm"], &mut out)?;
     }
     Ok(out)
+}
+
+/// The cells of one binning: `df` holds g2, r2, the bin id `b` and the
+/// covariates' values `v0`, `v1`, … (in `names` order).
+fn aggregate_cells(df: pl::DataFrame, names: &[&str], out: &mut Vec<Cell>) -> Result<()> {
+    let vcols: Vec<String> = (0..names.len()).map(|j| format!("v{j}")).collect();
+    let mut aggs = vec![
+        col("g2").sum().alias("sg2"),
+        col("r2").sum().alias("sr2"),
+        len().cast(pl::DataType::Float64).alias("n"),
+    ];
+    for (j, vc) in vcols.iter().enumerate() {
+        aggs.push(col(vc.as_str()).min().alias(format!("lo{j}")));
+        aggs.push(col(vc.as_str()).max().alias(format!("hi{j}")));
+    }
+    let agg = df
+        .lazy()
+        .group_by_stable([col("b")])
+        .agg(aggs)
+        .sort(["b"], Default::default())
+        .collect()?;
+    let f = |name: &str| -> Result<Vec<f64>> {
+        let c = agg.column(name)?.f64()?;
+        Ok((0..c.len()).map(|i| c.get(i).unwrap_or(f64::NAN)).collect())
+    };
+    let (sg2, sr2, cnt) = (f("sg2")?, f("sr2")?, f("n")?);
+    let los: Vec<Vec<f64>> = (0..vcols.len())
+        .map(|j| f(&format!("lo{j}")))
+        .collect::<Result<_>>()?;
+    let his: Vec<Vec<f64>> = (0..vcols.len())
+        .map(|j| f(&format!("hi{j}")))
+        .collect::<Result<_>>()?;
+    for k in 0..sg2.len() {
+        out.push(Cell {
+            covariate: names.join(","),
+            lo: los.iter().map(|l| l[k]).collect(),
+            hi: his.iter().map(|h| h[k]).collect(),
+            n: cnt[k] as usize,
+            sum_g2: sg2[k],
+            sum_r2: sr2[k],
+            label: None,
+        });
+    }
+    Ok(())
 }
 
 /// One cell per machine of an observable (none with fewer than two).

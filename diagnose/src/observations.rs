@@ -309,16 +309,26 @@ pub struct TableParts {
     units: std::collections::HashMap<(u32, String), u32>,
     unit_keys: Vec<(u32, String)>,
     real_u: Option<Vec<f64>>,
+    /// Rows the parts will hold in all, when known: the per-row columns
+    /// are allocated once at that size (grown by doubling, a fleet's
+    /// columns would hold up to twice their rows).
+    rows: usize,
 }
 
 impl TableParts {
     pub fn new(path: &Path) -> TableParts {
+        TableParts::with_rows(path, 0)
+    }
+
+    /// Parts of a table of `rows` rows in all (a file's row count).
+    pub fn with_rows(path: &Path, rows: usize) -> TableParts {
         TableParts {
             path: path.to_path_buf(),
             acc: None,
             units: Default::default(),
             unit_keys: Vec::new(),
             real_u: None,
+            rows,
         }
     }
 
@@ -333,29 +343,30 @@ impl TableParts {
                 }
             }
         }
+        let rows = self.rows;
         let acc = self.acc.get_or_insert_with(|| Table {
             n: 0,
             run_names: Vec::new(),
             run_bare: Vec::new(),
-            run: Vec::new(),
+            run: Vec::with_capacity(rows),
             machine_names: Vec::new(),
-            machine: Vec::new(),
+            machine: Vec::with_capacity(rows),
             has_machine: part.has_machine,
             obs_names: Vec::new(),
-            obs: Vec::new(),
+            obs: Vec::with_capacity(rows),
             obs_units: Vec::new(),
-            gap: Vec::new(),
+            gap: Vec::with_capacity(rows),
             covs: Box::new(InMemory {
                 names: Vec::new(),
                 columns: Vec::new(),
             }),
             dropped: Vec::new(),
-            trial: part.trial.as_ref().map(|_| Vec::new()),
-            point: part.point.as_ref().map(|_| Vec::new()),
+            trial: part.trial.as_ref().map(|_| Vec::with_capacity(rows)),
+            point: part.point.as_ref().map(|_| Vec::with_capacity(rows)),
             real_u: None,
         });
         if self.real_u.is_none() && part.real_u.is_some() && acc.n == 0 {
-            self.real_u = Some(Vec::new());
+            self.real_u = Some(Vec::with_capacity(rows));
         }
         let machine_map: Vec<u32> = part
             .machine_names

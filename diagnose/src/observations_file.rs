@@ -55,7 +55,8 @@ pub fn index_observations_file(path: &Path) -> Result<IndexedFile> {
         .map(|(i, _)| i)
         .collect();
     let mask = ProjectionMask::roots(builder.parquet_schema(), keep);
-    let mut parts = TableParts::new(path);
+    let rows = meta.file_metadata().num_rows().max(0) as usize;
+    let mut parts = TableParts::with_rows(path, rows);
     let mut offset = 0usize;
     let reader = builder
         .with_projection(mask)
