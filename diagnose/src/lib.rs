@@ -89,6 +89,9 @@ impl Notes {
 
 /// What the per-observable steps hand to the fleet-level assembly.
 pub struct Accum {
+    /// Per row (slot), the held-out residual and each selected effect's
+    /// contribution; a fleet accumulator with a spill keeps neither and
+    /// writes each observable's to disk as it is merged.
     pub residual_all: Vec<f64>,
     pub contrib_cols: BTreeMap<String, Vec<f64>>,
     /// Selected keys in order of first selection.
@@ -104,6 +107,7 @@ pub struct Accum {
     pub augmented: Vec<augment::ModelEffect>,
     pub blocked: bool,
     pub folds_used: usize,
+    pub spill: Option<per_row::ResultSpill>,
 }
 
 impl Accum {
@@ -119,20 +123,33 @@ impl Accum {
             augmented: Vec::new(),
             blocked: false,
             folds_used: 0,
+            spill: None,
+        }
+    }
+
+    /// A fleet accumulator whose per-row results go to `spill`.
+    pub fn spilled(spill: per_row::ResultSpill) -> Accum {
+        Accum {
+            spill: Some(spill),
+            ..Accum::new(0)
         }
     }
 
     /// Adds one observable's results: its accumulator's slot p is table
     /// row `rows[p]`.
-    fn merge(&mut self, o: Accum, rows: &[usize]) {
-        for (&i, r) in rows.iter().zip(&o.residual_all) {
-            self.residual_all[i] = *r;
-        }
-        let n = self.residual_all.len();
-        for (k, v) in o.contrib_cols {
-            let col = self.contrib_cols.entry(k).or_insert_with(|| vec![0.0; n]);
-            for (&i, c) in rows.iter().zip(&v) {
-                col[i] = *c;
+    fn merge(&mut self, o: Accum, obs: u32, rows: &[usize]) -> Result<()> {
+        if let Some(spill) = &mut self.spill {
+            spill.push(obs, rows, &o.residual_all, &o.contrib_cols)?;
+        } else {
+            for (&i, r) in rows.iter().zip(&o.residual_all) {
+                self.residual_all[i] = *r;
+            }
+            let n = self.residual_all.len();
+            for (k, v) in o.contrib_cols {
+                let col = self.contrib_cols.entry(k).or_insert_with(|| vec![0.0; n]);
+                for (&i, c) in rows.iter().zip(&v) {
+                    col[i] = *c;
+                }
             }
         }
         for k in o.selected_keys {
@@ -149,6 +166,7 @@ impl Accum {
         self.augmented.extend(o.augmented);
         self.blocked |= o.blocked;
         self.folds_used = self.folds_used.max(o.folds_used);
+        Ok(())
     }
 }
 
@@ -205,22 +223,28 @@ fn run_diagnosis(
     // batch's covariate buffers, shared); the per-machine diagnoses
     // rebuild a batch from them (`Table::rebuild`).
     drop(batch);
-    diagnose_table(table, cfg, scopes)
+    diagnose_table(table, cfg, scopes, None)
 }
 
 /// The diagnosis of an indexed table (its covariates in memory or read per
-/// observable from a file).
+/// observable from a file). `results_dir`: where each observable's per-row
+/// results wait for diagnosis.parquet (a folder of the output, removed
+/// with the output's `per_row`); None holds them in memory.
 pub fn diagnose_table(
     table: Table,
     cfg: &DiagnoseConfig,
     scopes: &[EffectScope],
+    results_dir: Option<&Path>,
 ) -> Result<DiagnosisOutput> {
     let mut notes = Notes::default();
     for d in &table.dropped {
         notes.add(format!("covariate {d} has no finite value: skipped"));
     }
     candidates::check_wanted(cfg, scopes)?;
-    let mut acc = Accum::new(table.n);
+    let mut acc = match results_dir {
+        Some(dir) => Accum::spilled(per_row::ResultSpill::create(dir)?),
+        None => Accum::new(table.n),
+    };
     for oi in 0..table.obs_names.len() {
         diagnose_observable(&table, oi, cfg, scopes, &mut acc, &mut notes)?;
     }
@@ -278,8 +302,7 @@ fn diagnose_observable(
         for n in plain_notes.into_vec() {
             notes.add(n);
         }
-        acc.merge(plain, &o.rows);
-        return Ok(());
+        return acc.merge(plain, oi as u32, &o.rows);
     }
     let kept = o.without(&out);
     // The robust pass reads `kept`'s covariates and the trimmed rows'
@@ -317,8 +340,7 @@ fn diagnose_observable(
         s.shrink_plain = (before > 0.0).then(|| 1.0 - (after / before).sqrt());
         s.outliers = Some(rep);
     }
-    acc.merge(robust, &o.rows);
-    Ok(())
+    acc.merge(robust, oi as u32, &o.rows)
 }
 
 /// Where one pass over an observable writes its per-row results in its

@@ -27,14 +27,22 @@ const READ_ROWS: usize = 1 << 16;
 /// byte for byte, as [`crate::diagnose_checked`] on the file read whole.
 /// `spilled`: the covariates kept apart per observable as the file was
 /// written ([`CovariateSpill`]), read instead of the file's covariate
-/// columns when given.
+/// columns when given. `results_dir`: where the per-row results wait for
+/// diagnosis.parquet ([`crate::diagnose_table`]).
 pub fn diagnose_observations_file(
     path: &Path,
     cfg: &Checked<DiagnoseConfig>,
     scopes: &[EffectScope],
     spilled: Option<Spilled>,
+    results_dir: Option<&Path>,
 ) -> Result<DiagnosisOutput> {
-    diagnose_indexed(index_observations_file(path)?, cfg, scopes, spilled)
+    diagnose_indexed(
+        index_observations_file(path)?,
+        cfg,
+        scopes,
+        spilled,
+        results_dir,
+    )
 }
 
 /// The keys, sim and real of the Parquet file `path`, read batch by batch
@@ -101,12 +109,14 @@ impl IndexedFile {
 }
 
 /// Diagnoses an indexed file, its covariates read from `spilled` when
-/// given, else from the file's columns ([`ParquetCovariates`]).
+/// given, else from the file's columns ([`ParquetCovariates`]); the per-row
+/// results wait in `results_dir` when given ([`crate::diagnose_table`]).
 pub fn diagnose_indexed(
     file: IndexedFile,
     cfg: &Checked<DiagnoseConfig>,
     scopes: &[EffectScope],
     spilled: Option<Spilled>,
+    results_dir: Option<&Path>,
 ) -> Result<DiagnosisOutput> {
     let IndexedFile { path, mut table } = file;
     match spilled {
@@ -121,7 +131,7 @@ pub fn diagnose_indexed(
             table.covs = Box::new(covs);
         }
     }
-    crate::diagnose_table(table, cfg, scopes)
+    crate::diagnose_table(table, cfg, scopes, results_dir)
 }
 
 /// Covariates read from a Parquet file by table row (its row order), one

@@ -293,7 +293,10 @@ pub fn assemble(
         notes.add("no gap above noise".into());
     }
     let sum_g2: f64 = table.gap.iter().map(|g| g * g).sum();
-    let sum_r2: f64 = acc.residual_all.iter().map(|r| r * r).sum();
+    let sum_r2: f64 = match &acc.spill {
+        Some(spill) => spill.sum_sq_residual(&table.obs)?,
+        None => acc.residual_all.iter().map(|r| r * r).sum(),
+    };
     let noise_floor = (acc
         .summaries
         .iter()
@@ -362,13 +365,14 @@ pub fn assemble(
     diagnosis.machine_effects = localise(&table, &diagnosis)?;
     let gap = std::mem::take(&mut table.gap);
     let fitted_on_runs = table.run_names.clone();
-    let per_row = crate::per_row::PerRow::new(
-        table,
-        gap,
-        std::mem::take(&mut acc.contrib_cols),
-        &acc.selected_keys,
-        std::mem::take(&mut acc.residual_all),
-    );
+    let results = match acc.spill.take() {
+        Some(spill) => crate::per_row::Results::Spilled(spill),
+        None => crate::per_row::Results::Memory {
+            residual: std::mem::take(&mut acc.residual_all),
+            contrib: std::mem::take(&mut acc.contrib_cols),
+        },
+    };
+    let per_row = crate::per_row::PerRow::new(table, gap, &acc.selected_keys, results);
     let augmented_model = AugmentedModelFile {
         applies_as: "real ≈ sim + Σ over effects of (offset_mm + form(covariates; params)), per observable; forms as in the effect catalogue of docs/formats.md".into(),
         effects: acc.augmented,

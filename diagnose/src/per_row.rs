@@ -2,6 +2,9 @@
 //! as it is written, from the table's ids and the per-row results.
 
 use std::collections::BTreeMap;
+use std::fs::File;
+use std::ops::Range;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use arrow::array::{ArrayRef, Float64Array, RecordBatch};
@@ -16,25 +19,36 @@ pub const PER_ROW_SLICE: usize = 1 << 16;
 
 /// diagnosis.parquet: [machine,] run, observable, gap, contrib_<key>…,
 /// residual_after — one row per observation, in input order. Held as the
-/// table's ids and the per-row numbers; the rows are built a slice at a
-/// time as they are written ([`PerRow::write_parquet`]).
+/// table's ids, the gap and the per-row results (in memory, or spilled per
+/// observable: [`ResultSpill`]); the rows are built a slice at a time as
+/// they are written ([`PerRow::write_parquet`]).
 pub struct PerRow {
     /// The keys (ids and names; its covariates are gone).
     table: Table,
     gap: Vec<f64>,
-    /// Each selected effect's contribution, in selection order.
-    contrib: Vec<(String, Vec<f64>)>,
-    residual: Vec<f64>,
+    /// The selected effects' keys, in selection order.
+    keys: Vec<String>,
+    results: Results,
     schema: Arc<Schema>,
+}
+
+/// Each row's held-out residual and selected effects' contributions.
+pub enum Results {
+    /// In table order, a column per key (0 on rows of observables the key
+    /// was not selected for).
+    Memory {
+        residual: Vec<f64>,
+        contrib: BTreeMap<String, Vec<f64>>,
+    },
+    Spilled(ResultSpill),
 }
 
 impl PerRow {
     pub(crate) fn new(
         mut table: Table,
         gap: Vec<f64>,
-        mut contrib: BTreeMap<String, Vec<f64>>,
         keys: &[String],
-        residual: Vec<f64>,
+        results: Results,
     ) -> PerRow {
         table.covs = Box::new(crate::observations::InMemory::default());
         table.real_u = None;
@@ -47,20 +61,15 @@ impl PerRow {
             Field::new("observable", DataType::Utf8, false),
             Field::new("gap", DataType::Float64, false),
         ]);
-        let contrib: Vec<(String, Vec<f64>)> = keys
-            .iter()
-            .map(|k| {
-                let c = contrib.remove(k).expect("a selected key has its column");
-                fields.push(Field::new(format!("contrib_{k}"), DataType::Float64, false));
-                (k.clone(), c)
-            })
-            .collect();
+        for k in keys {
+            fields.push(Field::new(format!("contrib_{k}"), DataType::Float64, false));
+        }
         fields.push(Field::new("residual_after", DataType::Float64, false));
         PerRow {
             table,
             gap,
-            contrib,
-            residual,
+            keys: keys.to_vec(),
+            results,
             schema: Arc::new(Schema::new(fields)),
         }
     }
@@ -73,8 +82,39 @@ impl PerRow {
         self.gap.len()
     }
 
-    /// Rows `r` as a batch.
-    pub fn slice(&self, r: std::ops::Range<usize>) -> Result<RecordBatch> {
+    /// The rows in slices of [`PER_ROW_SLICE`], in order.
+    pub fn batches(&self) -> impl Iterator<Item = Result<RecordBatch>> + '_ {
+        self.batches_of(PER_ROW_SLICE)
+    }
+
+    /// The rows in slices of `rows` rows, in order.
+    pub fn batches_of(&self, rows: usize) -> impl Iterator<Item = Result<RecordBatch>> + '_ {
+        let mut cursor = self.cursor();
+        (0..self.num_rows()).step_by(rows.max(1)).map(move |at| {
+            let r = at..(at + rows.max(1)).min(self.num_rows());
+            self.slice(r, cursor.as_mut().map_err(|e| crate::err!("{e:#}"))?)
+        })
+    }
+
+    /// Every row in one batch (small tables; tests).
+    pub fn to_batch(&self) -> Result<RecordBatch> {
+        self.slice(0..self.num_rows(), &mut self.cursor()?)
+    }
+
+    /// Writes diagnosis.parquet to `path` atomically, a slice at a time.
+    pub fn write_parquet(&self, path: &std::path::Path) -> Result<()> {
+        crate::contracts::write::write_parquet_batches_atomic(path, self.schema(), self.batches())
+    }
+
+    fn cursor(&self) -> Result<Cursor> {
+        match &self.results {
+            Results::Memory { .. } => Ok(Cursor::Memory),
+            Results::Spilled(s) => s.cursor(&self.keys),
+        }
+    }
+
+    /// Rows `r` (the next rows of `cursor`) as a batch.
+    fn slice(&self, r: Range<usize>, cursor: &mut Cursor) -> Result<RecordBatch> {
         let rows: Vec<usize> = r.clone().collect();
         let mut cols: Vec<ArrayRef> = Vec::new();
         if self.table.has_machine {
@@ -82,29 +122,169 @@ impl PerRow {
         }
         cols.push(self.table.text_column("run", &rows));
         cols.push(self.table.text_column("observable", &rows));
-        let num = |v: &[f64]| Arc::new(Float64Array::from(v[r.clone()].to_vec())) as ArrayRef;
-        cols.push(num(&self.gap));
-        for (_, c) in &self.contrib {
-            cols.push(num(c));
+        let num = |v: Vec<f64>| Arc::new(Float64Array::from(v)) as ArrayRef;
+        cols.push(num(self.gap[r.clone()].to_vec()));
+        match (&self.results, cursor) {
+            (Results::Memory { residual, contrib }, _) => {
+                for k in &self.keys {
+                    let c = contrib.get(k).expect("a selected key has its column");
+                    cols.push(num(c[r.clone()].to_vec()));
+                }
+                cols.push(num(residual[r].to_vec()));
+            }
+            (Results::Spilled(_), Cursor::Spilled(c)) => {
+                let nk = self.keys.len();
+                let mut contrib = vec![Vec::with_capacity(rows.len()); nk];
+                let mut residual = Vec::with_capacity(rows.len());
+                let mut rec = vec![0.0; nk + 1];
+                for &i in &rows {
+                    c.next(self.table.obs[i], &mut rec)?;
+                    residual.push(rec[0]);
+                    for (col, v) in contrib.iter_mut().zip(&rec[1..]) {
+                        col.push(*v);
+                    }
+                }
+                cols.extend(contrib.into_iter().map(num));
+                cols.push(num(residual));
+            }
+            (Results::Spilled(_), Cursor::Memory) => {
+                unreachable!("a spill reads through its cursor")
+            }
         }
-        cols.push(num(&self.residual));
         Ok(RecordBatch::try_new(self.schema.clone(), cols)?)
     }
+}
 
-    /// The rows in slices of [`PER_ROW_SLICE`].
-    pub fn batches(&self) -> impl Iterator<Item = Result<RecordBatch>> + '_ {
-        (0..self.num_rows())
-            .step_by(PER_ROW_SLICE)
-            .map(|at| self.slice(at..(at + PER_ROW_SLICE).min(self.num_rows())))
+/// Each observable's per-row results on disk until diagnosis.parquet is
+/// written: the fleet-length residual and contribution columns are 8 B a
+/// row each (≈ 0.7 GB at 2 000 servo runs). One file per observable in a
+/// hidden folder of the output, a record per row in table order —
+/// residual, then the observable's own contributions (raw little-endian
+/// f64) — read back a row at a time in table order. The folder goes when
+/// the spill is dropped.
+pub struct ResultSpill {
+    dir: PathBuf,
+    /// Per observable id: its file and the keys of its contributions, in
+    /// record order.
+    parts: BTreeMap<u32, (PathBuf, Vec<String>)>,
+}
+
+impl ResultSpill {
+    /// A spill in `dir` (a previous one there, left by a killed run, is
+    /// removed first).
+    pub fn create(dir: &Path) -> Result<ResultSpill> {
+        if dir.exists() {
+            std::fs::remove_dir_all(dir)?;
+        }
+        std::fs::create_dir_all(dir)?;
+        Ok(ResultSpill {
+            dir: dir.to_path_buf(),
+            parts: BTreeMap::new(),
+        })
     }
 
-    /// Every row in one batch (small tables; tests).
-    pub fn to_batch(&self) -> Result<RecordBatch> {
-        self.slice(0..self.num_rows())
+    /// One observable's results: slot p is table row `rows[p]`.
+    pub(crate) fn push(
+        &mut self,
+        obs: u32,
+        rows: &[usize],
+        residual: &[f64],
+        contrib: &BTreeMap<String, Vec<f64>>,
+    ) -> Result<()> {
+        use std::io::Write;
+        let mut order: Vec<usize> = (0..rows.len()).collect();
+        order.sort_unstable_by_key(|&p| rows[p]);
+        let path = self.dir.join(format!("{obs}.f64"));
+        let mut w = std::io::BufWriter::with_capacity(1 << 20, File::create(&path)?);
+        let cols: Vec<&Vec<f64>> = contrib.values().collect();
+        for p in order {
+            w.write_all(&residual[p].to_le_bytes())?;
+            for c in &cols {
+                w.write_all(&c[p].to_le_bytes())?;
+            }
+        }
+        w.into_inner().map_err(|e| e.into_error())?.sync_all()?;
+        self.parts
+            .insert(obs, (path, contrib.keys().cloned().collect()));
+        Ok(())
     }
 
-    /// Writes diagnosis.parquet to `path` atomically, a slice at a time.
-    pub fn write_parquet(&self, path: &std::path::Path) -> Result<()> {
-        crate::contracts::write::write_parquet_batches_atomic(path, self.schema(), self.batches())
+    /// Σ residual² over every row, in table order (the order the in-memory
+    /// column sums in: the same bits).
+    pub(crate) fn sum_sq_residual(&self, obs: &[u32]) -> Result<f64> {
+        let mut c = self.spill_cursor(&[])?;
+        let mut rec = [0.0];
+        let mut s = 0.0;
+        for &o in obs {
+            c.next(o, &mut rec)?;
+            s += rec[0] * rec[0];
+        }
+        Ok(s)
+    }
+
+    fn cursor(&self, keys: &[String]) -> Result<Cursor> {
+        Ok(Cursor::Spilled(self.spill_cursor(keys)?))
+    }
+
+    fn spill_cursor(&self, keys: &[String]) -> Result<SpillCursor> {
+        let mut parts = BTreeMap::new();
+        for (&o, (path, own)) in &self.parts {
+            let at: Vec<Option<usize>> = keys
+                .iter()
+                .map(|k| own.iter().position(|x| x == k))
+                .collect();
+            let r = std::io::BufReader::with_capacity(1 << 20, File::open(path)?);
+            parts.insert(o, (r, own.len(), at));
+        }
+        Ok(SpillCursor {
+            parts,
+            buf: Vec::new(),
+        })
+    }
+}
+
+impl Drop for ResultSpill {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.dir);
+    }
+}
+
+enum Cursor {
+    Memory,
+    Spilled(SpillCursor),
+}
+
+/// Reads a spill's records in table order: each observable's file holds
+/// its rows in table order, so a row's record is its observable's next.
+struct SpillCursor {
+    parts: BTreeMap<u32, PartReader>,
+    buf: Vec<u8>,
+}
+
+/// One observable's file: its reader, the contributions per record, and
+/// where each requested key is in the record (None: not selected for it,
+/// so 0).
+type PartReader = (std::io::BufReader<File>, usize, Vec<Option<usize>>);
+
+impl SpillCursor {
+    /// The next row of observable `obs`: `rec[0]` its residual, `rec[1..]`
+    /// the requested keys' contributions (0 where a row has none).
+    fn next(&mut self, obs: u32, rec: &mut [f64]) -> Result<()> {
+        use std::io::Read;
+        rec.iter_mut().for_each(|v| *v = 0.0);
+        let Some((r, own, at)) = self.parts.get_mut(&obs) else {
+            return Ok(());
+        };
+        self.buf.resize((*own + 1) * 8, 0);
+        r.read_exact(&mut self.buf)?;
+        let f =
+            |j: usize| f64::from_le_bytes(self.buf[j * 8..j * 8 + 8].try_into().expect("8 bytes"));
+        rec[0] = f(0);
+        for (k, a) in at.iter().enumerate() {
+            if let Some(j) = a {
+                rec[k + 1] = f(j + 1);
+            }
+        }
+        Ok(())
     }
 }

@@ -559,7 +559,7 @@ fn the_file_read_per_observable_diagnoses_as_the_file_read_whole() {
     let cfg = crate::config_check::Checked::check(super::DiagnoseConfig::default()).unwrap();
     let whole =
         super::diagnose_checked(crate::contracts::read_parquet(&path).unwrap(), &cfg, &[]).unwrap();
-    let by_observable = super::diagnose_observations_file(&path, &cfg, &[], None).unwrap();
+    let by_observable = super::diagnose_observations_file(&path, &cfg, &[], None, None).unwrap();
     let json = |d: &super::DiagnosisOutput| serde_json::to_string(&d.diagnosis).unwrap();
     assert_eq!(json(&whole), json(&by_observable));
     assert_eq!(
@@ -574,13 +574,38 @@ fn the_file_read_per_observable_diagnoses_as_the_file_read_whole() {
     spill.push(&b.slice(0, 1000), &path).unwrap();
     spill.push(&b.slice(1000, n - 1000), &path).unwrap();
     let spilled = spill.finish().unwrap();
-    let from_spill = super::diagnose_observations_file(&path, &cfg, &[], Some(spilled)).unwrap();
+    // …and with the per-row results on disk until written, read back a
+    // slice at a time (the observables' rows interleaved in each slice).
+    let results_dir = dir.path().join(".results");
+    let from_spill =
+        super::diagnose_observations_file(&path, &cfg, &[], Some(spilled), Some(&results_dir))
+            .unwrap();
     assert_eq!(json(&whole), json(&from_spill));
     assert_eq!(
         whole.per_row.to_batch().unwrap(),
         from_spill.per_row.to_batch().unwrap()
     );
     assert!(!spill_dir.exists(), "the spill outlived the diagnosis");
+    assert!(results_dir.is_dir());
+    let written = dir.path().join("diagnosis.parquet");
+    from_spill.per_row.write_parquet(&written).unwrap();
+    assert_eq!(
+        crate::contracts::read_parquet(&written).unwrap(),
+        whole.per_row.to_batch().unwrap()
+    );
+    // Slices of 700 rows: each observable's cursor carries on across them.
+    let slices: Vec<arrow::array::RecordBatch> = from_spill
+        .per_row
+        .batches_of(700)
+        .collect::<crate::Result<_>>()
+        .unwrap();
+    assert!(slices.len() > 3);
+    assert_eq!(
+        arrow::compute::concat_batches(&slices[0].schema(), &slices).unwrap(),
+        whole.per_row.to_batch().unwrap()
+    );
+    drop(from_spill);
+    assert!(!results_dir.exists(), "the results outlived the output");
     assert!(
         whole.diagnosis.notes.iter().any(|n| n.contains("temp_c")),
         "{:?}",
@@ -600,7 +625,7 @@ fn a_nan_covariate_in_the_file_names_file_column_and_row() {
     let path = dir.path().join("observations.parquet");
     crate::contracts::write_parquet_atomic(&path, &b).unwrap();
     let cfg = crate::config_check::Checked::check(super::DiagnoseConfig::default()).unwrap();
-    let e = super::diagnose_observations_file(&path, &cfg, &[], None)
+    let e = super::diagnose_observations_file(&path, &cfg, &[], None, None)
         .err()
         .unwrap()
         .to_string();
@@ -711,7 +736,7 @@ fn the_file_read_in_batches_accepts_foreign_types_and_names_a_corrupt_covariate_
         super::diagnose_checked(super::read_observations(&path).unwrap(), &cfg, &[]).unwrap();
     let file = super::index_observations_file(&path).unwrap();
     assert_eq!(file.observables(), ["a_um", "b"]);
-    let by_file = super::diagnose_indexed(file, &cfg, &[], None).unwrap();
+    let by_file = super::diagnose_indexed(file, &cfg, &[], None, None).unwrap();
     let json = |d: &super::DiagnosisOutput| serde_json::to_string(&d.diagnosis).unwrap();
     assert_eq!(json(&whole), json(&by_file));
     assert_eq!(
@@ -732,7 +757,7 @@ fn the_file_read_in_batches_accepts_foreign_types_and_names_a_corrupt_covariate_
     let mut bytes = std::fs::read(&path).unwrap();
     bytes[at..at + 24].fill(0xFF);
     std::fs::write(&path, bytes).unwrap();
-    let e = super::diagnose_observations_file(&path, &cfg, &[], None)
+    let e = super::diagnose_observations_file(&path, &cfg, &[], None, None)
         .err()
         .unwrap();
     assert!(e.input().is_some(), "{e:#}");

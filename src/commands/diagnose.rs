@@ -74,7 +74,20 @@ pub fn diagnose(observations: &Path, out: &Path, flags: &Flags) -> anyhow::Resul
             effects,
         })
         .collect();
-    let d = diagnose::diagnose_indexed(file, &cfg, &scopes, None)?;
+    // The per-row results wait on disk, in a hidden folder of the output
+    // removed once diagnosis.parquet is written; an output folder this
+    // run created stays only if the diagnosis succeeds.
+    let created = !out.exists();
+    let results_dir = out.join(".diagnosis-results");
+    let d = match diagnose::diagnose_indexed(file, &cfg, &scopes, None, Some(&results_dir)) {
+        Ok(d) => d,
+        Err(e) => {
+            if created {
+                let _ = std::fs::remove_dir(out);
+            }
+            return Err(e.into());
+        }
+    };
     d.per_row.write_parquet(&out.join("diagnosis.parquet"))?;
     write_json_atomic(&out.join("augmented_model.json"), &d.augmented_model)?;
     let page = format!(

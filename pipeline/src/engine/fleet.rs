@@ -323,6 +323,7 @@ impl Engine {
             dcfg,
             &scopes,
             spilled,
+            Some(&fleet_dir.join(RESULTS_SPILL_DIR)),
         )
         .context("fleet diagnosis")?;
         progress.message("writing the diagnosis");
@@ -556,6 +557,11 @@ pub fn with_machine_column(batch: RecordBatch, machine: &str) -> Result<RecordBa
     );
     Ok(RecordBatch::try_new(Arc::new(schema), cols)?)
 }
+
+/// Where the diagnosis keeps each observable's per-row results until
+/// diagnosis.parquet is written: a hidden folder of fleet/, removed then
+/// (and, left by a killed night, at the next diagnosis).
+const RESULTS_SPILL_DIR: &str = ".diagnosis-results";
 
 /// Where the join spills each observable's covariates for the diagnosis:
 /// a hidden folder beside the joined file, removed once diagnosed.
