@@ -203,7 +203,8 @@ impl ResultSpill {
                 w.write_all(&c[p].to_le_bytes())?;
             }
         }
-        w.into_inner().map_err(|e| e.into_error())?.sync_all()?;
+        // Scratch for this process alone: flushed, not synced.
+        w.flush()?;
         self.parts
             .insert(obs, (path, contrib.keys().cloned().collect()));
         Ok(())

@@ -535,6 +535,18 @@ fn with_temp_c(v: Vec<Option<f64>>) -> arrow::array::RecordBatch {
     RecordBatch::try_new(Arc::new(Schema::new(fields)), cols).unwrap()
 }
 
+/// `b` written to `path` with the writer settings `props`.
+fn write_with(
+    path: &std::path::Path,
+    b: &arrow::array::RecordBatch,
+    props: parquet::file::properties::WriterProperties,
+) {
+    let f = std::fs::File::create(path).unwrap();
+    let mut w = parquet::arrow::ArrowWriter::try_new(f, b.schema(), Some(props)).unwrap();
+    w.write(b).unwrap();
+    w.close().unwrap();
+}
+
 /// The fleet's diagnosis reads its observations file one observable at a
 /// time: the same document and per-row table as the file read whole, over
 /// several row groups (some skipped for a machine's own diagnosis), with a
@@ -548,14 +560,7 @@ fn the_file_read_per_observable_diagnoses_as_the_file_read_whole() {
     let props = parquet::file::properties::WriterProperties::builder()
         .set_max_row_group_row_count(Some(700))
         .build();
-    let mut w = parquet::arrow::ArrowWriter::try_new(
-        std::fs::File::create(&path).unwrap(),
-        b.schema(),
-        Some(props),
-    )
-    .unwrap();
-    w.write(&b).unwrap();
-    w.close().unwrap();
+    write_with(&path, &b, props);
     let cfg = crate::config_check::Checked::check(super::DiagnoseConfig::default()).unwrap();
     let whole =
         super::diagnose_checked(crate::contracts::read_parquet(&path).unwrap(), &cfg, &[]).unwrap();
@@ -723,14 +728,7 @@ fn the_file_read_in_batches_accepts_foreign_types_and_names_a_corrupt_covariate_
         .set_compression(parquet::basic::Compression::UNCOMPRESSED)
         .set_dictionary_enabled(false)
         .build();
-    let mut w = parquet::arrow::ArrowWriter::try_new(
-        std::fs::File::create(&path).unwrap(),
-        foreign.schema(),
-        Some(props),
-    )
-    .unwrap();
-    w.write(&foreign).unwrap();
-    w.close().unwrap();
+    write_with(&path, &foreign, props);
     let cfg = crate::config_check::Checked::check(super::DiagnoseConfig::default()).unwrap();
     let whole =
         super::diagnose_checked(super::read_observations(&path).unwrap(), &cfg, &[]).unwrap();
