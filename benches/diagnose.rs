@@ -9,7 +9,9 @@
 use arrow::array::RecordBatch;
 use criterion::{criterion_group, Criterion};
 use sparkout_datasets::observations::{generate, ObsFleetConfig};
-use sparkout_pipeline::diagnose::{diagnose, DiagnoseConfig};
+use sparkout_pipeline::config_check::Checked;
+use sparkout_pipeline::contracts::write_parquet_atomic;
+use sparkout_pipeline::diagnose::{diagnose, diagnose_observations_file, DiagnoseConfig};
 use sparkout_pipeline::EffectSpec;
 use std::time::Duration;
 
@@ -49,6 +51,24 @@ fn bench_diagnose(c: &mut Criterion) {
     g.measurement_time(Duration::from_secs(60));
     g.bench_function("1e6_rows_full_catalogue_5_folds", |b| {
         b.iter(|| diagnose(&obs, &dcfg, &[]).expect("diagnose"))
+    });
+    // The path a fleet's night takes: the table read from its file batch by
+    // batch, the covariates one observable at a time, the per-row results
+    // spilled per observable and diagnosis.parquet written a slice at a time.
+    let dir = tempfile::tempdir().expect("temp dir");
+    let path = dir.path().join("observations.parquet");
+    write_parquet_atomic(&path, &obs).expect("bench table");
+    drop(obs);
+    let checked = Checked::check(dcfg).expect("config");
+    g.bench_function("1e6_rows_file_to_file_5_folds", |b| {
+        b.iter(|| {
+            let out = dir.path().join("out");
+            let d = diagnose_observations_file(&path, &checked, &[], None, Some(&out.join(".r")))
+                .expect("diagnose");
+            d.per_row
+                .write_parquet(&out.join("diagnosis.parquet"))
+                .expect("write");
+        })
     });
     g.finish();
 }
