@@ -91,6 +91,19 @@ pub fn curve_covariate(effect_key: &str) -> &str {
         .unwrap_or("")
 }
 
+/// The numeric columns `names` of a batch (those it has), each converted
+/// once per batch — rows switch group every few thousand rows, and each
+/// group reads the same few columns.
+fn num_cols<'a>(
+    b: &RecordBatch,
+    names: impl IntoIterator<Item = &'a String>,
+) -> BTreeMap<&'a str, Vec<f64>> {
+    names
+        .into_iter()
+        .filter_map(|n| num_col(b, n).map(|v| (n.as_str(), v)))
+        .collect()
+}
+
 /// Bins per axis the page draws: the gap map and its thumbnail over x/y,
 /// the curve against the named covariate and its thumbnail.
 #[derive(Clone, Copy, Debug)]
@@ -366,7 +379,15 @@ impl FleetFigures {
                 },
             );
         }
-        let covs: Vec<String> = drawn.values().filter_map(|d| d.cov.clone()).collect();
+        let mut covs: Vec<String> = drawn.values().filter_map(|d| d.cov.clone()).collect();
+        covs.sort();
+        covs.dedup();
+        let mut contribs: Vec<String> = drawn
+            .values()
+            .flat_map(|d| d.fit.iter().chain(&d.others).cloned())
+            .collect();
+        contribs.sort();
+        contribs.dedup();
         let ob_cols = |n: &str| {
             [
                 "machine",
@@ -398,13 +419,14 @@ impl FleetFigures {
                 machine.as_ref().map(|m| m.as_string::<i32>()),
             );
             let (x, y) = (num_col(&b, "x_mm"), num_col(&b, "y_mm"));
+            let cov_cols = num_cols(&b, &covs);
             let mut s: Option<&mut Scans> = None;
-            let mut c: Option<Vec<f64>> = None;
+            let mut c: Option<&Vec<f64>> = None;
             for i in 0..b.num_rows() {
                 let (key, new) = group.at(m_s.map_or("", |m| m.value(i)), o_s.value(i));
                 if new || s.is_none() {
                     let cov = drawn.get(&key.1).and_then(|d| d.cov.as_deref());
-                    c = cov.and_then(|n| num_col(&b, n));
+                    c = cov.and_then(|n| cov_cols.get(n));
                     s = Some(scans.entry(key.clone()).or_default());
                 }
                 let sc = s.as_deref_mut().expect("set");
@@ -412,7 +434,7 @@ impl FleetFigures {
                     sc.x.push(x[i]);
                     sc.y.push(y[i]);
                 }
-                if let Some(c) = &c {
+                if let Some(c) = c {
                     sc.c.push(c[i]);
                 }
             }
@@ -506,16 +528,35 @@ impl FleetFigures {
                     real.iter().zip(&sim).map(|(r, s)| r - s).collect()
                 }
             };
+            let cov_cols = num_cols(&b, &covs);
+            let contrib_cols = d
+                .as_ref()
+                .map(|d| num_cols(d, &contribs))
+                .unwrap_or_default();
             let mut a: Option<&mut Acc> = None;
-            let (mut c, mut fit, mut others) = (None, None, Vec::new());
+            let (mut c, mut fit, mut others): (
+                Option<&Vec<f64>>,
+                Option<&Vec<f64>>,
+                Vec<&Vec<f64>>,
+            ) = (None, None, Vec::new());
             for i in 0..b.num_rows() {
                 let (key, new) = group.at(m_s.map_or("", |m| m.value(i)), o_s.value(i));
                 if new || a.is_none() {
-                    let dr = drawn.get(&key.1).cloned().unwrap_or_default();
-                    c = dr.cov.as_deref().and_then(|n| num_col(&b, n));
-                    let contrib = |n: &str| d.as_ref().and_then(|d| num_col(d, n));
-                    fit = dr.fit.as_deref().and_then(contrib);
-                    others = dr.others.iter().filter_map(|o| contrib(o)).collect();
+                    let dr = drawn.get(&key.1);
+                    c = dr
+                        .and_then(|d| d.cov.as_deref())
+                        .and_then(|n| cov_cols.get(n));
+                    fit = dr
+                        .and_then(|d| d.fit.as_deref())
+                        .and_then(|n| contrib_cols.get(n));
+                    others = dr
+                        .map(|d| {
+                            d.others
+                                .iter()
+                                .filter_map(|o| contrib_cols.get(o.as_str()))
+                                .collect()
+                        })
+                        .unwrap_or_default();
                     a = Some(acc.get_mut(key).expect("every group was scanned"));
                 }
                 let a = a.as_deref_mut().expect("set");
@@ -530,7 +571,7 @@ impl FleetFigures {
                         m.push(x[i], y[i], &sq);
                     }
                 }
-                if let Some(c) = &c {
+                if let Some(c) = c {
                     // The gap less the other selected effects, in their order.
                     let mut partial = g;
                     for o in &others {
@@ -538,7 +579,7 @@ impl FleetFigures {
                             partial -= o[i];
                         }
                     }
-                    let f = fit.as_ref().map_or(f64::NAN, |f| f[i]);
+                    let f = fit.map_or(f64::NAN, |f| f[i]);
                     a.g.has_fit |= f.is_finite();
                     let v = [partial, f, r, g];
                     if let Some(k) = &mut a.curve {
