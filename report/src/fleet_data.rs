@@ -534,11 +534,10 @@ impl FleetFigures {
                 .map(|d| num_cols(d, &contribs))
                 .unwrap_or_default();
             let mut a: Option<&mut Acc> = None;
-            let (mut c, mut fit, mut others): (
-                Option<&Vec<f64>>,
-                Option<&Vec<f64>>,
-                Vec<&Vec<f64>>,
-            ) = (None, None, Vec::new());
+            // The current group's covariate, named contribution and others.
+            let mut c: Option<&Vec<f64>> = None;
+            let mut fit: Option<&Vec<f64>> = None;
+            let mut others: Vec<&Vec<f64>> = Vec::new();
             for i in 0..b.num_rows() {
                 let (key, new) = group.at(m_s.map_or("", |m| m.value(i)), o_s.value(i));
                 if new || a.is_none() {
