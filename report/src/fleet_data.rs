@@ -318,7 +318,7 @@ pub fn binned_means(c: &[f64], series: &[&[f64]], max_bins: usize) -> Curve {
 /// What one observable's pictures read: the covariate its named effect
 /// is drawn against and the contribution columns of the named effect and
 /// of the other selected effects.
-#[derive(Clone, Debug, Default)]
+#[derive(Debug)]
 struct Drawn {
     cov: Option<String>,
     fit: Option<String>,
