@@ -68,18 +68,17 @@ impl ObsRows {
 pub fn gather(table: &Table, oi: usize, notes: &mut Notes) -> crate::Result<ObsRows> {
     let oname = &table.obs_names[oi];
     // The observable's rows in table order, their covariates read once.
-    let asc: Vec<usize> = (0..table.n)
-        .filter(|&i| table.obs[i] as usize == oi)
-        .collect();
+    let asc: Vec<usize> = table.obs.rows_where(|o| o as usize == oi);
     let names = table.covs.names();
     let values = table.covs.gather(&table.obs, &asc)?;
+    let asc_run = table.run.at(&asc);
     let t = names.iter().position(|n| n == "t_s").map(|k| &values[k]);
     // Sorted by run unit, then time, then table order: `order[p]` is the
     // position in `asc` of the p-th row.
     let mut order: Vec<usize> = (0..asc.len()).collect();
     order.sort_by(|&a, &b| {
-        table.run[asc[a]]
-            .cmp(&table.run[asc[b]])
+        asc_run[a]
+            .cmp(&asc_run[b])
             .then_with(|| match t {
                 Some(t) => t[a].total_cmp(&t[b]),
                 None => std::cmp::Ordering::Equal,
@@ -87,11 +86,11 @@ pub fn gather(table: &Table, oi: usize, notes: &mut Notes) -> crate::Result<ObsR
             .then(a.cmp(&b))
     });
     let rows: Vec<usize> = order.iter().map(|&p| asc[p]).collect();
-    drop(asc);
+    let run: Vec<u32> = order.iter().map(|&p| asc_run[p]).collect();
+    drop((asc, asc_run));
     let n = rows.len();
     let gap: Vec<f64> = rows.iter().map(|&i| table.gap[i]).collect();
-    let run: Vec<u32> = rows.iter().map(|&i| table.run[i]).collect();
-    let machine: Vec<u32> = rows.iter().map(|&i| table.machine[i]).collect();
+    let machine: Vec<u32> = table.machine.at(&rows);
     let mut run_ranges: Vec<Range<usize>> = Vec::new();
     let mut s = 0;
     for i in 1..=n {

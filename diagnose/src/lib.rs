@@ -34,6 +34,7 @@ pub mod outliers;
 pub mod output;
 pub mod per_row;
 pub mod report;
+pub mod run_length;
 pub mod select;
 
 // The effect model (the `Effect` trait, the catalogue, least squares from
@@ -290,8 +291,7 @@ fn diagnose_observable(
         &mut plain_notes,
         &slots,
     )?;
-    let resid: Vec<f64> = plain.residual_all.clone();
-    let (out, sigma, thr) = match outliers::detect(&o, &resid) {
+    let (out, sigma, thr) = match outliers::detect(&o, &plain.residual_all) {
         Ok(found) => found,
         Err(why) => {
             notes.add(why);
@@ -304,15 +304,23 @@ fn diagnose_observable(
         }
         return acc.merge(plain, oi as u32, &o.rows);
     }
+    // Of the plain pass only its residual stays (the trim report's); its
+    // contributions go before the robust pass builds its own.
+    let resid = std::mem::take(&mut plain.residual_all);
+    drop(plain);
     let kept = o.without(&out);
+    let before: f64 = o.gap.iter().map(|g| g * g).sum();
     // The robust pass reads `kept`'s covariates and the trimmed rows'
-    // (their contributions); the full rows' copies go.
+    // (their contributions); of the full rows only their table rows stay
+    // (where the results go, and the trim report's runs).
     let trimmed_covs: Vec<(String, Vec<f64>)> = o
         .cols
         .iter()
         .map(|c| (c.name.clone(), out.iter().map(|&p| c.v[p]).collect()))
         .collect();
     o.cols = Vec::new();
+    o.gap = Vec::new();
+    o.machine = Vec::new();
     let kept_slots: Vec<usize> = (0..o.n())
         .filter(|p| out.binary_search(p).is_err())
         .collect();
@@ -325,7 +333,6 @@ fn diagnose_observable(
         trimmed_covs: &trimmed_covs,
     };
     analyse(table, &kept, oi, cfg, scopes, &mut robust, notes, &slots)?;
-    let before: f64 = o.gap.iter().map(|g| g * g).sum();
     let after: f64 = robust.residual_all.iter().map(|r| r.powi(2)).sum();
     let rep = outliers::report(&o, &out, &resid, &table.run_names, &table.run, sigma, thr);
     notes.add(format!(

@@ -177,8 +177,14 @@ pub fn localised_effects(
         ) else {
             continue;
         };
-        let rows: Vec<usize> = (0..table.n)
-            .filter(|&i| table.machine[i] as usize == m && table.obs[i] as usize == o)
+        let of_obs = table.obs.rows_where(|id| id as usize == o);
+        let rows: Vec<usize> = table
+            .machine
+            .at(&of_obs)
+            .into_iter()
+            .zip(&of_obs)
+            .filter(|(id, _)| *id as usize == m)
+            .map(|(_, &i)| i)
             .collect();
         let sub = table.rebuild(&rows)?;
         // A machine's own diagnosis needs held-out runs.

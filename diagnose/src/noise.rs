@@ -39,7 +39,13 @@ pub struct NoiseFloor {
 /// point-to-point scatter within each run unit.
 pub fn floor_of(table: &Table, o: &ObsRows) -> NoiseFloor {
     let rep = table.trial.as_ref().and_then(|trial| {
-        let tr: Vec<i64> = o.rows.iter().map(|&i| trial[i]).collect();
+        let tr: Vec<i64> = trial.at(&o.rows);
+        // One trial value throughout (e.g. `trial` null on every row of
+        // this observable): no group can hold replicates, so the per-row
+        // keys below (≈ 100 B a row) need not be built.
+        if tr.iter().all(|&t| t == tr[0]) {
+            return None;
+        }
         let has_position = ["x_mm", "y_mm", "z_mm", "phi_rad"]
             .iter()
             .any(|p| o.cols.iter().any(|c| c.name == *p));
@@ -58,14 +64,15 @@ pub fn floor_of(table: &Table, o: &ObsRows) -> NoiseFloor {
             .filter(|c| !is_time_like(&c.name))
             .map(|c| &c.v)
             .collect();
-        let key: Vec<Vec<i64>> = o
-            .rows
+        let run = table.run.at(&o.rows);
+        let point = table.point.as_ref().map(|p| p.at(&o.rows));
+        let key: Vec<Vec<i64>> = run
             .iter()
             .enumerate()
-            .map(|(j, &i)| {
-                let mut k = vec![table.run[i] as i64];
-                if let Some(p) = &table.point {
-                    k.push(p[i]);
+            .map(|(j, &unit)| {
+                let mut k = vec![unit as i64];
+                if let Some(p) = &point {
+                    k.push(p[j]);
                 }
                 k.extend(settings.iter().map(|c| c[j].to_bits() as i64));
                 k
@@ -78,10 +85,9 @@ pub fn floor_of(table: &Table, o: &ObsRows) -> NoiseFloor {
     // uncertainty (e.g. positions logged in 1 mm steps): the floor is never
     // below the RMS of `real_u` where the table states it.
     let stated = table.real_u.as_ref().and_then(|u| {
-        let v: Vec<f64> = o
-            .rows
-            .iter()
-            .map(|&i| u[i])
+        let v: Vec<f64> = u
+            .at(&o.rows)
+            .into_iter()
             .filter(|x| x.is_finite())
             .collect();
         (!v.is_empty()).then(|| (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt())

@@ -9,6 +9,7 @@ use arrow::buffer::ScalarBuffer;
 use arrow::compute::cast;
 use arrow::datatypes::{DataType, Field, Schema};
 
+use crate::run_length::RunLength;
 use crate::units::Unit;
 use crate::{InputError, Result};
 
@@ -272,15 +273,16 @@ pub struct Table {
     pub run_names: Vec<String>,
     /// Each run unit's `run` value as written (without the machine).
     pub run_bare: Vec<String>,
-    pub run: Vec<u32>,
+    /// Each row's run unit (an index into `run_names`).
+    pub run: RunLength<u32>,
     /// Sorted machine ids ([""] without a `machine` column) and each row's
     /// index into them.
     pub machine_names: Vec<String>,
-    pub machine: Vec<u32>,
+    pub machine: RunLength<u32>,
     /// Whether the table carried a `machine` column.
     pub has_machine: bool,
     pub obs_names: Vec<String>,
-    pub obs: Vec<u32>,
+    pub obs: RunLength<u32>,
     /// Each observable's unit (index as `obs_names`): from the optional
     /// `unit` column, else "mm".
     pub obs_units: Vec<String>,
@@ -291,11 +293,12 @@ pub struct Table {
     pub covs: Box<dyn Covariates>,
     /// Covariates dropped for non-finite values (reported as notes).
     pub dropped: Vec<String>,
-    pub trial: Option<Vec<i64>>,
-    pub point: Option<Vec<i64>>,
+    /// `trial` and `point` (i64::MIN where null).
+    pub trial: Option<RunLength<i64>>,
+    pub point: Option<RunLength<i64>>,
     /// `real_u`: each row's stated standard uncertainty of `real` (e.g. a
     /// logging resolution step/√12); NaN where not stated.
-    pub real_u: Option<ScalarBuffer<f64>>,
+    pub real_u: Option<RunLength<f64>>,
 }
 
 /// A [`Table`] built from consecutive parts of one table (each indexed by
@@ -308,10 +311,10 @@ pub struct TableParts {
     /// Run units as (machine id, bare run) pairs, and their index.
     units: std::collections::HashMap<(u32, String), u32>,
     unit_keys: Vec<(u32, String)>,
-    real_u: Option<Vec<f64>>,
-    /// Rows the parts will hold in all, when known: the per-row columns
-    /// are allocated once at that size (grown by doubling, a fleet's
-    /// columns would hold up to twice their rows).
+    real_u: Option<RunLength<f64>>,
+    /// Rows the parts will hold in all, when known: the gap column is
+    /// allocated once at that size (grown by doubling, it would hold up to
+    /// twice its rows).
     rows: usize,
 }
 
@@ -348,12 +351,12 @@ impl TableParts {
             n: 0,
             run_names: Vec::new(),
             run_bare: Vec::new(),
-            run: Vec::with_capacity(rows),
+            run: RunLength::new(),
             machine_names: Vec::new(),
-            machine: Vec::with_capacity(rows),
+            machine: RunLength::new(),
             has_machine: part.has_machine,
             obs_names: Vec::new(),
-            obs: Vec::with_capacity(rows),
+            obs: RunLength::new(),
             obs_units: Vec::new(),
             gap: Vec::with_capacity(rows),
             covs: Box::new(InMemory {
@@ -361,12 +364,12 @@ impl TableParts {
                 columns: Vec::new(),
             }),
             dropped: Vec::new(),
-            trial: part.trial.as_ref().map(|_| Vec::with_capacity(rows)),
-            point: part.point.as_ref().map(|_| Vec::with_capacity(rows)),
+            trial: part.trial.as_ref().map(|_| RunLength::new()),
+            point: part.point.as_ref().map(|_| RunLength::new()),
             real_u: None,
         });
         if self.real_u.is_none() && part.real_u.is_some() && acc.n == 0 {
-            self.real_u = Some(Vec::with_capacity(rows));
+            self.real_u = Some(RunLength::new());
         }
         let machine_map: Vec<u32> = part
             .machine_names
@@ -395,7 +398,7 @@ impl TableParts {
         let mut unit_map = Vec::with_capacity(part.run_bare.len());
         let part_unit_machine: Vec<u32> = {
             let mut m = vec![0u32; part.run_bare.len()];
-            for (&u, &mach) in part.run.iter().zip(&part.machine) {
+            for (u, mach) in part.run.iter().zip(part.machine.iter()) {
                 m[u as usize] = mach;
             }
             m
@@ -410,21 +413,19 @@ impl TableParts {
             unit_map.push(id);
         }
         acc.n += part.n;
-        acc.run
-            .extend(part.run.iter().map(|&u| unit_map[u as usize]));
+        acc.run.extend_mapped(&part.run, |u| unit_map[u as usize]);
         acc.machine
-            .extend(part.machine.iter().map(|&m| machine_map[m as usize]));
-        acc.obs
-            .extend(part.obs.iter().map(|&o| obs_map[o as usize]));
+            .extend_mapped(&part.machine, |m| machine_map[m as usize]);
+        acc.obs.extend_mapped(&part.obs, |o| obs_map[o as usize]);
         acc.gap.extend_from_slice(&part.gap);
         if let (Some(a), Some(p)) = (acc.trial.as_mut(), part.trial.as_ref()) {
-            a.extend_from_slice(p);
+            a.extend_mapped(p, |v| v);
         }
         if let (Some(a), Some(p)) = (acc.point.as_mut(), part.point.as_ref()) {
-            a.extend_from_slice(p);
+            a.extend_mapped(p, |v| v);
         }
         if let (Some(a), Some(p)) = (self.real_u.as_mut(), part.real_u.as_ref()) {
-            a.extend_from_slice(p);
+            a.extend_mapped(p, |v| v);
         }
         Ok(())
     }
@@ -434,7 +435,7 @@ impl TableParts {
         let Some(mut t) = self.acc else {
             return Err(InputError::new(&self.path, "no observations (empty table)").into());
         };
-        t.real_u = self.real_u.map(ScalarBuffer::from);
+        t.real_u = self.real_u;
         fn sorted_ids(names: &[String]) -> (Vec<String>, Vec<u32>) {
             let mut order: Vec<usize> = (0..names.len()).collect();
             order.sort_by(|&a, &b| names[a].cmp(&names[b]));
@@ -455,12 +456,8 @@ impl TableParts {
                 t.obs_units[old].clone()
             })
             .collect();
-        for m in t.machine.iter_mut() {
-            *m = machine_id[*m as usize];
-        }
-        for o in t.obs.iter_mut() {
-            *o = obs_id[*o as usize];
-        }
+        t.machine = t.machine.map(|m| machine_id[m as usize]);
+        t.obs = t.obs.map(|o| obs_id[o as usize]);
         // Run units in (machine, run) order, as from_batch numbers them.
         let keys: Vec<(u32, String)> = self
             .unit_keys
@@ -473,9 +470,7 @@ impl TableParts {
         for (new, &old) in order.iter().enumerate() {
             unit_id[old] = new as u32;
         }
-        for u in t.run.iter_mut() {
-            *u = unit_id[*u as usize];
-        }
+        t.run = t.run.map(|u| unit_id[u as usize]);
         t.run_bare = order.iter().map(|&i| keys[i].1.clone()).collect();
         t.run_names = order
             .iter()
@@ -499,21 +494,17 @@ impl Table {
     /// from the ids: the values the input held (a run's id as written,
     /// without its machine).
     pub fn text_column(&self, name: &str, rows: &[usize]) -> ArrayRef {
-        let text: Vec<&str> = match name {
-            "machine" => rows
-                .iter()
-                .map(|&i| self.machine_names[self.machine[i] as usize].as_str())
-                .collect(),
-            "run" => rows
-                .iter()
-                .map(|&i| self.run_bare[self.run[i] as usize].as_str())
-                .collect(),
-            "observable" => rows
-                .iter()
-                .map(|&i| self.obs_names[self.obs[i] as usize].as_str())
-                .collect(),
+        let (ids, names) = match name {
+            "machine" => (&self.machine, &self.machine_names),
+            "run" => (&self.run, &self.run_bare),
+            "observable" => (&self.obs, &self.obs_names),
             other => unreachable!("`{other}` is not a key column"),
         };
+        let text: Vec<&str> = ids
+            .at(rows)
+            .into_iter()
+            .map(|id| names[id as usize].as_str())
+            .collect();
         Arc::new(arrow::array::StringArray::from(text))
     }
 
@@ -533,9 +524,11 @@ impl Table {
             fields.push(Field::new(k, DataType::Utf8, false));
             cols.push(self.text_column(k, rows));
         }
-        let unit: Vec<&str> = rows
-            .iter()
-            .map(|&i| self.obs_units[self.obs[i] as usize].as_str())
+        let unit: Vec<&str> = self
+            .obs
+            .at(rows)
+            .into_iter()
+            .map(|o| self.obs_units[o as usize].as_str())
             .collect();
         fields.push(Field::new("unit", DataType::Utf8, false));
         cols.push(Arc::new(arrow::array::StringArray::from(unit)));
@@ -563,9 +556,10 @@ impl Table {
         }
         for (name, ints) in [("trial", &self.trial), ("point", &self.point)] {
             if let Some(ints) = ints {
-                let v: Int64Array = rows
-                    .iter()
-                    .map(|&i| (ints[i] != i64::MIN).then_some(ints[i]))
+                let v: Int64Array = ints
+                    .at(rows)
+                    .into_iter()
+                    .map(|v| (v != i64::MIN).then_some(v))
                     .collect();
                 fields.push(Field::new(name, DataType::Int64, true));
                 cols.push(Arc::new(v));
@@ -573,9 +567,7 @@ impl Table {
         }
         if let Some(u) = &self.real_u {
             fields.push(Field::new("real_u", DataType::Float64, true));
-            cols.push(Arc::new(Float64Array::from_iter_values(
-                rows.iter().map(|&i| u[i]),
-            )));
+            cols.push(Arc::new(Float64Array::from(u.at(rows))));
         }
         Ok(RecordBatch::try_new(Arc::new(Schema::new(fields)), cols)?)
     }
@@ -734,7 +726,7 @@ impl Table {
                 bare.clone()
             });
         }
-        let run: Vec<u32> = machine
+        let run: RunLength<u32> = machine
             .iter()
             .zip(&bare_run)
             .map(|(m, r)| pairs[&(*m, *r)])
@@ -767,7 +759,7 @@ impl Table {
             names: covs.iter().map(|(n, _)| n.clone()).collect(),
             columns: covs.into_iter().map(|(_, v)| v).collect(),
         });
-        let int = |name: &str| -> Result<Option<Vec<i64>>> {
+        let int = |name: &str| -> Result<Option<RunLength<i64>>> {
             match b.column_by_name(name) {
                 Some(a) if a.data_type().is_integer() || a.data_type().is_floating() => Ok(Some(
                     f64s(a)?
@@ -784,10 +776,10 @@ impl Table {
             run_bare,
             run,
             machine_names,
-            machine,
+            machine: machine.into_iter().collect(),
             has_machine,
             obs_names,
-            obs,
+            obs: obs.into_iter().collect(),
             obs_units,
             gap,
             covs,
@@ -796,7 +788,7 @@ impl Table {
             point: int("point")?,
             real_u: match b.column_by_name("real_u") {
                 Some(a) if a.data_type().is_floating() || a.data_type().is_integer() => {
-                    Some(f64s(a)?)
+                    Some(f64s(a)?.iter().copied().collect())
                 }
                 _ => None,
             },
@@ -813,7 +805,7 @@ pub trait Covariates: Send + Sync {
     /// table rows `asc` (ascending); NaN where a row has none. `obs` is
     /// the table's observable id per row (a source may keep each
     /// observable's rows apart).
-    fn gather(&self, obs: &[u32], asc: &[usize]) -> Result<Vec<Vec<f64>>>;
+    fn gather(&self, obs: &RunLength<u32>, asc: &[usize]) -> Result<Vec<Vec<f64>>>;
     /// A covariate's whole column where it is held in memory.
     fn column(&self, _name: &str) -> Option<&[f64]> {
         None
@@ -833,7 +825,7 @@ impl Covariates for InMemory {
     fn names(&self) -> &[String] {
         &self.names
     }
-    fn gather(&self, _obs: &[u32], asc: &[usize]) -> Result<Vec<Vec<f64>>> {
+    fn gather(&self, _obs: &RunLength<u32>, asc: &[usize]) -> Result<Vec<Vec<f64>>> {
         use rayon::prelude::*;
         Ok(self
             .columns

@@ -17,6 +17,7 @@ use crate::contracts::parquet_file::{checked_batches, corrupt_page, open_parquet
 use crate::observations::{
     is_covariate, normalise_types, validate_observations, Covariates, Table, TableParts,
 };
+use crate::run_length::RunLength;
 use crate::{DiagnoseConfig, DiagnosisOutput, EffectScope, InputError, Result};
 
 /// Rows per batch read from the file.
@@ -223,7 +224,7 @@ impl Covariates for ParquetCovariates {
         &self.names
     }
 
-    fn gather(&self, _obs: &[u32], asc: &[usize]) -> Result<Vec<Vec<f64>>> {
+    fn gather(&self, _obs: &RunLength<u32>, asc: &[usize]) -> Result<Vec<Vec<f64>>> {
         let k = self.names.len();
         let mut out: Vec<Vec<f64>> = (0..k).map(|_| Vec::with_capacity(asc.len())).collect();
         if k == 0 || asc.is_empty() {
@@ -488,7 +489,7 @@ impl Covariates for SpilledCovariates {
         &self.names
     }
 
-    fn gather(&self, obs: &[u32], asc: &[usize]) -> Result<Vec<Vec<f64>>> {
+    fn gather(&self, obs: &RunLength<u32>, asc: &[usize]) -> Result<Vec<Vec<f64>>> {
         use std::io::Read;
         let k = self.names.len();
         let width = self.spilled.covariates.len();
@@ -496,16 +497,21 @@ impl Covariates for SpilledCovariates {
         if k == 0 || asc.is_empty() {
             return Ok(out);
         }
-        // Each wanted row's rank among its observable's rows (its record).
+        // Each wanted row's rank among its observable's rows (its record),
+        // a stretch of one observable at a time (`asc` ascending).
         let mut seen = vec![0usize; self.file_of.len()];
         let mut wanted: Vec<Vec<(usize, usize)>> = vec![Vec::new(); self.file_of.len()];
         let mut p = 0;
-        for (i, &o) in obs.iter().enumerate().take(asc[asc.len() - 1] + 1) {
-            if asc[p] == i {
-                wanted[o as usize].push((seen[o as usize], p));
+        for (rows, o) in obs.spans() {
+            if p == asc.len() {
+                break;
+            }
+            let o = o as usize;
+            while p < asc.len() && asc[p] < rows.end {
+                wanted[o].push((seen[o] + asc[p] - rows.start, p));
                 p += 1;
             }
-            seen[o as usize] += 1;
+            seen[o] += rows.len();
         }
         let mut record = vec![0u8; 8 * width];
         for (o, want) in wanted.iter().enumerate() {

@@ -22,6 +22,7 @@ use serde::Serialize;
 
 use super::gather::ObsRows;
 use super::noise::median;
+use super::run_length::RunLength;
 
 /// Threshold in robust standard deviations.
 pub const K_SIGMA: f64 = 6.0;
@@ -91,14 +92,14 @@ pub fn report(
     out: &[usize],
     residual: &[f64],
     run_names: &[String],
-    run_id: &[u32],
+    run_id: &RunLength<u32>,
     sigma: f64,
     thr: f64,
 ) -> OutlierReport {
     let mut by_run: BTreeMap<String, usize> = BTreeMap::new();
     for &p in out {
         *by_run
-            .entry(run_names[run_id[o.rows[p]] as usize].clone())
+            .entry(run_names[run_id.get(o.rows[p]) as usize].clone())
             .or_default() += 1;
     }
     OutlierReport {

@@ -11,6 +11,7 @@ use arrow::array::{ArrayRef, Float64Array, RecordBatch};
 use arrow::datatypes::{DataType, Field, Schema};
 
 use crate::observations::Table;
+use crate::run_length::RunLength;
 use crate::Result;
 
 /// Rows of diagnosis.parquet per batch built and written: the text keys
@@ -137,8 +138,8 @@ impl PerRow {
                 let mut contrib = vec![Vec::with_capacity(rows.len()); nk];
                 let mut residual = Vec::with_capacity(rows.len());
                 let mut rec = vec![0.0; nk + 1];
-                for &i in &rows {
-                    c.next(self.table.obs[i], &mut rec)?;
+                for obs in self.table.obs.at(&rows) {
+                    c.next(obs, &mut rec)?;
                     residual.push(rec[0]);
                     for (col, v) in contrib.iter_mut().zip(&rec[1..]) {
                         col.push(*v);
@@ -212,11 +213,11 @@ impl ResultSpill {
 
     /// Σ residual² over every row, in table order (the order the in-memory
     /// column sums in: the same bits).
-    pub(crate) fn sum_sq_residual(&self, obs: &[u32]) -> Result<f64> {
+    pub(crate) fn sum_sq_residual(&self, obs: &RunLength<u32>) -> Result<f64> {
         let mut c = self.spill_cursor(&[])?;
         let mut rec = [0.0];
         let mut s = 0.0;
-        for &o in obs {
+        for o in obs.iter() {
             c.next(o, &mut rec)?;
             s += rec[0] * rec[0];
         }

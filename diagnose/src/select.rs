@@ -232,18 +232,19 @@ type TakenOut = (Vec<Arc<Vec<f64>>>, Vec<f64>);
 
 /// The chosen effect taken out of every fold's target (its prediction from
 /// that fold's fit subtracted), and its held-out contribution per row (each
-/// unit predicted by the fold that held it out).
-fn take_out(prob: &Problem, e: &dyn Effect, ev: &CandEval, tg: &Targets) -> Result<TakenOut> {
+/// unit predicted by the fold that held it out). Takes the targets: a
+/// target no one else holds is updated in place (the folds' targets are
+/// most of the selection's memory, 8 B a row each).
+fn take_out(prob: &Problem, e: &dyn Effect, ev: &CandEval, tg: Targets) -> Result<TakenOut> {
     let k = prob.k;
     let mut new_targets = Vec::with_capacity(k + 1);
     let mut c = vec![0.0; prob.x.len()];
-    for f in 0..=k {
+    let per_fold = tg.into_per_fold();
+    for (f, mut t) in per_fold.into_iter().enumerate() {
         let pred = predict_fold(e, prob, ev, f)?;
-        let t: Vec<f64> = tg.per_fold[f]
-            .iter()
-            .zip(&pred)
-            .map(|(y, p)| y - p)
-            .collect();
+        for (y, p) in Arc::make_mut(&mut t).iter_mut().zip(&pred) {
+            *y -= p;
+        }
         if f < k {
             for (u, uf) in prob.unit_fold.iter().enumerate() {
                 if *uf == f {
@@ -253,7 +254,7 @@ fn take_out(prob: &Problem, e: &dyn Effect, ev: &CandEval, tg: &Targets) -> Resu
                 }
             }
         }
-        new_targets.push(Arc::new(t));
+        new_targets.push(t);
     }
     Ok((new_targets, c))
 }
@@ -350,7 +351,7 @@ pub struct Selection {
     pub final_params: Vec<(BTreeMap<String, f64>, f64)>,
     /// The all-runs target each chosen effect was fitted to (the gap minus
     /// the all-runs fits of the effects chosen before it).
-    pub final_targets: Vec<Vec<f64>>,
+    pub final_targets: Vec<Arc<Vec<f64>>>,
     /// The cross-validated fits of the chosen effects (fold k = all runs):
     /// intervals read their covariance and fold spread.
     pub chosen_evals: Vec<CandEval>,
@@ -406,8 +407,9 @@ pub fn select(prob: &Problem, cands: &[&dyn Effect], opt: &SelectOptions) -> Res
             ));
         }
     }
-    let gap = Arc::new(prob.gap.to_vec());
-    let mut tg = Targets::new(vec![gap.clone(); k + 1], &prob.units);
+    // Every fold's first target is the gap: one column, shared until the
+    // first effect is taken out of it.
+    let mut tg = Targets::new(vec![Arc::new(prob.gap.to_vec()); k + 1], &prob.units);
     let unit_sse_gap: Vec<f64> = prob
         .units
         .iter()
@@ -517,10 +519,10 @@ pub fn select(prob: &Problem, cands: &[&dyn Effect], opt: &SelectOptions) -> Res
             .map(|(_, s)| s.0)
             .collect();
         let (ci, ev, _, _) = scored.swap_remove(b);
-        let (new_targets, c) = take_out(prob, cands[ci], &ev, &tg)?;
+        final_targets.push(tg.per_fold[k].clone());
+        let (new_targets, c) = take_out(prob, cands[ci], &ev, tg)?;
         contrib.push(c);
         final_params.push(params_of(cands[ci], prob, &ev, k));
-        final_targets.push(tg.per_fold[k].as_ref().clone());
         if let Some(r) = records[ci].as_mut() {
             r.selected = true;
             r.indistinguishable = rivals;

@@ -14,6 +14,12 @@ pub struct Targets {
 }
 
 impl Targets {
+    /// The per-fold targets, the rest let go (so a target held by no one
+    /// else can be changed in place).
+    pub fn into_per_fold(self) -> Vec<Arc<Vec<f64>>> {
+        self.per_fold
+    }
+
     pub fn new(per_fold: Vec<Arc<Vec<f64>>>, units: &[Range<usize>]) -> Targets {
         let mut distinct: Vec<Arc<Vec<f64>>> = Vec::new();
         let mut of_fold = Vec::new();
