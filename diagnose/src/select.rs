@@ -409,7 +409,8 @@ pub fn select(prob: &Problem, cands: &[&dyn Effect], opt: &SelectOptions) -> Res
     }
     // Every fold's first target is the gap: one column, shared until the
     // first effect is taken out of it.
-    let mut tg = Targets::new(vec![Arc::new(prob.gap.to_vec()); k + 1], &prob.units);
+    let gap = Arc::new(prob.gap.to_vec());
+    let mut tg = Targets::new(std::iter::repeat_n(gap, k + 1).collect(), &prob.units);
     let unit_sse_gap: Vec<f64> = prob
         .units
         .iter()
