@@ -31,7 +31,6 @@ use std::ops::Range;
 use nalgebra::{DMatrix, DVector};
 use rand::{Rng, SeedableRng};
 use serde::Serialize;
-use statrs::distribution::{ContinuousCDF, StudentsT};
 
 use super::effect::Effect;
 use super::select::{params_of, CandEval, CandFit, Problem};
@@ -60,9 +59,7 @@ fn t975(df: f64) -> f64 {
     if df.is_nan() || df < 1.0 {
         return f64::NAN;
     }
-    StudentsT::new(0.0, 1.0, df)
-        .map(|t| t.inverse_cdf(0.975))
-        .unwrap_or(1.96)
+    crate::student_t::t_quantile(0.975, df)
 }
 
 /// Reported parameters (with `offset_mm`) of a parameter vector z.

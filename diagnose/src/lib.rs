@@ -36,6 +36,7 @@ pub mod per_row;
 pub mod report;
 pub mod run_length;
 pub mod select;
+pub mod student_t;
 
 // The effect model (the `Effect` trait, the catalogue, least squares from
 // sufficient statistics) and the augmented model sit in sparkout-core, below

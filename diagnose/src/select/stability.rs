@@ -24,7 +24,6 @@
 
 use rand::seq::SliceRandom;
 use rand::SeedableRng;
-use statrs::distribution::{ContinuousCDF, StudentsT};
 
 use super::{paired_log_test, SelectOptions};
 
@@ -152,9 +151,7 @@ pub fn paired_interval(chosen: &[f64], other: &[f64]) -> (f64, f64, f64) {
     let mean = d.iter().sum::<f64>() / m as f64;
     let var = d.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (m - 1) as f64;
     let se = (var / m as f64).sqrt();
-    let t = StudentsT::new(0.0, 1.0, (m - 1) as f64)
-        .map(|t| t.inverse_cdf(0.975))
-        .unwrap_or(f64::NAN);
+    let t = crate::student_t::t_quantile(0.975, (m - 1) as f64);
     (mean, mean - t * se, mean + t * se)
 }
 
