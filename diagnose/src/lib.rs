@@ -377,7 +377,9 @@ fn analyse(
     slots: &Slots,
 ) -> Result<()> {
     let n = o.n();
+    let mut clock = StepClock::new(&o.name, n);
     let nf = noise::floor_of(table, o);
+    clock.lap("noise");
     let fo = folds::folds(o, cfg.folds, cfg.seed, oi);
     acc.blocked |= fo.blocked;
     acc.folds_used = acc.folds_used.max(fo.k);
@@ -415,9 +417,13 @@ fn analyse(
         seed: cfg.seed ^ (oi as u64).wrapping_mul(0xA24B_AED4_963E_E407),
         allow_selection: above,
     };
+    clock.lap("folds, candidates");
     let sel = select::select(&prob, &cands, &opt)?;
+    clock.lap("select");
     let machine_tests = output::machine_tests(table, o, &prob, &cands, &sel)?;
+    clock.lap("machine tests");
     let ivs = intervals::chosen_intervals(&cands, &prob, &sel, &o.run_ranges, cfg.seed);
+    clock.lap("intervals");
     acc.effects.extend(output::effect_entries(
         &o.name,
         &table.obs_units[oi],
@@ -430,6 +436,7 @@ fn analyse(
     ));
     let obs_selected =
         output::record_selected(table, o, &prob, &cands, &sel, nf.sigma_mm, slots, acc)?;
+    clock.lap("per-row results");
     if !above {
         notes.add(format!("{}: no gap above noise", o.name));
     }
@@ -469,6 +476,7 @@ fn analyse(
             c.add_confounds(&rivals);
         }
     }
+    clock.lap("collinear");
     let minor: Vec<String> = sel
         .records
         .iter()
@@ -525,6 +533,8 @@ fn analyse(
         &o.gap,
         &sel.residual,
     ));
+    clock.lap("cells");
+    clock.done();
     acc.cells.extend(cs.into_iter().map(|cell| ObsCell {
         observable: o.name.clone(),
         sigma_mm: nf.sigma_mm,
@@ -532,6 +542,46 @@ fn analyse(
         cell,
     }));
     Ok(())
+}
+
+/// Each step's wall time of one pass over an observable, logged at debug
+/// level when the pass ends (where a night's diagnosis spends its time).
+struct StepClock<'a> {
+    name: &'a str,
+    rows: usize,
+    last: std::time::Instant,
+    laps: Vec<(&'static str, f64)>,
+}
+
+impl<'a> StepClock<'a> {
+    fn new(name: &'a str, rows: usize) -> StepClock<'a> {
+        StepClock {
+            name,
+            rows,
+            last: std::time::Instant::now(),
+            laps: Vec::new(),
+        }
+    }
+    fn lap(&mut self, step: &'static str) {
+        let now = std::time::Instant::now();
+        self.laps
+            .push((step, now.duration_since(self.last).as_secs_f64()));
+        self.last = now;
+    }
+    fn done(&self) {
+        let total: f64 = self.laps.iter().map(|(_, s)| s).sum();
+        let steps: Vec<String> = self
+            .laps
+            .iter()
+            .map(|(k, s)| format!("{k} {s:.2} s"))
+            .collect();
+        tracing::debug!(
+            "{}: {} rows diagnosed in {total:.2} s ({})",
+            self.name,
+            self.rows,
+            steps.join(", ")
+        );
+    }
 }
 
 #[cfg(test)]

@@ -412,8 +412,13 @@ pub fn check_shards(dirs: &[PathBuf], manifests: &[ShardManifest]) -> Result<()>
     Ok(())
 }
 
-/// Copies a run's output directory from a shard into the aggregate output
+/// Puts a run's output directory from a shard into the aggregate output
 /// (to a temporary name, then renamed: a reader never sees half a run).
+/// Files are hard-linked where the shard lies on the same file system — a
+/// fleet's run folders are gigabytes (docs/scale.md) and sparkout never
+/// rewrites a file in place (it writes a temporary file and renames it over
+/// the old one), so a re-run shard cannot change the aggregate's files —
+/// and copied otherwise (another file system, a symbolic link).
 pub fn copy_run_dir(from: &Path, to: &Path) -> Result<()> {
     if from == to {
         return Ok(());
@@ -426,7 +431,7 @@ pub fn copy_run_dir(from: &Path, to: &Path) -> Result<()> {
         std::process::id()
     ));
     let _ = std::fs::remove_dir_all(&tmp);
-    copy_tree(from, &tmp)
+    link_or_copy_tree(from, &tmp)
         .with_context(|| format!("cannot copy {} to {}", from.display(), to.display()))?;
     // Only what sparkout wrote there before; a directory still holding
     // other files is not replaced (the rename fails and says so).
@@ -440,14 +445,17 @@ pub fn copy_run_dir(from: &Path, to: &Path) -> Result<()> {
     Ok(())
 }
 
-fn copy_tree(from: &Path, to: &Path) -> std::io::Result<()> {
+fn link_or_copy_tree(from: &Path, to: &Path) -> std::io::Result<()> {
     std::fs::create_dir_all(to)?;
     for e in std::fs::read_dir(from)? {
         let e = e?;
         let dst = to.join(e.file_name());
-        if e.file_type()?.is_dir() {
-            copy_tree(&e.path(), &dst)?;
-        } else {
+        let kind = e.file_type()?;
+        if kind.is_dir() {
+            link_or_copy_tree(&e.path(), &dst)?;
+        } else if kind.is_symlink() || std::fs::hard_link(e.path(), &dst).is_err() {
+            // A link would be a link to the link (and may point outside
+            // the output): its target's bytes are copied instead.
             std::fs::copy(e.path(), dst)?;
         }
     }
@@ -457,6 +465,31 @@ fn copy_tree(from: &Path, to: &Path) -> std::io::Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn run_dirs_are_linked_and_a_rerun_shard_leaves_them_alone() {
+        let root = std::env::temp_dir().join(format!("sparkout-link-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&root);
+        let from = root.join("shard/m/r1");
+        std::fs::create_dir_all(from.join("plots")).unwrap();
+        std::fs::write(from.join("report.json"), b"night 1").unwrap();
+        std::fs::write(from.join("plots/a.svg"), b"<svg/>").unwrap();
+        let to = root.join("agg/m/r1");
+        copy_run_dir(&from, &to).unwrap();
+        assert_eq!(std::fs::read(to.join("report.json")).unwrap(), b"night 1");
+        assert_eq!(std::fs::read(to.join("plots/a.svg")).unwrap(), b"<svg/>");
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::MetadataExt;
+            let ino = |p: &Path| std::fs::metadata(p).unwrap().ino();
+            assert_eq!(ino(&from.join("report.json")), ino(&to.join("report.json")));
+        }
+        // The shard re-run writes as sparkout does (a new file renamed over
+        // the old): the aggregate keeps what it gathered.
+        sparkout_core::files::write::write_atomic(&from.join("report.json"), b"night 2").unwrap();
+        assert_eq!(std::fs::read(to.join("report.json")).unwrap(), b"night 1");
+        std::fs::remove_dir_all(&root).unwrap();
+    }
 
     #[test]
     fn shard_specs_are_checked() {
