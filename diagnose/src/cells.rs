@@ -74,35 +74,117 @@ pub fn cell_p(ms: f64, n: usize, sigma: f64, df_sigma: f64) -> f64 {
     f_sf(ms / (sigma * sigma), n as f64, df_sigma)
 }
 
-/// Bin index per row for one covariate (`sorted`: its values ascending).
-fn bin_ids(v: &[f64], sorted: &[f64], bins: usize) -> Vec<u32> {
-    // Distinct values, capped at MAX_DISCRETE_VALUES + 1.
-    let mut distinct: Vec<f64> = Vec::new();
-    for &x in sorted {
-        if distinct.last() != Some(&x) {
-            distinct.push(x);
-            if distinct.len() > MAX_DISCRETE_VALUES {
-                break;
+/// How one covariate is binned: one cell per value when it has at most
+/// [`MAX_DISCRETE_VALUES`] distinct values, else by quantiles.
+enum Binning {
+    /// The distinct values, ascending.
+    Discrete(Vec<f64>),
+    /// The order statistics the quantile edges read: (position in the
+    /// ascending values, value), positions ascending.
+    Quantiles(Vec<(usize, f64)>),
+}
+
+impl Binning {
+    /// The binning of `v` for edges at n·j/b (j = 1 … b − 1) for every b in
+    /// `bins`. Selects those order statistics rather than sorting the
+    /// values: O(n) instead of O(n log n), the same values (equal under
+    /// the total order means equal bits). With a NaN the values are sorted,
+    /// as the quantile edges were always taken.
+    fn of(v: &[f64], bins: &[usize]) -> Binning {
+        let n = v.len();
+        if v.iter().any(|x| x.is_nan()) {
+            return Self::from_sorted(&super::gather::sorted(v), bins);
+        }
+        if let Some(d) = distinct_at_most(v, MAX_DISCRETE_VALUES) {
+            return Binning::Discrete(d);
+        }
+        let mut at: Vec<usize> = bins
+            .iter()
+            .flat_map(|&b| (1..b).map(move |j| n * j / b))
+            .collect();
+        at.sort_unstable();
+        at.dedup();
+        let mut s = v.to_vec();
+        let mut lo = 0;
+        let mut out = Vec::with_capacity(at.len());
+        for p in at {
+            // s[lo..] holds every value ranked lo or above, so the value
+            // ranked p is the (p − lo)-th smallest of it.
+            let (_, x, _) = s[lo..].select_nth_unstable_by(p - lo, f64::total_cmp);
+            out.push((p, *x));
+            lo = p;
+        }
+        Binning::Quantiles(out)
+    }
+
+    /// The binning from the values ascending (NaN last): the reference the
+    /// selection reproduces.
+    fn from_sorted(sorted: &[f64], bins: &[usize]) -> Binning {
+        // Distinct values, capped at MAX_DISCRETE_VALUES + 1.
+        let mut distinct: Vec<f64> = Vec::new();
+        for &x in sorted {
+            if distinct.last() != Some(&x) {
+                distinct.push(x);
+                if distinct.len() > MAX_DISCRETE_VALUES {
+                    break;
+                }
+            }
+        }
+        if distinct.len() <= MAX_DISCRETE_VALUES {
+            return Binning::Discrete(distinct);
+        }
+        let n = sorted.len();
+        let mut at: Vec<usize> = bins
+            .iter()
+            .flat_map(|&b| (1..b).map(move |j| n * j / b))
+            .collect();
+        at.sort_unstable();
+        at.dedup();
+        Binning::Quantiles(at.into_iter().map(|p| (p, sorted[p])).collect())
+    }
+
+    /// Bin index per row of `v` with `bins` quantile bins.
+    fn ids(&self, v: &[f64], bins: usize) -> Vec<u32> {
+        match self {
+            Binning::Discrete(distinct) => v
+                .iter()
+                .map(|x| distinct.partition_point(|d| d < x) as u32)
+                .collect(),
+            Binning::Quantiles(at) => {
+                let n = v.len();
+                let value = |p: usize| at[at.partition_point(|(q, _)| *q < p)].1;
+                let mut edges: Vec<f64> = (1..bins).map(|j| value(n * j / bins)).collect();
+                edges.dedup();
+                v.iter()
+                    .map(|x| edges.partition_point(|e| e <= x) as u32)
+                    .collect()
             }
         }
     }
-    if distinct.len() <= MAX_DISCRETE_VALUES {
-        return v
-            .iter()
-            .map(|x| distinct.partition_point(|d| d < x) as u32)
-            .collect();
+}
+
+/// The distinct values of `v` (no NaN) ascending, when there are at most
+/// `cap` (values equal under `==`, i.e. −0 and +0, count once, as the
+/// first in ascending order); None as soon as there are more.
+fn distinct_at_most(v: &[f64], cap: usize) -> Option<Vec<f64>> {
+    // Distinct under the total order; −0 and +0 are two of them, so one
+    // more than `cap` may still be `cap` under `==`.
+    let mut d: Vec<f64> = Vec::new();
+    for &x in v {
+        if let Err(i) = d.binary_search_by(|e| e.total_cmp(&x)) {
+            d.insert(i, x);
+            if d.len() > cap + 1 {
+                return None;
+            }
+        }
     }
-    let n = sorted.len();
-    let mut edges: Vec<f64> = (1..bins).map(|j| sorted[n * j / bins]).collect();
-    edges.dedup();
-    v.iter()
-        .map(|x| edges.partition_point(|e| e <= x) as u32)
-        .collect()
+    d.dedup_by(|b, a| a == b);
+    (d.len() <= cap).then_some(d)
 }
 
 /// Aggregates every binning of one observable. `covs`: (name, values in
-/// row order); `g`/`r`: gap and held-out residual. Each covariate is sorted
-/// here for its quantile edges and the sorted copy let go at once.
+/// row order); `g`/`r`: gap and held-out residual. Each covariate's
+/// quantile edges are selected from a copy let go at once.
 pub fn cells(covs: &[(&str, &[f64])], g: &[f64], r: &[f64]) -> Result<Vec<Cell>> {
     let n = g.len();
     let g2 = pl::Column::new("g2".into(), g.iter().map(|v| v * v).collect::<Vec<f64>>());
@@ -112,14 +194,19 @@ pub fn cells(covs: &[(&str, &[f64])], g: &[f64], r: &[f64]) -> Result<Vec<Cell>>
     // every covariate at once held a copy of the observable's covariates.
     let (mut tile_x, mut tile_y) = (None, None);
     for (name, v) in covs {
-        let s = super::gather::sorted(v);
-        let bins = bin_ids(v, &s, QUANTILE_BINS);
+        let tiled = matches!(*name, "x_mm" | "y_mm");
+        let binning = if tiled {
+            Binning::of(v, &[QUANTILE_BINS, TILE_BINS])
+        } else {
+            Binning::of(v, &[QUANTILE_BINS])
+        };
+        let bins = binning.ids(v, QUANTILE_BINS);
         match *name {
-            "x_mm" => tile_x = Some(bin_ids(v, &s, TILE_BINS)),
-            "y_mm" => tile_y = Some(bin_ids(v, &s, TILE_BINS)),
+            "x_mm" => tile_x = Some(binning.ids(v, TILE_BINS)),
+            "y_mm" => tile_y = Some(binning.ids(v, TILE_BINS)),
             _ => {}
         }
-        drop(s);
+        drop(binning);
         let frame = vec![
             g2.clone(),
             r2.clone(),
@@ -302,5 +389,53 @@ mod tests {
         assert_eq!(c.iter().filter(|c| c.covariate == "dir").count(), 2);
         assert!(cell_p(1.0, 100, 0.1, 1000.0) < 1e-10);
         assert!(cell_p(0.01, 100, 0.1, 1000.0) > 0.01);
+    }
+
+    /// The selected edges and distinct values are exactly those of the
+    /// sorted values, on values with ties, −0/+0, few distinct values
+    /// (one past the cap under the total order only), NaN and tiny sizes.
+    #[test]
+    fn selected_binning_is_the_sorted_one() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand::rngs::StdRng::seed_from_u64(5);
+        let mut cases: Vec<Vec<f64>> = vec![
+            vec![],
+            vec![3.0],
+            vec![2.0, 1.0],
+            (0..9).map(|i| i as f64).collect(),
+            vec![0.0, -0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, -0.0],
+            vec![0.0, -0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0],
+            vec![1.0, f64::NAN, 2.0, 0.5],
+        ];
+        for n in [7usize, 100, 1001, 20_000] {
+            cases.push((0..n).map(|_| rng.random_range(-5.0..5.0)).collect());
+            cases.push((0..n).map(|_| rng.random_range(0..12) as f64).collect());
+            cases.push(
+                (0..n)
+                    .map(|_| rng.random_range(0..4) as f64 - 1.5)
+                    .collect(),
+            );
+            cases.push((0..n).map(|i| ((i / 97) as f64).sin()).collect());
+        }
+        for v in &cases {
+            let want = Binning::from_sorted(&crate::gather::sorted(v), &[QUANTILE_BINS, TILE_BINS]);
+            let got = Binning::of(v, &[QUANTILE_BINS, TILE_BINS]);
+            for bins in [QUANTILE_BINS, TILE_BINS] {
+                assert_eq!(got.ids(v, bins), want.ids(v, bins), "{v:?}");
+            }
+            match (&got, &want) {
+                (Binning::Discrete(a), Binning::Discrete(b)) => {
+                    let bits = |d: &[f64]| d.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                    assert_eq!(bits(a), bits(b));
+                }
+                (Binning::Quantiles(a), Binning::Quantiles(b)) => {
+                    let bits = |d: &[(usize, f64)]| {
+                        d.iter().map(|(p, x)| (*p, x.to_bits())).collect::<Vec<_>>()
+                    };
+                    assert_eq!(bits(a), bits(b));
+                }
+                _ => panic!("discrete for one, quantiles for the other: {v:?}"),
+            }
+        }
     }
 }
