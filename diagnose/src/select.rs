@@ -117,10 +117,31 @@ fn score_round(
     step: usize,
     records: &mut [Option<Record>],
 ) -> Vec<Scored> {
-    let evals: Vec<(usize, Result<CandEval>)> = live
+    let evals: Vec<(usize, Result<CandEval>, f64)> = live
         .par_iter()
-        .map(|&i| (i, evaluate(cands[i], prob, tg)))
+        .map(|&i| {
+            let t = std::time::Instant::now();
+            (i, evaluate(cands[i], prob, tg), t.elapsed().as_secs_f64())
+        })
         .collect();
+    if tracing::enabled!(tracing::Level::DEBUG) {
+        let mut slow: Vec<(f64, String)> = evals
+            .iter()
+            .map(|(i, _, s)| (*s, cands[*i].key()))
+            .collect();
+        slow.sort_by(|a, b| b.0.total_cmp(&a.0));
+        let total: f64 = slow.iter().map(|(s, _)| s).sum();
+        let top: Vec<String> = slow
+            .iter()
+            .take(3)
+            .map(|(s, k)| format!("{k} {s:.2} s"))
+            .collect();
+        tracing::debug!(
+            "round {step}: candidates' time {total:.2} s, slowest {}",
+            top.join(", ")
+        );
+    }
+    let evals = evals.into_iter().map(|(i, e, _)| (i, e));
     let sse_before: f64 = before.iter().sum();
     let mut scored = Vec::new();
     for (i, ev) in evals {
@@ -455,7 +476,13 @@ pub fn select(prob: &Problem, cands: &[&dyn Effect], opt: &SelectOptions) -> Res
             break;
         }
         let sse_before: f64 = before.iter().sum();
+        let t_round = std::time::Instant::now();
         let mut scored = score_round(prob, cands, &tg, &live, &before, step, &mut records);
+        tracing::debug!(
+            "round {step}: {} candidates scored in {:.2} s",
+            live.len(),
+            t_round.elapsed().as_secs_f64()
+        );
         if !opt.allow_selection {
             stop_reason = "no gap above noise".to_string();
             break;
@@ -521,7 +548,13 @@ pub fn select(prob: &Problem, cands: &[&dyn Effect], opt: &SelectOptions) -> Res
             .collect();
         let (ci, ev, _, _) = scored.swap_remove(b);
         final_targets.push(tg.per_fold[k].clone());
+        let t_out = std::time::Instant::now();
         let (new_targets, c) = take_out(prob, cands[ci], &ev, tg)?;
+        tracing::debug!(
+            "round {step}: {} taken out in {:.2} s",
+            cands[ci].key(),
+            t_out.elapsed().as_secs_f64()
+        );
         contrib.push(c);
         final_params.push(params_of(cands[ci], prob, &ev, k));
         if let Some(r) = records[ci].as_mut() {

@@ -343,3 +343,44 @@ fn shards_of_one_snapshot_agree_however_late_they_start() {
         "{f} {o:?}"
     );
 }
+
+/// A run's observations that cannot be read when the fleet's table is
+/// joined (here: a shard's file damaged after the shard finished) fail the
+/// night naming the file, and leave no joined table, finished or partial.
+#[test]
+fn a_run_unreadable_at_the_join_leaves_no_joined_table() {
+    let d = tempfile::tempdir().unwrap();
+    let root = fleet(d.path());
+    let a = d.path().join("a");
+    ok(shard(&root, &a, "0/1", &[]));
+    let damaged = std::fs::read_dir(a.join("servo-mill"))
+        .unwrap()
+        .map(|e| e.unwrap().path().join("observations.parquet"))
+        .filter(|p| p.is_file())
+        .max()
+        .expect("a servo run with observations");
+    std::fs::write(&damaged, b"PAR1 not a parquet file PAR1").unwrap();
+    let out = d.path().join("out");
+    let o = aggregate(std::slice::from_ref(&a), &out);
+    let e = String::from_utf8_lossy(&o.stderr).to_string();
+    assert!(!o.status.success(), "{e}");
+    let run = damaged
+        .parent()
+        .unwrap()
+        .file_name()
+        .unwrap()
+        .to_str()
+        .unwrap();
+    assert!(e.contains(run) && e.contains("observations.parquet"), "{e}");
+    let fleet_dir = out.join("fleet");
+    let left: Vec<String> = std::fs::read_dir(&fleet_dir)
+        .map(|rd| {
+            rd.map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+                .collect()
+        })
+        .unwrap_or_default();
+    assert!(
+        !left.iter().any(|n| n.contains("observations.parquet")),
+        "{left:?}"
+    );
+}

@@ -169,21 +169,63 @@ impl Engine {
         let mut produced = Produced::new();
         let mut spill =
             diagnose::observations_file::CovariateSpill::create(&spill_dir(path), &union)?;
-        crate::contracts::write::write_parquet_batches_atomic(
-            path,
-            union.clone(),
-            runs.iter().map(|r| {
-                let p = r.observations.as_ref().expect("filtered");
-                let b = with_machine_column(crate::contracts::read_parquet(p)?, &r.machine)?;
-                produced
-                    .entry(r.plugin.clone())
-                    .or_default()
-                    .extend(observable_names(&b));
-                let b = conform(b, &union)?;
-                spill.push(&b, p)?;
-                Ok(b)
-            }),
-        )?;
+        // Reading (decode, conform, spill) runs on a thread of its own, a few
+        // runs ahead of the encoder: on two cores the join takes the longer
+        // of the two instead of their sum. The batches keep their order, so
+        // the file is the one a single thread writes. A reading error goes
+        // down the channel and fails the write (no file under the final
+        // name); a failed write drops the receiver, which stops the reader.
+        // The end is sent explicitly: a reader that stopped without it (a
+        // panic) fails the write too.
+        let (tx, rx) =
+            std::sync::mpsc::sync_channel::<Option<Result<RecordBatch>>>(READ_AHEAD_RUNS);
+        let written = std::thread::scope(|scope| {
+            let union = &union;
+            let reader = scope.spawn(move || {
+                for r in &runs {
+                    let p = r.observations.as_ref().expect("filtered");
+                    let batch = (|| -> Result<RecordBatch> {
+                        let b =
+                            with_machine_column(crate::contracts::read_parquet(p)?, &r.machine)?;
+                        produced
+                            .entry(r.plugin.clone())
+                            .or_default()
+                            .extend(observable_names(&b));
+                        let b = conform(b, union)?;
+                        spill.push(&b, p)?;
+                        Ok(b)
+                    })();
+                    let failed = batch.is_err();
+                    if tx.send(Some(batch)).is_err() || failed {
+                        return (produced, spill);
+                    }
+                }
+                let _ = tx.send(None);
+                (produced, spill)
+            });
+            let mut ended = false;
+            let batches = std::iter::from_fn(|| {
+                if ended {
+                    return None;
+                }
+                match rx.recv() {
+                    Ok(Some(b)) => Some(b),
+                    Ok(None) => {
+                        ended = true;
+                        None
+                    }
+                    Err(_) => {
+                        ended = true;
+                        Some(Err(err!("the join stopped reading before its last run")))
+                    }
+                }
+            });
+            let written =
+                crate::contracts::write::write_parquet_batches_atomic(path, union.clone(), batches);
+            let (produced, spill) = reader.join().expect("the join's reader does not panic");
+            written.map(|()| (produced, spill))
+        });
+        let (produced, spill) = written?;
         Ok((produced, spill.finish()?))
     }
 
@@ -565,6 +607,10 @@ const RESULTS_SPILL_DIR: &str = ".diagnosis-results";
 
 /// Where the join spills each observable's covariates for the diagnosis:
 /// a hidden folder beside the joined file, removed once diagnosed.
+/// Runs the join's reader decodes ahead of the encoder (a run's batch is
+/// ≈ 15 k rows, a few MB).
+const READ_AHEAD_RUNS: usize = 4;
+
 fn spill_dir(observations: &Path) -> PathBuf {
     observations.with_file_name(".observations-spill")
 }
