@@ -126,6 +126,29 @@ pub trait FittedEffect: Send + Sync {
     fn predict(&self, x: &EffectData) -> Vec<f64>;
 }
 
+/// The values ascending in the total order of `f64::total_cmp` (−0 before
+/// +0, NaN last). Sorted as integers: the total order is the order of the
+/// bit patterns with the sign bit flipped (and the rest too, for
+/// negatives), which sorts about a third faster than comparing floats —
+/// the diagnosis sorts every covariate of an observable (10⁷ rows each at
+/// 10⁸ fleet rows). The same values, bit for bit, as `sort_by(total_cmp)`.
+pub fn sorted_values(v: &[f64]) -> Vec<f64> {
+    const SIGN: u64 = 1 << 63;
+    let key = |x: &f64| {
+        let b = x.to_bits();
+        if b & SIGN != 0 {
+            !b
+        } else {
+            b | SIGN
+        }
+    };
+    let mut k: Vec<u64> = v.iter().map(key).collect();
+    k.sort_unstable();
+    k.into_iter()
+        .map(|k| f64::from_bits(if k & SIGN != 0 { k & !SIGN } else { !k }))
+        .collect()
+}
+
 /// Data-dependent constants of one covariate, computed from covariate values
 /// only (never from the gap), over all rows of an observable: the range that
 /// bounds `bow` and `periodic`, and the typical sample step (the smallest
@@ -141,9 +164,7 @@ pub struct CovStats {
 
 impl CovStats {
     pub fn from_values(v: &[f64]) -> CovStats {
-        let mut s: Vec<f64> = v.to_vec();
-        s.sort_unstable_by(f64::total_cmp);
-        Self::from_sorted(&s)
+        Self::from_sorted(&sorted_values(v))
     }
     /// From ascending values (the engine sorts each covariate once).
     pub fn from_sorted(s: &[f64]) -> CovStats {
@@ -441,5 +462,34 @@ mod with_columns_tests {
                     .all(|v| !outer.contains(&(v.as_ptr() as usize)) || v.capacity() == 0));
             });
         });
+    }
+}
+
+#[cfg(test)]
+mod sorted_tests {
+    /// Sorting as integers gives `total_cmp`'s order bit for bit: signed
+    /// zeros, subnormals, infinities, NaN of both signs, ties.
+    #[test]
+    fn sorted_values_are_total_cmp_sorted() {
+        let mut v = vec![
+            3.5,
+            -0.0,
+            0.0,
+            f64::MIN_POSITIVE / 4.0,
+            -f64::MIN_POSITIVE / 4.0,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::NAN,
+            -f64::NAN,
+            -2.0,
+            -2.0,
+            1e300,
+            -1e-300,
+        ];
+        v.extend((0..1000).map(|i| ((i * 7919) % 1009) as f64 * 0.37 - 150.0));
+        let mut want = v.clone();
+        want.sort_by(f64::total_cmp);
+        let bits = |s: &[f64]| s.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&super::sorted_values(&v)), bits(&want));
     }
 }

@@ -30,9 +30,7 @@ impl Cov {
 
 /// The values ascending (NaN last).
 pub fn sorted(v: &[f64]) -> Vec<f64> {
-    let mut s = v.to_vec();
-    s.sort_unstable_by(f64::total_cmp);
-    s
+    sparkout_core::effect::sorted_values(v)
 }
 
 /// The rows of one observable and what the later steps read from them.

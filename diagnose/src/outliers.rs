@@ -137,11 +137,14 @@ impl ObsRows {
             gap: pick(&self.gap),
             run_ranges,
             machine: keep.iter().map(|&p| self.machine[p]).collect(),
-            cols: self
-                .cols
-                .iter()
-                .map(|c| super::gather::Cov::new(c.name.clone(), pick(&c.v)))
-                .collect(),
+            // Each kept covariate sorts again for its constants: in parallel.
+            cols: {
+                use rayon::prelude::*;
+                self.cols
+                    .par_iter()
+                    .map(|c| super::gather::Cov::new(c.name.clone(), pick(&c.v)))
+                    .collect()
+            },
         }
     }
 }

@@ -258,22 +258,39 @@ type TakenOut = (Vec<Arc<Vec<f64>>>, Vec<f64>);
 /// most of the selection's memory, 8 B a row each).
 fn take_out(prob: &Problem, e: &dyn Effect, ev: &CandEval, tg: Targets) -> Result<TakenOut> {
     let k = prob.k;
-    let mut new_targets = Vec::with_capacity(k + 1);
-    let mut c = vec![0.0; prob.x.len()];
-    let per_fold = tg.into_per_fold();
-    for (f, mut t) in per_fold.into_iter().enumerate() {
-        let pred = predict_fold(e, prob, ev, f)?;
-        for (y, p) in Arc::make_mut(&mut t).iter_mut().zip(&pred) {
-            *y -= p;
-        }
-        if f < k {
-            for (u, uf) in prob.unit_fold.iter().enumerate() {
-                if *uf == f {
-                    for i in prob.units[u].clone() {
-                        c[i] = pred[i];
-                    }
-                }
+    let held_out = |f: usize| {
+        prob.unit_fold
+            .iter()
+            .zip(&prob.units)
+            .filter(move |(uf, _)| **uf == f)
+            .flat_map(|(_, u)| u.clone())
+    };
+    // The folds in parallel: each fold's target less its fit's prediction
+    // (changed in place, or copied first while another fold still shares
+    // it); a CV fold also hands back its held-out rows' predictions — the
+    // effect's held-out contribution there.
+    let done: Vec<(Arc<Vec<f64>>, Vec<f64>)> = tg
+        .into_per_fold()
+        .into_par_iter()
+        .enumerate()
+        .map(|(f, mut t)| -> Result<_> {
+            let pred = predict_fold(e, prob, ev, f)?;
+            for (y, p) in Arc::make_mut(&mut t).iter_mut().zip(&pred) {
+                *y -= p;
             }
+            let held: Vec<f64> = if f < k {
+                held_out(f).map(|i| pred[i]).collect()
+            } else {
+                Vec::new()
+            };
+            Ok((t, held))
+        })
+        .collect::<Result<_>>()?;
+    let mut c = vec![0.0; prob.x.len()];
+    let mut new_targets = Vec::with_capacity(k + 1);
+    for (f, (t, held)) in done.into_iter().enumerate() {
+        for (i, p) in held_out(f).zip(held) {
+            c[i] = p;
         }
         new_targets.push(t);
     }
