@@ -98,12 +98,7 @@ impl Binning {
         if let Some(d) = distinct_at_most(v, MAX_DISCRETE_VALUES) {
             return Binning::Discrete(d);
         }
-        let mut at: Vec<usize> = bins
-            .iter()
-            .flat_map(|&b| (1..b).map(move |j| n * j / b))
-            .collect();
-        at.sort_unstable();
-        at.dedup();
+        let at = edge_ranks(n, bins);
         let mut s = v.to_vec();
         let mut lo = 0;
         let mut out = Vec::with_capacity(at.len());
@@ -133,13 +128,7 @@ impl Binning {
         if distinct.len() <= MAX_DISCRETE_VALUES {
             return Binning::Discrete(distinct);
         }
-        let n = sorted.len();
-        let mut at: Vec<usize> = bins
-            .iter()
-            .flat_map(|&b| (1..b).map(move |j| n * j / b))
-            .collect();
-        at.sort_unstable();
-        at.dedup();
+        let at = edge_ranks(sorted.len(), bins);
         Binning::Quantiles(at.into_iter().map(|p| (p, sorted[p])).collect())
     }
 
@@ -155,6 +144,18 @@ impl Binning {
             }
         }
     }
+}
+
+/// The ranks n·j/b (j = 1 … b − 1) of the quantile edges of every b in
+/// `bins`, ascending, each once.
+fn edge_ranks(n: usize, bins: &[usize]) -> Vec<usize> {
+    let mut at: Vec<usize> = bins
+        .iter()
+        .flat_map(|&b| (1..b).map(move |j| n * j / b))
+        .collect();
+    at.sort_unstable();
+    at.dedup();
+    at
 }
 
 /// Which bin a value falls in: one per distinct value (ascending), or

@@ -282,6 +282,21 @@ fn diagnose_observable(
         trimmed_slots: &[],
         trimmed_covs: &[],
     };
+    // The spikes are found in the plain pass's held-out residual as soon as
+    // its selection is done; when there are some, the rest of the plain
+    // pass (intervals, machine tests, cells, …) would be thrown away, so it
+    // stops there and only its residual stays (the trim report's).
+    let mut found = None;
+    let mut resid = Vec::new();
+    let mut spikes_end_the_pass = |residual: &[f64]| {
+        let d = outliers::detect(&o, residual);
+        let spikes = matches!(&d, Ok((out, _, _)) if !out.is_empty());
+        if spikes {
+            resid = residual.to_vec();
+        }
+        found = Some(d);
+        !spikes
+    };
     analyse(
         table,
         &o,
@@ -291,8 +306,10 @@ fn diagnose_observable(
         &mut plain,
         &mut plain_notes,
         &slots,
+        &mut spikes_end_the_pass,
     )?;
-    let (out, sigma, thr) = match outliers::detect(&o, &plain.residual_all) {
+    let found = found.expect("the plain pass selects before it can stop");
+    let (out, sigma, thr) = match found {
         Ok(found) => found,
         Err(why) => {
             notes.add(why);
@@ -305,9 +322,6 @@ fn diagnose_observable(
         }
         return acc.merge(plain, oi as u32, &o.rows);
     }
-    // Of the plain pass only its residual stays (the trim report's); its
-    // contributions go before the robust pass builds its own.
-    let resid = std::mem::take(&mut plain.residual_all);
     drop(plain);
     let kept = o.without(&out);
     let before: f64 = o.gap.iter().map(|g| g * g).sum();
@@ -333,7 +347,17 @@ fn diagnose_observable(
         trimmed_slots: &out,
         trimmed_covs: &trimmed_covs,
     };
-    analyse(table, &kept, oi, cfg, scopes, &mut robust, notes, &slots)?;
+    analyse(
+        table,
+        &kept,
+        oi,
+        cfg,
+        scopes,
+        &mut robust,
+        notes,
+        &slots,
+        &mut |_| true,
+    )?;
     let after: f64 = robust.residual_all.iter().map(|r| r.powi(2)).sum();
     let rep = outliers::report(&o, &out, &resid, &table.run_names, &table.run, sigma, thr);
     notes.add(format!(
@@ -364,7 +388,9 @@ pub struct Slots<'a> {
 }
 
 /// noise → folds → candidates → select → intervals → machines → cells for
-/// the rows of `o`, into `acc` at `slots`.
+/// the rows of `o`, into `acc` at `slots`. `go_on` sees the selection's
+/// held-out residual (row order of `o`); false ends the pass there, and
+/// the caller drops `acc`.
 #[allow(clippy::too_many_arguments)]
 fn analyse(
     table: &Table,
@@ -375,6 +401,7 @@ fn analyse(
     acc: &mut Accum,
     notes: &mut Notes,
     slots: &Slots,
+    go_on: &mut dyn FnMut(&[f64]) -> bool,
 ) -> Result<()> {
     let n = o.n();
     let mut clock = StepClock::new(&o.name, n);
@@ -420,6 +447,10 @@ fn analyse(
     clock.lap("folds, candidates");
     let sel = select::select(&prob, &cands, &opt)?;
     clock.lap("select");
+    if !go_on(&sel.residual) {
+        clock.done();
+        return Ok(());
+    }
     let machine_tests = output::machine_tests(table, o, &prob, &cands, &sel)?;
     clock.lap("machine tests");
     let ivs = intervals::chosen_intervals(&cands, &prob, &sel, &o.run_ranges, cfg.seed);
