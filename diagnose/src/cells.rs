@@ -22,7 +22,6 @@
 use statrs::distribution::{ContinuousCDF, FisherSnedecor, Normal};
 
 use super::document::{CellBound, WhereCell};
-use crate::Result;
 
 /// Number of quantile bins per covariate and per axis of the x/y tiles.
 pub const QUANTILE_BINS: usize = 6;
@@ -93,7 +92,7 @@ impl Binning {
     fn of(v: &[f64], bins: &[usize]) -> Binning {
         let n = v.len();
         if v.iter().any(|x| x.is_nan()) {
-            return Self::from_sorted(&super::gather::sorted(v), bins);
+            return Self::from_sorted(&crate::effect::sorted_values(v), bins);
         }
         if let Some(d) = distinct_at_most(v, MAX_DISCRETE_VALUES) {
             return Binning::Discrete(d);
@@ -197,7 +196,7 @@ fn distinct_at_most(v: &[f64], cap: usize) -> Option<Vec<f64>> {
 /// row order); `g`/`r`: gap and held-out residual. Each covariate's
 /// quantile edges are selected from a copy let go at once; the cells' sums
 /// are one pass over the rows (`fold_cells`).
-pub fn cells(covs: &[(&str, &[f64])], g: &[f64], r: &[f64]) -> Result<Vec<Cell>> {
+pub fn cells(covs: &[(&str, &[f64])], g: &[f64], r: &[f64]) -> Vec<Cell> {
     use rayon::prelude::*;
     let n = g.len();
     // Each covariate on its own (in parallel, collected in order): its
@@ -233,7 +232,7 @@ pub fn cells(covs: &[(&str, &[f64])], g: &[f64], r: &[f64]) -> Result<Vec<Cell>>
         let tile = |i: usize| bx.id(x[i]) * 64 + by.id(y[i]);
         fold_cells(&["x_mm", "y_mm"], tile, &[x, y], g, r, &mut out);
     }
-    Ok(out)
+    out
 }
 
 /// The cells of one binning, ascending by bin id (`bin_of` row i), each
@@ -394,7 +393,7 @@ mod tests {
             .iter()
             .map(|x| if *x >= 100.0 { 1.0 } else { 0.0 })
             .collect();
-        let c = cells(&[("x_mm", &v), ("dir", &d)], &g, &g).unwrap();
+        let c = cells(&[("x_mm", &v), ("dir", &d)], &g, &g);
         let xs: Vec<&Cell> = c.iter().filter(|c| c.covariate == "x_mm").collect();
         assert_eq!(xs.len(), QUANTILE_BINS);
         assert_eq!(xs.iter().map(|c| c.n).sum::<usize>(), 120);
@@ -433,7 +432,10 @@ mod tests {
             cases.push((0..n).map(|i| ((i / 97) as f64).sin()).collect());
         }
         for v in &cases {
-            let want = Binning::from_sorted(&crate::gather::sorted(v), &[QUANTILE_BINS, TILE_BINS]);
+            let want = Binning::from_sorted(
+                &crate::effect::sorted_values(v),
+                &[QUANTILE_BINS, TILE_BINS],
+            );
             let got = Binning::of(v, &[QUANTILE_BINS, TILE_BINS]);
             for bins in [QUANTILE_BINS, TILE_BINS] {
                 let ids = |b: &Binning| -> Vec<u32> {

@@ -23,14 +23,9 @@ pub struct Cov {
 impl Cov {
     /// A covariate and its constants (from its values sorted).
     pub fn new(name: String, v: Vec<f64>) -> Cov {
-        let stats = CovStats::from_sorted(&sorted(&v));
+        let stats = CovStats::from_values(&v);
         Cov { name, v, stats }
     }
-}
-
-/// The values ascending (NaN last).
-pub fn sorted(v: &[f64]) -> Vec<f64> {
-    sparkout_core::effect::sorted_values(v)
 }
 
 /// The rows of one observable and what the later steps read from them.

@@ -548,16 +548,7 @@ fn analyse(
         stop_reason: sel.stop_reason.clone(),
     });
     // Cells of this observable: covariates, then machines.
-    let cov_refs: Vec<(&str, &[f64])> = o
-        .cols
-        .iter()
-        .map(|c| (c.name.as_str(), c.v.as_slice()))
-        .collect();
-    let mut cs = if cov_refs.is_empty() {
-        Vec::new()
-    } else {
-        cells::cells(&cov_refs, &o.gap, &sel.residual)?
-    };
+    let mut cs = cells::cells(&cov_cols, &o.gap, &sel.residual);
     cs.extend(cells::machine_cells(
         &o.machine,
         &table.machine_names,
