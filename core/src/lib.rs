@@ -8,6 +8,7 @@
 //! `contracts`, `effect` (the effect model and its least squares),
 //! `augment`, `verdict`, `outcome`, then `traits`, the plugin interface.
 
+pub mod ahead;
 pub mod alloc;
 pub mod augment;
 pub mod config_check;

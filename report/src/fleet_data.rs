@@ -50,46 +50,20 @@ fn batches(
 /// the previous ones.
 const DECODED_AHEAD: usize = 2;
 
-/// The items of `it`, produced on a thread of their own at most
-/// [`DECODED_AHEAD`] ahead of the consumer: decompressing and decoding the
-/// fleet tables was half the report's time, the sums the other half. The
-/// thread ends its items with an end marker, so a reader that stops
-/// without it (a decoder that panics on a damaged page) is an error naming
-/// the file, never a silently shorter table. Dropping the iterator stops
-/// the thread at its next batch.
+/// [`batches`] decoded on a thread of their own, at most [`DECODED_AHEAD`]
+/// ahead of the sums: decompressing and decoding the fleet tables was half
+/// the report's time, the sums the other half. A reader that dies (a
+/// decoder that panics on a damaged page) is an error naming the file.
 fn decoded_ahead(
     it: impl Iterator<Item = Result<RecordBatch>> + Send + 'static,
     path: &Path,
 ) -> impl Iterator<Item = Result<RecordBatch>> {
-    let (tx, rx) = std::sync::mpsc::sync_channel::<Option<Result<RecordBatch>>>(DECODED_AHEAD);
-    std::thread::spawn(move || {
-        for b in it {
-            if tx.send(Some(b)).is_err() {
-                return;
-            }
-        }
-        let _ = tx.send(None);
-    });
     let path = path.to_path_buf();
-    let mut ended = false;
-    std::iter::from_fn(move || {
-        if ended {
-            return None;
-        }
-        match rx.recv() {
-            Ok(Some(b)) => Some(b),
-            Ok(None) => {
-                ended = true;
-                None
-            }
-            Err(_) => {
-                ended = true;
-                Some(Err(crate::err!(
-                    "{}: its reader stopped before the end of the file (a damaged page?); rerun `sparkout run` to rewrite the fleet tables",
-                    path.display()
-                )))
-            }
-        }
+    sparkout_core::ahead::produced_ahead(it, DECODED_AHEAD, move || {
+        crate::err!(
+            "{}: its reader stopped before the end of the file (a damaged page?); rerun `sparkout run` to rewrite the fleet tables",
+            path.display()
+        )
     })
 }
 
@@ -782,41 +756,6 @@ pub fn per_run_rms(diagnosis: &Path) -> Result<BTreeMap<(String, String), Vec<Ru
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// Batches decoded ahead arrive all and in order; a reader that dies
-    /// half way is an error naming the file, not a shorter table.
-    #[test]
-    fn batches_decoded_ahead_arrive_in_order_or_fail_loudly() {
-        let batch = |v: i64| {
-            let a = arrow::array::Int64Array::from(vec![v]);
-            RecordBatch::try_from_iter([("v", std::sync::Arc::new(a) as arrow::array::ArrayRef)])
-                .map_err(Into::into)
-        };
-        let first = |b: &RecordBatch| {
-            b.column(0)
-                .as_primitive::<arrow::datatypes::Int64Type>()
-                .value(0)
-        };
-        let got: Vec<i64> = decoded_ahead((0..10).map(batch), Path::new("t.parquet"))
-            .map(|b| first(&b.unwrap()))
-            .collect();
-        assert_eq!(got, (0..10).collect::<Vec<_>>());
-        let dying = (0..10).map(move |i| {
-            if i < 3 {
-                batch(i)
-            } else {
-                panic!("decoder died")
-            }
-        });
-        let got: Vec<Result<RecordBatch>> = decoded_ahead(dying, Path::new("t.parquet")).collect();
-        assert_eq!(got.len(), 4);
-        assert!(got[..3].iter().all(|b| b.is_ok()));
-        let e = got[3].as_ref().unwrap_err().to_string();
-        assert!(
-            e.contains("t.parquet") && e.contains("stopped before the end"),
-            "{e}"
-        );
-    }
 
     #[test]
     fn grid_means_average_within_cells_and_bound_the_cell_count() {

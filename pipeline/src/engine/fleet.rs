@@ -203,22 +203,8 @@ impl Engine {
                 let _ = tx.send(None);
                 (produced, spill)
             });
-            let mut ended = false;
-            let batches = std::iter::from_fn(|| {
-                if ended {
-                    return None;
-                }
-                match rx.recv() {
-                    Ok(Some(b)) => Some(b),
-                    Ok(None) => {
-                        ended = true;
-                        None
-                    }
-                    Err(_) => {
-                        ended = true;
-                        Some(Err(err!("the join stopped reading before its last run")))
-                    }
-                }
+            let batches = sparkout_core::ahead::received(rx, || {
+                err!("the join stopped reading before its last run")
             });
             let written =
                 crate::contracts::write::write_parquet_batches_atomic(path, union.clone(), batches);
