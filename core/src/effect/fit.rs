@@ -233,6 +233,13 @@ pub fn pool_rows(
         .map(|d| usize::BITS - d.2.leading_zeros())
         .collect();
     let key_bits: u32 = bits.iter().sum();
+    // A cell is built in a u128: at most 7 covariates of 65 537 bins. Forms
+    // pool on one to three; more would merge cells silently, so it stops here.
+    assert!(
+        key_bits <= 128,
+        "pooling on {} covariates: too many for a cell key",
+        cols.len()
+    );
     let last_row = units.iter().flatten().map(|r| r.end).max().unwrap_or(0);
     let row_bits = usize::BITS - last_row.leading_zeros();
     let cell_of =
