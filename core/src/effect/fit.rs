@@ -195,7 +195,15 @@ const MAX_POOL_BINS: f64 = 65_536.0;
 /// themselves be pooled cells: `weights` are their counts and `targets`
 /// their Σy, so coarse cells come from fine ones without the rows. Returns the
 /// pooled covariates, the counts, Σy per target and the pooled unit ranges
-/// (one per unit); cells in ascending order, sums in row order.
+/// (one per unit); cells in ascending order.
+///
+/// A unit's cells are merged from its ranges' own: each range (a run, or a
+/// block of one) is pooled on its own — sums in row order — and a cell's
+/// sums are its ranges' partial sums added in range order. The cells are
+/// the fleet's grid (`mins`, `res`, the covariates' span), so a range's
+/// partial cells depend on nothing but its rows: they are what a node
+/// holding only that run computes, and the merge in canonical order gives
+/// the same bits wherever the partial cells were made (docs/design.md §8).
 pub fn pool_rows(
     cols: &[&[f64]],
     mins: &[f64],
@@ -222,7 +230,7 @@ pub fn pool_rows(
         let (c_min, r, nb) = dims[j];
         (((cols[j][i] - c_min) / r) as usize).min(nb - 1) as u128
     };
-    // Several covariates: too many cells for dense bins, so each unit's
+    // Several covariates: too many cells for dense bins, so each range's
     // rows are sorted by (cell, row) and equal cells summed in row order.
     // The cell (each covariate's bin in as many bits as its bin count
     // needs, first covariate highest) and the row are packed into one
@@ -251,20 +259,24 @@ pub fn pool_rows(
         targets,
     };
     let mask = (1u128 << row_bits) - 1;
+    // The same key packs a partial cell and its index (below the number of
+    // rows) when the partial cells are merged.
     if key_bits + row_bits <= 64 {
         rows.sorted_cells(
-            |i| ((cell_of(i) << row_bits) | i as u128) as u64,
+            cell_of,
+            |cell, i| ((cell << row_bits) | i as u128) as u64,
             |k| u128::from(k) >> row_bits,
             |k| (u128::from(k) & mask) as usize,
         )
     } else if key_bits + row_bits <= 128 {
         rows.sorted_cells(
-            |i| (cell_of(i) << row_bits) | i as u128,
+            cell_of,
+            |cell, i| (cell << row_bits) | i as u128,
             |k| k >> row_bits,
             |k| (k & mask) as usize,
         )
     } else {
-        rows.sorted_cells(|i| (cell_of(i), i), |k| k.0, |k| k.1)
+        rows.sorted_cells(cell_of, |cell, i| (cell, i), |k| k.0, |k| k.1)
     }
 }
 
@@ -277,50 +289,82 @@ struct PooledRows<'a, W: Fn(usize) -> f64> {
 }
 
 impl<W: Fn(usize) -> f64> PooledRows<'_, W> {
-    /// Pools each unit's rows sorted by a key `pack` makes of a row —
-    /// ascending by cell, then row — from which `cell` and `row` are read
-    /// back: the same cells and bits whatever the key's width.
+    /// Pools each range's rows sorted by a key `make` packs of a row's
+    /// cell and index — ascending by cell, then row — from which `cell`
+    /// and `row` are read back (the same cells and bits whatever the key's
+    /// width), then merges a unit's partial cells, packed the same way with
+    /// their index, so equal cells add in range order.
     fn sorted_cells<K: Ord + Copy>(
         &self,
-        pack: impl Fn(usize) -> K,
+        cell_of: impl Fn(usize) -> u128,
+        make: impl Fn(u128, usize) -> K,
         cell: impl Fn(K) -> u128,
         row: impl Fn(K) -> usize,
     ) -> Pooled {
-        let nd = self.cols.len();
+        let (nd, nt) = (self.cols.len(), self.targets.len());
         let mut xc: Vec<Vec<f64>> = vec![Vec::new(); nd];
         let (mut w, mut out_units) = (Vec::new(), Vec::new());
-        let mut sy: Vec<Vec<f64>> = vec![Vec::new(); self.targets.len()];
+        let mut sy: Vec<Vec<f64>> = vec![Vec::new(); nt];
         let mut keyed: Vec<K> = Vec::new();
-        let mut sc = vec![0.0f64; nd];
-        let mut st = vec![0.0f64; self.targets.len()];
+        // A unit's partial cells: cell, count, Σ w·c per covariate and Σy
+        // per target (`stride` numbers each after the cell).
+        let stride = 1 + nd + nt;
+        let mut part_cell: Vec<u128> = Vec::new();
+        let mut part: Vec<f64> = Vec::new();
+        let mut sums = vec![0.0f64; stride];
         for u in self.units {
-            keyed.clear();
-            keyed.extend(u.iter().flat_map(Range::clone).map(&pack));
-            keyed.sort_unstable();
+            part_cell.clear();
+            part.clear();
+            for r in u {
+                keyed.clear();
+                keyed.extend(r.clone().map(|i| make(cell_of(i), i)));
+                keyed.sort_unstable();
+                let mut a = 0;
+                while a < keyed.len() {
+                    let key = cell(keyed[a]);
+                    sums.iter_mut().for_each(|v| *v = 0.0);
+                    while a < keyed.len() && cell(keyed[a]) == key {
+                        let i = row(keyed[a]);
+                        let wi = (self.wt)(i);
+                        sums[0] += wi;
+                        for (s, c) in sums[1..=nd].iter_mut().zip(self.cols) {
+                            *s += wi * c[i];
+                        }
+                        for (s, y) in sums[1 + nd..].iter_mut().zip(self.targets) {
+                            *s += y[i];
+                        }
+                        a += 1;
+                    }
+                    part_cell.push(key);
+                    part.extend_from_slice(&sums);
+                }
+            }
+            // One range: its partial cells are the unit's, already in
+            // order. Several: sorted by (cell, index), equal cells summed.
+            let order: Vec<usize> = if u.len() == 1 {
+                (0..part_cell.len()).collect()
+            } else {
+                keyed.clear();
+                keyed.extend(part_cell.iter().enumerate().map(|(p, &c)| make(c, p)));
+                keyed.sort_unstable();
+                keyed.iter().map(|&k| row(k)).collect()
+            };
             let start = w.len();
             let mut a = 0;
-            while a < keyed.len() {
-                let key = cell(keyed[a]);
-                let mut cnt = 0.0;
-                sc.iter_mut().for_each(|v| *v = 0.0);
-                st.iter_mut().for_each(|v| *v = 0.0);
-                while a < keyed.len() && cell(keyed[a]) == key {
-                    let i = row(keyed[a]);
-                    let wi = (self.wt)(i);
-                    cnt += wi;
-                    for (s, c) in sc.iter_mut().zip(self.cols) {
-                        *s += wi * c[i];
-                    }
-                    for (s, y) in st.iter_mut().zip(self.targets) {
-                        *s += y[i];
-                    }
+            while a < order.len() {
+                let key = part_cell[order[a]];
+                sums.copy_from_slice(&part[order[a] * stride..(order[a] + 1) * stride]);
+                a += 1;
+                while a < order.len() && part_cell[order[a]] == key {
+                    let p = &part[order[a] * stride..(order[a] + 1) * stride];
+                    sums.iter_mut().zip(p).for_each(|(s, v)| *s += v);
                     a += 1;
                 }
-                for (x, s) in xc.iter_mut().zip(&sc) {
-                    x.push(s / cnt);
+                for (x, s) in xc.iter_mut().zip(&sums[1..=nd]) {
+                    x.push(s / sums[0]);
                 }
-                w.push(cnt);
-                for (t, s) in sy.iter_mut().zip(&st) {
+                w.push(sums[0]);
+                for (t, s) in sy.iter_mut().zip(&sums[1 + nd..]) {
                     t.push(*s);
                 }
             }
@@ -330,7 +374,10 @@ impl<W: Fn(usize) -> f64> PooledRows<'_, W> {
     }
 }
 
-/// [`pool_rows`] of one covariate: dense bins, no sort.
+/// [`pool_rows`] of one covariate: dense bins, no sort. Each range is
+/// pooled into `part` (sums in row order) and its touched bins added into
+/// the unit's `acc` in range order. A bin's count, Σc and Σy of every
+/// target lie side by side, so a row touches one line of `part`.
 fn pool_rows_1d(
     c: &[f64],
     (c_min, res, nb): (f64, f64, usize),
@@ -339,37 +386,56 @@ fn pool_rows_1d(
     targets: &[&[f64]],
 ) -> Pooled {
     let (mut xc, mut w, mut out_units) = (Vec::new(), Vec::new(), Vec::new());
-    let mut sy: Vec<Vec<f64>> = vec![Vec::new(); targets.len()];
-    let mut cnt = vec![0.0f64; nb];
-    let mut sc = vec![0.0f64; nb];
-    let mut st = vec![vec![0.0f64; nb]; targets.len()];
-    let mut touched: Vec<usize> = Vec::new();
+    let nt = targets.len();
+    let mut sy: Vec<Vec<f64>> = vec![Vec::new(); nt];
+    // Per bin: [count, Σc, Σy per target].
+    let stride = 2 + nt;
+    let mut part = vec![0.0f64; nb * stride];
+    let mut acc = vec![0.0f64; nb * stride];
+    let (mut part_touched, mut touched) = (Vec::new(), Vec::new());
     for u in units {
         touched.clear();
-        for i in u.iter().flat_map(Range::clone) {
-            let b = (((c[i] - c_min) / res) as usize).min(nb - 1);
-            if cnt[b] == 0.0 {
-                touched.push(b);
+        for r in u {
+            part_touched.clear();
+            for i in r.clone() {
+                let b = (((c[i] - c_min) / res) as usize).min(nb - 1);
+                let cell = &mut part[b * stride..(b + 1) * stride];
+                if cell[0] == 0.0 {
+                    part_touched.push(b);
+                }
+                // × 1.0 is exact: rows pool to the same bits with or without weights.
+                let wi = weights.map_or(1.0, |w| w[i]);
+                cell[0] += wi;
+                cell[1] += wi * c[i];
+                for (s, y) in cell[2..].iter_mut().zip(targets) {
+                    *s += y[i];
+                }
             }
-            // × 1.0 is exact: rows pool to the same bits with or without weights.
-            let wi = weights.map_or(1.0, |w| w[i]);
-            cnt[b] += wi;
-            sc[b] += wi * c[i];
-            for (t, y) in targets.iter().enumerate() {
-                st[t][b] += y[i];
+            for &b in &part_touched {
+                let (p, a) = (
+                    &mut part[b * stride..(b + 1) * stride],
+                    &mut acc[b * stride..(b + 1) * stride],
+                );
+                if a[0] == 0.0 {
+                    // 0 + s is s: a bin of one range keeps its bits.
+                    touched.push(b);
+                }
+                a.iter_mut().zip(p.iter_mut()).for_each(|(a, p)| {
+                    *a += *p;
+                    *p = 0.0;
+                });
             }
         }
         touched.sort_unstable();
         let start = xc.len();
         for &b in &touched {
-            xc.push(sc[b] / cnt[b]);
-            w.push(cnt[b]);
-            for t in 0..targets.len() {
-                sy[t].push(st[t][b]);
-                st[t][b] = 0.0;
+            let cell = &mut acc[b * stride..(b + 1) * stride];
+            xc.push(cell[1] / cell[0]);
+            w.push(cell[0]);
+            for (t, s) in sy.iter_mut().zip(&cell[2..]) {
+                t.push(*s);
             }
-            cnt[b] = 0.0;
-            sc[b] = 0.0;
+            cell.iter_mut().for_each(|v| *v = 0.0);
         }
         out_units.push(start..xc.len());
     }
@@ -930,11 +996,13 @@ mod tests {
         }
     }
 
-    /// The several-covariate pooling gives the bits of sorting each unit's
-    /// rows by (cell, row) and summing equal cells in that order (the
-    /// definition): weights, several targets, a unit of two ranges, ties on
-    /// bin edges; cell and row packed in 64 bits (3 coarse covariates), in
-    /// 128 (6 fine ones) and not packed (7 fine ones).
+    /// Pooling gives the bits of its definition: each range's rows sorted
+    /// by (cell, row) and equal cells summed in that order (a range's
+    /// partial cells), then a unit's partial cells of equal cell summed in
+    /// range order. Weights, several targets, a unit of two ranges, ties on
+    /// bin edges; one covariate (dense bins), cell and row packed in 64
+    /// bits (3 coarse covariates), in 128 (6 fine ones) and not packed (7
+    /// fine ones).
     #[test]
     fn pooling_by_packed_keys_equals_pooling_by_sorted_rows() {
         let n = 5_000;
@@ -956,14 +1024,20 @@ mod tests {
         let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
         // Fine: finer than MAX_POOL_BINS allows, so 65 537 bins (17 bits)
         // per covariate.
-        for (nd, res) in [(3, 1.0 / 7.0), (6, 1e-9), (7, 1e-9)] {
+        for (nd, res) in [
+            (1, 1.0 / 7.0),
+            (1, 1e-9),
+            (3, 1.0 / 7.0),
+            (6, 1e-9),
+            (7, 1e-9),
+        ] {
             // Coarse: values on bin edges (ties); fine: many cells.
             let cols: Vec<Vec<f64>> = (0..nd)
                 .map(|_| {
                     (0..n)
-                        .map(|_| match nd {
-                            3 => (next() * 7.0).floor() / 7.0,
-                            _ => next(),
+                        .map(|_| match res > 1e-3 {
+                            true => (next() * 7.0).floor() / 7.0,
+                            false => next(),
                         })
                         .collect()
                 })
@@ -985,32 +1059,44 @@ mod tests {
             let (mut xc, mut ws) = (vec![vec![]; nd], vec![]);
             let (mut sy, mut pu) = (vec![vec![]; 2], vec![]);
             for u in &units {
-                let mut keyed: Vec<(Vec<usize>, usize)> = u
-                    .iter()
-                    .flat_map(Range::clone)
-                    .map(|i| ((0..nd).map(|j| bin(j, i)).collect(), i))
-                    .collect();
-                keyed.sort_unstable();
-                let start = ws.len();
-                for run in keyed.chunk_by(|p, q| p.0 == q.0) {
-                    let (mut cnt, mut sc, mut st) = (0.0, vec![0.0; nd], [0.0; 2]);
-                    for &(_, i) in run {
-                        cnt += w[i];
-                        for j in 0..nd {
-                            sc[j] += w[i] * cols[j][i];
+                // (cell, [count, Σw·c…, Σy…]) of each range, range by range.
+                let mut partial: Vec<(Vec<usize>, Vec<f64>)> = Vec::new();
+                for r in u {
+                    let mut keyed: Vec<(Vec<usize>, usize)> = r
+                        .clone()
+                        .map(|i| ((0..nd).map(|j| bin(j, i)).collect(), i))
+                        .collect();
+                    keyed.sort_unstable();
+                    for run in keyed.chunk_by(|p, q| p.0 == q.0) {
+                        let mut sums = vec![0.0; 1 + nd + 2];
+                        for &(_, i) in run {
+                            sums[0] += w[i];
+                            for j in 0..nd {
+                                sums[1 + j] += w[i] * cols[j][i];
+                            }
+                            sums[1 + nd] += y1[i];
+                            sums[2 + nd] += y2[i];
                         }
-                        st[0] += y1[i];
-                        st[1] += y2[i];
+                        partial.push((run[0].0.clone(), sums));
                     }
-                    (0..nd).for_each(|j| xc[j].push(sc[j] / cnt));
-                    ws.push(cnt);
-                    (0..2).for_each(|t| sy[t].push(st[t]));
+                }
+                // Stable: equal cells stay in range order.
+                partial.sort_by(|p, q| p.0.cmp(&q.0));
+                let start = ws.len();
+                for run in partial.chunk_by(|p, q| p.0 == q.0) {
+                    let mut sums = run[0].1.clone();
+                    for (_, p) in &run[1..] {
+                        sums.iter_mut().zip(p).for_each(|(s, v)| *s += v);
+                    }
+                    (0..nd).for_each(|j| xc[j].push(sums[1 + j] / sums[0]));
+                    ws.push(sums[0]);
+                    (0..2).for_each(|t| sy[t].push(sums[1 + nd + t]));
                 }
                 pu.push(start..ws.len());
             }
             assert_eq!(got.3, pu, "{nd} covariates");
-            assert!(pu.iter().all(|r| r.len() > 20), "{nd} covariates: {pu:?}");
-            if nd == 3 {
+            assert!(pu.iter().all(|r| r.len() >= 5), "{nd} covariates: {pu:?}");
+            if res > 1e-3 {
                 assert!(ws.len() < n / 4, "coarse cells hold several rows");
             }
             assert_eq!(bits(&got.1), bits(&ws));
