@@ -374,10 +374,11 @@ impl<W: Fn(usize) -> f64> PooledRows<'_, W> {
     }
 }
 
-/// [`pool_rows`] of one covariate: dense bins, no sort. Each range is
-/// pooled into `part` (sums in row order) and its touched bins added into
-/// the unit's `acc` in range order. A bin's count, Σc and Σy of every
-/// target lie side by side, so a row touches one line of `part`.
+/// [`pool_rows`] of one covariate: dense bins, no sort. A unit of one
+/// range pools straight into the unit's bins `acc`; a unit of several
+/// pools each range into `part` (sums in row order) and adds its touched
+/// bins into `acc` in range order. A bin's count, Σc and Σy of every
+/// target lie side by side, so a row touches one line.
 fn pool_rows_1d(
     c: &[f64],
     (c_min, res, nb): (f64, f64, usize),
@@ -390,40 +391,49 @@ fn pool_rows_1d(
     let mut sy: Vec<Vec<f64>> = vec![Vec::new(); nt];
     // Per bin: [count, Σc, Σy per target].
     let stride = 2 + nt;
-    let mut part = vec![0.0f64; nb * stride];
+    // A range's rows into `bins`, each newly touched bin listed.
+    let pool_range = |r: Range<usize>, bins: &mut [f64], touched: &mut Vec<usize>| {
+        for i in r {
+            let b = (((c[i] - c_min) / res) as usize).min(nb - 1);
+            let cell = &mut bins[b * stride..(b + 1) * stride];
+            if cell[0] == 0.0 {
+                touched.push(b);
+            }
+            // × 1.0 is exact: rows pool to the same bits with or without weights.
+            let wi = weights.map_or(1.0, |w| w[i]);
+            cell[0] += wi;
+            cell[1] += wi * c[i];
+            for (s, y) in cell[2..].iter_mut().zip(targets) {
+                *s += y[i];
+            }
+        }
+    };
     let mut acc = vec![0.0f64; nb * stride];
+    let mut part = Vec::new();
     let (mut part_touched, mut touched) = (Vec::new(), Vec::new());
     for u in units {
         touched.clear();
-        for r in u {
-            part_touched.clear();
-            for i in r.clone() {
-                let b = (((c[i] - c_min) / res) as usize).min(nb - 1);
-                let cell = &mut part[b * stride..(b + 1) * stride];
-                if cell[0] == 0.0 {
-                    part_touched.push(b);
+        if let [r] = u.as_slice() {
+            pool_range(r.clone(), &mut acc, &mut touched);
+        } else {
+            part.resize(nb * stride, 0.0);
+            for r in u {
+                part_touched.clear();
+                pool_range(r.clone(), &mut part, &mut part_touched);
+                for &b in &part_touched {
+                    let (p, a) = (
+                        &mut part[b * stride..(b + 1) * stride],
+                        &mut acc[b * stride..(b + 1) * stride],
+                    );
+                    if a[0] == 0.0 {
+                        // 0 + s is s: the first range's sums keep their bits.
+                        touched.push(b);
+                    }
+                    a.iter_mut().zip(p.iter_mut()).for_each(|(a, p)| {
+                        *a += *p;
+                        *p = 0.0;
+                    });
                 }
-                // × 1.0 is exact: rows pool to the same bits with or without weights.
-                let wi = weights.map_or(1.0, |w| w[i]);
-                cell[0] += wi;
-                cell[1] += wi * c[i];
-                for (s, y) in cell[2..].iter_mut().zip(targets) {
-                    *s += y[i];
-                }
-            }
-            for &b in &part_touched {
-                let (p, a) = (
-                    &mut part[b * stride..(b + 1) * stride],
-                    &mut acc[b * stride..(b + 1) * stride],
-                );
-                if a[0] == 0.0 {
-                    // 0 + s is s: a bin of one range keeps its bits.
-                    touched.push(b);
-                }
-                a.iter_mut().zip(p.iter_mut()).for_each(|(a, p)| {
-                    *a += *p;
-                    *p = 0.0;
-                });
             }
         }
         touched.sort_unstable();
