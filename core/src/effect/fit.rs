@@ -391,21 +391,19 @@ fn pool_rows_1d(
     let mut sy: Vec<Vec<f64>> = vec![Vec::new(); nt];
     // Per bin: [count, Σc, Σy per target].
     let stride = 2 + nt;
-    // A range's rows into `bins`, each newly touched bin listed.
+    // A range's rows into `bins`, each newly touched bin listed; the held
+    // sums a fixed-size array for the usual target counts (5 folds: 6).
+    let bin_of = |x: f64| (((x - c_min) / res) as usize).min(nb - 1);
     let pool_range = |r: Range<usize>, bins: &mut [f64], touched: &mut Vec<usize>| {
-        for i in r {
-            let b = (((c[i] - c_min) / res) as usize).min(nb - 1);
-            let cell = &mut bins[b * stride..(b + 1) * stride];
-            if cell[0] == 0.0 {
-                touched.push(b);
-            }
-            // × 1.0 is exact: rows pool to the same bits with or without weights.
-            let wi = weights.map_or(1.0, |w| w[i]);
-            cell[0] += wi;
-            cell[1] += wi * c[i];
-            for (s, y) in cell[2..].iter_mut().zip(targets) {
-                *s += y[i];
-            }
+        let rows = (c, &bin_of, weights, targets, r);
+        match stride {
+            3 => pool_range_held([0.0; 3], rows, bins, touched),
+            4 => pool_range_held([0.0; 4], rows, bins, touched),
+            5 => pool_range_held([0.0; 5], rows, bins, touched),
+            6 => pool_range_held([0.0; 6], rows, bins, touched),
+            7 => pool_range_held([0.0; 7], rows, bins, touched),
+            8 => pool_range_held([0.0; 8], rows, bins, touched),
+            _ => pool_range_held(vec![0.0; stride], rows, bins, touched),
         }
     };
     let mut acc = vec![0.0f64; nb * stride];
@@ -450,6 +448,57 @@ fn pool_rows_1d(
         out_units.push(start..xc.len());
     }
     (vec![xc], w, sy, out_units)
+}
+
+/// One covariate's rows of a range, as [`pool_range_held`] reads them:
+/// the covariate, its bin, the weights, the targets, the rows.
+type RangeRows<'a, B> = (
+    &'a [f64],
+    &'a B,
+    Option<&'a [f64]>,
+    &'a [&'a [f64]],
+    Range<usize>,
+);
+
+/// [`pool_rows_1d`]'s rows of a range into `bins` of `held.len()` sums
+/// (count, Σc, Σy of each target), the current bin's sums held apart —
+/// in registers when `held` is a small array — while consecutive rows stay
+/// in it: a row's adds then wait on the previous add, not on its store and
+/// reload. Each sum adds the same values in the same order as adding into
+/// `bins` row by row (same bits).
+fn pool_range_held<H: AsMut<[f64]>, B: Fn(f64) -> usize>(
+    mut held: H,
+    (c, bin_of, weights, targets, r): RangeRows<B>,
+    bins: &mut [f64],
+    touched: &mut Vec<usize>,
+) {
+    let held = held.as_mut();
+    let s = held.len();
+    assert_eq!(targets.len() + 2, s, "a sum per target, the count and Σc");
+    let mut cur = usize::MAX;
+    for i in r {
+        let b = bin_of(c[i]);
+        if b != cur {
+            if cur != usize::MAX {
+                bins[cur * s..(cur + 1) * s].copy_from_slice(held);
+            }
+            cur = b;
+            held.copy_from_slice(&bins[b * s..(b + 1) * s]);
+            if held[0] == 0.0 {
+                touched.push(b);
+            }
+        }
+        // × 1.0 is exact: rows pool to the same bits with or without weights.
+        let wi = weights.map_or(1.0, |w| w[i]);
+        held[0] += wi;
+        held[1] += wi * c[i];
+        for (h, y) in held[2..].iter_mut().zip(targets) {
+            *h += y[i];
+        }
+    }
+    if cur != usize::MAX {
+        bins[cur * s..(cur + 1) * s].copy_from_slice(held);
+    }
 }
 
 /// Folds as seen by the fitter: which units train each fold, and which
@@ -972,6 +1021,29 @@ mod tests {
         assert_eq!(w, vec![6.0; 10]);
         let want: f64 = (0..30).chain(70..100).map(f64::from).sum();
         assert_eq!(sy[0].iter().sum::<f64>(), want);
+    }
+
+    /// One covariate: the sums of a target are the same bits whether it is
+    /// pooled alone (sums held in a small array) or among eight (held in a
+    /// vector), over a unit of one range and one of several.
+    #[test]
+    fn pooling_one_covariate_holds_sums_alike_for_any_target_count() {
+        let n = 3_000;
+        let c: Vec<f64> = (0..n).map(|i| ((i * 37) % 101) as f64 * 0.013).collect();
+        let ys: Vec<Vec<f64>> = (0..8)
+            .map(|t| (0..n).map(|i| ((i * (t + 3)) as f64 * 0.7).sin()).collect())
+            .collect();
+        let refs: Vec<&[f64]> = ys.iter().map(|y| y.as_slice()).collect();
+        let units = vec![vec![0..1_000], vec![1_000..1_700, 2_200..n, 1_700..2_200]];
+        let all = pool_rows(&[&c], &[0.0], &[0.05], None, &units, &refs);
+        for (t, y) in refs.iter().enumerate() {
+            let one = pool_rows(&[&c], &[0.0], &[0.05], None, &units, &[y]);
+            assert_eq!(one.3, all.3);
+            assert_eq!(one.1, all.1);
+            let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&one.2[0]), bits(&all.2[t]), "target {t}");
+            assert_eq!(bits(&one.0[0]), bits(&all.0[0]));
+        }
     }
 
     /// Two covariates: one cell per (a, b) pair that occurs, cells in
