@@ -25,10 +25,29 @@ fn temp_path(path: &Path) -> PathBuf {
     path.with_file_name(format!(".{name}.{}.tmp", std::process::id()))
 }
 
+/// `create_dir_all` in a directory other threads write into and clean up:
+/// a run that fails has its outputs removed, and its machine directory with
+/// them once empty, which can fall between this call making the machine
+/// directory and making a run directory inside it. That NotFound is the
+/// other run's cleanup, not a missing output directory, so the creation is
+/// tried again (a few times; then the error stands).
+pub fn create_dir_all_shared(dir: &Path) -> Result<()> {
+    let mut tries = 0;
+    loop {
+        match fs::create_dir_all(dir) {
+            Ok(()) => return Ok(()),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound && tries < 16 => tries += 1,
+            Err(e) => {
+                return Err(e).with_context(|| format!("cannot create {}", dir.display()));
+            }
+        }
+    }
+}
+
 /// Write `bytes` to `path` atomically (temp + fsync + rename).
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     if let Some(dir) = path.parent() {
-        fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+        create_dir_all_shared(dir)?;
     }
     let tmp = temp_path(path);
     let result = (|| -> Result<()> {
@@ -93,7 +112,7 @@ pub fn write_parquet_batches_atomic(
     batches: impl IntoIterator<Item = Result<RecordBatch>>,
 ) -> Result<()> {
     if let Some(dir) = path.parent() {
-        fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+        create_dir_all_shared(dir)?;
     }
     let tmp = temp_path(path);
     let result = (|| -> Result<()> {
@@ -156,6 +175,29 @@ pub fn remove_orphaned_temps(dir: &Path, depth: usize) -> Vec<PathBuf> {
 
 #[cfg(test)]
 mod tests {
+    /// Two runs of one machine written while each one's directories are
+    /// removed again, as a failed run's cleanup does: creating a run
+    /// directory never fails because the other removed the (momentarily
+    /// empty) machine directory.
+    #[test]
+    fn a_run_directory_survives_a_concurrent_cleanup_of_its_machine_directory() {
+        let d = tempfile::tempdir().unwrap();
+        let machine = d.path().join("m");
+        std::thread::scope(|s| {
+            for run in ["a", "b"] {
+                let machine = machine.clone();
+                s.spawn(move || {
+                    let dir = machine.join(run);
+                    for _ in 0..3_000 {
+                        super::create_dir_all_shared(&dir).unwrap();
+                        let _ = std::fs::remove_dir(&dir);
+                        let _ = std::fs::remove_dir(&machine);
+                    }
+                });
+            }
+        });
+    }
+
     use super::*;
 
     #[test]
