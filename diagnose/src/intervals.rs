@@ -163,49 +163,74 @@ fn model_se(
     let n = prob.x.len();
     let has_theta = theta.is_finite();
     let q = m + 1 + usize::from(has_theta);
-    if n <= q {
+    if n <= q || target.len() != n {
         return None;
     }
-    let mut feats = vec![Vec::new(); m];
-    form.features(&frame, &prob.x, theta, &mut feats).ok()?;
-    // Jacobian columns: 1, features, ∂(Σ β_j F_j)/∂θ.
-    let mut jac: Vec<Vec<f64>> = Vec::with_capacity(q);
-    jac.push(vec![1.0; n]);
-    jac.extend(feats.iter().cloned());
-    if has_theta {
-        let h = 1e-4 * theta.abs().max(1e-12);
-        let (mut fp, mut fm) = (vec![Vec::new(); m], vec![Vec::new(); m]);
-        form.features(&frame, &prob.x, theta + h, &mut fp).ok()?;
-        form.features(&frame, &prob.x, theta - h, &mut fm).ok()?;
-        jac.push(
-            (0..n)
-                .map(|i| {
-                    (0..m)
-                        .map(|j| beta[j + 1] * (fp[j][i] - fm[j][i]) / (2.0 * h))
-                        .sum()
-                })
-                .collect(),
-        );
+    // One pass over the runs, each on its own rows' features (run-sized
+    // buffers, never the fleet's): J'J, the SSE and each run's score J_r'e_r
+    // are sums of per-run sums, merged in run order (docs/design.md §8).
+    debug_assert!(
+        runs.windows(2).all(|w| w[0].end == w[1].start)
+            && runs.first().is_none_or(|r| r.start == 0)
+            && runs.last().is_none_or(|r| r.end == n),
+        "the runs tile the rows"
+    );
+    let covs = form.covariates();
+    let h = 1e-4 * theta.abs().max(1e-12);
+    let mut a = DMatrix::<f64>::zeros(q, q);
+    let mut sse = 0.0;
+    let mut scores: Vec<DVector<f64>> = Vec::with_capacity(runs.len());
+    let (mut feats, mut fp, mut fm) = (
+        vec![Vec::new(); m],
+        vec![Vec::new(); m],
+        vec![Vec::new(); m],
+    );
+    // Jacobian columns of a run: 1, features, ∂(Σ β_j F_j)/∂θ.
+    let mut jac: Vec<Vec<f64>> = vec![Vec::new(); q];
+    let mut resid: Vec<f64> = Vec::new();
+    for r in runs {
+        let len = r.len();
+        let xr = prob.x.rows_of(&covs, r.clone()).ok()?;
+        form.features(&frame, &xr, theta, &mut feats).ok()?;
+        jac[0].clear();
+        jac[0].resize(len, 1.0);
+        for (col, f) in jac[1..=m].iter_mut().zip(&feats) {
+            col.clear();
+            col.extend_from_slice(&f[..len]);
+        }
+        if has_theta {
+            form.features(&frame, &xr, theta + h, &mut fp).ok()?;
+            form.features(&frame, &xr, theta - h, &mut fm).ok()?;
+            jac[q - 1].clear();
+            jac[q - 1].extend((0..len).map(|i| {
+                (0..m)
+                    .map(|j| beta[j + 1] * (fp[j][i] - fm[j][i]) / (2.0 * h))
+                    .sum::<f64>()
+            }));
+        }
+        resid.clear();
+        resid.extend((0..len).map(|i| {
+            target[r.start + i] - beta[0] - (0..m).map(|j| beta[j + 1] * feats[j][i]).sum::<f64>()
+        }));
+        for i in 0..q {
+            for j in 0..q {
+                a[(i, j)] += super::fit::dot(&jac[i], &jac[j]);
+            }
+        }
+        sse += super::fit::dot(&resid, &resid);
+        scores.push(DVector::from_fn(q, |j, _| super::fit::dot(&jac[j], &resid)));
     }
-    let resid: Vec<f64> = (0..n)
-        .map(|i| target[i] - beta[0] - (0..m).map(|j| beta[j + 1] * feats[j][i]).sum::<f64>())
-        .collect();
-    let a = DMatrix::from_fn(q, q, |r, c| super::fit::dot(&jac[r], &jac[c]));
     let a_inv = a
         .clone()
         .try_inverse()
         .or_else(|| a.pseudo_inverse(1e-12).ok())?;
-    let sse = super::fit::dot(&resid, &resid);
     let df_pooled = (n - q) as f64;
     let v_pooled = &a_inv * (sse / df_pooled);
     let c = runs.len();
     let v_runs = (c >= 3).then(|| {
         let mut meat = DMatrix::<f64>::zeros(q, q);
-        for r in runs {
-            let s = DVector::from_fn(q, |j, _| {
-                super::fit::dot(&jac[j][r.clone()], &resid[r.clone()])
-            });
-            meat += &s * s.transpose();
+        for s in &scores {
+            meat += s * s.transpose();
         }
         &a_inv * meat * &a_inv * (c as f64 / (c as f64 - 1.0))
     });
@@ -309,8 +334,9 @@ pub fn chosen_intervals(
         .enumerate()
         .map(|(j, &ci)| {
             let ev = &sel.chosen_evals[j];
+            let target = sel.final_target(prob, cands, j).unwrap_or_default();
             (
-                param_intervals(cands[ci], prob, ev, &sel.final_targets[j], runs),
+                param_intervals(cands[ci], prob, ev, &target, runs),
                 shrink_interval(&sel.chosen_before[j], &ev.unit_sse, seed ^ j as u64),
             )
         })

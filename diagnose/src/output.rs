@@ -33,12 +33,12 @@ pub fn machine_tests(
     }
     sel.chosen
         .iter()
-        .zip(&sel.final_targets)
-        .map(|(&ci, target)| {
+        .enumerate()
+        .map(|(j, &ci)| {
             machines::per_machine(
                 cands[ci],
                 &prob.x,
-                target,
+                &sel.final_target(prob, cands, j)?,
                 &o.machine,
                 &o.run_ranges,
                 &table.machine_names,
@@ -170,7 +170,7 @@ pub fn record_selected(
             col[slot] = *c;
         }
         if !extra_rows.is_empty() {
-            let pred = predict_rows(e, &prob.x, &sel.final_targets[j], slots)?;
+            let pred = trimmed_prediction(e, prob, &sel.chosen_evals[j], slots)?;
             for ((&slot, p), r) in slots
                 .trimmed_slots
                 .iter()
@@ -244,34 +244,27 @@ pub fn record_selected(
     Ok(obs_selected)
 }
 
-/// The all-runs fit of `e` to `target` (over the rows of `x`), predicted on
+/// The all-runs fit of `e` (the one reported, fold k of `ev`) predicted on
 /// the trimmed rows of `slots` (offset included).
-fn predict_rows(
+fn trimmed_prediction(
     e: &dyn Effect,
-    x: &super::effect::EffectData,
-    target: &[f64],
+    prob: &Problem,
+    ev: &super::select::CandEval,
     slots: &super::Slots,
 ) -> Result<Vec<f64>> {
-    let fe = e.fit(x, target)?;
-    let covs = e.covariates();
-    let rows = slots.trimmed;
-    let store: Vec<&Vec<f64>> = covs
-        .iter()
-        .map(|c| {
-            slots
-                .trimmed_covs
-                .iter()
-                .find(|(n, _)| n == c)
-                .map(|(_, v)| v)
-                .ok_or_else(|| crate::err!("covariate `{c}` not in the table"))
-        })
-        .collect::<Result<_>>()?;
-    let mut xd = super::effect::EffectData::new(rows.len());
-    for (c, v) in covs.iter().zip(&store) {
-        xd.push(c, v);
+    let mut xd = super::effect::EffectData::new(slots.trimmed.len());
+    for c in e.covariates() {
+        let v = slots
+            .trimmed_covs
+            .iter()
+            .find(|(n, _)| *n == c)
+            .map(|(_, v)| v)
+            .ok_or_else(|| crate::err!("covariate `{c}` not in the table"))?;
+        xd.push(&c, v);
     }
-    let off = fe.offset_mm();
-    Ok(fe.predict(&xd).into_iter().map(|p| p + off).collect())
+    let mut pred = Vec::new();
+    super::select::fold_prediction(e, prob, ev, prob.k, &xd, &mut pred)?;
+    Ok(pred)
 }
 
 /// The fleet-level diagnosis from the per-observable results.

@@ -274,15 +274,9 @@ fn take_out(prob: &Problem, e: &dyn Effect, ev: &CandEval, tg: Targets) -> Resul
         .into_par_iter()
         .enumerate()
         .map(|(f, mut t)| -> Result<_> {
-            let pred = predict_fold(e, prob, ev, f)?;
-            for (y, p) in Arc::make_mut(&mut t).iter_mut().zip(&pred) {
-                *y -= p;
-            }
-            let held: Vec<f64> = if f < k {
-                held_out(f).map(|i| pred[i]).collect()
-            } else {
-                Vec::new()
-            };
+            let mut held = Vec::new();
+            let target: &mut Vec<f64> = Arc::make_mut(&mut t);
+            take_out_fold(e, prob, ev, f, target, &mut held)?;
             Ok((t, held))
         })
         .collect::<Result<_>>()?;
@@ -387,9 +381,6 @@ pub struct Selection {
     pub contrib: Vec<Vec<f64>>,
     /// All-runs fits of the chosen effects, stagewise: (params, offset).
     pub final_params: Vec<(BTreeMap<String, f64>, f64)>,
-    /// The all-runs target each chosen effect was fitted to (the gap minus
-    /// the all-runs fits of the effects chosen before it).
-    pub final_targets: Vec<Arc<Vec<f64>>>,
     /// The cross-validated fits of the chosen effects (fold k = all runs):
     /// intervals read their covariance and fold spread.
     pub chosen_evals: Vec<CandEval>,
@@ -403,6 +394,26 @@ pub struct Selection {
     pub unit_sse_gap: Vec<f64>,
     pub unit_sse_after: Vec<f64>,
     pub stop_reason: String,
+}
+
+impl Selection {
+    /// The all-runs target the `j`-th chosen effect was fitted to: the gap
+    /// less the all-runs fits of the effects chosen before it. Computed
+    /// again when asked — unit by unit, the same subtractions in the same
+    /// order as the selection made, so the same bits — rather than kept as
+    /// a column per chosen effect through the selection.
+    pub fn final_target(
+        &self,
+        prob: &Problem,
+        cands: &[&dyn Effect],
+        j: usize,
+    ) -> Result<Vec<f64>> {
+        let mut target = prob.gap.to_vec();
+        for (&ci, ev) in self.chosen[..j].iter().zip(&self.chosen_evals) {
+            take_out_fold(cands[ci], prob, ev, prob.k, &mut target, &mut Vec::new())?;
+        }
+        Ok(target)
+    }
 }
 
 pub struct SelectOptions {
@@ -460,7 +471,6 @@ pub fn select(prob: &Problem, cands: &[&dyn Effect], opt: &SelectOptions) -> Res
     let mut chosen: Vec<usize> = Vec::new();
     let mut contrib: Vec<Vec<f64>> = Vec::new();
     let mut final_params = Vec::new();
-    let mut final_targets = Vec::new();
     let mut chosen_evals = Vec::new();
     let mut chosen_before = Vec::new();
     let stop_reason;
@@ -564,7 +574,6 @@ pub fn select(prob: &Problem, cands: &[&dyn Effect], opt: &SelectOptions) -> Res
             .map(|(_, s)| s.0)
             .collect();
         let (ci, ev, _, _) = scored.swap_remove(b);
-        final_targets.push(tg.per_fold[k].clone());
         let t_out = std::time::Instant::now();
         let (new_targets, c) = take_out(prob, cands[ci], &ev, tg)?;
         tracing::debug!(
@@ -591,7 +600,6 @@ pub fn select(prob: &Problem, cands: &[&dyn Effect], opt: &SelectOptions) -> Res
         chosen,
         contrib,
         final_params,
-        final_targets,
         chosen_evals,
         chosen_before,
         residual,

@@ -8,6 +8,7 @@ use arrow::array::{ArrayRef, Float64Array, RecordBatch, StringArray};
 use arrow::datatypes::{DataType, Field, Schema};
 use rand::{Rng, SeedableRng};
 use sparkout_datasets::observations::{generate, write_parquet, ObsFleetConfig};
+use sparkout_pipeline::diagnose::augment::AugmentedModel;
 use sparkout_pipeline::diagnose::{
     catalogue_effect, composite, diagnose, diagnose_scoped, DiagnoseConfig, Diagnosis, Effect,
     EffectScope, Kind,
@@ -101,7 +102,8 @@ fn one_percent_of_30_sigma_spikes_do_not_move_the_diagnosis() {
     let spiky = replace_f64(&clean, "real", spiky);
     let cfg = DiagnoseConfig::default();
     let a = diagnose(&clean, &cfg, &[]).unwrap().diagnosis;
-    let b = diagnose(&spiky, &cfg, &[]).unwrap().diagnosis;
+    let out_b = diagnose(&spiky, &cfg, &[]).unwrap();
+    let b = &out_b.diagnosis;
     assert_eq!(
         a.selected.first(),
         b.selected.first(),
@@ -109,7 +111,7 @@ fn one_percent_of_30_sigma_spikes_do_not_move_the_diagnosis() {
         a.selected,
         b.selected
     );
-    let (ea, eb) = (selected(&a, "drift:t_s"), selected(&b, "drift:t_s"));
+    let (ea, eb) = (selected(&a, "drift:t_s"), selected(b, "drift:t_s"));
     for k in ["amplitude_mm", "tau_s"] {
         let ib = &eb.intervals.as_ref().unwrap()[k];
         assert!(
@@ -134,6 +136,35 @@ fn one_percent_of_30_sigma_spikes_do_not_move_the_diagnosis() {
     );
     let plain = pb.shrink_plain.expect("plain shrink");
     assert!(plain < pb.shrink, "plain {plain} robust {}", pb.shrink);
+
+    // A trimmed row's contribution is the reported all-runs fit's
+    // prediction as augmented_model.json replays it — to rounding (seen:
+    // 6·10⁻¹⁶), not a refit that lands on a slightly different θ — while
+    // every other row carries a held-out prediction, from the fold that
+    // left it out (seen: ≥ 4·10⁻⁷ away).
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("augmented_model.json");
+    std::fs::write(&path, serde_json::to_vec(&out_b.augmented_model).unwrap()).unwrap();
+    let model = AugmentedModel::load(&path).unwrap();
+    let drift = model
+        .effects_for(&pb.observable)
+        .find(|e| e.key == "drift:t_s")
+        .expect("drift:t_s in the model");
+    let all_runs = drift.predict(&[f64s(&spiky, "t_s")]).expect("replays");
+    let rows = out_b.per_row.to_batch().unwrap();
+    let contrib = f64s(&rows, "contrib_drift:t_s");
+    let rel = |i: usize| (contrib[i] - all_runs[i]).abs() / all_runs[i].abs().max(1e-300);
+    let spiked: Vec<usize> = (0..real.len())
+        .filter(|&i| f64s(&spiky, "real")[i] != real[i])
+        .collect();
+    let close = |i: usize| rel(i) <= 1e-12;
+    let at_spikes = spiked.iter().filter(|&&i| close(i)).count();
+    let elsewhere = (0..real.len()).filter(|&i| close(i)).count() - at_spikes;
+    assert!(
+        at_spikes + 2 >= out.n && elsewhere <= 2,
+        "{at_spikes} of {} trimmed spikes and {elsewhere} other rows carry the all-runs fit",
+        out.n
+    );
 }
 
 /// A composite given for observable `profile_error` does not rename the

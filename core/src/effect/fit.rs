@@ -386,14 +386,33 @@ fn pool_rows_1d(
     units: &[Vec<Range<usize>>],
     targets: &[&[f64]],
 ) -> Pooled {
-    let (mut xc, mut w, mut out_units) = (Vec::new(), Vec::new(), Vec::new());
     let nt = targets.len();
-    let mut sy: Vec<Vec<f64>> = vec![Vec::new(); nt];
     // Per bin: [count, Σc, Σy per target].
     let stride = 2 + nt;
+    let bin_of = |x: f64| (((x - c_min) / res) as usize).min(nb - 1);
+    // The units' cells are counted first, so the pooled columns are
+    // allocated once at their size: at the CV folds' fine resolution they
+    // are nearly as long as the rows, and growing them by doubling held up
+    // to twice their bytes at the diagnosis' peak.
+    let n_cells = {
+        let mut seen = vec![usize::MAX; nb];
+        let mut n = 0;
+        for (ui, u) in units.iter().enumerate() {
+            for i in u.iter().flat_map(|r| r.clone()) {
+                let b = bin_of(c[i]);
+                if seen[b] != ui {
+                    seen[b] = ui;
+                    n += 1;
+                }
+            }
+        }
+        n
+    };
+    let (mut xc, mut w) = (Vec::with_capacity(n_cells), Vec::with_capacity(n_cells));
+    let mut out_units = Vec::with_capacity(units.len());
+    let mut sy: Vec<Vec<f64>> = (0..nt).map(|_| Vec::with_capacity(n_cells)).collect();
     // A range's rows into `bins`, each newly touched bin listed; the held
     // sums a fixed-size array for the usual target counts (5 folds: 6).
-    let bin_of = |x: f64| (((x - c_min) / res) as usize).min(nb - 1);
     let pool_range = |r: Range<usize>, bins: &mut [f64], touched: &mut Vec<usize>| {
         let rows = (c, &bin_of, weights, targets, r);
         match stride {

@@ -326,20 +326,28 @@ const REDUCED_ARG_MAX: f64 = 4.0e5;
 /// `sin[i], cos[i] = sin_cos(arg(i))` for every i of the outputs: the
 /// periodic form's features, a sine and cosine per row (held-out scores and
 /// the all-runs fit are on rows), which with the standard library's scalar
-/// sin_cos were the diagnosis' largest single cost. While every argument is
-/// within [`REDUCED_ARG_MAX`] the loop has no branch or call, so it runs in
-/// vector registers.
+/// sin_cos were the diagnosis' largest single cost. Which of the two a row
+/// gets depends on its own argument only, so a row's features are the same
+/// bits whether it is computed with its run alone or with the whole fleet
+/// (the statistics merged per run rest on that; docs/design.md §8). While
+/// every argument is within [`REDUCED_ARG_MAX`] — in practice always — the
+/// loop has no branch or call, so it runs in vector registers.
 fn sin_cos_of(arg: impl Fn(usize) -> f64, sin: &mut [f64], cos: &mut [f64]) {
     let n = sin.len().min(cos.len());
-    let small = (0..n).all(|i| arg(i).abs() <= REDUCED_ARG_MAX);
-    for i in 0..n {
-        let (s, c) = if small {
-            sin_cos_reduced(arg(i))
-        } else {
-            arg(i).sin_cos()
-        };
-        sin[i] = s;
-        cos[i] = c;
+    let small = |x: f64| x.abs() <= REDUCED_ARG_MAX;
+    if (0..n).all(|i| small(arg(i))) {
+        for i in 0..n {
+            (sin[i], cos[i]) = sin_cos_reduced(arg(i));
+        }
+    } else {
+        for i in 0..n {
+            let x = arg(i);
+            (sin[i], cos[i]) = if small(x) {
+                sin_cos_reduced(x)
+            } else {
+                x.sin_cos()
+            };
+        }
     }
 }
 
@@ -429,5 +437,82 @@ mod sin_cos_tests {
             5e5f64.sin_cos(),
             "large arguments are the library's"
         );
+    }
+}
+
+#[cfg(test)]
+mod row_wise_tests {
+    use crate::effect::{catalogue, CovStats, EffectData};
+
+    /// A row's features depend on that row alone: computed over any range
+    /// of the rows they are the same bits as the range of the features
+    /// computed over all of them. Per-run statistics merged across runs
+    /// (and the per-unit blocks of the cross-validation) rest on it. The
+    /// positions reach past the reduced sine's range on some rows only.
+    #[test]
+    fn features_of_a_range_are_the_range_of_the_features() {
+        let n = 5_000;
+        let wave = |i: usize, a: f64| ((i as f64 * a).sin() * 43_758.545_3).fract();
+        let t_s: Vec<f64> = (0..n).map(|i| i as f64 * 0.01 + wave(i, 1.3)).collect();
+        let x_mm: Vec<f64> = (0..n)
+            .map(|i| {
+                let v = 400.0 * wave(i, 2.7);
+                if i % 97 == 0 {
+                    v * 1.0e5
+                } else {
+                    v
+                }
+            })
+            .collect();
+        let y_mm: Vec<f64> = (0..n).map(|i| -50.0 + 100.0 * wave(i, 0.77)).collect();
+        let dir: Vec<f64> = (0..n)
+            .map(|i| if wave(i, 5.1) > 0.0 { 1.0 } else { -1.0 })
+            .collect();
+        let end_mm: Vec<f64> = (0..n).map(|i| 30.0 * wave(i, 3.3).abs()).collect();
+        let cols: Vec<(&str, &Vec<f64>)> = vec![
+            ("t_s", &t_s),
+            ("x_mm", &x_mm),
+            ("y_mm", &y_mm),
+            ("dir", &dir),
+            ("path_end_mm", &end_mm),
+        ];
+        let names: Vec<String> = cols.iter().map(|(c, _)| c.to_string()).collect();
+        let mut x = EffectData::new(n);
+        for (c, v) in &cols {
+            x.push(c, v);
+        }
+        let ranges = [0..1, 1..8, 8..1_500, 1_500..n];
+        let mut forms = 0;
+        for e in catalogue(&names) {
+            let Some(form) = e.linear_form() else {
+                continue;
+            };
+            let frame: Vec<CovStats> = form
+                .covariates()
+                .iter()
+                .map(|c| CovStats::from_values(x.col(c).unwrap()))
+                .collect();
+            let thetas = match form.theta(&frame) {
+                None => vec![f64::NAN],
+                Some(tr) => vec![tr.grid[0], tr.grid[tr.grid.len() / 2], tr.lo * 1.37],
+            };
+            let covs = form.covariates();
+            for th in thetas {
+                let mut all = vec![Vec::new(); form.n_linear()];
+                form.features(&frame, &x, th, &mut all).unwrap();
+                for r in ranges.clone() {
+                    let mut part = vec![Vec::new(); form.n_linear()];
+                    let xr = x.rows_of(&covs, r.clone()).unwrap();
+                    form.features(&frame, &xr, th, &mut part).unwrap();
+                    for (a, p) in all.iter().zip(&part) {
+                        let a: Vec<u64> = a[r.clone()].iter().map(|v| v.to_bits()).collect();
+                        let p: Vec<u64> = p.iter().map(|v| v.to_bits()).collect();
+                        assert_eq!(a, p, "{} at θ {th}, rows {r:?}", e.key());
+                    }
+                }
+            }
+            forms += 1;
+        }
+        assert!(forms >= 8, "only {forms} forms tried");
     }
 }

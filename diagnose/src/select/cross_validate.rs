@@ -181,22 +181,28 @@ pub fn evaluate(e: &dyn Effect, prob: &Problem, tg: &Targets) -> Result<CandEval
                     !done[f] && pooled_beta[f].is_none() && thetas[f].to_bits() == th.to_bits()
                 })
                 .collect();
-            form.features(&frame, &prob.x, th, buf)?;
-            let g_u: Vec<Vec<f64>> = prob
-                .units
-                .iter()
-                .map(|u| fit::design_gram(buf, None, u.clone()))
-                .collect();
-            let mut h_cache: BTreeMap<usize, Vec<Vec<f64>>> = BTreeMap::new();
+            // Each unit's statistics from its own rows' features (a
+            // unit-sized buffer, never a fleet-sized one): features are
+            // row by row and a unit's sums run over its rows in order, so
+            // the blocks are those of the observable's columns, bit for bit
+            // — and what a node holding only that run computes
+            // (docs/design.md §8).
+            let mut ts: Vec<usize> = same.iter().map(|&f| tg.of_fold[f]).collect();
+            ts.sort_unstable();
+            ts.dedup();
+            let mut g_u: Vec<Vec<f64>> = Vec::with_capacity(prob.units.len());
+            let mut h_of: Vec<Vec<Vec<f64>>> = vec![Vec::with_capacity(prob.units.len()); ts.len()];
+            for u in &prob.units {
+                form.features(&frame, &prob.x.rows_of(&covs, u.clone())?, th, buf)?;
+                g_u.push(fit::design_gram(buf, None, 0..u.len()));
+                for (h_u, &t) in h_of.iter_mut().zip(&ts) {
+                    h_u.push(fit::design_xy(buf, &tslices[t][u.clone()], 0..u.len()));
+                }
+            }
             for &f in &same {
                 done[f] = true;
                 let t = tg.of_fold[f];
-                let h_u = h_cache.entry(t).or_insert_with(|| {
-                    prob.units
-                        .iter()
-                        .map(|u| fit::design_xy(buf, tslices[t], u.clone()))
-                        .collect()
-                });
+                let h_u = &h_of[ts.binary_search(&t).expect("target listed")];
                 let (g, h) = fit::train_sums(&g_u, h_u, &masks[f], p);
                 let b = fit::solve(&g, &h).ok_or_else(|| err!("singular normal equations"))?;
                 for (u, tr) in masks[f].iter().enumerate() {
@@ -273,34 +279,95 @@ pub(super) fn evaluate_slow(
     })
 }
 
-/// The prediction (offset included) of fold `f`'s fit on every row.
-pub fn predict_fold(e: &dyn Effect, prob: &Problem, ev: &CandEval, f: usize) -> Result<Vec<f64>> {
+/// Fold `f`'s prediction (offset included) of the rows of `x` into `pred`
+/// (f = k: the all-runs fit, the one reported and replayed). A linear
+/// form's prediction is row by row: the same bits for a row whether `x` is
+/// one unit, the trimmed rows or the whole observable.
+pub fn fold_prediction(
+    e: &dyn Effect,
+    prob: &Problem,
+    ev: &CandEval,
+    f: usize,
+    x: &EffectData,
+    pred: &mut Vec<f64>,
+) -> Result<()> {
+    pred.clear();
     match &ev.fit {
         CandFit::Fast { theta, beta } => {
             let form = e.linear_form().expect("fast fit has a form");
             let frame = prob.frame(e)?;
             let b = &beta[f];
-            let mut out = vec![b[0]; prob.x.len()];
             with_columns(form.n_linear(), |buf| -> Result<()> {
-                form.features(&frame, &prob.x, theta[f], buf)?;
+                form.features(&frame, x, theta[f], buf)?;
+                pred.resize(x.len(), b[0]);
                 for (col, bj) in buf.iter().zip(&b[1..]) {
-                    for (o, v) in out.iter_mut().zip(col.iter()) {
+                    for (o, v) in pred.iter_mut().zip(col.iter()) {
                         *o += bj * v;
                     }
                 }
                 Ok(())
-            })?;
-            Ok(out)
+            })
         }
         CandFit::Slow { fitted } => {
             let off = fitted[f].offset_mm();
-            Ok(fitted[f]
-                .predict(&prob.x)
-                .into_iter()
-                .map(|v| v + off)
-                .collect())
+            pred.extend(fitted[f].predict(x).into_iter().map(|p| p + off));
+            Ok(())
         }
     }
+}
+
+/// Fold `f`'s fit (offset included) taken out of `target`: each unit's
+/// rows predicted from their own features (a unit-sized buffer, bit for
+/// bit a prediction over all rows) and subtracted; `held` receives the
+/// prediction of the units fold `f` holds out, in row order (fold k holds
+/// none out).
+pub fn take_out_fold(
+    e: &dyn Effect,
+    prob: &Problem,
+    ev: &CandEval,
+    f: usize,
+    target: &mut [f64],
+    held: &mut Vec<f64>,
+) -> Result<()> {
+    debug_assert!(
+        prob.units.windows(2).all(|w| w[0].end == w[1].start)
+            && prob.units.first().is_none_or(|u| u.start == 0)
+            && prob.units.last().is_none_or(|u| u.end == target.len()),
+        "the scoring units tile the rows"
+    );
+    let is_held = |u: usize| f < prob.k && prob.unit_fold[u] == f;
+    let mut pred = Vec::new();
+    let covs = e
+        .linear_form()
+        .map_or_else(|| e.covariates(), |form| form.covariates());
+    // A plugin's fitted effect predicts the rows it is given with no
+    // promise that a row's value is its own alone: all rows at once.
+    let whole = matches!(ev.fit, CandFit::Slow { .. });
+    if whole {
+        fold_prediction(e, prob, ev, f, &prob.x, &mut pred)?;
+    }
+    for (u, r) in prob.units.iter().enumerate() {
+        let p = if whole {
+            &pred[r.clone()]
+        } else {
+            fold_prediction(
+                e,
+                prob,
+                ev,
+                f,
+                &prob.x.rows_of(&covs, r.clone())?,
+                &mut pred,
+            )?;
+            &pred[..]
+        };
+        for (y, p) in target[r.clone()].iter_mut().zip(p) {
+            *y -= p;
+        }
+        if is_held(u) {
+            held.extend_from_slice(p);
+        }
+    }
+    Ok(())
 }
 
 /// Contract parameters and offset of fold `f`'s fit (f = k: all runs).
