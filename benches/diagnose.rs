@@ -11,7 +11,7 @@ use criterion::{criterion_group, Criterion};
 use sparkout_datasets::observations::{generate, ObsFleetConfig};
 use sparkout_pipeline::config_check::Checked;
 use sparkout_pipeline::contracts::write_parquet_atomic;
-use sparkout_pipeline::diagnose::{diagnose, diagnose_observations_file, DiagnoseConfig};
+use sparkout_pipeline::diagnose::{diagnose, diagnose_observations_file, fit, DiagnoseConfig};
 use sparkout_pipeline::EffectSpec;
 use std::time::Duration;
 
@@ -73,7 +73,46 @@ fn bench_diagnose(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, bench_diagnose);
+/// The reduction the fleet diagnosis merges (docs/design.md §8): 10⁶ rows
+/// of 500 runs (2 000 rows each), dealt to the 6 fold groups of 5-fold CV,
+/// each run pooled into its partial cells on the fleet's grid and a group's
+/// partials merged in run order — for 6 targets, on one covariate at the
+/// CV folds' fine resolution (dense bins) and on two (sorted cells).
+fn bench_pool(c: &mut Criterion) {
+    let (runs, per_run) = (500, 2_000);
+    let n = runs * per_run;
+    // A run sweeps x back and forth over 400 mm; y steps once per pass.
+    let x: Vec<f64> = (0..n)
+        .map(|i| {
+            let p = (i % per_run) as f64 / per_run as f64;
+            400.0 * (1.0 - (2.0 * p - 1.0).abs()) + 1e-3 * (i % 97) as f64
+        })
+        .collect();
+    let y: Vec<f64> = (0..n).map(|i| ((i % per_run) / 100) as f64 * 5.0).collect();
+    let targets: Vec<Vec<f64>> = (0..6)
+        .map(|t| {
+            (0..n)
+                .map(|i| ((i * (t + 3)) as f64 * 1e-3).sin())
+                .collect()
+        })
+        .collect();
+    let tref: Vec<&[f64]> = targets.iter().map(Vec::as_slice).collect();
+    let mut groups: Vec<Vec<std::ops::Range<usize>>> = vec![Vec::new(); 6];
+    for r in 0..runs {
+        groups[r % 6].push(r * per_run..(r + 1) * per_run);
+    }
+    let mut g = c.benchmark_group("diagnose");
+    g.sample_size(20);
+    g.bench_function("pool_1e6_rows_500_runs_1_covariate", |b| {
+        b.iter(|| fit::pool_rows(&[&x], &[0.0], &[0.05], None, &groups, &tref))
+    });
+    g.bench_function("pool_1e6_rows_500_runs_2_covariates", |b| {
+        b.iter(|| fit::pool_rows(&[&x, &y], &[0.0, 0.0], &[0.5, 5.0], None, &groups, &tref))
+    });
+    g.finish();
+}
+
+criterion_group!(benches, bench_diagnose, bench_pool);
 
 /// `SPARKOUT_BENCH_VALIDATE=1 cargo bench --bench diagnose` also times
 /// `sparkout validate --quick` and the full validation (targets:
