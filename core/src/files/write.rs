@@ -30,13 +30,14 @@ fn temp_path(path: &Path) -> PathBuf {
 /// them once empty, which can fall between this call making the machine
 /// directory and making a run directory inside it. That NotFound is the
 /// other run's cleanup, not a missing output directory, so the creation is
-/// tried again (a few times; then the error stands).
+/// tried again (a bounded number of times — a path under a dangling link
+/// is NotFound for ever — then the error stands).
 pub fn create_dir_all_shared(dir: &Path) -> Result<()> {
     let mut tries = 0;
     loop {
         match fs::create_dir_all(dir) {
             Ok(()) => return Ok(()),
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound && tries < 16 => tries += 1,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound && tries < 1_000 => tries += 1,
             Err(e) => {
                 return Err(e).with_context(|| format!("cannot create {}", dir.display()));
             }
@@ -175,26 +176,34 @@ pub fn remove_orphaned_temps(dir: &Path, depth: usize) -> Vec<PathBuf> {
 
 #[cfg(test)]
 mod tests {
-    /// Two runs of one machine written while each one's directories are
-    /// removed again, as a failed run's cleanup does: creating a run
-    /// directory never fails because the other removed the (momentarily
-    /// empty) machine directory.
+    /// A run directory created while another run of the same machine
+    /// fails over and over — its cleanup removing its own directory and
+    /// then the machine directory whenever that is empty: creating the run
+    /// directory never fails because the machine directory vanished.
     #[test]
     fn a_run_directory_survives_a_concurrent_cleanup_of_its_machine_directory() {
         let d = tempfile::tempdir().unwrap();
         let machine = d.path().join("m");
+        let done = std::sync::atomic::AtomicBool::new(false);
         std::thread::scope(|s| {
-            for run in ["a", "b"] {
-                let machine = machine.clone();
-                s.spawn(move || {
-                    let dir = machine.join(run);
-                    for _ in 0..3_000 {
-                        super::create_dir_all_shared(&dir).unwrap();
-                        let _ = std::fs::remove_dir(&dir);
-                        let _ = std::fs::remove_dir(&machine);
+            s.spawn(|| {
+                let failing = machine.join("failing");
+                // Bounded, so a failing assertion below cannot hang the scope.
+                for _ in 0..200_000 {
+                    if done.load(std::sync::atomic::Ordering::Relaxed) {
+                        break;
                     }
-                });
+                    super::create_dir_all_shared(&failing).unwrap();
+                    let _ = std::fs::remove_dir(&failing);
+                    let _ = std::fs::remove_dir(&machine);
+                }
+            });
+            let run = machine.join("run");
+            for _ in 0..3_000 {
+                super::create_dir_all_shared(&run).unwrap();
+                std::fs::remove_dir(&run).unwrap();
             }
+            done.store(true, std::sync::atomic::Ordering::Relaxed);
         });
     }
 
