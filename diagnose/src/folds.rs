@@ -14,6 +14,15 @@ use super::gather::ObsRows;
 /// Fewer scoring units than this: held-out runs are split into blocks.
 pub const MIN_UNITS: usize = 6;
 
+/// Whether `ranges` cover rows `0..n` in order, end to end — what the
+/// scoring units and the run ranges of an observable do, and what the
+/// passes that walk them one at a time instead of over all rows rely on.
+pub fn tile(ranges: &[Range<usize>], n: usize) -> bool {
+    ranges.windows(2).all(|w| w[0].end == w[1].start)
+        && ranges.first().map_or(n == 0, |r| r.start == 0)
+        && ranges.last().map_or(n == 0, |r| r.end == n)
+}
+
 pub struct Folds {
     /// Scoring units, contiguous, each inside one run unit.
     pub units: Vec<Range<usize>>,

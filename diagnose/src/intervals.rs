@@ -169,12 +169,7 @@ fn model_se(
     // One pass over the runs, each on its own rows' features (run-sized
     // buffers, never the fleet's): J'J, the SSE and each run's score J_r'e_r
     // are sums of per-run sums, merged in run order (docs/design.md §8).
-    debug_assert!(
-        runs.windows(2).all(|w| w[0].end == w[1].start)
-            && runs.first().is_none_or(|r| r.start == 0)
-            && runs.last().is_none_or(|r| r.end == n),
-        "the runs tile the rows"
-    );
+    debug_assert!(crate::folds::tile(runs, n), "the runs tile the rows");
     let covs = form.covariates();
     let h = 1e-4 * theta.abs().max(1e-12);
     let mut a = DMatrix::<f64>::zeros(q, q);

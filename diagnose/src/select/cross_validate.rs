@@ -4,6 +4,7 @@
 //! parameters.
 
 use super::*;
+use crate::effect::LinearForm;
 
 /// Per-fold targets (fold k = all runs) and their Σy² per unit.
 pub struct Targets {
@@ -191,7 +192,9 @@ pub fn evaluate(e: &dyn Effect, prob: &Problem, tg: &Targets) -> Result<CandEval
             ts.sort_unstable();
             ts.dedup();
             let mut g_u: Vec<Vec<f64>> = Vec::with_capacity(prob.units.len());
-            let mut h_of: Vec<Vec<Vec<f64>>> = vec![Vec::with_capacity(prob.units.len()); ts.len()];
+            let mut h_of: Vec<Vec<Vec<f64>>> = (0..ts.len())
+                .map(|_| Vec::with_capacity(prob.units.len()))
+                .collect();
             for u in &prob.units {
                 form.features(&frame, &prob.x.rows_of(&covs, u.clone())?, th, buf)?;
                 g_u.push(fit::design_gram(buf, None, 0..u.len()));
@@ -279,10 +282,63 @@ pub(super) fn evaluate_slow(
     })
 }
 
+/// Fold `f`'s fit ready to predict any rows: a linear form's θ and
+/// coefficients with its frame, or a plugin's fitted effect.
+enum FoldFit<'a> {
+    Linear {
+        form: Arc<dyn LinearForm>,
+        frame: Frame,
+        theta: f64,
+        beta: &'a [f64],
+    },
+    Fitted(&'a dyn FittedEffect),
+}
+
+impl<'a> FoldFit<'a> {
+    fn of(e: &dyn Effect, prob: &Problem, ev: &'a CandEval, f: usize) -> Result<FoldFit<'a>> {
+        Ok(match &ev.fit {
+            CandFit::Fast { theta, beta } => FoldFit::Linear {
+                form: e.linear_form().expect("fast fit has a form"),
+                frame: prob.frame(e)?,
+                theta: theta[f],
+                beta: &beta[f],
+            },
+            CandFit::Slow { fitted } => FoldFit::Fitted(fitted[f].as_ref()),
+        })
+    }
+
+    /// The prediction (offset included) of the rows of `x` into `pred`. A
+    /// linear form's is row by row: the same bits for a row whether `x` is
+    /// one unit, the trimmed rows or the whole observable.
+    fn predict(&self, x: &EffectData, pred: &mut Vec<f64>) -> Result<()> {
+        pred.clear();
+        match self {
+            FoldFit::Linear {
+                form,
+                frame,
+                theta,
+                beta,
+            } => with_columns(form.n_linear(), |buf| -> Result<()> {
+                form.features(frame, x, *theta, buf)?;
+                pred.resize(x.len(), beta[0]);
+                for (col, bj) in buf.iter().zip(&beta[1..]) {
+                    for (o, v) in pred.iter_mut().zip(col.iter()) {
+                        *o += bj * v;
+                    }
+                }
+                Ok(())
+            }),
+            FoldFit::Fitted(fe) => {
+                let off = fe.offset_mm();
+                pred.extend(fe.predict(x).into_iter().map(|p| p + off));
+                Ok(())
+            }
+        }
+    }
+}
+
 /// Fold `f`'s prediction (offset included) of the rows of `x` into `pred`
-/// (f = k: the all-runs fit, the one reported and replayed). A linear
-/// form's prediction is row by row: the same bits for a row whether `x` is
-/// one unit, the trimmed rows or the whole observable.
+/// (f = k: the all-runs fit, the one reported and replayed).
 pub fn fold_prediction(
     e: &dyn Effect,
     prob: &Problem,
@@ -291,29 +347,7 @@ pub fn fold_prediction(
     x: &EffectData,
     pred: &mut Vec<f64>,
 ) -> Result<()> {
-    pred.clear();
-    match &ev.fit {
-        CandFit::Fast { theta, beta } => {
-            let form = e.linear_form().expect("fast fit has a form");
-            let frame = prob.frame(e)?;
-            let b = &beta[f];
-            with_columns(form.n_linear(), |buf| -> Result<()> {
-                form.features(&frame, x, theta[f], buf)?;
-                pred.resize(x.len(), b[0]);
-                for (col, bj) in buf.iter().zip(&b[1..]) {
-                    for (o, v) in pred.iter_mut().zip(col.iter()) {
-                        *o += bj * v;
-                    }
-                }
-                Ok(())
-            })
-        }
-        CandFit::Slow { fitted } => {
-            let off = fitted[f].offset_mm();
-            pred.extend(fitted[f].predict(x).into_iter().map(|p| p + off));
-            Ok(())
-        }
-    }
+    FoldFit::of(e, prob, ev, f)?.predict(x, pred)
 }
 
 /// Fold `f`'s fit (offset included) taken out of `target`: each unit's
@@ -330,35 +364,28 @@ pub fn take_out_fold(
     held: &mut Vec<f64>,
 ) -> Result<()> {
     debug_assert!(
-        prob.units.windows(2).all(|w| w[0].end == w[1].start)
-            && prob.units.first().is_none_or(|u| u.start == 0)
-            && prob.units.last().is_none_or(|u| u.end == target.len()),
+        crate::folds::tile(&prob.units, target.len()),
         "the scoring units tile the rows"
     );
     let is_held = |u: usize| f < prob.k && prob.unit_fold[u] == f;
+    let fit = FoldFit::of(e, prob, ev, f)?;
     let mut pred = Vec::new();
-    let covs = e
-        .linear_form()
-        .map_or_else(|| e.covariates(), |form| form.covariates());
     // A plugin's fitted effect predicts the rows it is given with no
     // promise that a row's value is its own alone: all rows at once.
-    let whole = matches!(ev.fit, CandFit::Slow { .. });
-    if whole {
-        fold_prediction(e, prob, ev, f, &prob.x, &mut pred)?;
-    }
+    let covs = match &fit {
+        FoldFit::Linear { form, .. } => Some(form.covariates()),
+        FoldFit::Fitted(_) => {
+            fit.predict(&prob.x, &mut pred)?;
+            None
+        }
+    };
     for (u, r) in prob.units.iter().enumerate() {
-        let p = if whole {
-            &pred[r.clone()]
-        } else {
-            fold_prediction(
-                e,
-                prob,
-                ev,
-                f,
-                &prob.x.rows_of(&covs, r.clone())?,
-                &mut pred,
-            )?;
-            &pred[..]
+        let p = match &covs {
+            None => &pred[r.clone()],
+            Some(covs) => {
+                fit.predict(&prob.x.rows_of(covs, r.clone())?, &mut pred)?;
+                &pred[..]
+            }
         };
         for (y, p) in target[r.clone()].iter_mut().zip(p) {
             *y -= p;
