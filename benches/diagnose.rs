@@ -11,6 +11,7 @@ use criterion::{criterion_group, Criterion};
 use sparkout_datasets::observations::{generate, ObsFleetConfig};
 use sparkout_pipeline::config_check::Checked;
 use sparkout_pipeline::contracts::write_parquet_atomic;
+use sparkout_pipeline::diagnose::run_length::RunLength;
 use sparkout_pipeline::diagnose::{diagnose, diagnose_observations_file, fit, DiagnoseConfig};
 use sparkout_pipeline::EffectSpec;
 use std::time::Duration;
@@ -112,7 +113,35 @@ fn bench_pool(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, bench_diagnose, bench_pool);
+/// The table's key column (run unit per row) of a table whose rows are not
+/// in run order — shuffled, as a writer that does not sort leaves it — read
+/// at 10⁶ rows in run order, as gathering an observable and its noise floor
+/// read it (500 runs of 2 000 rows). Held as stretches this was a bisection
+/// per row over 10⁶ stretches; held as rows, an index.
+fn bench_keys(c: &mut Criterion) {
+    let (runs, per_run) = (500u32, 2_000usize);
+    let n = runs as usize * per_run;
+    // A fixed shuffle (xorshift, Fisher–Yates) of the run of each row.
+    let mut run: Vec<u32> = (0..n).map(|i| (i / per_run) as u32).collect();
+    let mut state = 0x2545_f491_4f6c_dd1du64;
+    for i in (1..n).rev() {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        run.swap(i, (state % (i as u64 + 1)) as usize);
+    }
+    let col: RunLength<u32> = run.iter().copied().collect();
+    let mut in_run_order: Vec<usize> = (0..n).collect();
+    in_run_order.sort_by_key(|&i| run[i]);
+    let mut g = c.benchmark_group("diagnose");
+    g.sample_size(20);
+    g.bench_function("keys_1e6_rows_shuffled_table_read_in_run_order", |b| {
+        b.iter(|| col.at(&in_run_order))
+    });
+    g.finish();
+}
+
+criterion_group!(benches, bench_diagnose, bench_pool, bench_keys);
 
 /// `SPARKOUT_BENCH_VALIDATE=1 cargo bench --bench diagnose` also times
 /// `sparkout validate --quick` and the full validation (targets:

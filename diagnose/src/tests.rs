@@ -427,14 +427,19 @@ fn covariates_share_the_input_buffer_and_nulls_read_as_nan() {
 /// Two machines whose runs share ids (r0…r7), two observables: `a_um` in
 /// µm with a scale error on m2 alone, `b` a velocity without `x_mm`.
 fn two_machine_fleet() -> arrow::array::RecordBatch {
+    two_machine_fleet_of(120)
+}
+
+/// [`two_machine_fleet`] with `points` rows per run and observable.
+fn two_machine_fleet_of(points: usize) -> arrow::array::RecordBatch {
     use crate::contracts::BatchBuilder;
     let mut normal = normal_rng(11);
     let (mut machine, mut run, mut obs, mut unit) = (vec![], vec![], vec![], vec![]);
     let (mut real, mut x, mut t) = (vec![], vec![], vec![]);
     for m in ["m1", "m2"] {
         for r in 0..8 {
-            for i in 0..120 {
-                let xi = (i * 37 % 120) as f64;
+            for i in 0..points {
+                let xi = (i * 37 % points) as f64;
                 for o in ["a_um", "b"] {
                     machine.push(m);
                     run.push(format!("r{r}"));
@@ -519,6 +524,78 @@ fn a_batch_rebuilt_from_the_table_diagnoses_as_its_input() {
             .any(|e| e.machine == "m2"),
         "{:#?}",
         direct.diagnosis.where_
+    );
+}
+
+/// Every number of two JSON documents within `rel` of each other, all else
+/// equal; the path of the first difference otherwise.
+fn json_close(a: &serde_json::Value, b: &serde_json::Value, rel: f64, path: &str) {
+    use serde_json::Value;
+    match (a, b) {
+        (Value::Number(x), Value::Number(y)) => {
+            let (x, y) = (x.as_f64().unwrap(), y.as_f64().unwrap());
+            assert!(
+                (x - y).abs() <= rel * x.abs().max(y.abs()),
+                "{path}: {x} vs {y}"
+            );
+        }
+        (Value::Array(x), Value::Array(y)) => {
+            assert_eq!(x.len(), y.len(), "{path}: lengths");
+            for (i, (x, y)) in x.iter().zip(y).enumerate() {
+                json_close(x, y, rel, &format!("{path}[{i}]"));
+            }
+        }
+        (Value::Object(x), Value::Object(y)) => {
+            let keys = |o: &serde_json::Map<String, Value>| o.keys().cloned().collect::<Vec<_>>();
+            assert_eq!(keys(x), keys(y), "{path}: keys");
+            for (k, v) in x {
+                json_close(v, &y[k], rel, &format!("{path}.{k}"));
+            }
+        }
+        _ => assert_eq!(a, b, "{path}"),
+    }
+}
+
+/// A table whose rows are in no particular order (shuffled, as a writer
+/// that does not sort may leave them) diagnoses as the same rows in run
+/// order: the same effects, notes and figures but for the last digits
+/// that sums in another order move. Its key columns, stretches of a row
+/// or two, are held a value per row (`run_length.rs`) — what made such a
+/// table slow — and read the same.
+#[test]
+fn a_shuffled_table_diagnoses_as_the_table_in_run_order() {
+    use crate::observations::{validate_observations, Table};
+    let batch = two_machine_fleet_of(600);
+    let n = batch.num_rows();
+    let mut perm: Vec<u32> = (0..n as u32).collect();
+    let mut state = 0x2545_f491_4f6c_dd1du64;
+    for i in (1..n).rev() {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        perm.swap(i, (state % (i as u64 + 1)) as usize);
+    }
+    let shuffled =
+        arrow::compute::take_record_batch(&batch, &arrow::array::UInt32Array::from(perm)).unwrap();
+    let valid = validate_observations(&shuffled, std::path::Path::new("obs.parquet")).unwrap();
+    let table = Table::from_batch(&valid).unwrap();
+    assert!(table.run.is_held_as_rows() && table.obs.is_held_as_rows());
+    let in_order = Table::from_batch(
+        &validate_observations(&batch, std::path::Path::new("obs.parquet")).unwrap(),
+    )
+    .unwrap();
+    assert!(!in_order.run.is_held_as_rows());
+    let cfg = super::DiagnoseConfig::default();
+    let a = super::diagnose(&batch, &cfg, &[]).unwrap();
+    let b = super::diagnose(&shuffled, &cfg, &[]).unwrap();
+    let json = |d: &super::DiagnosisOutput| serde_json::to_value(&d.diagnosis).unwrap();
+    json_close(&json(&a), &json(&b), 1e-7, "diagnosis");
+    assert!(
+        a.diagnosis
+            .machine_effects
+            .iter()
+            .any(|e| e.machine == "m2"),
+        "the fixture has an effect to find"
     );
 }
 
