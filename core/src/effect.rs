@@ -249,12 +249,19 @@ thread_local! {
         const { std::cell::RefCell::new(Vec::new()) };
 }
 
+/// Columns longer than this (values) are not kept for reuse.
+pub const SPARE_COLUMN_MAX: usize = 1 << 18;
+
 /// Runs `f` on `n` empty feature columns that keep the capacity of this
-/// thread's earlier calls. A form's features are as long as the fleet's
-/// rows and are computed once per candidate and per θ value tried; above
-/// 32 MiB each fresh vector is fresh pages from the kernel (`alloc.rs`),
-/// which made page faults and page clearing a fifth of a 2 000-run
-/// diagnosis. Re-entrant: a nested call takes its own columns.
+/// thread's earlier calls: features are computed once per candidate, unit
+/// and θ value tried, and a fresh vector each time was allocator work (and
+/// above 32 MiB fresh pages from the kernel, `alloc.rs`). Columns longer
+/// than [`SPARE_COLUMN_MAX`] values (2 MiB) go back to the allocator
+/// instead: the diagnosis computes features one unit or one set of pooled
+/// cells at a time, and a thread's spare columns of a large set of cells,
+/// kept for the rest of the night, were ≈ 10 % of a fleet diagnosis' heap
+/// peak while other steps allocated their own. Re-entrant: a nested call
+/// takes its own columns.
 pub fn with_columns<T>(n: usize, f: impl FnOnce(&mut Columns) -> T) -> T {
     let mut cols: Vec<Vec<f64>> = SPARE_COLUMNS.with(|s| {
         let mut spare = s.borrow_mut();
@@ -266,7 +273,12 @@ pub fn with_columns<T>(n: usize, f: impl FnOnce(&mut Columns) -> T) -> T {
         c.clear();
     }
     let out = f(&mut cols);
-    SPARE_COLUMNS.with(|s| s.borrow_mut().extend(cols));
+    SPARE_COLUMNS.with(|s| {
+        s.borrow_mut().extend(
+            cols.into_iter()
+                .filter(|c| c.capacity() <= SPARE_COLUMN_MAX),
+        )
+    });
     out
 }
 
@@ -462,6 +474,32 @@ mod with_columns_tests {
                     .all(|v| !outer.contains(&(v.as_ptr() as usize)) || v.capacity() == 0));
             });
         });
+    }
+
+    /// A column longer than `SPARE_COLUMN_MAX` goes back to the allocator,
+    /// not to this thread's spares (run on a thread of its own: the
+    /// spares are per thread).
+    #[test]
+    fn a_long_column_is_not_kept() {
+        std::thread::spawn(|| {
+            with_columns(2, |c| {
+                c[0].resize(super::SPARE_COLUMN_MAX + 1, 0.0);
+                c[1].resize(100, 0.0);
+            });
+            with_columns(2, |c| {
+                let caps: Vec<usize> = c.iter().map(|v| v.capacity()).collect();
+                assert!(
+                    caps.iter().all(|&n| n <= super::SPARE_COLUMN_MAX),
+                    "{caps:?}"
+                );
+                assert!(
+                    caps.iter().any(|&n| n >= 100),
+                    "the short one is kept: {caps:?}"
+                );
+            });
+        })
+        .join()
+        .unwrap();
     }
 }
 

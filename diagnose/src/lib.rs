@@ -249,6 +249,11 @@ pub fn diagnose_table(
     };
     for oi in 0..table.obs_names.len() {
         diagnose_observable(&table, oi, cfg, scopes, &mut acc, &mut notes)?;
+        // An observable's working set (its covariates, pooled cells, fold
+        // targets) is freed in pieces the allocator keeps between live
+        // allocations; given back here, the next observable starts from
+        // the pages it needs (sparkout_core::alloc).
+        sparkout_core::alloc::release_freed_memory();
     }
     let several_machines = table.machine_names.len() > 1;
     output::assemble(table, cfg, acc, notes, |table, d| {
@@ -326,7 +331,6 @@ fn diagnose_observable(
         return acc.merge(plain, oi as u32, &o.rows);
     }
     drop(plain);
-    let kept = o.without(&out);
     let before: f64 = o.gap.iter().map(|g| g * g).sum();
     // The robust pass reads `kept`'s covariates and the trimmed rows'
     // (their contributions); of the full rows only their table rows stay
@@ -336,9 +340,7 @@ fn diagnose_observable(
         .iter()
         .map(|c| (c.name.clone(), out.iter().map(|&p| c.v[p]).collect()))
         .collect();
-    o.cols = Vec::new();
-    o.gap = Vec::new();
-    o.machine = Vec::new();
+    let kept = o.take_kept(&out);
     let kept_slots: Vec<usize> = (0..o.n())
         .filter(|p| out.binary_search(p).is_err())
         .collect();

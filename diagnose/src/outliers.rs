@@ -113,38 +113,105 @@ pub fn report(
 }
 
 impl ObsRows {
-    /// The same observable without the rows at `drop` (positions, sorted).
-    pub fn without(&self, drop: &[usize]) -> ObsRows {
-        let keep: Vec<usize> = (0..self.n())
-            .filter(|p| drop.binary_search(p).is_err())
-            .collect();
-        let pick = |v: &[f64]| keep.iter().map(|&p| v[p]).collect::<Vec<f64>>();
+    /// The same observable without the rows at `drop` (positions, sorted),
+    /// its gap, machines and covariates moved out of `self` (which keeps
+    /// its rows and run ranges, what the trim report reads) and filtered
+    /// in place: a second copy of every covariate while the first was
+    /// still held was the spike-free pass's start (≈ 90 B a row).
+    pub fn take_kept(&mut self, drop: &[usize]) -> ObsRows {
         let mut run_ranges = Vec::new();
         let mut start = 0;
-        // `keep` is sorted and the run ranges are contiguous: count each
-        // run's kept rows by bisection (a scan per run was O(runs × rows):
-        // minutes for a 500-run fleet).
+        // `drop` is sorted and the run ranges are contiguous: each run's
+        // dropped rows counted by bisection.
         for r in &self.run_ranges {
-            let len = keep.partition_point(|&p| p < r.end) - keep.partition_point(|&p| p < r.start);
+            let gone =
+                drop.partition_point(|&p| p < r.end) - drop.partition_point(|&p| p < r.start);
+            let len = r.len() - gone;
             if len > 0 {
                 run_ranges.push(start..start + len);
                 start += len;
             }
         }
+        let mut rows = self.rows.clone();
+        retain_positions(&mut rows, drop);
+        let mut gap = std::mem::take(&mut self.gap);
+        retain_positions(&mut gap, drop);
+        let mut machine = std::mem::take(&mut self.machine);
+        retain_positions(&mut machine, drop);
         ObsRows {
             name: self.name.clone(),
-            rows: keep.iter().map(|&p| self.rows[p]).collect(),
-            gap: pick(&self.gap),
+            rows,
+            gap,
             run_ranges,
-            machine: keep.iter().map(|&p| self.machine[p]).collect(),
+            machine,
             // Each kept covariate sorts again for its constants: in parallel.
             cols: {
                 use rayon::prelude::*;
-                self.cols
-                    .par_iter()
-                    .map(|c| super::gather::Cov::new(c.name.clone(), pick(&c.v)))
+                std::mem::take(&mut self.cols)
+                    .into_par_iter()
+                    .map(|mut c| {
+                        retain_positions(&mut c.v, drop);
+                        super::gather::Cov::new(c.name, c.v)
+                    })
                     .collect()
             },
         }
+    }
+}
+
+/// Removes the elements at `drop` (positions, sorted ascending) in place.
+fn retain_positions<T>(v: &mut Vec<T>, drop: &[usize]) {
+    let mut next = drop.iter().peekable();
+    let mut i = 0;
+    v.retain(|_| {
+        let gone = next.next_if_eq(&&i).is_some();
+        i += 1;
+        !gone
+    });
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::gather::Cov;
+
+    /// The kept rows are the rows not dropped, in order, with their gap,
+    /// machine and covariates; a run left with no row disappears from the
+    /// run ranges; the covariates' constants are those of the kept values.
+    #[test]
+    fn the_kept_rows_are_the_rows_not_trimmed() {
+        let n = 10;
+        let mut o = ObsRows {
+            name: "e".into(),
+            rows: (100..100 + n).collect(),
+            gap: (0..n).map(|i| i as f64 * 0.5).collect(),
+            run_ranges: vec![0..4, 4..5, 5..10],
+            machine: (0..n as u32).collect(),
+            cols: vec![Cov::new(
+                "x_mm".into(),
+                (0..n).map(|i| (i * i) as f64).collect(),
+            )],
+        };
+        let drop = [0, 4, 9];
+        let kept = o.take_kept(&drop);
+        let keep: Vec<usize> = (0..n).filter(|p| !drop.contains(p)).collect();
+        assert_eq!(kept.rows, keep.iter().map(|p| 100 + p).collect::<Vec<_>>());
+        assert_eq!(
+            kept.gap,
+            keep.iter().map(|&p| p as f64 * 0.5).collect::<Vec<_>>()
+        );
+        assert_eq!(
+            kept.machine,
+            keep.iter().map(|&p| p as u32).collect::<Vec<_>>()
+        );
+        let x: Vec<f64> = keep.iter().map(|&p| (p * p) as f64).collect();
+        assert_eq!(kept.cols[0].v, x);
+        assert_eq!(kept.cols[0].stats, Cov::new("x_mm".into(), x).stats);
+        // Run 1 held only row 4: gone.
+        assert_eq!(kept.run_ranges, vec![0..3, 3..7]);
+        // What stays behind: the rows and runs (the trim report's).
+        assert_eq!(o.n(), n);
+        assert_eq!(o.run_ranges.len(), 3);
+        assert!(o.cols.is_empty() && o.gap.is_empty() && o.machine.is_empty());
     }
 }
