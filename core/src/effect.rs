@@ -134,19 +134,23 @@ pub trait FittedEffect: Send + Sync {
 /// 10⁸ fleet rows). The same values, bit for bit, as `sort_by(total_cmp)`.
 pub fn sorted_values(v: &[f64]) -> Vec<f64> {
     const SIGN: u64 = 1 << 63;
-    let key = |x: &f64| {
-        let b = x.to_bits();
-        if b & SIGN != 0 {
-            !b
-        } else {
-            b | SIGN
-        }
-    };
-    let mut k: Vec<u64> = v.iter().map(key).collect();
+    let mut k: Vec<u64> = v.iter().map(|&x| total_order_key(x)).collect();
     k.sort_unstable();
     k.into_iter()
         .map(|k| f64::from_bits(if k & SIGN != 0 { k & !SIGN } else { !k }))
         .collect()
+}
+
+/// `x` as an integer whose unsigned order is `f64::total_cmp`'s: the bit
+/// pattern with the sign bit flipped (and the rest too, for negatives).
+pub fn total_order_key(x: f64) -> u64 {
+    const SIGN: u64 = 1 << 63;
+    let b = x.to_bits();
+    if b & SIGN != 0 {
+        !b
+    } else {
+        b | SIGN
+    }
 }
 
 /// Data-dependent constants of one covariate, computed from covariate values

@@ -66,18 +66,26 @@ pub fn gather(table: &Table, oi: usize, notes: &mut Notes) -> crate::Result<ObsR
     let values = table.covs.gather(&table.obs, &asc)?;
     let asc_run = table.run.at(&asc);
     let t = names.iter().position(|n| n == "t_s").map(|k| &values[k]);
-    // Sorted by run unit, then time, then table order: `order[p]` is the
-    // position in `asc` of the p-th row.
-    let mut order: Vec<usize> = (0..asc.len()).collect();
-    order.sort_by(|&a, &b| {
-        asc_run[a]
-            .cmp(&asc_run[b])
-            .then_with(|| match t {
-                Some(t) => t[a].total_cmp(&t[b]),
-                None => std::cmp::Ordering::Equal,
-            })
-            .then(a.cmp(&b))
-    });
+    // Sorted by run unit, then time (total order), then table order:
+    // `order[p]` is the position in `asc` of the p-th row. Each row's three
+    // keys are packed into one integer and sorted as integers — a
+    // comparison sort reaching into the run and time columns at random was
+    // most of gathering a table not in run order.
+    if u32::try_from(asc.len()).is_err() {
+        return Err(crate::err!(
+            "{oname}: {} rows of one observable: at most {} are supported",
+            asc.len(),
+            u32::MAX
+        ));
+    }
+    let mut keyed: Vec<u128> = (0..asc.len())
+        .map(|p| {
+            let t_key = t.map_or(0, |t| super::effect::total_order_key(t[p]));
+            (u128::from(asc_run[p]) << 96) | (u128::from(t_key) << 32) | p as u128
+        })
+        .collect();
+    keyed.sort_unstable();
+    let order: Vec<usize> = keyed.into_iter().map(|k| k as u32 as usize).collect();
     let rows: Vec<usize> = order.iter().map(|&p| asc[p]).collect();
     let run: Vec<u32> = order.iter().map(|&p| asc_run[p]).collect();
     drop((asc, asc_run));

@@ -585,6 +585,16 @@ fn a_shuffled_table_diagnoses_as_the_table_in_run_order() {
     )
     .unwrap();
     assert!(!in_order.run.is_held_as_rows());
+    // Gathered by run unit, then time in total order, then table row.
+    for oi in 0..table.obs_names.len() {
+        let o = crate::gather::gather(&table, oi, &mut super::Notes::default()).unwrap();
+        let run = table.run.at(&o.rows);
+        let t = &o.cols.iter().find(|c| c.name == "t_s").unwrap().v;
+        for p in 1..o.n() {
+            let key = |p: usize| (run[p], crate::effect::total_order_key(t[p]), o.rows[p]);
+            assert!(key(p - 1) < key(p), "row {p} of {}", o.name);
+        }
+    }
     let cfg = super::DiagnoseConfig::default();
     let a = super::diagnose(&batch, &cfg, &[]).unwrap();
     let b = super::diagnose(&shuffled, &cfg, &[]).unwrap();
