@@ -8,6 +8,9 @@
 
 use arrow::array::RecordBatch;
 use criterion::{criterion_group, Criterion};
+use rand::seq::SliceRandom;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
 use sparkout_datasets::observations::{generate, ObsFleetConfig};
 use sparkout_pipeline::config_check::Checked;
 use sparkout_pipeline::contracts::write_parquet_atomic;
@@ -121,15 +124,9 @@ fn bench_pool(c: &mut Criterion) {
 fn bench_keys(c: &mut Criterion) {
     let (runs, per_run) = (500u32, 2_000usize);
     let n = runs as usize * per_run;
-    // A fixed shuffle (xorshift, Fisher–Yates) of the run of each row.
+    // A fixed shuffle of the run of each row.
     let mut run: Vec<u32> = (0..n).map(|i| (i / per_run) as u32).collect();
-    let mut state = 0x2545_f491_4f6c_dd1du64;
-    for i in (1..n).rev() {
-        state ^= state << 13;
-        state ^= state >> 7;
-        state ^= state << 17;
-        run.swap(i, (state % (i as u64 + 1)) as usize);
-    }
+    run.shuffle(&mut ChaCha8Rng::seed_from_u64(7));
     let col: RunLength<u32> = run.iter().copied().collect();
     let mut in_run_order: Vec<usize> = (0..n).collect();
     in_run_order.sort_by_key(|&i| run[i]);

@@ -331,18 +331,13 @@ mod tests {
     /// stays stretches; appending across the switch loses nothing.
     #[test]
     fn short_stretches_are_held_as_rows_and_read_the_same() {
-        // Runs of 1–3 equal values, pseudo-random: ≈ 2 rows a stretch.
-        let mut state = 0x9e37_79b9_7f4a_7c15u64;
-        let mut next = || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            state
-        };
+        use rand::{Rng, SeedableRng};
+        // Runs of 1–3 equal values, seeded: ≈ 2 rows a stretch.
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
         let mut plain: Vec<u32> = Vec::new();
         while plain.len() < 5 * JUDGE_AFTER {
-            let v = (next() % 40) as u32;
-            let n = 1 + (next() % 3) as usize;
+            let v: u32 = rng.random_range(0..40);
+            let n: usize = rng.random_range(1..=3);
             plain.extend(std::iter::repeat_n(v, n));
         }
         // Built row by row and by stretches of equal values alike.
@@ -361,7 +356,9 @@ mod tests {
                 want = rows.end;
             }
             assert_eq!(want, plain.len());
-            let scattered: Vec<usize> = (0..1000).map(|_| next() as usize % plain.len()).collect();
+            let scattered: Vec<usize> = (0..1000)
+                .map(|_| rng.random_range(0..plain.len()))
+                .collect();
             let want: Vec<u32> = scattered.iter().map(|&i| plain[i]).collect();
             assert_eq!(c.at(&scattered), want);
             assert_eq!(c.get(17), plain[17]);

@@ -568,12 +568,9 @@ fn a_shuffled_table_diagnoses_as_the_table_in_run_order() {
     let batch = two_machine_fleet_of(600);
     let n = batch.num_rows();
     let mut perm: Vec<u32> = (0..n as u32).collect();
-    let mut state = 0x2545_f491_4f6c_dd1du64;
-    for i in (1..n).rev() {
-        state ^= state << 13;
-        state ^= state >> 7;
-        state ^= state << 17;
-        perm.swap(i, (state % (i as u64 + 1)) as usize);
+    {
+        use rand::{seq::SliceRandom, SeedableRng};
+        perm.shuffle(&mut rand_chacha::ChaCha8Rng::seed_from_u64(7));
     }
     let shuffled =
         arrow::compute::take_record_batch(&batch, &arrow::array::UInt32Array::from(perm)).unwrap();
