@@ -373,10 +373,8 @@ mod tests {
         // The same rows held as stretches (never judged: too few) equal.
         let mut few: RunLength<u32> = plain[..100].iter().copied().collect();
         assert!(!few.is_held_as_rows());
-        let rows_100: RunLength<u32> = {
-            let mut c = by_row.clone();
-            c.held = Held::Rows(plain[..100].to_vec());
-            c
+        let rows_100 = RunLength {
+            held: Held::Rows(plain[..100].to_vec()),
         };
         assert_eq!(few, rows_100);
         // Long stretches stay stretches, however many rows.
@@ -394,8 +392,9 @@ mod tests {
     #[test]
     #[should_panic(expected = "row 7 of a column of 7 rows")]
     fn a_row_past_the_end_of_rows_is_a_bug_said_plainly() {
-        let mut c: RunLength<u32> = RunLength::new();
-        c.held = Held::Rows(vec![1; 7]);
+        let c = RunLength {
+            held: Held::Rows(vec![1u32; 7]),
+        };
         c.at(&[0, 7]);
     }
 
