@@ -60,10 +60,14 @@ impl ObsRows {
 
 pub fn gather(table: &Table, oi: usize, notes: &mut Notes) -> crate::Result<ObsRows> {
     let oname = &table.obs_names[oi];
-    // The observable's rows in table order, their covariates read once.
+    // The observable's rows in table order, their gaps and covariates
+    // read once.
     let asc: Vec<usize> = table.obs.rows_where(|o| o as usize == oi);
-    let names = table.covs.names();
-    let values = table.covs.gather(&table.obs, &asc)?;
+    let names = table.values.names();
+    let crate::observations::Gathered {
+        gap: asc_gap,
+        covariates: values,
+    } = table.values.gather(&table.obs, &asc)?;
     let asc_run = table.run.at(&asc);
     let t = names.iter().position(|n| n == "t_s").map(|k| &values[k]);
     // Sorted by run unit, then time (total order), then table order:
@@ -90,7 +94,8 @@ pub fn gather(table: &Table, oi: usize, notes: &mut Notes) -> crate::Result<ObsR
     let run: Vec<u32> = order.iter().map(|&p| asc_run[p]).collect();
     drop((asc, asc_run));
     let n = rows.len();
-    let gap: Vec<f64> = rows.iter().map(|&i| table.gap[i]).collect();
+    let gap: Vec<f64> = order.iter().map(|&p| asc_gap[p]).collect();
+    drop(asc_gap);
     let machine: Vec<u32> = table.machine.at(&rows);
     let mut run_ranges: Vec<Range<usize>> = Vec::new();
     let mut s = 0;
@@ -132,7 +137,7 @@ pub fn gather(table: &Table, oi: usize, notes: &mut Notes) -> crate::Result<ObsR
             cols.push(c);
         }
     }
-    if table.covs.names().is_empty() {
+    if table.values.names().is_empty() {
         notes.add("no covariates: offset only".into());
     } else if cols.is_empty() {
         notes.add(format!("{oname}: no varying covariates: offset only"));

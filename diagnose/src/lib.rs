@@ -96,6 +96,10 @@ pub struct Accum {
     /// writes each observable's to disk as it is merged.
     pub residual_all: Vec<f64>,
     pub contrib_cols: BTreeMap<String, Vec<f64>>,
+    /// Per row, the gap: held by a fleet accumulator without a spill
+    /// (diagnosis.parquet's `gap` column); empty in a pass's accumulator
+    /// (the pass's rows hold their gap) and with a spill (which writes it).
+    pub gap_all: Vec<f64>,
     /// Selected keys in order of first selection.
     pub selected_keys: Vec<String>,
     /// Held-out SSE each selected effect removed, in units of its
@@ -117,6 +121,7 @@ impl Accum {
         Accum {
             residual_all: vec![0.0; n],
             contrib_cols: BTreeMap::new(),
+            gap_all: Vec::new(),
             selected_keys: Vec::new(),
             explained_var: BTreeMap::new(),
             effects: Vec::new(),
@@ -129,6 +134,14 @@ impl Accum {
         }
     }
 
+    /// A fleet accumulator of `n` rows holding its per-row results.
+    pub fn fleet(n: usize) -> Accum {
+        Accum {
+            gap_all: vec![0.0; n],
+            ..Accum::new(n)
+        }
+    }
+
     /// A fleet accumulator whose per-row results go to `spill`.
     pub fn spilled(spill: per_row::ResultSpill) -> Accum {
         Accum {
@@ -138,13 +151,14 @@ impl Accum {
     }
 
     /// Adds one observable's results: its accumulator's slot p is table
-    /// row `rows[p]`.
-    fn merge(&mut self, o: Accum, obs: u32, rows: &[usize]) -> Result<()> {
+    /// row `rows[p]`, whose gap is `gap[p]`.
+    fn merge(&mut self, o: Accum, obs: u32, rows: &[usize], gap: &[f64]) -> Result<()> {
         if let Some(spill) = &mut self.spill {
-            spill.push(obs, rows, &o.residual_all, &o.contrib_cols)?;
+            spill.push(obs, rows, gap, &o.residual_all, &o.contrib_cols)?;
         } else {
-            for (&i, r) in rows.iter().zip(&o.residual_all) {
+            for ((&i, r), g) in rows.iter().zip(&o.residual_all).zip(gap) {
                 self.residual_all[i] = *r;
+                self.gap_all[i] = *g;
             }
             let n = self.residual_all.len();
             for (k, v) in o.contrib_cols {
@@ -245,7 +259,7 @@ pub fn diagnose_table(
     candidates::check_wanted(cfg, scopes)?;
     let mut acc = match results_dir {
         Some(dir) => Accum::spilled(per_row::ResultSpill::create(dir)?),
-        None => Accum::new(table.n),
+        None => Accum::fleet(table.n),
     };
     for oi in 0..table.obs_names.len() {
         diagnose_observable(&table, oi, cfg, scopes, &mut acc, &mut notes)?;
@@ -286,6 +300,7 @@ fn diagnose_observable(
         trimmed: &[],
         trimmed_slots: &[],
         trimmed_covs: &[],
+        trimmed_gap: &[],
     };
     // The spikes are found in the plain pass's held-out residual as soon as
     // its selection is done; when there are some, the rest of the plain
@@ -328,7 +343,7 @@ fn diagnose_observable(
         for n in plain_notes.into_vec() {
             notes.add(n);
         }
-        return acc.merge(plain, oi as u32, &o.rows);
+        return acc.merge(plain, oi as u32, &o.rows, &o.gap);
     }
     drop(plain);
     let before: f64 = o.gap.iter().map(|g| g * g).sum();
@@ -340,7 +355,8 @@ fn diagnose_observable(
         .iter()
         .map(|c| (c.name.clone(), out.iter().map(|&p| c.v[p]).collect()))
         .collect();
-    let kept = o.take_kept(&out);
+    let trimmed_gap: Vec<f64> = out.iter().map(|&p| o.gap[p]).collect();
+    let mut kept = o.take_kept(&out);
     let kept_slots: Vec<usize> = (0..o.n())
         .filter(|p| out.binary_search(p).is_err())
         .collect();
@@ -351,6 +367,7 @@ fn diagnose_observable(
         trimmed: &trimmed,
         trimmed_slots: &out,
         trimmed_covs: &trimmed_covs,
+        trimmed_gap: &trimmed_gap,
     };
     analyse(
         table,
@@ -363,6 +380,9 @@ fn diagnose_observable(
         &slots,
         &mut |_| true,
     )?;
+    // The kept rows' gaps outlive their covariates (the per-row results').
+    let kept_gap = std::mem::take(&mut kept.gap);
+    drop(kept);
     let after: f64 = robust.residual_all.iter().map(|r| r.powi(2)).sum();
     let rep = outliers::report(&o, &out, &resid, &table.run_names, &table.run, sigma, thr);
     notes.add(format!(
@@ -377,7 +397,26 @@ fn diagnose_observable(
         s.shrink_plain = (before > 0.0).then(|| 1.0 - (after / before).sqrt());
         s.outliers = Some(rep);
     }
-    acc.merge(robust, oi as u32, &o.rows)
+    // Every row's gap again, kept and trimmed in slot order, for the
+    // per-row results.
+    let gap = interleave(&kept_gap, &out, &trimmed_gap);
+    drop(kept_gap);
+    acc.merge(robust, oi as u32, &o.rows, &gap)
+}
+
+/// The sequence whose positions `at` (ascending) hold `at_values` and
+/// whose other positions hold `rest`, in order.
+fn interleave(rest: &[f64], at: &[usize], at_values: &[f64]) -> Vec<f64> {
+    let n = rest.len() + at.len();
+    let mut out = Vec::with_capacity(n);
+    let (mut r, mut a) = (rest.iter(), at.iter().zip(at_values).peekable());
+    for p in 0..n {
+        match a.next_if(|(&q, _)| q == p) {
+            Some((_, v)) => out.push(*v),
+            None => out.push(*r.next().expect("positions tile the sequence")),
+        }
+    }
+    out
 }
 
 /// Where one pass over an observable writes its per-row results in its
@@ -390,6 +429,8 @@ pub struct Slots<'a> {
     pub trimmed_slots: &'a [usize],
     /// The trimmed rows' covariates (name, values in `trimmed` order).
     pub trimmed_covs: &'a [(String, Vec<f64>)],
+    /// The trimmed rows' gaps (in `trimmed` order).
+    pub trimmed_gap: &'a [f64],
 }
 
 /// noise → folds → candidates → select → intervals → machines → cells for
@@ -470,8 +511,7 @@ fn analyse(
         &ivs,
         cfg,
     ));
-    let obs_selected =
-        output::record_selected(table, o, &prob, &cands, &sel, nf.sigma_mm, slots, acc)?;
+    let obs_selected = output::record_selected(o, &prob, &cands, &sel, nf.sigma_mm, slots, acc)?;
     clock.lap("per-row results");
     if !above {
         notes.add(format!("{}: no gap above noise", o.name));
@@ -615,3 +655,17 @@ impl<'a> StepClock<'a> {
 mod augment_tests;
 #[cfg(test)]
 pub(crate) mod tests;
+
+#[cfg(test)]
+mod interleave_tests {
+    #[test]
+    fn values_at_positions_interleave_with_the_rest_in_order() {
+        let rest = [10.0, 11.0, 12.0];
+        assert_eq!(
+            super::interleave(&rest, &[0, 2, 5], &[0.5, 2.5, 5.5]),
+            vec![0.5, 10.0, 2.5, 11.0, 12.0, 5.5]
+        );
+        assert_eq!(super::interleave(&rest, &[], &[]), rest.to_vec());
+        assert_eq!(super::interleave(&[], &[0, 1], &[1.0, 2.0]), vec![1.0, 2.0]);
+    }
+}

@@ -286,11 +286,16 @@ pub struct Table {
     /// Each observable's unit (index as `obs_names`): from the optional
     /// `unit` column, else "mm".
     pub obs_units: Vec<String>,
-    pub gap: Vec<f64>,
-    /// The covariates with a finite value somewhere, read per observable
-    /// (`gather`) from wherever the rows are: the input batch's buffers,
-    /// or the fleet's observations file read one observable at a time.
-    pub covs: Box<dyn Covariates>,
+    /// Σ gap² and max |gap| over every row, summed in table order as the
+    /// rows are indexed: the fleet's gap figures without a gap column as
+    /// long as the fleet (8 B a row; the gap itself is read per
+    /// observable with its covariates).
+    pub gap_sums: GapSums,
+    /// Each row's gap and the covariates with a finite value somewhere,
+    /// read per observable (`gather`) from wherever the rows are: the
+    /// input batch's buffers, a spill written as the fleet's rows were
+    /// joined, or the fleet's observations file.
+    pub values: Box<dyn RowValues>,
     /// Covariates dropped for non-finite values (reported as notes).
     pub dropped: Vec<String>,
     /// `trial` and `point` (i64::MIN where null).
@@ -312,30 +317,23 @@ pub struct TableParts {
     units: std::collections::HashMap<(u32, String), u32>,
     unit_keys: Vec<(u32, String)>,
     real_u: Option<RunLength<f64>>,
-    /// Rows the parts will hold in all, when known: the gap column is
-    /// allocated once at that size (grown by doubling, it would hold up to
-    /// twice its rows).
-    rows: usize,
 }
 
 impl TableParts {
     pub fn new(path: &Path) -> TableParts {
-        TableParts::with_rows(path, 0)
-    }
-
-    /// Parts of a table of `rows` rows in all (a file's row count).
-    pub fn with_rows(path: &Path, rows: usize) -> TableParts {
         TableParts {
             path: path.to_path_buf(),
             acc: None,
             units: Default::default(),
             unit_keys: Vec::new(),
             real_u: None,
-            rows,
         }
     }
 
-    /// Appends the next part (rows after the previous parts').
+    /// Appends the next part (rows after the previous parts'), indexed
+    /// from a batch ([`Table::from_batch`]: its gap is in memory). The
+    /// part's values are not kept: the whole table's are read later from
+    /// wherever the rows are (`Table::values`).
     pub fn push(&mut self, part: Table) -> Result<()> {
         fn id_of(names: &mut Vec<String>, name: &str) -> u32 {
             match names.iter().position(|n| n == name) {
@@ -346,7 +344,6 @@ impl TableParts {
                 }
             }
         }
-        let rows = self.rows;
         let acc = self.acc.get_or_insert_with(|| Table {
             n: 0,
             run_names: Vec::new(),
@@ -358,11 +355,8 @@ impl TableParts {
             obs_names: Vec::new(),
             obs: RunLength::new(),
             obs_units: Vec::new(),
-            gap: Vec::with_capacity(rows),
-            covs: Box::new(InMemory {
-                names: Vec::new(),
-                columns: Vec::new(),
-            }),
+            gap_sums: GapSums::default(),
+            values: Box::new(InMemory::default()),
             dropped: Vec::new(),
             trial: part.trial.as_ref().map(|_| RunLength::new()),
             point: part.point.as_ref().map(|_| RunLength::new()),
@@ -417,7 +411,10 @@ impl TableParts {
         acc.machine
             .extend_mapped(&part.machine, |m| machine_map[m as usize]);
         acc.obs.extend_mapped(&part.obs, |o| obs_map[o as usize]);
-        acc.gap.extend_from_slice(&part.gap);
+        let Some(gap) = part.values.gap_column() else {
+            unreachable!("a part indexed from a batch holds its gap");
+        };
+        acc.gap_sums.add(gap);
         if let (Some(a), Some(p)) = (acc.trial.as_mut(), part.trial.as_ref()) {
             a.extend_mapped(p, |v| v);
         }
@@ -535,9 +532,8 @@ impl Table {
         fields.push(Field::new("sim", DataType::Float64, false));
         cols.push(Arc::new(Float64Array::from(vec![0.0; rows.len()])));
         fields.push(Field::new("real", DataType::Float64, false));
-        cols.push(Arc::new(Float64Array::from_iter_values(
-            rows.iter().map(|&i| self.gap[i]),
-        )));
+        let values = self.values.gather(&self.obs, rows)?;
+        cols.push(Arc::new(Float64Array::from(values.gap)));
         let floats = |v: Vec<f64>| -> ArrayRef {
             Arc::new(
                 v.into_iter()
@@ -545,12 +541,7 @@ impl Table {
                     .collect::<Float64Array>(),
             )
         };
-        for (name, v) in self
-            .covs
-            .names()
-            .iter()
-            .zip(self.covs.gather(&self.obs, rows)?)
-        {
+        for (name, v) in self.values.names().iter().zip(values.covariates) {
             fields.push(Field::new(name, DataType::Float64, true));
             cols.push(floats(v));
         }
@@ -662,6 +653,42 @@ fn check_units(batch: &RecordBatch, path: &Path) -> Result<Option<Vec<Option<Uni
     Ok(Some(parsed))
 }
 
+/// Each row's gap as the index computes it: real − sim, both read as f64
+/// and converted from the row's stated unit to the contract's as
+/// [`validate_observations`] converts them (the same bits); NaN where
+/// either is missing or null — a table the index refuses. Reads the
+/// batch's `real`, `sim`, and `unit` with `observable` when present.
+pub(crate) fn gap_of(b: &RecordBatch, path: &Path) -> Result<Vec<f64>> {
+    let b = normalise_types(b.clone(), path)?;
+    let units = match b.column_by_name("observable") {
+        Some(_) => check_units(&b, path)?,
+        None => None,
+    };
+    let f64s = |name: &str| -> Option<Float64Array> {
+        let c = cast(b.column_by_name(name)?, &DataType::Float64).ok()?;
+        Some(c.as_primitive::<arrow::datatypes::Float64Type>().clone())
+    };
+    let (Some(real), Some(sim)) = (f64s("real"), f64s("sim")) else {
+        return Ok(vec![f64::NAN; b.num_rows()]);
+    };
+    let canonical = |v: &Float64Array, i: usize| {
+        let x = v.value(i);
+        match units.as_ref().and_then(|u| u[i]) {
+            Some(u) => u.to_canonical(x),
+            None => x,
+        }
+    };
+    Ok((0..b.num_rows())
+        .map(|i| {
+            if real.is_null(i) || sim.is_null(i) {
+                f64::NAN
+            } else {
+                canonical(&real, i) - canonical(&sim, i)
+            }
+        })
+        .collect())
+}
+
 /// Each observable's unit (validated by `check_units`), "mm" without a
 /// `unit` column.
 fn observable_units(b: &RecordBatch, obs_names: &[String], obs: &[u32]) -> Vec<String> {
@@ -736,6 +763,8 @@ impl Table {
         let sim = f64s(b.column_by_name("sim").expect("validated"))?;
         let real = f64s(b.column_by_name("real").expect("validated"))?;
         let gap: Vec<f64> = real.iter().zip(&sim).map(|(r, s)| r - s).collect();
+        let mut gap_sums = GapSums::default();
+        gap_sums.add(&gap);
         let mut covs = Vec::new();
         let mut dropped = Vec::new();
         let schema = b.schema();
@@ -755,9 +784,10 @@ impl Table {
         }
         covs.sort_by(|a, b| a.0.cmp(&b.0));
         dropped.sort();
-        let covs = Box::new(InMemory {
+        let values = Box::new(InMemory {
             names: covs.iter().map(|(n, _)| n.clone()).collect(),
             columns: covs.into_iter().map(|(_, v)| v).collect(),
+            gap,
         });
         let int = |name: &str| -> Result<Option<RunLength<i64>>> {
             match b.column_by_name(name) {
@@ -781,8 +811,8 @@ impl Table {
             obs_names,
             obs: obs.into_iter().collect(),
             obs_units,
-            gap,
-            covs,
+            gap_sums,
+            values,
             dropped,
             trial: int("trial")?,
             point: int("point")?,
@@ -796,42 +826,80 @@ impl Table {
     }
 }
 
-/// Where the diagnosis reads covariates: by table row, one observable at a
-/// time, so a fleet's covariates need not all be in memory at once.
-pub trait Covariates: Send + Sync {
+/// Where the diagnosis reads each row's gap and covariates: by table row,
+/// one observable at a time, so neither the fleet's covariates nor its
+/// gap need be in memory at once.
+pub trait RowValues: Send + Sync {
     /// The covariates, sorted by name: those with a finite value somewhere.
     fn names(&self) -> &[String];
-    /// Every covariate's values (in [`Covariates::names`] order) on the
-    /// table rows `asc` (ascending); NaN where a row has none. `obs` is
-    /// the table's observable id per row (a source may keep each
-    /// observable's rows apart).
-    fn gather(&self, obs: &RunLength<u32>, asc: &[usize]) -> Result<Vec<Vec<f64>>>;
+    /// The gap and every covariate's values (in [`RowValues::names`]
+    /// order) on the table rows `asc` (ascending); NaN where a row has no
+    /// covariate value. `obs` is the table's observable id per row (a
+    /// source may keep each observable's rows apart).
+    fn gather(&self, obs: &RunLength<u32>, asc: &[usize]) -> Result<Gathered>;
     /// A covariate's whole column where it is held in memory.
     fn column(&self, _name: &str) -> Option<&[f64]> {
         None
     }
+    /// The whole gap column where it is held in memory.
+    fn gap_column(&self) -> Option<&[f64]> {
+        None
+    }
 }
 
-/// Covariates held in memory: the input batch's buffers, shared where
-/// they are Float64 without nulls (a fleet's covariates are most of the
-/// diagnosis' memory).
+/// What [`RowValues::gather`] reads for a set of rows, in their order.
+pub struct Gathered {
+    /// real − sim.
+    pub gap: Vec<f64>,
+    /// Per covariate (in [`RowValues::names`] order).
+    pub covariates: Vec<Vec<f64>>,
+}
+
+/// Σ gap² and max |gap| of a table, added row by row in table order (the
+/// same bits whether the rows come in one batch or many).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct GapSums {
+    pub sum_sq: f64,
+    pub max_abs: f64,
+}
+
+impl GapSums {
+    /// Adds the next rows' gaps.
+    pub fn add(&mut self, gap: &[f64]) {
+        for g in gap {
+            self.sum_sq += g * g;
+            self.max_abs = self.max_abs.max(g.abs());
+        }
+    }
+}
+
+/// The rows' values held in memory: the input batch's buffers, shared
+/// where they are Float64 without nulls (a fleet's covariates are most of
+/// the diagnosis' memory), and the gap.
 #[derive(Default)]
 pub struct InMemory {
     names: Vec<String>,
     columns: Vec<ScalarBuffer<f64>>,
+    gap: Vec<f64>,
 }
 
-impl Covariates for InMemory {
+impl RowValues for InMemory {
     fn names(&self) -> &[String] {
         &self.names
     }
-    fn gather(&self, _obs: &RunLength<u32>, asc: &[usize]) -> Result<Vec<Vec<f64>>> {
+    fn gather(&self, _obs: &RunLength<u32>, asc: &[usize]) -> Result<Gathered> {
         use rayon::prelude::*;
-        Ok(self
-            .columns
-            .par_iter()
-            .map(|v| asc.iter().map(|&i| v[i]).collect())
-            .collect())
+        Ok(Gathered {
+            gap: asc.iter().map(|&i| self.gap[i]).collect(),
+            covariates: self
+                .columns
+                .par_iter()
+                .map(|v| asc.iter().map(|&i| v[i]).collect())
+                .collect(),
+        })
+    }
+    fn gap_column(&self) -> Option<&[f64]> {
+        Some(&self.gap)
     }
     fn column(&self, name: &str) -> Option<&[f64]> {
         let i = self.names.iter().position(|n| n == name)?;

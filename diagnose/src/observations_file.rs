@@ -1,7 +1,9 @@
-//! The diagnosis of an observations file too large to hold: the keys, sim
-//! and real are read once into the [`Table`] (ids and the gap, ≈ 20 B a
-//! row), the covariates one observable at a time ([`ParquetCovariates`]),
-//! so the fleet's covariates are never all in memory (docs/scale.md).
+//! The diagnosis of an observations file too large to hold: the keys are
+//! read once into the [`Table`] (ids, a few stretches per run; the gap's
+//! fleet sums), each row's gap and covariates one observable at a time
+//! ([`ParquetValues`], or [`RowValueSpill`] written as the fleet's rows
+//! were joined), so neither the fleet's covariates nor its gap are ever
+//! all in memory (docs/scale.md).
 
 use std::fs::File;
 use std::path::{Path, PathBuf};
@@ -15,7 +17,8 @@ use parquet::arrow::ProjectionMask;
 use crate::config_check::Checked;
 use crate::contracts::parquet_file::{checked_batches, corrupt_page, open_parquet};
 use crate::observations::{
-    is_covariate, normalise_types, validate_observations, Covariates, Table, TableParts,
+    gap_of, is_covariate, normalise_types, validate_observations, Gathered, RowValues, Table,
+    TableParts,
 };
 use crate::run_length::RunLength;
 use crate::{DiagnoseConfig, DiagnosisOutput, EffectScope, InputError, Result};
@@ -26,8 +29,8 @@ const READ_ROWS: usize = 1 << 16;
 /// Diagnoses the observations in the Parquet file `path` (the contract of
 /// docs/formats.md §7) without holding its covariates: the same diagnosis,
 /// byte for byte, as [`crate::diagnose_checked`] on the file read whole.
-/// `spilled`: the covariates kept apart per observable as the file was
-/// written ([`CovariateSpill`]), read instead of the file's covariate
+/// `spilled`: each row's gap and covariates kept apart per observable as
+/// the file was written ([`RowValueSpill`]), read instead of the file's
 /// columns when given. `results_dir`: where the per-row results wait for
 /// diagnosis.parquet ([`crate::diagnose_table`]).
 pub fn diagnose_observations_file(
@@ -50,8 +53,9 @@ pub fn diagnose_observations_file(
 /// into a [`Table`] (never the file's text columns at once), each batch
 /// checked as [`crate::read_observations`] checks the whole table (text
 /// as large_utf8 or dictionary and integer sim/real accepted; a bad row is
-/// named by its row in the file). The covariates stay in the file:
-/// [`diagnose_indexed`] reads them one observable at a time.
+/// named by its row in the file). The gap is summed as the rows pass; it
+/// and the covariates stay in the file: [`diagnose_indexed`] reads them
+/// one observable at a time.
 pub fn index_observations_file(path: &Path) -> Result<IndexedFile> {
     let builder = open_parquet(path)?;
     let meta = builder.metadata().clone();
@@ -64,8 +68,7 @@ pub fn index_observations_file(path: &Path) -> Result<IndexedFile> {
         .map(|(i, _)| i)
         .collect();
     let mask = ProjectionMask::roots(builder.parquet_schema(), keep);
-    let rows = meta.file_metadata().num_rows().max(0) as usize;
-    let mut parts = TableParts::with_rows(path, rows);
+    let mut parts = TableParts::new(path);
     let mut offset = 0usize;
     let reader = builder
         .with_projection(mask)
@@ -95,8 +98,8 @@ pub fn index_observations_file(path: &Path) -> Result<IndexedFile> {
     })
 }
 
-/// A file's table indexed by [`index_observations_file`], its covariates
-/// still in the file.
+/// A file's table indexed by [`index_observations_file`], its gap and
+/// covariates still in the file.
 pub struct IndexedFile {
     path: PathBuf,
     table: Table,
@@ -109,9 +112,10 @@ impl IndexedFile {
     }
 }
 
-/// Diagnoses an indexed file, its covariates read from `spilled` when
-/// given, else from the file's columns ([`ParquetCovariates`]); the per-row
-/// results wait in `results_dir` when given ([`crate::diagnose_table`]).
+/// Diagnoses an indexed file, each row's gap and covariates read from
+/// `spilled` when given, else from the file's columns ([`ParquetValues`]);
+/// the per-row results wait in `results_dir` when given
+/// ([`crate::diagnose_table`]).
 pub fn diagnose_indexed(
     file: IndexedFile,
     cfg: &Checked<DiagnoseConfig>,
@@ -122,37 +126,41 @@ pub fn diagnose_indexed(
     let IndexedFile { path, mut table } = file;
     match spilled {
         Some(spilled) => {
-            let covs = SpilledCovariates::new(spilled, &table.obs_names);
-            table.dropped = covs.dropped();
-            table.covs = Box::new(covs);
+            let values = SpilledValues::new(spilled, &table.obs_names);
+            table.dropped = values.dropped();
+            table.values = Box::new(values);
         }
         None => {
-            let covs = ParquetCovariates::open(&path)?;
-            table.dropped = covs.dropped.clone();
-            table.covs = Box::new(covs);
+            let values = ParquetValues::open(&path)?;
+            table.dropped = values.dropped.clone();
+            table.values = Box::new(values);
         }
     }
     crate::diagnose_table(table, cfg, scopes, results_dir)
 }
 
-/// Covariates read from a Parquet file by table row (its row order), one
+/// Each row's gap (real − sim, read as the index read them) and
+/// covariates read from a Parquet file by table row (its row order), one
 /// call per observable: the row groups that hold none of the rows are
-/// skipped, and each value is checked as the in-memory path checks it
-/// (null = "not measured", never NaN or ±inf).
-pub struct ParquetCovariates {
+/// skipped, and each covariate value is checked as the in-memory path
+/// checks it (null = "not measured", never NaN or ±inf).
+pub struct ParquetValues {
     path: PathBuf,
     /// Covariates with a finite value somewhere, sorted by name, and each
     /// one's column index in the file.
     names: Vec<String>,
     indices: Vec<usize>,
+    /// The file's columns the gap is computed from: `real`, `sim`, and
+    /// `unit` with `observable` when the file states units.
+    gap_columns: Vec<usize>,
     /// Covariates with no value at all (every row null).
     dropped: Vec<String>,
     /// First table row of each row group.
     group_starts: Vec<usize>,
 }
 
-impl ParquetCovariates {
-    pub fn open(path: &Path) -> Result<ParquetCovariates> {
+impl ParquetValues {
+    pub fn open(path: &Path) -> Result<ParquetValues> {
         let builder = open_parquet(path)?;
         let meta = builder.metadata().clone();
         let schema = builder.schema().clone();
@@ -192,10 +200,22 @@ impl ParquetCovariates {
         named.sort();
         dropped.sort();
         let indices: Vec<usize> = named.iter().map(|(_, i)| *i).collect();
-        Ok(ParquetCovariates {
+        let column = |name: &str| {
+            schema.index_of(name).map_err(|_| {
+                crate::Error::from(InputError::new(path, "missing required column").column(name))
+            })
+        };
+        Ok(ParquetValues {
             path: path.to_path_buf(),
             names: named.into_iter().map(|(n, _)| n).collect(),
             indices,
+            gap_columns: {
+                let mut c = vec![column("real")?, column("sim")?];
+                if let Ok(unit) = schema.index_of("unit") {
+                    c.extend([unit, column("observable")?]);
+                }
+                c
+            },
             dropped,
             group_starts,
         })
@@ -219,16 +239,17 @@ fn column_all_null(path: &Path, i: usize) -> Result<bool> {
     Ok(true)
 }
 
-impl Covariates for ParquetCovariates {
+impl RowValues for ParquetValues {
     fn names(&self) -> &[String] {
         &self.names
     }
 
-    fn gather(&self, _obs: &RunLength<u32>, asc: &[usize]) -> Result<Vec<Vec<f64>>> {
+    fn gather(&self, _obs: &RunLength<u32>, asc: &[usize]) -> Result<Gathered> {
         let k = self.names.len();
-        let mut out: Vec<Vec<f64>> = (0..k).map(|_| Vec::with_capacity(asc.len())).collect();
-        if k == 0 || asc.is_empty() {
-            return Ok(out);
+        let mut covariates: Vec<Vec<f64>> = (0..k).map(|_| Vec::with_capacity(asc.len())).collect();
+        let mut gap = Vec::with_capacity(asc.len());
+        if asc.is_empty() {
+            return Ok(Gathered { gap, covariates });
         }
         // The row groups holding any of the rows, and where each starts.
         let last = |g: usize| self.group_starts.get(g + 1).copied().unwrap_or(usize::MAX);
@@ -246,10 +267,17 @@ impl Covariates for ParquetCovariates {
             .map_err(|e| InputError::new(&self.path, format!("cannot open: {e}")))?;
         let meta = ArrowReaderMetadata::load(&file, Default::default())?;
         let file_schema = meta.schema().clone();
-        let mask = ProjectionMask::roots(meta.parquet_schema(), self.indices.clone());
         // A projected batch holds the columns in file order.
-        let mut file_order: Vec<usize> = (0..k).collect();
-        file_order.sort_by_key(|&j| self.indices[j]);
+        let mut projected: Vec<usize> = self
+            .indices
+            .iter()
+            .chain(&self.gap_columns)
+            .copied()
+            .collect();
+        projected.sort_unstable();
+        projected.dedup();
+        let at = |i: usize| projected.binary_search(&i).expect("projected");
+        let mask = ProjectionMask::roots(meta.parquet_schema(), projected.clone());
         for g in groups {
             let reader =
                 ParquetRecordBatchReaderBuilder::new_with_metadata(file.try_clone()?, meta.clone())
@@ -270,15 +298,17 @@ impl Covariates for ParquetCovariates {
                 if from == p {
                     continue;
                 }
-                for (c, &j) in file_order.iter().enumerate() {
-                    let name = file_schema.field(self.indices[j]).name();
-                    let col = cast(b.column(c), &DataType::Float64)?;
+                let base = offset - n;
+                let batch_gap = gap_of(&b, &self.path)?;
+                gap.extend(asc[from..p].iter().map(|&r| batch_gap[r - base]));
+                for (j, &i) in self.indices.iter().enumerate() {
+                    let name = file_schema.field(i).name();
+                    let col = cast(b.column(at(i)), &DataType::Float64)?;
                     let v = col.as_primitive::<Float64Type>();
-                    let base = offset - n;
                     for &r in &asc[from..p] {
                         let i = r - base;
                         if v.is_null(i) {
-                            out[j].push(f64::NAN);
+                            covariates[j].push(f64::NAN);
                             continue;
                         }
                         let x = v.value(i);
@@ -294,32 +324,33 @@ impl Covariates for ParquetCovariates {
                             .row(r)
                             .into());
                         }
-                        out[j].push(x);
+                        covariates[j].push(x);
                     }
                 }
             }
         }
-        Ok(out)
+        Ok(Gathered { gap, covariates })
     }
 }
 
-/// Each observable's covariates as the fleet's join streams past, kept
-/// apart on disk (raw little-endian f64, a record of every covariate per
-/// row, in table order) so the diagnosis reads each observable's rows once
-/// instead of decoding the whole observations file per observable. The
-/// files live in a hidden folder of the output the join writes to and go
-/// when the [`Spilled`] covariates are dropped.
-pub struct CovariateSpill {
+/// Each row's gap and covariates as the fleet's join streams past, kept
+/// apart per observable on disk (raw little-endian f64, a record per row
+/// — the gap, then every covariate — in table order) so the diagnosis
+/// reads each observable's rows once instead of decoding the whole
+/// observations file per observable, and holds no gap column for the
+/// fleet. The files live in a hidden folder of the output the join writes
+/// to and go when the [`Spilled`] values are dropped.
+pub struct RowValueSpill {
     dir: PathBuf,
     covariates: Vec<String>,
     writers: std::collections::BTreeMap<String, (std::io::BufWriter<File>, PathBuf)>,
     any_finite: Vec<bool>,
 }
 
-impl CovariateSpill {
+impl RowValueSpill {
     /// A spill under `dir` (created empty) for the covariates of `schema`
     /// (the joined table's).
-    pub fn create(dir: &Path, schema: &arrow::datatypes::Schema) -> Result<CovariateSpill> {
+    pub fn create(dir: &Path, schema: &arrow::datatypes::Schema) -> Result<RowValueSpill> {
         if dir.exists() {
             std::fs::remove_dir_all(dir)?;
         }
@@ -330,7 +361,7 @@ impl CovariateSpill {
             .filter(|f| is_covariate(f.name(), f.data_type()))
             .map(|f| f.name().clone())
             .collect();
-        Ok(CovariateSpill {
+        Ok(RowValueSpill {
             dir: dir.to_path_buf(),
             any_finite: vec![false; covariates.len()],
             covariates,
@@ -339,7 +370,10 @@ impl CovariateSpill {
     }
 
     /// Appends a batch's rows (read from `source`, which errors name): the
-    /// covariates as f64, NaN where null; a NaN or ±inf value is refused.
+    /// gap (real − sim as the diagnosis' index reads them; NaN where
+    /// either is missing — such a table is refused when indexed), then the
+    /// covariates as f64, NaN where null; a NaN or ±inf covariate is
+    /// refused.
     pub fn push(&mut self, b: &RecordBatch, source: &Path) -> Result<()> {
         use std::io::Write;
         let Some(obs) = b.column_by_name("observable") else {
@@ -362,10 +396,12 @@ impl CovariateSpill {
             .iter()
             .map(|c| c.as_ref().map(|a| a.as_primitive::<Float64Type>()))
             .collect();
-        let mut record: Vec<u8> = Vec::with_capacity(8 * cols.len());
-        for i in 0..b.num_rows() {
+        let gap = gap_of(b, source)?;
+        let mut record: Vec<u8> = Vec::with_capacity(8 * (1 + cols.len()));
+        for (i, g) in gap.iter().enumerate() {
             let o = if obs.is_null(i) { "" } else { obs.value(i) };
             record.clear();
+            record.extend_from_slice(&g.to_le_bytes());
             for (k, c) in cols.iter().enumerate() {
                 let x = match c {
                     Some(c) if !c.is_null(i) => {
@@ -404,7 +440,7 @@ impl CovariateSpill {
         Ok(())
     }
 
-    /// The spilled covariates, flushed.
+    /// The spilled values, flushed.
     pub fn finish(self) -> Result<Spilled> {
         use std::io::Write;
         let mut files = std::collections::BTreeMap::new();
@@ -421,8 +457,8 @@ impl CovariateSpill {
     }
 }
 
-/// Covariates spilled per observable ([`CovariateSpill`]); removed from
-/// disk when dropped.
+/// Gaps and covariates spilled per observable ([`RowValueSpill`]);
+/// removed from disk when dropped.
 pub struct Spilled {
     dir: PathBuf,
     covariates: Vec<String>,
@@ -436,20 +472,20 @@ impl Drop for Spilled {
     }
 }
 
-/// [`Covariates`] read from a [`Spilled`]: an observable's rows from its
+/// [`RowValues`] read from a [`Spilled`]: an observable's rows from its
 /// own file, in one sequential read.
-struct SpilledCovariates {
+struct SpilledValues {
     spilled: Spilled,
     /// Covariates with a finite value somewhere, sorted, and each one's
-    /// place in a record.
+    /// place in a record (after the gap).
     names: Vec<String>,
     at: Vec<usize>,
     /// The file of each table observable id.
     file_of: Vec<Option<PathBuf>>,
 }
 
-impl SpilledCovariates {
-    fn new(spilled: Spilled, obs_names: &[String]) -> SpilledCovariates {
+impl SpilledValues {
+    fn new(spilled: Spilled, obs_names: &[String]) -> SpilledValues {
         let mut named: Vec<(String, usize)> = spilled
             .covariates
             .iter()
@@ -462,7 +498,7 @@ impl SpilledCovariates {
             .iter()
             .map(|o| spilled.files.get(o).cloned())
             .collect();
-        SpilledCovariates {
+        SpilledValues {
             names: named.iter().map(|(n, _)| n.clone()).collect(),
             at: named.iter().map(|(_, k)| *k).collect(),
             spilled,
@@ -484,18 +520,22 @@ impl SpilledCovariates {
     }
 }
 
-impl Covariates for SpilledCovariates {
+impl RowValues for SpilledValues {
     fn names(&self) -> &[String] {
         &self.names
     }
 
-    fn gather(&self, obs: &RunLength<u32>, asc: &[usize]) -> Result<Vec<Vec<f64>>> {
+    fn gather(&self, obs: &RunLength<u32>, asc: &[usize]) -> Result<Gathered> {
         use std::io::Read;
         let k = self.names.len();
-        let width = self.spilled.covariates.len();
+        let width = 1 + self.spilled.covariates.len();
         let mut out: Vec<Vec<f64>> = (0..k).map(|_| vec![f64::NAN; asc.len()]).collect();
-        if k == 0 || asc.is_empty() {
-            return Ok(out);
+        let mut gap = vec![f64::NAN; asc.len()];
+        if asc.is_empty() {
+            return Ok(Gathered {
+                gap,
+                covariates: out,
+            });
         }
         // Each wanted row's rank among its observable's rows (its record),
         // a stretch of one observable at a time (`asc` ascending).
@@ -530,12 +570,18 @@ impl Covariates for SpilledCovariates {
                 }
                 r.read_exact(&mut record)?;
                 rank += 1;
+                let value = |at: usize| {
+                    f64::from_le_bytes(record[8 * at..8 * at + 8].try_into().expect("8 bytes"))
+                };
+                gap[pos] = value(0);
                 for (j, &at) in self.at.iter().enumerate() {
-                    let b: [u8; 8] = record[8 * at..8 * at + 8].try_into().expect("8 bytes");
-                    out[j][pos] = f64::from_le_bytes(b);
+                    out[j][pos] = value(1 + at);
                 }
             }
         }
-        Ok(out)
+        Ok(Gathered {
+            gap,
+            covariates: out,
+        })
     }
 }

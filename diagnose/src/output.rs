@@ -137,7 +137,6 @@ pub fn effect_entries(
 /// Returns the observable's selected keys.
 #[allow(clippy::too_many_arguments)]
 pub fn record_selected(
-    table: &Table,
     o: &ObsRows,
     prob: &Problem,
     cands: &[&dyn Effect],
@@ -148,7 +147,7 @@ pub fn record_selected(
 ) -> Result<Vec<String>> {
     let extra_rows = slots.trimmed;
     let n_slots = acc.residual_all.len();
-    let mut extra_resid: Vec<f64> = extra_rows.iter().map(|&i| table.gap[i]).collect();
+    let mut extra_resid: Vec<f64> = slots.trimmed_gap.to_vec();
     let mut obs_selected = Vec::new();
     for (j, &ci) in sel.chosen.iter().enumerate() {
         let e = cands[ci];
@@ -272,7 +271,7 @@ fn trimmed_prediction(
 /// and before the per-row table is built: what it holds (the rows'
 /// covariates) is let go before that table takes its memory.
 pub fn assemble(
-    mut table: Table,
+    table: Table,
     cfg: &DiagnoseConfig,
     mut acc: Accum,
     mut notes: Notes,
@@ -285,7 +284,7 @@ pub fn assemble(
     if acc.summaries.iter().all(|s| !s.gap_above_noise) {
         notes.add("no gap above noise".into());
     }
-    let sum_g2: f64 = table.gap.iter().map(|g| g * g).sum();
+    let sum_g2: f64 = table.gap_sums.sum_sq;
     let sum_r2: f64 = match &acc.spill {
         Some(spill) => spill.sum_sq_residual(&table.obs)?,
         None => acc.residual_all.iter().map(|r| r * r).sum(),
@@ -328,7 +327,7 @@ pub fn assemble(
         },
         gap: GapSummary {
             rms_mm: (sum_g2 / n_all as f64).sqrt(),
-            max_abs_mm: table.gap.iter().fold(0.0, |m, g| m.max(g.abs())),
+            max_abs_mm: table.gap_sums.max_abs,
             noise_floor_mm: noise_floor,
             n: n_all,
         },
@@ -356,16 +355,16 @@ pub fn assemble(
         machine_effects: Vec::new(),
     };
     diagnosis.machine_effects = localise(&table, &diagnosis)?;
-    let gap = std::mem::take(&mut table.gap);
     let fitted_on_runs = table.run_names.clone();
     let results = match acc.spill.take() {
         Some(spill) => crate::per_row::Results::Spilled(spill),
         None => crate::per_row::Results::Memory {
+            gap: std::mem::take(&mut acc.gap_all),
             residual: std::mem::take(&mut acc.residual_all),
             contrib: std::mem::take(&mut acc.contrib_cols),
         },
     };
-    let per_row = crate::per_row::PerRow::new(table, gap, &acc.selected_keys, results);
+    let per_row = crate::per_row::PerRow::new(table, &acc.selected_keys, results);
     let augmented_model = AugmentedModelFile {
         applies_as: "real ≈ sim + Σ over effects of (offset_mm + form(covariates; params)), per observable; forms as in the effect catalogue of docs/formats.md".into(),
         effects: acc.augmented,

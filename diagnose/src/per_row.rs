@@ -20,24 +20,24 @@ pub const PER_ROW_SLICE: usize = 1 << 16;
 
 /// diagnosis.parquet: [machine,] run, observable, gap, contrib_<key>…,
 /// residual_after — one row per observation, in input order. Held as the
-/// table's ids, the gap and the per-row results (in memory, or spilled per
+/// table's ids and the per-row results (in memory, or spilled per
 /// observable: [`ResultSpill`]); the rows are built a slice at a time as
 /// they are written ([`PerRow::write_parquet`]).
 pub struct PerRow {
-    /// The keys (ids and names; its covariates are gone).
+    /// The keys (ids and names; its row values are gone).
     table: Table,
-    gap: Vec<f64>,
     /// The selected effects' keys, in selection order.
     keys: Vec<String>,
     results: Results,
     schema: Arc<Schema>,
 }
 
-/// Each row's held-out residual and selected effects' contributions.
+/// Each row's gap, held-out residual and selected effects' contributions.
 pub enum Results {
     /// In table order, a column per key (0 on rows of observables the key
     /// was not selected for).
     Memory {
+        gap: Vec<f64>,
         residual: Vec<f64>,
         contrib: BTreeMap<String, Vec<f64>>,
     },
@@ -45,13 +45,8 @@ pub enum Results {
 }
 
 impl PerRow {
-    pub(crate) fn new(
-        mut table: Table,
-        gap: Vec<f64>,
-        keys: &[String],
-        results: Results,
-    ) -> PerRow {
-        table.covs = Box::new(crate::observations::InMemory::default());
+    pub(crate) fn new(mut table: Table, keys: &[String], results: Results) -> PerRow {
+        table.values = Box::new(crate::observations::InMemory::default());
         table.real_u = None;
         let mut fields = Vec::new();
         if table.has_machine {
@@ -68,7 +63,6 @@ impl PerRow {
         fields.push(Field::new("residual_after", DataType::Float64, false));
         PerRow {
             table,
-            gap,
             keys: keys.to_vec(),
             results,
             schema: Arc::new(Schema::new(fields)),
@@ -80,7 +74,7 @@ impl PerRow {
     }
 
     pub fn num_rows(&self) -> usize {
-        self.gap.len()
+        self.table.n
     }
 
     /// The rows in slices of [`PER_ROW_SLICE`], in order.
@@ -124,9 +118,16 @@ impl PerRow {
         cols.push(self.table.text_column("run", &rows));
         cols.push(self.table.text_column("observable", &rows));
         let num = |v: Vec<f64>| Arc::new(Float64Array::from(v)) as ArrayRef;
-        cols.push(num(self.gap[r.clone()].to_vec()));
         match (&self.results, cursor) {
-            (Results::Memory { residual, contrib }, _) => {
+            (
+                Results::Memory {
+                    gap,
+                    residual,
+                    contrib,
+                },
+                _,
+            ) => {
+                cols.push(num(gap[r.clone()].to_vec()));
                 for k in &self.keys {
                     let c = contrib.get(k).expect("a selected key has its column");
                     cols.push(num(c[r.clone()].to_vec()));
@@ -136,15 +137,18 @@ impl PerRow {
             (Results::Spilled(_), Cursor::Spilled(c)) => {
                 let nk = self.keys.len();
                 let mut contrib = vec![Vec::with_capacity(rows.len()); nk];
+                let mut gap = Vec::with_capacity(rows.len());
                 let mut residual = Vec::with_capacity(rows.len());
-                let mut rec = vec![0.0; nk + 1];
+                let mut rec = vec![0.0; nk + 2];
                 for obs in self.table.obs.at(&rows) {
                     c.next(obs, &mut rec)?;
-                    residual.push(rec[0]);
-                    for (col, v) in contrib.iter_mut().zip(&rec[1..]) {
+                    gap.push(rec[0]);
+                    residual.push(rec[1]);
+                    for (col, v) in contrib.iter_mut().zip(&rec[2..]) {
                         col.push(*v);
                     }
                 }
+                cols.push(num(gap));
                 cols.extend(contrib.into_iter().map(num));
                 cols.push(num(residual));
             }
@@ -157,12 +161,12 @@ impl PerRow {
 }
 
 /// Each observable's per-row results on disk until diagnosis.parquet is
-/// written: the fleet-length residual and contribution columns are 8 B a
-/// row each (≈ 0.7 GB at 2 000 servo runs). One file per observable in a
-/// hidden folder of the output, a record per row in table order —
-/// residual, then the observable's own contributions (raw little-endian
-/// f64) — read back a row at a time in table order. The folder goes when
-/// the spill is dropped.
+/// written: the fleet-length gap, residual and contribution columns are
+/// 8 B a row each (≈ 0.7 GB at 2 000 servo runs). One file per observable
+/// in a hidden folder of the output, a record per row in table order —
+/// gap, residual, then the observable's own contributions (raw
+/// little-endian f64) — read back a row at a time in table order. The
+/// folder goes when the spill is dropped.
 pub struct ResultSpill {
     dir: PathBuf,
     /// Per observable id: its file and the keys of its contributions, in
@@ -184,11 +188,13 @@ impl ResultSpill {
         })
     }
 
-    /// One observable's results: slot p is table row `rows[p]`.
+    /// One observable's results: slot p is table row `rows[p]`, whose
+    /// gap is `gap[p]`.
     pub(crate) fn push(
         &mut self,
         obs: u32,
         rows: &[usize],
+        gap: &[f64],
         residual: &[f64],
         contrib: &BTreeMap<String, Vec<f64>>,
     ) -> Result<()> {
@@ -199,6 +205,7 @@ impl ResultSpill {
         let mut w = std::io::BufWriter::with_capacity(1 << 20, File::create(&path)?);
         let cols: Vec<&Vec<f64>> = contrib.values().collect();
         for p in order {
+            w.write_all(&gap[p].to_le_bytes())?;
             w.write_all(&residual[p].to_le_bytes())?;
             for c in &cols {
                 w.write_all(&c[p].to_le_bytes())?;
@@ -215,11 +222,11 @@ impl ResultSpill {
     /// column sums in: the same bits).
     pub(crate) fn sum_sq_residual(&self, obs: &RunLength<u32>) -> Result<f64> {
         let mut c = self.spill_cursor(&[])?;
-        let mut rec = [0.0];
+        let mut rec = [0.0; 2];
         let mut s = 0.0;
         for o in obs.iter() {
             c.next(o, &mut rec)?;
-            s += rec[0] * rec[0];
+            s += rec[1] * rec[1];
         }
         Ok(s)
     }
@@ -269,22 +276,24 @@ struct SpillCursor {
 type PartReader = (std::io::BufReader<File>, usize, Vec<Option<usize>>);
 
 impl SpillCursor {
-    /// The next row of observable `obs`: `rec[0]` its residual, `rec[1..]`
-    /// the requested keys' contributions (0 where a row has none).
+    /// The next row of observable `obs`: `rec[0]` its gap, `rec[1]` its
+    /// residual, `rec[2..]` the requested keys' contributions (0 where a
+    /// row has none).
     fn next(&mut self, obs: u32, rec: &mut [f64]) -> Result<()> {
         use std::io::Read;
         rec.iter_mut().for_each(|v| *v = 0.0);
         let Some((r, own, at)) = self.parts.get_mut(&obs) else {
             return Ok(());
         };
-        self.buf.resize((*own + 1) * 8, 0);
+        self.buf.resize((*own + 2) * 8, 0);
         r.read_exact(&mut self.buf)?;
         let f =
             |j: usize| f64::from_le_bytes(self.buf[j * 8..j * 8 + 8].try_into().expect("8 bytes"));
         rec[0] = f(0);
+        rec[1] = f(1);
         for (k, a) in at.iter().enumerate() {
             if let Some(j) = a {
-                rec[k + 1] = f(j + 1);
+                rec[k + 2] = f(j + 2);
             }
         }
         Ok(())

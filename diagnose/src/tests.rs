@@ -416,11 +416,11 @@ fn covariates_share_the_input_buffer_and_nulls_read_as_nan() {
         .values()
         .as_ptr();
     assert_eq!(
-        table.covs.column("x_mm").unwrap().as_ptr(),
+        table.values.column("x_mm").unwrap().as_ptr(),
         input,
         "x_mm was copied"
     );
-    let t = table.covs.column("temp_c").unwrap();
+    let t = table.values.column("temp_c").unwrap();
     assert!(t[2].is_nan() && t[3] == 23.0, "{t:?}");
 }
 
@@ -659,7 +659,7 @@ fn the_file_read_per_observable_diagnoses_as_the_file_read_whole() {
     // stream past (in two pieces); the spill goes with the diagnosis.
     let spill_dir = dir.path().join(".spill");
     let mut spill =
-        crate::observations_file::CovariateSpill::create(&spill_dir, &b.schema()).unwrap();
+        crate::observations_file::RowValueSpill::create(&spill_dir, &b.schema()).unwrap();
     spill.push(&b.slice(0, 1000), &path).unwrap();
     spill.push(&b.slice(1000, n - 1000), &path).unwrap();
     let spilled = spill.finish().unwrap();
@@ -727,7 +727,7 @@ fn a_nan_covariate_in_the_file_names_file_column_and_row() {
     );
     // …and by the spill, naming the file the rows came from.
     let mut spill =
-        crate::observations_file::CovariateSpill::create(&dir.path().join(".spill"), &b.schema())
+        crate::observations_file::RowValueSpill::create(&dir.path().join(".spill"), &b.schema())
             .unwrap();
     let e = spill
         .push(&b, std::path::Path::new("runs/r3/observations.parquet"))
@@ -774,7 +774,7 @@ fn a_table_built_in_parts_is_the_whole_table() {
     assert_eq!(t.run, whole.run);
     assert_eq!(t.machine, whole.machine);
     assert_eq!(t.obs, whole.obs);
-    assert_eq!(t.gap, whole.gap);
+    assert_eq!(t.gap_sums, whole.gap_sums);
     assert_eq!(t.has_machine, whole.has_machine);
 }
 

@@ -10,7 +10,7 @@ use std::path::PathBuf;
 use arrow::array::RecordBatchReader;
 
 use sparkout_pipeline::config_check::Checked;
-use sparkout_pipeline::diagnose::observations_file::CovariateSpill;
+use sparkout_pipeline::diagnose::observations_file::RowValueSpill;
 use sparkout_pipeline::diagnose::{
     diagnose_checked, diagnose_observations_file, read_observations, DiagnoseConfig,
     DiagnosisOutput,
@@ -58,7 +58,7 @@ fn a_pyarrow_table_diagnoses_the_same_read_whole_per_observable_or_spilled() {
         .with_batch_size(700)
         .build()
         .unwrap();
-    let mut spill = CovariateSpill::create(&spill_dir, &reader.schema()).unwrap();
+    let mut spill = RowValueSpill::create(&spill_dir, &reader.schema()).unwrap();
     for b in reader {
         spill.push(&b.unwrap(), &path).unwrap();
     }

@@ -152,6 +152,20 @@ fn one_percent_of_30_sigma_spikes_do_not_move_the_diagnosis() {
         .expect("drift:t_s in the model");
     let all_runs = drift.predict(&[f64s(&spiky, "t_s")]).expect("replays");
     let rows = out_b.per_row.to_batch().unwrap();
+    // Every row's gap, trimmed or kept, is its own real − sim, in input order.
+    let (spiky_real, sim, gap) = (
+        f64s(&spiky, "real"),
+        f64s(&spiky, "sim"),
+        f64s(&rows, "gap"),
+    );
+    assert_eq!(gap.len(), spiky_real.len());
+    for i in 0..gap.len() {
+        assert_eq!(
+            gap[i].to_bits(),
+            (spiky_real[i] - sim[i]).to_bits(),
+            "row {i}"
+        );
+    }
     let contrib = f64s(&rows, "contrib_drift:t_s");
     let rel = |i: usize| (contrib[i] - all_runs[i]).abs() / all_runs[i].abs().max(1e-300);
     let spiked: Vec<usize> = (0..real.len())
