@@ -569,8 +569,15 @@ impl Table {
 fn ids(a: &ArrayRef) -> (Vec<String>, Vec<u32>) {
     fn go<'a>(it: impl Iterator<Item = Option<&'a str>> + Clone) -> (Vec<String>, Vec<u32>) {
         let mut names: std::collections::BTreeMap<&str, u32> = std::collections::BTreeMap::new();
+        // Looked up once per stretch of equal strings (a key column comes
+        // in long stretches), not once per row.
+        let mut previous: Option<&str> = None;
         for s in it.clone() {
-            names.entry(s.unwrap_or("")).or_insert(0);
+            let s = s.unwrap_or("");
+            if previous != Some(s) {
+                names.entry(s).or_insert(0);
+                previous = Some(s);
+            }
         }
         for (i, v) in names.values_mut().enumerate() {
             *v = i as u32;
@@ -613,6 +620,10 @@ fn check_units(batch: &RecordBatch, path: &Path) -> Result<Option<Vec<Option<Uni
     let o = o.as_string::<i32>();
     let mut seen: std::collections::BTreeMap<&str, (&str, usize)> = Default::default();
     let mut parsed = Vec::with_capacity(u.len());
+    // A row with the previous row's unit and observable passed the checks
+    // as that row: rows come in long stretches of one observable, so each
+    // stretch is parsed and looked up once, not each row.
+    let mut previous: Option<(&str, &str, Option<Unit>)> = None;
     for i in 0..u.len() {
         // null = the default unit: a fleet table joins plugins that write
         // the column with plugins that do not.
@@ -621,6 +632,13 @@ fn check_units(batch: &RecordBatch, path: &Path) -> Result<Option<Vec<Option<Uni
         } else {
             u.value(i).trim()
         };
+        let obs = o.value(i);
+        if let Some((pu, po, p)) = previous {
+            if pu == unit && po == obs {
+                parsed.push(p);
+                continue;
+            }
+        }
         if unit.is_empty() {
             return Err(InputError::new(
                 path,
@@ -630,8 +648,9 @@ fn check_units(batch: &RecordBatch, path: &Path) -> Result<Option<Vec<Option<Uni
             .row(i)
             .into());
         }
-        parsed.push(Unit::parse(unit));
-        let obs = o.value(i);
+        let p = Unit::parse(unit);
+        parsed.push(p);
+        previous = Some((unit, obs, p));
         match seen.get(obs) {
             Some((first, at)) if *first != unit => {
                 return Err(InputError::new(
@@ -738,8 +757,12 @@ impl Table {
         };
         // Run unit = (machine, run), ids in sorted (machine, run) order.
         let mut pairs: std::collections::BTreeMap<(u32, u32), u32> = Default::default();
+        let mut previous = None;
         for (m, r) in machine.iter().zip(&bare_run) {
-            pairs.entry((*m, *r)).or_insert(0);
+            if previous != Some((*m, *r)) {
+                pairs.entry((*m, *r)).or_insert(0);
+                previous = Some((*m, *r));
+            }
         }
         let mut run_names = Vec::with_capacity(pairs.len());
         let mut run_bare = Vec::with_capacity(pairs.len());
@@ -753,10 +776,18 @@ impl Table {
                 bare.clone()
             });
         }
+        let mut previous = None;
         let run: RunLength<u32> = machine
             .iter()
             .zip(&bare_run)
-            .map(|(m, r)| pairs[&(*m, *r)])
+            .map(|(m, r)| match previous {
+                Some((key, unit)) if key == (*m, *r) => unit,
+                _ => {
+                    let unit = pairs[&(*m, *r)];
+                    previous = Some(((*m, *r), unit));
+                    unit
+                }
+            })
             .collect();
         let (obs_names, obs) = ids(b.column_by_name("observable").expect("validated"));
         let obs_units = observable_units(b, &obs_names, &obs);

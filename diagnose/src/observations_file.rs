@@ -343,7 +343,10 @@ impl RowValues for ParquetValues {
 pub struct RowValueSpill {
     dir: PathBuf,
     covariates: Vec<String>,
-    writers: std::collections::BTreeMap<String, (std::io::BufWriter<File>, PathBuf)>,
+    /// Per observable, in first-seen order: its name, writer and file;
+    /// and each name's place there.
+    writers: Vec<(String, std::io::BufWriter<File>, PathBuf)>,
+    writer_of: std::collections::BTreeMap<String, usize>,
     any_finite: Vec<bool>,
 }
 
@@ -365,7 +368,8 @@ impl RowValueSpill {
             dir: dir.to_path_buf(),
             any_finite: vec![false; covariates.len()],
             covariates,
-            writers: Default::default(),
+            writers: Vec::new(),
+            writer_of: Default::default(),
         })
     }
 
@@ -398,6 +402,9 @@ impl RowValueSpill {
             .collect();
         let gap = gap_of(b, source)?;
         let mut record: Vec<u8> = Vec::with_capacity(8 * (1 + cols.len()));
+        // The writer of the previous row's observable: looked up once per
+        // stretch of one observable, not once per row.
+        let mut current: Option<(&str, usize)> = None;
         for (i, g) in gap.iter().enumerate() {
             let o = if obs.is_null(i) { "" } else { obs.value(i) };
             record.clear();
@@ -426,16 +433,28 @@ impl RowValueSpill {
                 };
                 record.extend_from_slice(&x.to_le_bytes());
             }
-            if !self.writers.contains_key(o) {
-                let path = self.dir.join(format!("{}.f64", self.writers.len()));
-                let f = File::create(&path)?;
-                self.writers.insert(
-                    o.to_string(),
-                    (std::io::BufWriter::with_capacity(1 << 20, f), path),
-                );
-            }
-            let (w, _) = self.writers.get_mut(o).expect("just made");
-            w.write_all(&record)?;
+            let at = match current {
+                Some((name, at)) if name == o => at,
+                _ => {
+                    let at = match self.writer_of.get(o) {
+                        Some(&at) => at,
+                        None => {
+                            let path = self.dir.join(format!("{}.f64", self.writers.len()));
+                            let f = File::create(&path)?;
+                            self.writers.push((
+                                o.to_string(),
+                                std::io::BufWriter::with_capacity(1 << 20, f),
+                                path,
+                            ));
+                            self.writer_of.insert(o.to_string(), self.writers.len() - 1);
+                            self.writers.len() - 1
+                        }
+                    };
+                    current = Some((o, at));
+                    at
+                }
+            };
+            self.writers[at].1.write_all(&record)?;
         }
         Ok(())
     }
@@ -444,7 +463,7 @@ impl RowValueSpill {
     pub fn finish(self) -> Result<Spilled> {
         use std::io::Write;
         let mut files = std::collections::BTreeMap::new();
-        for (o, (mut w, path)) in self.writers {
+        for (o, mut w, path) in self.writers {
             w.flush()?;
             files.insert(o, path);
         }

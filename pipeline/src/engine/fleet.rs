@@ -619,15 +619,22 @@ pub(super) fn observable_names(batch: &RecordBatch) -> BTreeSet<String> {
     let Some(a) = batch.column_by_name("observable") else {
         return BTreeSet::new();
     };
-    match arrow::compute::cast(a, &arrow::datatypes::DataType::Utf8) {
-        Ok(c) => c
-            .as_string::<i32>()
-            .iter()
-            .flatten()
-            .map(String::from)
-            .collect(),
-        Err(_) => BTreeSet::new(),
+    let Ok(c) = arrow::compute::cast(a, &arrow::datatypes::DataType::Utf8) else {
+        return BTreeSet::new();
+    };
+    // A run's rows come an observable at a time: a name is looked up once
+    // per stretch of equal names and copied once per observable, not per row.
+    let mut names = BTreeSet::new();
+    let mut last: Option<&str> = None;
+    for s in c.as_string::<i32>().iter().flatten() {
+        if last != Some(s) {
+            if !names.contains(s) {
+                names.insert(s.to_string());
+            }
+            last = Some(s);
+        }
     }
+    names
 }
 
 /// The union of the runs' columns in first-seen order (different plugins
@@ -702,6 +709,24 @@ mod tests {
     /// Streamed to a file one at a time, batches of differing columns read
     /// back as their union: columns in first-seen order, nullable where a
     /// batch lacks one, values and nulls.
+    /// Every name once, whether the rows come in stretches or interleaved.
+    #[test]
+    fn observable_names_are_the_distinct_names_in_any_row_order() {
+        let obs: ArrayRef = Arc::new(StringArray::from(vec![
+            Some("a"),
+            Some("a"),
+            Some("b"),
+            Some("a"),
+            Some("c"),
+            Some("c"),
+            Some("b"),
+        ]));
+        let names: Vec<String> = observable_names(&batch(&[("observable", obs)]))
+            .into_iter()
+            .collect();
+        assert_eq!(names, ["a", "b", "c"]);
+    }
+
     #[test]
     fn a_union_streamed_to_a_file_is_the_union() {
         let f = |v: Vec<f64>| -> ArrayRef { Arc::new(Float64Array::from(v)) };
