@@ -255,20 +255,40 @@ impl Axis {
 
 /// Per (x, y) cell, the sum and count of each series' finite values, in
 /// the order the rows come: the same sums whether the rows are at hand or
-/// streaming past.
+/// streaming past. The cells are dense (an axis has fewer than
+/// [`AXIS_DISTINCT`] bins): a row is an index, not a map lookup — this is
+/// the fleet report's per-row work.
 struct Grid {
     x: Axis,
     y: Axis,
-    cells: BTreeMap<(usize, usize), (Vec<f64>, Vec<usize>)>,
+    /// Bins along y (a cell is `i * ny + j`).
+    ny: usize,
+    /// Per cell and series, the sum and count; whether any row fell there.
+    sums: Vec<f64>,
+    counts: Vec<usize>,
+    touched: Vec<bool>,
     series: usize,
+}
+
+impl Axis {
+    fn bins(&self) -> usize {
+        match self {
+            Axis::Distinct(u) => u.len(),
+            Axis::Width { bins, .. } => *bins,
+        }
+    }
 }
 
 impl Grid {
     fn new(x: Axis, y: Axis, series: usize) -> Grid {
+        let (nx, ny) = (x.bins(), y.bins());
         Grid {
             x,
             y,
-            cells: BTreeMap::new(),
+            ny,
+            sums: vec![0.0; nx * ny * series],
+            counts: vec![0; nx * ny * series],
+            touched: vec![false; nx * ny],
             series,
         }
     }
@@ -277,30 +297,36 @@ impl Grid {
         let (Some(i), Some(j)) = (self.x.index(x), self.y.index(y)) else {
             return;
         };
-        let n = self.series;
-        let e = self
-            .cells
-            .entry((i, j))
-            .or_insert_with(|| (vec![0.0; n], vec![0; n]));
+        if j >= self.ny || i * self.ny + j >= self.touched.len() {
+            return; // not a value of the axes' scan: no cell of the grid
+        }
+        let cell = i * self.ny + j;
+        self.touched[cell] = true;
+        let at = cell * self.series;
         for (k, v) in values.iter().enumerate() {
             if v.is_finite() {
-                e.0[k] += v;
-                e.1[k] += 1;
+                self.sums[at + k] += v;
+                self.counts[at + k] += 1;
             }
         }
     }
 
+    /// The touched cells in (x, y) order.
     fn finish(self) -> Cells {
-        let (x, y) = (self.x, self.y);
-        self.cells
-            .into_iter()
-            .map(|((i, j), (sum, n))| {
-                let means = sum
+        let (x, y, ny, series) = (self.x, self.y, self.ny, self.series);
+        let (sums, counts) = (self.sums, self.counts);
+        self.touched
+            .iter()
+            .enumerate()
+            .filter(|(_, t)| **t)
+            .map(|(cell, _)| {
+                let at = cell * series;
+                let means = sums[at..at + series]
                     .iter()
-                    .zip(&n)
+                    .zip(&counts[at..at + series])
                     .map(|(s, &c)| if c > 0 { s / c as f64 } else { f64::NAN })
                     .collect();
-                (x.centre(i), y.centre(j), means)
+                (x.centre(cell / ny), y.centre(cell % ny), means)
             })
             .collect()
     }
