@@ -28,16 +28,20 @@ fn temp_path(path: &Path) -> PathBuf {
 /// `create_dir_all` in a directory other threads write into and clean up:
 /// a run that fails has its outputs removed, and its machine directory with
 /// them once empty, which can fall between this call making the machine
-/// directory and making a run directory inside it. That NotFound is the
-/// other run's cleanup, not a missing output directory, so the creation is
-/// tried again (a bounded number of times — a path under a dangling link
-/// is NotFound for ever — then the error stands).
+/// directory and making a run directory inside it — NotFound — or between
+/// `create_dir_all` finding the machine directory already there and
+/// checking it is a directory — AlreadyExists for a path that is no longer
+/// there. Either is the other run's cleanup, not a missing output directory
+/// or a file in the way, so the creation is tried again (a bounded number
+/// of times — a path under a dangling link is NotFound for ever, a file in
+/// the way AlreadyExists for ever — then the error stands).
 pub fn create_dir_all_shared(dir: &Path) -> Result<()> {
+    use std::io::ErrorKind::{AlreadyExists, NotFound};
     let mut tries = 0;
     loop {
         match fs::create_dir_all(dir) {
             Ok(()) => return Ok(()),
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound && tries < 1_000 => tries += 1,
+            Err(e) if matches!(e.kind(), NotFound | AlreadyExists) && tries < 1_000 => tries += 1,
             Err(e) => {
                 return Err(e).with_context(|| format!("cannot create {}", dir.display()));
             }
@@ -205,6 +209,21 @@ mod tests {
             }
             done.store(true, std::sync::atomic::Ordering::Relaxed);
         });
+    }
+
+    /// A file where a directory should be is an error, not a retry for
+    /// ever: the bounded retries end and the error names the path.
+    #[test]
+    fn a_file_in_the_way_of_a_directory_is_an_error() {
+        let d = tempfile::tempdir().unwrap();
+        let file = d.path().join("m");
+        std::fs::write(&file, b"not a directory").unwrap();
+        let e = super::create_dir_all_shared(&file).unwrap_err().to_string();
+        assert!(e.contains("cannot create") && e.contains("m"), "{e}");
+        let e = super::create_dir_all_shared(&file.join("run"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("cannot create"), "{e}");
     }
 
     use super::*;
