@@ -176,7 +176,7 @@ pub fn validate_observations(batch: &RecordBatch, path: &Path) -> Result<RecordB
             // Judged in the unit the row states: 5000 nm is 0.005 mm, not
             // an implausible 5000 mm.
             let unit = units.as_ref().and_then(|u| u[i]);
-            let c = unit.map_or(x, |u| u.to_canonical(x));
+            let c = in_contract_unit(x, unit);
             if c.abs() > MAX_OBSERVED_MM && !optional {
                 let msg = match unit.filter(|u| *u != u.kind.canonical()) {
                     Some(u) => format!(
@@ -672,6 +672,12 @@ fn check_units(batch: &RecordBatch, path: &Path) -> Result<Option<Vec<Option<Uni
     Ok(Some(parsed))
 }
 
+/// A value in its row's stated unit, in the contract's (mm, s, mm/s);
+/// a unit sparkout keeps as written (`None`) leaves it as it is.
+fn in_contract_unit(x: f64, unit: Option<Unit>) -> f64 {
+    unit.map_or(x, |u| u.to_canonical(x))
+}
+
 /// Each row's gap as the index computes it: real − sim, both read as f64
 /// and converted from the row's stated unit to the contract's as
 /// [`validate_observations`] converts them (the same bits); NaN where
@@ -691,11 +697,7 @@ pub(crate) fn gap_of(b: &RecordBatch, path: &Path) -> Result<Vec<f64>> {
         return Ok(vec![f64::NAN; b.num_rows()]);
     };
     let canonical = |v: &Float64Array, i: usize| {
-        let x = v.value(i);
-        match units.as_ref().and_then(|u| u[i]) {
-            Some(u) => u.to_canonical(x),
-            None => x,
-        }
+        in_contract_unit(v.value(i), units.as_ref().and_then(|u| u[i]))
     };
     Ok((0..b.num_rows())
         .map(|i| {

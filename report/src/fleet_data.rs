@@ -234,6 +234,13 @@ enum Axis {
 }
 
 impl Axis {
+    fn bins(&self) -> usize {
+        match self {
+            Axis::Distinct(u) => u.len(),
+            Axis::Width { bins, .. } => *bins,
+        }
+    }
+
     fn index(&self, x: f64) -> Option<usize> {
         if !x.is_finite() {
             return None;
@@ -268,15 +275,6 @@ struct Grid {
     counts: Vec<usize>,
     touched: Vec<bool>,
     series: usize,
-}
-
-impl Axis {
-    fn bins(&self) -> usize {
-        match self {
-            Axis::Distinct(u) => u.len(),
-            Axis::Width { bins, .. } => *bins,
-        }
-    }
 }
 
 impl Grid {
