@@ -22,6 +22,9 @@ use nalgebra::{DMatrix, DVector};
 use super::{Columns, EffectData, Frame, LinearForm, ThetaRange};
 use crate::Result;
 
+pub mod pool;
+pub use pool::CellPool;
+
 /// X'WX (p×p, p = 1 + n_linear; column 0 is the offset).
 pub fn design_gram(feats: &[Vec<f64>], w: Option<&[f64]>, r: Range<usize>) -> Vec<f64> {
     let p = feats.len() + 1;
@@ -186,24 +189,19 @@ pub type Pooled = (Vec<Vec<f64>>, Vec<f64>, Vec<Vec<f64>>, Vec<Range<usize>>);
 /// Per-unit X'X, and X'y per target per unit.
 type UnitStats = (Vec<Vec<f64>>, Vec<Vec<Vec<f64>>>);
 
-/// At most this many bins per covariate: beyond that pooling saves nothing.
-const MAX_POOL_BINS: f64 = 65_536.0;
-
 /// Pools the rows of each unit — a unit being one or more row ranges —
 /// into cells of width `res[j]` of each covariate `cols[j]` counted from
-/// `mins[j]` (cell value = the mean of each covariate inside). Rows may
-/// themselves be pooled cells: `weights` are their counts and `targets`
-/// their Σy, so coarse cells come from fine ones without the rows. Returns the
-/// pooled covariates, the counts, Σy per target and the pooled unit ranges
-/// (one per unit); cells in ascending order.
+/// `mins[j]` (cell value = the mean of each covariate inside), the grid
+/// spanning the columns' values. Rows may themselves be pooled cells:
+/// `weights` are their counts and `targets` their Σy, so coarse cells come
+/// from fine ones without the rows. Returns the pooled covariates, the
+/// counts, Σy per target and the pooled unit ranges (one per unit); cells
+/// in ascending order.
 ///
-/// A unit's cells are merged from its ranges' own: each range (a run, or a
-/// block of one) is pooled on its own — sums in row order — and a cell's
-/// sums are its ranges' partial sums added in range order. The cells are
-/// the fleet's grid (`mins`, `res`, the covariates' span), so a range's
-/// partial cells depend on nothing but its rows: they are what a node
-/// holding only that run computes, and the merge in canonical order gives
-/// the same bits wherever the partial cells were made (docs/design.md §8).
+/// A unit's cells are merged from its ranges' own ([`CellPool`]): each
+/// range (a run, or a block of one) is pooled on its own — sums in row
+/// order — and a cell's sums are its ranges' partial sums added in range
+/// order (docs/design.md §8).
 pub fn pool_rows(
     cols: &[&[f64]],
     mins: &[f64],
@@ -212,312 +210,18 @@ pub fn pool_rows(
     units: &[Vec<Range<usize>>],
     targets: &[&[f64]],
 ) -> Pooled {
-    let wt = |i: usize| weights.map_or(1.0, |w| w[i]);
-    let dims: Vec<(f64, f64, usize)> = cols
-        .iter()
-        .zip(mins)
-        .zip(res)
-        .map(|((c, &c_min), &r)| {
-            let span = c.iter().fold(0.0f64, |m, v| m.max(v - c_min));
-            let r = r.max(span / MAX_POOL_BINS).max(1e-300);
-            (c_min, r, (span / r) as usize + 1)
-        })
+    let axes = pool::spans(cols, mins)
+        .into_iter()
+        .zip(mins.iter().zip(res))
+        .map(|(span, (&min, &r))| pool::Axis::new(min, span, r))
         .collect();
-    if let ([c], [(c_min, r, nb)]) = (cols, dims.as_slice()) {
-        return pool_rows_1d(c, (*c_min, *r, *nb), weights, units, targets);
-    }
-    let bin = |j: usize, i: usize| -> u128 {
-        let (c_min, r, nb) = dims[j];
-        (((cols[j][i] - c_min) / r) as usize).min(nb - 1) as u128
-    };
-    // Several covariates: too many cells for dense bins, so each range's
-    // rows are sorted by (cell, row) and equal cells summed in row order.
-    // The cell (each covariate's bin in as many bits as its bin count
-    // needs, first covariate highest) and the row are packed into one
-    // integer when they fit: sorting 8-byte keys instead of (u128, usize)
-    // pairs is what a two-covariate form's scan spends its time on.
-    let bits: Vec<u32> = dims
-        .iter()
-        .map(|d| usize::BITS - d.2.leading_zeros())
-        .collect();
-    let key_bits: u32 = bits.iter().sum();
-    // A cell is built in a u128: at most 7 covariates of 65 537 bins. Forms
-    // pool on one to three; more would merge cells silently, so it stops here.
-    assert!(
-        key_bits <= 128,
-        "pooling on {} covariates: too many for a cell key",
-        cols.len()
-    );
-    let last_row = units.iter().flatten().map(|r| r.end).max().unwrap_or(0);
-    let row_bits = usize::BITS - last_row.leading_zeros();
-    let cell_of =
-        |i: usize| -> u128 { (0..cols.len()).fold(0u128, |k, j| (k << bits[j]) | bin(j, i)) };
-    let rows = PooledRows {
-        cols,
-        wt: &wt,
-        units,
-        targets,
-    };
-    let mask = (1u128 << row_bits) - 1;
-    // The same key packs a partial cell and its index (below the number of
-    // rows) when the partial cells are merged.
-    if key_bits + row_bits <= 64 {
-        rows.sorted_cells(
-            cell_of,
-            |cell, i| ((cell << row_bits) | i as u128) as u64,
-            |k| u128::from(k) >> row_bits,
-            |k| (u128::from(k) & mask) as usize,
-        )
-    } else if key_bits + row_bits <= 128 {
-        rows.sorted_cells(
-            cell_of,
-            |cell, i| (cell << row_bits) | i as u128,
-            |k| k >> row_bits,
-            |k| (k & mask) as usize,
-        )
-    } else {
-        rows.sorted_cells(cell_of, |cell, i| (cell, i), |k| k.0, |k| k.1)
-    }
-}
-
-/// The rows [`pool_rows`] pools into cells of several covariates.
-struct PooledRows<'a, W: Fn(usize) -> f64> {
-    cols: &'a [&'a [f64]],
-    wt: &'a W,
-    units: &'a [Vec<Range<usize>>],
-    targets: &'a [&'a [f64]],
-}
-
-impl<W: Fn(usize) -> f64> PooledRows<'_, W> {
-    /// Pools each range's rows sorted by a key `make` packs of a row's
-    /// cell and index — ascending by cell, then row — from which `cell`
-    /// and `row` are read back (the same cells and bits whatever the key's
-    /// width), then merges a unit's partial cells, packed the same way with
-    /// their index, so equal cells add in range order.
-    fn sorted_cells<K: Ord + Copy>(
-        &self,
-        cell_of: impl Fn(usize) -> u128,
-        make: impl Fn(u128, usize) -> K,
-        cell: impl Fn(K) -> u128,
-        row: impl Fn(K) -> usize,
-    ) -> Pooled {
-        let (nd, nt) = (self.cols.len(), self.targets.len());
-        let mut xc: Vec<Vec<f64>> = vec![Vec::new(); nd];
-        let (mut w, mut out_units) = (Vec::new(), Vec::new());
-        let mut sy: Vec<Vec<f64>> = vec![Vec::new(); nt];
-        let mut keyed: Vec<K> = Vec::new();
-        // A unit's partial cells: cell, count, Σ w·c per covariate and Σy
-        // per target (`stride` numbers each after the cell).
-        let stride = 1 + nd + nt;
-        let mut part_cell: Vec<u128> = Vec::new();
-        let mut part: Vec<f64> = Vec::new();
-        let mut sums = vec![0.0f64; stride];
-        for u in self.units {
-            part_cell.clear();
-            part.clear();
-            for r in u {
-                keyed.clear();
-                keyed.extend(r.clone().map(|i| make(cell_of(i), i)));
-                keyed.sort_unstable();
-                let mut a = 0;
-                while a < keyed.len() {
-                    let key = cell(keyed[a]);
-                    sums.iter_mut().for_each(|v| *v = 0.0);
-                    while a < keyed.len() && cell(keyed[a]) == key {
-                        let i = row(keyed[a]);
-                        let wi = (self.wt)(i);
-                        sums[0] += wi;
-                        for (s, c) in sums[1..=nd].iter_mut().zip(self.cols) {
-                            *s += wi * c[i];
-                        }
-                        for (s, y) in sums[1 + nd..].iter_mut().zip(self.targets) {
-                            *s += y[i];
-                        }
-                        a += 1;
-                    }
-                    part_cell.push(key);
-                    part.extend_from_slice(&sums);
-                }
-            }
-            // One range: its partial cells are the unit's, already in
-            // order. Several: sorted by (cell, index), equal cells summed.
-            let order: Vec<usize> = if u.len() == 1 {
-                (0..part_cell.len()).collect()
-            } else {
-                keyed.clear();
-                keyed.extend(part_cell.iter().enumerate().map(|(p, &c)| make(c, p)));
-                keyed.sort_unstable();
-                keyed.iter().map(|&k| row(k)).collect()
-            };
-            let start = w.len();
-            let mut a = 0;
-            while a < order.len() {
-                let key = part_cell[order[a]];
-                sums.copy_from_slice(&part[order[a] * stride..(order[a] + 1) * stride]);
-                a += 1;
-                while a < order.len() && part_cell[order[a]] == key {
-                    let p = &part[order[a] * stride..(order[a] + 1) * stride];
-                    sums.iter_mut().zip(p).for_each(|(s, v)| *s += v);
-                    a += 1;
-                }
-                for (x, s) in xc.iter_mut().zip(&sums[1..=nd]) {
-                    x.push(s / sums[0]);
-                }
-                w.push(sums[0]);
-                for (t, s) in sy.iter_mut().zip(&sums[1 + nd..]) {
-                    t.push(*s);
-                }
-            }
-            out_units.push(start..w.len());
-        }
-        (xc, w, sy, out_units)
-    }
-}
-
-/// [`pool_rows`] of one covariate: dense bins, no sort. A unit of one
-/// range pools straight into the unit's bins `acc`; a unit of several
-/// pools each range into `part` (sums in row order) and adds its touched
-/// bins into `acc` in range order. A bin's count, Σc and Σy of every
-/// target lie side by side, so a row touches one line.
-fn pool_rows_1d(
-    c: &[f64],
-    (c_min, res, nb): (f64, f64, usize),
-    weights: Option<&[f64]>,
-    units: &[Vec<Range<usize>>],
-    targets: &[&[f64]],
-) -> Pooled {
-    let nt = targets.len();
-    // Per bin: [count, Σc, Σy per target].
-    let stride = 2 + nt;
-    let bin_of = |x: f64| (((x - c_min) / res) as usize).min(nb - 1);
-    // The units' cells are counted first, so the pooled columns are
-    // allocated once at their size: at the CV folds' fine resolution they
-    // are nearly as long as the rows, and growing them by doubling held up
-    // to twice their bytes at the diagnosis' peak.
-    let n_cells = {
-        let mut seen = vec![usize::MAX; nb];
-        let mut n = 0;
-        for (ui, u) in units.iter().enumerate() {
-            for i in u.iter().flat_map(|r| r.clone()) {
-                let b = bin_of(c[i]);
-                if seen[b] != ui {
-                    seen[b] = ui;
-                    n += 1;
-                }
-            }
-        }
-        n
-    };
-    let (mut xc, mut w) = (Vec::with_capacity(n_cells), Vec::with_capacity(n_cells));
-    let mut out_units = Vec::with_capacity(units.len());
-    let mut sy: Vec<Vec<f64>> = (0..nt).map(|_| Vec::with_capacity(n_cells)).collect();
-    // A range's rows into `bins`, each newly touched bin listed; the held
-    // sums a fixed-size array for the usual target counts (5 folds: 6).
-    let pool_range = |r: Range<usize>, bins: &mut [f64], touched: &mut Vec<usize>| {
-        let rows = (c, &bin_of, weights, targets, r);
-        match stride {
-            3 => pool_range_held([0.0; 3], rows, bins, touched),
-            4 => pool_range_held([0.0; 4], rows, bins, touched),
-            5 => pool_range_held([0.0; 5], rows, bins, touched),
-            6 => pool_range_held([0.0; 6], rows, bins, touched),
-            7 => pool_range_held([0.0; 7], rows, bins, touched),
-            8 => pool_range_held([0.0; 8], rows, bins, touched),
-            _ => pool_range_held(vec![0.0; stride], rows, bins, touched),
-        }
-    };
-    let mut acc = vec![0.0f64; nb * stride];
-    let mut part = Vec::new();
-    let (mut part_touched, mut touched) = (Vec::new(), Vec::new());
-    for u in units {
-        touched.clear();
-        if let [r] = u.as_slice() {
-            pool_range(r.clone(), &mut acc, &mut touched);
-        } else {
-            part.resize(nb * stride, 0.0);
-            for r in u {
-                part_touched.clear();
-                pool_range(r.clone(), &mut part, &mut part_touched);
-                for &b in &part_touched {
-                    let (p, a) = (
-                        &mut part[b * stride..(b + 1) * stride],
-                        &mut acc[b * stride..(b + 1) * stride],
-                    );
-                    if a[0] == 0.0 {
-                        // 0 + s is s: the first range's sums keep their bits.
-                        touched.push(b);
-                    }
-                    a.iter_mut().zip(p.iter_mut()).for_each(|(a, p)| {
-                        *a += *p;
-                        *p = 0.0;
-                    });
-                }
-            }
-        }
-        touched.sort_unstable();
-        let start = xc.len();
-        for &b in &touched {
-            let cell = &mut acc[b * stride..(b + 1) * stride];
-            xc.push(cell[1] / cell[0]);
-            w.push(cell[0]);
-            for (t, s) in sy.iter_mut().zip(&cell[2..]) {
-                t.push(*s);
-            }
-            cell.iter_mut().for_each(|v| *v = 0.0);
-        }
-        out_units.push(start..xc.len());
-    }
-    (vec![xc], w, sy, out_units)
-}
-
-/// One covariate's rows of a range, as [`pool_range_held`] reads them:
-/// the covariate, its bin, the weights, the targets, the rows.
-type RangeRows<'a, B> = (
-    &'a [f64],
-    &'a B,
-    Option<&'a [f64]>,
-    &'a [&'a [f64]],
-    Range<usize>,
-);
-
-/// [`pool_rows_1d`]'s rows of a range into `bins` of `held.len()` sums
-/// (count, Σc, Σy of each target), the current bin's sums held apart —
-/// in registers when `held` is a small array — while consecutive rows stay
-/// in it: a row's adds then wait on the previous add, not on its store and
-/// reload. Each sum adds the same values in the same order as adding into
-/// `bins` row by row (same bits).
-fn pool_range_held<H: AsMut<[f64]>, B: Fn(f64) -> usize>(
-    mut held: H,
-    (c, bin_of, weights, targets, r): RangeRows<B>,
-    bins: &mut [f64],
-    touched: &mut Vec<usize>,
-) {
-    let held = held.as_mut();
-    let s = held.len();
-    assert_eq!(targets.len() + 2, s, "a sum per target, the count and Σc");
-    let mut cur = usize::MAX;
-    for i in r {
-        let b = bin_of(c[i]);
-        if b != cur {
-            if cur != usize::MAX {
-                bins[cur * s..(cur + 1) * s].copy_from_slice(held);
-            }
-            cur = b;
-            held.copy_from_slice(&bins[b * s..(b + 1) * s]);
-            if held[0] == 0.0 {
-                touched.push(b);
-            }
-        }
-        // × 1.0 is exact: rows pool to the same bits with or without weights.
-        let wi = weights.map_or(1.0, |w| w[i]);
-        held[0] += wi;
-        held[1] += wi * c[i];
-        for (h, y) in held[2..].iter_mut().zip(targets) {
-            *h += y[i];
+    let mut cells = CellPool::new(axes, targets.len(), units.len());
+    for (g, u) in units.iter().enumerate() {
+        for r in u {
+            cells.add_range(g, r.clone(), cols, weights, targets);
         }
     }
-    if cur != usize::MAX {
-        bins[cur * s..(cur + 1) * s].copy_from_slice(held);
-    }
+    cells.finish()
 }
 
 /// Folds as seen by the fitter: which units train each fold, and which
@@ -874,11 +578,12 @@ pub fn scan_rows<'a>(
     let mins: Vec<f64> = frame.iter().map(|s| s.min).collect();
     let res: Vec<f64> = res.iter().map(|r| r / finer).collect();
     let pooled = pool_rows(&cols, &mins, &res, None, units, targets);
-    Ok(pooled_scan_rows(&covs, pooled, pooled_store))
+    Ok(scan_rows_of_cells(&covs, pooled, pooled_store))
 }
 
-/// Scan rows over pooled cells, their covariate columns kept in `store`.
-fn pooled_scan_rows<'a>(
+/// Scan rows over pooled cells (of covariates `covs`), their covariate
+/// columns kept in `store`.
+pub fn scan_rows_of_cells<'a>(
     covs: &[String],
     (xc, w, sy, pu): Pooled,
     store: &'a mut Vec<Vec<f64>>,
@@ -917,7 +622,7 @@ pub fn coarser<'a>(
     let mins: Vec<f64> = frame.iter().map(|s| s.min).collect();
     let targets: Vec<&[f64]> = rows.sy.iter().map(|t| t.as_ref()).collect();
     let pooled = pool_rows(&cols, &mins, &res, Some(w), &rows.units, &targets);
-    Ok(pooled_scan_rows(&covs, pooled, pooled_store))
+    Ok(scan_rows_of_cells(&covs, pooled, pooled_store))
 }
 
 /// One least-squares fit of a form: θ (NaN when linear), coefficients of
@@ -1152,7 +857,7 @@ mod tests {
                 .iter()
                 .map(|c| {
                     let span = c.iter().fold(0.0f64, |m, v| m.max(*v));
-                    let r = res.max(span / MAX_POOL_BINS);
+                    let r = res.max(span / pool::MAX_POOL_BINS);
                     (r, (span / r) as usize + 1)
                 })
                 .collect();

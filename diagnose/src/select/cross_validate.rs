@@ -4,7 +4,7 @@
 //! parameters.
 
 use super::*;
-use crate::effect::LinearForm;
+use crate::effect::{LinearForm, ThetaRange};
 
 /// Per-fold targets (fold k = all runs) and their Σy² per unit.
 pub struct Targets {
@@ -72,159 +72,373 @@ pub struct CandEval {
 /// rows are pooled: a feature changes by well under 1 % inside a bin.
 const TRAIN_POOL_FINER: f64 = 8.0;
 
+/// Rows a pass over the observable takes at a time: the unit of what a
+/// node reads of a run's rows (several runs fit in one chunk).
+const CHUNK_ROWS: usize = 1 << 20;
+
+/// The rows of consecutive scoring units as a pass over the observable
+/// sees them (docs/design.md §8): row `i` of the chunk is row
+/// `first_row + i` of the observable.
+pub struct Chunk<'a> {
+    pub units: Range<usize>,
+    pub first_row: usize,
+    pub x: EffectData<'a>,
+    /// Each distinct target of [`Targets`] over the chunk's rows.
+    pub targets: Vec<&'a [f64]>,
+}
+
+impl Chunk<'_> {
+    /// Unit `u`'s rows within the chunk.
+    fn rows(&self, units: &[Range<usize>], u: usize) -> Range<usize> {
+        units[u].start - self.first_row..units[u].end - self.first_row
+    }
+}
+
+/// The units cut into chunks of consecutive units of at most `max_rows`
+/// rows (a unit longer than that is a chunk of its own): slices of the
+/// observable's columns.
+pub fn chunks<'a>(prob: &Problem<'a>, tg: &'a Targets, max_rows: usize) -> Result<Vec<Chunk<'a>>> {
+    let names: Vec<String> = prob.x.names().map(String::from).collect();
+    let mut out = Vec::new();
+    let mut a = 0;
+    while a < prob.units.len() {
+        let first_row = prob.units[a].start;
+        let mut b = a + 1;
+        while b < prob.units.len() && prob.units[b].end - first_row <= max_rows {
+            b += 1;
+        }
+        let rows = first_row..prob.units[b - 1].end;
+        out.push(Chunk {
+            units: a..b,
+            first_row,
+            x: prob.x.rows_of(&names, rows.clone())?,
+            targets: tg.distinct.iter().map(|t| &t[rows.clone()]).collect(),
+        });
+        a = b;
+    }
+    Ok(out)
+}
+
 /// Cross-validates one candidate against the current targets.
 pub fn evaluate(e: &dyn Effect, prob: &Problem, tg: &Targets) -> Result<CandEval> {
-    let masks = prob.train_masks();
-    let frame = prob.frame(e)?;
-    let Some(form) = e.linear_form() else {
-        return evaluate_slow(e, prob, tg, &masks);
+    evaluate_in_chunks(e, prob, tg, CHUNK_ROWS)
+}
+
+/// [`evaluate`] with its passes over the rows in chunks of `max_rows`:
+/// the same bits for any chunk size.
+pub(super) fn evaluate_in_chunks(
+    e: &dyn Effect,
+    prob: &Problem,
+    tg: &Targets,
+    max_rows: usize,
+) -> Result<CandEval> {
+    let Some(mut cv) = FormCv::new(e, prob, tg)? else {
+        return evaluate_slow(e, prob, tg, &prob.train_masks());
     };
-    let nf = masks.len();
-    let tslices: Vec<&[f64]> = tg.distinct.iter().map(|t| t.as_slice()).collect();
-    // Coefficients of folds 0..k fitted on pooled rows (one-covariate θ
-    // forms; see below); `None` for a fold fitted on rows.
-    let mut pooled_beta: Vec<Option<Vec<f64>>> = vec![None; nf];
-    let thetas: Vec<f64> = match form.theta(&frame) {
-        None => vec![f64::NAN; nf],
-        Some(tr) => {
-            // θ is scanned over groups of units that every fold trains on
-            // alike (`fit::fold_groups`): the scan costs folds × bins, not
-            // runs × bins.
-            let groups = fit::fold_groups(&masks, prob.units.len());
-            let group_rows: Vec<Vec<Range<usize>>> = groups
+    let chunks = chunks(prob, tg, max_rows)?;
+    for c in &chunks {
+        cv.cell_pass(prob, c);
+    }
+    cv.fit_theta(prob, tg)?;
+    for c in &chunks {
+        cv.score_pass(prob, tg, c)?;
+    }
+    cv.finish(prob, tg)
+}
+
+/// A linear form's cross-validation as passes over the rows
+/// (docs/design.md §8): the cell pass pools each unit's rows into its
+/// fold group's cells; θ is chosen per fold on those cells; the score
+/// pass computes each unit's blocks at its folds' θ, from which each
+/// fold's coefficients and held-out scores follow. Each pass reads a
+/// unit's rows once, in unit order, a chunk of units at a time.
+struct FormCv {
+    form: Arc<dyn LinearForm>,
+    frame: Frame,
+    masks: Vec<Vec<bool>>,
+    theta_range: Option<ThetaRange>,
+    /// The fold group of each unit (`fit::fold_groups`): units every fold
+    /// treats alike, pooled together for the θ scan.
+    groups: Vec<Vec<usize>>,
+    group_of_unit: Vec<usize>,
+    /// The CV folds' training cells (`TRAIN_POOL_FINER`), filled by the
+    /// cell pass; `None` when the form is not scanned on cells.
+    cells: Option<fit::CellPool>,
+    thetas: Vec<f64>,
+    /// Coefficients of folds 0..k fitted on pooled cells; `None` for a fold
+    /// fitted on its units' blocks.
+    pooled_beta: Vec<Option<Vec<f64>>>,
+    /// Folds fitted on blocks, by θ: each unit's blocks at that θ.
+    block_sets: Vec<BlockSet>,
+    unit_sse: Vec<f64>,
+}
+
+/// Folds sharing a θ whose fits come from the units' blocks (X'X, and
+/// X'y of each of the folds' targets) at that θ.
+struct BlockSet {
+    theta: f64,
+    folds: Vec<usize>,
+    /// The distinct targets of `folds`, ascending.
+    targets: Vec<usize>,
+    g_u: Vec<Vec<f64>>,
+    /// `h_of[j][u]`: X'y of target `targets[j]` in unit u.
+    h_of: Vec<Vec<Vec<f64>>>,
+}
+
+impl FormCv {
+    /// `None`: the effect has no linear form (fitted on rows instead).
+    fn new(e: &dyn Effect, prob: &Problem, tg: &Targets) -> Result<Option<FormCv>> {
+        let Some(form) = e.linear_form() else {
+            return Ok(None);
+        };
+        let frame = prob.frame(e)?;
+        let masks = prob.train_masks();
+        let nf = masks.len();
+        let theta_range = form.theta(&frame);
+        // θ is scanned over groups of units that every fold trains on
+        // alike: the scan costs folds × bins, not runs × bins.
+        let groups = fit::fold_groups(&masks, prob.units.len());
+        let mut group_of_unit = vec![0; prob.units.len()];
+        for (g, members) in groups.iter().enumerate() {
+            for &u in members {
+                group_of_unit[u] = g;
+            }
+        }
+        let covs = form.covariates();
+        let res = form
+            .pool_resolutions(&frame)
+            .filter(|r| r.len() == covs.len() && r.iter().all(|v| *v > 0.0 && v.is_finite()));
+        let cells = match (&theta_range, res) {
+            (Some(_), Some(res)) => {
+                // The grid spans the columns' values, as the rows pooled at
+                // once would (`fit::pool_rows`).
+                let cols: Vec<&[f64]> = covs
+                    .iter()
+                    .map(|c| prob.x.require(c))
+                    .collect::<Result<_>>()?;
+                let mins: Vec<f64> = frame.iter().map(|s| s.min).collect();
+                let axes = fit::pool::spans(&cols, &mins)
+                    .into_iter()
+                    .zip(mins.iter().zip(&res))
+                    .map(|(span, (&min, &r))| fit::pool::Axis::new(min, span, r / TRAIN_POOL_FINER))
+                    .collect();
+                Some(fit::CellPool::new(axes, tg.distinct.len(), groups.len()))
+            }
+            _ => None,
+        };
+        Ok(Some(FormCv {
+            form,
+            frame,
+            theta_range,
+            groups,
+            group_of_unit,
+            cells,
+            thetas: vec![f64::NAN; nf],
+            pooled_beta: vec![None; nf],
+            block_sets: Vec::new(),
+            unit_sse: vec![f64::NAN; prob.units.len()],
+            masks,
+        }))
+    }
+
+    /// The cell pass over one chunk: each unit's rows into its group's
+    /// cells, units in order.
+    fn cell_pass(&mut self, prob: &Problem, c: &Chunk) {
+        let Some(cells) = self.cells.as_mut() else {
+            return;
+        };
+        let cols: Vec<&[f64]> = self
+            .form
+            .covariates()
+            .iter()
+            .map(|n| c.x.col(n).expect("the pool's covariates were checked"))
+            .collect();
+        for u in c.units.clone() {
+            cells.add_range(
+                self.group_of_unit[u],
+                c.rows(&prob.units, u),
+                &cols,
+                None,
+                &c.targets,
+            );
+        }
+    }
+
+    /// θ per fold — scanned on the groups' cells, or on the rows when the
+    /// form is not pooled — then the coefficients of the CV folds fitted
+    /// on their training cells, and the folds left to fit on blocks.
+    fn fit_theta(&mut self, prob: &Problem, tg: &Targets) -> Result<()> {
+        let form = self.form.as_ref();
+        let frame = &self.frame;
+        let nf = self.masks.len();
+        if let Some(tr) = &self.theta_range {
+            let group_train: Vec<Vec<bool>> = self
+                .masks
                 .iter()
-                .map(|g| g.iter().map(|&u| prob.units[u].clone()).collect())
-                .collect();
-            let group_train: Vec<Vec<bool>> = masks
-                .iter()
-                .map(|m| groups.iter().map(|g| m[g[0]]).collect())
+                .map(|m| self.groups.iter().map(|g| m[g[0]]).collect())
                 .collect();
             let group_yy: Vec<Vec<f64>> = tg
                 .yy_u
                 .iter()
                 .map(|yy| {
-                    groups
+                    self.groups
                         .iter()
                         .map(|g| g.iter().map(|&u| yy[u]).sum())
                         .collect()
                 })
                 .collect();
-            // The CV folds' training cells first (`TRAIN_POOL_FINER`), the
-            // θ scan's coarser cells from them: one pass over the rows.
-            let mut fine_store = Vec::new();
-            let fine_rows = scan_rows(
-                form.as_ref(),
-                &frame,
-                &prob.x,
-                &group_rows,
-                &tslices,
-                TRAIN_POOL_FINER,
-                &mut fine_store,
-            )?;
-            let mut store = Vec::new();
-            let coarse_rows;
-            let rows = if fine_rows.w.is_some() {
-                coarse_rows = fit::coarser(form.as_ref(), &frame, &fine_rows, &mut store)?;
-                &coarse_rows
-            } else {
-                &fine_rows
-            };
             let spec = FoldSpec {
                 train: &group_train,
                 target_of_fold: &tg.of_fold,
             };
-            let thetas = choose_theta(form.as_ref(), &frame, &tr, rows, &group_yy, &spec)?;
-            if fine_rows.w.is_some() {
-                // Each CV fold fits at its own θ on its training groups'
-                // fine cells, so a row is evaluated once for every fold's
-                // held-out score instead of once per fold; fold k (all
-                // runs: the reported fit) stays exact on rows.
-                let k = prob.k;
-                let betas =
-                    fit::pooled_fold_betas(form.as_ref(), &frame, &fine_rows, &thetas[..k], &spec)?;
-                for (slot, b) in pooled_beta.iter_mut().zip(betas) {
-                    *slot = Some(b);
-                }
-            }
-            thetas
-        }
-    };
-    let p = form.n_linear() + 1;
-    let mut beta = vec![Vec::new(); nf];
-    let mut unit_sse = vec![f64::NAN; prob.units.len()];
-    let mut done = vec![false; nf];
-    let covs = form.covariates();
-    // Fleet-sized feature columns, reused between candidates (`with_columns`).
-    with_columns(form.n_linear(), |buf| -> Result<()> {
-        for f0 in 0..nf {
-            if done[f0] {
-                continue;
-            }
-            let th = thetas[f0];
-            if let Some(b) = pooled_beta[f0].take() {
-                // Held-out units only, each on its own rows at the fold's θ.
-                done[f0] = true;
-                let t = tg.of_fold[f0];
-                for (u, train) in masks[f0].iter().enumerate() {
-                    if !*train {
-                        let r = prob.units[u].clone();
-                        form.features(&frame, &prob.x.rows_of(&covs, r.clone())?, th, buf)?;
-                        let g = fit::design_gram(buf, None, 0..r.len());
-                        let h = fit::design_xy(buf, &tslices[t][r.clone()], 0..r.len());
-                        unit_sse[u] = fit::sse(&g, &h, tg.yy_u[t][u], &b);
+            match self.cells.take() {
+                Some(cells) => {
+                    // The θ scan's coarser cells from the CV folds' finer
+                    // ones: no other pass over the rows.
+                    let mut fine_store = Vec::new();
+                    let fine = fit::scan_rows_of_cells(
+                        &form.covariates(),
+                        cells.finish(),
+                        &mut fine_store,
+                    );
+                    let mut store = Vec::new();
+                    let coarse = fit::coarser(form, frame, &fine, &mut store)?;
+                    self.thetas = choose_theta(form, frame, tr, &coarse, &group_yy, &spec)?;
+                    // Each CV fold fits at its own θ on its training
+                    // groups' fine cells, so a row is evaluated once for
+                    // every fold's held-out score instead of once per
+                    // fold; fold k (all runs: the reported fit) stays
+                    // exact on rows.
+                    let k = prob.k;
+                    let betas =
+                        fit::pooled_fold_betas(form, frame, &fine, &self.thetas[..k], &spec)?;
+                    for (slot, b) in self.pooled_beta.iter_mut().zip(betas) {
+                        *slot = Some(b);
                     }
                 }
-                beta[f0] = b;
-                continue;
-            }
-            let same: Vec<usize> = (f0..nf)
-                .filter(|&f| {
-                    !done[f] && pooled_beta[f].is_none() && thetas[f].to_bits() == th.to_bits()
-                })
-                .collect();
-            // Each unit's statistics from its own rows' features (a
-            // unit-sized buffer, never a fleet-sized one): features are
-            // row by row and a unit's sums run over its rows in order, so
-            // the blocks are those of the observable's columns, bit for bit
-            // — and what a node holding only that run computes
-            // (docs/design.md §8).
-            let mut ts: Vec<usize> = same.iter().map(|&f| tg.of_fold[f]).collect();
-            ts.sort_unstable();
-            ts.dedup();
-            let mut g_u: Vec<Vec<f64>> = Vec::with_capacity(prob.units.len());
-            let mut h_of: Vec<Vec<Vec<f64>>> = (0..ts.len())
-                .map(|_| Vec::with_capacity(prob.units.len()))
-                .collect();
-            for u in &prob.units {
-                form.features(&frame, &prob.x.rows_of(&covs, u.clone())?, th, buf)?;
-                g_u.push(fit::design_gram(buf, None, 0..u.len()));
-                for (h_u, &t) in h_of.iter_mut().zip(&ts) {
-                    h_u.push(fit::design_xy(buf, &tslices[t][u.clone()], 0..u.len()));
+                None => {
+                    // Not pooled: the scan runs over the groups' rows.
+                    let group_rows: Vec<Vec<Range<usize>>> = self
+                        .groups
+                        .iter()
+                        .map(|g| g.iter().map(|&u| prob.units[u].clone()).collect())
+                        .collect();
+                    let tslices: Vec<&[f64]> = tg.distinct.iter().map(|t| t.as_slice()).collect();
+                    let mut store = Vec::new();
+                    let rows = scan_rows(
+                        form,
+                        frame,
+                        &prob.x,
+                        &group_rows,
+                        &tslices,
+                        TRAIN_POOL_FINER,
+                        &mut store,
+                    )?;
+                    self.thetas = choose_theta(form, frame, tr, &rows, &group_yy, &spec)?;
                 }
             }
-            for &f in &same {
-                done[f] = true;
+        }
+        // The folds fitted on blocks, those at one θ together.
+        let mut listed = vec![false; nf];
+        for f0 in 0..nf {
+            if listed[f0] || self.pooled_beta[f0].is_some() {
+                continue;
+            }
+            let th = self.thetas[f0];
+            let folds: Vec<usize> = (f0..nf)
+                .filter(|&f| {
+                    !listed[f]
+                        && self.pooled_beta[f].is_none()
+                        && self.thetas[f].to_bits() == th.to_bits()
+                })
+                .collect();
+            let mut targets: Vec<usize> = folds.iter().map(|&f| tg.of_fold[f]).collect();
+            targets.sort_unstable();
+            targets.dedup();
+            for &f in &folds {
+                listed[f] = true;
+            }
+            let n_units = prob.units.len();
+            self.block_sets.push(BlockSet {
+                theta: th,
+                folds,
+                h_of: (0..targets.len())
+                    .map(|_| Vec::with_capacity(n_units))
+                    .collect(),
+                targets,
+                g_u: Vec::with_capacity(n_units),
+            });
+        }
+        Ok(())
+    }
+
+    /// The score pass over one chunk. Each unit's statistics come from its
+    /// own rows' features (a unit-sized buffer): features are row by row
+    /// and a unit's sums run over its rows in order, so they are what a
+    /// node holding only that run computes. A unit held out by a fold
+    /// fitted on cells is scored at once; the block sets keep its blocks.
+    fn score_pass(&mut self, prob: &Problem, tg: &Targets, c: &Chunk) -> Result<()> {
+        let form = self.form.clone();
+        let covs = form.covariates();
+        with_columns(form.n_linear(), |buf| -> Result<()> {
+            for u in c.units.clone() {
+                let r = c.rows(&prob.units, u);
+                let x = c.x.rows_of(&covs, r.clone())?;
+                let f = prob.unit_fold[u];
+                if let Some(b) = self.pooled_beta.get(f).and_then(|b| b.as_ref()) {
+                    // Held out by CV fold f, fitted on cells at its θ.
+                    let t = tg.of_fold[f];
+                    form.features(&self.frame, &x, self.thetas[f], buf)?;
+                    let g = fit::design_gram(buf, None, 0..r.len());
+                    let h = fit::design_xy(buf, &c.targets[t][r.clone()], 0..r.len());
+                    self.unit_sse[u] = fit::sse(&g, &h, tg.yy_u[t][u], b);
+                }
+                for set in &mut self.block_sets {
+                    form.features(&self.frame, &x, set.theta, buf)?;
+                    set.g_u.push(fit::design_gram(buf, None, 0..r.len()));
+                    for (h_u, &t) in set.h_of.iter_mut().zip(&set.targets) {
+                        h_u.push(fit::design_xy(buf, &c.targets[t][r.clone()], 0..r.len()));
+                    }
+                }
+            }
+            Ok(())
+        })
+    }
+
+    /// Each block-fitted fold's coefficients from its training units'
+    /// blocks (summed in unit order) and its held-out units' scores.
+    fn finish(mut self, prob: &Problem, tg: &Targets) -> Result<CandEval> {
+        let nf = self.masks.len();
+        let p = self.form.n_linear() + 1;
+        let mut beta = vec![Vec::new(); nf];
+        for (f, b) in self.pooled_beta.iter_mut().enumerate() {
+            if let Some(b) = b.take() {
+                beta[f] = b;
+            }
+        }
+        for set in &self.block_sets {
+            debug_assert_eq!(set.g_u.len(), prob.units.len(), "every unit's blocks");
+            for &f in &set.folds {
                 let t = tg.of_fold[f];
-                let h_u = &h_of[ts.binary_search(&t).expect("target listed")];
-                let (g, h) = fit::train_sums(&g_u, h_u, &masks[f], p);
+                let h_u = &set.h_of[set.targets.binary_search(&t).expect("target listed")];
+                let (g, h) = fit::train_sums(&set.g_u, h_u, &self.masks[f], p);
                 let b = fit::solve(&g, &h).ok_or_else(|| err!("singular normal equations"))?;
-                for (u, tr) in masks[f].iter().enumerate() {
+                for (u, tr) in self.masks[f].iter().enumerate() {
                     if !*tr {
-                        unit_sse[u] = fit::sse(&g_u[u], &h_u[u], tg.yy_u[t][u], &b);
+                        self.unit_sse[u] = fit::sse(&set.g_u[u], &h_u[u], tg.yy_u[t][u], &b);
                     }
                 }
                 beta[f] = b;
             }
         }
-        Ok(())
-    })?;
-    Ok(CandEval {
-        fit: CandFit::Fast {
-            theta: thetas,
-            beta,
-        },
-        unit_sse,
-    })
+        Ok(CandEval {
+            fit: CandFit::Fast {
+                theta: self.thetas,
+                beta,
+            },
+            unit_sse: self.unit_sse,
+        })
+    }
 }
 
 pub(super) fn gather<'a>(
@@ -413,5 +627,109 @@ pub fn params_of(
             }
         }
         CandFit::Slow { fitted } => (fitted[f].params(), fitted[f].offset_mm()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::effect::{catalogue, CovStats};
+
+    /// A candidate's cross-validation reads the rows a chunk at a time;
+    /// its fits and held-out scores are the same bits whether a chunk is
+    /// one unit or the whole observable — what lets a pass stream the runs
+    /// (docs/design.md §8). Targets that differ by fold (as after a chosen
+    /// effect) and shared ones both.
+    #[test]
+    fn a_candidates_passes_give_the_same_bits_for_any_chunk_size() {
+        let (runs, per_run) = (12, 700);
+        let n = runs * per_run;
+        let mut t_s = Vec::with_capacity(n);
+        let mut x_mm = Vec::with_capacity(n);
+        let mut v = Vec::with_capacity(n);
+        let mut gap = Vec::with_capacity(n);
+        for r in 0..runs {
+            for i in 0..per_run {
+                let t = i as f64 * 0.37;
+                let x = ((i * 7919 + r * 31) % 997) as f64 * 0.21 - 40.0;
+                let vel = 50.0 * (0.013 * i as f64 + r as f64).sin();
+                t_s.push(t);
+                x_mm.push(x);
+                v.push(vel);
+                let noise = (((i * 104_729 + r * 7) % 1000) as f64 / 1000.0 - 0.5) * 2e-4;
+                gap.push(
+                    0.002 * (1.0 - (-t / 60.0).exp())
+                        + 1e-3 * (x / 17.0).sin()
+                        + 1e-5 * vel
+                        + 1e-4 * r as f64
+                        + noise,
+                );
+            }
+        }
+        let names = ["t_s", "x_mm", "v_mm_s"];
+        let mut x = EffectData::new(n);
+        for (name, col) in names.iter().zip([&t_s, &x_mm, &v]) {
+            x.push(name, col);
+        }
+        let k = 5;
+        let units: Vec<Range<usize>> = (0..runs).map(|r| r * per_run..(r + 1) * per_run).collect();
+        let prob = Problem {
+            x,
+            gap: &gap,
+            unit_fold: (0..runs).map(|r| (r * 3) % k).collect(),
+            unit_run: (0..runs).collect(),
+            units,
+            k,
+            frames: names
+                .iter()
+                .zip([&t_s, &x_mm, &v])
+                .map(|(name, col)| (name.to_string(), CovStats::from_values(col)))
+                .collect(),
+        };
+        let shared = Arc::new(gap.clone());
+        let per_fold: Vec<Arc<Vec<f64>>> = (0..=k)
+            .map(|f| {
+                Arc::new(
+                    gap.iter()
+                        .enumerate()
+                        .map(|(i, g)| g - 1e-5 * f as f64 * (i % 7) as f64)
+                        .collect(),
+                )
+            })
+            .collect();
+        let names: Vec<String> = names.iter().map(|s| s.to_string()).collect();
+        let cands = catalogue(&names);
+        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        for targets in [vec![shared; k + 1], per_fold] {
+            let tg = Targets::new(targets, &prob.units);
+            let mut scanned = 0;
+            for e in &cands {
+                let whole = evaluate_in_chunks(e.as_ref(), &prob, &tg, usize::MAX).unwrap();
+                for max_rows in [1, 2 * per_run + 1] {
+                    let part = evaluate_in_chunks(e.as_ref(), &prob, &tg, max_rows).unwrap();
+                    assert_eq!(bits(&whole.unit_sse), bits(&part.unit_sse), "{}", e.key());
+                    let (
+                        CandFit::Fast {
+                            theta: ta,
+                            beta: ba,
+                        },
+                        CandFit::Fast {
+                            theta: tb,
+                            beta: bb,
+                        },
+                    ) = (&whole.fit, &part.fit)
+                    else {
+                        panic!("catalogue effects are linear forms");
+                    };
+                    assert_eq!(bits(ta), bits(tb), "{}", e.key());
+                    for (a, b) in ba.iter().zip(bb) {
+                        assert_eq!(bits(a), bits(b), "{}", e.key());
+                    }
+                    scanned += usize::from(ta.iter().any(|t| !t.is_nan()));
+                }
+                assert!(whole.unit_sse.iter().all(|s| s.is_finite()), "{}", e.key());
+            }
+            assert!(scanned >= 4, "θ forms among the candidates: {scanned}");
+        }
     }
 }
