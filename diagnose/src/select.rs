@@ -117,12 +117,11 @@ fn score_round(
     step: usize,
     records: &mut [Option<Record>],
 ) -> Vec<Scored> {
+    let live_cands: Vec<&dyn Effect> = live.iter().map(|&i| cands[i]).collect();
     let evals: Vec<(usize, Result<CandEval>, f64)> = live
-        .par_iter()
-        .map(|&i| {
-            let t = std::time::Instant::now();
-            (i, evaluate(cands[i], prob, tg), t.elapsed().as_secs_f64())
-        })
+        .iter()
+        .zip(evaluate_all(&live_cands, prob, tg))
+        .map(|(&i, (ev, secs))| (i, ev, secs))
         .collect();
     if tracing::enabled!(tracing::Level::DEBUG) {
         let mut slow: Vec<(f64, String)> = evals

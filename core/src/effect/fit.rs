@@ -216,11 +216,7 @@ pub fn pool_rows(
         .map(|(span, (&min, &r))| pool::Axis::new(min, span, r))
         .collect();
     let mut cells = CellPool::new(axes, targets.len(), units.len());
-    for (g, u) in units.iter().enumerate() {
-        for r in u {
-            cells.add_range(g, r.clone(), cols, weights, targets);
-        }
-    }
+    cells.add_groups(units, cols, weights, targets);
     cells.finish()
 }
 

@@ -119,31 +119,102 @@ pub fn chunks<'a>(prob: &Problem<'a>, tg: &'a Targets, max_rows: usize) -> Resul
     Ok(out)
 }
 
-/// Cross-validates one candidate against the current targets.
-pub fn evaluate(e: &dyn Effect, prob: &Problem, tg: &Targets) -> Result<CandEval> {
-    evaluate_in_chunks(e, prob, tg, CHUNK_ROWS)
+/// Cross-validates candidates against the current targets (in parallel):
+/// each candidate's cell pass and θ fit, then the score pass reading a
+/// chunk once for every candidate before the next. Each candidate's result (a failed fit is an
+/// error of its own) and its time in seconds.
+pub fn evaluate_all(
+    cands: &[&dyn Effect],
+    prob: &Problem,
+    tg: &Targets,
+) -> Vec<(Result<CandEval>, f64)> {
+    evaluate_all_in_chunks(cands, prob, tg, CHUNK_ROWS)
 }
 
-/// [`evaluate`] with its passes over the rows in chunks of `max_rows`:
-/// the same bits for any chunk size.
-pub(super) fn evaluate_in_chunks(
-    e: &dyn Effect,
+/// [`evaluate_all`] with its passes over the rows in chunks of
+/// `max_rows`: the same bits for any chunk size.
+pub(super) fn evaluate_all_in_chunks(
+    cands: &[&dyn Effect],
     prob: &Problem,
     tg: &Targets,
     max_rows: usize,
-) -> Result<CandEval> {
-    let Some(mut cv) = FormCv::new(e, prob, tg)? else {
-        return evaluate_slow(e, prob, tg, &prob.train_masks());
+) -> Vec<(Result<CandEval>, f64)> {
+    /// A candidate's state between passes and its time so far.
+    enum Cv {
+        Form(FormCv),
+        /// Fitted on rows when the passes are done (no linear form).
+        Slow,
+        Failed(crate::Error),
+    }
+    let timed = |secs: &mut f64, f: &mut dyn FnMut()| {
+        let t = std::time::Instant::now();
+        f();
+        *secs += t.elapsed().as_secs_f64();
     };
-    let chunks = chunks(prob, tg, max_rows)?;
+    let chunks = match chunks(prob, tg, max_rows) {
+        Ok(c) => c,
+        Err(e) => {
+            let why = e.to_string();
+            return cands.iter().map(|_| (Err(err!("{why}")), 0.0)).collect();
+        }
+    };
+    // The cell pass and the θ fit, a candidate at a time: its cells live
+    // from its first chunk to its fit only, so two threads hold two
+    // candidates' cells, not every candidate's (at 500 servo runs the
+    // fine cells of one round's candidates are ≈ 10⁶, ≈ 130 MB together).
+    let mut cvs: Vec<(Cv, f64)> = cands
+        .par_iter()
+        .map(|e| {
+            let mut secs = 0.0;
+            let mut cv = Cv::Slow;
+            timed(&mut secs, &mut || {
+                cv = match FormCv::new(*e, prob, tg).and_then(|f| {
+                    f.map(|mut f| -> Result<FormCv> {
+                        for c in &chunks {
+                            f.cell_pass(prob, c);
+                        }
+                        f.fit_theta(prob, tg)?;
+                        Ok(f)
+                    })
+                    .transpose()
+                }) {
+                    Ok(Some(f)) => Cv::Form(f),
+                    Ok(None) => Cv::Slow,
+                    Err(e) => Cv::Failed(e),
+                }
+            });
+            (cv, secs)
+        })
+        .collect();
+    // The score pass: each chunk once for every candidate.
+    let each = |cvs: &mut Vec<(Cv, f64)>, step: &(dyn Fn(&mut FormCv) -> Result<()> + Sync)| {
+        cvs.par_iter_mut().for_each(|(cv, secs)| {
+            if let Cv::Form(f) = cv {
+                let mut failed = None;
+                timed(secs, &mut || failed = step(f).err());
+                if let Some(e) = failed {
+                    *cv = Cv::Failed(e);
+                }
+            }
+        })
+    };
     for c in &chunks {
-        cv.cell_pass(prob, c);
+        each(&mut cvs, &|f| f.score_pass(prob, tg, c));
     }
-    cv.fit_theta(prob, tg)?;
-    for c in &chunks {
-        cv.score_pass(prob, tg, c)?;
-    }
-    cv.finish(prob, tg)
+    drop(chunks);
+    let masks = prob.train_masks();
+    cvs.into_par_iter()
+        .zip(cands.par_iter())
+        .map(|((cv, secs), e)| {
+            let t = std::time::Instant::now();
+            let out = match cv {
+                Cv::Form(f) => f.finish(prob, tg),
+                Cv::Slow => evaluate_slow(*e, prob, tg, &masks),
+                Cv::Failed(e) => Err(e),
+            };
+            (out, secs + t.elapsed().as_secs_f64())
+        })
+        .collect()
 }
 
 /// A linear form's cross-validation as passes over the rows
@@ -242,7 +313,8 @@ impl FormCv {
     }
 
     /// The cell pass over one chunk: each unit's rows into its group's
-    /// cells, units in order.
+    /// cells, a group's units in unit order (the order of the additions,
+    /// so the same bits however the units come).
     fn cell_pass(&mut self, prob: &Problem, c: &Chunk) {
         let Some(cells) = self.cells.as_mut() else {
             return;
@@ -253,14 +325,23 @@ impl FormCv {
             .iter()
             .map(|n| c.x.col(n).expect("the pool's covariates were checked"))
             .collect();
+        if c.units == (0..prob.units.len()) {
+            // Every row at hand: group by group, each group's cells sealed
+            // (compact) before the next group's fill.
+            let groups: Vec<Vec<Range<usize>>> = self
+                .groups
+                .iter()
+                .map(|members| members.iter().map(|&u| c.rows(&prob.units, u)).collect())
+                .collect();
+            cells.add_groups(&groups, &cols, None, &c.targets);
+            return;
+        }
         for u in c.units.clone() {
-            cells.add_range(
-                self.group_of_unit[u],
-                c.rows(&prob.units, u),
-                &cols,
-                None,
-                &c.targets,
-            );
+            let g = self.group_of_unit[u];
+            cells.add_range(g, c.rows(&prob.units, u), &cols, None, &c.targets);
+            if self.groups[g].last() == Some(&u) {
+                cells.seal(g);
+            }
         }
     }
 
@@ -700,13 +781,15 @@ mod tests {
         let names: Vec<String> = names.iter().map(|s| s.to_string()).collect();
         let cands = catalogue(&names);
         let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        let refs: Vec<&dyn Effect> = cands.iter().map(|e| e.as_ref()).collect();
         for targets in [vec![shared; k + 1], per_fold] {
             let tg = Targets::new(targets, &prob.units);
             let mut scanned = 0;
-            for e in &cands {
-                let whole = evaluate_in_chunks(e.as_ref(), &prob, &tg, usize::MAX).unwrap();
-                for max_rows in [1, 2 * per_run + 1] {
-                    let part = evaluate_in_chunks(e.as_ref(), &prob, &tg, max_rows).unwrap();
+            let whole = evaluate_all_in_chunks(&refs, &prob, &tg, usize::MAX);
+            for max_rows in [1, 2 * per_run + 1] {
+                let parts = evaluate_all_in_chunks(&refs, &prob, &tg, max_rows);
+                for ((whole, part), e) in whole.iter().zip(parts).zip(&refs) {
+                    let (whole, part) = (whole.0.as_ref().unwrap(), part.0.unwrap());
                     assert_eq!(bits(&whole.unit_sse), bits(&part.unit_sse), "{}", e.key());
                     let (
                         CandFit::Fast {
@@ -725,9 +808,9 @@ mod tests {
                     for (a, b) in ba.iter().zip(bb) {
                         assert_eq!(bits(a), bits(b), "{}", e.key());
                     }
+                    assert!(whole.unit_sse.iter().all(|s| s.is_finite()), "{}", e.key());
                     scanned += usize::from(ta.iter().any(|t| !t.is_nan()));
                 }
-                assert!(whole.unit_sse.iter().all(|s| s.is_finite()), "{}", e.key());
             }
             assert!(scanned >= 4, "θ forms among the candidates: {scanned}");
         }

@@ -11,7 +11,6 @@
 //! come all at once, a chunk of runs at a time, or from nodes that each
 //! held only their runs.
 
-use std::collections::HashMap;
 use std::ops::Range;
 
 use super::Pooled;
@@ -68,42 +67,134 @@ pub struct CellPool {
     /// Numbers per cell: the count, Σw·c per covariate, Σy per target.
     stride: usize,
     groups: Vec<GroupCells>,
-    /// One covariate: a range's partial bins (dense, zero between ranges)
-    /// and the bins it touched.
-    part: Vec<f64>,
-    part_touched: Vec<usize>,
+    /// The cells of groups `0..emitted`, in the form [`CellPool::finish`]
+    /// returns: a group is moved here (and its own storage freed) as soon
+    /// as it and every group before it are sealed.
+    out: Pooled,
+    emitted: usize,
 }
 
-/// One group's cells in the order first seen: the cell's key (its bin of
-/// each covariate, packed) and `stride` sums.
+thread_local! {
+    /// One covariate: a range's partial bins (dense, all zero between
+    /// ranges) and the bins it touched — a thread's, not a pool's: a pass
+    /// holds every candidate's pool at once, and 65 537 bins of 8 sums
+    /// are 4 MiB.
+    static PART: std::cell::RefCell<(Vec<f64>, Vec<usize>)> = const {
+        std::cell::RefCell::new((Vec::new(), Vec::new()))
+    };
+}
+
+/// One group's cells. One covariate: in the order first seen, a dense
+/// slot per bin. Several: `keys`/`sums` sorted by key, and the partial
+/// cells of the ranges added since (`pending_*`, in arrival order) merged
+/// into them when they outnumber them and at the end — a sort per merge
+/// instead of a hash lookup per partial cell.
 #[derive(Default)]
 struct GroupCells {
     /// One covariate: the slot of each bin (`u32::MAX`: none yet).
     dense: Vec<u32>,
-    /// Several covariates: the slot of each key.
-    sparse: HashMap<u128, u32>,
+    /// Several covariates: the merged cells' keys, ascending.
     keys: Vec<u128>,
+    /// `stride` sums per cell: one covariate, in slot order until sealed;
+    /// several, in key order.
     sums: Vec<f64>,
+    /// Cells in ascending order at their size ([`GroupCells::seal`]).
+    sealed: bool,
+    /// One covariate: the slots were given in bin order up front
+    /// ([`CellPool::add_groups`]).
+    in_bin_order: bool,
+    /// Pooled whole ([`CellPool::add_groups`]): several covariates' partial
+    /// cells wait for one merge when the group is sealed (a merge per
+    /// chunk of runs would only add copies).
+    whole: bool,
+    pending_keys: Vec<u128>,
+    pending_sums: Vec<f64>,
 }
 
 impl GroupCells {
-    /// Adds a range's partial cell (`key`, `sums`) to the group's: the
-    /// first range's sums are kept as they are, the later ones added in
-    /// the order the ranges arrive.
-    #[inline]
-    fn add(&mut self, slot: &mut u32, key: u128, sums: &[f64]) {
+    /// Adds a range's partial bin (`sums`) to the group's cell in `slot`
+    /// (one covariate): the first range's sums are kept as they are, the
+    /// later ones added in the order the ranges arrive.
+    #[inline(always)]
+    fn add(&mut self, slot: &mut u32, sums: &[f64]) {
+        let s = sums.len();
         if *slot == u32::MAX {
-            *slot = u32::try_from(self.keys.len()).expect("fewer than 2³² cells in a group");
-            self.keys.push(key);
+            *slot = u32::try_from(self.sums.len() / s).expect("fewer than 2³² cells in a group");
             self.sums.extend_from_slice(sums);
         } else {
-            let s = sums.len();
             let at = *slot as usize * s;
             self.sums[at..at + s]
                 .iter_mut()
                 .zip(sums)
                 .for_each(|(a, p)| *a += p);
         }
+    }
+
+    /// The group's cells in ascending order, at their size (no index, no
+    /// spare capacity): nothing more is added.
+    fn seal(&mut self, stride: usize) {
+        if self.sealed {
+            return;
+        }
+        if self.dense.is_empty() {
+            self.merge_pending(stride);
+            self.keys = Vec::new();
+            self.sums.shrink_to_fit();
+        } else if self.in_bin_order {
+            self.dense = Vec::new();
+        } else {
+            // One covariate: the bins in order are the cells in order.
+            let mut sums = Vec::with_capacity(self.sums.len());
+            for &slot in self.dense.iter().filter(|&&s| s != u32::MAX) {
+                let at = slot as usize * stride;
+                sums.extend_from_slice(&self.sums[at..at + stride]);
+            }
+            (self.sums, self.dense) = (sums, Vec::new());
+        }
+        self.sealed = true;
+    }
+
+    /// Merges the pending partial cells into the sorted cells: each key's
+    /// partial sums added in arrival order after the sums already merged
+    /// (a stable sort by key keeps that order).
+    fn merge_pending(&mut self, stride: usize) {
+        if self.pending_keys.is_empty() {
+            return;
+        }
+        let mut order: Vec<u32> = (0..self.pending_keys.len() as u32).collect();
+        order.sort_by_key(|&i| self.pending_keys[i as usize]);
+        let n = self.keys.len() + order.len();
+        let (mut keys, mut sums) = (Vec::with_capacity(n), Vec::with_capacity(n * stride));
+        let mut m = 0;
+        let mut a = 0;
+        while m < self.keys.len() || a < order.len() {
+            let next_pending = order.get(a).map(|&i| self.pending_keys[i as usize]);
+            let key = match (self.keys.get(m), next_pending) {
+                (Some(&k), Some(p)) => k.min(p),
+                (Some(&k), None) => k,
+                (None, Some(p)) => p,
+                (None, None) => unreachable!(),
+            };
+            let at = sums.len();
+            if self.keys.get(m) == Some(&key) {
+                sums.extend_from_slice(&self.sums[m * stride..(m + 1) * stride]);
+                m += 1;
+            } else {
+                let i = order[a] as usize;
+                sums.extend_from_slice(&self.pending_sums[i * stride..(i + 1) * stride]);
+                a += 1;
+            }
+            while a < order.len() && self.pending_keys[order[a] as usize] == key {
+                let i = order[a] as usize;
+                let p = &self.pending_sums[i * stride..(i + 1) * stride];
+                sums[at..].iter_mut().zip(p).for_each(|(s, v)| *s += v);
+                a += 1;
+            }
+            keys.push(key);
+        }
+        (self.keys, self.sums) = (keys, sums);
+        self.pending_keys.clear();
+        self.pending_sums.clear();
     }
 }
 
@@ -119,12 +210,18 @@ impl CellPool {
             "pooling on {} covariates: too many for a cell key",
             axes.len()
         );
+        let nd = axes.len();
         CellPool {
             stride: 1 + axes.len() + targets,
             axes,
             groups: (0..groups).map(|_| GroupCells::default()).collect(),
-            part: Vec::new(),
-            part_touched: Vec::new(),
+            out: (
+                vec![Vec::new(); nd],
+                Vec::new(),
+                vec![Vec::new(); targets],
+                Vec::new(),
+            ),
+            emitted: 0,
         }
     }
 
@@ -139,6 +236,10 @@ impl CellPool {
         weights: Option<&[f64]>,
         targets: &[&[f64]],
     ) {
+        assert!(
+            !self.groups[group].sealed,
+            "a range added to a sealed group"
+        );
         assert_eq!(cols.len(), self.axes.len(), "a column per axis");
         assert_eq!(
             self.stride,
@@ -166,33 +267,37 @@ impl CellPool {
         targets: &[&[f64]],
     ) {
         let stride = self.stride;
-        self.part.resize(axis.bins * stride, 0.0);
-        self.part_touched.clear();
-        let bin_of = |x: f64| axis.bin(x);
-        let rows = (c, &bin_of, weights, targets, r);
-        let (bins, touched) = (&mut self.part, &mut self.part_touched);
-        // The held sums a fixed-size array for the usual target counts
-        // (5 folds: 6).
-        match stride {
-            3 => pool_range_held([0.0; 3], rows, bins, touched),
-            4 => pool_range_held([0.0; 4], rows, bins, touched),
-            5 => pool_range_held([0.0; 5], rows, bins, touched),
-            6 => pool_range_held([0.0; 6], rows, bins, touched),
-            7 => pool_range_held([0.0; 7], rows, bins, touched),
-            8 => pool_range_held([0.0; 8], rows, bins, touched),
-            _ => pool_range_held(vec![0.0; stride], rows, bins, touched),
-        }
         let g = &mut self.groups[group];
         if g.dense.is_empty() {
             g.dense = vec![u32::MAX; axis.bins];
         }
-        for &b in &self.part_touched {
-            let p = &mut self.part[b * stride..(b + 1) * stride];
-            let mut slot = g.dense[b];
-            g.add(&mut slot, b as u128, p);
-            g.dense[b] = slot;
-            p.iter_mut().for_each(|v| *v = 0.0);
-        }
+        PART.with_borrow_mut(|(part, touched)| {
+            if part.len() < axis.bins * stride {
+                part.resize(axis.bins * stride, 0.0);
+            }
+            touched.clear();
+            let bin_of = |x: f64| axis.bin(x);
+            let rows = (c, &bin_of, weights, targets, r);
+            let bins = &mut part[..axis.bins * stride];
+            // The held sums a fixed-size array for the usual target counts
+            // (5 folds: 6).
+            match stride {
+                3 => pool_range_held([0.0; 3], rows, bins, touched),
+                4 => pool_range_held([0.0; 4], rows, bins, touched),
+                5 => pool_range_held([0.0; 5], rows, bins, touched),
+                6 => pool_range_held([0.0; 6], rows, bins, touched),
+                7 => pool_range_held([0.0; 7], rows, bins, touched),
+                8 => pool_range_held([0.0; 8], rows, bins, touched),
+                _ => pool_range_held(vec![0.0; stride], rows, bins, touched),
+            }
+            for &b in touched.iter() {
+                let p = &mut bins[b * stride..(b + 1) * stride];
+                let mut slot = g.dense[b];
+                g.add(&mut slot, p);
+                g.dense[b] = slot;
+                p.iter_mut().for_each(|v| *v = 0.0);
+            }
+        });
     }
 
     /// Several covariates: too many cells for dense bins, so the range's
@@ -249,23 +354,98 @@ impl CellPool {
         }
     }
 
-    /// The groups' cells, each group's in ascending cell order: pooled
-    /// covariates (a cell's mean of each), counts, Σy per target, and each
-    /// group's range of cells.
-    pub fn finish(self) -> Pooled {
+    /// Pools every group — each group's ranges in order, group after
+    /// group — sealing each when done. With one covariate the cells are
+    /// counted first and laid out in bin order at their size, and the
+    /// output columns are allocated once at theirs: no growth, and one
+    /// group's sums besides the output at a time (the cells of a fine grid
+    /// are nearly as many as the rows, so this is the pass's peak). A slot
+    /// given up front starts at zero, and 0 + s is s: the same bits as
+    /// [`CellPool::add_range`] range by range.
+    pub fn add_groups(
+        &mut self,
+        groups: &[Vec<Range<usize>>],
+        cols: &[&[f64]],
+        weights: Option<&[f64]>,
+        targets: &[&[f64]],
+    ) {
+        assert_eq!(groups.len(), self.groups.len(), "ranges for every group");
+        if let ([c], [axis]) = (cols, self.axes.as_slice()) {
+            const SEEN: u32 = u32::MAX - 1;
+            let mut total = 0;
+            for (g, ranges) in self.groups.iter_mut().zip(groups) {
+                assert!(
+                    !g.sealed && g.dense.is_empty(),
+                    "groups pooled whole are new"
+                );
+                let mut dense = vec![u32::MAX; axis.bins];
+                for r in ranges {
+                    for &x in &c[r.clone()] {
+                        dense[axis.bin(x)] = SEEN;
+                    }
+                }
+                let mut n = 0u32;
+                for s in dense.iter_mut().filter(|s| **s == SEEN) {
+                    *s = n;
+                    n += 1;
+                }
+                g.dense = dense;
+                g.in_bin_order = true;
+                total += n as usize;
+            }
+            let (xc, w, sy, ranges) = &mut self.out;
+            for col in xc.iter_mut().chain(sy.iter_mut()) {
+                col.reserve_exact(total);
+            }
+            w.reserve_exact(total);
+            ranges.reserve_exact(groups.len());
+        }
+        for (g, ranges) in groups.iter().enumerate() {
+            self.groups[g].whole = true;
+            if self.groups[g].in_bin_order {
+                let n = self.groups[g]
+                    .dense
+                    .iter()
+                    .filter(|&&s| s != u32::MAX)
+                    .count();
+                self.groups[g].sums = vec![0.0; n * self.stride];
+            }
+            for r in ranges {
+                self.add_range(g, r.clone(), cols, weights, targets);
+            }
+            self.seal(g);
+        }
+    }
+
+    /// Seals `group`'s cells ([`GroupCells::seal`]): its last range has
+    /// been added. Then every sealed group next in order moves to the
+    /// output: groups that come one after another hold one group's sums
+    /// besides the output at a time.
+    pub fn seal(&mut self, group: usize) {
         let (nd, stride) = (self.axes.len(), self.stride);
-        let nt = stride - 1 - nd;
-        let n: usize = self.groups.iter().map(|g| g.keys.len()).sum();
-        let mut xc: Vec<Vec<f64>> = (0..nd).map(|_| Vec::with_capacity(n)).collect();
-        let mut w = Vec::with_capacity(n);
-        let mut sy: Vec<Vec<f64>> = (0..nt).map(|_| Vec::with_capacity(n)).collect();
-        let mut ranges = Vec::with_capacity(self.groups.len());
-        for g in self.groups {
-            let mut order: Vec<u32> = (0..g.keys.len() as u32).collect();
-            order.sort_unstable_by_key(|&s| g.keys[s as usize]);
+        let g = &mut self.groups[group];
+        if group == self.emitted && g.dense.is_empty() && g.keys.is_empty() && !g.sealed {
+            // Several covariates, nothing merged yet, next in order: the
+            // partial cells merge straight into the output (no merged copy
+            // of the group besides its partial cells and the output).
+            let g = std::mem::take(g);
+            let mut order: Vec<u32> = (0..g.pending_keys.len() as u32).collect();
+            order.sort_by_key(|&i| g.pending_keys[i as usize]);
+            let (xc, w, sy, ranges) = &mut self.out;
             let start = w.len();
-            for s in order {
-                let cell = &g.sums[s as usize * stride..(s as usize + 1) * stride];
+            let mut cell = vec![0.0; stride];
+            let mut a = 0;
+            while a < order.len() {
+                let key = g.pending_keys[order[a] as usize];
+                let i = order[a] as usize;
+                cell.copy_from_slice(&g.pending_sums[i * stride..(i + 1) * stride]);
+                a += 1;
+                while a < order.len() && g.pending_keys[order[a] as usize] == key {
+                    let i = order[a] as usize;
+                    let p = &g.pending_sums[i * stride..(i + 1) * stride];
+                    cell.iter_mut().zip(p).for_each(|(s, v)| *s += v);
+                    a += 1;
+                }
                 for (x, v) in xc.iter_mut().zip(&cell[1..=nd]) {
                     x.push(v / cell[0]);
                 }
@@ -275,8 +455,41 @@ impl CellPool {
                 }
             }
             ranges.push(start..w.len());
+            self.groups[group].sealed = true;
+            self.emitted += 1;
+        } else {
+            g.seal(stride);
         }
-        (xc, w, sy, ranges)
+        while self.emitted < self.groups.len() && self.groups[self.emitted].sealed {
+            let g = std::mem::take(&mut self.groups[self.emitted]);
+            let (xc, w, sy, ranges) = &mut self.out;
+            let start = w.len();
+            for cell in g.sums.chunks_exact(stride) {
+                for (x, v) in xc.iter_mut().zip(&cell[1..=nd]) {
+                    x.push(v / cell[0]);
+                }
+                w.push(cell[0]);
+                for (t, v) in sy.iter_mut().zip(&cell[1 + nd..]) {
+                    t.push(*v);
+                }
+            }
+            ranges.push(start..w.len());
+            // The group stays sealed (and empty): nothing more is added.
+            self.groups[self.emitted].sealed = true;
+            self.emitted += 1;
+        }
+    }
+
+    /// The groups' cells, each group's in ascending cell order: pooled
+    /// covariates (a cell's mean of each), counts, Σy per target, and each
+    /// group's range of cells.
+    pub fn finish(mut self) -> Pooled {
+        for g in 0..self.groups.len() {
+            if !self.groups[g].sealed {
+                self.seal(g);
+            }
+        }
+        self.out
     }
 }
 
@@ -327,12 +540,11 @@ impl RangeOfRows<'_> {
                 }
                 a += 1;
             }
-            let mut slot = g.sparse.get(&key).copied().unwrap_or(u32::MAX);
-            let new = slot == u32::MAX;
-            g.add(&mut slot, key, &sums);
-            if new {
-                g.sparse.insert(key, slot);
-            }
+            g.pending_keys.push(key);
+            g.pending_sums.extend_from_slice(&sums);
+        }
+        if !g.whole && g.pending_keys.len() > g.keys.len().max(4096) {
+            g.merge_pending(self.stride);
         }
     }
 }
@@ -385,5 +597,61 @@ fn pool_range_held<H: AsMut<[f64]>, B: Fn(f64) -> usize>(
     }
     if cur != usize::MAX {
         bins[cur * s..(cur + 1) * s].copy_from_slice(held);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Ranges fed interleaved across groups (as a pass over chunks of runs
+    /// feeds them), each group sealed after its last range, give the bits
+    /// of the groups pooled one after another ([`super::super::pool_rows`]):
+    /// one covariate (dense bins) and two (sorted, merged many times —
+    /// more partial cells than the merge threshold).
+    #[test]
+    fn ranges_interleaved_across_groups_pool_as_groups_one_by_one() {
+        let n = 60_000;
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let a: Vec<f64> = (0..n).map(|_| next() * 40.0).collect();
+        let b: Vec<f64> = (0..n).map(|_| (next() * 3.0).floor()).collect();
+        let y1: Vec<f64> = (0..n).map(|i| (i as f64 * 0.1).sin()).collect();
+        let y2: Vec<f64> = (0..n).map(|i| (i as f64 * 0.37).cos() * 1e3).collect();
+        // 150 ranges of 400 rows; range r belongs to group r % 4.
+        let ranges: Vec<Range<usize>> = (0..150).map(|r| r * 400..(r + 1) * 400).collect();
+        let groups: Vec<Vec<Range<usize>>> = (0..4)
+            .map(|g| ranges.iter().skip(g).step_by(4).cloned().collect())
+            .collect();
+        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        for cols in [vec![a.as_slice()], vec![a.as_slice(), b.as_slice()]] {
+            let mins = vec![0.0; cols.len()];
+            let res = vec![1e-4; cols.len()];
+            let targets = [y1.as_slice(), y2.as_slice()];
+            let want = super::super::pool_rows(&cols, &mins, &res, None, &groups, &targets);
+            let axes = spans(&cols, &mins)
+                .into_iter()
+                .map(|span| Axis::new(0.0, span, 1e-4))
+                .collect();
+            let mut pool = CellPool::new(axes, 2, 4);
+            for (i, r) in ranges.iter().enumerate() {
+                pool.add_range(i % 4, r.clone(), &cols, None, &targets);
+                if i + 4 >= ranges.len() {
+                    pool.seal(i % 4);
+                }
+            }
+            let got = pool.finish();
+            assert_eq!(got.3, want.3, "{} covariates", cols.len());
+            assert!(want.1.len() > 4 * 4096, "cells: {}", want.1.len());
+            assert_eq!(bits(&got.1), bits(&want.1));
+            for (g, w) in got.0.iter().zip(&want.0).chain(got.2.iter().zip(&want.2)) {
+                assert_eq!(bits(g), bits(w), "{} covariates", cols.len());
+            }
+        }
     }
 }
