@@ -141,7 +141,7 @@ pub(super) fn evaluate_all_in_chunks(
 ) -> Vec<(Result<CandEval>, f64)> {
     /// A candidate's state between passes and its time so far.
     enum Cv {
-        Form(FormCv),
+        Form(Box<FormCv>),
         /// Fitted on rows when the passes are done (no linear form).
         Slow,
         Failed(crate::Error),
@@ -178,7 +178,7 @@ pub(super) fn evaluate_all_in_chunks(
                     })
                     .transpose()
                 }) {
-                    Ok(Some(f)) => Cv::Form(f),
+                    Ok(Some(f)) => Cv::Form(Box::new(f)),
                     Ok(None) => Cv::Slow,
                     Err(e) => Cv::Failed(e),
                 }
