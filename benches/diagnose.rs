@@ -113,6 +113,31 @@ fn bench_pool(c: &mut Criterion) {
     g.bench_function("pool_1e6_rows_500_runs_2_covariates", |b| {
         b.iter(|| fit::pool_rows(&[&x, &y], &[0.0, 0.0], &[0.5, 5.0], None, &groups, &tref))
     });
+    // The same cells as a streamed pass makes them: the runs in canonical
+    // order, each into its group (every group open at once), a group sealed
+    // after its last run.
+    let by_runs = |cols: &[&[f64]], res: &[f64]| {
+        let mins = vec![0.0; cols.len()];
+        let axes = fit::pool::spans(cols, &mins)
+            .into_iter()
+            .zip(res)
+            .map(|(span, &r)| fit::pool::Axis::new(0.0, span, r))
+            .collect();
+        let mut cells = fit::CellPool::new(axes, tref.len(), groups.len());
+        for r in 0..runs {
+            cells.add_range(r % 6, r * per_run..(r + 1) * per_run, cols, None, &tref);
+            if r + 6 >= runs {
+                cells.seal(r % 6);
+            }
+        }
+        cells.finish()
+    };
+    g.bench_function("pool_1e6_rows_500_runs_1_covariate_run_by_run", |b| {
+        b.iter(|| by_runs(&[&x], &[0.05]))
+    });
+    g.bench_function("pool_1e6_rows_500_runs_2_covariates_run_by_run", |b| {
+        b.iter(|| by_runs(&[&x, &y], &[0.5, 5.0]))
+    });
     g.finish();
 }
 

@@ -103,10 +103,6 @@ struct GroupCells {
     /// One covariate: the slots were given in bin order up front
     /// ([`CellPool::add_groups`]).
     in_bin_order: bool,
-    /// Pooled whole ([`CellPool::add_groups`]): several covariates' partial
-    /// cells wait for one merge when the group is sealed (a merge per
-    /// chunk of runs would only add copies).
-    whole: bool,
     pending_keys: Vec<u128>,
     pending_sums: Vec<f64>,
 }
@@ -401,7 +397,6 @@ impl CellPool {
             ranges.reserve_exact(groups.len());
         }
         for (g, ranges) in groups.iter().enumerate() {
-            self.groups[g].whole = true;
             if self.groups[g].in_bin_order {
                 let n = self.groups[g]
                     .dense
@@ -543,7 +538,7 @@ impl RangeOfRows<'_> {
             g.pending_keys.push(key);
             g.pending_sums.extend_from_slice(&sums);
         }
-        if !g.whole && g.pending_keys.len() > g.keys.len().max(4096) {
+        if g.pending_keys.len() > g.keys.len().max(4096) {
             g.merge_pending(self.stride);
         }
     }
