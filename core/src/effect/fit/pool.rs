@@ -418,43 +418,7 @@ impl CellPool {
     /// besides the output at a time.
     pub fn seal(&mut self, group: usize) {
         let (nd, stride) = (self.axes.len(), self.stride);
-        let g = &mut self.groups[group];
-        if group == self.emitted && g.dense.is_empty() && g.keys.is_empty() && !g.sealed {
-            // Several covariates, nothing merged yet, next in order: the
-            // partial cells merge straight into the output (no merged copy
-            // of the group besides its partial cells and the output).
-            let g = std::mem::take(g);
-            let mut order: Vec<u32> = (0..g.pending_keys.len() as u32).collect();
-            order.sort_by_key(|&i| g.pending_keys[i as usize]);
-            let (xc, w, sy, ranges) = &mut self.out;
-            let start = w.len();
-            let mut cell = vec![0.0; stride];
-            let mut a = 0;
-            while a < order.len() {
-                let key = g.pending_keys[order[a] as usize];
-                let i = order[a] as usize;
-                cell.copy_from_slice(&g.pending_sums[i * stride..(i + 1) * stride]);
-                a += 1;
-                while a < order.len() && g.pending_keys[order[a] as usize] == key {
-                    let i = order[a] as usize;
-                    let p = &g.pending_sums[i * stride..(i + 1) * stride];
-                    cell.iter_mut().zip(p).for_each(|(s, v)| *s += v);
-                    a += 1;
-                }
-                for (x, v) in xc.iter_mut().zip(&cell[1..=nd]) {
-                    x.push(v / cell[0]);
-                }
-                w.push(cell[0]);
-                for (t, v) in sy.iter_mut().zip(&cell[1 + nd..]) {
-                    t.push(*v);
-                }
-            }
-            ranges.push(start..w.len());
-            self.groups[group].sealed = true;
-            self.emitted += 1;
-        } else {
-            g.seal(stride);
-        }
+        self.groups[group].seal(stride);
         while self.emitted < self.groups.len() && self.groups[self.emitted].sealed {
             let g = std::mem::take(&mut self.groups[self.emitted]);
             let (xc, w, sy, ranges) = &mut self.out;
