@@ -195,19 +195,16 @@ pub(super) fn evaluate_all_in_chunks(
         })
         .collect();
     // The score pass: each chunk once for every candidate.
-    let each = |cvs: &mut Vec<(Cv, f64)>, step: &(dyn Fn(&mut FormCv) -> Result<()> + Sync)| {
+    for c in &chunks {
         cvs.par_iter_mut().for_each(|(cv, secs)| {
             if let Cv::Form(f) = cv {
                 let mut failed = None;
-                timed(secs, &mut || failed = step(f).err());
+                timed(secs, &mut || failed = f.score_pass(prob, tg, c).err());
                 if let Some(e) = failed {
                     *cv = Cv::Failed(e);
                 }
             }
-        })
-    };
-    for c in &chunks {
-        each(&mut cvs, &|f| f.score_pass(prob, tg, c));
+        });
     }
     drop(chunks);
     let masks = prob.train_masks();
