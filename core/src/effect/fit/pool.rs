@@ -84,8 +84,8 @@ thread_local! {
     };
 }
 
-/// One group's cells. One covariate: in the order first seen, a dense
-/// slot per bin. Several: `keys`/`sums` sorted by key, and the partial
+/// One group's cells. One covariate: a dense slot per bin, slots in the
+/// order first seen (or in bin order, given up front). Several: `keys`/`sums` sorted by key, and the partial
 /// cells of the ranges added since (`pending_*`, in arrival order) merged
 /// into them when they outnumber them and at the end — a sort per merge
 /// instead of a hash lookup per partial cell.
@@ -103,6 +103,7 @@ struct GroupCells {
     /// One covariate: the slots were given in bin order up front
     /// ([`CellPool::add_groups`]).
     in_bin_order: bool,
+    /// Several covariates: partial cells not merged yet, in arrival order.
     pending_keys: Vec<u128>,
     pending_sums: Vec<f64>,
 }
@@ -366,9 +367,12 @@ impl CellPool {
         targets: &[&[f64]],
     ) {
         assert_eq!(groups.len(), self.groups.len(), "ranges for every group");
+        // One covariate: each group's cell count, its cells allocated when
+        // its turn comes (one group's sums besides the output at a time).
+        let mut counts = Vec::new();
         if let ([c], [axis]) = (cols, self.axes.as_slice()) {
             const SEEN: u32 = u32::MAX - 1;
-            let mut total = 0;
+
             for (g, ranges) in self.groups.iter_mut().zip(groups) {
                 assert!(
                     !g.sealed && g.dense.is_empty(),
@@ -387,8 +391,9 @@ impl CellPool {
                 }
                 g.dense = dense;
                 g.in_bin_order = true;
-                total += n as usize;
+                counts.push(n as usize);
             }
+            let total: usize = counts.iter().sum();
             let (xc, w, sy, ranges) = &mut self.out;
             for col in xc.iter_mut().chain(sy.iter_mut()) {
                 col.reserve_exact(total);
@@ -397,12 +402,7 @@ impl CellPool {
             ranges.reserve_exact(groups.len());
         }
         for (g, ranges) in groups.iter().enumerate() {
-            if self.groups[g].in_bin_order {
-                let n = self.groups[g]
-                    .dense
-                    .iter()
-                    .filter(|&&s| s != u32::MAX)
-                    .count();
+            if let Some(&n) = counts.get(g) {
                 self.groups[g].sums = vec![0.0; n * self.stride];
             }
             for r in ranges {
