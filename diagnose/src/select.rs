@@ -247,49 +247,6 @@ fn pick(
     Some(alt.unwrap_or(b))
 }
 
-/// Every fold's new target, and the held-out contribution per row.
-type TakenOut = (Vec<Arc<Vec<f64>>>, Vec<f64>);
-
-/// The chosen effect taken out of every fold's target (its prediction from
-/// that fold's fit subtracted), and its held-out contribution per row (each
-/// unit predicted by the fold that held it out). Takes the targets: a
-/// target no one else holds is updated in place (the folds' targets are
-/// most of the selection's memory, 8 B a row each).
-fn take_out(prob: &Problem, e: &dyn Effect, ev: &CandEval, tg: Targets) -> Result<TakenOut> {
-    let k = prob.k;
-    let held_out = |f: usize| {
-        prob.unit_fold
-            .iter()
-            .zip(&prob.units)
-            .filter(move |(uf, _)| **uf == f)
-            .flat_map(|(_, u)| u.clone())
-    };
-    // The folds in parallel: each fold's target less its fit's prediction
-    // (changed in place, or copied first while another fold still shares
-    // it); a CV fold also hands back its held-out rows' predictions — the
-    // effect's held-out contribution there.
-    let done: Vec<(Arc<Vec<f64>>, Vec<f64>)> = tg
-        .into_per_fold()
-        .into_par_iter()
-        .enumerate()
-        .map(|(f, mut t)| -> Result<_> {
-            let mut held = Vec::new();
-            let target: &mut Vec<f64> = Arc::make_mut(&mut t);
-            take_out_fold(e, prob, ev, f, target, &mut held)?;
-            Ok((t, held))
-        })
-        .collect::<Result<_>>()?;
-    let mut c = vec![0.0; prob.x.len()];
-    let mut new_targets = Vec::with_capacity(k + 1);
-    for (f, (t, held)) in done.into_iter().enumerate() {
-        for (i, p) in held_out(f).zip(held) {
-            c[i] = p;
-        }
-        new_targets.push(t);
-    }
-    Ok((new_targets, c))
-}
-
 /// One-sided paired t-test that `after` is smaller than `before`, on the
 /// log ratio of each unit's RMS. Returns (mean log ratio, p-value).
 pub fn paired_log_test(before: &[f64], after: &[f64]) -> (f64, f64) {
@@ -455,10 +412,9 @@ pub fn select(prob: &Problem, cands: &[&dyn Effect], opt: &SelectOptions) -> Res
             ));
         }
     }
-    // Every fold's first target is the gap: one column, shared until the
-    // first effect is taken out of it.
-    let gap = Arc::new(prob.gap.to_vec());
-    let mut tg = Targets::new(std::iter::repeat_n(gap, k + 1).collect(), &prob.units);
+    // Every fold's first target is the gap; a chosen effect's fits are
+    // taken out of the folds' targets as the passes read them.
+    let mut tg = Targets::gap(prob)?;
     let unit_sse_gap: Vec<f64> = prob
         .units
         .iter()
@@ -574,7 +530,7 @@ pub fn select(prob: &Problem, cands: &[&dyn Effect], opt: &SelectOptions) -> Res
             .collect();
         let (ci, ev, _, _) = scored.swap_remove(b);
         let t_out = std::time::Instant::now();
-        let (new_targets, c) = take_out(prob, cands[ci], &ev, tg)?;
+        let (new_targets, c) = tg.taking_out(prob, cands[ci], &ev)?;
         tracing::debug!(
             "round {step}: {} taken out in {:.2} s",
             cands[ci].key(),
@@ -589,7 +545,7 @@ pub fn select(prob: &Problem, cands: &[&dyn Effect], opt: &SelectOptions) -> Res
         chosen_before.push(std::mem::replace(&mut before, ev.unit_sse.clone()));
         chosen_evals.push(ev);
         chosen.push(ci);
-        tg = Targets::new(new_targets, &prob.units);
+        tg = new_targets;
     }
     let residual: Vec<f64> = (0..n)
         .map(|i| prob.gap[i] - contrib.iter().map(|c| c[i]).sum::<f64>())

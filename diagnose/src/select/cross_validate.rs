@@ -6,49 +6,226 @@
 use super::*;
 use crate::effect::{LinearForm, ThetaRange};
 
-/// Per-fold targets (fold k = all runs) and their Σy² per unit.
-pub struct Targets {
-    pub per_fold: Vec<Arc<Vec<f64>>>,
-    distinct: Vec<Arc<Vec<f64>>>,
+/// The folds' current targets (fold k = all runs): the gap less, fold by
+/// fold, each chosen effect's fit of that fold — recomputed for the rows a
+/// pass reads (`fill`) from the fits, not kept as a column per fold
+/// (docs/design.md §8: a few numbers per fold, not 8 B a row each). The
+/// same subtractions in the same order as taking each effect out of a
+/// target column, so the same bits. Also each distinct target's Σy² per
+/// unit.
+pub struct Targets<'a> {
+    gap: &'a [f64],
+    taken: Vec<TakenFit>,
+    /// The distinct target each fold fits (all the gap before any effect
+    /// is chosen; each fold its own after).
     of_fold: Vec<usize>,
+    /// A fold whose target each distinct target is.
+    fold_of: Vec<usize>,
     yy_u: Vec<Vec<f64>>,
 }
 
-impl Targets {
-    /// The per-fold targets, the rest let go (so a target held by no one
-    /// else can be changed in place).
-    pub fn into_per_fold(self) -> Vec<Arc<Vec<f64>>> {
-        self.per_fold
+/// A chosen effect's fits, one per fold, as the targets take them out.
+enum TakenFit {
+    /// A linear form's θ and coefficients per fold: predicted row by row
+    /// from the rows' own covariates.
+    Linear {
+        form: Arc<dyn LinearForm>,
+        frame: Frame,
+        theta: Vec<f64>,
+        beta: Vec<Vec<f64>>,
+    },
+    /// A plugin's fitted effect, which predicts the rows it is given with
+    /// no promise that a row's value is its own alone: each fold's
+    /// prediction of every row, computed once over all rows.
+    Predicted(Vec<Vec<f64>>),
+}
+
+impl TakenFit {
+    fn of(e: &dyn Effect, prob: &Problem, ev: &CandEval) -> Result<TakenFit> {
+        Ok(match &ev.fit {
+            CandFit::Fast { theta, beta } => TakenFit::Linear {
+                form: e.linear_form().expect("fast fit has a form"),
+                frame: prob.frame(e)?,
+                theta: theta.clone(),
+                beta: beta.clone(),
+            },
+            CandFit::Slow { .. } => TakenFit::Predicted(
+                (0..=prob.k)
+                    .map(|f| {
+                        let mut pred = Vec::new();
+                        fold_prediction(e, prob, ev, f, &prob.x, &mut pred)?;
+                        Ok(pred)
+                    })
+                    .collect::<Result<_>>()?,
+            ),
+        })
     }
 
-    pub fn new(per_fold: Vec<Arc<Vec<f64>>>, units: &[Range<usize>]) -> Targets {
-        let mut distinct: Vec<Arc<Vec<f64>>> = Vec::new();
-        let mut of_fold = Vec::new();
-        for t in &per_fold {
-            match distinct.iter().position(|d| Arc::ptr_eq(d, t)) {
-                Some(i) => of_fold.push(i),
-                None => {
-                    of_fold.push(distinct.len());
-                    distinct.push(t.clone());
-                }
+    /// Fold `f`'s prediction (offset included) of the observable's rows
+    /// `rows` into `pred`.
+    fn predict(&self, prob: &Problem, f: usize, rows: Range<usize>, pred: &mut Vec<f64>) -> Result<()> {
+        match self {
+            TakenFit::Linear {
+                form,
+                frame,
+                theta,
+                beta,
+            } => {
+                let fit = FoldFit::Linear {
+                    form: form.clone(),
+                    frame: frame.clone(),
+                    theta: theta[f],
+                    beta: &beta[f],
+                };
+                fit.predict(&prob.x.rows_of(&form.covariates(), rows)?, pred)
+            }
+            TakenFit::Predicted(p) => {
+                pred.clear();
+                pred.extend_from_slice(&p[f][rows]);
+                Ok(())
             }
         }
-        let yy_u = distinct
-            .iter()
-            .map(|t| {
-                units
-                    .iter()
-                    .map(|u| dot(&t[u.clone()], &t[u.clone()]))
-                    .collect()
-            })
-            .collect();
-        Targets {
-            per_fold,
-            distinct,
+    }
+}
+
+impl<'a> Targets<'a> {
+    /// Every fold's target before any effect is chosen: the gap.
+    pub fn gap(prob: &Problem<'a>) -> Result<Targets<'a>> {
+        Targets::with(prob, Vec::new())
+    }
+
+    fn with(prob: &Problem<'a>, taken: Vec<TakenFit>) -> Result<Targets<'a>> {
+        let nf = prob.k + 1;
+        let (of_fold, fold_of) = if taken.is_empty() {
+            (vec![0; nf], vec![0])
+        } else {
+            ((0..nf).collect(), (0..nf).collect())
+        };
+        let mut tg = Targets {
+            gap: prob.gap,
+            taken,
             of_fold,
-            yy_u,
+            fold_of,
+            yy_u: Vec::new(),
+        };
+        // Σy² of each unit, a chunk of units at a time.
+        let mut yy_u = vec![Vec::with_capacity(prob.units.len()); tg.fold_of.len()];
+        for units in consecutive_units(prob, CHUNK_ROWS) {
+            let c = tg.chunk(prob, units.collect())?;
+            for (yy, t) in yy_u.iter_mut().zip(&c.targets) {
+                yy.extend(c.local.iter().map(|r| dot(&t[r.clone()], &t[r.clone()])));
+            }
+        }
+        tg.yy_u = yy_u;
+        Ok(tg)
+    }
+
+    /// These targets with `e`'s fits (`ev`) taken out of every fold's, and
+    /// `e`'s held-out contribution per row (each unit predicted by the fold
+    /// that holds it out).
+    pub fn taking_out(
+        mut self,
+        prob: &Problem<'a>,
+        e: &dyn Effect,
+        ev: &CandEval,
+    ) -> Result<(Targets<'a>, Vec<f64>)> {
+        let fit = TakenFit::of(e, prob, ev)?;
+        let mut contrib = Vec::with_capacity(prob.x.len());
+        for units in consecutive_units(prob, CHUNK_ROWS) {
+            let preds: Vec<Vec<f64>> = units
+                .collect::<Vec<_>>()
+                .into_par_iter()
+                .map(|u| -> Result<Vec<f64>> {
+                    let mut pred = Vec::new();
+                    fit.predict(prob, prob.unit_fold[u], prob.units[u].clone(), &mut pred)?;
+                    Ok(pred)
+                })
+                .collect::<Result<_>>()?;
+            preds.iter().for_each(|p| contrib.extend_from_slice(p));
+        }
+        self.taken.push(fit);
+        Ok((Targets::with(prob, self.taken)?, contrib))
+    }
+
+    /// How many distinct targets the folds fit.
+    pub fn n_distinct(&self) -> usize {
+        self.fold_of.len()
+    }
+
+    /// The distinct targets over the rows of `units` (their rows one after
+    /// another): each the gap less its fold's fit of every chosen effect,
+    /// in the order they were chosen.
+    pub fn chunk(&self, prob: &Problem, units: Vec<usize>) -> Result<Chunk> {
+        self.chunk_of_folds(prob, units, &self.fold_of)
+    }
+
+    /// The targets of `folds` over the rows of `units`.
+    fn chunk_of_folds(&self, prob: &Problem, units: Vec<usize>, folds: &[usize]) -> Result<Chunk> {
+        let mut local = Vec::with_capacity(units.len());
+        let mut n = 0;
+        for &u in &units {
+            local.push(n..n + prob.units[u].len());
+            n += prob.units[u].len();
+        }
+        let targets = folds
+            .par_iter()
+            .map(|&f| -> Result<Vec<f64>> {
+                let mut t = Vec::with_capacity(n);
+                let mut pred = Vec::new();
+                for &u in &units {
+                    let (rows, at) = (prob.units[u].clone(), t.len());
+                    t.extend_from_slice(&self.gap[rows.clone()]);
+                    for fit in &self.taken {
+                        fit.predict(prob, f, rows.clone(), &mut pred)?;
+                        t[at..].iter_mut().zip(&pred).for_each(|(y, p)| *y -= p);
+                    }
+                }
+                Ok(t)
+            })
+            .collect::<Result<_>>()?;
+        Ok(Chunk {
+            units,
+            local,
+            targets,
+        })
+    }
+
+    /// Fold `f`'s target over every row (a plugin effect's refit and a
+    /// form not pooled on cells read the whole column).
+    fn column(&self, prob: &Problem, f: usize) -> Result<Vec<f64>> {
+        let mut c = self.chunk_of_folds(prob, (0..prob.units.len()).collect(), &[f])?;
+        Ok(c.targets.pop().expect("one target"))
+    }
+}
+
+/// The units, in order, cut into runs of consecutive units of at most
+/// `max_rows` rows (a unit longer than that on its own).
+fn consecutive_units(prob: &Problem, max_rows: usize) -> Vec<Range<usize>> {
+    cut_units(prob, &(0..prob.units.len()).collect::<Vec<_>>(), max_rows)
+        .into_iter()
+        .map(|us| us[0]..us[us.len() - 1] + 1)
+        .collect()
+}
+
+/// `units` (ascending) cut into lists of at most `max_rows` rows (a unit
+/// longer than that in a list of its own).
+fn cut_units(prob: &Problem, units: &[usize], max_rows: usize) -> Vec<Vec<usize>> {
+    let mut out: Vec<Vec<usize>> = Vec::new();
+    let mut rows = 0;
+    for &u in units {
+        let n = prob.units[u].len();
+        match out.last_mut() {
+            Some(last) if rows + n <= max_rows => {
+                last.push(u);
+                rows += n;
+            }
+            _ => {
+                out.push(vec![u]);
+                rows = n;
+            }
         }
     }
+    out
 }
 
 /// A candidate's cross-validated fit.
@@ -74,67 +251,31 @@ const TRAIN_POOL_FINER: f64 = 8.0;
 
 /// Rows a pass over the observable takes at a time: the unit of what a
 /// node reads of a run's rows (several runs fit in one chunk).
-const CHUNK_ROWS: usize = 1 << 20;
+const CHUNK_ROWS: usize = 1 << 18;
 
-/// The rows of consecutive scoring units as a pass over the observable
-/// sees them (docs/design.md §8): row `i` of the chunk is row
-/// `first_row + i` of the observable.
-pub struct Chunk<'a> {
-    pub units: Range<usize>,
-    pub first_row: usize,
-    pub x: EffectData<'a>,
-    /// Each distinct target of [`Targets`] over the chunk's rows.
-    pub targets: Vec<&'a [f64]>,
-}
-
-impl Chunk<'_> {
-    /// Unit `u`'s rows within the chunk.
-    fn rows(&self, units: &[Range<usize>], u: usize) -> Range<usize> {
-        units[u].start - self.first_row..units[u].end - self.first_row
-    }
-}
-
-/// The units cut into chunks of consecutive units of at most `max_rows`
-/// rows (a unit longer than that is a chunk of its own): slices of the
-/// observable's columns.
-pub fn chunks<'a>(prob: &Problem<'a>, tg: &'a Targets, max_rows: usize) -> Result<Vec<Chunk<'a>>> {
-    let names: Vec<String> = prob.x.names().map(String::from).collect();
-    let mut out = Vec::new();
-    let mut a = 0;
-    while a < prob.units.len() {
-        let first_row = prob.units[a].start;
-        let mut b = a + 1;
-        while b < prob.units.len() && prob.units[b].end - first_row <= max_rows {
-            b += 1;
-        }
-        let rows = first_row..prob.units[b - 1].end;
-        out.push(Chunk {
-            units: a..b,
-            first_row,
-            x: prob.x.rows_of(&names, rows.clone())?,
-            targets: tg.distinct.iter().map(|t| &t[rows.clone()]).collect(),
-        });
-        a = b;
-    }
-    Ok(out)
+/// Scoring units as a pass over the observable reads them
+/// (docs/design.md §8): their targets, computed for their rows. A unit's
+/// covariates are its rows of the observable's columns.
+pub struct Chunk {
+    /// The units, ascending.
+    pub units: Vec<usize>,
+    /// Each unit's rows within `targets`, one after another.
+    pub local: Vec<Range<usize>>,
+    /// Each distinct target of [`Targets`] over the units' rows.
+    pub targets: Vec<Vec<f64>>,
 }
 
 /// Cross-validates candidates against the current targets (in parallel):
-/// each candidate's cell pass and θ fit, then the score pass reading a
-/// chunk once for every candidate before the next. Each candidate's result
-/// (a failed fit is an error of its own) and its time in seconds.
-///
-/// With every row in memory the cell pass takes them as one chunk: its
-/// groups are then pooled one after another, each counted first and laid
-/// out at its size (`CellPool::add_groups`), instead of every group open
-/// at once and growing — at 500 servo runs that is ≈ 45 MB less at the
-/// diagnosis' peak.
+/// the cell pass reading a chunk of units once for every candidate (fold
+/// group after fold group), each candidate's θ fit, then the score pass
+/// reading a chunk once for every candidate. Each candidate's result (a
+/// failed fit is an error of its own) and its time in seconds.
 pub fn evaluate_all(
     cands: &[&dyn Effect],
     prob: &Problem,
     tg: &Targets,
 ) -> Vec<(Result<CandEval>, f64)> {
-    evaluate_all_in_chunks(cands, prob, tg, usize::MAX, CHUNK_ROWS)
+    evaluate_all_in_chunks(cands, prob, tg, CHUNK_ROWS, CHUNK_ROWS)
 }
 
 /// [`evaluate_all`] with its cell pass over the rows in chunks of
@@ -159,33 +300,15 @@ pub(super) fn evaluate_all_in_chunks(
         f();
         *secs += t.elapsed().as_secs_f64();
     };
-    let (cell_chunks, chunks) = match (chunks(prob, tg, cell_rows), chunks(prob, tg, score_rows)) {
-        (Ok(a), Ok(b)) => (a, b),
-        (Err(e), _) | (_, Err(e)) => {
-            let why = e.to_string();
-            return cands.iter().map(|_| (Err(err!("{why}")), 0.0)).collect();
-        }
-    };
-    // The cell pass and the θ fit, a candidate at a time: its cells live
-    // from its first chunk to its fit only, so two threads hold two
-    // candidates' cells, not every candidate's (at 500 servo runs the
-    // fine cells of one round's candidates are ≈ 10⁶, ≈ 130 MB together).
+    let masks = prob.train_masks();
+    let groups = fit::fold_groups(&masks, prob.units.len());
     let mut cvs: Vec<(Cv, f64)> = cands
         .par_iter()
         .map(|e| {
             let mut secs = 0.0;
             let mut cv = Cv::Slow;
             timed(&mut secs, &mut || {
-                cv = match FormCv::new(*e, prob, tg).and_then(|f| {
-                    f.map(|mut f| -> Result<FormCv> {
-                        for c in &cell_chunks {
-                            f.cell_pass(prob, c);
-                        }
-                        f.fit_theta(prob, tg)?;
-                        Ok(f)
-                    })
-                    .transpose()
-                }) {
+                cv = match FormCv::new(*e, prob, tg, &groups) {
                     Ok(Some(f)) => Cv::Form(Box::new(f)),
                     Ok(None) => Cv::Slow,
                     Err(e) => Cv::Failed(e),
@@ -194,20 +317,73 @@ pub(super) fn evaluate_all_in_chunks(
             (cv, secs)
         })
         .collect();
+    // A pass that cannot compute a chunk's targets fails every candidate
+    // it feeds.
+    let fail_forms = |cvs: &mut Vec<(Cv, f64)>, e: crate::Error| {
+        let why = e.to_string();
+        for (cv, _) in cvs.iter_mut() {
+            if matches!(cv, Cv::Form(_)) {
+                *cv = Cv::Failed(err!("{why}"));
+            }
+        }
+    };
+    // The cell pass: the fold groups one after another (a candidate's
+    // cells then hold one open group besides the sealed ones), each
+    // group's units a chunk at a time, the chunk's targets computed once
+    // for every candidate.
+    let pooled = |cvs: &Vec<(Cv, f64)>| {
+        cvs.iter()
+            .any(|(cv, _)| matches!(cv, Cv::Form(f) if f.cells.is_some()))
+    };
+    if pooled(&cvs) {
+        'groups: for (g, members) in groups.iter().enumerate() {
+            for units in cut_units(prob, members, cell_rows) {
+                let c = match tg.chunk(prob, units) {
+                    Ok(c) => c,
+                    Err(e) => {
+                        fail_forms(&mut cvs, e);
+                        break 'groups;
+                    }
+                };
+                cvs.par_iter_mut().for_each(|(cv, secs)| {
+                    if let Cv::Form(f) = cv {
+                        timed(secs, &mut || f.cell_pass(prob, &c, g));
+                    }
+                });
+            }
+        }
+    }
+    cvs.par_iter_mut().for_each(|(cv, secs)| {
+        if let Cv::Form(f) = cv {
+            let mut failed = None;
+            timed(secs, &mut || failed = f.fit_theta(prob, tg).err());
+            if let Some(e) = failed {
+                *cv = Cv::Failed(e);
+            }
+        }
+    });
     // The score pass: each chunk once for every candidate.
-    for c in &chunks {
+    for units in consecutive_units(prob, score_rows) {
+        if !cvs.iter().any(|(cv, _)| matches!(cv, Cv::Form(_))) {
+            break;
+        }
+        let c = match tg.chunk(prob, units.collect()) {
+            Ok(c) => c,
+            Err(e) => {
+                fail_forms(&mut cvs, e);
+                break;
+            }
+        };
         cvs.par_iter_mut().for_each(|(cv, secs)| {
             if let Cv::Form(f) = cv {
                 let mut failed = None;
-                timed(secs, &mut || failed = f.score_pass(prob, tg, c).err());
+                timed(secs, &mut || failed = f.score_pass(prob, tg, &c).err());
                 if let Some(e) = failed {
                     *cv = Cv::Failed(e);
                 }
             }
         });
     }
-    drop(chunks);
-    let masks = prob.train_masks();
     cvs.into_par_iter()
         .zip(cands.par_iter())
         .map(|((cv, secs), e)| {
@@ -263,7 +439,14 @@ struct BlockSet {
 
 impl FormCv {
     /// `None`: the effect has no linear form (fitted on rows instead).
-    fn new(e: &dyn Effect, prob: &Problem, tg: &Targets) -> Result<Option<FormCv>> {
+    /// `groups`: the fold groups of the units (`fit::fold_groups`): units
+    /// every fold treats alike, pooled together for the θ scan.
+    fn new(
+        e: &dyn Effect,
+        prob: &Problem,
+        tg: &Targets,
+        groups: &[Vec<usize>],
+    ) -> Result<Option<FormCv>> {
         let Some(form) = e.linear_form() else {
             return Ok(None);
         };
@@ -273,7 +456,7 @@ impl FormCv {
         let theta_range = form.theta(&frame);
         // θ is scanned over groups of units that every fold trains on
         // alike: the scan costs folds × bins, not runs × bins.
-        let groups = fit::fold_groups(&masks, prob.units.len());
+        let groups = groups.to_vec();
         let mut group_of_unit = vec![0; prob.units.len()];
         for (g, members) in groups.iter().enumerate() {
             for &u in members {
@@ -298,7 +481,13 @@ impl FormCv {
                     .zip(mins.iter().zip(&res))
                     .map(|(span, (&min, &r))| fit::pool::Axis::new(min, span, r / TRAIN_POOL_FINER))
                     .collect();
-                Some(fit::CellPool::new(axes, tg.distinct.len(), groups.len()))
+                let mut pool = fit::CellPool::new(axes, tg.n_distinct(), groups.len());
+                let group_rows: Vec<Vec<Range<usize>>> = groups
+                    .iter()
+                    .map(|g| g.iter().map(|&u| prob.units[u].clone()).collect())
+                    .collect();
+                pool.count_groups(&group_rows, &cols);
+                Some(pool)
             }
             _ => None,
         };
@@ -317,10 +506,11 @@ impl FormCv {
         }))
     }
 
-    /// The cell pass over one chunk: each unit's rows into its group's
-    /// cells, a group's units in unit order (the order of the additions,
-    /// so the same bits however the units come).
-    fn cell_pass(&mut self, prob: &Problem, c: &Chunk) {
+    /// The cell pass over one chunk of group `g`'s units: each unit's rows
+    /// into the group's cells, in unit order (the order of the additions,
+    /// so the same bits however the units come); the group sealed after
+    /// its last unit.
+    fn cell_pass(&mut self, prob: &Problem, c: &Chunk, g: usize) {
         let Some(cells) = self.cells.as_mut() else {
             return;
         };
@@ -328,25 +518,20 @@ impl FormCv {
             .form
             .covariates()
             .iter()
-            .map(|n| c.x.col(n).expect("the pool's covariates were checked"))
+            .map(|n| prob.x.col(n).expect("the pool's covariates were checked"))
             .collect();
-        if c.units == (0..prob.units.len()) {
-            // Every row at hand: group by group, each group's cells sealed
-            // (compact) before the next group's fill.
-            let groups: Vec<Vec<Range<usize>>> = self
-                .groups
-                .iter()
-                .map(|members| members.iter().map(|&u| c.rows(&prob.units, u)).collect())
-                .collect();
-            cells.add_groups(&groups, &cols, None, &c.targets);
-            return;
+        let (mut unit_cols, mut unit_targets) = (Vec::new(), Vec::new());
+        for (&u, l) in c.units.iter().zip(&c.local) {
+            debug_assert_eq!(self.group_of_unit[u], g, "a chunk of one group");
+            let r = prob.units[u].clone();
+            unit_cols.clear();
+            unit_cols.extend(cols.iter().map(|col| &col[r.clone()]));
+            unit_targets.clear();
+            unit_targets.extend(c.targets.iter().map(|t| &t[l.clone()]));
+            cells.add_range(g, 0..r.len(), &unit_cols, None, &unit_targets);
         }
-        for u in c.units.clone() {
-            let g = self.group_of_unit[u];
-            cells.add_range(g, c.rows(&prob.units, u), &cols, None, &c.targets);
-            if self.groups[g].last() == Some(&u) {
-                cells.seal(g);
-            }
+        if c.units.last() == self.groups[g].last() {
+            cells.seal(g);
         }
     }
 
@@ -382,9 +567,15 @@ impl FormCv {
                     // The θ scan's coarser cells from the CV folds' finer
                     // ones: no other pass over the rows.
                     let mut fine_store = Vec::new();
+                    let pooled = cells.finish();
+                    tracing::debug!(
+                        "fine cells of {:?}: {}",
+                        form.covariates(),
+                        pooled.1.len()
+                    );
                     let fine = fit::scan_rows_of_cells(
                         &form.covariates(),
-                        cells.finish(),
+                        pooled,
                         &mut fine_store,
                     );
                     let mut store = Vec::new();
@@ -409,7 +600,12 @@ impl FormCv {
                         .iter()
                         .map(|g| g.iter().map(|&u| prob.units[u].clone()).collect())
                         .collect();
-                    let tslices: Vec<&[f64]> = tg.distinct.iter().map(|t| t.as_slice()).collect();
+                    let tcols: Vec<Vec<f64>> = tg
+                        .fold_of
+                        .iter()
+                        .map(|&f| tg.column(prob, f))
+                        .collect::<Result<_>>()?;
+                    let tslices: Vec<&[f64]> = tcols.iter().map(|t| t.as_slice()).collect();
                     let mut store = Vec::new();
                     let rows = scan_rows(
                         form,
@@ -467,23 +663,23 @@ impl FormCv {
         let form = self.form.clone();
         let covs = form.covariates();
         with_columns(form.n_linear(), |buf| -> Result<()> {
-            for u in c.units.clone() {
-                let r = c.rows(&prob.units, u);
-                let x = c.x.rows_of(&covs, r.clone())?;
+            for (&u, l) in c.units.iter().zip(&c.local) {
+                let r = prob.units[u].clone();
+                let x = prob.x.rows_of(&covs, r.clone())?;
                 let f = prob.unit_fold[u];
                 if let Some(b) = self.pooled_beta.get(f).and_then(|b| b.as_ref()) {
                     // Held out by CV fold f, fitted on cells at its θ.
                     let t = tg.of_fold[f];
                     form.features(&self.frame, &x, self.thetas[f], buf)?;
                     let g = fit::design_gram(buf, None, 0..r.len());
-                    let h = fit::design_xy(buf, &c.targets[t][r.clone()], 0..r.len());
+                    let h = fit::design_xy(buf, &c.targets[t][l.clone()], 0..r.len());
                     self.unit_sse[u] = fit::sse(&g, &h, tg.yy_u[t][u], b);
                 }
                 for set in &mut self.block_sets {
                     form.features(&self.frame, &x, set.theta, buf)?;
                     set.g_u.push(fit::design_gram(buf, None, 0..r.len()));
                     for (h_u, &t) in set.h_of.iter_mut().zip(&set.targets) {
-                        h_u.push(fit::design_xy(buf, &c.targets[t][r.clone()], 0..r.len()));
+                        h_u.push(fit::design_xy(buf, &c.targets[t][l.clone()], 0..r.len()));
                     }
                 }
             }
@@ -562,7 +758,8 @@ pub(super) fn evaluate_slow(
             .filter(|(_, t)| **t)
             .flat_map(|(u, _)| u.clone())
             .collect();
-        let y: Vec<f64> = rows.iter().map(|&i| tg.per_fold[f][i]).collect();
+        let target = tg.column(prob, f)?;
+        let y: Vec<f64> = rows.iter().map(|&i| target[i]).collect();
         let mut store = Vec::new();
         let xd = gather(prob, &covs, &rows, &mut store)?;
         let fe = e.fit(&xd, &y)?;
@@ -571,7 +768,7 @@ pub(super) fn evaluate_slow(
         for (u, t) in m.iter().enumerate() {
             if !*t {
                 let r = prob.units[u].clone();
-                unit_sse[u] = r.map(|i| (tg.per_fold[f][i] - off - pred[i]).powi(2)).sum();
+                unit_sse[u] = r.map(|i| (target[i] - off - pred[i]).powi(2)).sum();
             }
         }
         fitted.push(fe);
@@ -723,9 +920,13 @@ mod tests {
 
     /// A candidate's cross-validation reads the rows a chunk at a time;
     /// its fits and held-out scores are the same bits whether a chunk is
-    /// one unit or the whole observable — what lets a pass stream the runs
-    /// (docs/design.md §8). Targets that differ by fold (as after a chosen
-    /// effect) and shared ones both.
+    /// one unit or a whole fold group — what lets a pass stream the runs
+    /// (docs/design.md §8). Targets shared by every fold (the gap) and a
+    /// target per fold after two effects were taken out — recomputed for
+    /// each chunk from the fits, bit for bit the columns the fits'
+    /// predictions were subtracted from, one after the other, with the
+    /// held-out contributions the folds' predictions of their held-out
+    /// rows.
     #[test]
     fn a_candidates_passes_give_the_same_bits_for_any_chunk_size() {
         let (runs, per_run) = (12, 700);
@@ -772,23 +973,51 @@ mod tests {
                 .map(|(name, col)| (name.to_string(), CovStats::from_values(col)))
                 .collect(),
         };
-        let shared = Arc::new(gap.clone());
-        let per_fold: Vec<Arc<Vec<f64>>> = (0..=k)
-            .map(|f| {
-                Arc::new(
-                    gap.iter()
-                        .enumerate()
-                        .map(|(i, g)| g - 1e-5 * f as f64 * (i % 7) as f64)
-                        .collect(),
-                )
-            })
-            .collect();
         let names: Vec<String> = names.iter().map(|s| s.to_string()).collect();
         let cands = catalogue(&names);
         let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
         let refs: Vec<&dyn Effect> = cands.iter().map(|e| e.as_ref()).collect();
-        for targets in [vec![shared; k + 1], per_fold] {
-            let tg = Targets::new(targets, &prob.units);
+        // The gap shared by every fold, then two effects taken out (a
+        // target per fold, the second subtraction after the first).
+        let gap_targets = Targets::gap(&prob).unwrap();
+        let taken = ["periodic:x_mm", "drift:t_s"].map(|key| {
+            refs.iter()
+                .position(|e| e.key() == key)
+                .unwrap_or_else(|| panic!("{key} in the catalogue"))
+        });
+        let mut tg = Targets::gap(&prob).unwrap();
+        let mut columns: Vec<Vec<f64>> = vec![gap.clone(); k + 1];
+        for &i in &taken {
+            let ev = evaluate_all_in_chunks(&[refs[i]], &prob, &tg, usize::MAX, usize::MAX)
+                .pop()
+                .unwrap()
+                .0
+                .unwrap();
+            let (next, contrib) = tg.taking_out(&prob, refs[i], &ev).unwrap();
+            // What the targets are recomputed to equal: each fold's column
+            // less its fit, and the held-out rows' predictions.
+            let mut held_rows = vec![f64::NAN; n];
+            for (f, col) in columns.iter_mut().enumerate() {
+                let mut held = Vec::new();
+                take_out_fold(refs[i], &prob, &ev, f, col, &mut held).unwrap();
+                let rows = prob
+                    .units
+                    .iter()
+                    .zip(&prob.unit_fold)
+                    .filter(|(_, uf)| **uf == f && f < k)
+                    .flat_map(|(u, _)| u.clone());
+                for (r, p) in rows.zip(held) {
+                    held_rows[r] = p;
+                }
+            }
+            assert_eq!(bits(&contrib), bits(&held_rows), "{}", refs[i].key());
+            for (f, col) in columns.iter().enumerate() {
+                assert_eq!(bits(&next.column(&prob, f).unwrap()), bits(col), "fold {f}");
+            }
+            tg = next;
+        }
+        assert_eq!(tg.n_distinct(), k + 1);
+        for tg in [gap_targets, tg] {
             let mut scanned = 0;
             let whole = evaluate_all_in_chunks(&refs, &prob, &tg, usize::MAX, usize::MAX);
             for max_rows in [1, 2 * per_run + 1] {

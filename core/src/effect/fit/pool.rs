@@ -100,9 +100,10 @@ struct GroupCells {
     sums: Vec<f64>,
     /// Cells in ascending order at their size ([`GroupCells::seal`]).
     sealed: bool,
-    /// One covariate: the slots were given in bin order up front
-    /// ([`CellPool::add_groups`]).
-    in_bin_order: bool,
+    /// One covariate: the slots were given in bin order up front, this
+    /// many ([`CellPool::count_groups`]); the sums are allocated at that
+    /// size when the first range comes.
+    counted: Option<usize>,
     /// Several covariates: partial cells not merged yet, in arrival order.
     pending_keys: Vec<u128>,
     pending_sums: Vec<f64>,
@@ -137,7 +138,7 @@ impl GroupCells {
             self.merge_pending(stride);
             self.keys = Vec::new();
             self.sums.shrink_to_fit();
-        } else if self.in_bin_order {
+        } else if self.counted.is_some() {
             self.dense = Vec::new();
         } else {
             // One covariate: the bins in order are the cells in order.
@@ -268,6 +269,9 @@ impl CellPool {
         if g.dense.is_empty() {
             g.dense = vec![u32::MAX; axis.bins];
         }
+        if let (Some(n), true) = (g.counted, g.sums.is_empty()) {
+            g.sums = vec![0.0; n * stride];
+        }
         PART.with_borrow_mut(|(part, touched)| {
             if part.len() < axis.bins * stride {
                 part.resize(axis.bins * stride, 0.0);
@@ -352,13 +356,9 @@ impl CellPool {
     }
 
     /// Pools every group — each group's ranges in order, group after
-    /// group — sealing each when done. With one covariate the cells are
-    /// counted first and laid out in bin order at their size, and the
-    /// output columns are allocated once at theirs: no growth, and one
-    /// group's sums besides the output at a time (the cells of a fine grid
-    /// are nearly as many as the rows, so this is the pass's peak). A slot
-    /// given up front starts at zero, and 0 + s is s: the same bits as
-    /// [`CellPool::add_range`] range by range.
+    /// group — sealing each when done ([`CellPool::count_groups`] first).
+    /// A slot given up front starts at zero, and 0 + s is s: the same bits
+    /// as [`CellPool::add_range`] range by range.
     pub fn add_groups(
         &mut self,
         groups: &[Vec<Range<usize>>],
@@ -366,50 +366,56 @@ impl CellPool {
         weights: Option<&[f64]>,
         targets: &[&[f64]],
     ) {
-        assert_eq!(groups.len(), self.groups.len(), "ranges for every group");
-        // One covariate: each group's cell count, its cells allocated when
-        // its turn comes (one group's sums besides the output at a time).
-        let mut counts = Vec::new();
-        if let ([c], [axis]) = (cols, self.axes.as_slice()) {
-            const SEEN: u32 = u32::MAX - 1;
-
-            for (g, ranges) in self.groups.iter_mut().zip(groups) {
-                assert!(
-                    !g.sealed && g.dense.is_empty(),
-                    "groups pooled whole are new"
-                );
-                let mut dense = vec![u32::MAX; axis.bins];
-                for r in ranges {
-                    for &x in &c[r.clone()] {
-                        dense[axis.bin(x)] = SEEN;
-                    }
-                }
-                let mut n = 0u32;
-                for s in dense.iter_mut().filter(|s| **s == SEEN) {
-                    *s = n;
-                    n += 1;
-                }
-                g.dense = dense;
-                g.in_bin_order = true;
-                counts.push(n as usize);
-            }
-            let total: usize = counts.iter().sum();
-            let (xc, w, sy, ranges) = &mut self.out;
-            for col in xc.iter_mut().chain(sy.iter_mut()) {
-                col.reserve_exact(total);
-            }
-            w.reserve_exact(total);
-            ranges.reserve_exact(groups.len());
-        }
+        self.count_groups(groups, cols);
         for (g, ranges) in groups.iter().enumerate() {
-            if let Some(&n) = counts.get(g) {
-                self.groups[g].sums = vec![0.0; n * self.stride];
-            }
             for r in ranges {
                 self.add_range(g, r.clone(), cols, weights, targets);
             }
             self.seal(g);
         }
+    }
+
+    /// One covariate: counts every group's cells from the covariate alone
+    /// (`groups`: each group's ranges, all of them) and lays each group's
+    /// out in bin order, its sums allocated at their size when its first
+    /// range comes, and the output columns once at theirs: no growth, and
+    /// one group's sums besides the output at a time (the cells of a fine
+    /// grid are nearly as many as the rows, so this is the pass's peak).
+    /// The ranges may then come in any order of groups. Several
+    /// covariates: nothing to do.
+    pub fn count_groups(&mut self, groups: &[Vec<Range<usize>>], cols: &[&[f64]]) {
+        assert_eq!(groups.len(), self.groups.len(), "ranges for every group");
+        let ([c], [axis]) = (cols, self.axes.as_slice()) else {
+            return;
+        };
+        const SEEN: u32 = u32::MAX - 1;
+        let mut total = 0;
+        for (g, ranges) in self.groups.iter_mut().zip(groups) {
+            assert!(
+                !g.sealed && g.dense.is_empty(),
+                "groups counted whole are new"
+            );
+            let mut dense = vec![u32::MAX; axis.bins];
+            for r in ranges {
+                for &x in &c[r.clone()] {
+                    dense[axis.bin(x)] = SEEN;
+                }
+            }
+            let mut n = 0u32;
+            for s in dense.iter_mut().filter(|s| **s == SEEN) {
+                *s = n;
+                n += 1;
+            }
+            g.dense = dense;
+            g.counted = Some(n as usize);
+            total += n as usize;
+        }
+        let (xc, w, sy, ranges) = &mut self.out;
+        for col in xc.iter_mut().chain(sy.iter_mut()) {
+            col.reserve_exact(total);
+        }
+        w.reserve_exact(total);
+        ranges.reserve_exact(groups.len());
     }
 
     /// Seals `group`'s cells ([`GroupCells::seal`]): its last range has
