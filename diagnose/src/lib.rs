@@ -306,14 +306,26 @@ fn diagnose_observable(
     // its selection is done; when there are some, the rest of the plain
     // pass (intervals, machine tests, cells, …) would be thrown away, so it
     // stops there and only its residual stays (the trim report's).
+    // The trim report is made as the spikes are found, from the plain
+    // residual, which is then let go (8 B a row through the second pass).
     let mut found = None;
-    let mut resid = Vec::new();
+    let mut trim_report = None;
     let mut spikes_end_the_pass = |residual: &[f64]| {
         let d = outliers::detect(&o, residual);
-        let spikes = matches!(&d, Ok((out, _, _)) if !out.is_empty());
-        if spikes {
-            resid = residual.to_vec();
+        if let Ok((out, sigma, thr)) = &d {
+            if !out.is_empty() {
+                trim_report = Some(outliers::report(
+                    &o,
+                    out,
+                    residual,
+                    &table.run_names,
+                    &table.run,
+                    *sigma,
+                    *thr,
+                ));
+            }
         }
+        let spikes = trim_report.is_some();
         found = Some(d);
         !spikes
     };
@@ -332,11 +344,11 @@ fn diagnose_observable(
     // through the spike-free pass.
     drop(every);
     let found = found.expect("the plain pass selects before it can stop");
-    let (out, sigma, thr) = match found {
-        Ok(found) => found,
+    let (out, thr) = match found {
+        Ok((out, _, thr)) => (out, thr),
         Err(why) => {
             notes.add(why);
-            (Vec::new(), f64::NAN, f64::NAN)
+            (Vec::new(), f64::NAN)
         }
     };
     if out.is_empty() {
@@ -384,7 +396,7 @@ fn diagnose_observable(
     let kept_gap = std::mem::take(&mut kept.gap);
     drop(kept);
     let after: f64 = robust.residual_all.iter().map(|r| r.powi(2)).sum();
-    let rep = outliers::report(&o, &out, &resid, &table.run_names, &table.run, sigma, thr);
+    let rep = trim_report.expect("made when the spikes were found");
     notes.add(format!(
         "{}: {} isolated outliers ({:.2} % of rows, |residual| > {}σ robust = {}) trimmed from fits and scores",
         o.name,
@@ -491,7 +503,7 @@ fn analyse(
         allow_selection: above,
     };
     clock.lap("folds, candidates");
-    let sel = select::select(&prob, &cands, &opt)?;
+    let mut sel = select::select(&prob, &cands, &opt)?;
     clock.lap("select");
     if !go_on(&sel.residual) {
         clock.done();
@@ -511,7 +523,8 @@ fn analyse(
         &ivs,
         cfg,
     ));
-    let obs_selected = output::record_selected(o, &prob, &cands, &sel, nf.sigma_mm, slots, acc)?;
+    let obs_selected =
+        output::record_selected(o, &prob, &cands, &mut sel, nf.sigma_mm, slots, acc)?;
     clock.lap("per-row results");
     if !above {
         notes.add(format!("{}: no gap above noise", o.name));

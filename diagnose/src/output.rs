@@ -140,7 +140,7 @@ pub fn record_selected(
     o: &ObsRows,
     prob: &Problem,
     cands: &[&dyn Effect],
-    sel: &Selection,
+    sel: &mut Selection,
     sigma_mm: f64,
     slots: &crate::Slots,
     acc: &mut Accum,
@@ -161,13 +161,25 @@ pub fn record_selected(
                 ((r.sse_before - r.sse_after) / var).max(0.0);
         }
         obs_selected.push(key.clone());
-        let col = acc
-            .contrib_cols
-            .entry(key.clone())
-            .or_insert_with(|| vec![0.0; n_slots]);
-        for (&slot, c) in slots.analysed.iter().zip(&sel.contrib[j]) {
-            col[slot] = *c;
-        }
+        // The held-out contributions move to the accumulator (nothing
+        // after reads the selection's): as they are when every slot was
+        // analysed, else placed at their slots (8 B a row per chosen
+        // effect not held twice).
+        let contrib = std::mem::take(&mut sel.contrib[j]);
+        let col = match acc.contrib_cols.entry(key.clone()) {
+            std::collections::btree_map::Entry::Vacant(v)
+                if slots.analysed.len() == n_slots && contrib.len() == n_slots =>
+            {
+                v.insert(contrib)
+            }
+            entry => {
+                let col = entry.or_insert_with(|| vec![0.0; n_slots]);
+                for (&slot, c) in slots.analysed.iter().zip(&contrib) {
+                    col[slot] = *c;
+                }
+                col
+            }
+        };
         if !extra_rows.is_empty() {
             let pred = trimmed_prediction(e, prob, &sel.chosen_evals[j], slots)?;
             for ((&slot, p), r) in slots
