@@ -292,11 +292,9 @@ fn diagnose_observable(
     let mut o = gather::gather(table, oi, notes)?;
     // Each pass's accumulator holds a slot per row of the observable (not
     // per row of the fleet): slot p is table row `o.rows[p]`.
-    let every: Vec<usize> = (0..o.n()).collect();
     let mut plain = Accum::new(o.n());
     let mut plain_notes = Notes::default();
     let slots = Slots {
-        analysed: &every,
         trimmed: &[],
         trimmed_slots: &[],
         trimmed_covs: &[],
@@ -340,9 +338,6 @@ fn diagnose_observable(
         &slots,
         &mut spikes_end_the_pass,
     )?;
-    // The plain pass's slot map is the identity; 8 B a row not to carry
-    // through the spike-free pass.
-    drop(every);
     let found = found.expect("the plain pass selects before it can stop");
     let (out, thr) = match found {
         Ok((out, _, thr)) => (out, thr),
@@ -369,13 +364,9 @@ fn diagnose_observable(
         .collect();
     let trimmed_gap: Vec<f64> = out.iter().map(|&p| o.gap[p]).collect();
     let mut kept = o.take_kept(&out);
-    let kept_slots: Vec<usize> = (0..o.n())
-        .filter(|p| out.binary_search(p).is_err())
-        .collect();
     let trimmed: Vec<usize> = out.iter().map(|&p| o.rows[p]).collect();
     let mut robust = Accum::new(o.n());
     let slots = Slots {
-        analysed: &kept_slots,
         trimmed: &trimmed,
         trimmed_slots: &out,
         trimmed_covs: &trimmed_covs,
@@ -432,17 +423,27 @@ fn interleave(rest: &[f64], at: &[usize], at_values: &[f64]) -> Vec<f64> {
 }
 
 /// Where one pass over an observable writes its per-row results in its
-/// accumulator (a slot per row of the observable's gather): analysed row
-/// p to slot `analysed[p]`, trimmed outlier k (table row `trimmed[k]`),
-/// which gets the all-runs fits' contributions, to `trimmed_slots[k]`.
+/// accumulator (a slot per row of the observable's gather): the analysed
+/// rows, in order, to every slot but the trimmed ones; trimmed outlier k
+/// (table row `trimmed[k]`), which gets the all-runs fits' contributions,
+/// to `trimmed_slots[k]`.
 pub struct Slots<'a> {
-    pub analysed: &'a [usize],
     pub trimmed: &'a [usize],
+    /// Ascending.
     pub trimmed_slots: &'a [usize],
     /// The trimmed rows' covariates (name, values in `trimmed` order).
     pub trimmed_covs: &'a [(String, Vec<f64>)],
     /// The trimmed rows' gaps (in `trimmed` order).
     pub trimmed_gap: &'a [f64],
+}
+
+impl Slots<'_> {
+    /// The slot of each analysed row, in row order, of `n_slots` slots:
+    /// worked out as they are read rather than listed (8 B a row).
+    pub fn analysed(&self, n_slots: usize) -> impl Iterator<Item = usize> + '_ {
+        let mut trimmed = self.trimmed_slots.iter().peekable();
+        (0..n_slots).filter(move |s| trimmed.next_if_eq(&s).is_none())
+    }
 }
 
 /// noise → folds → candidates → select → intervals → machines → cells for

@@ -168,13 +168,13 @@ pub fn record_selected(
         let contrib = std::mem::take(&mut sel.contrib[j]);
         let col = match acc.contrib_cols.entry(key.clone()) {
             std::collections::btree_map::Entry::Vacant(v)
-                if slots.analysed.len() == n_slots && contrib.len() == n_slots =>
+                if slots.trimmed_slots.is_empty() && contrib.len() == n_slots =>
             {
                 v.insert(contrib)
             }
             entry => {
                 let col = entry.or_insert_with(|| vec![0.0; n_slots]);
-                for (&slot, c) in slots.analysed.iter().zip(&contrib) {
+                for (slot, c) in slots.analysed(n_slots).zip(&contrib) {
                     col[slot] = *c;
                 }
                 col
@@ -246,7 +246,7 @@ pub fn record_selected(
                 .collect(),
         });
     }
-    for (&slot, r) in slots.analysed.iter().zip(&sel.residual) {
+    for (slot, r) in slots.analysed(n_slots).zip(&sel.residual) {
         acc.residual_all[slot] = *r;
     }
     for (&slot, r) in slots.trimmed_slots.iter().zip(extra_resid) {
