@@ -354,18 +354,19 @@ fn diagnose_observable(
     }
     drop(plain);
     let before: f64 = o.gap.iter().map(|g| g * g).sum();
-    // The robust pass reads `kept`'s covariates and the trimmed rows'
-    // (their contributions); of the full rows only their table rows stay
-    // (where the results go, and the trim report's runs).
+    // The robust pass reads `kept`'s rows and the trimmed rows' covariates
+    // (their contributions); the full rows' table rows are put together
+    // again from both at the end (where the results go).
+    let n = o.n();
     let trimmed_covs: Vec<(String, Vec<f64>)> = o
         .cols
         .iter()
         .map(|c| (c.name.clone(), out.iter().map(|&p| c.v[p]).collect()))
         .collect();
     let trimmed_gap: Vec<f64> = out.iter().map(|&p| o.gap[p]).collect();
-    let mut kept = o.take_kept(&out);
     let trimmed: Vec<usize> = out.iter().map(|&p| o.rows[p]).collect();
-    let mut robust = Accum::new(o.n());
+    let mut kept = o.take_kept(&out);
+    let mut robust = Accum::new(n);
     let slots = Slots {
         trimmed: &trimmed,
         trimmed_slots: &out,
@@ -383,8 +384,10 @@ fn diagnose_observable(
         &slots,
         &mut |_| true,
     )?;
-    // The kept rows' gaps outlive their covariates (the per-row results').
+    // The kept rows' gaps and table rows outlive their covariates (the
+    // per-row results').
     let kept_gap = std::mem::take(&mut kept.gap);
+    let kept_rows = std::mem::take(&mut kept.rows);
     drop(kept);
     let after: f64 = robust.residual_all.iter().map(|r| r.powi(2)).sum();
     let rep = trim_report.expect("made when the spikes were found");
@@ -404,12 +407,15 @@ fn diagnose_observable(
     // per-row results.
     let gap = interleave(&kept_gap, &out, &trimmed_gap);
     drop(kept_gap);
-    acc.merge(robust, oi as u32, &o.rows, &gap)
+    let rows = interleave(&kept_rows, &out, &trimmed);
+    drop(kept_rows);
+    debug_assert_eq!(rows.len(), n);
+    acc.merge(robust, oi as u32, &rows, &gap)
 }
 
 /// The sequence whose positions `at` (ascending) hold `at_values` and
 /// whose other positions hold `rest`, in order.
-fn interleave(rest: &[f64], at: &[usize], at_values: &[f64]) -> Vec<f64> {
+fn interleave<T: Copy>(rest: &[T], at: &[usize], at_values: &[T]) -> Vec<T> {
     let n = rest.len() + at.len();
     let mut out = Vec::with_capacity(n);
     let (mut r, mut a) = (rest.iter(), at.iter().zip(at_values).peekable());

@@ -114,9 +114,8 @@ pub fn report(
 
 impl ObsRows {
     /// The same observable without the rows at `drop` (positions, sorted),
-    /// its gap, machines and covariates moved out of `self` (which keeps
-    /// its rows and run ranges, what the trim report reads) and filtered
-    /// in place: a second copy of every covariate while the first was
+    /// its rows, gap, machines and covariates moved out of `self` (which
+    /// keeps its name and run ranges) and filtered in place: a second copy of every covariate while the first was
     /// still held was the spike-free pass's start (≈ 90 B a row).
     pub fn take_kept(&mut self, drop: &[usize]) -> ObsRows {
         let mut run_ranges = Vec::new();
@@ -132,7 +131,7 @@ impl ObsRows {
                 start += len;
             }
         }
-        let mut rows = self.rows.clone();
+        let mut rows = std::mem::take(&mut self.rows);
         retain_positions(&mut rows, drop);
         let mut gap = std::mem::take(&mut self.gap);
         retain_positions(&mut gap, drop);
@@ -209,8 +208,9 @@ mod tests {
         assert_eq!(kept.cols[0].stats, Cov::new("x_mm".into(), x).stats);
         // Run 1 held only row 4: gone.
         assert_eq!(kept.run_ranges, vec![0..3, 3..7]);
-        // What stays behind: the rows and runs (the trim report's).
-        assert_eq!(o.n(), n);
+        // What stays behind: the name and the runs; every row-sized
+        // column moved out.
+        assert_eq!(o.n(), 0);
         assert_eq!(o.run_ranges.len(), 3);
         assert!(o.cols.is_empty() && o.gap.is_empty() && o.machine.is_empty());
     }

@@ -424,7 +424,6 @@ pub fn select(prob: &Problem, cands: &[&dyn Effect], opt: &SelectOptions) -> Res
     let explainable = stability::explainable_sse(unit_sse_gap.iter().sum(), n, opt.sigma_mm);
     let halves = stability::half_samples(&prob.unit_run, opt.seed);
     let mut chosen: Vec<usize> = Vec::new();
-    let mut contrib: Vec<Vec<f64>> = Vec::new();
     let mut final_params = Vec::new();
     let mut chosen_evals = Vec::new();
     let mut chosen_before = Vec::new();
@@ -530,13 +529,12 @@ pub fn select(prob: &Problem, cands: &[&dyn Effect], opt: &SelectOptions) -> Res
             .collect();
         let (ci, ev, _, _) = scored.swap_remove(b);
         let t_out = std::time::Instant::now();
-        let (new_targets, c) = tg.taking_out(prob, cands[ci], &ev)?;
+        let new_targets = tg.taking_out(prob, cands[ci], &ev)?;
         tracing::debug!(
             "round {step}: {} taken out in {:.2} s",
             cands[ci].key(),
             t_out.elapsed().as_secs_f64()
         );
-        contrib.push(c);
         final_params.push(params_of(cands[ci], prob, &ev, k));
         if let Some(r) = records[ci].as_mut() {
             r.selected = true;
@@ -547,6 +545,13 @@ pub fn select(prob: &Problem, cands: &[&dyn Effect], opt: &SelectOptions) -> Res
         chosen.push(ci);
         tg = new_targets;
     }
+    // The chosen effects' held-out contributions, computed once the
+    // selection is done (not held through its rounds: 8 B a row each).
+    let contrib: Vec<Vec<f64>> = chosen
+        .iter()
+        .zip(&chosen_evals)
+        .map(|(&ci, ev)| held_out_contribution(prob, cands[ci], ev))
+        .collect::<Result<_>>()?;
     let residual: Vec<f64> = (0..n)
         .map(|i| prob.gap[i] - contrib.iter().map(|c| c[i]).sum::<f64>())
         .collect();

@@ -120,31 +120,15 @@ impl<'a> Targets<'a> {
         Ok(tg)
     }
 
-    /// These targets with `e`'s fits (`ev`) taken out of every fold's, and
-    /// `e`'s held-out contribution per row (each unit predicted by the fold
-    /// that holds it out).
+    /// These targets with `e`'s fits (`ev`) taken out of every fold's.
     pub fn taking_out(
         mut self,
         prob: &Problem<'a>,
         e: &dyn Effect,
         ev: &CandEval,
-    ) -> Result<(Targets<'a>, Vec<f64>)> {
-        let fit = TakenFit::of(e, prob, ev)?;
-        let mut contrib = Vec::with_capacity(prob.x.len());
-        for units in consecutive_units(prob, CHUNK_ROWS) {
-            let preds: Vec<Vec<f64>> = units
-                .collect::<Vec<_>>()
-                .into_par_iter()
-                .map(|u| -> Result<Vec<f64>> {
-                    let mut pred = Vec::new();
-                    fit.predict(prob, prob.unit_fold[u], prob.units[u].clone(), &mut pred)?;
-                    Ok(pred)
-                })
-                .collect::<Result<_>>()?;
-            preds.iter().for_each(|p| contrib.extend_from_slice(p));
-        }
-        self.taken.push(fit);
-        Ok((Targets::with(prob, self.taken)?, contrib))
+    ) -> Result<Targets<'a>> {
+        self.taken.push(TakenFit::of(e, prob, ev)?);
+        Targets::with(prob, self.taken)
     }
 
     /// How many distinct targets the folds fit.
@@ -205,6 +189,26 @@ fn consecutive_units(prob: &Problem, max_rows: usize) -> Vec<Range<usize>> {
         .into_iter()
         .map(|us| us[0]..us[us.len() - 1] + 1)
         .collect()
+}
+
+/// `e`'s held-out contribution per row: each unit predicted by the fold
+/// that holds it out (`ev`'s fits).
+pub fn held_out_contribution(prob: &Problem, e: &dyn Effect, ev: &CandEval) -> Result<Vec<f64>> {
+    let fit = TakenFit::of(e, prob, ev)?;
+    let mut contrib = Vec::with_capacity(prob.x.len());
+    for units in consecutive_units(prob, CHUNK_ROWS) {
+        let preds: Vec<Vec<f64>> = units
+            .collect::<Vec<_>>()
+            .into_par_iter()
+            .map(|u| -> Result<Vec<f64>> {
+                let mut pred = Vec::new();
+                fit.predict(prob, prob.unit_fold[u], prob.units[u].clone(), &mut pred)?;
+                Ok(pred)
+            })
+            .collect::<Result<_>>()?;
+        preds.iter().for_each(|p| contrib.extend_from_slice(p));
+    }
+    Ok(contrib)
 }
 
 /// `units` (ascending) cut into lists of at most `max_rows` rows (a unit
@@ -993,7 +997,8 @@ mod tests {
                 .unwrap()
                 .0
                 .unwrap();
-            let (next, contrib) = tg.taking_out(&prob, refs[i], &ev).unwrap();
+            let next = tg.taking_out(&prob, refs[i], &ev).unwrap();
+            let contrib = held_out_contribution(&prob, refs[i], &ev).unwrap();
             // What the targets are recomputed to equal: each fold's column
             // less its fit, and the held-out rows' predictions.
             let mut held_rows = vec![f64::NAN; n];
