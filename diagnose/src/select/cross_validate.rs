@@ -63,7 +63,13 @@ impl TakenFit {
 
     /// Fold `f`'s prediction (offset included) of the observable's rows
     /// `rows` into `pred`.
-    fn predict(&self, prob: &Problem, f: usize, rows: Range<usize>, pred: &mut Vec<f64>) -> Result<()> {
+    fn predict(
+        &self,
+        prob: &Problem,
+        f: usize,
+        rows: Range<usize>,
+        pred: &mut Vec<f64>,
+    ) -> Result<()> {
         match self {
             TakenFit::Linear {
                 form,
@@ -572,16 +578,8 @@ impl FormCv {
                     // ones: no other pass over the rows.
                     let mut fine_store = Vec::new();
                     let pooled = cells.finish();
-                    tracing::debug!(
-                        "fine cells of {:?}: {}",
-                        form.covariates(),
-                        pooled.1.len()
-                    );
-                    let fine = fit::scan_rows_of_cells(
-                        &form.covariates(),
-                        pooled,
-                        &mut fine_store,
-                    );
+                    tracing::debug!("fine cells of {:?}: {}", form.covariates(), pooled.1.len());
+                    let fine = fit::scan_rows_of_cells(&form.covariates(), pooled, &mut fine_store);
                     let mut store = Vec::new();
                     let coarse = fit::coarser(form, frame, &fine, &mut store)?;
                     self.thetas = choose_theta(form, frame, tr, &coarse, &group_yy, &spec)?;
@@ -984,27 +982,35 @@ mod tests {
         // The gap shared by every fold, then two effects taken out (a
         // target per fold, the second subtraction after the first).
         let gap_targets = Targets::gap(&prob).unwrap();
-        let taken = ["periodic:x_mm", "drift:t_s"].map(|key| {
+        // A plugin effect without a linear form (fitted on rows, its
+        // predictions kept per fold) between two linear forms.
+        let of_key = |key: &str| {
             refs.iter()
                 .position(|e| e.key() == key)
                 .unwrap_or_else(|| panic!("{key} in the catalogue"))
-        });
+        };
+        let no_form = NoForm(refs[of_key("scale:x_mm")]);
+        let taken: [&dyn Effect; 3] = [
+            refs[of_key("periodic:x_mm")],
+            &no_form,
+            refs[of_key("drift:t_s")],
+        ];
         let mut tg = Targets::gap(&prob).unwrap();
         let mut columns: Vec<Vec<f64>> = vec![gap.clone(); k + 1];
-        for &i in &taken {
-            let ev = evaluate_all_in_chunks(&[refs[i]], &prob, &tg, usize::MAX, usize::MAX)
+        for e in taken {
+            let ev = evaluate_all_in_chunks(&[e], &prob, &tg, usize::MAX, usize::MAX)
                 .pop()
                 .unwrap()
                 .0
                 .unwrap();
-            let next = tg.taking_out(&prob, refs[i], &ev).unwrap();
-            let contrib = held_out_contribution(&prob, refs[i], &ev).unwrap();
+            let next = tg.taking_out(&prob, e, &ev).unwrap();
+            let contrib = held_out_contribution(&prob, e, &ev).unwrap();
             // What the targets are recomputed to equal: each fold's column
             // less its fit, and the held-out rows' predictions.
             let mut held_rows = vec![f64::NAN; n];
             for (f, col) in columns.iter_mut().enumerate() {
                 let mut held = Vec::new();
-                take_out_fold(refs[i], &prob, &ev, f, col, &mut held).unwrap();
+                take_out_fold(e, &prob, &ev, f, col, &mut held).unwrap();
                 let rows = prob
                     .units
                     .iter()
@@ -1015,7 +1021,7 @@ mod tests {
                     held_rows[r] = p;
                 }
             }
-            assert_eq!(bits(&contrib), bits(&held_rows), "{}", refs[i].key());
+            assert_eq!(bits(&contrib), bits(&held_rows), "{}", e.key());
             for (f, col) in columns.iter().enumerate() {
                 assert_eq!(bits(&next.column(&prob, f).unwrap()), bits(col), "fold {f}");
             }
@@ -1052,6 +1058,24 @@ mod tests {
                 }
             }
             assert!(scanned >= 4, "θ forms among the candidates: {scanned}");
+        }
+    }
+
+    /// An effect fitted on rows only: a plugin effect with no linear form.
+    struct NoForm<'a>(&'a dyn Effect);
+
+    impl Effect for NoForm<'_> {
+        fn name(&self) -> &str {
+            "no_form"
+        }
+        fn covariates(&self) -> Vec<String> {
+            self.0.covariates()
+        }
+        fn n_params(&self) -> usize {
+            self.0.n_params()
+        }
+        fn fit(&self, x: &EffectData, gap: &[f64]) -> Result<Box<dyn FittedEffect>> {
+            self.0.fit(x, gap)
         }
     }
 }
