@@ -54,27 +54,30 @@ pub fn detect(o: &ObsRows, residual: &[f64]) -> Result<(Vec<usize>, f64, f64), S
     if n < 20 {
         return Ok((Vec::new(), f64::NAN, f64::NAN));
     }
-    let med = median(&mut residual.to_vec());
-    let mut dev: Vec<f64> = residual.iter().map(|r| (r - med).abs()).collect();
-    let sigma = 1.4826 * median(&mut dev);
+    // One buffer for both medians: the residual's, then (overwritten) the
+    // deviations' — a median is the same whatever order its values are in.
+    let mut buf = residual.to_vec();
+    let med = median(&mut buf);
+    for (d, r) in buf.iter_mut().zip(residual) {
+        *d = (r - med).abs();
+    }
+    let sigma = 1.4826 * median(&mut buf);
+    drop(buf);
     if sigma.is_nan() || sigma <= 0.0 {
         return Ok((Vec::new(), sigma, f64::NAN));
     }
     let thr = K_SIGMA * sigma;
-    let big: Vec<bool> = residual.iter().map(|r| (r - med).abs() > thr).collect();
-    let mut run_of = vec![0usize; n];
-    for (k, r) in o.run_ranges.iter().enumerate() {
+    let big = |i: usize| (residual[i] - med).abs() > thr;
+    // Isolated: neither neighbour in run/time order (inside the same run)
+    // is beyond the threshold too.
+    let mut out = Vec::new();
+    for r in &o.run_ranges {
         for i in r.clone() {
-            run_of[i] = k;
+            if big(i) && !(i > r.start && big(i - 1)) && !(i + 1 < r.end && big(i + 1)) {
+                out.push(i);
+            }
         }
     }
-    let neighbour_big =
-        |i: usize, j: Option<usize>| j.is_some_and(|j| j < n && run_of[j] == run_of[i] && big[j]);
-    let out: Vec<usize> = (0..n)
-        .filter(|&i| {
-            big[i] && !neighbour_big(i, i.checked_sub(1)) && !neighbour_big(i, Some(i + 1))
-        })
-        .collect();
     if out.len() as f64 > MAX_SHARE * n as f64 {
         return Err(format!(
             "{}: {} of {} rows lie beyond {K_SIGMA}σ of the residual: structure, not spikes — nothing trimmed",
