@@ -75,13 +75,18 @@ fn report(e: &dyn Effect, prob: &Problem, z: &[f64], has_theta: bool) -> BTreeMa
     p
 }
 
-/// Intervals of every parameter of chosen effect `e`; `target` is what its
-/// all-runs fit was fitted to, `runs` the run units of the rows.
+/// What a chosen effect's all-runs fit was fitted to, over the rows of one
+/// run at a time (`None`: not available).
+pub type TargetOfRows<'a> = dyn Fn(Range<usize>, &mut Vec<f64>) -> Option<()> + 'a;
+
+/// Intervals of every parameter of chosen effect `e`; `target` gives what
+/// its all-runs fit was fitted to, run by run; `runs` are the run units of
+/// the rows.
 pub fn param_intervals(
     e: &dyn Effect,
     prob: &Problem,
     ev: &CandEval,
-    target: &[f64],
+    target: &TargetOfRows,
     runs: &[Range<usize>],
 ) -> BTreeMap<String, ParamInterval> {
     let k = prob.k;
@@ -154,7 +159,7 @@ fn model_se(
     prob: &Problem,
     theta: f64,
     beta: &[f64],
-    target: &[f64],
+    target: &TargetOfRows,
     runs: &[Range<usize>],
 ) -> Option<BTreeMap<String, (f64, f64, &'static str)>> {
     let form = e.linear_form()?;
@@ -163,7 +168,7 @@ fn model_se(
     let n = prob.x.len();
     let has_theta = theta.is_finite();
     let q = m + 1 + usize::from(has_theta);
-    if n <= q || target.len() != n {
+    if n <= q {
         return None;
     }
     // One pass over the runs, each on its own rows' features (run-sized
@@ -183,8 +188,10 @@ fn model_se(
     // Jacobian columns of a run: 1, features, ∂(Σ β_j F_j)/∂θ.
     let mut jac: Vec<Vec<f64>> = vec![Vec::new(); q];
     let mut resid: Vec<f64> = Vec::new();
+    let mut target_r: Vec<f64> = Vec::new();
     for r in runs {
         let len = r.len();
+        target(r.clone(), &mut target_r)?;
         let xr = prob.x.rows_of(&covs, r.clone()).ok()?;
         form.features(&frame, &xr, theta, &mut feats).ok()?;
         jac[0].clear();
@@ -205,7 +212,7 @@ fn model_se(
         }
         resid.clear();
         resid.extend((0..len).map(|i| {
-            target[r.start + i] - beta[0] - (0..m).map(|j| beta[j + 1] * feats[j][i]).sum::<f64>()
+            target_r[i] - beta[0] - (0..m).map(|j| beta[j + 1] * feats[j][i]).sum::<f64>()
         }));
         for i in 0..q {
             for j in 0..q {
@@ -329,7 +336,24 @@ pub fn chosen_intervals(
         .enumerate()
         .map(|(j, &ci)| {
             let ev = &sel.chosen_evals[j];
-            let target = sel.final_target(prob, cands, j).unwrap_or_default();
+            // Run by run from the earlier effects' fits (no column of the
+            // observable's length), or from the column when one of them
+            // predicts only all rows at once.
+            let mut probe = Vec::new();
+            let column = match sel.final_target_rows(prob, cands, j, 0..0, &mut probe) {
+                Ok(Some(())) => None,
+                _ => Some(sel.final_target(prob, cands, j).unwrap_or_default()),
+            };
+            let target = |r: Range<usize>, out: &mut Vec<f64>| -> Option<()> {
+                match &column {
+                    Some(c) => {
+                        out.clear();
+                        out.extend_from_slice(c.get(r)?);
+                        Some(())
+                    }
+                    None => sel.final_target_rows(prob, cands, j, r, out).ok().flatten(),
+                }
+            };
             (
                 param_intervals(cands[ci], prob, ev, &target, runs),
                 shrink_interval(&sel.chosen_before[j], &ev.unit_sse, seed ^ j as u64),

@@ -370,6 +370,36 @@ impl Selection {
         }
         Ok(target)
     }
+
+    /// [`Selection::final_target`] of the observable's rows `rows` into
+    /// `out` — the same bits — when every effect chosen before the `j`-th
+    /// predicts row by row (a linear form); `None` when one does not (a
+    /// plugin effect predicts all rows at once: ask for the column).
+    pub fn final_target_rows(
+        &self,
+        prob: &Problem,
+        cands: &[&dyn Effect],
+        j: usize,
+        rows: Range<usize>,
+        out: &mut Vec<f64>,
+    ) -> Result<Option<()>> {
+        let earlier = self.chosen[..j].iter().zip(&self.chosen_evals);
+        if earlier
+            .clone()
+            .any(|(_, ev)| !matches!(ev.fit, CandFit::Fast { .. }))
+        {
+            return Ok(None);
+        }
+        out.clear();
+        out.extend_from_slice(&prob.gap[rows.clone()]);
+        let mut pred = Vec::new();
+        for (&ci, ev) in earlier {
+            let covs = cands[ci].covariates();
+            fold_prediction(cands[ci], prob, ev, prob.k, &prob.x.rows_of(&covs, rows.clone())?, &mut pred)?;
+            out.iter_mut().zip(&pred).for_each(|(y, p)| *y -= p);
+        }
+        Ok(Some(()))
+    }
 }
 
 pub struct SelectOptions {
