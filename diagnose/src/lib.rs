@@ -450,6 +450,29 @@ impl Slots<'_> {
         let mut trimmed = self.trimmed_slots.iter().peekable();
         (0..n_slots).filter(move |s| trimmed.next_if_eq(&s).is_none())
     }
+
+    /// The analysed rows' values `v` (row order) moved in place to their
+    /// slots of `n_slots`, the trimmed slots 0: from the back, so a value
+    /// is read before its place is written.
+    pub fn spread(&self, v: &mut Vec<f64>, n_slots: usize) {
+        assert_eq!(
+            v.len() + self.trimmed_slots.len(),
+            n_slots,
+            "a value per analysed row"
+        );
+        let mut src = v.len();
+        v.resize(n_slots, 0.0);
+        let mut t = self.trimmed_slots.len();
+        for slot in (0..n_slots).rev() {
+            if t > 0 && self.trimmed_slots[t - 1] == slot {
+                v[slot] = 0.0;
+                t -= 1;
+            } else {
+                src -= 1;
+                v[slot] = v[src];
+            }
+        }
+    }
 }
 
 /// noise → folds → candidates → select → intervals → machines → cells for
@@ -678,6 +701,27 @@ pub(crate) mod tests;
 
 #[cfg(test)]
 mod interleave_tests {
+    #[test]
+    fn values_spread_in_place_land_where_the_analysed_slots_say() {
+        for trimmed in [vec![], vec![0], vec![5], vec![0, 2, 3, 6], vec![1, 4]] {
+            let n = 7;
+            let slots = super::Slots {
+                trimmed: &[],
+                trimmed_slots: &trimmed,
+                trimmed_covs: &[],
+                trimmed_gap: &[],
+            };
+            let values: Vec<f64> = (0..n - trimmed.len()).map(|i| 10.0 + i as f64).collect();
+            let mut expected = vec![0.0; n];
+            for (slot, v) in slots.analysed(n).zip(&values) {
+                expected[slot] = *v;
+            }
+            let mut v = values.clone();
+            slots.spread(&mut v, n);
+            assert_eq!(v, expected, "trimmed {trimmed:?}");
+        }
+    }
+
     #[test]
     fn values_at_positions_interleave_with_the_rest_in_order() {
         let rest = [10.0, 11.0, 12.0];

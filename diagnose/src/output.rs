@@ -162,21 +162,15 @@ pub fn record_selected(
         }
         obs_selected.push(key.clone());
         // The held-out contributions move to the accumulator (nothing
-        // after reads the selection's): as they are when every slot was
-        // analysed, else placed at their slots (8 B a row per chosen
-        // effect not held twice).
-        let contrib = std::mem::take(&mut sel.contrib[j]);
-        let col = match acc.contrib_cols.entry(key.clone()) {
-            std::collections::btree_map::Entry::Vacant(v)
-                if slots.trimmed_slots.is_empty() && contrib.len() == n_slots =>
-            {
-                v.insert(contrib)
-            }
-            entry => {
-                let col = entry.or_insert_with(|| vec![0.0; n_slots]);
-                for (slot, c) in slots.analysed(n_slots).zip(&contrib) {
-                    col[slot] = *c;
-                }
+        // after reads the selection's), spread to their slots in place:
+        // 8 B a row per chosen effect not held twice.
+        let mut contrib = std::mem::take(&mut sel.contrib[j]);
+        slots.spread(&mut contrib, n_slots);
+        let col: &mut Vec<f64> = match acc.contrib_cols.entry(key.clone()) {
+            std::collections::btree_map::Entry::Vacant(v) => v.insert(contrib),
+            std::collections::btree_map::Entry::Occupied(o) => {
+                let col = o.into_mut();
+                *col = contrib;
                 col
             }
         };
