@@ -461,6 +461,8 @@ impl Slots<'_> {
             "a value per analysed row"
         );
         let mut src = v.len();
+        // Exactly (growth would double a column's capacity).
+        v.reserve_exact(n_slots - src);
         v.resize(n_slots, 0.0);
         let mut t = self.trimmed_slots.len();
         for slot in (0..n_slots).rev() {
