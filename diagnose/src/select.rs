@@ -395,7 +395,14 @@ impl Selection {
         let mut pred = Vec::new();
         for (&ci, ev) in earlier {
             let covs = cands[ci].covariates();
-            fold_prediction(cands[ci], prob, ev, prob.k, &prob.x.rows_of(&covs, rows.clone())?, &mut pred)?;
+            fold_prediction(
+                cands[ci],
+                prob,
+                ev,
+                prob.k,
+                &prob.x.rows_of(&covs, rows.clone())?,
+                &mut pred,
+            )?;
             out.iter_mut().zip(&pred).for_each(|(y, p)| *y -= p);
         }
         Ok(Some(()))

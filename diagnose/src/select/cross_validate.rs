@@ -8,8 +8,9 @@ use crate::effect::{LinearForm, ThetaRange};
 
 /// The folds' current targets (fold k = all runs): the gap less, fold by
 /// fold, each chosen effect's fit of that fold — recomputed for the rows a
-/// pass reads (`fill`) from the fits, not kept as a column per fold
-/// (docs/design.md §8: a few numbers per fold, not 8 B a row each). The
+/// pass reads (`chunk`) from the fits, not kept as a column per fold
+/// (docs/design.md §8: a few numbers per fold, not 8 B a row each), unless
+/// the columns fit in [`TARGET_COLUMNS_MAX_BYTES`]. The
 /// same subtractions in the same order as taking each effect out of a
 /// target column, so the same bits. Also each distinct target's Σy² per
 /// unit.
@@ -22,7 +23,21 @@ pub struct Targets<'a> {
     /// A fold whose target each distinct target is.
     fold_of: Vec<usize>,
     yy_u: Vec<Vec<f64>>,
+    /// Every fold's target as a column, when they fit in
+    /// [`TARGET_COLUMNS_MAX_BYTES`] (after an effect is taken out).
+    columns: Option<Vec<Vec<f64>>>,
 }
+
+/// Up to this many bytes (rows × (k + 1) folds × 8 B) the folds' targets
+/// are also kept as columns, each chosen effect's prediction subtracted
+/// once when it is taken out; a larger observable's are recomputed from
+/// the fits for each pass (twice a round, and once for Σy²), so its
+/// memory is bounded by the fits, not by its rows. The same bits either
+/// way: the same subtractions in the same order. A budget like any
+/// batch engine's: a small observable keeps the speed, a large one the
+/// memory (a chosen effect with an exponential or a sine costs its
+/// features again on every pass — docs/design.md §8).
+pub const TARGET_COLUMNS_MAX_BYTES: usize = 64 << 20;
 
 /// A chosen effect's fits, one per fold, as the targets take them out.
 enum TakenFit {
@@ -97,10 +112,14 @@ impl TakenFit {
 impl<'a> Targets<'a> {
     /// Every fold's target before any effect is chosen: the gap.
     pub fn gap(prob: &Problem<'a>) -> Result<Targets<'a>> {
-        Targets::with(prob, Vec::new())
+        Targets::with(prob, Vec::new(), None)
     }
 
-    fn with(prob: &Problem<'a>, taken: Vec<TakenFit>) -> Result<Targets<'a>> {
+    fn with(
+        prob: &Problem<'a>,
+        taken: Vec<TakenFit>,
+        columns: Option<Vec<Vec<f64>>>,
+    ) -> Result<Targets<'a>> {
         let nf = prob.k + 1;
         let (of_fold, fold_of) = if taken.is_empty() {
             (vec![0; nf], vec![0])
@@ -113,6 +132,7 @@ impl<'a> Targets<'a> {
             of_fold,
             fold_of,
             yy_u: Vec::new(),
+            columns,
         };
         // Σy² of each unit, a chunk of units at a time.
         let mut yy_u = vec![Vec::with_capacity(prob.units.len()); tg.fold_of.len()];
@@ -128,13 +148,51 @@ impl<'a> Targets<'a> {
 
     /// These targets with `e`'s fits (`ev`) taken out of every fold's.
     pub fn taking_out(
-        mut self,
+        self,
         prob: &Problem<'a>,
         e: &dyn Effect,
         ev: &CandEval,
     ) -> Result<Targets<'a>> {
-        self.taken.push(TakenFit::of(e, prob, ev)?);
-        Targets::with(prob, self.taken)
+        self.taking_out_within(prob, e, ev, TARGET_COLUMNS_MAX_BYTES)
+    }
+
+    /// [`Targets::taking_out`] with the folds' target columns kept up to
+    /// `max_column_bytes`.
+    fn taking_out_within(
+        mut self,
+        prob: &Problem<'a>,
+        e: &dyn Effect,
+        ev: &CandEval,
+        max_column_bytes: usize,
+    ) -> Result<Targets<'a>> {
+        let fit = TakenFit::of(e, prob, ev)?;
+        let nf = prob.k + 1;
+        let columns = if self.gap.len() * nf * 8 <= max_column_bytes {
+            // Each fold's column less this fold's prediction, unit by unit.
+            let mut columns = match self.columns.take() {
+                Some(columns) => columns,
+                None => vec![self.gap.to_vec(); nf],
+            };
+            columns
+                .par_iter_mut()
+                .enumerate()
+                .try_for_each(|(f, col)| -> Result<()> {
+                    let mut pred = Vec::new();
+                    for r in &prob.units {
+                        fit.predict(prob, f, r.clone(), &mut pred)?;
+                        col[r.clone()]
+                            .iter_mut()
+                            .zip(&pred)
+                            .for_each(|(y, p)| *y -= p);
+                    }
+                    Ok(())
+                })?;
+            Some(columns)
+        } else {
+            None
+        };
+        self.taken.push(fit);
+        Targets::with(prob, self.taken, columns)
     }
 
     /// How many distinct targets the folds fit.
@@ -161,6 +219,12 @@ impl<'a> Targets<'a> {
             .par_iter()
             .map(|&f| -> Result<Vec<f64>> {
                 let mut t = Vec::with_capacity(n);
+                if let Some(columns) = &self.columns {
+                    for &u in &units {
+                        t.extend_from_slice(&columns[f][prob.units[u].clone()]);
+                    }
+                    return Ok(t);
+                }
                 let mut pred = Vec::new();
                 for &u in &units {
                     let (rows, at) = (prob.units[u].clone(), t.len());
@@ -979,56 +1043,68 @@ mod tests {
         let cands = catalogue(&names);
         let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
         let refs: Vec<&dyn Effect> = cands.iter().map(|e| e.as_ref()).collect();
-        // The gap shared by every fold, then two effects taken out (a
-        // target per fold, the second subtraction after the first).
+        // The gap shared by every fold, then three effects taken out (a
+        // target per fold, each subtraction after the one before).
         let gap_targets = Targets::gap(&prob).unwrap();
-        // A plugin effect without a linear form (fitted on rows, its
-        // predictions kept per fold) between two linear forms.
         let of_key = |key: &str| {
             refs.iter()
                 .position(|e| e.key() == key)
                 .unwrap_or_else(|| panic!("{key} in the catalogue"))
         };
+        // A plugin effect without a linear form (fitted on rows, its
+        // predictions kept per fold) between two linear forms; the
+        // targets recomputed for every chunk (no column budget) and kept
+        // as columns.
         let no_form = NoForm(refs[of_key("scale:x_mm")]);
         let taken: [&dyn Effect; 3] = [
             refs[of_key("periodic:x_mm")],
             &no_form,
             refs[of_key("drift:t_s")],
         ];
-        let mut tg = Targets::gap(&prob).unwrap();
-        let mut columns: Vec<Vec<f64>> = vec![gap.clone(); k + 1];
-        for e in taken {
-            let ev = evaluate_all_in_chunks(&[e], &prob, &tg, usize::MAX, usize::MAX)
-                .pop()
-                .unwrap()
-                .0
-                .unwrap();
-            let next = tg.taking_out(&prob, e, &ev).unwrap();
-            let contrib = held_out_contribution(&prob, e, &ev).unwrap();
-            // What the targets are recomputed to equal: each fold's column
-            // less its fit, and the held-out rows' predictions.
-            let mut held_rows = vec![f64::NAN; n];
-            for (f, col) in columns.iter_mut().enumerate() {
-                let mut held = Vec::new();
-                take_out_fold(e, &prob, &ev, f, col, &mut held).unwrap();
-                let rows = prob
-                    .units
-                    .iter()
-                    .zip(&prob.unit_fold)
-                    .filter(|(_, uf)| **uf == f && f < k)
-                    .flat_map(|(u, _)| u.clone());
-                for (r, p) in rows.zip(held) {
-                    held_rows[r] = p;
+        let chain = |max_column_bytes: usize| {
+            let mut tg = Targets::gap(&prob).unwrap();
+            let mut columns: Vec<Vec<f64>> = vec![gap.clone(); k + 1];
+            for e in taken {
+                let ev = evaluate_all_in_chunks(&[e], &prob, &tg, usize::MAX, usize::MAX)
+                    .pop()
+                    .unwrap()
+                    .0
+                    .unwrap();
+                let next = tg
+                    .taking_out_within(&prob, e, &ev, max_column_bytes)
+                    .unwrap();
+                assert_eq!(next.columns.is_some(), max_column_bytes > 0);
+                let contrib = held_out_contribution(&prob, e, &ev).unwrap();
+                // What the targets are recomputed to equal: each fold's
+                // column less its fit, and the held-out rows' predictions.
+                let mut held_rows = vec![f64::NAN; n];
+                for (f, col) in columns.iter_mut().enumerate() {
+                    let mut held = Vec::new();
+                    take_out_fold(e, &prob, &ev, f, col, &mut held).unwrap();
+                    let rows = prob
+                        .units
+                        .iter()
+                        .zip(&prob.unit_fold)
+                        .filter(|(_, uf)| **uf == f && f < k)
+                        .flat_map(|(u, _)| u.clone());
+                    for (r, p) in rows.zip(held) {
+                        held_rows[r] = p;
+                    }
                 }
+                assert_eq!(bits(&contrib), bits(&held_rows), "{}", e.key());
+                for (f, col) in columns.iter().enumerate() {
+                    assert_eq!(bits(&next.column(&prob, f).unwrap()), bits(col), "fold {f}");
+                }
+                tg = next;
             }
-            assert_eq!(bits(&contrib), bits(&held_rows), "{}", e.key());
-            for (f, col) in columns.iter().enumerate() {
-                assert_eq!(bits(&next.column(&prob, f).unwrap()), bits(col), "fold {f}");
-            }
-            tg = next;
+            assert_eq!(tg.n_distinct(), k + 1);
+            tg
+        };
+        let (tg, kept) = (chain(0), chain(usize::MAX));
+        for (a, b) in tg.yy_u.iter().zip(&kept.yy_u) {
+            assert_eq!(bits(a), bits(b));
         }
-        assert_eq!(tg.n_distinct(), k + 1);
-        for tg in [gap_targets, tg] {
+        for tg in [gap_targets, tg, kept] {
             let mut scanned = 0;
             let whole = evaluate_all_in_chunks(&refs, &prob, &tg, usize::MAX, usize::MAX);
             for max_rows in [1, 2 * per_run + 1] {
