@@ -39,6 +39,26 @@ pub struct Targets<'a> {
 /// features again on every pass — docs/design.md §8).
 pub const TARGET_COLUMNS_MAX_BYTES: usize = 64 << 20;
 
+/// The budget in force: [`TARGET_COLUMNS_MAX_BYTES`], or
+/// `SPARKOUT_TARGET_COLUMNS_MAX_BYTES` (bytes; 0 recomputes always) — for
+/// a night short of memory, and to run both ways in a test. It moves time
+/// and memory, never a result.
+fn target_columns_budget() -> usize {
+    static BUDGET: std::sync::OnceLock<usize> = std::sync::OnceLock::new();
+    *BUDGET.get_or_init(|| {
+        const VAR: &str = "SPARKOUT_TARGET_COLUMNS_MAX_BYTES";
+        match std::env::var(VAR) {
+            Err(_) => TARGET_COLUMNS_MAX_BYTES,
+            Ok(v) => v.trim().parse().unwrap_or_else(|_| {
+                tracing::warn!(
+                    "{VAR}={v:?} is not a byte count: the default {TARGET_COLUMNS_MAX_BYTES} is used"
+                );
+                TARGET_COLUMNS_MAX_BYTES
+            }),
+        }
+    })
+}
+
 /// A chosen effect's fits, one per fold, as the targets take them out.
 enum TakenFit {
     /// A linear form's θ and coefficients per fold: predicted row by row
@@ -153,7 +173,7 @@ impl<'a> Targets<'a> {
         e: &dyn Effect,
         ev: &CandEval,
     ) -> Result<Targets<'a>> {
-        self.taking_out_within(prob, e, ev, TARGET_COLUMNS_MAX_BYTES)
+        self.taking_out_within(prob, e, ev, target_columns_budget())
     }
 
     /// [`Targets::taking_out`] with the folds' target columns kept up to
