@@ -451,7 +451,7 @@ pub fn select(prob: &Problem, cands: &[&dyn Effect], opt: &SelectOptions) -> Res
     }
     // Every fold's first target is the gap; a chosen effect's fits are
     // taken out of the folds' targets as the passes read them.
-    let mut tg = Targets::gap(prob)?;
+    let mut tg = Targets::gap(prob);
     let unit_sse_gap: Vec<f64> = prob
         .units
         .iter()

@@ -12,8 +12,7 @@ use crate::effect::{LinearForm, ThetaRange};
 /// (docs/design.md §8: a few numbers per fold, not 8 B a row each), unless
 /// the columns fit in [`TARGET_COLUMNS_MAX_BYTES`]. The
 /// same subtractions in the same order as taking each effect out of a
-/// target column, so the same bits. Also each distinct target's Σy² per
-/// unit.
+/// target column, so the same bits.
 pub struct Targets<'a> {
     gap: &'a [f64],
     taken: Vec<TakenFit>,
@@ -22,7 +21,6 @@ pub struct Targets<'a> {
     of_fold: Vec<usize>,
     /// A fold whose target each distinct target is.
     fold_of: Vec<usize>,
-    yy_u: Vec<Vec<f64>>,
     /// Every fold's target as a column, when they fit in
     /// [`TARGET_COLUMNS_MAX_BYTES`] (after an effect is taken out).
     columns: Option<Vec<Vec<f64>>>,
@@ -31,7 +29,7 @@ pub struct Targets<'a> {
 /// Up to this many bytes (rows × (k + 1) folds × 8 B) the folds' targets
 /// are also kept as columns, each chosen effect's prediction subtracted
 /// once when it is taken out; a larger observable's are recomputed from
-/// the fits for each pass (twice a round, and once for Σy²), so its
+/// the fits for each pass (twice a round), so its
 /// memory is bounded by the fits, not by its rows. The same bits either
 /// way: the same subtractions in the same order. A budget like any
 /// batch engine's: a small observable keeps the speed, a large one the
@@ -131,7 +129,7 @@ impl TakenFit {
 
 impl<'a> Targets<'a> {
     /// Every fold's target before any effect is chosen: the gap.
-    pub fn gap(prob: &Problem<'a>) -> Result<Targets<'a>> {
+    pub fn gap(prob: &Problem<'a>) -> Targets<'a> {
         Targets::with(prob, Vec::new(), None)
     }
 
@@ -139,31 +137,20 @@ impl<'a> Targets<'a> {
         prob: &Problem<'a>,
         taken: Vec<TakenFit>,
         columns: Option<Vec<Vec<f64>>>,
-    ) -> Result<Targets<'a>> {
+    ) -> Targets<'a> {
         let nf = prob.k + 1;
         let (of_fold, fold_of) = if taken.is_empty() {
             (vec![0; nf], vec![0])
         } else {
             ((0..nf).collect(), (0..nf).collect())
         };
-        let mut tg = Targets {
+        Targets {
             gap: prob.gap,
             taken,
             of_fold,
             fold_of,
-            yy_u: Vec::new(),
             columns,
-        };
-        // Σy² of each unit, a chunk of units at a time.
-        let mut yy_u = vec![Vec::with_capacity(prob.units.len()); tg.fold_of.len()];
-        for units in consecutive_units(prob, CHUNK_ROWS) {
-            let c = tg.chunk(prob, units.collect())?;
-            for (yy, t) in yy_u.iter_mut().zip(&c.targets) {
-                yy.extend(c.local.iter().map(|r| dot(&t[r.clone()], &t[r.clone()])));
-            }
         }
-        tg.yy_u = yy_u;
-        Ok(tg)
     }
 
     /// These targets with `e`'s fits (`ev`) taken out of every fold's.
@@ -212,7 +199,7 @@ impl<'a> Targets<'a> {
             None
         };
         self.taken.push(fit);
-        Targets::with(prob, self.taken, columns)
+        Ok(Targets::with(prob, self.taken, columns))
     }
 
     /// How many distinct targets the folds fit.
@@ -359,6 +346,18 @@ pub struct Chunk {
     pub targets: Vec<Vec<f64>>,
 }
 
+impl Chunk {
+    /// Each of its units' Σy² of every distinct target, into `yy_u`
+    /// (per target, per unit).
+    fn sum_squares(&self, yy_u: &mut [Vec<f64>]) {
+        for (yy, t) in yy_u.iter_mut().zip(&self.targets) {
+            for (&u, l) in self.units.iter().zip(&self.local) {
+                yy[u] = dot(&t[l.clone()], &t[l.clone()]);
+            }
+        }
+    }
+}
+
 /// Cross-validates candidates against the current targets (in parallel):
 /// the cell pass reading a chunk of units once for every candidate (fold
 /// group after fold group), each candidate's θ fit, then the score pass
@@ -396,6 +395,10 @@ pub(super) fn evaluate_all_in_chunks(
     };
     let masks = prob.train_masks();
     let groups = fit::fold_groups(&masks, prob.units.len());
+    // Each unit's Σy² of every distinct target, taken in the first pass
+    // that reads every unit (the targets are computed once a pass).
+    let mut yy_u = vec![vec![f64::NAN; prob.units.len()]; tg.n_distinct()];
+    let mut yy_done = false;
     let mut cvs: Vec<(Cv, f64)> = cands
         .par_iter()
         .map(|e| {
@@ -439,6 +442,7 @@ pub(super) fn evaluate_all_in_chunks(
                         break 'groups;
                     }
                 };
+                c.sum_squares(&mut yy_u);
                 cvs.par_iter_mut().for_each(|(cv, secs)| {
                     if let Cv::Form(f) = cv {
                         timed(secs, &mut || f.cell_pass(prob, &c, g));
@@ -446,11 +450,12 @@ pub(super) fn evaluate_all_in_chunks(
                 });
             }
         }
+        yy_done = true;
     }
     cvs.par_iter_mut().for_each(|(cv, secs)| {
         if let Cv::Form(f) = cv {
             let mut failed = None;
-            timed(secs, &mut || failed = f.fit_theta(prob, tg).err());
+            timed(secs, &mut || failed = f.fit_theta(prob, tg, &yy_u).err());
             if let Some(e) = failed {
                 *cv = Cv::Failed(e);
             }
@@ -468,10 +473,15 @@ pub(super) fn evaluate_all_in_chunks(
                 break;
             }
         };
+        if !yy_done {
+            c.sum_squares(&mut yy_u);
+        }
         cvs.par_iter_mut().for_each(|(cv, secs)| {
             if let Cv::Form(f) = cv {
                 let mut failed = None;
-                timed(secs, &mut || failed = f.score_pass(prob, tg, &c).err());
+                timed(secs, &mut || {
+                    failed = f.score_pass(prob, tg, &yy_u, &c).err()
+                });
                 if let Some(e) = failed {
                     *cv = Cv::Failed(e);
                 }
@@ -483,7 +493,7 @@ pub(super) fn evaluate_all_in_chunks(
         .map(|((cv, secs), e)| {
             let t = std::time::Instant::now();
             let out = match cv {
-                Cv::Form(f) => f.finish(prob, tg),
+                Cv::Form(f) => f.finish(prob, tg, &yy_u),
                 Cv::Slow => evaluate_slow(*e, prob, tg, &masks),
                 Cv::Failed(e) => Err(e),
             };
@@ -632,7 +642,8 @@ impl FormCv {
     /// θ per fold — scanned on the groups' cells, or on the rows when the
     /// form is not pooled — then the coefficients of the CV folds fitted
     /// on their training cells, and the folds left to fit on blocks.
-    fn fit_theta(&mut self, prob: &Problem, tg: &Targets) -> Result<()> {
+    /// `yy_u`: each unit's Σy² of every distinct target.
+    fn fit_theta(&mut self, prob: &Problem, tg: &Targets, yy_u: &[Vec<f64>]) -> Result<()> {
         let form = self.form.as_ref();
         let frame = &self.frame;
         let nf = self.masks.len();
@@ -642,8 +653,7 @@ impl FormCv {
                 .iter()
                 .map(|m| self.groups.iter().map(|g| m[g[0]]).collect())
                 .collect();
-            let group_yy: Vec<Vec<f64>> = tg
-                .yy_u
+            let group_yy: Vec<Vec<f64>> = yy_u
                 .iter()
                 .map(|yy| {
                     self.groups
@@ -745,7 +755,13 @@ impl FormCv {
     /// and a unit's sums run over its rows in order, so they are what a
     /// node holding only that run computes. A unit held out by a fold
     /// fitted on cells is scored at once; the block sets keep its blocks.
-    fn score_pass(&mut self, prob: &Problem, tg: &Targets, c: &Chunk) -> Result<()> {
+    fn score_pass(
+        &mut self,
+        prob: &Problem,
+        tg: &Targets,
+        yy_u: &[Vec<f64>],
+        c: &Chunk,
+    ) -> Result<()> {
         let form = self.form.clone();
         let covs = form.covariates();
         with_columns(form.n_linear(), |buf| -> Result<()> {
@@ -759,7 +775,7 @@ impl FormCv {
                     form.features(&self.frame, &x, self.thetas[f], buf)?;
                     let g = fit::design_gram(buf, None, 0..r.len());
                     let h = fit::design_xy(buf, &c.targets[t][l.clone()], 0..r.len());
-                    self.unit_sse[u] = fit::sse(&g, &h, tg.yy_u[t][u], b);
+                    self.unit_sse[u] = fit::sse(&g, &h, yy_u[t][u], b);
                 }
                 for set in &mut self.block_sets {
                     form.features(&self.frame, &x, set.theta, buf)?;
@@ -775,7 +791,7 @@ impl FormCv {
 
     /// Each block-fitted fold's coefficients from its training units'
     /// blocks (summed in unit order) and its held-out units' scores.
-    fn finish(mut self, prob: &Problem, tg: &Targets) -> Result<CandEval> {
+    fn finish(mut self, prob: &Problem, tg: &Targets, yy_u: &[Vec<f64>]) -> Result<CandEval> {
         let nf = self.masks.len();
         let p = self.form.n_linear() + 1;
         let mut beta = vec![Vec::new(); nf];
@@ -793,7 +809,7 @@ impl FormCv {
                 let b = fit::solve(&g, &h).ok_or_else(|| err!("singular normal equations"))?;
                 for (u, tr) in self.masks[f].iter().enumerate() {
                     if !*tr {
-                        self.unit_sse[u] = fit::sse(&set.g_u[u], &h_u[u], tg.yy_u[t][u], &b);
+                        self.unit_sse[u] = fit::sse(&set.g_u[u], &h_u[u], yy_u[t][u], &b);
                     }
                 }
                 beta[f] = b;
@@ -1065,7 +1081,7 @@ mod tests {
         let refs: Vec<&dyn Effect> = cands.iter().map(|e| e.as_ref()).collect();
         // The gap shared by every fold, then three effects taken out (a
         // target per fold, each subtraction after the one before).
-        let gap_targets = Targets::gap(&prob).unwrap();
+        let gap_targets = Targets::gap(&prob);
         let of_key = |key: &str| {
             refs.iter()
                 .position(|e| e.key() == key)
@@ -1082,7 +1098,7 @@ mod tests {
             refs[of_key("drift:t_s")],
         ];
         let chain = |max_column_bytes: usize| {
-            let mut tg = Targets::gap(&prob).unwrap();
+            let mut tg = Targets::gap(&prob);
             let mut columns: Vec<Vec<f64>> = vec![gap.clone(); k + 1];
             for e in taken {
                 let ev = evaluate_all_in_chunks(&[e], &prob, &tg, usize::MAX, usize::MAX)
@@ -1121,9 +1137,6 @@ mod tests {
             tg
         };
         let (tg, kept) = (chain(0), chain(usize::MAX));
-        for (a, b) in tg.yy_u.iter().zip(&kept.yy_u) {
-            assert_eq!(bits(a), bits(b));
-        }
         for tg in [gap_targets, tg, kept] {
             let mut scanned = 0;
             let whole = evaluate_all_in_chunks(&refs, &prob, &tg, usize::MAX, usize::MAX);
