@@ -90,12 +90,26 @@ pub fn gather(table: &Table, oi: usize, notes: &mut Notes) -> crate::Result<ObsR
         .collect();
     keyed.sort_unstable();
     let order: Vec<usize> = keyed.into_iter().map(|k| k as u32 as usize).collect();
-    let rows: Vec<usize> = order.iter().map(|&p| asc[p]).collect();
+    // A table in run and time order (as the join writes it) is in that
+    // order already: its columns are taken as they are, not copied while
+    // the originals are held (a second copy of every column).
+    let in_order = order.iter().enumerate().all(|(i, &p)| i == p);
+    let permuted = |v: Vec<f64>| -> Vec<f64> {
+        if in_order {
+            v
+        } else {
+            order.iter().map(|&p| v[p]).collect()
+        }
+    };
+    let rows: Vec<usize> = if in_order {
+        asc
+    } else {
+        order.iter().map(|&p| asc[p]).collect()
+    };
     let run: Vec<u32> = order.iter().map(|&p| asc_run[p]).collect();
-    drop((asc, asc_run));
+    drop(asc_run);
     let n = rows.len();
-    let gap: Vec<f64> = order.iter().map(|&p| asc_gap[p]).collect();
-    drop(asc_gap);
+    let gap = permuted(asc_gap);
     let machine: Vec<u32> = table.machine.at(&rows);
     let mut run_ranges: Vec<Range<usize>> = Vec::new();
     let mut s = 0;
@@ -109,7 +123,7 @@ pub fn gather(table: &Table, oi: usize, notes: &mut Notes) -> crate::Result<ObsR
     let gathered: Vec<Cov> = names
         .par_iter()
         .zip(values.into_par_iter())
-        .map(|(name, v)| Cov::new(name.clone(), order.iter().map(|&p| v[p]).collect()))
+        .map(|(name, v)| Cov::new(name.clone(), permuted(v)))
         .collect();
     let mut cols = Vec::new();
     for c in gathered {

@@ -291,8 +291,9 @@ fn diagnose_observable(
 ) -> Result<()> {
     let mut o = gather::gather(table, oi, notes)?;
     // Each pass's accumulator holds a slot per row of the observable (not
-    // per row of the fleet): slot p is table row `o.rows[p]`.
-    let mut plain = Accum::new(o.n());
+    // per row of the fleet): slot p is table row `o.rows[p]`. Its per-row
+    // columns are the selection's, moved in when the pass records them.
+    let mut plain = Accum::new(0);
     let mut plain_notes = Notes::default();
     let slots = Slots {
         trimmed: &[],
@@ -366,7 +367,7 @@ fn diagnose_observable(
     let trimmed_gap: Vec<f64> = out.iter().map(|&p| o.gap[p]).collect();
     let trimmed: Vec<usize> = out.iter().map(|&p| o.rows[p]).collect();
     let mut kept = o.take_kept(&out);
-    let mut robust = Accum::new(n);
+    let mut robust = Accum::new(0);
     let slots = Slots {
         trimmed: &trimmed,
         trimmed_slots: &out,
@@ -555,6 +556,21 @@ fn analyse(
         &ivs,
         cfg,
     ));
+    // Cells of this observable: covariates, then machines — before the
+    // per-row results take the selection's residual.
+    let cov_cols: Vec<(&str, &[f64])> = o
+        .cols
+        .iter()
+        .map(|c| (c.name.as_str(), c.v.as_slice()))
+        .collect();
+    let mut cs = cells::cells(&cov_cols, &o.gap, &sel.residual);
+    cs.extend(cells::machine_cells(
+        &o.machine,
+        &table.machine_names,
+        &o.gap,
+        &sel.residual,
+    ));
+    clock.lap("cells");
     let obs_selected =
         output::record_selected(o, &prob, &cands, &mut sel, nf.sigma_mm, slots, acc)?;
     clock.lap("per-row results");
@@ -574,11 +590,6 @@ fn analyse(
         v.dedup();
         v
     };
-    let cov_cols: Vec<(&str, &[f64])> = o
-        .cols
-        .iter()
-        .map(|c| (c.name.as_str(), c.v.as_slice()))
-        .collect();
     let mut collinear = collinear::collinear(
         &cov_cols,
         &o.run_ranges,
@@ -637,15 +648,6 @@ fn analyse(
         outliers: None,
         stop_reason: sel.stop_reason.clone(),
     });
-    // Cells of this observable: covariates, then machines.
-    let mut cs = cells::cells(&cov_cols, &o.gap, &sel.residual);
-    cs.extend(cells::machine_cells(
-        &o.machine,
-        &table.machine_names,
-        &o.gap,
-        &sel.residual,
-    ));
-    clock.lap("cells");
     clock.done();
     acc.cells.extend(cs.into_iter().map(|cell| ObsCell {
         observable: o.name.clone(),

@@ -146,7 +146,8 @@ pub fn record_selected(
     acc: &mut Accum,
 ) -> Result<Vec<String>> {
     let extra_rows = slots.trimmed;
-    let n_slots = acc.residual_all.len();
+    // A slot per row of the observable: the analysed rows and the trimmed.
+    let n_slots = sel.residual.len() + slots.trimmed_slots.len();
     let mut extra_resid: Vec<f64> = slots.trimmed_gap.to_vec();
     let mut obs_selected = Vec::new();
     for (j, &ci) in sel.chosen.iter().enumerate() {
@@ -240,12 +241,14 @@ pub fn record_selected(
                 .collect(),
         });
     }
-    for (slot, r) in slots.analysed(n_slots).zip(&sel.residual) {
-        acc.residual_all[slot] = *r;
-    }
+    // The held-out residual moves to the accumulator too, spread to its
+    // slots in place; the trimmed rows' residuals after the all-runs fits.
+    let mut residual = std::mem::take(&mut sel.residual);
+    slots.spread(&mut residual, n_slots);
     for (&slot, r) in slots.trimmed_slots.iter().zip(extra_resid) {
-        acc.residual_all[slot] = r;
+        residual[slot] = r;
     }
+    acc.residual_all = residual;
     Ok(obs_selected)
 }
 
