@@ -351,6 +351,9 @@ fn diagnose_observable(
         for n in plain_notes.into_vec() {
             notes.add(n);
         }
+        // The covariates are done with; the results are written without
+        // them held.
+        o.cols = Vec::new();
         return acc.merge(plain, oi as u32, &o.rows, &o.gap);
     }
     drop(plain);
