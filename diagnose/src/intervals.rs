@@ -339,11 +339,8 @@ pub fn chosen_intervals(
             // Run by run from the earlier effects' fits (no column of the
             // observable's length), or from the column when one of them
             // predicts only all rows at once.
-            let mut probe = Vec::new();
-            let column = match sel.final_target_rows(prob, cands, j, 0..0, &mut probe) {
-                Ok(Some(())) => None,
-                _ => Some(sel.final_target(prob, cands, j).unwrap_or_default()),
-            };
+            let column = (!sel.final_target_is_row_by_row(j))
+                .then(|| sel.final_target(prob, cands, j).unwrap_or_default());
             let target = |r: Range<usize>, out: &mut Vec<f64>| -> Option<()> {
                 match &column {
                     Some(c) => {

@@ -371,10 +371,18 @@ impl Selection {
         Ok(target)
     }
 
+    /// Whether every effect chosen before the `j`-th predicts row by row
+    /// (a linear form; a plugin effect predicts all rows at once), so that
+    /// [`Selection::final_target_rows`] serves any rows.
+    pub fn final_target_is_row_by_row(&self, j: usize) -> bool {
+        self.chosen_evals[..j]
+            .iter()
+            .all(|ev| matches!(ev.fit, CandFit::Fast { .. }))
+    }
+
     /// [`Selection::final_target`] of the observable's rows `rows` into
-    /// `out` — the same bits — when every effect chosen before the `j`-th
-    /// predicts row by row (a linear form); `None` when one does not (a
-    /// plugin effect predicts all rows at once: ask for the column).
+    /// `out` — the same bits — when [`Selection::final_target_is_row_by_row`];
+    /// `None` otherwise (ask for the column).
     pub fn final_target_rows(
         &self,
         prob: &Problem,
@@ -383,13 +391,10 @@ impl Selection {
         rows: Range<usize>,
         out: &mut Vec<f64>,
     ) -> Result<Option<()>> {
-        let earlier = self.chosen[..j].iter().zip(&self.chosen_evals);
-        if earlier
-            .clone()
-            .any(|(_, ev)| !matches!(ev.fit, CandFit::Fast { .. }))
-        {
+        if !self.final_target_is_row_by_row(j) {
             return Ok(None);
         }
+        let earlier = self.chosen[..j].iter().zip(&self.chosen_evals);
         out.clear();
         out.extend_from_slice(&prob.gap[rows.clone()]);
         let mut pred = Vec::new();
