@@ -675,6 +675,16 @@ pub fn fit_form(
 
 #[cfg(test)]
 mod tests {
+    /// A seeded uniform on [0, 1) (xorshift64): the pooling tests' data.
+    pub(super) fn uniform(mut state: u64) -> impl FnMut() -> f64 {
+        move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        }
+    }
+
     use super::*;
 
     #[test]
@@ -808,13 +818,7 @@ mod tests {
     #[test]
     fn pooling_by_packed_keys_equals_pooling_by_sorted_rows() {
         let n = 5_000;
-        let mut state = 0x2545_f491_4f6c_dd1du64;
-        let mut next = move || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut next = uniform(0x2545_f491_4f6c_dd1d);
         let w: Vec<f64> = (0..n).map(|i| 1.0 + (i % 3) as f64).collect();
         let y1: Vec<f64> = (0..n).map(|i| (i as f64 * 0.1).sin()).collect();
         let y2: Vec<f64> = (0..n).map(|i| (i as f64 * 0.37).cos() * 1e3).collect();

@@ -577,13 +577,7 @@ mod tests {
     #[test]
     fn ranges_interleaved_across_groups_pool_as_groups_one_by_one() {
         let n = 60_000;
-        let mut state = 0x9e37_79b9_7f4a_7c15u64;
-        let mut next = move || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut next = super::super::tests::uniform(0x9e37_79b9_7f4a_7c15);
         let a: Vec<f64> = (0..n).map(|_| next() * 40.0).collect();
         let b: Vec<f64> = (0..n).map(|_| (next() * 3.0).floor()).collect();
         let y1: Vec<f64> = (0..n).map(|i| (i as f64 * 0.1).sin()).collect();
