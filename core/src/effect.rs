@@ -170,6 +170,56 @@ impl CovStats {
     pub fn from_values(v: &[f64]) -> CovStats {
         Self::from_sorted(&sorted_values(v))
     }
+    /// From values the caller no longer needs in their order: sorted in
+    /// place, and the spacings written over the sorted values as they are
+    /// read — no copy of the column (an observable's covariates read from
+    /// a file one at a time, docs/design.md §8). The same bits as
+    /// [`CovStats::from_values`].
+    pub fn from_values_in_place(v: &mut [f64]) -> CovStats {
+        const SIGN: u64 = 1 << 63;
+        for x in v.iter_mut() {
+            *x = f64::from_bits(total_order_key(*x));
+        }
+        // Sorted as the integers `sorted_values` sorts.
+        v.sort_unstable_by_key(|x| x.to_bits());
+        for x in v.iter_mut() {
+            let k = x.to_bits();
+            *x = f64::from_bits(if k & SIGN != 0 { k & !SIGN } else { !k });
+        }
+        if v.is_empty() {
+            return Self::from_sorted(v);
+        }
+        let (min, max) = (v[0], v[v.len() - 1]);
+        let tol = 1e-12 * (max - min).abs().max(1e-300);
+        // Spacing i is written at m ≤ i after values i and i + 1 are read.
+        let mut m = 0;
+        for i in 0..v.len() - 1 {
+            let d = v[i + 1] - v[i];
+            if d > tol {
+                v[m] = d;
+                m += 1;
+            }
+        }
+        Self::with_steps(min, max, &mut v[..m])
+    }
+
+    /// The constants of values from `min` to `max` whose positive
+    /// spacings are `steps` (reordered).
+    fn with_steps(min: f64, max: f64, steps: &mut [f64]) -> CovStats {
+        let step = if steps.is_empty() {
+            0.0
+        } else {
+            let m = steps.len() / 2;
+            *steps.select_nth_unstable_by(m, f64::total_cmp).1
+        };
+        CovStats {
+            min,
+            max,
+            step,
+            max_abs: min.abs().max(max.abs()),
+        }
+    }
+
     /// From ascending values (the engine sorts each covariate once).
     pub fn from_sorted(s: &[f64]) -> CovStats {
         if s.is_empty() {
@@ -187,18 +237,7 @@ impl CovStats {
             .map(|w| w[1] - w[0])
             .filter(|d| *d > tol)
             .collect();
-        let step = if steps.is_empty() {
-            0.0
-        } else {
-            let m = steps.len() / 2;
-            *steps.select_nth_unstable_by(m, f64::total_cmp).1
-        };
-        CovStats {
-            min,
-            max,
-            step,
-            max_abs: min.abs().max(max.abs()),
-        }
+        Self::with_steps(min, max, &mut steps)
     }
     pub fn range(&self) -> f64 {
         self.max - self.min
@@ -533,5 +572,26 @@ mod sorted_tests {
         want.sort_by(f64::total_cmp);
         let bits = |s: &[f64]| s.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
         assert_eq!(bits(&super::sorted_values(&v)), bits(&want));
+    }
+
+    #[test]
+    fn stats_in_place_are_the_stats_of_a_sorted_copy() {
+        let wavy: Vec<f64> = (0..5000)
+            .map(|i| ((i * 7919) % 1013) as f64 * 0.013 - 4.0 + (i as f64 * 0.7).sin())
+            .collect();
+        let steps: Vec<f64> = (0..3000).map(|i| (i % 37) as f64 * 0.25).collect();
+        for v in [
+            Vec::new(),
+            vec![2.5],
+            vec![1.0; 9],
+            vec![3.0, -1.0, 3.0, 0.5, -0.0, 0.0],
+            wavy,
+            steps,
+        ] {
+            let want = super::CovStats::from_values(&v);
+            let got = super::CovStats::from_values_in_place(&mut v.clone());
+            let bits = |s: super::CovStats| [s.min, s.max, s.step, s.max_abs].map(|x| x.to_bits());
+            assert_eq!(bits(got), bits(want), "{v:?}");
+        }
     }
 }

@@ -21,6 +21,7 @@
 
 use statrs::distribution::{ContinuousCDF, FisherSnedecor, Normal};
 
+use super::covariates::Covariates;
 use super::document::{CellBound, WhereCell};
 
 /// Number of quantile bins per covariate and per axis of the x/y tiles.
@@ -90,15 +91,29 @@ impl Binning {
     /// the total order means equal bits). With a NaN the values are sorted,
     /// as the quantile edges were always taken.
     fn of(v: &[f64], bins: &[usize]) -> Binning {
-        let n = v.len();
         if v.iter().any(|x| x.is_nan()) {
             return Self::from_sorted(&crate::effect::sorted_values(v), bins);
         }
         if let Some(d) = distinct_at_most(v, MAX_DISCRETE_VALUES) {
             return Binning::Discrete(d);
         }
+        Self::selected(v.to_vec(), bins)
+    }
+
+    /// [`Binning::of`] values the caller no longer needs in their order
+    /// (read from a file for it): selected in place, no copy.
+    fn of_owned(v: Vec<f64>, bins: &[usize]) -> Binning {
+        if v.iter().any(|x| x.is_nan()) || distinct_at_most(&v, MAX_DISCRETE_VALUES).is_some() {
+            return Self::of(&v, bins);
+        }
+        Self::selected(v, bins)
+    }
+
+    /// The quantile binning by selecting the edges' order statistics of
+    /// `s` (reordered).
+    fn selected(mut s: Vec<f64>, bins: &[usize]) -> Binning {
+        let n = s.len();
         let at = edge_ranks(n, bins);
-        let mut s = v.to_vec();
         let mut lo = 0;
         let mut out = Vec::with_capacity(at.len());
         for p in at {
@@ -192,101 +207,135 @@ fn distinct_at_most(v: &[f64], cap: usize) -> Option<Vec<f64>> {
     (d.len() <= cap).then_some(d)
 }
 
-/// Aggregates every binning of one observable. `covs`: (name, values in
-/// row order); `g`/`r`: gap and held-out residual. Each covariate's
-/// quantile edges are selected from a copy let go at once; the cells' sums
-/// are one pass over the rows (`fold_cells`).
-pub fn cells(covs: &[(&str, &[f64])], g: &[f64], r: &[f64]) -> Vec<Cell> {
+/// Aggregates every binning of one observable. `covs`: its covariates
+/// (values in row order); `g`/`r`: gap and held-out residual. Each
+/// covariate's quantile edges are selected from a copy let go at once; the
+/// cells' sums are one pass over the rows ([`CellFold`]).
+pub fn cells(covs: &Covariates, g: &[f64], r: &[f64]) -> crate::Result<Vec<Cell>> {
     use rayon::prelude::*;
     let n = g.len();
-    // Each covariate on its own (in parallel, collected in order): its
-    // binning selects from a copy of its values.
-    type Tile<'a> = Option<(Bins, &'a [f64])>;
-    let per_cov: Vec<(Vec<Cell>, Tile)> = covs
-        .par_iter()
-        .map(|(name, v)| {
-            let tiled = matches!(*name, "x_mm" | "y_mm");
-            let binning = if tiled {
-                Binning::of(v, &[QUANTILE_BINS, TILE_BINS])
-            } else {
-                Binning::of(v, &[QUANTILE_BINS])
-            };
-            let q = binning.bins(n, QUANTILE_BINS);
-            let mut cells = Vec::new();
-            fold_cells(&[name], |i| q.id(v[i]), &[v], g, r, &mut cells);
-            (cells, tiled.then(|| (binning.bins(n, TILE_BINS), *v)))
-        })
-        .collect();
+    // Each covariate on its own, its cells and — for a position of the
+    // tiles — its tile bins: its binning selects from a copy of its values
+    // (read whole), its cells are folded a chunk of rows at a time. In
+    // parallel when the columns are in memory; one at a time when they are
+    // read from a file (one column at a time, not one per core:
+    // docs/design.md §8).
+    let per_cov = |name: &String| -> crate::Result<(Vec<Cell>, Option<Bins>)> {
+        let tiled = matches!(name.as_str(), "x_mm" | "y_mm");
+        let edges: &[usize] = if tiled {
+            &[QUANTILE_BINS, TILE_BINS]
+        } else {
+            &[QUANTILE_BINS]
+        };
+        let binning = Binning::of_owned(covs.column(name)?.into_owned(), edges);
+        let q = binning.bins(n, QUANTILE_BINS);
+        let mut fold = CellFold::default();
+        covs.chunked(std::slice::from_ref(name), |rows, x| {
+            let v = x.col(name).expect("read");
+            fold.add(|i| q.id(v[i]), &[v], &g[rows.clone()], &r[rows]);
+            Ok(())
+        })?;
+        let mut cells = Vec::new();
+        fold.finish(&[name.as_str()], &mut cells);
+        Ok((cells, tiled.then(|| binning.bins(n, TILE_BINS))))
+    };
+    let per_cov: Vec<(Vec<Cell>, Option<Bins>)> = if covs.in_a_file() {
+        covs.names()
+            .iter()
+            .map(per_cov)
+            .collect::<crate::Result<_>>()?
+    } else {
+        covs.names()
+            .par_iter()
+            .map(per_cov)
+            .collect::<crate::Result<_>>()?
+    };
     let (mut tile_x, mut tile_y) = (None, None);
     let mut out = Vec::new();
-    for ((name, _), (cells, tile)) in covs.iter().zip(per_cov) {
+    for (name, (cells, tile)) in covs.names().iter().zip(per_cov) {
         out.extend(cells);
-        match *name {
+        match name.as_str() {
             "x_mm" => tile_x = tile,
             "y_mm" => tile_y = tile,
             _ => {}
         }
     }
     // 2-D tiles over the positions x_mm, y_mm.
-    if let (Some((bx, x)), Some((by, y))) = (tile_x, tile_y) {
-        let tile = |i: usize| bx.id(x[i]) * 64 + by.id(y[i]);
-        fold_cells(&["x_mm", "y_mm"], tile, &[x, y], g, r, &mut out);
+    if let (Some(bx), Some(by)) = (tile_x, tile_y) {
+        let names = ["x_mm".to_string(), "y_mm".to_string()];
+        let mut fold = CellFold::default();
+        covs.chunked(&names, |rows, xy| {
+            let (x, y) = (xy.col("x_mm").expect("read"), xy.col("y_mm").expect("read"));
+            let tile = |i: usize| bx.id(x[i]) * 64 + by.id(y[i]);
+            fold.add(tile, &[x, y], &g[rows.clone()], &r[rows]);
+            Ok(())
+        })?;
+        fold.finish(&["x_mm", "y_mm"], &mut out);
     }
-    out
+    Ok(out)
 }
 
-/// The cells of one binning, ascending by bin id (`bin_of` row i), each
-/// with its row count, Σg² and Σr² summed in row order, and the extremes
-/// of `values` (one column per name; NaN is passed over). One pass over
-/// the rows: at 1.7·10⁷ rows a polars group-by per binning took 0.3–0.5 s
-/// where this takes a few hundredths.
-fn fold_cells(
-    names: &[&str],
-    bin_of: impl Fn(usize) -> u32,
-    values: &[&[f64]],
-    g: &[f64],
-    r: &[f64],
-    out: &mut Vec<Cell>,
-) {
-    struct Acc {
-        n: usize,
-        sum_g2: f64,
-        sum_r2: f64,
-        lo: [f64; 2],
-        hi: [f64; 2],
-    }
-    debug_assert!(values.len() <= 2);
-    let mut acc: Vec<Option<Acc>> = Vec::new();
-    for (i, (gi, ri)) in g.iter().zip(r).enumerate() {
-        let b = bin_of(i) as usize;
-        if b >= acc.len() {
-            acc.resize_with(b + 1, || None);
+/// The cells of one binning, ascending by bin id, each with its row count,
+/// Σg² and Σr² summed in row order, and the extremes of the binned
+/// values (one column per covariate, at most two; NaN is passed over).
+/// Rows are added a chunk at a time, in order ([`CellFold::add`]): the
+/// same sums as one pass over the rows. At 1.7·10⁷ rows a polars group-by
+/// per binning took 0.3–0.5 s where this takes a few hundredths.
+#[derive(Default)]
+struct CellFold {
+    acc: Vec<Option<FoldAcc>>,
+    k: usize,
+}
+
+struct FoldAcc {
+    n: usize,
+    sum_g2: f64,
+    sum_r2: f64,
+    lo: [f64; 2],
+    hi: [f64; 2],
+}
+
+impl CellFold {
+    /// Rows of a chunk: row i in bin `bin_of(i)`, its values
+    /// `values[j][i]`, gap `g[i]` and residual `r[i]`.
+    fn add(&mut self, bin_of: impl Fn(usize) -> u32, values: &[&[f64]], g: &[f64], r: &[f64]) {
+        debug_assert!(values.len() <= 2);
+        self.k = values.len();
+        for (i, (gi, ri)) in g.iter().zip(r).enumerate() {
+            let b = bin_of(i) as usize;
+            if b >= self.acc.len() {
+                self.acc.resize_with(b + 1, || None);
+            }
+            let a = self.acc[b].get_or_insert(FoldAcc {
+                n: 0,
+                sum_g2: 0.0,
+                sum_r2: 0.0,
+                lo: [f64::NAN; 2],
+                hi: [f64::NAN; 2],
+            });
+            a.n += 1;
+            a.sum_g2 += gi * gi;
+            a.sum_r2 += ri * ri;
+            for (j, v) in values.iter().enumerate() {
+                a.lo[j] = a.lo[j].min(v[i]);
+                a.hi[j] = a.hi[j].max(v[i]);
+            }
         }
-        let a = acc[b].get_or_insert(Acc {
-            n: 0,
-            sum_g2: 0.0,
-            sum_r2: 0.0,
-            lo: [f64::NAN; 2],
-            hi: [f64::NAN; 2],
-        });
-        a.n += 1;
-        a.sum_g2 += gi * gi;
-        a.sum_r2 += ri * ri;
-        for (j, v) in values.iter().enumerate() {
-            a.lo[j] = a.lo[j].min(v[i]);
-            a.hi[j] = a.hi[j].max(v[i]);
-        }
     }
-    let k = values.len();
-    out.extend(acc.into_iter().flatten().map(|a| Cell {
-        covariate: names.join(","),
-        lo: a.lo[..k].to_vec(),
-        hi: a.hi[..k].to_vec(),
-        n: a.n,
-        sum_g2: a.sum_g2,
-        sum_r2: a.sum_r2,
-        label: None,
-    }));
+
+    /// The cells, ascending by bin, named by the covariates `names`.
+    fn finish(self, names: &[&str], out: &mut Vec<Cell>) {
+        let k = self.k;
+        out.extend(self.acc.into_iter().flatten().map(|a| Cell {
+            covariate: names.join(","),
+            lo: a.lo[..k].to_vec(),
+            hi: a.hi[..k].to_vec(),
+            n: a.n,
+            sum_g2: a.sum_g2,
+            sum_r2: a.sum_r2,
+            label: None,
+        }));
+    }
 }
 
 /// One cell per machine of an observable (none with fewer than two).
@@ -393,7 +442,8 @@ mod tests {
             .iter()
             .map(|x| if *x >= 100.0 { 1.0 } else { 0.0 })
             .collect();
-        let c = cells(&[("x_mm", &v), ("dir", &d)], &g, &g);
+        let covs = Covariates::in_memory(120, vec![("x_mm".into(), v), ("dir".into(), d)]);
+        let c = cells(&covs, &g, &g).unwrap();
         let xs: Vec<&Cell> = c.iter().filter(|c| c.covariate == "x_mm").collect();
         assert_eq!(xs.len(), QUANTILE_BINS);
         assert_eq!(xs.iter().map(|c| c.n).sum::<usize>(), 120);

@@ -16,6 +16,8 @@ use std::collections::BTreeMap;
 use std::ops::Range;
 
 use nalgebra::DMatrix;
+
+use crate::covariates::{Covariates, READ_ROWS};
 use serde::Serialize;
 
 /// A covariate of a selected effect that moves with others within runs.
@@ -60,10 +62,10 @@ impl Collinearity {
 /// Largest VIF reported (a covariate that is an exact combination).
 const VIF_CAP: f64 = 1e6;
 
-/// Within-run cross products of the columns, pooled over runs.
-fn within_run_scatter(cols: &[&[f64]], runs: &[Range<usize>]) -> DMatrix<f64> {
+/// Within-run cross products of the columns over `runs` (ranges of the
+/// columns), added to `s` run after run.
+fn add_within_run_scatter(s: &mut DMatrix<f64>, cols: &[&[f64]], runs: &[Range<usize>]) {
     let p = cols.len();
-    let mut s = DMatrix::<f64>::zeros(p, p);
     let mut centred = vec![Vec::new(); p];
     for r in runs {
         let len = r.len() as f64;
@@ -82,36 +84,72 @@ fn within_run_scatter(cols: &[&[f64]], runs: &[Range<usize>]) -> DMatrix<f64> {
             }
         }
     }
-    s
 }
 
 /// The collinearity of each covariate in `of` (covariates of selected
-/// effects) among `cols` (name, values in run order) over `runs`;
-/// reported when it moves with another (|r| ≥ `max_r`) or its VIF ≥
-/// `max_vif`.
+/// effects) among the covariates `covs` (values in run order) over
+/// `runs`; reported when it moves with another (|r| ≥ `max_r`) or its VIF
+/// ≥ `max_vif`. One pass over the runs, a chunk of whole runs at a time:
+/// the within-run cross products and each covariate's Σx² are sums over
+/// runs, added in run order.
 pub fn collinear(
-    cols: &[(&str, &[f64])],
+    covs: &Covariates,
     runs: &[Range<usize>],
     of: &[String],
     max_r: f64,
     max_vif: f64,
-) -> Vec<Collinearity> {
+) -> crate::Result<Vec<Collinearity>> {
+    collinear_in_chunks(covs, runs, of, max_r, max_vif, READ_ROWS)
+}
+
+/// [`collinear`] reading at most `chunk_rows` rows at a time (a run longer
+/// than that on its own): the same bits for any chunk size.
+fn collinear_in_chunks(
+    covs: &Covariates,
+    runs: &[Range<usize>],
+    of: &[String],
+    max_r: f64,
+    max_vif: f64,
+    chunk_rows: usize,
+) -> crate::Result<Vec<Collinearity>> {
     if of.is_empty() {
-        return Vec::new();
+        return Ok(Vec::new());
     }
-    let s = within_run_scatter(&cols.iter().map(|c| c.1).collect::<Vec<_>>(), runs);
+    let names = covs.names();
+    let p = names.len();
+    let mut s = DMatrix::<f64>::zeros(p, p);
+    // Σx² of each covariate over every row, in row order (as `sum` adds).
+    let mut raw = vec![-0.0f64; p];
+    let mut first = 0;
+    while first < runs.len() {
+        let mut last = first + 1;
+        while last < runs.len() && runs[last].end - runs[first].start <= chunk_rows {
+            last += 1;
+        }
+        let span = runs[first].start..runs[last - 1].end;
+        let x = covs.rows_of(names, span.clone())?;
+        let cols: Vec<&[f64]> = names.iter().map(|c| x.col(c).expect("read")).collect();
+        let local: Vec<Range<usize>> = runs[first..last]
+            .iter()
+            .map(|r| r.start - span.start..r.end - span.start)
+            .collect();
+        add_within_run_scatter(&mut s, &cols, &local);
+        for (acc, col) in raw.iter_mut().zip(&cols) {
+            for v in col.iter() {
+                *acc += v * v;
+            }
+        }
+        first = last;
+    }
     // Covariates that vary within runs at all (beyond rounding of their
     // raw values).
-    let live: Vec<usize> = (0..cols.len())
-        .filter(|&i| {
-            let raw: f64 = cols[i].1.iter().map(|v| v * v).sum();
-            s[(i, i)].is_finite() && s[(i, i)] > 1e-20 * raw.max(f64::MIN_POSITIVE)
-        })
+    let live: Vec<usize> = (0..p)
+        .filter(|&i| s[(i, i)].is_finite() && s[(i, i)] > 1e-20 * raw[i].max(f64::MIN_POSITIVE))
         .collect();
     let r = |a: usize, b: usize| s[(a, b)] / (s[(a, a)] * s[(b, b)]).sqrt();
     let mut out = Vec::new();
     for name in of {
-        let Some(a) = cols.iter().position(|c| c.0 == name) else {
+        let Some(a) = names.iter().position(|c| c == name) else {
             continue;
         };
         if !live.contains(&a) {
@@ -120,7 +158,7 @@ pub fn collinear(
         let moves_with: BTreeMap<String, f64> = live
             .iter()
             .filter(|&&b| b != a && r(a, b).abs() >= max_r)
-            .map(|&b| (cols[b].0.to_string(), r(a, b)))
+            .map(|&b| (names[b].clone(), r(a, b)))
             .collect();
         let vif = vif_of(a, &live, &r);
         if moves_with.is_empty() && vif < max_vif {
@@ -145,7 +183,7 @@ pub fn collinear(
             confounds: Vec::new(),
         });
     }
-    out
+    Ok(out)
 }
 
 /// 1 / (1 − R²) of covariate `a` on the other live covariates: the
@@ -181,23 +219,24 @@ mod tests {
             .collect();
         let runs = [0..n, n..2 * n];
         let of = vec!["temp_c".to_string()];
-        let c = collinear(
-            &[("temp_c", &temp), ("x_mm", &same)],
-            &runs,
-            &of,
-            0.95,
-            10.0,
+        let covs = |x: &[f64]| {
+            Covariates::in_memory(
+                2 * n,
+                vec![("temp_c".into(), temp.clone()), ("x_mm".into(), x.to_vec())],
+            )
+        };
+        let c = collinear(&covs(&same), &runs, &of, 0.95, 10.0).unwrap();
+        // A run at a time: the same sums in the same order.
+        let one = collinear_in_chunks(&covs(&same), &runs, &of, 0.95, 10.0, 1).unwrap();
+        assert_eq!(c[0].vif.to_bits(), one[0].vif.to_bits());
+        assert_eq!(
+            c[0].moves_with["x_mm"].to_bits(),
+            one[0].moves_with["x_mm"].to_bits()
         );
         assert_eq!(c.len(), 1);
         assert!(c[0].moves_with["x_mm"] > 0.95, "{:?}", c[0]);
         assert!(c[0].vif >= 10.0 && c[0].advice.contains("scan direction"));
-        let c = collinear(
-            &[("temp_c", &temp), ("x_mm", &alternating)],
-            &runs,
-            &of,
-            0.95,
-            10.0,
-        );
+        let c = collinear(&covs(&alternating), &runs, &of, 0.95, 10.0).unwrap();
         assert!(c.is_empty(), "{c:?}");
     }
 }

@@ -6,27 +6,10 @@ use std::ops::Range;
 
 use rayon::prelude::*;
 
+use super::covariates::{ColumnFile, Covariates};
 use super::effect::CovStats;
 use super::observations::Table;
 use super::Notes;
-
-/// One covariate of an observable: values in row order and constants (its
-/// sorted values are not kept: the cells sort again, one covariate at a
-/// time, rather than hold a second copy of every covariate through the
-/// analysis).
-pub struct Cov {
-    pub name: String,
-    pub v: Vec<f64>,
-    pub stats: CovStats,
-}
-
-impl Cov {
-    /// A covariate and its constants (from its values sorted).
-    pub fn new(name: String, v: Vec<f64>) -> Cov {
-        let stats = CovStats::from_values(&v);
-        Cov { name, v, stats }
-    }
-}
 
 /// The rows of one observable and what the later steps read from them.
 pub struct ObsRows {
@@ -38,8 +21,9 @@ pub struct ObsRows {
     pub run_ranges: Vec<Range<usize>>,
     /// Machine id (into `Table::machine_names`) per row of `rows`.
     pub machine: Vec<u32>,
-    /// Varying covariates with a finite value on every row.
-    pub cols: Vec<Cov>,
+    /// Varying covariates with a finite value on every row (in memory, or
+    /// in a column file of the scratch folder: `crate::covariates`).
+    pub cols: Covariates,
 }
 
 impl ObsRows {
@@ -47,7 +31,7 @@ impl ObsRows {
         self.rows.len()
     }
     pub fn names(&self) -> Vec<String> {
-        self.cols.iter().map(|c| c.name.clone()).collect()
+        self.cols.names().to_vec()
     }
     /// Distinct machine ids of this observable, ascending.
     pub fn machines(&self) -> Vec<u32> {
@@ -58,18 +42,62 @@ impl ObsRows {
     }
 }
 
-pub fn gather(table: &Table, oi: usize, notes: &mut Notes) -> crate::Result<ObsRows> {
+/// The rows of observable `oi`. `scratch`: a folder where its covariates
+/// go to a column file when they exceed the in-memory budget
+/// (`crate::covariates`); read there a chunk at a time, they never all
+/// sit in memory.
+pub fn gather(
+    table: &Table,
+    oi: usize,
+    scratch: Option<&std::path::Path>,
+    notes: &mut Notes,
+) -> crate::Result<ObsRows> {
+    let budget = crate::covariates::in_memory_budget();
+    gather_within(table, oi, scratch, budget, notes)
+}
+
+/// [`gather`] with covariates of more than `max_bytes` to the file.
+pub(crate) fn gather_within(
+    table: &Table,
+    oi: usize,
+    scratch: Option<&std::path::Path>,
+    max_bytes: usize,
+    notes: &mut Notes,
+) -> crate::Result<ObsRows> {
     let oname = &table.obs_names[oi];
     // The observable's rows in table order, their gaps and covariates
     // read once.
     let asc: Vec<usize> = table.obs.rows_where(|o| o as usize == oi);
     let names = table.values.names();
-    let crate::observations::Gathered {
-        gap: asc_gap,
-        covariates: values,
-    } = table.values.gather(&table.obs, &asc)?;
+    let to_file = scratch.filter(|_| asc.len() * names.len() * 8 > max_bytes);
+    let (asc_gap, mut values) = match to_file {
+        None => {
+            let crate::observations::Gathered { gap, covariates } =
+                table.values.gather(&table.obs, &asc)?;
+            (gap, Values::Memory(covariates))
+        }
+        Some(dir) => {
+            let file = ColumnFile::create(dir, asc.len(), names.len())?;
+            let mut gap = Vec::with_capacity(asc.len());
+            table
+                .values
+                .gather_chunks(&table.obs, &asc, &mut |start, g, covs| {
+                    gap.extend_from_slice(g);
+                    for (k, c) in covs.iter().enumerate() {
+                        file.write(k, start, c)?;
+                    }
+                    Ok(())
+                })?;
+            (gap, Values::File(file))
+        }
+    };
     let asc_run = table.run.at(&asc);
-    let t = names.iter().position(|n| n == "t_s").map(|k| &values[k]);
+    let t_col = names.iter().position(|n| n == "t_s");
+    let t: Option<std::borrow::Cow<[f64]>> = match (&values, t_col) {
+        (_, None) => None,
+        (Values::Memory(v), Some(k)) => Some(std::borrow::Cow::Borrowed(&v[k])),
+        (Values::File(f), Some(k)) => Some(std::borrow::Cow::Owned(f.column(k)?)),
+    };
     // Sorted by run unit, then time (total order), then table order:
     // `order[p]` is the position in `asc` of the p-th row. Each row's three
     // keys are packed into one integer and sorted as integers — a
@@ -82,18 +110,25 @@ pub fn gather(table: &Table, oi: usize, notes: &mut Notes) -> crate::Result<ObsR
             u32::MAX
         ));
     }
-    let mut keyed: Vec<u128> = (0..asc.len())
-        .map(|p| {
-            let t_key = t.map_or(0, |t| super::effect::total_order_key(t[p]));
-            (u128::from(asc_run[p]) << 96) | (u128::from(t_key) << 32) | p as u128
-        })
-        .collect();
-    keyed.sort_unstable();
-    let order: Vec<usize> = keyed.into_iter().map(|k| k as u32 as usize).collect();
+    let t_key = |p: usize| {
+        t.as_ref()
+            .map_or(0, |t| super::effect::total_order_key(t[p]))
+    };
     // A table in run and time order (as the join writes it) is in that
-    // order already: its columns are taken as they are, not copied while
-    // the originals are held (a second copy of every column).
-    let in_order = order.iter().enumerate().all(|(i, &p)| i == p);
+    // order already — seen in one pass, without the keys and the order
+    // (24 B a row) — and its columns are taken as they are, not copied
+    // while the originals are held (a second copy of every column).
+    let in_order = (1..asc.len()).all(|p| (asc_run[p - 1], t_key(p - 1)) <= (asc_run[p], t_key(p)));
+    let order: Vec<usize> = if in_order {
+        Vec::new()
+    } else {
+        let mut keyed: Vec<u128> = (0..asc.len())
+            .map(|p| (u128::from(asc_run[p]) << 96) | (u128::from(t_key(p)) << 32) | p as u128)
+            .collect();
+        keyed.sort_unstable();
+        keyed.into_iter().map(|k| k as u32 as usize).collect()
+    };
+    drop(t);
     let permuted = |v: Vec<f64>| -> Vec<f64> {
         if in_order {
             v
@@ -101,13 +136,12 @@ pub fn gather(table: &Table, oi: usize, notes: &mut Notes) -> crate::Result<ObsR
             order.iter().map(|&p| v[p]).collect()
         }
     };
-    let rows: Vec<usize> = if in_order {
-        asc
+    let (rows, run): (Vec<usize>, Vec<u32>) = if in_order {
+        (asc, asc_run)
     } else {
-        order.iter().map(|&p| asc[p]).collect()
+        let rows = order.iter().map(|&p| asc[p]).collect();
+        (rows, order.iter().map(|&p| asc_run[p]).collect())
     };
-    let run: Vec<u32> = order.iter().map(|&p| asc_run[p]).collect();
-    drop(asc_run);
     let n = rows.len();
     let gap = permuted(asc_gap);
     let machine: Vec<u32> = table.machine.at(&rows);
@@ -119,43 +153,80 @@ pub fn gather(table: &Table, oi: usize, notes: &mut Notes) -> crate::Result<ObsR
             s = i;
         }
     }
-    // Covariates: in the rows' order, with their constants (frames).
-    let gathered: Vec<Cov> = names
-        .par_iter()
-        .zip(values.into_par_iter())
-        .map(|(name, v)| Cov::new(name.clone(), permuted(v)))
-        .collect();
-    let mut cols = Vec::new();
-    for c in gathered {
+    drop(run);
+    // Covariates: in the rows' order, how many rows have a value, and
+    // their constants (frames) — in memory, or a column at a time from
+    // the file (each read, put in order and sorted in place: two columns
+    // at a time, one per core).
+    let checked: Vec<(usize, CovStats, Option<Vec<f64>>)> = match &mut values {
+        Values::Memory(v) => std::mem::take(v)
+            .into_par_iter()
+            .map(|col| {
+                let col = permuted(col);
+                let finite = col.iter().filter(|v| v.is_finite()).count();
+                (finite, CovStats::from_values(&col), Some(col))
+            })
+            .collect(),
+        Values::File(f) => (0..names.len())
+            .into_par_iter()
+            .with_max_len(1)
+            .map(|k| -> crate::Result<_> {
+                let mut col = f.column(k)?;
+                if !in_order {
+                    col = permuted(col);
+                    f.write(k, 0, &col)?;
+                }
+                let finite = col.iter().filter(|v| v.is_finite()).count();
+                Ok((finite, CovStats::from_values_in_place(&mut col), None))
+            })
+            .collect::<crate::Result<_>>()?,
+    };
+    let (mut kept, mut kept_at, mut stats) = (Vec::new(), Vec::new(), Vec::new());
+    for (k, (name, (finite, st, col))) in names.iter().zip(checked).enumerate() {
         // A covariate belongs to the observables whose rows carry it
         // (docs/formats.md §7: a fleet table mixes observables, each with its
         // own covariates; the others are null there). Absent for every
         // row of this observable → not applicable; absent for some →
         // skipped and said.
-        let finite = c.v.iter().filter(|v| v.is_finite()).count();
         if finite == 0 {
             continue;
         }
-        if finite < c.v.len() {
+        if finite < n {
             notes.add(format!(
-                "{oname}: covariate {} is missing (null/NaN) in {} of {} rows: skipped",
-                c.name,
-                c.v.len() - finite,
-                c.v.len()
+                "{oname}: covariate {name} is missing (null/NaN) in {} of {n} rows: skipped",
+                n - finite,
             ));
             continue;
         }
-        if c.stats.is_constant() {
-            notes.add(format!("constant covariate {} skipped", c.name));
+        if st.is_constant() {
+            notes.add(format!("constant covariate {name} skipped"));
         } else {
-            cols.push(c);
+            kept.push((name.clone(), col));
+            kept_at.push(k);
+            stats.push(st);
         }
     }
-    if table.values.names().is_empty() {
+    if names.is_empty() {
         notes.add("no covariates: offset only".into());
-    } else if cols.is_empty() {
+    } else if kept.is_empty() {
         notes.add(format!("{oname}: no varying covariates: offset only"));
     }
+    let cols = match values {
+        Values::Memory(_) => Covariates::held(
+            n,
+            kept.into_iter()
+                .map(|(c, v)| (c, v.expect("held in memory")))
+                .collect(),
+            stats,
+        ),
+        Values::File(f) => Covariates::in_file(
+            n,
+            f,
+            kept_at,
+            kept.into_iter().map(|c| c.0).collect(),
+            stats,
+        ),
+    };
     Ok(ObsRows {
         name: oname.clone(),
         rows,
@@ -164,4 +235,11 @@ pub fn gather(table: &Table, oi: usize, notes: &mut Notes) -> crate::Result<ObsR
         machine,
         cols,
     })
+}
+
+/// An observable's covariates as gathered: in memory (in `names` order),
+/// or in a column file (column k: covariate k).
+enum Values {
+    Memory(Vec<Vec<f64>>),
+    File(ColumnFile),
 }

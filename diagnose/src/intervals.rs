@@ -192,7 +192,8 @@ fn model_se(
     for r in runs {
         let len = r.len();
         target(r.clone(), &mut target_r)?;
-        let xr = prob.x.rows_of(&covs, r.clone()).ok()?;
+        let xs = prob.x.rows_of(&covs, r.clone()).ok()?;
+        let xr = xs.data();
         form.features(&frame, &xr, theta, &mut feats).ok()?;
         jac[0].clear();
         jac[0].resize(len, 1.0);

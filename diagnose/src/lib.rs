@@ -22,6 +22,7 @@ pub mod candidates;
 pub mod cells;
 pub mod collinear;
 pub mod config;
+pub mod covariates;
 pub mod document;
 pub mod folds;
 pub mod gather;
@@ -262,7 +263,7 @@ pub fn diagnose_table(
         None => Accum::fleet(table.n),
     };
     for oi in 0..table.obs_names.len() {
-        diagnose_observable(&table, oi, cfg, scopes, &mut acc, &mut notes)?;
+        diagnose_observable(&table, oi, cfg, scopes, results_dir, &mut acc, &mut notes)?;
         // An observable's working set (its covariates, pooled cells, fold
         // targets) is freed in pieces the allocator keeps between live
         // allocations; given back here, the next observable starts from
@@ -281,15 +282,18 @@ pub fn diagnose_table(
 
 /// One observable: gather, a plain pass, and — when it leaves isolated
 /// spikes in its residual — a second pass without them (outliers.rs).
+/// `scratch`: where large covariates wait in a column file
+/// (`covariates`).
 fn diagnose_observable(
     table: &Table,
     oi: usize,
     cfg: &DiagnoseConfig,
     scopes: &[EffectScope],
+    scratch: Option<&Path>,
     acc: &mut Accum,
     notes: &mut Notes,
 ) -> Result<()> {
-    let mut o = gather::gather(table, oi, notes)?;
+    let mut o = gather::gather(table, oi, scratch, notes)?;
     // Each pass's accumulator holds a slot per row of the observable (not
     // per row of the fleet): slot p is table row `o.rows[p]`. Its per-row
     // columns are the selection's, moved in when the pass records them.
@@ -353,7 +357,7 @@ fn diagnose_observable(
         }
         // The covariates are done with; the results are written without
         // them held.
-        o.cols = Vec::new();
+        o.cols = covariates::Covariates::none(0);
         return acc.merge(plain, oi as u32, &o.rows, &o.gap);
     }
     drop(plain);
@@ -362,14 +366,10 @@ fn diagnose_observable(
     // (their contributions); the full rows' table rows are put together
     // again from both at the end (where the results go).
     let n = o.n();
-    let trimmed_covs: Vec<(String, Vec<f64>)> = o
-        .cols
-        .iter()
-        .map(|c| (c.name.clone(), out.iter().map(|&p| c.v[p]).collect()))
-        .collect();
+    let trimmed_covs: Vec<(String, Vec<f64>)> = o.cols.at(&out)?;
     let trimmed_gap: Vec<f64> = out.iter().map(|&p| o.gap[p]).collect();
     let trimmed: Vec<usize> = out.iter().map(|&p| o.rows[p]).collect();
-    let mut kept = o.take_kept(&out);
+    let mut kept = o.take_kept(&out, scratch)?;
     let mut robust = Accum::new(0);
     let slots = Slots {
         trimmed: &trimmed,
@@ -499,23 +499,19 @@ fn analyse(
 ) -> Result<()> {
     let n = o.n();
     let mut clock = StepClock::new(&o.name, n);
-    let nf = noise::floor_of(table, o);
+    let nf = noise::floor_of(table, o)?;
     clock.lap("noise");
     let fo = folds::folds(o, cfg.folds, cfg.seed, oi);
     acc.blocked |= fo.blocked;
     acc.folds_used = acc.folds_used.max(fo.k);
-    let mut x = EffectData::new(n);
-    for c in &o.cols {
-        x.push(&c.name, &c.v);
-    }
     let prob = select::Problem {
-        x,
+        x: &o.cols,
         gap: &o.gap,
         units: fo.units,
         unit_fold: fo.unit_fold,
         unit_run: fo.unit_group,
         k: fo.k,
-        frames: o.cols.iter().map(|c| (c.name.clone(), c.stats)).collect(),
+        frames: o.cols.frames().map(|(c, s)| (c.clone(), s)).collect(),
     };
     let names = o.names();
     let builtin = catalogue(&names);
@@ -561,12 +557,7 @@ fn analyse(
     ));
     // Cells of this observable: covariates, then machines — before the
     // per-row results take the selection's residual.
-    let cov_cols: Vec<(&str, &[f64])> = o
-        .cols
-        .iter()
-        .map(|c| (c.name.as_str(), c.v.as_slice()))
-        .collect();
-    let mut cs = cells::cells(&cov_cols, &o.gap, &sel.residual);
+    let mut cs = cells::cells(&o.cols, &o.gap, &sel.residual)?;
     cs.extend(cells::machine_cells(
         &o.machine,
         &table.machine_names,
@@ -594,12 +585,12 @@ fn analyse(
         v
     };
     let mut collinear = collinear::collinear(
-        &cov_cols,
+        &o.cols,
         &o.run_ranges,
         &selected_covs,
         cfg.collinear_r,
         cfg.collinear_vif,
-    );
+    )?;
     for r in sel.records.iter().filter(|r| r.selected) {
         let own = cands[r.idx].covariates();
         let rivals: Vec<(String, Vec<String>)> = r

@@ -37,49 +37,54 @@ pub struct NoiseFloor {
 
 /// Step 2, noise: the floor of one observable — replicates, else
 /// point-to-point scatter within each run unit.
-pub fn floor_of(table: &Table, o: &ObsRows) -> NoiseFloor {
-    let rep = table.trial.as_ref().and_then(|trial| {
-        let tr: Vec<i64> = trial.at(&o.rows);
-        // One trial value throughout (e.g. `trial` null on every row of
-        // this observable): no group can hold replicates, so the per-row
-        // keys below (≈ 100 B a row) need not be built.
-        if tr.iter().all(|&t| t == tr[0]) {
-            return None;
-        }
-        let has_position = ["x_mm", "y_mm", "z_mm", "phi_rad"]
-            .iter()
-            .any(|p| o.cols.iter().any(|c| c.name == *p));
-        if table.point.is_none() && !has_position {
-            return None;
-        }
-        // Replicates repeat the same measurement: same run unit, point and
-        // every setting (position, speed, direction, load, pass); only the
-        // trial and what runs on with time (t_s, temperature, cumulative
-        // usage) may differ. Keying on the point id alone would pool a
-        // point probed at two speeds, or point 3 of two faces, and count
-        // their real difference as noise.
-        let settings: Vec<&Vec<f64>> = o
-            .cols
-            .iter()
-            .filter(|c| !is_time_like(&c.name))
-            .map(|c| &c.v)
-            .collect();
-        let run = table.run.at(&o.rows);
-        let point = table.point.as_ref().map(|p| p.at(&o.rows));
-        let key: Vec<Vec<i64>> = run
-            .iter()
-            .enumerate()
-            .map(|(j, &unit)| {
-                let mut k = vec![unit as i64];
-                if let Some(p) = &point {
-                    k.push(p[j]);
-                }
-                k.extend(settings.iter().map(|c| c[j].to_bits() as i64));
-                k
-            })
-            .collect();
-        replicate_floor(&o.gap, &key, &tr)
-    });
+pub fn floor_of(table: &Table, o: &ObsRows) -> crate::Result<NoiseFloor> {
+    let rep = table
+        .trial
+        .as_ref()
+        .map_or(Ok(None), |trial| -> crate::Result<_> {
+            let tr: Vec<i64> = trial.at(&o.rows);
+            // One trial value throughout (e.g. `trial` null on every row of
+            // this observable): no group can hold replicates, so the per-row
+            // keys below (≈ 100 B a row) need not be built.
+            if tr.iter().all(|&t| t == tr[0]) {
+                return Ok(None);
+            }
+            let has_position = ["x_mm", "y_mm", "z_mm", "phi_rad"]
+                .iter()
+                .any(|p| o.cols.contains(p));
+            if table.point.is_none() && !has_position {
+                return Ok(None);
+            }
+            // Replicates repeat the same measurement: same run unit, point and
+            // every setting (position, speed, direction, load, pass); only the
+            // trial and what runs on with time (t_s, temperature, cumulative
+            // usage) may differ. Keying on the point id alone would pool a
+            // point probed at two speeds, or point 3 of two faces, and count
+            // their real difference as noise.
+            // Whole columns (the keys are per row anyway).
+            let settings: Vec<std::borrow::Cow<[f64]>> = o
+                .cols
+                .names()
+                .iter()
+                .filter(|c| !is_time_like(c))
+                .map(|c| o.cols.column(c))
+                .collect::<crate::Result<_>>()?;
+            let run = table.run.at(&o.rows);
+            let point = table.point.as_ref().map(|p| p.at(&o.rows));
+            let key: Vec<Vec<i64>> = run
+                .iter()
+                .enumerate()
+                .map(|(j, &unit)| {
+                    let mut k = vec![unit as i64];
+                    if let Some(p) = &point {
+                        k.push(p[j]);
+                    }
+                    k.extend(settings.iter().map(|c| c[j].to_bits() as i64));
+                    k
+                })
+                .collect();
+            Ok(replicate_floor(&o.gap, &key, &tr))
+        })?;
     let nf = rep.unwrap_or_else(|| point_to_point_floor(&o.gap, &o.run_ranges));
     // A measurement cannot be compared finer than its own stated
     // uncertainty (e.g. positions logged in 1 mm steps): the floor is never
@@ -92,14 +97,14 @@ pub fn floor_of(table: &Table, o: &ObsRows) -> NoiseFloor {
             .collect();
         (!v.is_empty()).then(|| (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt())
     });
-    match stated {
+    Ok(match stated {
         Some(s) if s > nf.sigma_mm => NoiseFloor {
             sigma_mm: s,
             df: nf.df.max(o.rows.len() as f64),
             source: NoiseSource::Stated,
         },
         _ => nf,
-    }
+    })
 }
 
 /// Covariates that change between replicates of one measurement by nature:

@@ -870,6 +870,18 @@ pub trait RowValues: Send + Sync {
     /// covariate value. `obs` is the table's observable id per row (a
     /// source may keep each observable's rows apart).
     fn gather(&self, obs: &RunLength<u32>, asc: &[usize]) -> Result<Gathered>;
+    /// [`RowValues::gather`] handed to `sink` a chunk of rows at a time,
+    /// in order: `sink(first position in asc, gap, covariates)`. A source
+    /// that cannot stream gathers once and hands over everything.
+    fn gather_chunks(
+        &self,
+        obs: &RunLength<u32>,
+        asc: &[usize],
+        sink: &mut dyn FnMut(usize, &[f64], &[Vec<f64>]) -> Result<()>,
+    ) -> Result<()> {
+        let g = self.gather(obs, asc)?;
+        sink(0, &g.gap, &g.covariates)
+    }
     /// A covariate's whole column where it is held in memory.
     fn column(&self, _name: &str) -> Option<&[f64]> {
         None

@@ -539,25 +539,11 @@ impl SpilledValues {
     }
 }
 
-impl RowValues for SpilledValues {
-    fn names(&self) -> &[String] {
-        &self.names
-    }
-
-    fn gather(&self, obs: &RunLength<u32>, asc: &[usize]) -> Result<Gathered> {
-        use std::io::Read;
-        let k = self.names.len();
-        let width = 1 + self.spilled.covariates.len();
-        let mut out: Vec<Vec<f64>> = (0..k).map(|_| vec![f64::NAN; asc.len()]).collect();
-        let mut gap = vec![f64::NAN; asc.len()];
-        if asc.is_empty() {
-            return Ok(Gathered {
-                gap,
-                covariates: out,
-            });
-        }
-        // Each wanted row's rank among its observable's rows (its record),
-        // a stretch of one observable at a time (`asc` ascending).
+impl SpilledValues {
+    /// Per observable id: each wanted row's rank among its observable's
+    /// rows (its record) and its position in `asc` (ascending), a stretch
+    /// of one observable at a time.
+    fn wanted(&self, obs: &RunLength<u32>, asc: &[usize]) -> Vec<Vec<(usize, usize)>> {
         let mut seen = vec![0usize; self.file_of.len()];
         let mut wanted: Vec<Vec<(usize, usize)>> = vec![Vec::new(); self.file_of.len()];
         let mut p = 0;
@@ -572,6 +558,88 @@ impl RowValues for SpilledValues {
             }
             seen[o] += rows.len();
         }
+        wanted
+    }
+}
+
+impl RowValues for SpilledValues {
+    fn names(&self) -> &[String] {
+        &self.names
+    }
+
+    fn gather_chunks(
+        &self,
+        obs: &RunLength<u32>,
+        asc: &[usize],
+        sink: &mut dyn FnMut(usize, &[f64], &[Vec<f64>]) -> Result<()>,
+    ) -> Result<()> {
+        use std::io::Read;
+        let wanted = self.wanted(obs, asc);
+        // The rows of one observable are its file's records in order: read
+        // as a stream. Rows of several observables come from several
+        // files in turn, not in `asc` order: gathered whole.
+        let files: Vec<usize> = (0..wanted.len())
+            .filter(|&o| !wanted[o].is_empty())
+            .collect();
+        let (&[o], Some(path)) = (
+            &files[..],
+            files.first().and_then(|&o| self.file_of[o].as_ref()),
+        ) else {
+            let g = self.gather(obs, asc)?;
+            return sink(0, &g.gap, &g.covariates);
+        };
+        let width = 1 + self.spilled.covariates.len();
+        let mut r = std::io::BufReader::with_capacity(1 << 20, File::open(path)?);
+        let mut record = vec![0u8; 8 * width];
+        let mut rank = 0usize;
+        let (mut gap, mut covs) = (Vec::new(), vec![Vec::new(); self.names.len()]);
+        let mut start = 0;
+        let mut flush = |start: &mut usize, gap: &mut Vec<f64>, covs: &mut Vec<Vec<f64>>| {
+            let got = gap.len();
+            let out = sink(*start, gap, covs);
+            *start += got;
+            gap.clear();
+            covs.iter_mut().for_each(Vec::clear);
+            out
+        };
+        for &(want_rank, pos) in &wanted[o] {
+            debug_assert_eq!(pos, start + gap.len(), "one file's rows in order");
+            while rank < want_rank {
+                r.read_exact(&mut record)?;
+                rank += 1;
+            }
+            r.read_exact(&mut record)?;
+            rank += 1;
+            let value = |at: usize| {
+                f64::from_le_bytes(record[8 * at..8 * at + 8].try_into().expect("8 bytes"))
+            };
+            gap.push(value(0));
+            for (j, &at) in self.at.iter().enumerate() {
+                covs[j].push(value(1 + at));
+            }
+            if gap.len() == crate::covariates::READ_ROWS {
+                flush(&mut start, &mut gap, &mut covs)?;
+            }
+        }
+        if !gap.is_empty() {
+            flush(&mut start, &mut gap, &mut covs)?;
+        }
+        Ok(())
+    }
+
+    fn gather(&self, obs: &RunLength<u32>, asc: &[usize]) -> Result<Gathered> {
+        use std::io::Read;
+        let k = self.names.len();
+        let width = 1 + self.spilled.covariates.len();
+        let mut out: Vec<Vec<f64>> = (0..k).map(|_| vec![f64::NAN; asc.len()]).collect();
+        let mut gap = vec![f64::NAN; asc.len()];
+        if asc.is_empty() {
+            return Ok(Gathered {
+                gap,
+                covariates: out,
+            });
+        }
+        let wanted = self.wanted(obs, asc);
         let mut record = vec![0u8; 8 * width];
         for (o, want) in wanted.iter().enumerate() {
             if want.is_empty() {

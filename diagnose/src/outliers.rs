@@ -20,6 +20,7 @@ use std::collections::BTreeMap;
 
 use serde::Serialize;
 
+use super::covariates::{retain_positions, Covariates};
 use super::gather::ObsRows;
 use super::noise::median;
 use super::run_length::RunLength;
@@ -119,8 +120,14 @@ impl ObsRows {
     /// The same observable without the rows at `drop` (positions, sorted),
     /// its rows, gap, machines and covariates moved out of `self` (which
     /// keeps its name and run ranges) and filtered in place: a second copy of every covariate while the first was
-    /// still held was the spike-free pass's start (≈ 90 B a row).
-    pub fn take_kept(&mut self, drop: &[usize]) -> ObsRows {
+    /// still held was the spike-free pass's start (≈ 90 B a row). Covariates
+    /// in a file are rewritten a chunk at a time to a new one in `scratch`
+    /// (or the old file's folder).
+    pub fn take_kept(
+        &mut self,
+        drop: &[usize],
+        scratch: Option<&std::path::Path>,
+    ) -> crate::Result<ObsRows> {
         let mut run_ranges = Vec::new();
         let mut start = 0;
         // `drop` is sorted and the run ranges are contiguous: each run's
@@ -140,42 +147,23 @@ impl ObsRows {
         retain_positions(&mut gap, drop);
         let mut machine = std::mem::take(&mut self.machine);
         retain_positions(&mut machine, drop);
-        ObsRows {
+        Ok(ObsRows {
             name: self.name.clone(),
             rows,
             gap,
             run_ranges,
             machine,
-            // Each kept covariate sorts again for its constants: in parallel.
-            cols: {
-                use rayon::prelude::*;
-                std::mem::take(&mut self.cols)
-                    .into_par_iter()
-                    .map(|mut c| {
-                        retain_positions(&mut c.v, drop);
-                        super::gather::Cov::new(c.name, c.v)
-                    })
-                    .collect()
-            },
-        }
+            // Each kept covariate sorts again for its constants.
+            cols: std::mem::replace(&mut self.cols, Covariates::none(0))
+                .without_rows(drop, scratch)?,
+        })
     }
-}
-
-/// Removes the elements at `drop` (positions, sorted ascending) in place.
-fn retain_positions<T>(v: &mut Vec<T>, drop: &[usize]) {
-    let mut next = drop.iter().peekable();
-    let mut i = 0;
-    v.retain(|_| {
-        let gone = next.next_if_eq(&&i).is_some();
-        i += 1;
-        !gone
-    });
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::gather::Cov;
+    use crate::effect::CovStats;
 
     /// The kept rows are the rows not dropped, in order, with their gap,
     /// machine and covariates; a run left with no row disappears from the
@@ -189,13 +177,13 @@ mod tests {
             gap: (0..n).map(|i| i as f64 * 0.5).collect(),
             run_ranges: vec![0..4, 4..5, 5..10],
             machine: (0..n as u32).collect(),
-            cols: vec![Cov::new(
-                "x_mm".into(),
-                (0..n).map(|i| (i * i) as f64).collect(),
-            )],
+            cols: Covariates::in_memory(
+                n,
+                vec![("x_mm".into(), (0..n).map(|i| (i * i) as f64).collect())],
+            ),
         };
         let drop = [0, 4, 9];
-        let kept = o.take_kept(&drop);
+        let kept = o.take_kept(&drop, None).unwrap();
         let keep: Vec<usize> = (0..n).filter(|p| !drop.contains(p)).collect();
         assert_eq!(kept.rows, keep.iter().map(|p| 100 + p).collect::<Vec<_>>());
         assert_eq!(
@@ -207,14 +195,17 @@ mod tests {
             keep.iter().map(|&p| p as u32).collect::<Vec<_>>()
         );
         let x: Vec<f64> = keep.iter().map(|&p| (p * p) as f64).collect();
-        assert_eq!(kept.cols[0].v, x);
-        assert_eq!(kept.cols[0].stats, Cov::new("x_mm".into(), x).stats);
+        assert_eq!(*kept.cols.column("x_mm").unwrap(), x[..]);
+        assert_eq!(
+            kept.cols.frames().next().unwrap().1,
+            CovStats::from_values(&x)
+        );
         // Run 1 held only row 4: gone.
         assert_eq!(kept.run_ranges, vec![0..3, 3..7]);
         // What stays behind: the name and the runs; every row-sized
         // column moved out.
         assert_eq!(o.n(), 0);
         assert_eq!(o.run_ranges.len(), 3);
-        assert!(o.cols.is_empty() && o.gap.is_empty() && o.machine.is_empty());
+        assert!(o.cols.names().is_empty() && o.gap.is_empty() && o.machine.is_empty());
     }
 }

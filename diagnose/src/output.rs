@@ -35,9 +35,11 @@ pub fn machine_tests(
         .iter()
         .enumerate()
         .map(|(j, &ci)| {
+            // Whole columns of the effect's covariates: the pooled and
+            // per-machine fits are refits on rows.
             machines::per_machine(
                 cands[ci],
-                &prob.x,
+                &prob.x.columns(&cands[ci].covariates())?.data(),
                 &sel.final_target(prob, cands, j)?,
                 &o.machine,
                 &o.run_ranges,

@@ -38,6 +38,7 @@ use crate::err;
 use rayon::prelude::*;
 use statrs::distribution::{ContinuousCDF, StudentsT};
 
+use super::covariates::{CovRows, Covariates};
 use super::effect::{with_columns, CovStats, Effect, EffectData, FittedEffect, Frame};
 use super::fit::{self, choose_theta, dot, scan_rows, FoldSpec};
 use crate::Result;
@@ -51,7 +52,8 @@ pub const PARSIMONY_ALPHA: f64 = 0.05;
 
 /// The rows of one observable, sorted by run (then time), with its folds.
 pub struct Problem<'a> {
-    pub x: EffectData<'a>,
+    /// The covariates, in memory or read a chunk at a time.
+    pub x: &'a Covariates,
     pub gap: &'a [f64],
     /// Scoring units, contiguous, each inside one run.
     pub units: Vec<Range<usize>>,
@@ -405,7 +407,7 @@ impl Selection {
                 prob,
                 ev,
                 prob.k,
-                &prob.x.rows_of(&covs, rows.clone())?,
+                &prob.x.rows_of(&covs, rows.clone())?.data(),
                 &mut pred,
             )?;
             out.iter_mut().zip(&pred).for_each(|(y, p)| *y -= p);

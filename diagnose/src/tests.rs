@@ -583,10 +583,42 @@ fn a_shuffled_table_diagnoses_as_the_table_in_run_order() {
     .unwrap();
     assert!(!in_order.run.is_held_as_rows());
     // Gathered by run unit, then time in total order, then table row.
+    // The covariates in memory and in a column file (put in order there,
+    // a column at a time): the same rows, values and constants.
+    let scratch = tempfile::tempdir().unwrap();
     for oi in 0..table.obs_names.len() {
-        let o = crate::gather::gather(&table, oi, &mut super::Notes::default()).unwrap();
+        let gather = |max_bytes| {
+            let mut notes = super::Notes::default();
+            let o = crate::gather::gather_within(
+                &table,
+                oi,
+                Some(scratch.path()),
+                max_bytes,
+                &mut notes,
+            )
+            .unwrap();
+            (o, notes.into_vec())
+        };
+        let ((o, notes), (f, file_notes)) = (gather(usize::MAX), gather(0));
+        assert!(!o.cols.in_a_file() && f.cols.in_a_file());
+        assert_eq!(notes, file_notes);
+        assert_eq!(
+            (&o.rows, &o.run_ranges, &o.machine),
+            (&f.rows, &f.run_ranges, &f.machine)
+        );
+        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&o.gap), bits(&f.gap));
+        assert_eq!(o.names(), f.names());
+        for ((c, a), (_, b)) in o.cols.frames().zip(f.cols.frames()) {
+            assert_eq!(a, b, "{c}");
+            assert_eq!(
+                bits(&o.cols.column(c).unwrap()),
+                bits(&f.cols.column(c).unwrap()),
+                "{c}"
+            );
+        }
         let run = table.run.at(&o.rows);
-        let t = &o.cols.iter().find(|c| c.name == "t_s").unwrap().v;
+        let t = o.cols.column("t_s").unwrap();
         for p in 1..o.n() {
             let key = |p: usize| (run[p], crate::effect::total_order_key(t[p]), o.rows[p]);
             assert!(key(p - 1) < key(p), "row {p} of {}", o.name);

@@ -118,15 +118,18 @@ fn the_targets_kept_or_recomputed_give_the_same_files() {
     let dir = tempfile::tempdir().unwrap();
     let two_effects = dir.path().join("two_effects.parquet");
     two_effect_table(&two_effects);
-    let run = |table: &std::path::Path, budget: Option<&str>, out: &str| {
+    const TARGETS: &str = "SPARKOUT_TARGET_COLUMNS_MAX_BYTES";
+    const COVARIATES: &str = "SPARKOUT_COVARIATES_MAX_BYTES";
+    let run = |table: &std::path::Path, budgets: &[(&str, &str)], out: &str| {
         let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_sparkout"));
         cmd.arg("diagnose")
             .arg(table)
             .arg("--out")
             .arg(dir.path().join(out))
-            .env_remove("SPARKOUT_TARGET_COLUMNS_MAX_BYTES");
-        if let Some(b) = budget {
-            cmd.env("SPARKOUT_TARGET_COLUMNS_MAX_BYTES", b);
+            .env_remove(TARGETS)
+            .env_remove(COVARIATES);
+        for (var, b) in budgets {
+            cmd.env(var, b);
         }
         let o = cmd.output().unwrap();
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
@@ -135,8 +138,16 @@ fn the_targets_kept_or_recomputed_give_the_same_files() {
     // The two-effect table: a round scored after an effect was taken
     // out (its candidates' `step` 2 or later) reads recomputed targets.
     for (table, name, min_step) in [(fixture(), "pyarrow", 1), (two_effects, "two", 2)] {
-        let kept = run(&table, None, &format!("{name}-kept"));
-        let recomputed = run(&table, Some("0"), &format!("{name}-recomputed"));
+        let kept = run(&table, &[], &format!("{name}-kept"));
+        let recomputed = run(&table, &[(TARGETS, "0")], &format!("{name}-recomputed"));
+        // The covariates read from a column file a chunk at a time, the
+        // targets recomputed: still the same files, and the scratch
+        // files gone.
+        let streamed = run(
+            &table,
+            &[(TARGETS, "0"), (COVARIATES, "0")],
+            &format!("{name}-streamed"),
+        );
         let diagnosis: serde_json::Value =
             serde_json::from_slice(&std::fs::read(kept.join("diagnosis.json")).unwrap()).unwrap();
         assert!(
@@ -159,12 +170,24 @@ fn the_targets_kept_or_recomputed_give_the_same_files() {
             .collect();
         files.sort();
         assert!(files.len() >= 3, "{files:?}");
+        let listing = |d: &std::path::Path| {
+            let mut l: Vec<_> = crate::bad_input_matrix::walk(d)
+                .into_iter()
+                .map(|p| p.strip_prefix(d).unwrap().to_path_buf())
+                .collect();
+            l.sort();
+            l
+        };
+        assert_eq!(listing(&kept), listing(&streamed), "{name}: leftovers");
         for f in files {
-            assert_eq!(
-                std::fs::read(kept.join(&f)).unwrap(),
-                std::fs::read(recomputed.join(&f)).unwrap(),
-                "{name}: {f:?}"
-            );
+            for other in [&recomputed, &streamed] {
+                assert_eq!(
+                    std::fs::read(kept.join(&f)).unwrap(),
+                    std::fs::read(other.join(&f)).unwrap(),
+                    "{name}: {f:?} of {}",
+                    other.display()
+                );
+            }
         }
     }
 }

@@ -86,7 +86,8 @@ impl TakenFit {
                 (0..=prob.k)
                     .map(|f| {
                         let mut pred = Vec::new();
-                        fold_prediction(e, prob, ev, f, &prob.x, &mut pred)?;
+                        let x = prob.x.columns(&e.covariates())?;
+                        fold_prediction(e, prob, ev, f, &x.data(), &mut pred)?;
                         Ok(pred)
                     })
                     .collect::<Result<_>>()?,
@@ -94,11 +95,19 @@ impl TakenFit {
         })
     }
 
+    /// The covariates its predictions read.
+    fn covariates(&self) -> Vec<String> {
+        match self {
+            TakenFit::Linear { form, .. } => form.covariates(),
+            TakenFit::Predicted(_) => Vec::new(),
+        }
+    }
+
     /// Fold `f`'s prediction (offset included) of the observable's rows
-    /// `rows` into `pred`.
+    /// `rows`, whose covariates are `x`, into `pred`.
     fn predict(
         &self,
-        prob: &Problem,
+        x: &EffectData,
         f: usize,
         rows: Range<usize>,
         pred: &mut Vec<f64>,
@@ -116,7 +125,8 @@ impl TakenFit {
                     theta: theta[f],
                     beta: &beta[f],
                 };
-                fit.predict(&prob.x.rows_of(&form.covariates(), rows)?, pred)
+                debug_assert_eq!(x.len(), rows.len(), "the rows' covariates");
+                fit.predict(x, pred)
             }
             TakenFit::Predicted(p) => {
                 pred.clear();
@@ -180,20 +190,28 @@ impl<'a> Targets<'a> {
                 Some(columns) => columns,
                 None => vec![self.gap.to_vec(); nf],
             };
-            columns
-                .par_iter_mut()
-                .enumerate()
-                .try_for_each(|(f, col)| -> Result<()> {
-                    let mut pred = Vec::new();
-                    for r in &prob.units {
-                        fit.predict(prob, f, r.clone(), &mut pred)?;
-                        col[r.clone()]
-                            .iter_mut()
-                            .zip(&pred)
-                            .for_each(|(y, p)| *y -= p);
-                    }
-                    Ok(())
-                })?;
+            // A chunk of units' covariates read once for every fold.
+            let names = fit.covariates();
+            for units in consecutive_units(prob, CHUNK_ROWS) {
+                let span = prob.units[units.start].start..prob.units[units.end - 1].end;
+                let xs = prob.x.rows_of(&names, span.clone())?;
+                let xd = xs.data();
+                columns
+                    .par_iter_mut()
+                    .enumerate()
+                    .try_for_each(|(f, col)| -> Result<()> {
+                        let mut pred = Vec::new();
+                        for r in &prob.units[units.clone()] {
+                            let local = r.start - span.start..r.end - span.start;
+                            fit.predict(&xd.rows_of(&names, local)?, f, r.clone(), &mut pred)?;
+                            col[r.clone()]
+                                .iter_mut()
+                                .zip(&pred)
+                                .for_each(|(y, p)| *y -= p);
+                        }
+                        Ok(())
+                    })?;
+            }
             Some(columns)
         } else {
             None
@@ -210,18 +228,38 @@ impl<'a> Targets<'a> {
     /// The distinct targets over the rows of `units` (their rows one after
     /// another): each the gap less its fold's fit of every chosen effect,
     /// in the order they were chosen.
-    pub fn chunk(&self, prob: &Problem, units: Vec<usize>) -> Result<Chunk> {
-        self.chunk_of_folds(prob, units, &self.fold_of)
+    pub fn chunk<'x>(&self, prob: &Problem<'x>, units: Vec<usize>) -> Result<Chunk<'x>> {
+        self.chunk_of_folds(prob, units, &self.fold_of, prob.x.names())
     }
 
-    /// The targets of `folds` over the rows of `units`.
-    fn chunk_of_folds(&self, prob: &Problem, units: Vec<usize>, folds: &[usize]) -> Result<Chunk> {
+    /// The covariates the chosen effects' predictions read.
+    fn taken_covariates(&self) -> Vec<String> {
+        let mut names: Vec<String> = self.taken.iter().flat_map(|t| t.covariates()).collect();
+        names.sort();
+        names.dedup();
+        names
+    }
+
+    /// The targets of `folds` over the rows of `units`, with the
+    /// covariates `names` of those rows (a superset of the chosen
+    /// effects').
+    fn chunk_of_folds<'x>(
+        &self,
+        prob: &Problem<'x>,
+        units: Vec<usize>,
+        folds: &[usize],
+        names: &[String],
+    ) -> Result<Chunk<'x>> {
         let mut local = Vec::with_capacity(units.len());
         let mut n = 0;
         for &u in &units {
             local.push(n..n + prob.units[u].len());
             n += prob.units[u].len();
         }
+        let ranges: Vec<Range<usize>> = units.iter().map(|&u| prob.units[u].clone()).collect();
+        let x = prob.x.rows(names, &ranges)?;
+        let taken_names = self.taken_covariates();
+        let xd = x.data();
         let targets = folds
             .par_iter()
             .map(|&f| -> Result<Vec<f64>> {
@@ -233,28 +271,35 @@ impl<'a> Targets<'a> {
                     return Ok(t);
                 }
                 let mut pred = Vec::new();
-                for &u in &units {
+                for (&u, l) in units.iter().zip(&local) {
                     let (rows, at) = (prob.units[u].clone(), t.len());
                     t.extend_from_slice(&self.gap[rows.clone()]);
+                    if self.taken.is_empty() {
+                        continue;
+                    }
+                    let xu = xd.rows_of(&taken_names, l.clone())?;
                     for fit in &self.taken {
-                        fit.predict(prob, f, rows.clone(), &mut pred)?;
+                        fit.predict(&xu, f, rows.clone(), &mut pred)?;
                         t[at..].iter_mut().zip(&pred).for_each(|(y, p)| *y -= p);
                     }
                 }
                 Ok(t)
             })
             .collect::<Result<_>>()?;
+        drop(xd);
         Ok(Chunk {
             units,
             local,
             targets,
+            x,
         })
     }
 
     /// Fold `f`'s target over every row (a plugin effect's refit and a
     /// form not pooled on cells read the whole column).
     fn column(&self, prob: &Problem, f: usize) -> Result<Vec<f64>> {
-        let mut c = self.chunk_of_folds(prob, (0..prob.units.len()).collect(), &[f])?;
+        let names = self.taken_covariates();
+        let mut c = self.chunk_of_folds(prob, (0..prob.units.len()).collect(), &[f], &names)?;
         Ok(c.targets.pop().expect("one target"))
     }
 }
@@ -272,14 +317,20 @@ fn consecutive_units(prob: &Problem, max_rows: usize) -> Vec<Range<usize>> {
 /// that holds it out (`ev`'s fits).
 pub fn held_out_contribution(prob: &Problem, e: &dyn Effect, ev: &CandEval) -> Result<Vec<f64>> {
     let fit = TakenFit::of(e, prob, ev)?;
+    let names = fit.covariates();
     let mut contrib = Vec::with_capacity(prob.x.len());
     for units in consecutive_units(prob, CHUNK_ROWS) {
+        let span = prob.units[units.start].start..prob.units[units.end - 1].end;
+        let xs = prob.x.rows_of(&names, span.clone())?;
+        let xd = xs.data();
         let preds: Vec<Vec<f64>> = units
             .collect::<Vec<_>>()
             .into_par_iter()
             .map(|u| -> Result<Vec<f64>> {
                 let mut pred = Vec::new();
-                fit.predict(prob, prob.unit_fold[u], prob.units[u].clone(), &mut pred)?;
+                let r = prob.units[u].clone();
+                let x = xd.rows_of(&names, r.start - span.start..r.end - span.start)?;
+                fit.predict(&x, prob.unit_fold[u], r, &mut pred)?;
                 Ok(pred)
             })
             .collect::<Result<_>>()?;
@@ -337,16 +388,19 @@ const CHUNK_ROWS: usize = 1 << 18;
 /// Scoring units as a pass over the observable reads them
 /// (docs/design.md §8): their targets, computed for their rows. A unit's
 /// covariates are its rows of the observable's columns.
-pub struct Chunk {
+pub struct Chunk<'x> {
     /// The units, ascending.
     pub units: Vec<usize>,
     /// Each unit's rows within `targets`, one after another.
     pub local: Vec<Range<usize>>,
     /// Each distinct target of [`Targets`] over the units' rows.
     pub targets: Vec<Vec<f64>>,
+    /// The covariates of the units' rows (as `targets`), read once for
+    /// every candidate.
+    pub x: CovRows<'x>,
 }
 
-impl Chunk {
+impl Chunk<'_> {
     /// Each of its units' Σy² of every distinct target, into `yy_u`
     /// (per target, per unit).
     fn sum_squares(&self, yy_u: &mut [Vec<f64>]) {
@@ -433,6 +487,53 @@ pub(super) fn evaluate_all_in_chunks(
             .any(|(cv, _)| matches!(cv, Cv::Form(f) if f.cells.is_some()))
     };
     if pooled(&cvs) {
+        // The count pass first: the cells a one-covariate pool's groups
+        // occupy, from that covariate alone, so each group's cells are
+        // laid out before its rows arrive (`CellPool::count_range`).
+        let mut names: Vec<String> = cvs
+            .iter()
+            .filter_map(|(cv, _)| match cv {
+                Cv::Form(f) if f.cells.is_some() => Some(f.form.covariates()),
+                _ => None,
+            })
+            .filter(|c| c.len() == 1)
+            .flatten()
+            .collect();
+        names.sort();
+        names.dedup();
+        if !names.is_empty() {
+            for units in consecutive_units(prob, cell_rows) {
+                let span = prob.units[units.start].start..prob.units[units.end - 1].end;
+                let x = match prob.x.rows_of(&names, span.clone()) {
+                    Ok(x) => x,
+                    Err(e) => {
+                        fail_forms(&mut cvs, e);
+                        break;
+                    }
+                };
+                let us: Vec<usize> = units.collect();
+                let local: Vec<Range<usize>> = us
+                    .iter()
+                    .map(|&u| prob.units[u].start - span.start..prob.units[u].end - span.start)
+                    .collect();
+                cvs.par_iter_mut().for_each(|(cv, secs)| {
+                    if let Cv::Form(f) = cv {
+                        let mut failed = None;
+                        timed(secs, &mut || failed = f.count_pass(&x, &us, &local).err());
+                        if let Some(e) = failed {
+                            *cv = Cv::Failed(e);
+                        }
+                    }
+                });
+            }
+        }
+        cvs.par_iter_mut().for_each(|(cv, _)| {
+            if let Cv::Form(f) = cv {
+                if let Some(cells) = f.cells.as_mut() {
+                    cells.counted();
+                }
+            }
+        });
         'groups: for (g, members) in groups.iter().enumerate() {
             for units in cut_units(prob, members, cell_rows) {
                 let c = match tg.chunk(prob, units) {
@@ -445,7 +546,11 @@ pub(super) fn evaluate_all_in_chunks(
                 c.sum_squares(&mut yy_u);
                 cvs.par_iter_mut().for_each(|(cv, secs)| {
                     if let Cv::Form(f) = cv {
-                        timed(secs, &mut || f.cell_pass(prob, &c, g));
+                        let mut failed = None;
+                        timed(secs, &mut || failed = f.cell_pass(&c, g).err());
+                        if let Some(e) = failed {
+                            *cv = Cv::Failed(e);
+                        }
                     }
                 });
             }
@@ -574,24 +679,19 @@ impl FormCv {
         let cells = match (&theta_range, res) {
             (Some(_), Some(res)) => {
                 // The grid spans the columns' values, as the rows pooled at
-                // once would (`fit::pool_rows`).
-                let cols: Vec<&[f64]> = covs
+                // once would (`fit::pool_rows`): max − min of each, the
+                // frame's (rounding is monotonic, so the largest v − min
+                // is max − min, bit for bit). Its cells are counted by
+                // the count pass.
+                let axes = frame
                     .iter()
-                    .map(|c| prob.x.require(c))
-                    .collect::<Result<_>>()?;
-                let mins: Vec<f64> = frame.iter().map(|s| s.min).collect();
-                let axes = fit::pool::spans(&cols, &mins)
-                    .into_iter()
-                    .zip(mins.iter().zip(&res))
-                    .map(|(span, (&min, &r))| fit::pool::Axis::new(min, span, r / TRAIN_POOL_FINER))
+                    .zip(&res)
+                    .map(|(s, &r)| {
+                        let span = 0.0f64.max(s.max - s.min);
+                        fit::pool::Axis::new(s.min, span, r / TRAIN_POOL_FINER)
+                    })
                     .collect();
-                let mut pool = fit::CellPool::new(axes, tg.n_distinct(), groups.len());
-                let group_rows: Vec<Vec<Range<usize>>> = groups
-                    .iter()
-                    .map(|g| g.iter().map(|&u| prob.units[u].clone()).collect())
-                    .collect();
-                pool.count_groups(&group_rows, &cols);
-                Some(pool)
+                Some(fit::CellPool::new(axes, tg.n_distinct(), groups.len()))
             }
             _ => None,
         };
@@ -610,33 +710,54 @@ impl FormCv {
         }))
     }
 
+    /// The count pass over one chunk: the cells its units' rows occupy
+    /// in their groups (one covariate: counted before any is filled).
+    fn count_pass(&mut self, c: &CovRows, units: &[usize], local: &[Range<usize>]) -> Result<()> {
+        let Some(cells) = self.cells.as_mut() else {
+            return Ok(());
+        };
+        let [cov] = &self.form.covariates()[..] else {
+            return Ok(());
+        };
+        let col = c
+            .col(cov)
+            .ok_or_else(|| err!("covariate `{cov}` not available"))?;
+        for (&u, l) in units.iter().zip(local) {
+            cells.count_range(self.group_of_unit[u], &col[l.clone()]);
+        }
+        Ok(())
+    }
+
     /// The cell pass over one chunk of group `g`'s units: each unit's rows
     /// into the group's cells, in unit order (the order of the additions,
     /// so the same bits however the units come); the group sealed after
     /// its last unit.
-    fn cell_pass(&mut self, prob: &Problem, c: &Chunk, g: usize) {
+    fn cell_pass(&mut self, c: &Chunk, g: usize) -> Result<()> {
         let Some(cells) = self.cells.as_mut() else {
-            return;
+            return Ok(());
         };
         let cols: Vec<&[f64]> = self
             .form
             .covariates()
             .iter()
-            .map(|n| prob.x.col(n).expect("the pool's covariates were checked"))
-            .collect();
+            .map(|n| {
+                c.x.col(n)
+                    .ok_or_else(|| err!("covariate `{n}` not available"))
+            })
+            .collect::<Result<_>>()?;
         let (mut unit_cols, mut unit_targets) = (Vec::new(), Vec::new());
         for (&u, l) in c.units.iter().zip(&c.local) {
             debug_assert_eq!(self.group_of_unit[u], g, "a chunk of one group");
-            let r = prob.units[u].clone();
             unit_cols.clear();
-            unit_cols.extend(cols.iter().map(|col| &col[r.clone()]));
+            unit_cols.extend(cols.iter().map(|col| &col[l.clone()]));
             unit_targets.clear();
             unit_targets.extend(c.targets.iter().map(|t| &t[l.clone()]));
-            cells.add_range(g, 0..r.len(), &unit_cols, None, &unit_targets);
+            cells.add_range(g, 0..l.len(), &unit_cols, None, &unit_targets);
         }
         if c.units.last() == self.groups[g].last() {
             cells.seal(g);
         }
+        Ok(())
     }
 
     /// θ per fold — scanned on the groups' cells, or on the rows when the
@@ -703,10 +824,11 @@ impl FormCv {
                         .collect::<Result<_>>()?;
                     let tslices: Vec<&[f64]> = tcols.iter().map(|t| t.as_slice()).collect();
                     let mut store = Vec::new();
+                    let x = prob.x.columns(&form.covariates())?;
                     let rows = scan_rows(
                         form,
                         frame,
-                        &prob.x,
+                        &x.data(),
                         &group_rows,
                         &tslices,
                         TRAIN_POOL_FINER,
@@ -764,10 +886,11 @@ impl FormCv {
     ) -> Result<()> {
         let form = self.form.clone();
         let covs = form.covariates();
+        let xc = c.x.data();
         with_columns(form.n_linear(), |buf| -> Result<()> {
             for (&u, l) in c.units.iter().zip(&c.local) {
                 let r = prob.units[u].clone();
-                let x = prob.x.rows_of(&covs, r.clone())?;
+                let x = xc.rows_of(&covs, l.clone())?;
                 let f = prob.unit_fold[u];
                 if let Some(b) = self.pooled_beta.get(f).and_then(|b| b.as_ref()) {
                     // Held out by CV fold f, fitted on cells at its θ.
@@ -833,7 +956,7 @@ pub(super) fn gather<'a>(
 ) -> Result<EffectData<'a>> {
     store.clear();
     for c in covs {
-        let col = prob.x.require(c)?;
+        let col = prob.x.column(c)?;
         store.push(rows.iter().map(|&i| col[i]).collect());
     }
     let mut d = EffectData::new(rows.len());
@@ -865,7 +988,7 @@ pub(super) fn evaluate_slow(
         let mut store = Vec::new();
         let xd = gather(prob, &covs, &rows, &mut store)?;
         let fe = e.fit(&xd, &y)?;
-        let pred = fe.predict(&prob.x);
+        let pred = fe.predict(&prob.x.columns(&covs)?.data());
         let off = fe.offset_mm();
         for (u, t) in m.iter().enumerate() {
             if !*t {
@@ -974,7 +1097,7 @@ pub fn take_out_fold(
     let covs = match &fit {
         FoldFit::Linear { form, .. } => Some(form.covariates()),
         FoldFit::Fitted(_) => {
-            fit.predict(&prob.x, &mut pred)?;
+            fit.predict(&prob.x.columns(&e.covariates())?.data(), &mut pred)?;
             None
         }
     };
@@ -982,7 +1105,7 @@ pub fn take_out_fold(
         let p = match &covs {
             None => &pred[r.clone()],
             Some(covs) => {
-                fit.predict(&prob.x.rows_of(covs, r.clone())?, &mut pred)?;
+                fit.predict(&prob.x.rows_of(covs, r.clone())?.data(), &mut pred)?;
                 &pred[..]
             }
         };
@@ -1056,118 +1179,143 @@ mod tests {
             }
         }
         let names = ["t_s", "x_mm", "v_mm_s"];
-        let mut x = EffectData::new(n);
-        for (name, col) in names.iter().zip([&t_s, &x_mm, &v]) {
-            x.push(name, col);
+        // The covariates in memory and in a column file: the same bits.
+        let cols: Vec<(String, Vec<f64>)> = names
+            .iter()
+            .zip([&t_s, &x_mm, &v])
+            .map(|(name, col)| (name.to_string(), col.clone()))
+            .collect();
+        let in_memory = Covariates::in_memory(n, cols.clone());
+        let dir = tempfile::tempdir().unwrap();
+        let file = crate::covariates::ColumnFile::create(dir.path(), n, cols.len()).unwrap();
+        for (j, (_, c)) in cols.iter().enumerate() {
+            file.write(j, 0, c).unwrap();
         }
-        let k = 5;
-        let units: Vec<Range<usize>> = (0..runs).map(|r| r * per_run..(r + 1) * per_run).collect();
-        let prob = Problem {
-            x,
-            gap: &gap,
-            unit_fold: (0..runs).map(|r| (r * 3) % k).collect(),
-            unit_run: (0..runs).collect(),
-            units,
-            k,
-            frames: names
-                .iter()
-                .zip([&t_s, &x_mm, &v])
-                .map(|(name, col)| (name.to_string(), CovStats::from_values(col)))
-                .collect(),
-        };
-        let names: Vec<String> = names.iter().map(|s| s.to_string()).collect();
-        let cands = catalogue(&names);
-        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
-        let refs: Vec<&dyn Effect> = cands.iter().map(|e| e.as_ref()).collect();
-        // The gap shared by every fold, then three effects taken out (a
-        // target per fold, each subtraction after the one before).
-        let gap_targets = Targets::gap(&prob);
-        let of_key = |key: &str| {
-            refs.iter()
-                .position(|e| e.key() == key)
-                .unwrap_or_else(|| panic!("{key} in the catalogue"))
-        };
-        // A plugin effect without a linear form (fitted on rows, its
-        // predictions kept per fold) between two linear forms; the
-        // targets recomputed for every chunk (no column budget) and kept
-        // as columns.
-        let no_form = NoForm(refs[of_key("scale:x_mm")]);
-        let taken: [&dyn Effect; 3] = [
-            refs[of_key("periodic:x_mm")],
-            &no_form,
-            refs[of_key("drift:t_s")],
-        ];
-        let chain = |max_column_bytes: usize| {
-            let mut tg = Targets::gap(&prob);
-            let mut columns: Vec<Vec<f64>> = vec![gap.clone(); k + 1];
-            for e in taken {
-                let ev = evaluate_all_in_chunks(&[e], &prob, &tg, usize::MAX, usize::MAX)
-                    .pop()
-                    .unwrap()
-                    .0
-                    .unwrap();
-                let next = tg
-                    .taking_out_within(&prob, e, &ev, max_column_bytes)
-                    .unwrap();
-                assert_eq!(next.columns.is_some(), max_column_bytes > 0);
-                let contrib = held_out_contribution(&prob, e, &ev).unwrap();
-                // What the targets are recomputed to equal: each fold's
-                // column less its fit, and the held-out rows' predictions.
-                let mut held_rows = vec![f64::NAN; n];
-                for (f, col) in columns.iter_mut().enumerate() {
-                    let mut held = Vec::new();
-                    take_out_fold(e, &prob, &ev, f, col, &mut held).unwrap();
-                    let rows = prob
-                        .units
+        let at: Vec<usize> = (0..cols.len()).collect();
+        let stats = file.stats(&at).unwrap();
+        let in_file =
+            Covariates::in_file(n, file, at, cols.into_iter().map(|c| c.0).collect(), stats);
+        assert!(in_file.in_a_file() && !in_memory.in_a_file());
+        let mut scores = Vec::new();
+        for x in [&in_memory, &in_file] {
+            let k = 5;
+            let units: Vec<Range<usize>> =
+                (0..runs).map(|r| r * per_run..(r + 1) * per_run).collect();
+            let prob = Problem {
+                x,
+                gap: &gap,
+                unit_fold: (0..runs).map(|r| (r * 3) % k).collect(),
+                unit_run: (0..runs).collect(),
+                units,
+                k,
+                frames: names
+                    .iter()
+                    .zip([&t_s, &x_mm, &v])
+                    .map(|(name, col)| (name.to_string(), CovStats::from_values(col)))
+                    .collect(),
+            };
+            let names: Vec<String> = names.iter().map(|s| s.to_string()).collect();
+            let cands = catalogue(&names);
+            let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            let refs: Vec<&dyn Effect> = cands.iter().map(|e| e.as_ref()).collect();
+            // The gap shared by every fold, then three effects taken out (a
+            // target per fold, each subtraction after the one before).
+            let gap_targets = Targets::gap(&prob);
+            let of_key = |key: &str| {
+                refs.iter()
+                    .position(|e| e.key() == key)
+                    .unwrap_or_else(|| panic!("{key} in the catalogue"))
+            };
+            // A plugin effect without a linear form (fitted on rows, its
+            // predictions kept per fold) between two linear forms; the
+            // targets recomputed for every chunk (no column budget) and kept
+            // as columns.
+            let no_form = NoForm(refs[of_key("scale:x_mm")]);
+            let taken: [&dyn Effect; 3] = [
+                refs[of_key("periodic:x_mm")],
+                &no_form,
+                refs[of_key("drift:t_s")],
+            ];
+            let chain = |max_column_bytes: usize| {
+                let mut tg = Targets::gap(&prob);
+                let mut columns: Vec<Vec<f64>> = vec![gap.clone(); k + 1];
+                for e in taken {
+                    let ev = evaluate_all_in_chunks(&[e], &prob, &tg, usize::MAX, usize::MAX)
+                        .pop()
+                        .unwrap()
+                        .0
+                        .unwrap();
+                    let next = tg
+                        .taking_out_within(&prob, e, &ev, max_column_bytes)
+                        .unwrap();
+                    assert_eq!(next.columns.is_some(), max_column_bytes > 0);
+                    let contrib = held_out_contribution(&prob, e, &ev).unwrap();
+                    // What the targets are recomputed to equal: each fold's
+                    // column less its fit, and the held-out rows' predictions.
+                    let mut held_rows = vec![f64::NAN; n];
+                    for (f, col) in columns.iter_mut().enumerate() {
+                        let mut held = Vec::new();
+                        take_out_fold(e, &prob, &ev, f, col, &mut held).unwrap();
+                        let rows = prob
+                            .units
+                            .iter()
+                            .zip(&prob.unit_fold)
+                            .filter(|(_, uf)| **uf == f && f < k)
+                            .flat_map(|(u, _)| u.clone());
+                        for (r, p) in rows.zip(held) {
+                            held_rows[r] = p;
+                        }
+                    }
+                    assert_eq!(bits(&contrib), bits(&held_rows), "{}", e.key());
+                    for (f, col) in columns.iter().enumerate() {
+                        assert_eq!(bits(&next.column(&prob, f).unwrap()), bits(col), "fold {f}");
+                    }
+                    tg = next;
+                }
+                assert_eq!(tg.n_distinct(), k + 1);
+                tg
+            };
+            let (tg, kept) = (chain(0), chain(usize::MAX));
+            for tg in [gap_targets, tg, kept] {
+                let mut scanned = 0;
+                let whole = evaluate_all_in_chunks(&refs, &prob, &tg, usize::MAX, usize::MAX);
+                scores.push(
+                    whole
                         .iter()
-                        .zip(&prob.unit_fold)
-                        .filter(|(_, uf)| **uf == f && f < k)
-                        .flat_map(|(u, _)| u.clone());
-                    for (r, p) in rows.zip(held) {
-                        held_rows[r] = p;
+                        .map(|w| bits(&w.0.as_ref().unwrap().unit_sse))
+                        .collect::<Vec<_>>(),
+                );
+                for max_rows in [1, 2 * per_run + 1] {
+                    let parts = evaluate_all_in_chunks(&refs, &prob, &tg, max_rows, max_rows);
+                    for ((whole, part), e) in whole.iter().zip(parts).zip(&refs) {
+                        let (whole, part) = (whole.0.as_ref().unwrap(), part.0.unwrap());
+                        assert_eq!(bits(&whole.unit_sse), bits(&part.unit_sse), "{}", e.key());
+                        let (
+                            CandFit::Fast {
+                                theta: ta,
+                                beta: ba,
+                            },
+                            CandFit::Fast {
+                                theta: tb,
+                                beta: bb,
+                            },
+                        ) = (&whole.fit, &part.fit)
+                        else {
+                            panic!("catalogue effects are linear forms");
+                        };
+                        assert_eq!(bits(ta), bits(tb), "{}", e.key());
+                        for (a, b) in ba.iter().zip(bb) {
+                            assert_eq!(bits(a), bits(b), "{}", e.key());
+                        }
+                        assert!(whole.unit_sse.iter().all(|s| s.is_finite()), "{}", e.key());
+                        scanned += usize::from(ta.iter().any(|t| !t.is_nan()));
                     }
                 }
-                assert_eq!(bits(&contrib), bits(&held_rows), "{}", e.key());
-                for (f, col) in columns.iter().enumerate() {
-                    assert_eq!(bits(&next.column(&prob, f).unwrap()), bits(col), "fold {f}");
-                }
-                tg = next;
+                assert!(scanned >= 4, "θ forms among the candidates: {scanned}");
             }
-            assert_eq!(tg.n_distinct(), k + 1);
-            tg
-        };
-        let (tg, kept) = (chain(0), chain(usize::MAX));
-        for tg in [gap_targets, tg, kept] {
-            let mut scanned = 0;
-            let whole = evaluate_all_in_chunks(&refs, &prob, &tg, usize::MAX, usize::MAX);
-            for max_rows in [1, 2 * per_run + 1] {
-                let parts = evaluate_all_in_chunks(&refs, &prob, &tg, max_rows, max_rows);
-                for ((whole, part), e) in whole.iter().zip(parts).zip(&refs) {
-                    let (whole, part) = (whole.0.as_ref().unwrap(), part.0.unwrap());
-                    assert_eq!(bits(&whole.unit_sse), bits(&part.unit_sse), "{}", e.key());
-                    let (
-                        CandFit::Fast {
-                            theta: ta,
-                            beta: ba,
-                        },
-                        CandFit::Fast {
-                            theta: tb,
-                            beta: bb,
-                        },
-                    ) = (&whole.fit, &part.fit)
-                    else {
-                        panic!("catalogue effects are linear forms");
-                    };
-                    assert_eq!(bits(ta), bits(tb), "{}", e.key());
-                    for (a, b) in ba.iter().zip(bb) {
-                        assert_eq!(bits(a), bits(b), "{}", e.key());
-                    }
-                    assert!(whole.unit_sse.iter().all(|s| s.is_finite()), "{}", e.key());
-                    scanned += usize::from(ta.iter().any(|t| !t.is_nan()));
-                }
-            }
-            assert!(scanned >= 4, "θ forms among the candidates: {scanned}");
         }
+        let (memory, file) = scores.split_at(scores.len() / 2);
+        assert_eq!(memory, file, "the covariates in memory and in a file");
     }
 
     /// An effect fitted on rows only: a plugin effect with no linear form.

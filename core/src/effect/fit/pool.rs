@@ -62,6 +62,9 @@ pub fn spans(cols: &[&[f64]], mins: &[f64]) -> Vec<f64> {
 
 /// Cells of each group, filled range by range ([`CellPool::add_range`]),
 /// read out by [`CellPool::finish`].
+/// A bin marked by [`CellPool::count_range`], not numbered yet.
+const COUNTED: u32 = u32::MAX - 1;
+
 pub struct CellPool {
     axes: Vec<Axis>,
     /// Numbers per cell: the count, Σw·c per covariate, Σy per target.
@@ -385,37 +388,69 @@ impl CellPool {
     /// covariates: nothing to do.
     pub fn count_groups(&mut self, groups: &[Vec<Range<usize>>], cols: &[&[f64]]) {
         assert_eq!(groups.len(), self.groups.len(), "ranges for every group");
-        let ([c], [axis]) = (cols, self.axes.as_slice()) else {
+        let [c] = cols else {
             return;
         };
-        const SEEN: u32 = u32::MAX - 1;
-        let mut total = 0;
-        for (g, ranges) in self.groups.iter_mut().zip(groups) {
-            assert!(
-                !g.sealed && g.dense.is_empty(),
-                "groups counted whole are new"
-            );
-            let mut dense = vec![u32::MAX; axis.bins];
+        for (g, ranges) in groups.iter().enumerate() {
             for r in ranges {
-                for &x in &c[r.clone()] {
-                    dense[axis.bin(x)] = SEEN;
-                }
+                self.count_range(g, &c[r.clone()]);
+            }
+        }
+        self.counted();
+    }
+
+    /// One covariate: marks the bins of values `c`, rows of `group` — the
+    /// count of [`CellPool::count_groups`] taken a range at a time, as a
+    /// pass reading the rows in chunks gives them. [`CellPool::counted`]
+    /// then lays every group out. Several covariates: nothing to do.
+    pub fn count_range(&mut self, group: usize, c: &[f64]) {
+        let [axis] = self.axes.as_slice() else {
+            return;
+        };
+        let g = &mut self.groups[group];
+        assert!(
+            !g.sealed && g.counted.is_none(),
+            "groups are counted before any range is added"
+        );
+        if g.dense.is_empty() {
+            g.dense = vec![u32::MAX; axis.bins];
+        }
+        for &x in c {
+            g.dense[axis.bin(x)] = COUNTED;
+        }
+    }
+
+    /// One covariate: every group's cells, marked by
+    /// [`CellPool::count_range`], numbered in bin order, and the output
+    /// columns reserved at their size.
+    pub fn counted(&mut self) {
+        let [axis] = self.axes.as_slice() else {
+            return;
+        };
+        let mut total = 0;
+        for g in &mut self.groups {
+            assert!(
+                !g.sealed && g.counted.is_none(),
+                "groups are counted once, before any range is added"
+            );
+            if g.dense.is_empty() {
+                g.dense = vec![u32::MAX; axis.bins];
             }
             let mut n = 0u32;
-            for s in dense.iter_mut().filter(|s| **s == SEEN) {
+            for s in g.dense.iter_mut().filter(|s| **s == COUNTED) {
                 *s = n;
                 n += 1;
             }
-            g.dense = dense;
             g.counted = Some(n as usize);
             total += n as usize;
         }
+        let n_groups = self.groups.len();
         let (xc, w, sy, ranges) = &mut self.out;
         for col in xc.iter_mut().chain(sy.iter_mut()) {
             col.reserve_exact(total);
         }
         w.reserve_exact(total);
-        ranges.reserve_exact(groups.len());
+        ranges.reserve_exact(n_groups);
     }
 
     /// Seals `group`'s cells ([`GroupCells::seal`]): its last range has
