@@ -44,16 +44,10 @@ pub const TARGET_COLUMNS_MAX_BYTES: usize = 64 << 20;
 fn target_columns_budget() -> usize {
     static BUDGET: std::sync::OnceLock<usize> = std::sync::OnceLock::new();
     *BUDGET.get_or_init(|| {
-        const VAR: &str = "SPARKOUT_TARGET_COLUMNS_MAX_BYTES";
-        match std::env::var(VAR) {
-            Err(_) => TARGET_COLUMNS_MAX_BYTES,
-            Ok(v) => v.trim().parse().unwrap_or_else(|_| {
-                tracing::warn!(
-                    "{VAR}={v:?} is not a byte count: the default {TARGET_COLUMNS_MAX_BYTES} is used"
-                );
-                TARGET_COLUMNS_MAX_BYTES
-            }),
-        }
+        crate::covariates::byte_budget(
+            "SPARKOUT_TARGET_COLUMNS_MAX_BYTES",
+            TARGET_COLUMNS_MAX_BYTES,
+        )
     })
 }
 
