@@ -214,21 +214,26 @@ fn distinct_at_most(v: &[f64], cap: usize) -> Option<Vec<f64>> {
 pub fn cells(covs: &Covariates, g: &[f64], r: &[f64]) -> crate::Result<Vec<Cell>> {
     use rayon::prelude::*;
     let n = g.len();
-    // Each covariate on its own, its cells and — for a position of the
-    // tiles — its tile bins: its binning selects from a copy of its values
-    // (read whole), its cells are folded a chunk of rows at a time. In
-    // parallel when the columns are in memory; one at a time when they are
-    // read from a file (one column at a time, not one per core:
-    // docs/design.md §8).
-    let per_cov = |name: &String| -> crate::Result<(Vec<Cell>, Option<Bins>)> {
+    // Each covariate on its own: in parallel when the columns are in
+    // memory; read from a file, one column whole at a time, not one per
+    // core (docs/design.md §8).
+    // A covariate's bins: its quantile edges selected from its values read
+    // whole, and — for a position of the tiles — its tile bins.
+    let binning = |name: &String| -> crate::Result<(Bins, Option<Bins>)> {
         let tiled = matches!(name.as_str(), "x_mm" | "y_mm");
         let edges: &[usize] = if tiled {
             &[QUANTILE_BINS, TILE_BINS]
         } else {
             &[QUANTILE_BINS]
         };
-        let binning = Binning::of_owned(covs.column(name)?.into_owned(), edges);
-        let q = binning.bins(n, QUANTILE_BINS);
+        let b = Binning::of_owned(covs.column(name)?.into_owned(), edges);
+        Ok((
+            b.bins(n, QUANTILE_BINS),
+            tiled.then(|| b.bins(n, TILE_BINS)),
+        ))
+    };
+    // Its cells, folded a chunk of rows at a time.
+    let fold = |name: &String, q: &Bins| -> crate::Result<Vec<Cell>> {
         let mut fold = CellFold::default();
         covs.chunked(std::slice::from_ref(name), |rows, x| {
             let v = x.col(name).expect("read");
@@ -237,17 +242,32 @@ pub fn cells(covs: &Covariates, g: &[f64], r: &[f64]) -> crate::Result<Vec<Cell>
         })?;
         let mut cells = Vec::new();
         fold.finish(&[name.as_str()], &mut cells);
-        Ok((cells, tiled.then(|| binning.bins(n, TILE_BINS))))
+        Ok(cells)
     };
+    let names = covs.names();
     let per_cov: Vec<(Vec<Cell>, Option<Bins>)> = if covs.in_a_file() {
-        covs.names()
-            .iter()
-            .map(per_cov)
-            .collect::<crate::Result<_>>()?
+        // One column whole at a time: a covariate's binning beside the
+        // previous covariate's fold (two cores, one column).
+        let mut out = Vec::with_capacity(names.len());
+        let mut prev: Option<(&String, Bins, Option<Bins>)> = None;
+        for k in 0..=names.len() {
+            let (next, folded) = rayon::join(
+                || names.get(k).map(|c| binning(c).map(|b| (c, b))).transpose(),
+                || prev.as_ref().map(|(c, q, _)| fold(c, q)).transpose(),
+            );
+            if let (Some(cells), Some((_, _, tile))) = (folded?, prev.take()) {
+                out.push((cells, tile));
+            }
+            prev = next?.map(|(c, (q, tile))| (c, q, tile));
+        }
+        out
     } else {
-        covs.names()
+        names
             .par_iter()
-            .map(per_cov)
+            .map(|c| {
+                let (q, tile) = binning(c)?;
+                Ok((fold(c, &q)?, tile))
+            })
             .collect::<crate::Result<_>>()?
     };
     let (mut tile_x, mut tile_y) = (None, None);

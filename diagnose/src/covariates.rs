@@ -180,13 +180,13 @@ impl Covariates {
 
     /// Rows `r` of the covariates `names`.
     pub fn rows_of(&self, names: &[String], r: Range<usize>) -> Result<CovRows<'_>> {
-        self.rows(names, &[r])
+        self.rows(names, std::slice::from_ref(&r))
     }
 
     /// Every row of the covariates `names` (a step that needs whole
     /// columns: a plugin effect's fit, the fallbacks).
     pub fn columns(&self, names: &[String]) -> Result<CovRows<'_>> {
-        self.rows(names, &[0..self.n])
+        self.rows_of(names, 0..self.n)
     }
 
     /// Every row of the covariates, rows `r` of each.

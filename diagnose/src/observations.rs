@@ -877,7 +877,7 @@ pub trait RowValues: Send + Sync {
         &self,
         obs: &RunLength<u32>,
         asc: &[usize],
-        sink: &mut dyn FnMut(usize, &[f64], &[Vec<f64>]) -> Result<()>,
+        sink: &mut ChunkSink,
     ) -> Result<()> {
         let g = self.gather(obs, asc)?;
         sink(0, &g.gap, &g.covariates)
@@ -891,6 +891,10 @@ pub trait RowValues: Send + Sync {
         None
     }
 }
+
+/// Where [`RowValues::gather_chunks`] hands each chunk: (its first
+/// position among the rows asked for, gaps, covariates).
+pub type ChunkSink<'a> = dyn FnMut(usize, &[f64], &[Vec<f64>]) -> Result<()> + 'a;
 
 /// What [`RowValues::gather`] reads for a set of rows, in their order.
 pub struct Gathered {

@@ -17,8 +17,8 @@ use parquet::arrow::ProjectionMask;
 use crate::config_check::Checked;
 use crate::contracts::parquet_file::{checked_batches, corrupt_page, open_parquet};
 use crate::observations::{
-    gap_of, is_covariate, normalise_types, validate_observations, Gathered, RowValues, Table,
-    TableParts,
+    gap_of, is_covariate, normalise_types, validate_observations, ChunkSink, Gathered, RowValues,
+    Table, TableParts,
 };
 use crate::run_length::RunLength;
 use crate::{DiagnoseConfig, DiagnosisOutput, EffectScope, InputError, Result};
@@ -244,12 +244,32 @@ impl RowValues for ParquetValues {
         &self.names
     }
 
-    fn gather(&self, _obs: &RunLength<u32>, asc: &[usize]) -> Result<Gathered> {
+    fn gather(&self, obs: &RunLength<u32>, asc: &[usize]) -> Result<Gathered> {
         let k = self.names.len();
         let mut covariates: Vec<Vec<f64>> = (0..k).map(|_| Vec::with_capacity(asc.len())).collect();
         let mut gap = Vec::with_capacity(asc.len());
+        self.gather_chunks(obs, asc, &mut |_, g, cs| {
+            gap.extend_from_slice(g);
+            for (all, c) in covariates.iter_mut().zip(cs) {
+                all.extend_from_slice(c);
+            }
+            Ok(())
+        })?;
+        Ok(Gathered { gap, covariates })
+    }
+
+    /// A batch of the file's rows at a time: the rows of `asc` it holds.
+    fn gather_chunks(
+        &self,
+        _obs: &RunLength<u32>,
+        asc: &[usize],
+        sink: &mut ChunkSink,
+    ) -> Result<()> {
+        let k = self.names.len();
+        let mut covariates: Vec<Vec<f64>> = vec![Vec::new(); k];
+        let mut gap = Vec::new();
         if asc.is_empty() {
-            return Ok(Gathered { gap, covariates });
+            return Ok(());
         }
         // The row groups holding any of the rows, and where each starts.
         let last = |g: usize| self.group_starts.get(g + 1).copied().unwrap_or(usize::MAX);
@@ -300,6 +320,8 @@ impl RowValues for ParquetValues {
                 }
                 let base = offset - n;
                 let batch_gap = gap_of(&b, &self.path)?;
+                gap.clear();
+                covariates.iter_mut().for_each(Vec::clear);
                 gap.extend(asc[from..p].iter().map(|&r| batch_gap[r - base]));
                 for (j, &i) in self.indices.iter().enumerate() {
                     let name = file_schema.field(i).name();
@@ -327,9 +349,10 @@ impl RowValues for ParquetValues {
                         covariates[j].push(x);
                     }
                 }
+                sink(from, &gap, &covariates)?;
             }
         }
-        Ok(Gathered { gap, covariates })
+        Ok(())
     }
 }
 
@@ -571,7 +594,7 @@ impl RowValues for SpilledValues {
         &self,
         obs: &RunLength<u32>,
         asc: &[usize],
-        sink: &mut dyn FnMut(usize, &[f64], &[Vec<f64>]) -> Result<()>,
+        sink: &mut ChunkSink,
     ) -> Result<()> {
         use std::io::Read;
         let wanted = self.wanted(obs, asc);

@@ -222,8 +222,19 @@ impl<'a> Targets<'a> {
     /// The distinct targets over the rows of `units` (their rows one after
     /// another): each the gap less its fold's fit of every chosen effect,
     /// in the order they were chosen.
-    pub fn chunk<'x>(&self, prob: &Problem<'x>, units: Vec<usize>) -> Result<Chunk<'x>> {
-        self.chunk_of_folds(prob, units, &self.fold_of, prob.x.names())
+    /// `names`: the covariates the chunk carries besides the chosen
+    /// effects' (those its readers need).
+    pub fn chunk<'x>(
+        &self,
+        prob: &Problem<'x>,
+        units: Vec<usize>,
+        names: &[String],
+    ) -> Result<Chunk<'x>> {
+        let mut names = names.to_vec();
+        names.extend(self.taken_covariates());
+        names.sort();
+        names.dedup();
+        self.chunk_of_folds(prob, units, &self.fold_of, &names)
     }
 
     /// The covariates the chosen effects' predictions read.
@@ -443,6 +454,11 @@ pub(super) fn evaluate_all_in_chunks(
     };
     let masks = prob.train_masks();
     let groups = fit::fold_groups(&masks, prob.units.len());
+    // The covariates a chunk carries: the candidates' (read from a file,
+    // a chunk of every covariate would be read for nothing).
+    let mut read: Vec<String> = cands.iter().flat_map(|e| e.covariates()).collect();
+    read.sort();
+    read.dedup();
     // Each unit's Σy² of every distinct target, taken in the first pass
     // that reads every unit (the targets are computed once a pass).
     let mut yy_u = vec![vec![f64::NAN; prob.units.len()]; tg.n_distinct()];
@@ -530,7 +546,7 @@ pub(super) fn evaluate_all_in_chunks(
         });
         'groups: for (g, members) in groups.iter().enumerate() {
             for units in cut_units(prob, members, cell_rows) {
-                let c = match tg.chunk(prob, units) {
+                let c = match tg.chunk(prob, units, &read) {
                     Ok(c) => c,
                     Err(e) => {
                         fail_forms(&mut cvs, e);
@@ -565,7 +581,7 @@ pub(super) fn evaluate_all_in_chunks(
         if !cvs.iter().any(|(cv, _)| matches!(cv, Cv::Form(_))) {
             break;
         }
-        let c = match tg.chunk(prob, units.collect()) {
+        let c = match tg.chunk(prob, units.collect(), &read) {
             Ok(c) => c,
             Err(e) => {
                 fail_forms(&mut cvs, e);
