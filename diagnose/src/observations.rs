@@ -879,8 +879,7 @@ pub trait RowValues: Send + Sync {
         asc: &[usize],
         sink: &mut ChunkSink,
     ) -> Result<()> {
-        let g = self.gather(obs, asc)?;
-        sink(0, &g.gap, &g.covariates)
+        sink_whole(self.gather(obs, asc)?, sink)
     }
     /// A covariate's whole column where it is held in memory.
     fn column(&self, _name: &str) -> Option<&[f64]> {
@@ -890,6 +889,11 @@ pub trait RowValues: Send + Sync {
     fn gap_column(&self) -> Option<&[f64]> {
         None
     }
+}
+
+/// Rows gathered whole handed to `sink` as one chunk.
+pub fn sink_whole(g: Gathered, sink: &mut ChunkSink) -> Result<()> {
+    sink(0, &g.gap, &g.covariates)
 }
 
 /// Where [`RowValues::gather_chunks`] hands each chunk: (its first

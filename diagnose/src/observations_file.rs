@@ -566,6 +566,35 @@ impl SpilledValues {
     /// Per observable id: each wanted row's rank among its observable's
     /// rows (its record) and its position in `asc` (ascending), a stretch
     /// of one observable at a time.
+    /// Reads the records `want` ((rank, position), ranks ascending) of
+    /// the spill file `path`: `f(position, value)`, `value(i)` the
+    /// record's i-th number (0: the gap, 1 + k: covariate k of the spill).
+    fn each_record(
+        &self,
+        path: &Path,
+        want: &[(usize, usize)],
+        mut f: impl FnMut(usize, &dyn Fn(usize) -> f64) -> Result<()>,
+    ) -> Result<()> {
+        use std::io::Read;
+        let width = 1 + self.spilled.covariates.len();
+        let mut r = std::io::BufReader::with_capacity(1 << 20, File::open(path)?);
+        let mut record = vec![0u8; 8 * width];
+        let mut rank = 0usize;
+        for &(want_rank, pos) in want {
+            while rank < want_rank {
+                r.read_exact(&mut record)?;
+                rank += 1;
+            }
+            r.read_exact(&mut record)?;
+            rank += 1;
+            let value = |at: usize| {
+                f64::from_le_bytes(record[8 * at..8 * at + 8].try_into().expect("8 bytes"))
+            };
+            f(pos, &value)?;
+        }
+        Ok(())
+    }
+
     fn wanted(&self, obs: &RunLength<u32>, asc: &[usize]) -> Vec<Vec<(usize, usize)>> {
         let mut seen = vec![0usize; self.file_of.len()];
         let mut wanted: Vec<Vec<(usize, usize)>> = vec![Vec::new(); self.file_of.len()];
@@ -596,7 +625,6 @@ impl RowValues for SpilledValues {
         asc: &[usize],
         sink: &mut ChunkSink,
     ) -> Result<()> {
-        use std::io::Read;
         let wanted = self.wanted(obs, asc);
         // The rows of one observable are its file's records in order: read
         // as a stream. Rows of several observables come from several
@@ -608,13 +636,8 @@ impl RowValues for SpilledValues {
             &files[..],
             files.first().and_then(|&o| self.file_of[o].as_ref()),
         ) else {
-            let g = self.gather(obs, asc)?;
-            return sink(0, &g.gap, &g.covariates);
+            return crate::observations::sink_whole(self.gather(obs, asc)?, sink);
         };
-        let width = 1 + self.spilled.covariates.len();
-        let mut r = std::io::BufReader::with_capacity(1 << 20, File::open(path)?);
-        let mut record = vec![0u8; 8 * width];
-        let mut rank = 0usize;
         let (mut gap, mut covs) = (Vec::new(), vec![Vec::new(); self.names.len()]);
         let mut start = 0;
         let mut flush = |start: &mut usize, gap: &mut Vec<f64>, covs: &mut Vec<Vec<f64>>| {
@@ -625,17 +648,8 @@ impl RowValues for SpilledValues {
             covs.iter_mut().for_each(Vec::clear);
             out
         };
-        for &(want_rank, pos) in &wanted[o] {
+        self.each_record(path, &wanted[o], |pos, value| {
             debug_assert_eq!(pos, start + gap.len(), "one file's rows in order");
-            while rank < want_rank {
-                r.read_exact(&mut record)?;
-                rank += 1;
-            }
-            r.read_exact(&mut record)?;
-            rank += 1;
-            let value = |at: usize| {
-                f64::from_le_bytes(record[8 * at..8 * at + 8].try_into().expect("8 bytes"))
-            };
             gap.push(value(0));
             for (j, &at) in self.at.iter().enumerate() {
                 covs[j].push(value(1 + at));
@@ -643,7 +657,8 @@ impl RowValues for SpilledValues {
             if gap.len() == crate::covariates::READ_ROWS {
                 flush(&mut start, &mut gap, &mut covs)?;
             }
-        }
+            Ok(())
+        })?;
         if !gap.is_empty() {
             flush(&mut start, &mut gap, &mut covs)?;
         }
@@ -651,9 +666,7 @@ impl RowValues for SpilledValues {
     }
 
     fn gather(&self, obs: &RunLength<u32>, asc: &[usize]) -> Result<Gathered> {
-        use std::io::Read;
         let k = self.names.len();
-        let width = 1 + self.spilled.covariates.len();
         let mut out: Vec<Vec<f64>> = (0..k).map(|_| vec![f64::NAN; asc.len()]).collect();
         let mut gap = vec![f64::NAN; asc.len()];
         if asc.is_empty() {
@@ -663,7 +676,6 @@ impl RowValues for SpilledValues {
             });
         }
         let wanted = self.wanted(obs, asc);
-        let mut record = vec![0u8; 8 * width];
         for (o, want) in wanted.iter().enumerate() {
             if want.is_empty() {
                 continue;
@@ -671,23 +683,13 @@ impl RowValues for SpilledValues {
             let Some(path) = &self.file_of[o] else {
                 continue;
             };
-            let mut r = std::io::BufReader::with_capacity(1 << 20, File::open(path)?);
-            let mut rank = 0usize;
-            for &(want_rank, pos) in want {
-                while rank < want_rank {
-                    r.read_exact(&mut record)?;
-                    rank += 1;
-                }
-                r.read_exact(&mut record)?;
-                rank += 1;
-                let value = |at: usize| {
-                    f64::from_le_bytes(record[8 * at..8 * at + 8].try_into().expect("8 bytes"))
-                };
+            self.each_record(path, want, |pos, value| {
                 gap[pos] = value(0);
                 for (j, &at) in self.at.iter().enumerate() {
                     out[j][pos] = value(1 + at);
                 }
-            }
+                Ok(())
+            })?;
         }
         Ok(Gathered {
             gap,
