@@ -187,17 +187,16 @@ impl<'a> Targets<'a> {
             // A chunk of units' covariates read once for every fold.
             let names = fit.covariates();
             for units in consecutive_units(prob, CHUNK_ROWS) {
-                let span = prob.units[units.start].start..prob.units[units.end - 1].end;
-                let xs = prob.x.rows_of(&names, span.clone())?;
+                let (span, local) = rows_of_units(prob, units.clone());
+                let xs = prob.x.rows_of(&names, span)?;
                 let xd = xs.data();
                 columns
                     .par_iter_mut()
                     .enumerate()
                     .try_for_each(|(f, col)| -> Result<()> {
                         let mut pred = Vec::new();
-                        for r in &prob.units[units.clone()] {
-                            let local = r.start - span.start..r.end - span.start;
-                            fit.predict(&xd.rows_of(&names, local)?, f, r.clone(), &mut pred)?;
+                        for (r, l) in prob.units[units.clone()].iter().zip(&local) {
+                            fit.predict(&xd.rows_of(&names, l.clone())?, f, r.clone(), &mut pred)?;
                             col[r.clone()]
                                 .iter_mut()
                                 .zip(&pred)
@@ -318,6 +317,17 @@ fn consecutive_units(prob: &Problem, max_rows: usize) -> Vec<Range<usize>> {
         .collect()
 }
 
+/// The rows of the consecutive units `units`, and each unit's rows within
+/// them.
+fn rows_of_units(prob: &Problem, units: Range<usize>) -> (Range<usize>, Vec<Range<usize>>) {
+    let span = prob.units[units.start].start..prob.units[units.end - 1].end;
+    let local = prob.units[units]
+        .iter()
+        .map(|r| r.start - span.start..r.end - span.start)
+        .collect();
+    (span, local)
+}
+
 /// `e`'s held-out contribution per row: each unit predicted by the fold
 /// that holds it out (`ev`'s fits).
 pub fn held_out_contribution(prob: &Problem, e: &dyn Effect, ev: &CandEval) -> Result<Vec<f64>> {
@@ -325,17 +335,17 @@ pub fn held_out_contribution(prob: &Problem, e: &dyn Effect, ev: &CandEval) -> R
     let names = fit.covariates();
     let mut contrib = Vec::with_capacity(prob.x.len());
     for units in consecutive_units(prob, CHUNK_ROWS) {
-        let span = prob.units[units.start].start..prob.units[units.end - 1].end;
-        let xs = prob.x.rows_of(&names, span.clone())?;
+        let (span, local) = rows_of_units(prob, units.clone());
+        let xs = prob.x.rows_of(&names, span)?;
         let xd = xs.data();
         let preds: Vec<Vec<f64>> = units
+            .zip(local)
             .collect::<Vec<_>>()
             .into_par_iter()
-            .map(|u| -> Result<Vec<f64>> {
+            .map(|(u, l)| -> Result<Vec<f64>> {
                 let mut pred = Vec::new();
-                let r = prob.units[u].clone();
-                let x = xd.rows_of(&names, r.start - span.start..r.end - span.start)?;
-                fit.predict(&x, prob.unit_fold[u], r, &mut pred)?;
+                let x = xd.rows_of(&names, l)?;
+                fit.predict(&x, prob.unit_fold[u], prob.units[u].clone(), &mut pred)?;
                 Ok(pred)
             })
             .collect::<Result<_>>()?;
@@ -513,8 +523,8 @@ pub(super) fn evaluate_all_in_chunks(
         names.dedup();
         if !names.is_empty() {
             for units in consecutive_units(prob, cell_rows) {
-                let span = prob.units[units.start].start..prob.units[units.end - 1].end;
-                let x = match prob.x.rows_of(&names, span.clone()) {
+                let (span, local) = rows_of_units(prob, units.clone());
+                let x = match prob.x.rows_of(&names, span) {
                     Ok(x) => x,
                     Err(e) => {
                         fail_forms(&mut cvs, e);
@@ -522,10 +532,6 @@ pub(super) fn evaluate_all_in_chunks(
                     }
                 };
                 let us: Vec<usize> = units.collect();
-                let local: Vec<Range<usize>> = us
-                    .iter()
-                    .map(|&u| prob.units[u].start - span.start..prob.units[u].end - span.start)
-                    .collect();
                 cvs.par_iter_mut().for_each(|(cv, secs)| {
                     if let Cv::Form(f) = cv {
                         let mut failed = None;
