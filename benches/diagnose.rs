@@ -11,40 +11,17 @@ use criterion::{criterion_group, Criterion};
 use rand::seq::SliceRandom;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
-use sparkout_datasets::observations::{generate, ObsFleetConfig};
 use sparkout_pipeline::config_check::Checked;
 use sparkout_pipeline::contracts::write_parquet_atomic;
 use sparkout_pipeline::diagnose::run_length::RunLength;
 use sparkout_pipeline::diagnose::{diagnose, diagnose_observations_file, fit, DiagnoseConfig};
-use sparkout_pipeline::EffectSpec;
 use std::time::Duration;
 
 mod common;
 
-/// The bench fleet: `runs` runs × nx×ny grid (1 mm pitch, `spacing_mm`
-/// scales it) × `passes`, with a drift + backlash gap.
-fn fleet(runs: usize, nx: usize, ny: usize, passes: usize, spacing_mm: f64) -> RecordBatch {
-    let cfg = ObsFleetConfig {
-        runs,
-        seed: 7,
-        noise_mm: 0.001,
-        nx,
-        ny,
-        spacing_mm,
-        passes,
-        replicate_fraction: 0.0,
-        observable: "surface_z".into(),
-    };
-    let effects: Vec<EffectSpec> = vec![
-        "drift:t_s=amplitude_mm=0.01,tau_s=20000".parse().unwrap(),
-        "backlash:dir=b_mm=0.004".parse().unwrap(),
-    ];
-    generate(&cfg, &effects).expect("fleet")
-}
-
 fn bench_diagnose(c: &mut Criterion) {
     common::register_references(c, "diagnose");
-    let obs = fleet(20, 100, 100, 5, 1.0);
+    let obs = common::obs_fleet(20, 100, 100, 5, 1.0);
     assert_eq!(obs.num_rows(), 1_000_000);
     let dcfg = DiagnoseConfig {
         folds: 5,
@@ -284,7 +261,7 @@ fn scaling() {
     let by_runs: Vec<(usize, f64)> = runs
         .iter()
         .map(|&runs| {
-            let obs = fleet(runs, 20, 20, 5, 5.0);
+            let obs = common::obs_fleet(runs, 20, 20, 5, 5.0);
             (obs.num_rows(), time(&obs))
         })
         .collect();
@@ -296,7 +273,7 @@ fn scaling() {
     let by_density: Vec<(usize, f64)> = [10usize, 32, 100]
         .iter()
         .map(|&n| {
-            let obs = fleet(20, n, n, 5, 100.0 / n as f64);
+            let obs = common::obs_fleet(20, n, n, 5, 100.0 / n as f64);
             (obs.num_rows(), time(&obs))
         })
         .collect();

@@ -98,3 +98,32 @@ pub fn sizes_from_env(var: &str, default: &str) -> Vec<usize> {
         })
         .collect()
 }
+
+/// The bench fleet: `runs` runs × nx×ny grid (1 mm pitch, `spacing_mm`
+/// scales it) × `passes`, with a drift + backlash gap.
+pub fn obs_fleet(
+    runs: usize,
+    nx: usize,
+    ny: usize,
+    passes: usize,
+    spacing_mm: f64,
+) -> arrow::array::RecordBatch {
+    use sparkout_datasets::observations::{generate, ObsFleetConfig};
+    use sparkout_pipeline::EffectSpec;
+    let cfg = ObsFleetConfig {
+        runs,
+        seed: 7,
+        noise_mm: 0.001,
+        nx,
+        ny,
+        spacing_mm,
+        passes,
+        replicate_fraction: 0.0,
+        observable: "surface_z".into(),
+    };
+    let effects: Vec<EffectSpec> = vec![
+        "drift:t_s=amplitude_mm=0.01,tau_s=20000".parse().unwrap(),
+        "backlash:dir=b_mm=0.004".parse().unwrap(),
+    ];
+    generate(&cfg, &effects).expect("fleet")
+}
