@@ -14,7 +14,7 @@ use rand_chacha::ChaCha8Rng;
 use sparkout_pipeline::config_check::Checked;
 use sparkout_pipeline::contracts::write_parquet_atomic;
 use sparkout_pipeline::diagnose::run_length::RunLength;
-use sparkout_pipeline::diagnose::{diagnose, diagnose_observations_file, fit, DiagnoseConfig};
+use sparkout_pipeline::diagnose::{diagnose, fit, DiagnoseConfig};
 use std::time::Duration;
 
 mod common;
@@ -41,16 +41,7 @@ fn bench_diagnose(c: &mut Criterion) {
     write_parquet_atomic(&path, &obs).expect("bench table");
     drop(obs);
     let checked = Checked::check(dcfg).expect("config");
-    g.bench_function("1e6_rows_file_to_file_5_folds", |b| {
-        b.iter(|| {
-            let out = dir.path().join("out");
-            let d = diagnose_observations_file(&path, &checked, &[], None, Some(&out.join(".r")))
-                .expect("diagnose");
-            d.per_row
-                .write_parquet(&out.join("diagnosis.parquet"))
-                .expect("write");
-        })
-    });
+    common::bench_diagnose_file(&mut g, "1e6_rows_file_to_file_5_folds", &path, &checked);
     g.finish();
 }
 

@@ -10,7 +10,7 @@
 use criterion::{criterion_group, Criterion};
 use sparkout_pipeline::config_check::Checked;
 use sparkout_pipeline::contracts::write_parquet_atomic;
-use sparkout_pipeline::diagnose::{diagnose_observations_file, DiagnoseConfig};
+use sparkout_pipeline::diagnose::DiagnoseConfig;
 use std::time::Duration;
 
 mod common;
@@ -31,16 +31,12 @@ fn bench_streamed(c: &mut Criterion) {
     let mut g = c.benchmark_group("diagnose_streamed");
     g.sample_size(10);
     g.measurement_time(Duration::from_secs(60));
-    g.bench_function("1e6_rows_file_to_file_5_folds_budgets_0", |b| {
-        b.iter(|| {
-            let out = dir.path().join("out");
-            let d = diagnose_observations_file(&path, &checked, &[], None, Some(&out.join(".r")))
-                .expect("diagnose");
-            d.per_row
-                .write_parquet(&out.join("diagnosis.parquet"))
-                .expect("write");
-        })
-    });
+    common::bench_diagnose_file(
+        &mut g,
+        "1e6_rows_file_to_file_5_folds_budgets_0",
+        &path,
+        &checked,
+    );
     g.finish();
 }
 

@@ -127,3 +127,31 @@ pub fn obs_fleet(
     ];
     generate(&cfg, &effects).expect("fleet")
 }
+
+/// Benches `name` in `g`: the diagnosis of the observations file `path`
+/// as a night takes it — the table read batch by batch, the per-row
+/// results spilled beside the output and diagnosis.parquet written — into
+/// `out/` beside the file.
+pub fn bench_diagnose_file(
+    g: &mut criterion::BenchmarkGroup<criterion::measurement::WallTime>,
+    name: &str,
+    path: &std::path::Path,
+    cfg: &sparkout_pipeline::config_check::Checked<sparkout_pipeline::diagnose::DiagnoseConfig>,
+) {
+    let out = path.with_file_name("out");
+    g.bench_function(name, |b| {
+        b.iter(|| {
+            let d = sparkout_pipeline::diagnose::diagnose_observations_file(
+                path,
+                cfg,
+                &[],
+                None,
+                Some(&out.join(".r")),
+            )
+            .expect("diagnose");
+            d.per_row
+                .write_parquet(&out.join("diagnosis.parquet"))
+                .expect("write");
+        })
+    });
+}
