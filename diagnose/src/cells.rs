@@ -359,10 +359,22 @@ impl CellFold {
 }
 
 /// One cell per machine of an observable (none with fewer than two).
-pub fn machine_cells(machine: &[u32], names: &[String], g: &[f64], r: &[f64]) -> Vec<Cell> {
+/// `runs`: the rows' run ranges, `run_machine` each one's machine id.
+pub fn machine_cells(
+    runs: &[std::ops::Range<usize>],
+    run_machine: &[u32],
+    names: &[String],
+    g: &[f64],
+    r: &[f64],
+) -> Vec<Cell> {
     let mut acc: std::collections::BTreeMap<u32, (usize, f64, f64)> = Default::default();
-    for ((m, g), r) in machine.iter().zip(g).zip(r) {
-        let a = acc.entry(*m).or_insert((0, 0.0, 0.0));
+    let rows = runs
+        .iter()
+        .zip(run_machine)
+        .flat_map(|(rows, &m)| rows.clone().map(move |i| (m, i)));
+    for (m, i) in rows {
+        let (g, r) = (g[i], r[i]);
+        let a = acc.entry(m).or_insert((0, 0.0, 0.0));
         a.0 += 1;
         a.1 += g * g;
         a.2 += r * r;

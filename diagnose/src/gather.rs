@@ -19,8 +19,9 @@ pub struct ObsRows {
     pub gap: Vec<f64>,
     /// Contiguous ranges of `rows` per run unit.
     pub run_ranges: Vec<Range<usize>>,
-    /// Machine id (into `Table::machine_names`) per row of `rows`.
-    pub machine: Vec<u32>,
+    /// Machine id (into `Table::machine_names`) of each run range (a run
+    /// unit is one machine's run): 4 B a run, not a row.
+    pub run_machine: Vec<u32>,
     /// Varying covariates with a finite value on every row (in memory, or
     /// in a column file of the scratch folder: `crate::covariates`).
     pub cols: Covariates,
@@ -35,9 +36,19 @@ impl ObsRows {
     }
     /// Distinct machine ids of this observable, ascending.
     pub fn machines(&self) -> Vec<u32> {
-        let mut m = self.machine.clone();
+        let mut m = self.run_machine.clone();
         m.sort_unstable();
         m.dedup();
+        m
+    }
+
+    /// Each row's machine id (a column as long as the rows: for the steps
+    /// that refit on rows).
+    pub fn machine_of_rows(&self) -> Vec<u32> {
+        let mut m = Vec::with_capacity(self.n());
+        for (r, &id) in self.run_ranges.iter().zip(&self.run_machine) {
+            m.extend(std::iter::repeat(id).take(r.len()));
+        }
         m
     }
 }
@@ -144,7 +155,6 @@ pub(crate) fn gather_within(
     };
     let n = rows.len();
     let gap = permuted(asc_gap);
-    let machine: Vec<u32> = table.machine.at(&rows);
     let mut run_ranges: Vec<Range<usize>> = Vec::new();
     let mut s = 0;
     for i in 1..=n {
@@ -154,6 +164,10 @@ pub(crate) fn gather_within(
         }
     }
     drop(run);
+    // A run unit is one machine's run: its first row's machine.
+    let run_machine: Vec<u32> = table
+        .machine
+        .at(&run_ranges.iter().map(|r| rows[r.start]).collect::<Vec<_>>());
     // Covariates: in the rows' order, how many rows have a value, and
     // their constants (frames) — in memory, or a column at a time from
     // the file (each read, put in order and sorted in place: two columns
@@ -232,7 +246,7 @@ pub(crate) fn gather_within(
         rows,
         gap,
         run_ranges,
-        machine,
+        run_machine,
         cols,
     })
 }

@@ -536,6 +536,10 @@ fn analyse(
     };
     clock.lap("folds, candidates");
     let mut sel = select::select(&prob, &cands, &opt)?;
+    // The selection's chunks, pools and features, freed across the
+    // worker threads' arenas, go back before the steps after it take
+    // theirs (the observable's peak is otherwise what the arenas kept).
+    sparkout_core::alloc::release_freed_memory();
     clock.lap("select");
     if !go_on(&sel.residual) {
         clock.done();
@@ -559,7 +563,8 @@ fn analyse(
     // per-row results take the selection's residual.
     let mut cs = cells::cells(&o.cols, &o.gap, &sel.residual)?;
     cs.extend(cells::machine_cells(
-        &o.machine,
+        &o.run_ranges,
+        &o.run_machine,
         &table.machine_names,
         &o.gap,
         &sel.residual,

@@ -128,16 +128,17 @@ impl ObsRows {
         drop: &[usize],
         scratch: Option<&std::path::Path>,
     ) -> crate::Result<ObsRows> {
-        let mut run_ranges = Vec::new();
+        let (mut run_ranges, mut run_machine) = (Vec::new(), Vec::new());
         let mut start = 0;
         // `drop` is sorted and the run ranges are contiguous: each run's
         // dropped rows counted by bisection.
-        for r in &self.run_ranges {
+        for (r, &m) in self.run_ranges.iter().zip(&self.run_machine) {
             let gone =
                 drop.partition_point(|&p| p < r.end) - drop.partition_point(|&p| p < r.start);
             let len = r.len() - gone;
             if len > 0 {
                 run_ranges.push(start..start + len);
+                run_machine.push(m);
                 start += len;
             }
         }
@@ -145,14 +146,12 @@ impl ObsRows {
         retain_positions(&mut rows, drop);
         let mut gap = std::mem::take(&mut self.gap);
         retain_positions(&mut gap, drop);
-        let mut machine = std::mem::take(&mut self.machine);
-        retain_positions(&mut machine, drop);
         Ok(ObsRows {
             name: self.name.clone(),
             rows,
             gap,
             run_ranges,
-            machine,
+            run_machine,
             // Each kept covariate sorts again for its constants.
             cols: std::mem::replace(&mut self.cols, Covariates::none(0))
                 .without_rows(drop, scratch)?,
@@ -176,7 +175,7 @@ mod tests {
             rows: (100..100 + n).collect(),
             gap: (0..n).map(|i| i as f64 * 0.5).collect(),
             run_ranges: vec![0..4, 4..5, 5..10],
-            machine: (0..n as u32).collect(),
+            run_machine: vec![7, 8, 9],
             cols: Covariates::in_memory(
                 n,
                 vec![("x_mm".into(), (0..n).map(|i| (i * i) as f64).collect())],
@@ -190,22 +189,21 @@ mod tests {
             kept.gap,
             keep.iter().map(|&p| p as f64 * 0.5).collect::<Vec<_>>()
         );
-        assert_eq!(
-            kept.machine,
-            keep.iter().map(|&p| p as u32).collect::<Vec<_>>()
-        );
+
         let x: Vec<f64> = keep.iter().map(|&p| (p * p) as f64).collect();
         assert_eq!(*kept.cols.column("x_mm").unwrap(), x[..]);
         assert_eq!(
             kept.cols.frames().next().unwrap().1,
             CovStats::from_values(&x)
         );
-        // Run 1 held only row 4: gone.
+        // Run 1 held only row 4: gone, with its machine.
         assert_eq!(kept.run_ranges, vec![0..3, 3..7]);
+        assert_eq!(kept.run_machine, vec![7, 9]);
+        assert_eq!(kept.machine_of_rows(), vec![7, 7, 7, 9, 9, 9, 9]);
         // What stays behind: the name and the runs; every row-sized
         // column moved out.
         assert_eq!(o.n(), 0);
         assert_eq!(o.run_ranges.len(), 3);
-        assert!(o.cols.names().is_empty() && o.gap.is_empty() && o.machine.is_empty());
+        assert!(o.cols.names().is_empty() && o.gap.is_empty());
     }
 }

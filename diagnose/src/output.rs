@@ -31,6 +31,7 @@ pub fn machine_tests(
     if !table.has_machine || o.machines().len() < 2 {
         return Ok(sel.chosen.iter().map(|_| None).collect());
     }
+    let machine = o.machine_of_rows();
     sel.chosen
         .iter()
         .enumerate()
@@ -41,7 +42,7 @@ pub fn machine_tests(
                 cands[ci],
                 &prob.x.columns(&cands[ci].covariates())?.data(),
                 &sel.final_target(prob, cands, j)?,
-                &o.machine,
+                &machine,
                 &o.run_ranges,
                 &table.machine_names,
             )

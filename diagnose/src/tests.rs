@@ -603,9 +603,11 @@ fn a_shuffled_table_diagnoses_as_the_table_in_run_order() {
         assert!(!o.cols.in_a_file() && f.cols.in_a_file());
         assert_eq!(notes, file_notes);
         assert_eq!(
-            (&o.rows, &o.run_ranges, &o.machine),
-            (&f.rows, &f.run_ranges, &f.machine)
+            (&o.rows, &o.run_ranges, &o.run_machine),
+            (&f.rows, &f.run_ranges, &f.run_machine)
         );
+        // A machine per run range: each row's, as the table has it.
+        assert_eq!(o.machine_of_rows(), table.machine.at(&o.rows));
         let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
         assert_eq!(bits(&o.gap), bits(&f.gap));
         assert_eq!(o.names(), f.names());
