@@ -47,7 +47,7 @@ impl ObsRows {
     pub fn machine_of_rows(&self) -> Vec<u32> {
         let mut m = Vec::with_capacity(self.n());
         for (r, &id) in self.run_ranges.iter().zip(&self.run_machine) {
-            m.extend(std::iter::repeat(id).take(r.len()));
+            m.extend(std::iter::repeat_n(id, r.len()));
         }
         m
     }
