@@ -234,35 +234,16 @@ impl Covariates {
             .iter()
             .map(|c| {
                 let mut out = Vec::with_capacity(at.len());
-                self.each_chunk(c, |start, v| {
-                    let lo = at.partition_point(|&p| p < start);
-                    let hi = at.partition_point(|&p| p < start + v.len());
-                    out.extend(at[lo..hi].iter().map(|&p| v[p - start]));
+                self.chunked(std::slice::from_ref(c), |rows, x| {
+                    let v = x.col(c).expect("read");
+                    let lo = at.partition_point(|&p| p < rows.start);
+                    let hi = at.partition_point(|&p| p < rows.end);
+                    out.extend(at[lo..hi].iter().map(|&p| v[p - rows.start]));
+                    Ok(())
                 })?;
                 Ok((c.clone(), out))
             })
             .collect()
-    }
-
-    /// Calls `f(first row, values)` over covariate `name`'s column, a
-    /// chunk of [`READ_ROWS`] at a time (the whole column when in memory).
-    fn each_chunk(&self, name: &str, mut f: impl FnMut(usize, &[f64])) -> Result<()> {
-        let j = self.index(name)?;
-        match &self.store {
-            Store::Memory(values) => f(0, &values[j]),
-            Store::File { file, at } => {
-                let mut buf = Vec::new();
-                let mut start = 0;
-                while start < self.n {
-                    let end = (start + READ_ROWS).min(self.n);
-                    buf.clear();
-                    file.read_into(at[j], start..end, &mut buf)?;
-                    f(start, &buf);
-                    start = end;
-                }
-            }
-        }
-        Ok(())
     }
 
     /// The covariates of the rows other than the sorted positions `drop`,
