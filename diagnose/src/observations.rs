@@ -311,7 +311,7 @@ pub struct Table {
 /// concatenated. Names are ids in first-seen order until [`TableParts::finish`]
 /// sorts them as [`Table::from_batch`] would have on the whole.
 pub struct TableParts {
-    path: PathBuf,
+    pub(crate) path: PathBuf,
     acc: Option<Table>,
     /// Run units as (machine id, bare run) pairs, and their index.
     units: std::collections::HashMap<(u32, String), u32>,

@@ -40,13 +40,15 @@ pub fn diagnose_observations_file(
     spilled: Option<Spilled>,
     results_dir: Option<&Path>,
 ) -> Result<DiagnosisOutput> {
-    diagnose_indexed(
-        index_observations_file(path)?,
-        cfg,
-        scopes,
-        spilled,
-        results_dir,
-    )
+    let mut spilled = spilled;
+    let file = match spilled.as_mut().and_then(|s| s.index.take()) {
+        Some(table) => IndexedFile {
+            path: path.to_path_buf(),
+            table,
+        },
+        None => index_observations_file(path)?,
+    };
+    diagnose_indexed(file, cfg, scopes, spilled, results_dir)
 }
 
 /// The keys, sim and real of the Parquet file `path`, read batch by batch
@@ -371,6 +373,11 @@ pub struct RowValueSpill {
     writers: Vec<(String, std::io::BufWriter<File>, PathBuf)>,
     writer_of: std::collections::BTreeMap<String, usize>,
     any_finite: Vec<bool>,
+    /// The table's index built from the rows as they pass
+    /// ([`RowValueSpill::indexing`]), so the diagnosis need not decode the
+    /// file just written to index it; None once a batch fails to index
+    /// (the file is indexed instead, and its errors name its rows).
+    index: Option<TableParts>,
 }
 
 impl RowValueSpill {
@@ -393,7 +400,44 @@ impl RowValueSpill {
             covariates,
             writers: Vec::new(),
             writer_of: Default::default(),
+            index: None,
         })
+    }
+
+    /// Also index the rows as they pass, as [`index_observations_file`]
+    /// would index `table_path` (the file the same batches are written
+    /// to, which errors name): the index is handed over with the
+    /// [`Spilled`] values.
+    pub fn indexing(mut self, table_path: &Path) -> RowValueSpill {
+        self.index = Some(TableParts::new(table_path));
+        self
+    }
+
+    /// Indexes a batch's keys, sim and real (not its covariates, as
+    /// [`index_observations_file`] projects them away); a batch that does
+    /// not index gives the index up.
+    fn index_batch(&mut self, b: &RecordBatch) {
+        let Some(parts) = &mut self.index else {
+            return;
+        };
+        let schema = b.schema();
+        let keep: Vec<usize> = schema
+            .fields()
+            .iter()
+            .enumerate()
+            .filter(|(_, f)| !is_covariate(f.name(), f.data_type()))
+            .map(|(i, _)| i)
+            .collect();
+        let indexed = b
+            .project(&keep)
+            .map_err(crate::Error::from)
+            .and_then(|b| normalise_types(b, &parts.path))
+            .and_then(|b| validate_observations(&b, &parts.path))
+            .and_then(|b| Table::from_batch(&b))
+            .and_then(|t| parts.push(t));
+        if indexed.is_err() {
+            self.index = None;
+        }
     }
 
     /// Appends a batch's rows (read from `source`, which errors name): the
@@ -479,6 +523,7 @@ impl RowValueSpill {
             };
             self.writers[at].1.write_all(&record)?;
         }
+        self.index_batch(b);
         Ok(())
     }
 
@@ -495,6 +540,7 @@ impl RowValueSpill {
             covariates: self.covariates,
             files,
             any_finite: self.any_finite,
+            index: self.index.and_then(|p| p.finish().ok()),
         })
     }
 }
@@ -506,6 +552,8 @@ pub struct Spilled {
     covariates: Vec<String>,
     files: std::collections::BTreeMap<String, PathBuf>,
     any_finite: Vec<bool>,
+    /// The table's index, when built as the rows passed.
+    pub(crate) index: Option<Table>,
 }
 
 impl Drop for Spilled {

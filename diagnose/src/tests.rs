@@ -690,13 +690,20 @@ fn the_file_read_per_observable_diagnoses_as_the_file_read_whole() {
         by_observable.per_row.to_batch().unwrap()
     );
     // The same with the covariates spilled per observable as the rows
-    // stream past (in two pieces); the spill goes with the diagnosis.
+    // stream past (in two pieces), and the keys indexed as they pass
+    // instead of read back from the file; the spill goes with the
+    // diagnosis.
     let spill_dir = dir.path().join(".spill");
-    let mut spill =
-        crate::observations_file::RowValueSpill::create(&spill_dir, &b.schema()).unwrap();
+    let mut spill = crate::observations_file::RowValueSpill::create(&spill_dir, &b.schema())
+        .unwrap()
+        .indexing(&path);
     spill.push(&b.slice(0, 1000), &path).unwrap();
     spill.push(&b.slice(1000, n - 1000), &path).unwrap();
     let spilled = spill.finish().unwrap();
+    assert!(
+        spilled.index.is_some(),
+        "the rows were not indexed as they passed"
+    );
     // …and with the per-row results on disk until written, read back a
     // slice at a time (the observables' rows interleaved in each slice).
     let results_dir = dir.path().join(".results");
@@ -770,6 +777,46 @@ fn a_nan_covariate_in_the_file_names_file_column_and_row() {
         .to_string();
     assert!(
         e.contains("runs/r3/observations.parquet") && e.contains("temp_c") && e.contains("1234"),
+        "{e}"
+    );
+}
+
+/// Rows the index refuses (an implausible `real`) still spill — the spill
+/// checks only the covariates — but give the index up: the diagnosis
+/// indexes the file itself and refuses it naming the file's row, as
+/// without a spill.
+#[test]
+fn rows_the_index_refuses_leave_the_file_to_name_them() {
+    use arrow::array::{Array, Float64Array, RecordBatch};
+    use std::sync::Arc;
+    let b = two_machine_fleet();
+    let i = b.schema().index_of("real").unwrap();
+    let real = b.column(i).as_any().downcast_ref::<Float64Array>().unwrap();
+    let mut v: Vec<f64> = real.values().to_vec();
+    v[1234] = 1.0e9;
+    let mut cols = b.columns().to_vec();
+    cols[i] = Arc::new(Float64Array::from(v));
+    let b = RecordBatch::try_new(b.schema(), cols).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("observations.parquet");
+    crate::contracts::write_parquet_atomic(&path, &b).unwrap();
+    let mut spill =
+        crate::observations_file::RowValueSpill::create(&dir.path().join(".spill"), &b.schema())
+            .unwrap()
+            .indexing(&path);
+    spill.push(&b.slice(0, 1000), &path).unwrap();
+    spill
+        .push(&b.slice(1000, b.num_rows() - 1000), &path)
+        .unwrap();
+    let spilled = spill.finish().unwrap();
+    assert!(spilled.index.is_none());
+    let cfg = crate::config_check::Checked::check(super::DiagnoseConfig::default()).unwrap();
+    let e = super::diagnose_observations_file(&path, &cfg, &[], Some(spilled), None)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(
+        e.contains("observations.parquet") && e.contains("real") && e.contains("1234"),
         "{e}"
     );
 }

@@ -168,7 +168,8 @@ impl Engine {
         drop(schemas);
         let mut produced = Produced::new();
         let mut spill =
-            diagnose::observations_file::RowValueSpill::create(&spill_dir(path), &union)?;
+            diagnose::observations_file::RowValueSpill::create(&spill_dir(path), &union)?
+                .indexing(path);
         // Reading (decode, conform, spill) runs on a thread of its own, a few
         // runs ahead of the encoder: on two cores the join takes the longer
         // of the two instead of their sum. The batches keep their order, so
