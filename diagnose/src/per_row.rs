@@ -98,7 +98,13 @@ impl PerRow {
 
     /// Writes diagnosis.parquet to `path` atomically, a slice at a time.
     pub fn write_parquet(&self, path: &std::path::Path) -> Result<()> {
-        crate::contracts::write::write_parquet_batches_atomic(path, self.schema(), self.batches())
+        // Written while nothing else runs: its columns encode in parallel.
+        crate::contracts::write::write_parquet_stream_atomic(
+            path,
+            self.schema(),
+            self.batches(),
+            crate::contracts::write::Encoding::ColumnsInParallel,
+        )
     }
 
     fn cursor(&self) -> Result<Cursor> {
