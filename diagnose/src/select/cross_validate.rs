@@ -261,7 +261,7 @@ impl<'a> Targets<'a> {
             n += prob.units[u].len();
         }
         let ranges: Vec<Range<usize>> = units.iter().map(|&u| prob.units[u].clone()).collect();
-        let x = prob.x.rows(names, &ranges)?;
+        let (x, x_local) = prob.x.rows_in_place(names, &ranges)?;
         let taken_names = self.taken_covariates();
         let xd = x.data();
         let targets = folds
@@ -275,13 +275,13 @@ impl<'a> Targets<'a> {
                     return Ok(t);
                 }
                 let mut pred = Vec::new();
-                for (&u, l) in units.iter().zip(&local) {
+                for (&u, xl) in units.iter().zip(&x_local) {
                     let (rows, at) = (prob.units[u].clone(), t.len());
                     t.extend_from_slice(&self.gap[rows.clone()]);
                     if self.taken.is_empty() {
                         continue;
                     }
-                    let xu = xd.rows_of(&taken_names, l.clone())?;
+                    let xu = xd.rows_of(&taken_names, xl.clone())?;
                     for fit in &self.taken {
                         fit.predict(&xu, f, rows.clone(), &mut pred)?;
                         t[at..].iter_mut().zip(&pred).for_each(|(y, p)| *y -= p);
@@ -296,6 +296,7 @@ impl<'a> Targets<'a> {
             local,
             targets,
             x,
+            x_local,
         })
     }
 
@@ -410,9 +411,12 @@ pub struct Chunk<'x> {
     pub local: Vec<Range<usize>>,
     /// Each distinct target of [`Targets`] over the units' rows.
     pub targets: Vec<Vec<f64>>,
-    /// The covariates of the units' rows (as `targets`), read once for
-    /// every candidate.
+    /// The covariates of the units' rows, read once for every candidate:
+    /// views of the columns in memory, the rows one after another (as
+    /// `targets`) from a file ([`crate::covariates::Covariates::rows_in_place`]).
     pub x: CovRows<'x>,
+    /// Each unit's rows within `x`.
+    pub x_local: Vec<Range<usize>>,
 }
 
 impl Chunk<'_> {
@@ -762,10 +766,10 @@ impl FormCv {
             })
             .collect::<Result<_>>()?;
         let (mut unit_cols, mut unit_targets) = (Vec::new(), Vec::new());
-        for (&u, l) in c.units.iter().zip(&c.local) {
+        for ((&u, l), xl) in c.units.iter().zip(&c.local).zip(&c.x_local) {
             debug_assert_eq!(self.group_of_unit[u], g, "a chunk of one group");
             unit_cols.clear();
-            unit_cols.extend(cols.iter().map(|col| &col[l.clone()]));
+            unit_cols.extend(cols.iter().map(|col| &col[xl.clone()]));
             unit_targets.clear();
             unit_targets.extend(c.targets.iter().map(|t| &t[l.clone()]));
             cells.add_range(g, 0..l.len(), &unit_cols, None, &unit_targets);
@@ -904,9 +908,9 @@ impl FormCv {
         let covs = form.covariates();
         let xc = c.x.data();
         with_columns(form.n_linear(), |buf| -> Result<()> {
-            for (&u, l) in c.units.iter().zip(&c.local) {
+            for ((&u, l), xl) in c.units.iter().zip(&c.local).zip(&c.x_local) {
                 let r = prob.units[u].clone();
-                let x = xc.rows_of(&covs, l.clone())?;
+                let x = xc.rows_of(&covs, xl.clone())?;
                 let f = prob.unit_fold[u];
                 if let Some(b) = self.pooled_beta.get(f).and_then(|b| b.as_ref()) {
                     // Held out by CV fold f, fitted on cells at its θ.
