@@ -311,7 +311,7 @@ pub struct Table {
 /// concatenated. Names are ids in first-seen order until [`TableParts::finish`]
 /// sorts them as [`Table::from_batch`] would have on the whole.
 pub struct TableParts {
-    pub(crate) path: PathBuf,
+    path: PathBuf,
     acc: Option<Table>,
     /// Run units as (machine id, bare run) pairs, and their index.
     units: std::collections::HashMap<(u32, String), u32>,
@@ -328,6 +328,15 @@ impl TableParts {
             unit_keys: Vec::new(),
             real_u: None,
         }
+    }
+
+    /// Indexes and appends the next batch of rows, its types normalised
+    /// and checked as a whole table's are ([`validate_observations`]);
+    /// an error names a row of the batch.
+    pub fn push_batch(&mut self, b: RecordBatch) -> Result<()> {
+        let path = self.path.clone();
+        let b = normalise_types(b, &path).and_then(|b| validate_observations(&b, &path))?;
+        self.push(Table::from_batch(&b)?)
     }
 
     /// Appends the next part (rows after the previous parts'), indexed

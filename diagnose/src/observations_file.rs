@@ -17,8 +17,7 @@ use parquet::arrow::ProjectionMask;
 use crate::config_check::Checked;
 use crate::contracts::parquet_file::{checked_batches, corrupt_page, open_parquet};
 use crate::observations::{
-    gap_of, is_covariate, normalise_types, validate_observations, ChunkSink, Gathered, RowValues,
-    Table, TableParts,
+    gap_of, is_covariate, ChunkSink, Gathered, RowValues, Table, TableParts,
 };
 use crate::run_length::RunLength;
 use crate::{DiagnoseConfig, DiagnosisOutput, EffectScope, InputError, Result};
@@ -51,6 +50,18 @@ pub fn diagnose_observations_file(
     diagnose_indexed(file, cfg, scopes, spilled, results_dir)
 }
 
+/// The columns an index reads: every one but the covariates (keys, sim,
+/// real, unit, …).
+fn key_columns(schema: &arrow::datatypes::Schema) -> Vec<usize> {
+    schema
+        .fields()
+        .iter()
+        .enumerate()
+        .filter(|(_, f)| !is_covariate(f.name(), f.data_type()))
+        .map(|(i, _)| i)
+        .collect()
+}
+
 /// The keys, sim and real of the Parquet file `path`, read batch by batch
 /// into a [`Table`] (never the file's text columns at once), each batch
 /// checked as [`crate::read_observations`] checks the whole table (text
@@ -61,15 +72,7 @@ pub fn diagnose_observations_file(
 pub fn index_observations_file(path: &Path) -> Result<IndexedFile> {
     let builder = open_parquet(path)?;
     let meta = builder.metadata().clone();
-    let keep: Vec<usize> = builder
-        .schema()
-        .fields()
-        .iter()
-        .enumerate()
-        .filter(|(_, f)| !is_covariate(f.name(), f.data_type()))
-        .map(|(i, _)| i)
-        .collect();
-    let mask = ProjectionMask::roots(builder.parquet_schema(), keep);
+    let mask = ProjectionMask::roots(builder.parquet_schema(), key_columns(builder.schema()));
     let mut parts = TableParts::new(path);
     let mut offset = 0usize;
     let reader = builder
@@ -88,10 +91,7 @@ pub fn index_observations_file(path: &Path) -> Result<IndexedFile> {
             }
             _ => e,
         };
-        let b = normalise_types(b, path)
-            .and_then(|b| validate_observations(&b, path))
-            .map_err(at_row)?;
-        parts.push(Table::from_batch(&b)?)?;
+        parts.push_batch(b).map_err(at_row)?;
         offset += n;
     }
     Ok(IndexedFile {
@@ -420,21 +420,10 @@ impl RowValueSpill {
         let Some(parts) = &mut self.index else {
             return;
         };
-        let schema = b.schema();
-        let keep: Vec<usize> = schema
-            .fields()
-            .iter()
-            .enumerate()
-            .filter(|(_, f)| !is_covariate(f.name(), f.data_type()))
-            .map(|(i, _)| i)
-            .collect();
         let indexed = b
-            .project(&keep)
+            .project(&key_columns(&b.schema()))
             .map_err(crate::Error::from)
-            .and_then(|b| normalise_types(b, &parts.path))
-            .and_then(|b| validate_observations(&b, &parts.path))
-            .and_then(|b| Table::from_batch(&b))
-            .and_then(|t| parts.push(t));
+            .and_then(|b| parts.push_batch(b));
         if indexed.is_err() {
             self.index = None;
         }
