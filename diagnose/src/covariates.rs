@@ -184,7 +184,7 @@ impl Covariates {
     /// table); from a file, the ranges read one after another
     /// ([`Covariates::rows`]). A fold group's units are scattered over the
     /// table: copying their covariates together for every chunk of every
-    /// pass was ≈ 3 % of an in-memory diagnosis.
+    /// pass made an in-memory diagnosis ≈ 10 % slower (docs/design.md §8).
     pub fn rows_in_place(
         &self,
         names: &[String],

@@ -36,10 +36,9 @@ pub fn diagnose_observations_file(
     path: &Path,
     cfg: &Checked<DiagnoseConfig>,
     scopes: &[EffectScope],
-    spilled: Option<Spilled>,
+    mut spilled: Option<Spilled>,
     results_dir: Option<&Path>,
 ) -> Result<DiagnosisOutput> {
-    let mut spilled = spilled;
     let file = match spilled.as_mut().and_then(|s| s.index.take()) {
         Some(table) => IndexedFile {
             path: path.to_path_buf(),
