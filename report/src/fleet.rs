@@ -10,9 +10,7 @@
 use std::collections::BTreeMap;
 use std::fmt::Write;
 
-use super::fleet_data::{
-    curve_covariate, per_run_rms, Bins, Cells, FleetFigures, GroupFigures, RunRms,
-};
+use super::fleet_data::{curve_covariate, Bins, Cells, FleetFigures, GroupFigures, RunRms};
 use super::svg::{heat, mini_curve, mini_heat, shared_vmax, xy_chart_sized, Heat, Mark, Series};
 use super::{esc, page, title_of};
 use crate::diagnose::{Diagnosis, EffectEntry, ObservableSummary};
@@ -164,11 +162,6 @@ pub fn fleet_page(
     } else {
         None
     };
-    let per_run = if diagnosis.is_some() && diag_file.is_file() {
-        per_run_rms(&diag_file).unwrap_or_default()
-    } else {
-        BTreeMap::new()
-    };
     let augment_file = augment_file(out);
     let augment = augment_entries(augment_file.as_ref());
     let tree = machine_tree(rows.as_ref(), &per_obs, &type_of);
@@ -214,7 +207,7 @@ pub fn fleet_page(
                             diagnosis,
                             p,
                             fig,
-                            per_run.get(&(m.clone(), o.clone())),
+                            r.per_run.get(&(m.clone(), o.clone())),
                             o,
                         ));
                     }

@@ -167,6 +167,10 @@ pub struct GroupFigures {
 /// table has no `machine` column (a v1 table).
 pub struct FleetFigures {
     pub groups: BTreeMap<(String, String), GroupFigures>,
+    /// Per (machine, observable): each run's gap RMS before and held-out
+    /// RMS after, from the diagnosis rows the second pass reads anyway
+    /// (empty without diagnosis.parquet's `gap` and `residual_after`).
+    pub per_run: BTreeMap<(String, String), Vec<RunRms>>,
 }
 
 /// The distinct finite values of a covariate up to this many are kept per
@@ -537,6 +541,7 @@ impl FleetFigures {
             _ => None,
         };
         let mut group = GroupOf { current: None };
+        let mut run_sums = RunSums::default();
         for b in batches(observations, ob_cols)? {
             let b = b?;
             if b.num_rows() == 0 {
@@ -567,6 +572,17 @@ impl FleetFigures {
                 Some(d) => (num_col(d, "gap"), num_col(d, "residual_after")),
                 None => (None, None),
             };
+            if let (Some(g), Some(r)) = (&gap, &residual) {
+                for i in 0..b.num_rows() {
+                    run_sums.add(
+                        m_s.map_or("", |m| m.value(i)),
+                        o_s.value(i),
+                        r_s.value(i),
+                        g[i],
+                        r[i],
+                    );
+                }
+            }
             let gap = match gap {
                 Some(g) => g,
                 None => {
@@ -650,7 +666,10 @@ impl FleetFigures {
                 (k, g)
             })
             .collect();
-        Ok(FleetFigures { groups })
+        Ok(FleetFigures {
+            groups,
+            per_run: run_sums.finish(),
+        })
     }
 }
 
@@ -708,73 +727,54 @@ pub struct RunRms {
     pub after: f64,
 }
 
-/// Per (machine, observable): each run's RMS of the gap and of the
-/// held-out residual, sorted by machine, observable, run. One pass over
-/// diagnosis.parquet's batches summing n, Σgap² and Σresidual² per key —
-/// a group-by whose state is the runs, not the rows: polars' in-memory
-/// group-by held the fleet's key strings and their row encoding at once,
-/// the peak of a 2 000-run `aggregate`'s memory.
-pub fn per_run_rms(diagnosis: &Path) -> Result<BTreeMap<(String, String), Vec<RunRms>>> {
-    let batches = batches(diagnosis, |c| {
-        matches!(
-            c,
-            "machine" | "observable" | "run" | "gap" | "residual_after"
-        )
-    })?;
-    // (machine, observable, run) → (n, Σgap², Σresidual²)
-    type Sums = (usize, f64, f64);
-    let mut sums: BTreeMap<(String, String, String), Sums> = BTreeMap::new();
-    let mut current: Option<((String, String, String), Sums)> = None;
-    for b in batches {
-        let b = &b?;
-        let text = |c: &str| {
-            utf8(b, c).ok_or_else(|| crate::err!("{}: no column `{c}`", diagnosis.display()))
-        };
-        let (obs, run) = (text("observable")?, text("run")?);
-        let machine = utf8(b, "machine");
-        let num = |c: &str| {
-            b.column_by_name(c)
-                .and_then(|a| floats(a.as_ref()))
-                .ok_or_else(|| crate::err!("{}: no numeric column `{c}`", diagnosis.display()))
-        };
-        let (gap, resid) = (num("gap")?, num("residual_after")?);
-        let (o_s, r_s) = (obs.as_string::<i32>(), run.as_string::<i32>());
-        let m_s = machine.as_ref().map(|m| m.as_string::<i32>());
-        for i in 0..b.num_rows() {
-            let (m, o, r) = (
-                m_s.map(|m| m.value(i)).unwrap_or(""),
-                o_s.value(i),
-                r_s.value(i),
-            );
-            let same = matches!(&current, Some(((cm, co, cr), _)) if cm == m && co == o && cr == r);
-            if !same {
-                if let Some((k, v)) = current.take() {
-                    let e = sums.entry(k).or_insert((0, 0.0, 0.0));
-                    *e = (e.0 + v.0, e.1 + v.1, e.2 + v.2);
-                }
-                current = Some(((m.to_string(), o.to_string(), r.to_string()), (0, 0.0, 0.0)));
-            }
-            if let Some((_, (n, g2, r2))) = &mut current {
-                *n += 1;
-                *g2 += gap[i] * gap[i];
-                *r2 += resid[i] * resid[i];
-            }
+/// Each run's n, Σ gap² and Σ residual² per (machine, observable), summed
+/// a stretch of one run at a time in row order, each stretch then added to
+/// its run's sums — a group-by whose state is the runs, not the rows:
+/// polars' in-memory group-by held the fleet's key strings and their row
+/// encoding at once, the peak of a 2 000-run `aggregate`'s memory.
+#[derive(Default)]
+struct RunSums {
+    /// (machine, observable, run) → (n, Σgap², Σresidual²)
+    sums: BTreeMap<(String, String, String), (usize, f64, f64)>,
+    current: Option<((String, String, String), (usize, f64, f64))>,
+}
+
+impl RunSums {
+    fn add(&mut self, m: &str, o: &str, r: &str, gap: f64, residual: f64) {
+        let same =
+            matches!(&self.current, Some(((cm, co, cr), _)) if cm == m && co == o && cr == r);
+        if !same {
+            self.close_stretch();
+            self.current = Some(((m.to_string(), o.to_string(), r.to_string()), (0, 0.0, 0.0)));
+        }
+        if let Some((_, (n, g2, r2))) = &mut self.current {
+            *n += 1;
+            *g2 += gap * gap;
+            *r2 += residual * residual;
         }
     }
-    if let Some((k, v)) = current {
-        let e = sums.entry(k).or_insert((0, 0.0, 0.0));
-        *e = (e.0 + v.0, e.1 + v.1, e.2 + v.2);
+
+    fn close_stretch(&mut self) {
+        if let Some((k, v)) = self.current.take() {
+            let e = self.sums.entry(k).or_insert((0, 0.0, 0.0));
+            *e = (e.0 + v.0, e.1 + v.1, e.2 + v.2);
+        }
     }
-    let mut out: BTreeMap<(String, String), Vec<RunRms>> = BTreeMap::new();
-    for ((m, o, run), (n, g2, r2)) in sums {
-        out.entry((m, o)).or_default().push(RunRms {
-            run,
-            n,
-            before: (g2 / n as f64).sqrt(),
-            after: (r2 / n as f64).sqrt(),
-        });
+
+    /// Each run's RMS before and after, sorted by machine, observable, run.
+    fn finish(mut self) -> BTreeMap<(String, String), Vec<RunRms>> {
+        self.close_stretch();
+        let mut out: BTreeMap<(String, String), Vec<RunRms>> = BTreeMap::new();
+        for ((m, o, run), (n, g2, r2)) in self.sums {
+            out.entry((m, o)).or_default().push(RunRms {
+                run,
+                n,
+                before: (g2 / n as f64).sqrt(),
+                after: (r2 / n as f64).sqrt(),
+            });
+        }
+        out
     }
-    Ok(out)
 }
 
 #[cfg(test)]

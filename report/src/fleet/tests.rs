@@ -401,6 +401,25 @@ fn figures_read_as_the_rows_stream_are_the_figures_of_the_rows_at_hand() {
         assert!(fig.has_fit);
         assert_eq!(fig.has_after, o == "a");
     }
+    // Each run's RMS before and after, from the same pass: every run of
+    // every group, its row count and its sums of squares.
+    assert_eq!(figs.per_run.len(), figs.groups.len());
+    for ((m, o), runs) in &figs.per_run {
+        let mut want: BTreeMap<&str, (usize, f64, f64)> = BTreeMap::new();
+        for i in (0..n).filter(|&i| &machine[i] == m && obs[i] == o) {
+            let e = want.entry(run[i].as_str()).or_default();
+            *e = (e.0 + 1, e.1 + gap[i] * gap[i], e.2 + res[i] * res[i]);
+        }
+        assert_eq!(runs.len(), want.len(), "{m}/{o}");
+        for (got, (r, (k, g2, r2))) in runs.iter().zip(&want) {
+            assert_eq!((got.run.as_str(), got.n), (*r, *k));
+            let before = (g2 / *k as f64).sqrt();
+            assert!((got.before - before).abs() <= 1e-12 * before, "{m}/{o}/{r}");
+            let after = (r2 / *k as f64).sqrt();
+            assert!(got.after.is_nan() == after.is_nan(), "{m}/{o}/{r}");
+            assert!(after.is_nan() || (got.after - after).abs() <= 1e-12 * after);
+        }
+    }
     // A few distinct x: the cells are the values (0, not -0).
     let fig = &figs.groups[&("m0".to_string(), "b".to_string())];
     let xs: std::collections::BTreeSet<String> = fig
