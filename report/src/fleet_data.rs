@@ -734,10 +734,15 @@ pub struct RunRms {
 /// encoding at once, the peak of a 2 000-run `aggregate`'s memory.
 #[derive(Default)]
 struct RunSums {
-    /// (machine, observable, run) → (n, Σgap², Σresidual²)
-    sums: BTreeMap<(String, String, String), (usize, f64, f64)>,
-    current: Option<((String, String, String), (usize, f64, f64))>,
+    sums: BTreeMap<RunKey, Sums>,
+    /// The stretch being summed.
+    current: Option<(RunKey, Sums)>,
 }
+
+/// (machine, observable, run).
+type RunKey = (String, String, String);
+/// (n, Σgap², Σresidual²).
+type Sums = (usize, f64, f64);
 
 impl RunSums {
     fn add(&mut self, m: &str, o: &str, r: &str, gap: f64, residual: f64) {
