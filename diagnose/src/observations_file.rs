@@ -599,16 +599,13 @@ impl SpilledValues {
 }
 
 impl SpilledValues {
-    /// Per observable id: each wanted row's rank among its observable's
-    /// rows (its record) and its position in `asc` (ascending), a stretch
-    /// of one observable at a time.
-    /// Reads the records `want` ((rank, position), ranks ascending) of
-    /// the spill file `path`: `f(position, value)`, `value(i)` the
-    /// record's i-th number (0: the gap, 1 + k: covariate k of the spill).
+    /// Reads the records `want` (stretches of ranks, ascending) of the
+    /// spill file `path`: `f(position, value)`, `value(i)` the record's
+    /// i-th number (0: the gap, 1 + k: covariate k of the spill).
     fn each_record(
         &self,
         path: &Path,
-        want: &[(usize, usize)],
+        want: &[Wanted],
         mut f: impl FnMut(usize, &dyn Fn(usize) -> f64) -> Result<()>,
     ) -> Result<()> {
         use std::io::Read;
@@ -616,38 +613,67 @@ impl SpilledValues {
         let mut r = std::io::BufReader::with_capacity(1 << 20, File::open(path)?);
         let mut record = vec![0u8; 8 * width];
         let mut rank = 0usize;
-        for &(want_rank, pos) in want {
-            while rank < want_rank {
+        for w in want {
+            while rank < w.ranks.start {
                 r.read_exact(&mut record)?;
                 rank += 1;
             }
-            r.read_exact(&mut record)?;
-            rank += 1;
-            let value = |at: usize| {
-                f64::from_le_bytes(record[8 * at..8 * at + 8].try_into().expect("8 bytes"))
-            };
-            f(pos, &value)?;
+            for pos in w.pos..w.pos + w.ranks.len() {
+                r.read_exact(&mut record)?;
+                rank += 1;
+                let value = |at: usize| {
+                    f64::from_le_bytes(record[8 * at..8 * at + 8].try_into().expect("8 bytes"))
+                };
+                f(pos, &value)?;
+            }
         }
         Ok(())
     }
 
-    fn wanted(&self, obs: &RunLength<u32>, asc: &[usize]) -> Vec<Vec<(usize, usize)>> {
-        let mut seen = vec![0usize; self.file_of.len()];
-        let mut wanted: Vec<Vec<(usize, usize)>> = vec![Vec::new(); self.file_of.len()];
-        let mut p = 0;
-        for (rows, o) in obs.spans() {
-            if p == asc.len() {
-                break;
-            }
-            let o = o as usize;
-            while p < asc.len() && asc[p] < rows.end {
-                wanted[o].push((seen[o] + asc[p] - rows.start, p));
-                p += 1;
-            }
-            seen[o] += rows.len();
-        }
-        wanted
+    fn wanted(&self, obs: &RunLength<u32>, asc: &[usize]) -> Vec<Vec<Wanted>> {
+        wanted_of(self.file_of.len(), obs, asc)
     }
+}
+
+/// Per observable id (of `n_obs`): the rows `asc` (ascending) as
+/// stretches of their ranks among the observable's rows (its records)
+/// and where each stretch starts in `asc`. An observable's rows lie in a
+/// few stretches a run, so this is a few numbers a run where a pair per
+/// row was 16 B of every row gathered (the gather's peak).
+fn wanted_of(n_obs: usize, obs: &RunLength<u32>, asc: &[usize]) -> Vec<Vec<Wanted>> {
+    let mut seen = vec![0usize; n_obs];
+    let mut wanted: Vec<Vec<Wanted>> = vec![Vec::new(); n_obs];
+    let mut p = 0;
+    for (rows, o) in obs.spans() {
+        if p == asc.len() {
+            break;
+        }
+        let o = o as usize;
+        while p < asc.len() && asc[p] < rows.end {
+            let rank = seen[o] + asc[p] - rows.start;
+            match wanted[o].last_mut() {
+                Some(w) if w.ranks.end == rank && w.pos + w.ranks.len() == p => {
+                    w.ranks.end += 1;
+                }
+                _ => wanted[o].push(Wanted {
+                    ranks: rank..rank + 1,
+                    pos: p,
+                }),
+            }
+            p += 1;
+        }
+        seen[o] += rows.len();
+    }
+    wanted
+}
+
+/// A stretch of an observable's spilled records wanted by a gather: the
+/// records `ranks` go to positions `pos..pos + ranks.len()` of the rows
+/// asked for.
+#[derive(Clone, Debug, PartialEq)]
+struct Wanted {
+    ranks: std::ops::Range<usize>,
+    pos: usize,
 }
 
 impl RowValues for SpilledValues {
@@ -731,5 +757,55 @@ impl RowValues for SpilledValues {
             gap,
             covariates: out,
         })
+    }
+}
+
+#[cfg(test)]
+mod wanted_tests {
+    use super::{wanted_of, Wanted};
+    use crate::run_length::RunLength;
+
+    /// The wanted rows come out as stretches of records, each at its
+    /// place among the rows asked for: every row's (record, position) the
+    /// pair a row-by-row listing gives, and stretches joined across the
+    /// table's stretches of one observable but never across a gap.
+    #[test]
+    fn wanted_rows_are_stretches_of_records_at_their_positions() {
+        // Observables: 0 0 0 1 1 0 0 1 2 2 0 (rows 0..11).
+        let obs: RunLength<u32> = [0, 0, 0, 1, 1, 0, 0, 1, 2, 2, 0].into_iter().collect();
+        let asc = [0, 1, 2, 5, 6, 7, 9, 10];
+        let w = wanted_of(3, &obs, &asc);
+        let ranks = |o: usize, r: std::ops::Range<usize>, pos: usize| Wanted { ranks: r, pos };
+        // Observable 0's records: rows 0 1 2 5 6 10 → records 0..5 at
+        // positions 0..5 (one stretch across two table stretches), then
+        // record 5 (row 10) at position 7.
+        assert_eq!(w[0], vec![ranks(0, 0..5, 0), ranks(0, 5..6, 7)]);
+        // Observable 1: rows 3 4 7 → only row 7 (record 2) at position 5.
+        assert_eq!(w[1], vec![ranks(1, 2..3, 5)]);
+        // Observable 2: rows 8 9 → row 9 (record 1) at position 6.
+        assert_eq!(w[2], vec![ranks(2, 1..2, 6)]);
+        // Row by row, the same pairs.
+        let mut listed: Vec<(usize, usize, usize)> = Vec::new();
+        let mut seen = [0usize; 3];
+        let ids: Vec<u32> = obs.iter().collect();
+        for (row, &o) in ids.iter().enumerate() {
+            if let Some(p) = asc.iter().position(|&a| a == row) {
+                listed.push((o as usize, seen[o as usize], p));
+            }
+            seen[o as usize] += 1;
+        }
+        let mut from_stretches: Vec<(usize, usize, usize)> = w
+            .iter()
+            .enumerate()
+            .flat_map(|(o, ws)| {
+                ws.iter().flat_map(move |w| {
+                    w.ranks
+                        .clone()
+                        .map(move |r| (o, r, w.pos + r - w.ranks.start))
+                })
+            })
+            .collect();
+        from_stretches.sort_by_key(|t| t.2);
+        assert_eq!(from_stretches, listed);
     }
 }

@@ -232,7 +232,14 @@ impl<T: Same> RunLength<T> {
 
     /// The rows whose value passes `keep`, ascending.
     pub fn rows_where(&self, keep: impl Fn(T) -> bool) -> Vec<usize> {
-        let mut out = Vec::new();
+        // Counted first: laid out at its size, not grown (a list as long
+        // as an observable's rows, at the gather's peak).
+        let n = self
+            .spans()
+            .filter(|(_, v)| keep(*v))
+            .map(|(rows, _)| rows.len())
+            .sum();
+        let mut out = Vec::with_capacity(n);
         for (rows, v) in self.spans() {
             if keep(v) {
                 out.extend(rows);
