@@ -277,37 +277,60 @@ impl Covariates {
     /// The covariates of the rows other than the sorted positions `drop`,
     /// their constants again: in place when in memory, else written to a
     /// new column file in `dir` a chunk at a time (this one's is removed
-    /// when it is dropped).
+    /// when it is dropped). A column whose every dropped value keeps a copy
+    /// among the kept rows keeps its distinct values, so its constants are
+    /// the ones it had ([`DroppedCopies`]): no sort of the column again.
     pub fn without_rows(self, drop: &[usize], dir: Option<&Path>) -> Result<Covariates> {
         let Covariates {
             n: before,
             names,
             store,
-            ..
+            stats,
         } = self;
         let n = before - drop.len();
         match store {
             Store::Memory(values) => {
-                let cols = names
+                let (cols, stats): (Vec<(String, Vec<f64>)>, Vec<CovStats>) = names
                     .into_iter()
                     .zip(values)
-                    .map(|(c, mut v)| {
+                    .zip(stats)
+                    .collect::<Vec<_>>()
+                    .into_par_iter()
+                    .map(|((c, mut v), st)| {
+                        let mut copies = DroppedCopies::of(drop.iter().map(|&p| v[p]));
+                        copies.count(&v);
                         retain_positions(&mut v, drop);
-                        (c, v)
+                        let st = if copies.all_kept() {
+                            st
+                        } else {
+                            CovStats::from_values(&v)
+                        };
+                        ((c, v), st)
                     })
-                    .collect();
-                Ok(Covariates::in_memory(n, cols))
+                    .collect::<Vec<_>>()
+                    .into_iter()
+                    .unzip();
+                Ok(Covariates::held(n, cols, stats))
             }
             Store::File { file, at } => {
                 let dir = dir.map(Path::to_path_buf).unwrap_or_else(|| file.dir());
                 let out = ColumnFile::create(&dir, n, at.len())?;
                 let mut buf = Vec::new();
+                let mut kept = Vec::with_capacity(at.len());
                 for (k, &col) in at.iter().enumerate() {
+                    let mut dropped = Vec::with_capacity(drop.len());
+                    for &p in drop {
+                        buf.clear();
+                        file.read_into(col, p..p + 1, &mut buf)?;
+                        dropped.push(buf[0]);
+                    }
+                    let mut copies = DroppedCopies::of(dropped.into_iter());
                     let (mut start, mut written) = (0, 0);
                     while start < before {
                         let end = (start + READ_ROWS).min(before);
                         buf.clear();
                         file.read_into(col, start..end, &mut buf)?;
+                        copies.count(&buf);
                         let lo = drop.partition_point(|&p| p < start);
                         let hi = drop.partition_point(|&p| p < end);
                         let local: Vec<usize> = drop[lo..hi].iter().map(|p| p - start).collect();
@@ -316,15 +339,88 @@ impl Covariates {
                         written += buf.len();
                         start = end;
                     }
+                    kept.push(copies.all_kept());
                 }
                 // The old file goes before the new one's constants are
                 // taken.
                 std::mem::drop(file);
+                let again: Vec<usize> = (0..at.len()).filter(|&k| !kept[k]).collect();
+                let mut fresh = out.stats(&again)?.into_iter();
+                let stats = stats
+                    .into_iter()
+                    .zip(kept)
+                    .map(|(st, kept)| {
+                        if kept {
+                            st
+                        } else {
+                            fresh
+                                .next()
+                                .expect("a fresh constant per column sorted again")
+                        }
+                    })
+                    .collect();
                 let at: Vec<usize> = (0..at.len()).collect();
-                let stats = out.stats(&at)?;
                 Ok(Covariates::in_file(n, out, at, names, stats))
             }
         }
+    }
+}
+
+/// The values a trim drops from a column, each with how many times it is
+/// dropped and how many times the column holds it (bit for bit). When
+/// every one is held more times than dropped, the kept rows have the same
+/// distinct values as the column — the same minimum, maximum and
+/// spacings, so the same constants (`CovStats`: a duplicate's spacing is
+/// zero, never counted) — and the column need not be sorted again. A trim
+/// drops a few isolated spikes, and a fleet's covariates (positions,
+/// times, commands of the same programs run after run) repeat values.
+struct DroppedCopies {
+    /// Total-order keys of the dropped values, ascending, distinct.
+    keys: Vec<u64>,
+    dropped: Vec<usize>,
+    held: Vec<usize>,
+}
+
+impl DroppedCopies {
+    fn of(values: impl Iterator<Item = f64>) -> DroppedCopies {
+        let mut all: Vec<u64> = values.map(crate::effect::total_order_key).collect();
+        all.sort_unstable();
+        let (mut keys, mut dropped) = (Vec::new(), Vec::new());
+        for k in all {
+            if keys.last() == Some(&k) {
+                *dropped.last_mut().expect("a count per key") += 1;
+            } else {
+                keys.push(k);
+                dropped.push(1);
+            }
+        }
+        let held = vec![0; keys.len()];
+        DroppedCopies {
+            keys,
+            dropped,
+            held,
+        }
+    }
+
+    /// Counts the dropped values among `values` (a piece of the column).
+    fn count(&mut self, values: &[f64]) {
+        let (Some(&lo), Some(&hi)) = (self.keys.first(), self.keys.last()) else {
+            return;
+        };
+        for &v in values {
+            let k = crate::effect::total_order_key(v);
+            if k < lo || k > hi {
+                continue;
+            }
+            if let Ok(i) = self.keys.binary_search(&k) {
+                self.held[i] += 1;
+            }
+        }
+    }
+
+    /// Whether every dropped value keeps a copy.
+    fn all_kept(&self) -> bool {
+        self.held.iter().zip(&self.dropped).all(|(h, d)| h > d)
     }
 }
 
@@ -539,6 +635,68 @@ mod tests {
         assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
         std::mem::drop(fk);
         assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
+    }
+
+    /// After a trim each column's constants are those of its kept values,
+    /// whether they are carried over (every dropped value keeps a copy) or
+    /// taken again (a dropped value was the only one: the minimum, or an
+    /// interior value whose spacings merge), in memory and in a file.
+    #[test]
+    fn constants_after_a_trim_are_the_kept_values_constants() {
+        let n = 2 * READ_ROWS + 100;
+        // Column "rep": values 0..50 over and over (every value has
+        // copies). Column "minimum": as "rep" but row 7 holds the only -3.
+        // Column "interior": as "rep" but row 9 holds the only 20.5
+        // (between 20 and 21: two spacings of 0.5 that merge into 1).
+        let rep: Vec<f64> = (0..n).map(|i| (i % 50) as f64).collect();
+        let mut minimum = rep.clone();
+        minimum[7] = -3.0;
+        let mut interior = rep.clone();
+        interior[9] = 20.5;
+        let cols = vec![
+            ("interior".to_string(), interior),
+            ("minimum".to_string(), minimum),
+            ("rep".to_string(), rep),
+        ];
+        let drop = [7, 9, READ_ROWS + 1, n - 1];
+        let dir = tempfile::tempdir().unwrap();
+        let mem = Covariates::in_memory(n, cols.clone());
+        let file = {
+            let f = ColumnFile::create(dir.path(), n, cols.len()).unwrap();
+            for (k, (_, v)) in cols.iter().enumerate() {
+                f.write(k, 0, v).unwrap();
+            }
+            let at: Vec<usize> = (0..cols.len()).collect();
+            let stats = f.stats(&at).unwrap();
+            Covariates::in_file(n, f, at, cols.iter().map(|c| c.0.clone()).collect(), stats)
+        };
+        for trimmed in [
+            mem.without_rows(&drop, None).unwrap(),
+            file.without_rows(&drop, None).unwrap(),
+        ] {
+            for (name, st) in trimmed.frames() {
+                let kept = trimmed.column(name).unwrap();
+                assert_eq!(st, CovStats::from_values(&kept), "{name}");
+            }
+            let st: Vec<CovStats> = trimmed.frames().map(|(_, s)| s).collect();
+            assert_eq!((st[0].step, st[1].min, st[2].min), (1.0, 0.0, 0.0));
+        }
+        // Before the trim the minimum was there; only "rep" keeps a copy of
+        // every dropped value (its constants carried over).
+        let before: Vec<CovStats> = Covariates::in_memory(n, cols.clone())
+            .frames()
+            .map(|(_, s)| s)
+            .collect();
+        assert_eq!(before[1].min, -3.0);
+        let kept: Vec<bool> = cols
+            .iter()
+            .map(|(_, v)| {
+                let mut copies = DroppedCopies::of(drop.iter().map(|&p| v[p]));
+                copies.count(v);
+                copies.all_kept()
+            })
+            .collect();
+        assert_eq!(kept, [false, false, true]);
     }
 
     #[test]
