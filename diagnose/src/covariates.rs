@@ -379,6 +379,8 @@ struct DroppedCopies {
     keys: Vec<u64>,
     dropped: Vec<usize>,
     held: Vec<usize>,
+    /// Keys not yet held more times than dropped: counting stops at 0.
+    short: usize,
 }
 
 impl DroppedCopies {
@@ -396,31 +398,39 @@ impl DroppedCopies {
         }
         let held = vec![0; keys.len()];
         DroppedCopies {
+            short: keys.len(),
             keys,
             dropped,
             held,
         }
     }
 
-    /// Counts the dropped values among `values` (a piece of the column).
+    /// Counts the dropped values among `values` (a piece of the column),
+    /// until every one is known to keep a copy.
     fn count(&mut self, values: &[f64]) {
         let (Some(&lo), Some(&hi)) = (self.keys.first(), self.keys.last()) else {
             return;
         };
         for &v in values {
+            if self.short == 0 {
+                return;
+            }
             let k = crate::effect::total_order_key(v);
             if k < lo || k > hi {
                 continue;
             }
             if let Ok(i) = self.keys.binary_search(&k) {
                 self.held[i] += 1;
+                if self.held[i] == self.dropped[i] + 1 {
+                    self.short -= 1;
+                }
             }
         }
     }
 
     /// Whether every dropped value keeps a copy.
     fn all_kept(&self) -> bool {
-        self.held.iter().zip(&self.dropped).all(|(h, d)| h > d)
+        self.short == 0
     }
 }
 
