@@ -775,15 +775,15 @@ mod wanted_tests {
         let obs: RunLength<u32> = [0, 0, 0, 1, 1, 0, 0, 1, 2, 2, 0].into_iter().collect();
         let asc = [0, 1, 2, 5, 6, 7, 9, 10];
         let w = wanted_of(3, &obs, &asc);
-        let ranks = |o: usize, r: std::ops::Range<usize>, pos: usize| Wanted { ranks: r, pos };
+        let ranks = |r: std::ops::Range<usize>, pos: usize| Wanted { ranks: r, pos };
         // Observable 0's records: rows 0 1 2 5 6 10 → records 0..5 at
         // positions 0..5 (one stretch across two table stretches), then
         // record 5 (row 10) at position 7.
-        assert_eq!(w[0], vec![ranks(0, 0..5, 0), ranks(0, 5..6, 7)]);
+        assert_eq!(w[0], vec![ranks(0..5, 0), ranks(5..6, 7)]);
         // Observable 1: rows 3 4 7 → only row 7 (record 2) at position 5.
-        assert_eq!(w[1], vec![ranks(1, 2..3, 5)]);
+        assert_eq!(w[1], vec![ranks(2..3, 5)]);
         // Observable 2: rows 8 9 → row 9 (record 1) at position 6.
-        assert_eq!(w[2], vec![ranks(2, 1..2, 6)]);
+        assert_eq!(w[2], vec![ranks(1..2, 6)]);
         // Row by row, the same pairs.
         let mut listed: Vec<(usize, usize, usize)> = Vec::new();
         let mut seen = [0usize; 3];
