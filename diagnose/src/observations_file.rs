@@ -629,10 +629,6 @@ impl SpilledValues {
         }
         Ok(())
     }
-
-    fn wanted(&self, obs: &RunLength<u32>, asc: &[usize]) -> Vec<Vec<Wanted>> {
-        wanted_of(self.file_of.len(), obs, asc)
-    }
 }
 
 /// Per observable id (of `n_obs`): the rows `asc` (ascending) as
@@ -687,7 +683,7 @@ impl RowValues for SpilledValues {
         asc: &[usize],
         sink: &mut ChunkSink,
     ) -> Result<()> {
-        let wanted = self.wanted(obs, asc);
+        let wanted = wanted_of(self.file_of.len(), obs, asc);
         // The rows of one observable are its file's records in order: read
         // as a stream. Rows of several observables come from several
         // files in turn, not in `asc` order: gathered whole.
@@ -737,7 +733,7 @@ impl RowValues for SpilledValues {
                 covariates: out,
             });
         }
-        let wanted = self.wanted(obs, asc);
+        let wanted = wanted_of(self.file_of.len(), obs, asc);
         for (o, want) in wanted.iter().enumerate() {
             if want.is_empty() {
                 continue;
