@@ -34,11 +34,19 @@ pub fn design_gram(feats: &[Vec<f64>], w: Option<&[f64]>, r: Range<usize>) -> Ve
         None => r.len() as f64,
     };
     g[0] = n;
+    // Unweighted, the features' sums side by side (`sums_in_order`).
+    let sums = match w {
+        Some(_) => Vec::new(),
+        None => {
+            let cols: Vec<&[f64]> = feats.iter().map(|f| &f[r.clone()]).collect();
+            sums_in_order(&cols)
+        }
+    };
     for j in 0..feats.len() {
         let fj = &feats[j][r.clone()];
         let s = match w {
             Some(w) => dot(fj, &w[r.clone()]),
-            None => fj.iter().sum(),
+            None => sums[j],
         };
         g[j + 1] = s;
         g[(j + 1) * p] = s;
@@ -57,12 +65,54 @@ pub fn design_gram(feats: &[Vec<f64>], w: Option<&[f64]>, r: Range<usize>) -> Ve
 
 /// X'y (length p) where `sy` holds y (rows) or Σy (pooled rows).
 pub fn design_xy(feats: &[Vec<f64>], sy: &[f64], r: Range<usize>) -> Vec<f64> {
+    let sum = sy[r.clone()].iter().sum();
+    design_xy_summed(feats, sy, r, sum)
+}
+
+/// [`design_xy`] with Σ sy over `r` already taken (`sum_sy`, the bits of
+/// `iter().sum()`, e.g. by [`sums_in_order`]): a unit's Σy is the same
+/// for every candidate scored on it, so it is summed once, not per
+/// candidate.
+pub fn design_xy_summed(feats: &[Vec<f64>], sy: &[f64], r: Range<usize>, sum_sy: f64) -> Vec<f64> {
     let mut h = Vec::with_capacity(feats.len() + 1);
-    h.push(sy[r.clone()].iter().sum());
+    h.push(sum_sy);
     for f in feats {
         h.push(dot(&f[r.clone()], &sy[r.clone()]));
     }
     h
+}
+
+/// Each column's sum, added in row order from the start value of
+/// `iter().sum()` — its bits exactly — with the columns side by side in one
+/// loop: a sum in order waits on its previous add (a few cycles a row), so
+/// several independent ones interleaved cost about what one does.
+pub fn sums_in_order(cols: &[&[f64]]) -> Vec<f64> {
+    // Row i of every column in one step: the loop is over rows, not over
+    // one column.
+    #[allow(clippy::needless_range_loop)]
+    fn side_by_side<const N: usize>(cols: &[&[f64]], out: &mut Vec<f64>) {
+        let zero: f64 = std::iter::empty::<f64>().sum();
+        let n = cols[0].len();
+        assert!(cols.iter().all(|c| c.len() == n), "columns of one length");
+        let c: [&[f64]; N] = std::array::from_fn(|j| &cols[j][..n]);
+        let mut s = [zero; N];
+        for i in 0..n {
+            for j in 0..N {
+                s[j] += c[j][i];
+            }
+        }
+        out.extend_from_slice(&s);
+    }
+    let mut out = Vec::with_capacity(cols.len());
+    for part in cols.chunks(4) {
+        match part.len() {
+            1 => side_by_side::<1>(part, &mut out),
+            2 => side_by_side::<2>(part, &mut out),
+            3 => side_by_side::<3>(part, &mut out),
+            _ => side_by_side::<4>(part, &mut out),
+        }
+    }
+    out
 }
 
 /// Four-way unrolled dot product (f64 sums do not auto-vectorise otherwise).
@@ -978,5 +1028,39 @@ mod tests {
             vec![vec![0, 2, 5], vec![1, 4], vec![3]]
         );
         assert_eq!(fold_groups(&[vec![true; 3]], 3), vec![vec![0, 1, 2]]);
+    }
+
+    /// The columns' sums side by side are each column's `iter().sum()`,
+    /// bit for bit, for any number of columns: values of mixed sign and
+    /// magnitude (where the order of additions shows), a column of −0.0
+    /// (whose sum's sign shows the start value), empty columns.
+    #[test]
+    fn sums_side_by_side_are_the_sums_in_order() {
+        let mut next = uniform(0x0123_4567_89ab_cdef);
+        for rows in [0usize, 1, 7, 1000] {
+            let cols: Vec<Vec<f64>> = (0..9)
+                .map(|j| {
+                    (0..rows)
+                        .map(|_| match j {
+                            0 => -0.0,
+                            _ => (next() - 0.5) * 10f64.powi((next() * 24.0) as i32 - 12),
+                        })
+                        .collect()
+                })
+                .collect();
+            for k in 1..=cols.len() {
+                let part: Vec<&[f64]> = cols[..k].iter().map(|c| c.as_slice()).collect();
+                let got = sums_in_order(&part);
+                let want: Vec<u64> = part
+                    .iter()
+                    .map(|c| c.iter().sum::<f64>().to_bits())
+                    .collect();
+                assert_eq!(
+                    got.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+                    want,
+                    "{rows} rows, {k} columns"
+                );
+            }
+        }
     }
 }

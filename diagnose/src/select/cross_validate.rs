@@ -429,6 +429,21 @@ impl Chunk<'_> {
             }
         }
     }
+
+    /// Each of its units' Σy of every target (per unit, per target; the
+    /// bits of `iter().sum()`): what every candidate's X'y of the unit
+    /// starts with, summed once for all of them.
+    fn unit_sums(&self) -> Vec<Vec<f64>> {
+        let mut cols = Vec::with_capacity(self.targets.len());
+        self.local
+            .iter()
+            .map(|l| {
+                cols.clear();
+                cols.extend(self.targets.iter().map(|t| &t[l.clone()]));
+                fit::sums_in_order(&cols)
+            })
+            .collect()
+    }
 }
 
 /// Cross-validates candidates against the current targets (in parallel):
@@ -468,6 +483,7 @@ pub(super) fn evaluate_all_in_chunks(
     };
     let masks = prob.train_masks();
     let groups = fit::fold_groups(&masks, prob.units.len());
+    let mut wall = PhaseClock::new();
     // The covariates a chunk carries: the candidates' (read from a file,
     // a chunk of every covariate would be read for nothing).
     let mut read: Vec<String> = cands.iter().flat_map(|e| e.covariates()).collect();
@@ -492,6 +508,7 @@ pub(super) fn evaluate_all_in_chunks(
             (cv, secs)
         })
         .collect();
+    wall.lap("new");
     // A pass that cannot compute a chunk's targets fails every candidate
     // it feeds.
     let fail_forms = |cvs: &mut Vec<(Cv, f64)>, e: crate::Error| {
@@ -511,16 +528,17 @@ pub(super) fn evaluate_all_in_chunks(
             .any(|(cv, _)| matches!(cv, Cv::Form(f) if f.cells.is_some()))
     };
     if pooled(&cvs) {
-        // The count pass first: the cells a one-covariate pool's groups
-        // occupy, from that covariate alone, so each group's cells are
-        // laid out before its rows arrive (`CellPool::count_range`).
+        // The count pass first, from the pooled covariates alone: the
+        // cells a one-covariate pool's groups occupy, so each group's cells
+        // are laid out before its rows arrive; the bins each covariate of a
+        // several-covariate pool occupies, so its cells are slots of a
+        // compact grid rather than sorted (`CellPool::count_range`).
         let mut names: Vec<String> = cvs
             .iter()
             .filter_map(|(cv, _)| match cv {
                 Cv::Form(f) if f.cells.is_some() => Some(f.form.covariates()),
                 _ => None,
             })
-            .filter(|c| c.len() == 1)
             .flatten()
             .collect();
         names.sort();
@@ -536,6 +554,7 @@ pub(super) fn evaluate_all_in_chunks(
                     }
                 };
                 let us: Vec<usize> = units.collect();
+                wall.lap("read");
                 cvs.par_iter_mut().for_each(|(cv, secs)| {
                     if let Cv::Form(f) = cv {
                         let mut failed = None;
@@ -545,6 +564,7 @@ pub(super) fn evaluate_all_in_chunks(
                         }
                     }
                 });
+                wall.lap("count");
             }
         }
         cvs.par_iter_mut().for_each(|(cv, _)| {
@@ -564,6 +584,7 @@ pub(super) fn evaluate_all_in_chunks(
                     }
                 };
                 c.sum_squares(&mut yy_u);
+                wall.lap("chunk");
                 cvs.par_iter_mut().for_each(|(cv, secs)| {
                     if let Cv::Form(f) = cv {
                         let mut failed = None;
@@ -573,6 +594,7 @@ pub(super) fn evaluate_all_in_chunks(
                         }
                     }
                 });
+                wall.lap("cells");
             }
         }
         yy_done = true;
@@ -586,6 +608,7 @@ pub(super) fn evaluate_all_in_chunks(
             }
         }
     });
+    wall.lap("theta");
     // The score pass: each chunk once for every candidate.
     for units in consecutive_units(prob, score_rows) {
         if !cvs.iter().any(|(cv, _)| matches!(cv, Cv::Form(_))) {
@@ -601,19 +624,23 @@ pub(super) fn evaluate_all_in_chunks(
         if !yy_done {
             c.sum_squares(&mut yy_u);
         }
+        let sy_c = c.unit_sums();
+        wall.lap("chunk");
         cvs.par_iter_mut().for_each(|(cv, secs)| {
             if let Cv::Form(f) = cv {
                 let mut failed = None;
                 timed(secs, &mut || {
-                    failed = f.score_pass(prob, tg, &yy_u, &c).err()
+                    failed = f.score_pass(prob, tg, &yy_u, &c, &sy_c).err()
                 });
                 if let Some(e) = failed {
                     *cv = Cv::Failed(e);
                 }
             }
         });
+        wall.lap("score");
     }
-    cvs.into_par_iter()
+    let out = cvs
+        .into_par_iter()
         .zip(cands.par_iter())
         .map(|((cv, secs), e)| {
             let t = std::time::Instant::now();
@@ -624,7 +651,45 @@ pub(super) fn evaluate_all_in_chunks(
             };
             (out, secs + t.elapsed().as_secs_f64())
         })
-        .collect()
+        .collect();
+    wall.lap("finish");
+    wall.report();
+    out
+}
+
+/// Wall time per phase of a round's passes, logged at debug level: where a
+/// round waits beyond its candidates' own time (reading chunks, the tail
+/// of a pass's slowest candidate).
+struct PhaseClock {
+    at: std::time::Instant,
+    laps: Vec<(&'static str, f64)>,
+}
+
+impl PhaseClock {
+    fn new() -> Self {
+        PhaseClock {
+            at: std::time::Instant::now(),
+            laps: Vec::new(),
+        }
+    }
+    fn lap(&mut self, phase: &'static str) {
+        let s = self.at.elapsed().as_secs_f64();
+        self.at = std::time::Instant::now();
+        match self.laps.iter_mut().find(|(p, _)| *p == phase) {
+            Some((_, t)) => *t += s,
+            None => self.laps.push((phase, s)),
+        }
+    }
+    fn report(&self) {
+        if tracing::enabled!(tracing::Level::DEBUG) {
+            let laps: Vec<String> = self
+                .laps
+                .iter()
+                .map(|(p, s)| format!("{p} {s:.2}"))
+                .collect();
+            tracing::debug!("round wall time: {} s", laps.join(", "));
+        }
+    }
 }
 
 /// A linear form's cross-validation as passes over the rows
@@ -730,20 +795,27 @@ impl FormCv {
         }))
     }
 
-    /// The count pass over one chunk: the cells its units' rows occupy
-    /// in their groups (one covariate: counted before any is filled).
+    /// The count pass over one chunk: the cells its units' rows occupy in
+    /// their groups (one covariate: laid out before any is filled; several:
+    /// the bins each covariate occupies, for the compact grid).
     fn count_pass(&mut self, c: &CovRows, units: &[usize], local: &[Range<usize>]) -> Result<()> {
         let Some(cells) = self.cells.as_mut() else {
             return Ok(());
         };
-        let [cov] = &self.form.covariates()[..] else {
-            return Ok(());
-        };
-        let col = c
-            .col(cov)
-            .ok_or_else(|| err!("covariate `{cov}` not available"))?;
+        let cols: Vec<&[f64]> = self
+            .form
+            .covariates()
+            .iter()
+            .map(|n| {
+                c.col(n)
+                    .ok_or_else(|| err!("covariate `{n}` not available"))
+            })
+            .collect::<Result<_>>()?;
+        let mut part = Vec::with_capacity(cols.len());
         for (&u, l) in units.iter().zip(local) {
-            cells.count_range(self.group_of_unit[u], &col[l.clone()]);
+            part.clear();
+            part.extend(cols.iter().map(|col| &col[l.clone()]));
+            cells.count_range(self.group_of_unit[u], &part);
         }
         Ok(())
     }
@@ -897,18 +969,21 @@ impl FormCv {
     /// and a unit's sums run over its rows in order, so they are what a
     /// node holding only that run computes. A unit held out by a fold
     /// fitted on cells is scored at once; the block sets keep its blocks.
+    /// `sy_c`: each of the chunk's units' Σy per target
+    /// ([`Chunk::unit_sums`]).
     fn score_pass(
         &mut self,
         prob: &Problem,
         tg: &Targets,
         yy_u: &[Vec<f64>],
         c: &Chunk,
+        sy_c: &[Vec<f64>],
     ) -> Result<()> {
         let form = self.form.clone();
         let covs = form.covariates();
         let xc = c.x.data();
         with_columns(form.n_linear(), |buf| -> Result<()> {
-            for ((&u, l), xl) in c.units.iter().zip(&c.local).zip(&c.x_local) {
+            for (((&u, l), xl), sy) in c.units.iter().zip(&c.local).zip(&c.x_local).zip(sy_c) {
                 let r = prob.units[u].clone();
                 let x = xc.rows_of(&covs, xl.clone())?;
                 let f = prob.unit_fold[u];
@@ -917,14 +992,15 @@ impl FormCv {
                     let t = tg.of_fold[f];
                     form.features(&self.frame, &x, self.thetas[f], buf)?;
                     let g = fit::design_gram(buf, None, 0..r.len());
-                    let h = fit::design_xy(buf, &c.targets[t][l.clone()], 0..r.len());
+                    let h = fit::design_xy_summed(buf, &c.targets[t][l.clone()], 0..r.len(), sy[t]);
                     self.unit_sse[u] = fit::sse(&g, &h, yy_u[t][u], b);
                 }
                 for set in &mut self.block_sets {
                     form.features(&self.frame, &x, set.theta, buf)?;
                     set.g_u.push(fit::design_gram(buf, None, 0..r.len()));
                     for (h_u, &t) in set.h_of.iter_mut().zip(&set.targets) {
-                        h_u.push(fit::design_xy(buf, &c.targets[t][l.clone()], 0..r.len()));
+                        let y = &c.targets[t][l.clone()];
+                        h_u.push(fit::design_xy_summed(buf, y, 0..r.len(), sy[t]));
                     }
                 }
             }

@@ -65,6 +65,80 @@ pub fn spans(cols: &[&[f64]], mins: &[f64]) -> Vec<f64> {
 /// A bin marked by [`CellPool::count_range`], not numbered yet.
 const COUNTED: u32 = u32::MAX - 1;
 
+/// At most this many cells on the compact grid of several covariates
+/// ([`Compact`]); beyond, the rows are sorted by cell instead. A thread's
+/// partial bins are then as large as one covariate's at most
+/// ([`MAX_POOL_BINS`]) with a few more sums per bin.
+const MAX_COMPACT_CELLS: usize = 1 << 18;
+
+/// Several covariates' grid numbered over the bins some row occupies (the
+/// count pass, [`CellPool::count_range`]): a covariate with few distinct
+/// values (a direction of ±1) spans thousands of fine bins but occupies
+/// two, so the cells some row can fall in are few enough for dense slots —
+/// the one-covariate path, no sort. A cell's index is its bins' ranks in
+/// mixed radix, first covariate highest: ascending index is ascending
+/// cell key, so the cells come out in the sorted path's order with the
+/// same sums (same rows, same order of additions).
+struct Compact {
+    /// Per covariate, each bin's rank among the occupied ones
+    /// (`u32::MAX`: no counted row).
+    rank: Vec<Vec<u32>>,
+    /// Per covariate, the index step of one rank.
+    radix: Vec<usize>,
+    cells: usize,
+}
+
+impl Compact {
+    /// The compact grid of `occupied` bins, `None` when its cells would be
+    /// more than [`MAX_COMPACT_CELLS`].
+    fn of(occupied: &[Vec<bool>]) -> Option<Compact> {
+        let counts: Vec<usize> = occupied
+            .iter()
+            .map(|o| o.iter().filter(|&&b| b).count().max(1))
+            .collect();
+        let cells = counts
+            .iter()
+            .try_fold(1usize, |p, &c| p.checked_mul(c))
+            .filter(|&c| c <= MAX_COMPACT_CELLS)?;
+        let rank = occupied
+            .iter()
+            .map(|o| {
+                let mut n = 0u32;
+                o.iter()
+                    .map(|&b| {
+                        if b {
+                            n += 1;
+                            n - 1
+                        } else {
+                            u32::MAX
+                        }
+                    })
+                    .collect()
+            })
+            .collect();
+        let mut radix = vec![1; counts.len()];
+        for j in (0..counts.len().saturating_sub(1)).rev() {
+            radix[j] = radix[j + 1] * counts[j + 1];
+        }
+        Some(Compact { rank, radix, cells })
+    }
+
+    /// The cell of row `i`.
+    #[inline(always)]
+    fn cell<const ND: usize>(&self, axes: &[Axis], cols: [&[f64]; ND], i: usize) -> usize {
+        let mut at = 0;
+        for j in 0..ND {
+            let r = self.rank[j][axes[j].bin(cols[j][i])];
+            assert!(
+                r != u32::MAX,
+                "a row pooled that the count pass did not see"
+            );
+            at += r as usize * self.radix[j];
+        }
+        at
+    }
+}
+
 pub struct CellPool {
     axes: Vec<Axis>,
     /// Numbers per cell: the count, Σw·c per covariate, Σy per target.
@@ -75,6 +149,11 @@ pub struct CellPool {
     /// as it and every group before it are sealed.
     out: Pooled,
     emitted: usize,
+    /// Several covariates: the bins some counted row occupies, per
+    /// covariate ([`CellPool::count_range`]).
+    occupied: Vec<Vec<bool>>,
+    /// Several covariates, counted: their compact grid, when small enough.
+    compact: Option<Compact>,
 }
 
 thread_local! {
@@ -87,14 +166,16 @@ thread_local! {
     };
 }
 
-/// One group's cells. One covariate: a dense slot per bin, slots in the
-/// order first seen (or in bin order, given up front). Several: `keys`/`sums` sorted by key, and the partial
+/// One group's cells. One covariate, or several on a compact grid: a
+/// dense slot per bin (cell), slots in the order first seen (or in bin
+/// order, given up front). Several otherwise: `keys`/`sums` sorted by key, and the partial
 /// cells of the ranges added since (`pending_*`, in arrival order) merged
 /// into them when they outnumber them and at the end — a sort per merge
 /// instead of a hash lookup per partial cell.
 #[derive(Default)]
 struct GroupCells {
-    /// One covariate: the slot of each bin (`u32::MAX`: none yet).
+    /// One covariate (or a compact grid): the slot of each bin (`u32::MAX`:
+    /// none yet).
     dense: Vec<u32>,
     /// Several covariates: the merged cells' keys, ascending.
     keys: Vec<u128>,
@@ -223,6 +304,8 @@ impl CellPool {
                 Vec::new(),
             ),
             emitted: 0,
+            occupied: Vec::new(),
+            compact: None,
         }
     }
 
@@ -247,42 +330,85 @@ impl CellPool {
             1 + cols.len() + targets.len(),
             "a sum per target"
         );
-        if let ([c], [axis]) = (cols, self.axes.as_slice()) {
-            self.add_range_1d(group, r, c, *axis, weights, targets);
-        } else {
-            self.add_range_sorted(group, r, cols, weights, targets);
+        match (cols, self.axes.as_slice(), self.compact.take()) {
+            ([c], [axis], _) => {
+                let axis = *axis;
+                self.add_range_dense(
+                    group,
+                    r,
+                    [*c],
+                    axis.bins,
+                    |i| axis.bin(c[i]),
+                    weights,
+                    targets,
+                )
+            }
+            ([a, b], _, Some(k)) => {
+                let cols = [*a, *b];
+                let axes = self.axes.clone();
+                self.add_range_dense(
+                    group,
+                    r,
+                    cols,
+                    k.cells,
+                    |i| k.cell(&axes, cols, i),
+                    weights,
+                    targets,
+                );
+                self.compact = Some(k);
+            }
+            ([a, b, c], _, Some(k)) => {
+                let cols = [*a, *b, *c];
+                let axes = self.axes.clone();
+                self.add_range_dense(
+                    group,
+                    r,
+                    cols,
+                    k.cells,
+                    |i| k.cell(&axes, cols, i),
+                    weights,
+                    targets,
+                );
+                self.compact = Some(k);
+            }
+            (_, _, k) => {
+                self.compact = k;
+                self.add_range_sorted(group, r, cols, weights, targets);
+            }
         }
     }
 
-    /// One covariate: dense bins, no sort. The range's rows go into the
-    /// partial bins (a bin's count, Σc and Σy of every target side by
-    /// side, so a row touches one line), then the touched bins into the
-    /// group's cells.
-    fn add_range_1d(
+    /// Dense bins, no sort — one covariate's bins, or the cells of a
+    /// compact grid (`bins` of them, `bin_of` row i's). The range's rows go
+    /// into the partial bins (a bin's count, Σc of each covariate and Σy
+    /// of every target side by side, so a row touches one line), then the
+    /// touched bins into the group's cells.
+    #[allow(clippy::too_many_arguments)]
+    fn add_range_dense<const ND: usize>(
         &mut self,
         group: usize,
         r: Range<usize>,
-        c: &[f64],
-        axis: Axis,
+        cols: [&[f64]; ND],
+        bins: usize,
+        bin_of: impl Fn(usize) -> usize,
         weights: Option<&[f64]>,
         targets: &[&[f64]],
     ) {
         let stride = self.stride;
         let g = &mut self.groups[group];
         if g.dense.is_empty() {
-            g.dense = vec![u32::MAX; axis.bins];
+            g.dense = vec![u32::MAX; bins];
         }
         if let (Some(n), true) = (g.counted, g.sums.is_empty()) {
             g.sums = vec![0.0; n * stride];
         }
         PART.with_borrow_mut(|(part, touched)| {
-            if part.len() < axis.bins * stride {
-                part.resize(axis.bins * stride, 0.0);
+            if part.len() < bins * stride {
+                part.resize(bins * stride, 0.0);
             }
             touched.clear();
-            let bin_of = |x: f64| axis.bin(x);
-            let rows = (c, &bin_of, weights, targets, r);
-            let bins = &mut part[..axis.bins * stride];
+            let rows = (cols, &bin_of, weights, targets, r);
+            let bins = &mut part[..bins * stride];
             // The held sums a fixed-size array for the usual target counts
             // (5 folds: 6).
             match stride {
@@ -292,6 +418,8 @@ impl CellPool {
                 6 => pool_range_held([0.0; 6], rows, bins, touched),
                 7 => pool_range_held([0.0; 7], rows, bins, touched),
                 8 => pool_range_held([0.0; 8], rows, bins, touched),
+                9 => pool_range_held([0.0; 9], rows, bins, touched),
+                10 => pool_range_held([0.0; 10], rows, bins, touched),
                 _ => pool_range_held(vec![0.0; stride], rows, bins, touched),
             }
             for &b in touched.iter() {
@@ -378,53 +506,68 @@ impl CellPool {
         }
     }
 
-    /// One covariate: counts every group's cells from the covariate alone
-    /// (`groups`: each group's ranges, all of them) and lays each group's
-    /// out in bin order, its sums allocated at their size when its first
-    /// range comes, and the output columns once at theirs: no growth, and
-    /// one group's sums besides the output at a time (the cells of a fine
-    /// grid are nearly as many as the rows, so this is the pass's peak).
-    /// The ranges may then come in any order of groups. Several
-    /// covariates: nothing to do.
+    /// Counts every group's cells before any is filled (`groups`: each
+    /// group's ranges, all of them; [`CellPool::count_range`]), so the
+    /// ranges may then come in any order of groups.
     pub fn count_groups(&mut self, groups: &[Vec<Range<usize>>], cols: &[&[f64]]) {
         assert_eq!(groups.len(), self.groups.len(), "ranges for every group");
-        let [c] = cols else {
-            return;
-        };
+        let mut part = Vec::with_capacity(cols.len());
         for (g, ranges) in groups.iter().enumerate() {
             for r in ranges {
-                self.count_range(g, &c[r.clone()]);
+                part.clear();
+                part.extend(cols.iter().map(|c| &c[r.clone()]));
+                self.count_range(g, &part);
             }
         }
         self.counted();
     }
 
-    /// One covariate: marks the bins of values `c`, rows of `group` — the
-    /// count of [`CellPool::count_groups`] taken a range at a time, as a
-    /// pass reading the rows in chunks gives them. [`CellPool::counted`]
-    /// then lays every group out. Several covariates: nothing to do.
-    pub fn count_range(&mut self, group: usize, c: &[f64]) {
-        let [axis] = self.axes.as_slice() else {
-            return;
-        };
+    /// Marks the bins of rows `cols` (a column per covariate) of `group` —
+    /// the count of [`CellPool::count_groups`] taken a range at a time, as
+    /// a pass reading the rows in chunks gives them; [`CellPool::counted`]
+    /// follows the last. One covariate: each group's cells are then laid
+    /// out in bin order, its sums allocated at their size when its first
+    /// range comes, and the output columns once at theirs — no growth, and
+    /// one group's sums besides the output at a time (the cells of a fine
+    /// grid are nearly as many as the rows, so this is the pass's peak).
+    /// Several covariates: the bins each covariate occupies in any group,
+    /// from which the compact grid ([`Compact`]) follows when it is small.
+    /// Every row later added must have been counted.
+    pub fn count_range(&mut self, group: usize, cols: &[&[f64]]) {
+        assert_eq!(cols.len(), self.axes.len(), "a column per axis");
         let g = &mut self.groups[group];
         assert!(
-            !g.sealed && g.counted.is_none(),
+            !g.sealed && g.counted.is_none() && self.compact.is_none(),
             "groups are counted before any range is added"
         );
-        if g.dense.is_empty() {
-            g.dense = vec![u32::MAX; axis.bins];
+        if let ([c], [axis]) = (cols, self.axes.as_slice()) {
+            if g.dense.is_empty() {
+                g.dense = vec![u32::MAX; axis.bins];
+            }
+            for &x in *c {
+                g.dense[axis.bin(x)] = COUNTED;
+            }
+            return;
         }
-        for &x in c {
-            g.dense[axis.bin(x)] = COUNTED;
+        if self.occupied.is_empty() {
+            self.occupied = self.axes.iter().map(|a| vec![false; a.bins]).collect();
+        }
+        for ((c, axis), occ) in cols.iter().zip(&self.axes).zip(&mut self.occupied) {
+            for &x in *c {
+                occ[axis.bin(x)] = true;
+            }
         }
     }
 
-    /// One covariate: every group's cells, marked by
-    /// [`CellPool::count_range`], numbered in bin order, and the output
-    /// columns reserved at their size.
+    /// The count is done ([`CellPool::count_range`]). One covariate: every
+    /// group's cells numbered in bin order, the output columns reserved at
+    /// their size. Several: the compact grid, if small enough.
     pub fn counted(&mut self) {
         let [axis] = self.axes.as_slice() else {
+            if !self.occupied.is_empty() {
+                self.compact = Compact::of(&self.occupied);
+                self.occupied = Vec::new();
+            }
             return;
         };
         let mut total = 0;
@@ -549,34 +692,38 @@ impl RangeOfRows<'_> {
     }
 }
 
-/// One covariate's rows of a range, as [`pool_range_held`] reads them:
-/// the covariate, its bin, the weights, the targets, the rows.
-type RangeRows<'a, B> = (
-    &'a [f64],
+/// A range's rows as [`pool_range_held`] reads them: the covariates, row
+/// i's bin, the weights, the targets, the rows.
+type RangeRows<'a, const ND: usize, B> = (
+    [&'a [f64]; ND],
     &'a B,
     Option<&'a [f64]>,
     &'a [&'a [f64]],
     Range<usize>,
 );
 
-/// A range's rows of one covariate into `bins` of `held.len()` sums
-/// (count, Σc, Σy of each target), the current bin's sums held apart —
-/// in registers when `held` is a small array — while consecutive rows stay
+/// A range's rows into `bins` of `held.len()` sums (count, Σc of each
+/// covariate, Σy of each target), the current bin's sums held apart — in
+/// registers when `held` is a small array — while consecutive rows stay
 /// in it: a row's adds then wait on the previous add, not on its store and
 /// reload. Each sum adds the same values in the same order as adding into
 /// `bins` row by row (same bits).
-fn pool_range_held<H: AsMut<[f64]>, B: Fn(f64) -> usize>(
+fn pool_range_held<H: AsMut<[f64]>, const ND: usize, B: Fn(usize) -> usize>(
     mut held: H,
-    (c, bin_of, weights, targets, r): RangeRows<B>,
+    (cols, bin_of, weights, targets, r): RangeRows<ND, B>,
     bins: &mut [f64],
     touched: &mut Vec<usize>,
 ) {
     let held = held.as_mut();
     let s = held.len();
-    assert_eq!(targets.len() + 2, s, "a sum per target, the count and Σc");
+    assert_eq!(
+        targets.len() + 1 + ND,
+        s,
+        "a sum per target and covariate, and the count"
+    );
     let mut cur = usize::MAX;
     for i in r {
-        let b = bin_of(c[i]);
+        let b = bin_of(i);
         if b != cur {
             if cur != usize::MAX {
                 bins[cur * s..(cur + 1) * s].copy_from_slice(held);
@@ -590,8 +737,10 @@ fn pool_range_held<H: AsMut<[f64]>, B: Fn(f64) -> usize>(
         // × 1.0 is exact: rows pool to the same bits with or without weights.
         let wi = weights.map_or(1.0, |w| w[i]);
         held[0] += wi;
-        held[1] += wi * c[i];
-        for (h, y) in held[2..].iter_mut().zip(targets) {
+        for (h, c) in held[1..=ND].iter_mut().zip(cols) {
+            *h += wi * c[i];
+        }
+        for (h, y) in held[1 + ND..].iter_mut().zip(targets) {
             *h += y[i];
         }
     }
@@ -647,5 +796,100 @@ mod tests {
                 assert_eq!(bits(g), bits(w), "{} covariates", cols.len());
             }
         }
+    }
+
+    /// Pools `cols` in ranges of 400 rows dealt to 3 groups, the ranges
+    /// counted first (`count`) or not — the compact grid's dense slots or
+    /// the sorted cells — and returns the pool's output and whether the
+    /// compact grid was used.
+    fn pooled(
+        cols: &[&[f64]],
+        w: Option<&[f64]>,
+        targets: &[&[f64]],
+        count: bool,
+    ) -> (Pooled, bool) {
+        let n = cols[0].len();
+        let ranges: Vec<Range<usize>> = (0..n / 400).map(|r| r * 400..(r + 1) * 400).collect();
+        let mins: Vec<f64> = cols
+            .iter()
+            .map(|c| c.iter().copied().fold(f64::INFINITY, f64::min))
+            .collect();
+        let axes = spans(cols, &mins)
+            .into_iter()
+            .zip(&mins)
+            .map(|(span, &m)| Axis::new(m, span, 1e-4))
+            .collect();
+        let mut pool = CellPool::new(axes, targets.len(), 3);
+        if count {
+            for (i, r) in ranges.iter().enumerate() {
+                let part: Vec<&[f64]> = cols.iter().map(|c| &c[r.clone()]).collect();
+                pool.count_range(i % 3, &part);
+            }
+            pool.counted();
+        }
+        let compact = pool.compact.is_some();
+        for (i, r) in ranges.iter().enumerate() {
+            pool.add_range(i % 3, r.clone(), cols, w, targets);
+        }
+        (pool.finish(), compact)
+    }
+
+    fn bits_of(p: &Pooled) -> Vec<Vec<u64>> {
+        let bits = |v: &Vec<f64>| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        p.0.iter()
+            .chain(std::iter::once(&p.1))
+            .chain(&p.2)
+            .map(bits)
+            .collect()
+    }
+
+    /// Two and three covariates of few distinct values (a direction of
+    /// ±1, a coarse position) pool on the compact grid's dense slots to the
+    /// bits of the sorted cells, with and without weights; a grid whose
+    /// occupied cells are too many falls back to sorting, same bits.
+    #[test]
+    fn a_compact_grid_pools_as_the_sorted_cells() {
+        let n = 48_000;
+        let mut next = super::super::tests::uniform(0x2545_f491_4f6c_dd1d);
+        let pos: Vec<f64> = (0..n).map(|_| (next() * 300.0).floor() * 0.01).collect();
+        let dir: Vec<f64> = (0..n)
+            .map(|_| if next() < 0.5 { -1.0 } else { 1.0 })
+            .collect();
+        let level: Vec<f64> = (0..n).map(|_| (next() * 3.0).floor() * 0.5).collect();
+        let fine: Vec<f64> = (0..n).map(|_| next() * 40.0).collect();
+        let w: Vec<f64> = (0..n).map(|_| (next() * 5.0).floor() + 1.0).collect();
+        let y1: Vec<f64> = (0..n).map(|i| (i as f64 * 0.1).sin()).collect();
+        let y2: Vec<f64> = (0..n).map(|i| (i as f64 * 0.37).cos() * 1e3).collect();
+        let targets = [y1.as_slice(), y2.as_slice()];
+        for (cols, compact) in [
+            (vec![pos.as_slice(), dir.as_slice()], true),
+            (vec![dir.as_slice(), level.as_slice(), pos.as_slice()], true),
+            (vec![fine.as_slice(), pos.as_slice()], false),
+        ] {
+            for weights in [None, Some(w.as_slice())] {
+                let (want, sorted) = pooled(&cols, weights, &targets, false);
+                let (got, used) = pooled(&cols, weights, &targets, true);
+                assert!(!sorted);
+                assert_eq!(used, compact, "{} covariates", cols.len());
+                assert_eq!(got.3, want.3);
+                assert_eq!(bits_of(&got), bits_of(&want), "{} covariates", cols.len());
+            }
+        }
+    }
+
+    /// A row the count pass did not see has no slot on the compact grid:
+    /// pooling it stops rather than merging it into another cell.
+    #[test]
+    #[should_panic(expected = "count pass did not see")]
+    fn an_uncounted_row_is_refused_on_a_compact_grid() {
+        let a = [0.0, 1.0, 2.0, 1.5];
+        let b = [-1.0, 1.0, -1.0, 1.0];
+        let y = [1.0, 2.0, 3.0, 4.0];
+        let axes = vec![Axis::new(0.0, 2.0, 0.1), Axis::new(-1.0, 2.0, 0.1)];
+        let mut pool = CellPool::new(axes, 1, 1);
+        pool.count_range(0, &[&a[..3], &b[..3]]);
+        pool.counted();
+        assert!(pool.compact.is_some());
+        pool.add_range(0, 0..4, &[&a, &b], None, &[&y]);
     }
 }
