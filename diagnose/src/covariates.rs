@@ -315,32 +315,39 @@ impl Covariates {
             Store::File { file, at } => {
                 let dir = dir.map(Path::to_path_buf).unwrap_or_else(|| file.dir());
                 let out = ColumnFile::create(&dir, n, at.len())?;
-                let mut buf = Vec::new();
-                let mut kept = Vec::with_capacity(at.len());
-                for (k, &col) in at.iter().enumerate() {
-                    let mut dropped = Vec::with_capacity(drop.len());
-                    for &p in drop {
-                        buf.clear();
-                        file.read_into(col, p..p + 1, &mut buf)?;
-                        dropped.push(buf[0]);
-                    }
-                    let mut copies = DroppedCopies::of(dropped.into_iter());
-                    let (mut start, mut written) = (0, 0);
-                    while start < before {
-                        let end = (start + READ_ROWS).min(before);
-                        buf.clear();
-                        file.read_into(col, start..end, &mut buf)?;
-                        copies.count(&buf);
-                        let lo = drop.partition_point(|&p| p < start);
-                        let hi = drop.partition_point(|&p| p < end);
-                        let local: Vec<usize> = drop[lo..hi].iter().map(|p| p - start).collect();
-                        retain_positions(&mut buf, &local);
-                        out.write(k, written, &buf)?;
-                        written += buf.len();
-                        start = end;
-                    }
-                    kept.push(copies.all_kept());
-                }
+                // A column at a time, the columns side by side (positioned
+                // reads and writes of one file: no shared cursor).
+                let kept: Vec<bool> = at
+                    .par_iter()
+                    .enumerate()
+                    .with_max_len(1)
+                    .map(|(k, &col)| -> Result<bool> {
+                        let mut buf = Vec::new();
+                        let mut dropped = Vec::with_capacity(drop.len());
+                        for &p in drop {
+                            buf.clear();
+                            file.read_into(col, p..p + 1, &mut buf)?;
+                            dropped.push(buf[0]);
+                        }
+                        let mut copies = DroppedCopies::of(dropped.into_iter());
+                        let (mut start, mut written) = (0, 0);
+                        while start < before {
+                            let end = (start + READ_ROWS).min(before);
+                            buf.clear();
+                            file.read_into(col, start..end, &mut buf)?;
+                            copies.count(&buf);
+                            let lo = drop.partition_point(|&p| p < start);
+                            let hi = drop.partition_point(|&p| p < end);
+                            let local: Vec<usize> =
+                                drop[lo..hi].iter().map(|p| p - start).collect();
+                            retain_positions(&mut buf, &local);
+                            out.write(k, written, &buf)?;
+                            written += buf.len();
+                            start = end;
+                        }
+                        Ok(copies.all_kept())
+                    })
+                    .collect::<Result<_>>()?;
                 // The old file goes before the new one's constants are
                 // taken.
                 std::mem::drop(file);

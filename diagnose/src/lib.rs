@@ -20,6 +20,7 @@ pub(crate) use sparkout_core::{bail, err, Context, Error};
 
 pub mod candidates;
 pub mod cells;
+mod clock;
 pub mod collinear;
 pub mod config;
 pub mod covariates;
@@ -70,6 +71,7 @@ pub use output::{
 
 use crate::config_check::Checked;
 use cells::ObsCell;
+use clock::StepClock;
 use observations::Table;
 
 /// Notes of diagnosis.json, each said once, in first-said order.
@@ -293,7 +295,9 @@ fn diagnose_observable(
     acc: &mut Accum,
     notes: &mut Notes,
 ) -> Result<()> {
+    let mut clock = StepClock::new(format!("{}: observable", table.obs_names[oi]));
     let mut o = gather::gather(table, oi, scratch, notes)?;
+    clock.lap("gather");
     // Each pass's accumulator holds a slot per row of the observable (not
     // per row of the fleet): slot p is table row `o.rows[p]`. Its per-row
     // columns are the selection's, moved in when the pass records them.
@@ -343,6 +347,7 @@ fn diagnose_observable(
         &slots,
         &mut spikes_end_the_pass,
     )?;
+    clock.lap("plain pass");
     let found = found.expect("the plain pass selects before it can stop");
     let (out, thr) = match found {
         Ok((out, _, thr)) => (out, thr),
@@ -358,7 +363,10 @@ fn diagnose_observable(
         // The covariates are done with; the results are written without
         // them held.
         o.cols = covariates::Covariates::none(0);
-        return acc.merge(plain, oi as u32, &o.rows, &o.gap);
+        acc.merge(plain, oi as u32, &o.rows, &o.gap)?;
+        clock.lap("results");
+        clock.done();
+        return Ok(());
     }
     drop(plain);
     let before: f64 = o.gap.iter().map(|g| g * g).sum();
@@ -370,6 +378,7 @@ fn diagnose_observable(
     let trimmed_gap: Vec<f64> = out.iter().map(|&p| o.gap[p]).collect();
     let trimmed: Vec<usize> = out.iter().map(|&p| o.rows[p]).collect();
     let mut kept = o.take_kept(&out, scratch)?;
+    clock.lap("trim");
     let mut robust = Accum::new(0);
     let slots = Slots {
         trimmed: &trimmed,
@@ -388,6 +397,7 @@ fn diagnose_observable(
         &slots,
         &mut |_| true,
     )?;
+    clock.lap("spike-free pass");
     // The kept rows' gaps and table rows outlive their covariates (the
     // per-row results').
     let kept_gap = std::mem::take(&mut kept.gap);
@@ -414,7 +424,10 @@ fn diagnose_observable(
     let rows = interleave(&kept_rows, &out, &trimmed);
     drop(kept_rows);
     debug_assert_eq!(rows.len(), n);
-    acc.merge(robust, oi as u32, &rows, &gap)
+    acc.merge(robust, oi as u32, &rows, &gap)?;
+    clock.lap("results");
+    clock.done();
+    Ok(())
 }
 
 /// The sequence whose positions `at` (ascending) hold `at_values` and
@@ -498,7 +511,7 @@ fn analyse(
     go_on: &mut dyn FnMut(&[f64]) -> bool,
 ) -> Result<()> {
     let n = o.n();
-    let mut clock = StepClock::new(&o.name, n);
+    let mut clock = StepClock::new(format!("{}: {n} rows diagnosed", o.name));
     let nf = noise::floor_of(table, o)?;
     clock.lap("noise");
     let fo = folds::folds(o, cfg.folds, cfg.seed, oi);
@@ -655,46 +668,6 @@ fn analyse(
         cell,
     }));
     Ok(())
-}
-
-/// Each step's wall time of one pass over an observable, logged at debug
-/// level when the pass ends (where a night's diagnosis spends its time).
-struct StepClock<'a> {
-    name: &'a str,
-    rows: usize,
-    last: std::time::Instant,
-    laps: Vec<(&'static str, f64)>,
-}
-
-impl<'a> StepClock<'a> {
-    fn new(name: &'a str, rows: usize) -> StepClock<'a> {
-        StepClock {
-            name,
-            rows,
-            last: std::time::Instant::now(),
-            laps: Vec::new(),
-        }
-    }
-    fn lap(&mut self, step: &'static str) {
-        let now = std::time::Instant::now();
-        self.laps
-            .push((step, now.duration_since(self.last).as_secs_f64()));
-        self.last = now;
-    }
-    fn done(&self) {
-        let total: f64 = self.laps.iter().map(|(_, s)| s).sum();
-        let steps: Vec<String> = self
-            .laps
-            .iter()
-            .map(|(k, s)| format!("{k} {s:.2} s"))
-            .collect();
-        tracing::debug!(
-            "{}: {} rows diagnosed in {total:.2} s ({})",
-            self.name,
-            self.rows,
-            steps.join(", ")
-        );
-    }
 }
 
 #[cfg(test)]

@@ -483,7 +483,7 @@ pub(super) fn evaluate_all_in_chunks(
     };
     let masks = prob.train_masks();
     let groups = fit::fold_groups(&masks, prob.units.len());
-    let mut wall = PhaseClock::new();
+    let mut wall = crate::clock::StepClock::new("round passes".into());
     // The covariates a chunk carries: the candidates' (read from a file,
     // a chunk of every covariate would be read for nothing).
     let mut read: Vec<String> = cands.iter().flat_map(|e| e.covariates()).collect();
@@ -544,28 +544,31 @@ pub(super) fn evaluate_all_in_chunks(
         names.sort();
         names.dedup();
         if !names.is_empty() {
-            for units in consecutive_units(prob, cell_rows) {
+            let read_x = |units: &Range<usize>| {
                 let (span, local) = rows_of_units(prob, units.clone());
-                let x = match prob.x.rows_of(&names, span) {
-                    Ok(x) => x,
-                    Err(e) => {
-                        fail_forms(&mut cvs, e);
-                        break;
-                    }
-                };
-                let us: Vec<usize> = units.collect();
-                wall.lap("read");
-                cvs.par_iter_mut().for_each(|(cv, secs)| {
-                    if let Cv::Form(f) = cv {
-                        let mut failed = None;
-                        timed(secs, &mut || failed = f.count_pass(&x, &us, &local).err());
-                        if let Some(e) = failed {
-                            *cv = Cv::Failed(e);
+                Ok((prob.x.rows_of(&names, span)?, local))
+            };
+            let counted = made_ahead(
+                &consecutive_units(prob, cell_rows),
+                read_x,
+                |units, (x, local)| {
+                    let us: Vec<usize> = units.clone().collect();
+                    cvs.par_iter_mut().for_each(|(cv, secs)| {
+                        if let Cv::Form(f) = cv {
+                            let mut failed = None;
+                            timed(secs, &mut || failed = f.count_pass(&x, &us, &local).err());
+                            if let Some(e) = failed {
+                                *cv = Cv::Failed(e);
+                            }
                         }
-                    }
-                });
-                wall.lap("count");
+                    });
+                    true
+                },
+            );
+            if let Err(e) = counted {
+                fail_forms(&mut cvs, e);
             }
+            wall.lap("count");
         }
         cvs.par_iter_mut().for_each(|(cv, _)| {
             if let Cv::Form(f) = cv {
@@ -574,17 +577,20 @@ pub(super) fn evaluate_all_in_chunks(
                 }
             }
         });
-        'groups: for (g, members) in groups.iter().enumerate() {
-            for units in cut_units(prob, members, cell_rows) {
-                let c = match tg.chunk(prob, units, &read) {
-                    Ok(c) => c,
-                    Err(e) => {
-                        fail_forms(&mut cvs, e);
-                        break 'groups;
-                    }
-                };
+        let chunks: Vec<(usize, Vec<usize>)> = groups
+            .iter()
+            .enumerate()
+            .flat_map(|(g, members)| {
+                cut_units(prob, members, cell_rows)
+                    .into_iter()
+                    .map(move |units| (g, units))
+            })
+            .collect();
+        let pooled_cells = made_ahead(
+            &chunks,
+            |(_, units)| tg.chunk(prob, units.clone(), &read),
+            |&(g, _), c| {
                 c.sum_squares(&mut yy_u);
-                wall.lap("chunk");
                 cvs.par_iter_mut().for_each(|(cv, secs)| {
                     if let Cv::Form(f) = cv {
                         let mut failed = None;
@@ -594,9 +600,13 @@ pub(super) fn evaluate_all_in_chunks(
                         }
                     }
                 });
-                wall.lap("cells");
-            }
+                true
+            },
+        );
+        if let Err(e) = pooled_cells {
+            fail_forms(&mut cvs, e);
         }
+        wall.lap("cells");
         yy_done = true;
     }
     cvs.par_iter_mut().for_each(|(cv, secs)| {
@@ -609,36 +619,42 @@ pub(super) fn evaluate_all_in_chunks(
         }
     });
     wall.lap("theta");
-    // The score pass: each chunk once for every candidate.
-    for units in consecutive_units(prob, score_rows) {
-        if !cvs.iter().any(|(cv, _)| matches!(cv, Cv::Form(_))) {
-            break;
-        }
-        let c = match tg.chunk(prob, units.collect(), &read) {
-            Ok(c) => c,
-            Err(e) => {
-                fail_forms(&mut cvs, e);
-                break;
+    // The score pass: each chunk once for every candidate (none read when
+    // no candidate is left to score).
+    let any_form = |cvs: &Vec<(Cv, f64)>| cvs.iter().any(|(cv, _)| matches!(cv, Cv::Form(_)));
+    let score_chunks = match any_form(&cvs) {
+        true => consecutive_units(prob, score_rows),
+        false => Vec::new(),
+    };
+    let scored = made_ahead(
+        &score_chunks,
+        |units| {
+            let c = tg.chunk(prob, units.clone().collect(), &read)?;
+            let sy_c = c.unit_sums();
+            Ok((c, sy_c))
+        },
+        |_, (c, sy_c)| {
+            if !yy_done {
+                c.sum_squares(&mut yy_u);
             }
-        };
-        if !yy_done {
-            c.sum_squares(&mut yy_u);
-        }
-        let sy_c = c.unit_sums();
-        wall.lap("chunk");
-        cvs.par_iter_mut().for_each(|(cv, secs)| {
-            if let Cv::Form(f) = cv {
-                let mut failed = None;
-                timed(secs, &mut || {
-                    failed = f.score_pass(prob, tg, &yy_u, &c, &sy_c).err()
-                });
-                if let Some(e) = failed {
-                    *cv = Cv::Failed(e);
+            cvs.par_iter_mut().for_each(|(cv, secs)| {
+                if let Cv::Form(f) = cv {
+                    let mut failed = None;
+                    timed(secs, &mut || {
+                        failed = f.score_pass(prob, tg, &yy_u, &c, &sy_c).err()
+                    });
+                    if let Some(e) = failed {
+                        *cv = Cv::Failed(e);
+                    }
                 }
-            }
-        });
-        wall.lap("score");
+            });
+            any_form(&cvs)
+        },
+    );
+    if let Err(e) = scored {
+        fail_forms(&mut cvs, e);
     }
+    wall.lap("score");
     let out = cvs
         .into_par_iter()
         .zip(cands.par_iter())
@@ -653,41 +669,33 @@ pub(super) fn evaluate_all_in_chunks(
         })
         .collect();
     wall.lap("finish");
-    wall.report();
+    wall.done();
     out
 }
 
-/// Wall time per phase of a round's passes, logged at debug level: where a
-/// round waits beyond its candidates' own time (reading chunks, the tail
-/// of a pass's slowest candidate).
-struct PhaseClock {
-    at: std::time::Instant,
-    laps: Vec<(&'static str, f64)>,
-}
-
-impl PhaseClock {
-    fn new() -> Self {
-        PhaseClock {
-            at: std::time::Instant::now(),
-            laps: Vec::new(),
-        }
-    }
-    fn lap(&mut self, phase: &'static str) {
-        let s = self.at.elapsed().as_secs_f64();
-        self.at = std::time::Instant::now();
-        match self.laps.iter_mut().find(|(p, _)| *p == phase) {
-            Some((_, t)) => *t += s,
-            None => self.laps.push((phase, s)),
-        }
-    }
-    fn report(&self) {
-        if tracing::enabled!(tracing::Level::DEBUG) {
-            let laps: Vec<String> = self
-                .laps
-                .iter()
-                .map(|(p, s)| format!("{p} {s:.2}"))
-                .collect();
-            tracing::debug!("round wall time: {} s", laps.join(", "));
+/// Feeds `work` the chunk `make` makes of each item, in order, the next
+/// item's chunk made while `work` runs on the current one: reading a
+/// chunk and computing its targets would otherwise leave a core idle
+/// between chunks. Two chunks are held at once. `work` returning false
+/// stops the pass; the first chunk `make` cannot make stops it with that
+/// error (the chunks before it were worked on).
+fn made_ahead<I: Sync, C: Send>(
+    items: &[I],
+    make: impl Fn(&I) -> Result<C> + Sync,
+    mut work: impl FnMut(&I, C) -> bool + Send,
+) -> Result<()> {
+    let mut items = items.iter();
+    let Some(first) = items.next() else {
+        return Ok(());
+    };
+    let mut current = (first, make(first)?);
+    loop {
+        let (item, chunk) = current;
+        let upcoming = items.next();
+        let (next, go_on) = rayon::join(|| upcoming.map(&make), || work(item, chunk));
+        match (upcoming, next) {
+            (Some(i), Some(c)) if go_on => current = (i, c?),
+            _ => return Ok(()),
         }
     }
 }
