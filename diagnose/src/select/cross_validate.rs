@@ -544,31 +544,28 @@ pub(super) fn evaluate_all_in_chunks(
         names.sort();
         names.dedup();
         if !names.is_empty() {
-            let read_x = |units: &Range<usize>| {
+            for units in consecutive_units(prob, cell_rows) {
                 let (span, local) = rows_of_units(prob, units.clone());
-                Ok((prob.x.rows_of(&names, span)?, local))
-            };
-            let counted = made_ahead(
-                &consecutive_units(prob, cell_rows),
-                read_x,
-                |units, (x, local)| {
-                    let us: Vec<usize> = units.clone().collect();
-                    cvs.par_iter_mut().for_each(|(cv, secs)| {
-                        if let Cv::Form(f) = cv {
-                            let mut failed = None;
-                            timed(secs, &mut || failed = f.count_pass(&x, &us, &local).err());
-                            if let Some(e) = failed {
-                                *cv = Cv::Failed(e);
-                            }
+                let x = match prob.x.rows_of(&names, span) {
+                    Ok(x) => x,
+                    Err(e) => {
+                        fail_forms(&mut cvs, e);
+                        break;
+                    }
+                };
+                let us: Vec<usize> = units.collect();
+                wall.lap("read");
+                cvs.par_iter_mut().for_each(|(cv, secs)| {
+                    if let Cv::Form(f) = cv {
+                        let mut failed = None;
+                        timed(secs, &mut || failed = f.count_pass(&x, &us, &local).err());
+                        if let Some(e) = failed {
+                            *cv = Cv::Failed(e);
                         }
-                    });
-                    true
-                },
-            );
-            if let Err(e) = counted {
-                fail_forms(&mut cvs, e);
+                    }
+                });
+                wall.lap("count");
             }
-            wall.lap("count");
         }
         cvs.par_iter_mut().for_each(|(cv, _)| {
             if let Cv::Form(f) = cv {
@@ -577,20 +574,17 @@ pub(super) fn evaluate_all_in_chunks(
                 }
             }
         });
-        let chunks: Vec<(usize, Vec<usize>)> = groups
-            .iter()
-            .enumerate()
-            .flat_map(|(g, members)| {
-                cut_units(prob, members, cell_rows)
-                    .into_iter()
-                    .map(move |units| (g, units))
-            })
-            .collect();
-        let pooled_cells = made_ahead(
-            &chunks,
-            |(_, units)| tg.chunk(prob, units.clone(), &read),
-            |&(g, _), c| {
+        'groups: for (g, members) in groups.iter().enumerate() {
+            for units in cut_units(prob, members, cell_rows) {
+                let c = match tg.chunk(prob, units, &read) {
+                    Ok(c) => c,
+                    Err(e) => {
+                        fail_forms(&mut cvs, e);
+                        break 'groups;
+                    }
+                };
                 c.sum_squares(&mut yy_u);
+                wall.lap("chunk");
                 cvs.par_iter_mut().for_each(|(cv, secs)| {
                     if let Cv::Form(f) = cv {
                         let mut failed = None;
@@ -600,13 +594,9 @@ pub(super) fn evaluate_all_in_chunks(
                         }
                     }
                 });
-                true
-            },
-        );
-        if let Err(e) = pooled_cells {
-            fail_forms(&mut cvs, e);
+                wall.lap("cells");
+            }
         }
-        wall.lap("cells");
         yy_done = true;
     }
     cvs.par_iter_mut().for_each(|(cv, secs)| {
@@ -619,42 +609,36 @@ pub(super) fn evaluate_all_in_chunks(
         }
     });
     wall.lap("theta");
-    // The score pass: each chunk once for every candidate (none read when
-    // no candidate is left to score).
-    let any_form = |cvs: &Vec<(Cv, f64)>| cvs.iter().any(|(cv, _)| matches!(cv, Cv::Form(_)));
-    let score_chunks = match any_form(&cvs) {
-        true => consecutive_units(prob, score_rows),
-        false => Vec::new(),
-    };
-    let scored = made_ahead(
-        &score_chunks,
-        |units| {
-            let c = tg.chunk(prob, units.clone().collect(), &read)?;
-            let sy_c = c.unit_sums();
-            Ok((c, sy_c))
-        },
-        |_, (c, sy_c)| {
-            if !yy_done {
-                c.sum_squares(&mut yy_u);
+    // The score pass: each chunk once for every candidate.
+    for units in consecutive_units(prob, score_rows) {
+        if !cvs.iter().any(|(cv, _)| matches!(cv, Cv::Form(_))) {
+            break;
+        }
+        let c = match tg.chunk(prob, units.collect(), &read) {
+            Ok(c) => c,
+            Err(e) => {
+                fail_forms(&mut cvs, e);
+                break;
             }
-            cvs.par_iter_mut().for_each(|(cv, secs)| {
-                if let Cv::Form(f) = cv {
-                    let mut failed = None;
-                    timed(secs, &mut || {
-                        failed = f.score_pass(prob, tg, &yy_u, &c, &sy_c).err()
-                    });
-                    if let Some(e) = failed {
-                        *cv = Cv::Failed(e);
-                    }
+        };
+        if !yy_done {
+            c.sum_squares(&mut yy_u);
+        }
+        let sy_c = c.unit_sums();
+        wall.lap("chunk");
+        cvs.par_iter_mut().for_each(|(cv, secs)| {
+            if let Cv::Form(f) = cv {
+                let mut failed = None;
+                timed(secs, &mut || {
+                    failed = f.score_pass(prob, tg, &yy_u, &c, &sy_c).err()
+                });
+                if let Some(e) = failed {
+                    *cv = Cv::Failed(e);
                 }
-            });
-            any_form(&cvs)
-        },
-    );
-    if let Err(e) = scored {
-        fail_forms(&mut cvs, e);
+            }
+        });
+        wall.lap("score");
     }
-    wall.lap("score");
     let out = cvs
         .into_par_iter()
         .zip(cands.par_iter())
@@ -671,33 +655,6 @@ pub(super) fn evaluate_all_in_chunks(
     wall.lap("finish");
     wall.done();
     out
-}
-
-/// Feeds `work` the chunk `make` makes of each item, in order, the next
-/// item's chunk made while `work` runs on the current one: reading a
-/// chunk and computing its targets would otherwise leave a core idle
-/// between chunks. Two chunks are held at once. `work` returning false
-/// stops the pass; the first chunk `make` cannot make stops it with that
-/// error (the chunks before it were worked on).
-fn made_ahead<I: Sync, C: Send>(
-    items: &[I],
-    make: impl Fn(&I) -> Result<C> + Sync,
-    mut work: impl FnMut(&I, C) -> bool + Send,
-) -> Result<()> {
-    let mut items = items.iter();
-    let Some(first) = items.next() else {
-        return Ok(());
-    };
-    let mut current = (first, make(first)?);
-    loop {
-        let (item, chunk) = current;
-        let upcoming = items.next();
-        let (next, go_on) = rayon::join(|| upcoming.map(&make), || work(item, chunk));
-        match (upcoming, next) {
-            (Some(i), Some(c)) if go_on => current = (i, c?),
-            _ => return Ok(()),
-        }
-    }
 }
 
 /// A linear form's cross-validation as passes over the rows

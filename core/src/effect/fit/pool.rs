@@ -343,39 +343,32 @@ impl CellPool {
                     targets,
                 )
             }
-            ([a, b], _, Some(k)) => {
-                let cols = [*a, *b];
-                let axes = self.axes.clone();
-                self.add_range_dense(
-                    group,
-                    r,
-                    cols,
-                    k.cells,
-                    |i| k.cell(&axes, cols, i),
-                    weights,
-                    targets,
-                );
-                self.compact = Some(k);
-            }
+            ([a, b], _, Some(k)) => self.add_range_compact(group, r, [*a, *b], k, weights, targets),
             ([a, b, c], _, Some(k)) => {
-                let cols = [*a, *b, *c];
-                let axes = self.axes.clone();
-                self.add_range_dense(
-                    group,
-                    r,
-                    cols,
-                    k.cells,
-                    |i| k.cell(&axes, cols, i),
-                    weights,
-                    targets,
-                );
-                self.compact = Some(k);
+                self.add_range_compact(group, r, [*a, *b, *c], k, weights, targets)
             }
             (_, _, k) => {
                 self.compact = k;
                 self.add_range_sorted(group, r, cols, weights, targets);
             }
         }
+    }
+
+    /// Several covariates on their compact grid `k` (taken out of the pool
+    /// for the call, put back after).
+    fn add_range_compact<const ND: usize>(
+        &mut self,
+        group: usize,
+        r: Range<usize>,
+        cols: [&[f64]; ND],
+        k: Compact,
+        weights: Option<&[f64]>,
+        targets: &[&[f64]],
+    ) {
+        let axes = self.axes.clone();
+        let cell = |i| k.cell(&axes, cols, i);
+        self.add_range_dense(group, r, cols, k.cells, cell, weights, targets);
+        self.compact = Some(k);
     }
 
     /// Dense bins, no sort — one covariate's bins, or the cells of a
