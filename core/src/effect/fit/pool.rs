@@ -80,6 +80,9 @@ const MAX_COMPACT_CELLS: usize = 1 << 18;
 /// cell key, so the cells come out in the sorted path's order with the
 /// same sums (same rows, same order of additions).
 struct Compact {
+    /// The pool's axes (a copy: the cell of a row is found while the
+    /// pool's groups are borrowed to add it).
+    axes: Vec<Axis>,
     /// Per covariate, each bin's rank among the occupied ones
     /// (`u32::MAX`: no counted row).
     rank: Vec<Vec<u32>>,
@@ -89,9 +92,9 @@ struct Compact {
 }
 
 impl Compact {
-    /// The compact grid of `occupied` bins, `None` when its cells would be
-    /// more than [`MAX_COMPACT_CELLS`].
-    fn of(occupied: &[Vec<bool>]) -> Option<Compact> {
+    /// The compact grid of `occupied` bins of `axes`, `None` when its
+    /// cells would be more than [`MAX_COMPACT_CELLS`].
+    fn of(axes: &[Axis], occupied: &[Vec<bool>]) -> Option<Compact> {
         let counts: Vec<usize> = occupied
             .iter()
             .map(|o| o.iter().filter(|&&b| b).count().max(1))
@@ -120,15 +123,20 @@ impl Compact {
         for j in (0..counts.len().saturating_sub(1)).rev() {
             radix[j] = radix[j + 1] * counts[j + 1];
         }
-        Some(Compact { rank, radix, cells })
+        Some(Compact {
+            axes: axes.to_vec(),
+            rank,
+            radix,
+            cells,
+        })
     }
 
     /// The cell of row `i`.
     #[inline(always)]
-    fn cell<const ND: usize>(&self, axes: &[Axis], cols: [&[f64]; ND], i: usize) -> usize {
+    fn cell<const ND: usize>(&self, cols: [&[f64]; ND], i: usize) -> usize {
         let mut at = 0;
         for j in 0..ND {
-            let r = self.rank[j][axes[j].bin(cols[j][i])];
+            let r = self.rank[j][self.axes[j].bin(cols[j][i])];
             assert!(
                 r != u32::MAX,
                 "a row pooled that the count pass did not see"
@@ -365,8 +373,7 @@ impl CellPool {
         weights: Option<&[f64]>,
         targets: &[&[f64]],
     ) {
-        let axes = self.axes.clone();
-        let cell = |i| k.cell(&axes, cols, i);
+        let cell = |i| k.cell(cols, i);
         self.add_range_dense(group, r, cols, k.cells, cell, weights, targets);
         self.compact = Some(k);
     }
@@ -558,7 +565,7 @@ impl CellPool {
     pub fn counted(&mut self) {
         let [axis] = self.axes.as_slice() else {
             if !self.occupied.is_empty() {
-                self.compact = Compact::of(&self.occupied);
+                self.compact = Compact::of(&self.axes, &self.occupied);
                 self.occupied = Vec::new();
             }
             return;
