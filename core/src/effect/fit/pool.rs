@@ -135,13 +135,14 @@ impl Compact {
     #[inline(always)]
     fn cell<const ND: usize>(&self, cols: [&[f64]; ND], i: usize) -> usize {
         let mut at = 0;
-        for j in 0..ND {
-            let r = self.rank[j][self.axes[j].bin(cols[j][i])];
+        let per_axis = self.rank.iter().zip(&self.axes).zip(&self.radix);
+        for (c, ((rank, axis), radix)) in cols.iter().zip(per_axis) {
+            let r = rank[axis.bin(c[i])];
             assert!(
                 r != u32::MAX,
                 "a row pooled that the count pass did not see"
             );
-            at += r as usize * self.radix[j];
+            at += r as usize * radix;
         }
         at
     }
