@@ -131,6 +131,30 @@ fn bench_keys(c: &mut Criterion) {
     g.finish();
 }
 
+/// A covariate's constants (extremes, median spacing of its distinct
+/// values) over 10⁶ rows of 500 runs, as the gather computes them for
+/// every covariate of an observable: a time base that repeats run after
+/// run (2 000 distinct values: a hash set of the distinct values) and a
+/// position that hardly repeats (every row sorted).
+fn bench_constants(c: &mut Criterion) {
+    let (runs, per_run) = (500usize, 2_000usize);
+    let t_s: Vec<f64> = (0..runs * per_run)
+        .map(|i| (i % per_run) as f64 * 1e-3)
+        .collect();
+    let x_mm: Vec<f64> = (0..runs * per_run)
+        .map(|i| 50.0 * ((i as f64) * 1e-4).sin() + (i % 7919) as f64 * 1e-7)
+        .collect();
+    let mut g = c.benchmark_group("diagnose");
+    g.sample_size(20);
+    g.bench_function("constants_1e6_rows_repeating_time_base", |b| {
+        b.iter(|| sparkout_pipeline::effect::CovStats::from_values(&t_s))
+    });
+    g.bench_function("constants_1e6_rows_continuous_position", |b| {
+        b.iter(|| sparkout_pipeline::effect::CovStats::from_values(&x_mm))
+    });
+    g.finish();
+}
+
 /// A fleet table's keys as the night reads them (500 runs × 2 observables
 /// × 1 000 rows, a `unit` column stating µm for one observable): indexed
 /// from its file batch by batch, and spilled per observable with each row's
@@ -199,7 +223,14 @@ fn bench_index(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, bench_diagnose, bench_pool, bench_keys, bench_index);
+criterion_group!(
+    benches,
+    bench_diagnose,
+    bench_pool,
+    bench_keys,
+    bench_constants,
+    bench_index
+);
 
 /// `SPARKOUT_BENCH_VALIDATE=1 cargo bench --bench diagnose` also times
 /// `sparkout validate --quick` and the full validation (targets:

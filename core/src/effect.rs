@@ -133,12 +133,9 @@ pub trait FittedEffect: Send + Sync {
 /// the diagnosis sorts every covariate of an observable (10⁷ rows each at
 /// 10⁸ fleet rows). The same values, bit for bit, as `sort_by(total_cmp)`.
 pub fn sorted_values(v: &[f64]) -> Vec<f64> {
-    const SIGN: u64 = 1 << 63;
     let mut k: Vec<u64> = v.iter().map(|&x| total_order_key(x)).collect();
     k.sort_unstable();
-    k.into_iter()
-        .map(|k| f64::from_bits(if k & SIGN != 0 { k & !SIGN } else { !k }))
-        .collect()
+    k.into_iter().map(from_total_order_key).collect()
 }
 
 /// `x` as an integer whose unsigned order is `f64::total_cmp`'s: the bit
@@ -150,6 +147,66 @@ pub fn total_order_key(x: f64) -> u64 {
         !b
     } else {
         b | SIGN
+    }
+}
+
+/// The inverse of [`total_order_key`].
+pub fn from_total_order_key(k: u64) -> f64 {
+    const SIGN: u64 = 1 << 63;
+    f64::from_bits(if k & SIGN != 0 { k & !SIGN } else { !k })
+}
+
+/// Up to this many distinct values a covariate's constants are found from
+/// a hash set of its values instead of sorting its column: a time base,
+/// a commanded velocity, a direction or a few z levels repeat across the
+/// runs of a fleet, and hashing 4.8·10⁶ rows into a set that stays in
+/// cache costs a fraction of sorting them (docs/design.md §8).
+const DISTINCT_HASHED_MAX: usize = 1 << 16;
+
+/// The total-order keys of `v`'s distinct values (no order), or None as
+/// soon as there are more than `max` of them (the caller sorts instead).
+fn distinct_keys(v: &[f64], max: usize) -> Option<Vec<u64>> {
+    let mut seen: std::collections::HashSet<u64, std::hash::BuildHasherDefault<KeyHasher>> =
+        std::collections::HashSet::with_capacity_and_hasher(
+            max.saturating_add(1).min(1024),
+            Default::default(),
+        );
+    // A stretch of one value (a run's rows at one level) is looked up once.
+    let mut last = None;
+    for &x in v {
+        let k = total_order_key(x);
+        if last == Some(k) {
+            continue;
+        }
+        last = Some(k);
+        if seen.insert(k) && seen.len() > max {
+            return None;
+        }
+    }
+    Some(seen.into_iter().collect())
+}
+
+/// A 64-bit key's hash: the splitmix64 finaliser (every bit of the key
+/// moves the bucket and the control byte; `std`'s default SipHash costs
+/// several times more and guards against adversarial keys, which a
+/// column of numbers cannot exploit beyond slowing itself down).
+#[derive(Default)]
+struct KeyHasher(u64);
+
+impl std::hash::Hasher for KeyHasher {
+    fn finish(&self) -> u64 {
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^ (z >> 31)
+    }
+    fn write(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.0 = self.0.rotate_left(8) ^ u64::from(b);
+        }
+    }
+    fn write_u64(&mut self, k: u64) {
+        self.0 = k;
     }
 }
 
@@ -168,7 +225,21 @@ pub struct CovStats {
 
 impl CovStats {
     pub fn from_values(v: &[f64]) -> CovStats {
-        Self::from_sorted(&sorted_values(v))
+        match distinct_keys(v, DISTINCT_HASHED_MAX) {
+            Some(keys) => Self::from_distinct_keys(keys),
+            None => Self::from_sorted(&sorted_values(v)),
+        }
+    }
+
+    /// From the distinct values' total-order keys (any order). A column's
+    /// constants depend only on its distinct values: its extremes, and the
+    /// spacings between consecutive distinct values — the zero spacings
+    /// between repeated values are never above the tolerance — so the same
+    /// bits as sorting every row.
+    fn from_distinct_keys(mut keys: Vec<u64>) -> CovStats {
+        keys.sort_unstable();
+        let values: Vec<f64> = keys.into_iter().map(from_total_order_key).collect();
+        Self::from_sorted(&values)
     }
     /// From values the caller no longer needs in their order: sorted in
     /// place, and the spacings written over the sorted values as they are
@@ -176,15 +247,16 @@ impl CovStats {
     /// a file one at a time, docs/design.md §8). The same bits as
     /// [`CovStats::from_values`].
     pub fn from_values_in_place(v: &mut [f64]) -> CovStats {
-        const SIGN: u64 = 1 << 63;
+        if let Some(keys) = distinct_keys(v, DISTINCT_HASHED_MAX) {
+            return Self::from_distinct_keys(keys);
+        }
         for x in v.iter_mut() {
             *x = f64::from_bits(total_order_key(*x));
         }
         // Sorted as the integers `sorted_values` sorts.
         v.sort_unstable_by_key(|x| x.to_bits());
         for x in v.iter_mut() {
-            let k = x.to_bits();
-            *x = f64::from_bits(if k & SIGN != 0 { k & !SIGN } else { !k });
+            *x = from_total_order_key(x.to_bits());
         }
         if v.is_empty() {
             return Self::from_sorted(v);
@@ -580,6 +652,12 @@ mod sorted_tests {
             .map(|i| ((i * 7919) % 1013) as f64 * 0.013 - 4.0 + (i as f64 * 0.7).sin())
             .collect();
         let steps: Vec<f64> = (0..3000).map(|i| (i % 37) as f64 * 0.25).collect();
+        // More distinct values than the hash set takes: sorted.
+        let many: Vec<f64> = (0..super::DISTINCT_HASHED_MAX + 7)
+            .map(|i| ((i * 7919) % 70_001) as f64 * 1e-3 - 20.0)
+            .collect();
+        let nan = vec![1.0, f64::NAN, -2.0, 1.0, -f64::NAN, 0.25];
+        let bits = |s: super::CovStats| [s.min, s.max, s.step, s.max_abs].map(|x| x.to_bits());
         for v in [
             Vec::new(),
             vec![2.5],
@@ -587,11 +665,31 @@ mod sorted_tests {
             vec![3.0, -1.0, 3.0, 0.5, -0.0, 0.0],
             wavy,
             steps,
+            many,
+            nan,
         ] {
-            let want = super::CovStats::from_values(&v);
+            // The definition: every value sorted.
+            let want = bits(super::CovStats::from_sorted(&super::sorted_values(&v)));
+            assert_eq!(bits(super::CovStats::from_values(&v)), want, "{v:?}");
             let got = super::CovStats::from_values_in_place(&mut v.clone());
-            let bits = |s: super::CovStats| [s.min, s.max, s.step, s.max_abs].map(|x| x.to_bits());
-            assert_eq!(bits(got), bits(want), "{v:?}");
+            assert_eq!(bits(got), want, "{v:?}");
+            // The hash set's stats whatever its bound: the distinct
+            // values alone, or none past the bound.
+            for max in [0, 1, 3, 1000, usize::MAX] {
+                match super::distinct_keys(&v, max) {
+                    Some(keys) => {
+                        assert!(keys.len() <= max);
+                        assert_eq!(bits(super::CovStats::from_distinct_keys(keys)), want);
+                    }
+                    None => {
+                        let mut all: Vec<u64> =
+                            v.iter().map(|&x| super::total_order_key(x)).collect();
+                        all.sort_unstable();
+                        all.dedup();
+                        assert!(all.len() > max, "{max}: {} distinct", all.len());
+                    }
+                }
+            }
         }
     }
 }
