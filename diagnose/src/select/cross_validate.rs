@@ -555,7 +555,7 @@ pub(super) fn evaluate_all_in_chunks(
                 };
                 let us: Vec<usize> = units.collect();
                 wall.lap("read");
-                cvs.par_iter_mut().for_each(|(cv, secs)| {
+                costliest_first(&mut cvs, |cv, secs| {
                     if let Cv::Form(f) = cv {
                         let mut failed = None;
                         timed(secs, &mut || failed = f.count_pass(&x, &us, &local).err());
@@ -585,7 +585,7 @@ pub(super) fn evaluate_all_in_chunks(
                 };
                 c.sum_squares(&mut yy_u);
                 wall.lap("chunk");
-                cvs.par_iter_mut().for_each(|(cv, secs)| {
+                costliest_first(&mut cvs, |cv, secs| {
                     if let Cv::Form(f) = cv {
                         let mut failed = None;
                         timed(secs, &mut || failed = f.cell_pass(&c, g).err());
@@ -599,7 +599,7 @@ pub(super) fn evaluate_all_in_chunks(
         }
         yy_done = true;
     }
-    cvs.par_iter_mut().for_each(|(cv, secs)| {
+    costliest_first(&mut cvs, |cv, secs| {
         if let Cv::Form(f) = cv {
             let mut failed = None;
             timed(secs, &mut || failed = f.fit_theta(prob, tg, &yy_u).err());
@@ -626,7 +626,7 @@ pub(super) fn evaluate_all_in_chunks(
         }
         let sy_c = c.unit_sums();
         wall.lap("chunk");
-        cvs.par_iter_mut().for_each(|(cv, secs)| {
+        costliest_first(&mut cvs, |cv, secs| {
             if let Cv::Form(f) = cv {
                 let mut failed = None;
                 timed(secs, &mut || {
@@ -655,6 +655,21 @@ pub(super) fn evaluate_all_in_chunks(
     wall.lap("finish");
     wall.done();
     out
+}
+
+/// `f` on every candidate (its state, its time so far), in parallel, the
+/// candidates that took longest so far first. Each pass is a barrier (the
+/// next chunk waits for every candidate), so a costly candidate started
+/// last leaves the other core idle while it finishes; started first, the
+/// cheap ones fill in around it. Each candidate's work is its own, so the
+/// order changes no result.
+fn costliest_first<T: Send>(cvs: &mut [(T, f64)], f: impl Fn(&mut T, &mut f64) + Sync) {
+    let mut order: Vec<&mut (T, f64)> = cvs.iter_mut().collect();
+    order.sort_by(|a, b| b.1.total_cmp(&a.1));
+    order
+        .into_par_iter()
+        .with_max_len(1)
+        .for_each(|(cv, secs)| f(cv, secs));
 }
 
 /// A linear form's cross-validation as passes over the rows
