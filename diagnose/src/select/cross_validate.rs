@@ -1219,6 +1219,33 @@ mod tests {
     use super::*;
     use crate::effect::{catalogue, CovStats};
 
+    /// Every candidate once, its own state and time handed to it; on one
+    /// thread in the order of the time so far, longest first (ties in
+    /// candidate order).
+    #[test]
+    fn the_costliest_candidates_are_started_first() {
+        let mut cvs: Vec<(usize, f64)> = [0.5, 2.0, 0.0, 3.5, 2.0, 1.0]
+            .into_iter()
+            .enumerate()
+            .collect();
+        let seen = std::sync::Mutex::new(Vec::new());
+        let one = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .unwrap();
+        one.install(|| {
+            costliest_first(&mut cvs, |i, secs| {
+                seen.lock().unwrap().push(*i);
+                *secs += 10.0;
+            })
+        });
+        assert_eq!(seen.into_inner().unwrap(), vec![3, 1, 4, 5, 0, 2]);
+        assert_eq!(
+            cvs.iter().map(|c| c.1).collect::<Vec<_>>(),
+            vec![10.5, 12.0, 10.0, 13.5, 12.0, 11.0]
+        );
+    }
+
     /// A candidate's cross-validation reads the rows a chunk at a time;
     /// its fits and held-out scores are the same bits whether a chunk is
     /// one unit or a whole fold group — what lets a pass stream the runs
