@@ -26,6 +26,11 @@ pub const COVARIATES_IN_MEMORY_MAX_BYTES: usize = 64 << 20;
 /// Rows a chunked read of a column file takes at a time.
 pub const READ_ROWS: usize = 1 << 18;
 
+/// Rows from which [`Covariates::rows`] reads a file's columns side by
+/// side (128 KiB a column): below, a run's rows for the intervals, the
+/// reads are too short to be worth a task each.
+const PARALLEL_READ_MIN_ROWS: usize = 1 << 14;
+
 /// The budget in force: `default`, or the byte count in the environment
 /// variable `var` (a warning and the default when it is not one).
 pub fn byte_budget(var: &str, default: usize) -> usize {
@@ -149,32 +154,41 @@ impl Covariates {
     /// views of columns in memory when one range is asked, else copies.
     pub fn rows(&self, names: &[String], ranges: &[Range<usize>]) -> Result<CovRows<'_>> {
         let n: usize = ranges.iter().map(|r| r.len()).sum();
-        let cols = names
-            .iter()
-            .map(|c| {
-                let j = self.index(c)?;
-                let v: Cow<'_, [f64]> = match &self.store {
-                    Store::Memory(values) => match ranges {
-                        [r] => Cow::Borrowed(&values[j][r.clone()]),
-                        _ => {
-                            let mut v = Vec::with_capacity(n);
-                            for r in ranges {
-                                v.extend_from_slice(&values[j][r.clone()]);
-                            }
-                            Cow::Owned(v)
-                        }
-                    },
-                    Store::File { file, at } => {
+        let column = |c: &String| -> Result<(String, Cow<'_, [f64]>)> {
+            let j = self.index(c)?;
+            let v: Cow<'_, [f64]> = match &self.store {
+                Store::Memory(values) => match ranges {
+                    [r] => Cow::Borrowed(&values[j][r.clone()]),
+                    _ => {
                         let mut v = Vec::with_capacity(n);
-                        for r in coalesced(ranges) {
-                            file.read_into(at[j], r, &mut v)?;
+                        for r in ranges {
+                            v.extend_from_slice(&values[j][r.clone()]);
                         }
                         Cow::Owned(v)
                     }
-                };
-                Ok((c.clone(), v))
-            })
-            .collect::<Result<_>>()?;
+                },
+                Store::File { file, at } => {
+                    let mut v = Vec::with_capacity(n);
+                    for r in coalesced(ranges) {
+                        file.read_into(at[j], r, &mut v)?;
+                    }
+                    Cow::Owned(v)
+                }
+            };
+            Ok((c.clone(), v))
+        };
+        // A pass's chunk read from a file: its columns side by side
+        // (positioned reads, no shared cursor) — the chunk is made while
+        // the candidates wait, so a second core reading halves the wait.
+        let cols = if matches!(self.store, Store::File { .. }) && n >= PARALLEL_READ_MIN_ROWS {
+            names
+                .par_iter()
+                .with_max_len(1)
+                .map(column)
+                .collect::<Result<_>>()?
+        } else {
+            names.iter().map(column).collect::<Result<_>>()?
+        };
         Ok(CovRows { n, cols })
     }
 
