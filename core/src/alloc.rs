@@ -15,28 +15,36 @@
 //! core or fewer, at the same speed — docs/scale.md). Arenas are capped at
 //! one per core.
 
-/// Call once, first thing in a binary (the `sparkout` main and the bench
-/// mains); a no-op off glibc.
-pub fn keep_freed_memory() {
+// glibc <malloc.h>'s mallopt parameters.
+const M_TRIM_THRESHOLD: i32 = -1;
+const M_MMAP_THRESHOLD: i32 = -3;
+const M_ARENA_MAX: i32 = -8;
+
+/// Sets one of glibc's malloc parameters; a no-op off glibc.
+fn set_malloc_param(param: i32, value: i32) {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
     {
-        // glibc <malloc.h>: M_TRIM_THRESHOLD = -1, M_MMAP_THRESHOLD = -3.
-        // 32 MiB is the largest mmap threshold glibc accepts on 64-bit.
         extern "C" {
             fn mallopt(param: std::ffi::c_int, value: std::ffi::c_int) -> std::ffi::c_int;
         }
-        const M_TRIM_THRESHOLD: std::ffi::c_int = -1;
-        const M_MMAP_THRESHOLD: std::ffi::c_int = -3;
-        const M_ARENA_MAX: std::ffi::c_int = -8;
-        let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
-        // SAFETY: mallopt only sets allocator parameters; called before
-        // any thread of ours allocates concurrently.
+        // SAFETY: mallopt only sets an allocator parameter (glibc takes
+        // the main arena's lock to set it).
         unsafe {
-            mallopt(M_MMAP_THRESHOLD, 32 << 20);
-            mallopt(M_TRIM_THRESHOLD, 128 << 20);
-            mallopt(M_ARENA_MAX, cores.clamp(1, 64) as std::ffi::c_int);
+            mallopt(param, value);
         }
     }
+    #[cfg(not(all(target_os = "linux", target_env = "gnu")))]
+    let _ = (param, value);
+}
+
+/// Call once, first thing in a binary (the `sparkout` main and the bench
+/// mains); a no-op off glibc.
+pub fn keep_freed_memory() {
+    // 32 MiB is the largest mmap threshold glibc accepts on 64-bit.
+    set_malloc_param(M_MMAP_THRESHOLD, 32 << 20);
+    set_malloc_param(M_TRIM_THRESHOLD, 128 << 20);
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    set_malloc_param(M_ARENA_MAX, cores.clamp(1, 64) as i32);
 }
 
 /// From now on, threads that have no malloc arena yet share the main one
@@ -44,24 +52,13 @@ pub fn keep_freed_memory() {
 /// `aggregate`, which runs only the fleet steps: the diagnosis' worker
 /// threads then allocate from one arena, whose freed chunks every thread
 /// reuses, instead of two that each keep their own. At 2 000 servo runs
-/// the aggregate's resident peak fell from 394–436 MB (five runs) to
-/// 340–348 MB and varied less; at 500 runs from 275–282 to 262–267 MB;
-/// the time did not move beyond the machine's noise (docs/scale.md). A
-/// single-node `run` keeps an arena per worker: its per-run stages
-/// allocate side by side. A no-op off glibc.
+/// the aggregate's resident peak fell from 352–398 MB (five runs) to
+/// 340–366 MB (six) and varied less; at 500 runs from 275–282 to
+/// 262–267 MB; the time did not move beyond the machine's noise
+/// (docs/scale.md). A single-node `run` keeps an arena per worker: its
+/// per-run stages allocate side by side. A no-op off glibc.
 pub fn share_one_arena() {
-    #[cfg(all(target_os = "linux", target_env = "gnu"))]
-    {
-        extern "C" {
-            fn mallopt(param: std::ffi::c_int, value: std::ffi::c_int) -> std::ffi::c_int;
-        }
-        const M_ARENA_MAX: std::ffi::c_int = -8;
-        // SAFETY: mallopt only sets an allocator parameter (glibc takes
-        // the main arena's lock to set it).
-        unsafe {
-            mallopt(M_ARENA_MAX, 1);
-        }
-    }
+    set_malloc_param(M_ARENA_MAX, 1);
 }
 
 /// Gives the pages of freed allocations back to the kernel, in every

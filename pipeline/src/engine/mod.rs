@@ -542,9 +542,9 @@ impl Engine {
         out: &Path,
         progress: &dyn Progress,
     ) -> Result<FleetOutcome> {
-        // Nothing here allocates side by side for long: every thread
-        // shares one malloc arena, which keeps less freed memory at the
-        // diagnosis' peak (`alloc::share_one_arena`).
+        // The fleet steps alone: every thread shares one malloc arena,
+        // which keeps less freed memory at the diagnosis' peak
+        // (`alloc::share_one_arena`).
         crate::alloc::share_one_arena();
         let manifests: Vec<shard::ShardManifest> = shard_dirs
             .iter()
