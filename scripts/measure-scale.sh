@@ -2,22 +2,31 @@
 # The scale figures of docs/scale.md, reproducible on one machine:
 #   scripts/measure-scale.sh target/release/sparkout /tmp/scale 500 1000 2000
 #
-# For each N: a generated servo fleet of N runs (≈ 14 600 observation rows
-# per run) with a real effect (EFFECT, default servo_lag; EFFECT= for none);
-# SHARDS shards (default 4) run one after another, each with `--jobs 1`,
+# For each N: a generated fleet of N runs (GENERATOR, default servo: ≈ 14 600
+# observation rows per run; robot: runs with 1 MHz AE logs, ≈ 30 MB each)
+# with a real effect (EFFECT, default servo_lag for servo and wheel_wear for
+# robot; EFFECT= for none); SHARDS shards (default 4; BALANCE=size for
+# `--balance size`, default hash) run one after another, each with `--jobs 1`,
 # then `aggregate`; and a single-node `run --jobs 1`. The sharded night's
 # time is the slowest shard's wall time plus aggregate's (what a cluster
 # with one node per shard would see). Every step's wall time and peak RSS
 # come from /usr/bin/time. The single node's fleet outputs are compared
 # byte for byte with the aggregate's. One line per measurement, then a
 # summary line per N; cost exponents between consecutive N at the end.
-# Disk: ≈ 10 GB under WORK for 500 + 1 000 + 2 000 runs (fleets, shards,
-# single-node outputs); remove WORK afterwards.
+# Disk: ≈ 10 GB under WORK for 500 + 1 000 + 2 000 servo runs, ≈ 6 GB for
+# 200 robot runs (fleets, shards, single-node outputs); remove WORK
+# afterwards.
 set -euo pipefail
 export SPARKOUT_LOG=${SPARKOUT_LOG:-warn}
 bin=$(realpath "$1"); work=$2; shift 2
 shards=${SHARDS:-4}
-effect=${EFFECT-servo_lag}
+generator=${GENERATOR:-servo}
+case "$generator" in
+  servo) effect=${EFFECT-servo_lag} ;;
+  robot) effect=${EFFECT-wheel_wear} ;;
+  *) effect=${EFFECT-} ;;
+esac
+balance=${BALANCE:-hash}
 single=${SINGLE:-1}
 # Runs `$@` under /usr/bin/time; exit code 2 (some runs rejected, listed
 # in failures.json) counts as success. Prints "<wall s> <peak MB>".
@@ -38,13 +47,13 @@ for n in "$@"; do
   ns+=("$n")
   d="$work/n$n"
   rm -rf "$d"; mkdir -p "$d"
-  "$bin" generate servo --runs "$n" --seed 7 --out "$d/runs" \
+  "$bin" generate "$generator" --runs "$n" --seed 7 --out "$d/runs" \
     ${effect:+--effect "$effect"} >/dev/null
   slowest=0
   list=()
   for i in $(seq 0 $((shards - 1))); do
     read -r s mb < <(timed "$bin" run --input "$d/runs" --out "$d/shard-$i" \
-      --shard "$i/$shards" --jobs 1)
+      --shard "$i/$shards" --balance "$balance" --jobs 1)
     echo "n=$n shard $i/$shards ${s} s ${mb} MB"
     slowest=$(awk -v a="$slowest" -v b="$s" 'BEGIN { print (b > a) ? b : a }')
     list+=("$d/shard-$i")
