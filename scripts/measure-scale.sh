@@ -10,7 +10,9 @@
 # then `aggregate`; and a single-node `run --jobs 1`. The sharded night's
 # time is the slowest shard's wall time plus aggregate's (what a cluster
 # with one node per shard would see). Every step's wall time and peak RSS
-# come from /usr/bin/time. The single node's fleet outputs are compared
+# come from /usr/bin/time; `aggregate`'s line adds where its time went (its
+# progress lines, timestamped in WORK/nN/aggregate.log). The single node's
+# fleet outputs are compared
 # byte for byte with the aggregate's. One line per measurement, then a
 # summary line per N; cost exponents between consecutive N at the end.
 # Disk: ≈ 10 GB under WORK for 500 + 1 000 + 2 000 servo runs, ≈ 6 GB for
@@ -41,6 +43,34 @@ timed() {
   awk '{ printf "%.1f %.0f\n", $1, $2 / 1024 }' "$f"
   rm -f "$f"
 }
+# `timed`, with the command's log (SPARKOUT_LOG=info) written to $1, each
+# line prefixed with the second it arrived, and a last line "<second> END".
+timed_logged() {
+  local log=$1 f rc
+  shift
+  f=$(mktemp)
+  set +e
+  SPARKOUT_LOG=info /usr/bin/time -f '%e %M' -o "$f" "$@" 2>&1 >/dev/null |
+    perl -MTime::HiRes=time -ne '$| = 1; printf "%.2f %s", time, $_' >"$log"
+  rc=${PIPESTATUS[0]}
+  set -e
+  perl -MTime::HiRes=time -e 'printf "%.2f END\n", time' >>"$log"
+  if [ "$rc" -ne 0 ] && [ "$rc" -ne 2 ]; then
+    echo "failed ($rc): $*" >&2
+    exit 1
+  fi
+  awk '{ printf "%.1f %.0f\n", $1, $2 / 1024 }' "$f"
+  rm -f "$f"
+}
+# Where `aggregate`'s time went, from the progress lines of its log.
+phases() {
+  awk '/ gathering [0-9]+ shard/ { g = $1 } / joining observations/ { j = $1 }
+       / diagnosing the sim-to-real gap/ { d = $1 } / writing the diagnosis/ { w = $1 }
+       / writing the fleet report/ { r = $1 } / END$/ { e = $1 }
+       END { if (g && j && d && w && r && e)
+               printf "gathering shards %.1f s, join %.1f s, diagnosis %.1f s, writing the diagnosis %.1f s, report and index %.1f s\n",
+                 j - g, d - j, w - d, r - w, e - r }' "$1"
+}
 declare -A night agg_mb single_s
 ns=()
 for n in "$@"; do
@@ -58,8 +88,8 @@ for n in "$@"; do
     slowest=$(awk -v a="$slowest" -v b="$s" 'BEGIN { print (b > a) ? b : a }')
     list+=("$d/shard-$i")
   done
-  read -r a amb < <(timed "$bin" aggregate --shards "${list[@]}" --out "$d/agg")
-  echo "n=$n aggregate ${a} s ${amb} MB"
+  read -r a amb < <(timed_logged "$d/aggregate.log" "$bin" aggregate --shards "${list[@]}" --out "$d/agg")
+  echo "n=$n aggregate ${a} s ${amb} MB ($(phases "$d/aggregate.log"))"
   rows=$(python3 -c 'import json,sys; print(sum(p["n"] for p in json.load(open(sys.argv[1]))["per_observable"]))' "$d/agg/fleet/diagnosis.json")
   night[$n]=$(awk -v a="$slowest" -v b="$a" 'BEGIN { printf "%.1f", a + b }')
   agg_mb[$n]=$amb
