@@ -12,8 +12,8 @@
 # with one node per shard would see). Every step's wall time and peak RSS
 # come from /usr/bin/time; `aggregate`'s line adds where its time went (its
 # progress lines, timestamped in WORK/nN/aggregate.log). The single node's
-# fleet outputs are compared
-# byte for byte with the aggregate's. One line per measurement, then a
+# fleet outputs are compared byte for byte with the aggregate's. One line
+# per measurement, then a
 # summary line per N; cost exponents between consecutive N at the end.
 # Disk: ≈ 10 GB under WORK for 500 + 1 000 + 2 000 servo runs, ≈ 6 GB for
 # 200 robot runs (fleets, shards, single-node outputs); remove WORK
