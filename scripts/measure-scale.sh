@@ -40,7 +40,8 @@ timed() {
     echo "failed ($rc): $*" >&2
     exit 1
   fi
-  awk '{ printf "%.1f %.0f\n", $1, $2 / 1024 }' "$f"
+  # /usr/bin/time writes "Command exited with non-zero status N" first.
+  awk 'END { printf "%.1f %.0f\n", $1, $2 / 1024 }' "$f"
   rm -f "$f"
 }
 # `timed`, with the command's log (SPARKOUT_LOG=info) written to $1, each
@@ -59,7 +60,8 @@ timed_logged() {
     echo "failed ($rc): $*" >&2
     exit 1
   fi
-  awk '{ printf "%.1f %.0f\n", $1, $2 / 1024 }' "$f"
+  # /usr/bin/time writes "Command exited with non-zero status N" first.
+  awk 'END { printf "%.1f %.0f\n", $1, $2 / 1024 }' "$f"
   rm -f "$f"
 }
 # Where `aggregate`'s time went, from the progress lines of its log.

@@ -15,6 +15,7 @@ pub mod observations;
 pub mod rng;
 pub mod robot;
 pub mod servo;
+pub mod started;
 pub mod validate;
 
 pub use generator::{

@@ -297,3 +297,40 @@ fn usage_and_config_errors_exit_1() {
     let o = sparkout(&["--help"]);
     assert_eq!(o.status.code(), Some(0));
 }
+
+/// Every generator's runs carry a valid, increasing `[run].started` past a
+/// day of runs: a form fleet's clock once counted hours past 23 (run 54 of
+/// a 100-run fleet started at "24:00", and 46 of its runs were rejected),
+/// a guide-way's and a gantry's wrapped back to their first start.
+#[test]
+fn generated_runs_start_at_valid_increasing_times_past_a_day() {
+    let d = tempfile::tempdir().unwrap();
+    for (what, runs) in [("form", "60"), ("guideway", "70"), ("gantry", "30")] {
+        let root = d.path().join(what);
+        ok(&sparkout(&[
+            "generate",
+            what,
+            "--runs",
+            runs,
+            "--seed",
+            "1",
+            "--out",
+            p(&root),
+        ]));
+        let mut dirs = sparkout_pipeline::contracts::discover_runs(&root).unwrap();
+        dirs.sort();
+        assert_eq!(dirs.len().to_string(), runs, "{what}");
+        let started: Vec<String> = dirs
+            .iter()
+            .map(|dir| {
+                let spec = sparkout_pipeline::contracts::RunSpec::load(dir)
+                    .unwrap_or_else(|e| panic!("{what}: {e}"));
+                spec.started.clone().expect("a generated run has a start")
+            })
+            .collect();
+        assert!(
+            started.windows(2).all(|w| w[0] < w[1]),
+            "{what}: starts not increasing: {started:?}"
+        );
+    }
+}

@@ -177,36 +177,13 @@ pub(super) fn passes(
 
 /// `started`: 2026-11-20T08:00:00Z plus 15 minutes per run index.
 pub(super) fn started(index: usize) -> String {
-    let minutes = 8 * 60 + 15 * index as i64;
-    let days = minutes.div_euclid(24 * 60);
-    let rem = minutes.rem_euclid(24 * 60);
-    // Civil date from days since 2026-11-20 (Hinnant's days_from_civil inverse).
-    let z = days_from_civil(2026, 11, 20) + days;
-    let (y, m, d) = civil_from_days(z);
-    format!("{y:04}-{m:02}-{d:02}T{:02}:{:02}:00Z", rem / 60, rem % 60)
-}
-
-pub(super) fn days_from_civil(y: i64, m: i64, d: i64) -> i64 {
-    let y = if m <= 2 { y - 1 } else { y };
-    let era = y.div_euclid(400);
-    let yoe = y - era * 400;
-    let mp = (m + 9) % 12;
-    let doy = (153 * mp + 2) / 5 + d - 1;
-    let doe = yoe * 365 + yoe / 4 - yoe / 100 + doy;
-    era * 146097 + doe - 719468
-}
-
-pub(super) fn civil_from_days(z: i64) -> (i64, i64, i64) {
-    let z = z + 719468;
-    let era = z.div_euclid(146097);
-    let doe = z - era * 146097;
-    let yoe = (doe - doe / 1460 + doe / 36524 - doe / 146096) / 365;
-    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-    let mp = (5 * doy + 2) / 153;
-    let d = doy - (153 * mp + 2) / 5 + 1;
-    let m = if mp < 10 { mp + 3 } else { mp - 9 };
-    let y = yoe + era * 400 + if m <= 2 { 1 } else { 0 };
-    (y, m, d)
+    let first = crate::started::FirstStart {
+        year: 2026,
+        month: 11,
+        day: 20,
+        minute_of_day: 8 * 60,
+    };
+    crate::started::started_at(first, 15, index)
 }
 
 pub(super) fn run_toml(

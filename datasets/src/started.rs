@@ -1,0 +1,82 @@
+//! Run start times of generated fleets (run.toml `[run].started`): a first
+//! start plus a fixed step per run index, as RFC 3339 UTC. The date rolls
+//! over at midnight and at month and year ends, so any number of runs gets
+//! valid, increasing times (a clock that wrapped within a day, or an hour
+//! counted past 23, gave repeated or invalid times past a few dozen runs).
+
+/// A run's first start: civil date and minute of the day (UTC).
+#[derive(Debug, Clone, Copy)]
+pub struct FirstStart {
+    pub year: i64,
+    pub month: i64,
+    pub day: i64,
+    pub minute_of_day: i64,
+}
+
+/// The start of run `index`: `first` plus `step_min` minutes per index.
+pub fn started_at(first: FirstStart, step_min: i64, index: usize) -> String {
+    let minutes = first.minute_of_day + step_min * index as i64;
+    let days = minutes.div_euclid(24 * 60);
+    let rem = minutes.rem_euclid(24 * 60);
+    let z = days_from_civil(first.year, first.month, first.day) + days;
+    let (y, m, d) = civil_from_days(z);
+    format!("{y:04}-{m:02}-{d:02}T{:02}:{:02}:00Z", rem / 60, rem % 60)
+}
+
+/// Days since 1970-01-01 of a civil date (H. Hinnant's days_from_civil).
+fn days_from_civil(y: i64, m: i64, d: i64) -> i64 {
+    let y = if m <= 2 { y - 1 } else { y };
+    let era = y.div_euclid(400);
+    let yoe = y - era * 400;
+    let mp = (m + 9) % 12;
+    let doy = (153 * mp + 2) / 5 + d - 1;
+    let doe = yoe * 365 + yoe / 4 - yoe / 100 + doy;
+    era * 146097 + doe - 719468
+}
+
+/// The civil date of a day count since 1970-01-01 (its inverse).
+fn civil_from_days(z: i64) -> (i64, i64, i64) {
+    let z = z + 719468;
+    let era = z.div_euclid(146097);
+    let doe = z - era * 146097;
+    let yoe = (doe - doe / 1460 + doe / 36524 - doe / 146096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let d = doy - (153 * mp + 2) / 5 + 1;
+    let m = if mp < 10 { mp + 3 } else { mp - 9 };
+    let y = yoe + era * 400 + if m <= 2 { 1 } else { 0 };
+    (y, m, d)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const AT_8: FirstStart = FirstStart {
+        year: 2026,
+        month: 11,
+        day: 20,
+        minute_of_day: 8 * 60,
+    };
+
+    #[test]
+    fn dates_roll_over_at_midnight_month_and_year_ends() {
+        assert_eq!(started_at(AT_8, 15, 0), "2026-11-20T08:00:00Z");
+        assert_eq!(started_at(AT_8, 15, 4 * 16), "2026-11-21T00:00:00Z");
+        assert_eq!(
+            started_at(AT_8, 15, 4 * 24 * 41 - 32),
+            "2026-12-31T00:00:00Z"
+        );
+        assert_eq!(
+            started_at(AT_8, 15, 4 * 24 * 42 - 32),
+            "2027-01-01T00:00:00Z"
+        );
+        // Every hour and minute a valid clock reading, the times increasing.
+        let times: Vec<String> = (0..5000).map(|i| started_at(AT_8, 20, i)).collect();
+        for t in &times {
+            let (hh, mm) = (&t[11..13], &t[14..16]);
+            assert!(hh < "24" && mm < "60", "{t}");
+        }
+        assert!(times.windows(2).all(|w| w[0] < w[1]));
+    }
+}
