@@ -4,6 +4,8 @@
 //! valid, increasing times (a clock that wrapped within a day, or an hour
 //! counted past 23, gave repeated or invalid times past a few dozen runs).
 
+use sparkout_pipeline::contracts::convert::{civil_from_days, days_from_civil};
+
 /// A run's first start: civil date and minute of the day (UTC).
 #[derive(Debug, Clone, Copy)]
 pub struct FirstStart {
@@ -21,31 +23,6 @@ pub fn started_at(first: FirstStart, step_min: i64, index: usize) -> String {
     let z = days_from_civil(first.year, first.month, first.day) + days;
     let (y, m, d) = civil_from_days(z);
     format!("{y:04}-{m:02}-{d:02}T{:02}:{:02}:00Z", rem / 60, rem % 60)
-}
-
-/// Days since 1970-01-01 of a civil date (H. Hinnant's days_from_civil).
-fn days_from_civil(y: i64, m: i64, d: i64) -> i64 {
-    let y = if m <= 2 { y - 1 } else { y };
-    let era = y.div_euclid(400);
-    let yoe = y - era * 400;
-    let mp = (m + 9) % 12;
-    let doy = (153 * mp + 2) / 5 + d - 1;
-    let doe = yoe * 365 + yoe / 4 - yoe / 100 + doy;
-    era * 146097 + doe - 719468
-}
-
-/// The civil date of a day count since 1970-01-01 (its inverse).
-fn civil_from_days(z: i64) -> (i64, i64, i64) {
-    let z = z + 719468;
-    let era = z.div_euclid(146097);
-    let doe = z - era * 146097;
-    let yoe = (doe - doe / 1460 + doe / 36524 - doe / 146096) / 365;
-    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-    let mp = (5 * doy + 2) / 153;
-    let d = doy - (153 * mp + 2) / 5 + 1;
-    let m = if mp < 10 { mp + 3 } else { mp - 9 };
-    let y = yoe + era * 400 + if m <= 2 { 1 } else { 0 };
-    (y, m, d)
 }
 
 #[cfg(test)]
