@@ -99,6 +99,26 @@ fn the_kubernetes_night_is_set_up_in_one_place() {
         shards["spec"]["template"]["spec"]["containers"][0]["image"],
         agg["spec"]["template"]["spec"]["containers"][0]["image"]
     );
+    // Each pod requests the disk its work directory may fill, so it is
+    // placed on a node that has it instead of evicted late in the night.
+    for job in [&shards, &agg] {
+        let pod = &job["spec"]["template"]["spec"];
+        let work = pod["volumes"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|v| v["name"] == "work")
+            .expect("a work volume");
+        let resources = &pod["containers"][0]["resources"];
+        assert_eq!(
+            resources["requests"]["ephemeral-storage"],
+            work["emptyDir"]["sizeLimit"]
+        );
+        assert_eq!(
+            resources["limits"]["ephemeral-storage"],
+            work["emptyDir"]["sizeLimit"]
+        );
+    }
 }
 
 #[test]
