@@ -245,6 +245,87 @@ fn shards_that_would_lose_or_double_a_run_are_refused() {
     assert!(!out.join("manifest.json").exists());
 }
 
+/// A shard whose outputs changed after it ran: a run folder gone is
+/// refused naming the shard, the run and what to re-run; a symbolic link
+/// in a run folder is refused naming it, and nothing it points to is
+/// carried into the output.
+#[test]
+fn a_shard_whose_run_outputs_were_tampered_with_is_refused() {
+    let d = tempfile::tempdir().unwrap();
+    let root = fleet(d.path());
+    let (a, b) = (d.path().join("a"), d.path().join("b"));
+    ok(shard(&root, &a, "0/2", &[]));
+    ok(shard(&root, &b, "1/2", &[]));
+    let out = d.path().join("out");
+    let err = |o: Output| {
+        assert!(!o.status.success());
+        String::from_utf8_lossy(&o.stderr).to_string()
+    };
+    let manifest: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(a.join("shard.json")).unwrap()).unwrap();
+    let first = &manifest["runs"][0];
+    let (machine, run) = (
+        first["machine"].as_str().unwrap(),
+        first["run"].as_str().unwrap(),
+    );
+    let run_dir = a.join(machine).join(run);
+    // A link to a file outside the shard.
+    let secret = d.path().join("secret.txt");
+    std::fs::write(&secret, b"not for the bucket").unwrap();
+    #[cfg(unix)]
+    {
+        std::os::unix::fs::symlink(&secret, run_dir.join("extra.txt")).unwrap();
+        let e = err(aggregate(&[a.clone(), b.clone()], &out));
+        assert!(
+            e.contains("extra.txt") && e.contains("symbolic link") && e.contains("shard.json"),
+            "{e}"
+        );
+        std::fs::remove_file(run_dir.join("extra.txt")).unwrap();
+        let litter: Vec<PathBuf> = walk(&out)
+            .into_iter()
+            .filter(|p| p.to_string_lossy().contains(".tmp"))
+            .collect();
+        assert!(
+            litter.is_empty(),
+            "a half-copied run left behind: {litter:?}"
+        );
+    }
+    // The run folder gone.
+    std::fs::remove_dir_all(&run_dir).unwrap();
+    let e = err(aggregate(&[a.clone(), b.clone()], &out));
+    assert!(
+        e.contains(&format!("run {machine}/{run} is listed"))
+            && e.contains("is missing")
+            && e.contains("re-run shard 0/2"),
+        "{e}"
+    );
+    assert!(!out.join("manifest.json").exists());
+    let mut found = Vec::new();
+    for e in walk(&out) {
+        if std::fs::read(&e).ok().as_deref() == Some(b"not for the bucket".as_slice()) {
+            found.push(e);
+        }
+    }
+    assert!(found.is_empty(), "carried into the output: {found:?}");
+}
+
+/// Every file under `dir`.
+fn walk(dir: &Path) -> Vec<PathBuf> {
+    let mut files = Vec::new();
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return files;
+    };
+    for e in entries.flatten() {
+        let p = e.path();
+        if p.is_dir() {
+            files.extend(walk(&p));
+        } else {
+            files.push(p);
+        }
+    }
+    files
+}
+
 /// Copies run `from` to a new run `id` beside it (a run arriving mid-night).
 fn arrive(root: &Path, from: &str, id: &str) -> PathBuf {
     let first = root.join(from);

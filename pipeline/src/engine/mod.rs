@@ -575,7 +575,19 @@ impl Engine {
                     .map_err(|e| err!("{}: {e}", shard_file.display()))?;
                 let to = run_out_dir(out, &r.machine, &r.run)
                     .map_err(|e| err!("{}: {e}", shard_file.display()))?;
-                shard::copy_run_dir(&from, &to)?;
+                if !from.is_dir() {
+                    bail!(
+                        "{}: run {}/{} is listed, but its folder {} is missing (moved or deleted since the shard ran): re-run shard {}/{}",
+                        shard_file.display(),
+                        r.machine,
+                        r.run,
+                        from.display(),
+                        m.shard,
+                        m.shards
+                    );
+                }
+                shard::copy_run_dir(&from, &to)
+                    .map_err(|e| err!("{}: {e:#}", shard_file.display()))?;
                 r.out_dir = to.display().to_string();
                 r.observations = Some(to.join(OBSERVATIONS_FILE)).filter(|o| o.is_file());
                 let rel = PathBuf::from(&r.run_dir)

@@ -418,7 +418,10 @@ pub fn check_shards(dirs: &[PathBuf], manifests: &[ShardManifest]) -> Result<()>
 /// fleet's run folders are gigabytes (docs/scale.md) and sparkout never
 /// rewrites a file in place (it writes a temporary file and renames it over
 /// the old one), so a re-run shard cannot change the aggregate's files —
-/// and copied otherwise (another file system, a symbolic link).
+/// and copied otherwise (another file system). A symbolic link is refused:
+/// sparkout writes none there, and following one would carry a file from
+/// outside the shard into the output (and into the bucket it is published
+/// to).
 pub fn copy_run_dir(from: &Path, to: &Path) -> Result<()> {
     if from == to {
         return Ok(());
@@ -431,8 +434,11 @@ pub fn copy_run_dir(from: &Path, to: &Path) -> Result<()> {
         std::process::id()
     ));
     let _ = std::fs::remove_dir_all(&tmp);
-    link_or_copy_tree(from, &tmp)
-        .with_context(|| format!("cannot copy {} to {}", from.display(), to.display()))?;
+    if let Err(e) = link_or_copy_tree(from, &tmp) {
+        let _ = std::fs::remove_dir_all(&tmp);
+        return Err(e)
+            .with_context(|| format!("cannot copy {} to {}", from.display(), to.display()));
+    }
     // Only what sparkout wrote there before; a directory still holding
     // other files is not replaced (the rename fails and says so).
     super::cache::remove_run_outputs(to);
@@ -451,11 +457,14 @@ fn link_or_copy_tree(from: &Path, to: &Path) -> std::io::Result<()> {
         let e = e?;
         let dst = to.join(e.file_name());
         let kind = e.file_type()?;
-        if kind.is_dir() {
+        if kind.is_symlink() {
+            return Err(std::io::Error::other(format!(
+                "{} is a symbolic link, which sparkout never writes in a run's outputs: remove it, or re-run the shard",
+                e.path().display()
+            )));
+        } else if kind.is_dir() {
             link_or_copy_tree(&e.path(), &dst)?;
-        } else if kind.is_symlink() || std::fs::hard_link(e.path(), &dst).is_err() {
-            // A link would be a link to the link (and may point outside
-            // the output): its target's bytes are copied instead.
+        } else if std::fs::hard_link(e.path(), &dst).is_err() {
             std::fs::copy(e.path(), dst)?;
         }
     }
