@@ -183,6 +183,13 @@ fn incomplete_or_mixed_shard_sets_are_refused() {
     let e = err(shard(&root, &a, "2/2", &[]));
     assert!(e.contains("0 ≤ i < n"), "{e}");
     assert!(!out.join("manifest.json").exists());
+    // An output in or equal to a shard would mix with its files (around
+    // one too: `names::check_out_apart` refuses both directions).
+    for bad in [a.clone(), a.join("agg")] {
+        let e = err(aggregate(&[a.clone(), b.clone()], &bad));
+        assert!(e.contains("--shards"), "{}: {e}", bad.display());
+        assert!(!bad.join("manifest.json").exists());
+    }
 }
 
 #[test]

@@ -562,6 +562,12 @@ impl Engine {
         if input_root.is_dir() {
             names::check_out_apart(&input_root, out, "the shards' input").map_err(|e| err!(e))?;
         }
+        // The output gathers from the shards and cleans up after itself:
+        // in, around or equal to a shard it would mix with (and tidy) the
+        // shard's own files.
+        for d in shard_dirs {
+            names::check_out_apart(d, out, "--shards").map_err(|e| err!(e))?;
+        }
         let _lock = lock::BatchLock::acquire(out)?;
         let mut runs = Vec::new();
         let mut failures = Vec::new();
