@@ -183,6 +183,16 @@ fn incomplete_or_mixed_shard_sets_are_refused() {
     let e = err(shard(&root, &a, "2/2", &[]));
     assert!(e.contains("0 ≤ i < n"), "{e}");
     assert!(!out.join("manifest.json").exists());
+    // A shard another release made.
+    let older = d.path().join("older");
+    ok(shard(&root, &older, "0/2", &[]));
+    let file = older.join("shard.json");
+    let text = std::fs::read_to_string(&file).unwrap();
+    let mut m: serde_json::Value = serde_json::from_str(&text).unwrap();
+    m["sparkout_version"] = "0.0.1".into();
+    std::fs::write(&file, serde_json::to_vec(&m).unwrap()).unwrap();
+    let e = err(aggregate(&[older.clone(), b.clone()], &out));
+    assert!(e.contains("sparkout 0.0.1") && e.contains("re-run"), "{e}");
     // An output in or equal to a shard would mix with its files (around
     // one too: `names::check_out_apart` refuses both directions).
     for bad in [a.clone(), a.join("agg")] {

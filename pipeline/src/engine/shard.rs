@@ -264,6 +264,16 @@ pub fn check_shards(dirs: &[PathBuf], manifests: &[ShardManifest]) -> Result<()>
     };
     let mut seen: Vec<Option<&PathBuf>> = vec![None; first.shards];
     for (dir, m) in dirs.iter().zip(manifests) {
+        // Another release computes a run's outputs its own way: a night
+        // of mixed versions is not what one node of either would write.
+        if m.sparkout_version != env!("CARGO_PKG_VERSION") {
+            bail!(
+                "{} was made by sparkout {}, this aggregate is sparkout {}: re-run the shard with this version (every shard and the aggregate of a night use one version)",
+                dir.display(),
+                m.sparkout_version,
+                env!("CARGO_PKG_VERSION")
+            );
+        }
         if m.shard >= m.shards {
             bail!(
                 "{}: shard {}/{} is not a shard index (0 ≤ i < n)",
