@@ -67,7 +67,7 @@ timed_logged() {
 # Where `aggregate`'s time went, from the progress lines of its log.
 phases() {
   awk '/ gathering [0-9]+ shard/ { g = $1 } / joining observations/ { j = $1 }
-       / diagnosing the sim-to-real gap/ { d = $1 } / writing the diagnosis/ { w = $1 }
+       / diagnosing the sim-to-real gap$/ { d = $1 } / writing the diagnosis/ { w = $1 }
        / writing the fleet report/ { r = $1 } / END$/ { e = $1 }
        END { if (g && j && d && w && r && e)
                printf "gathering shards %.1f s, join %.1f s, diagnosis %.1f s, writing the diagnosis %.1f s, report and index %.1f s\n",

@@ -147,6 +147,7 @@ pub fn bench_diagnose_file(
                 &[],
                 None,
                 Some(&out.join(".r")),
+                &|_| {},
             )
             .expect("diagnose");
             d.per_row

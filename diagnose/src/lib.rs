@@ -242,18 +242,21 @@ fn run_diagnosis(
     // batch's covariate buffers, shared); the per-machine diagnoses
     // rebuild a batch from them (`Table::rebuild`).
     drop(batch);
-    diagnose_table(table, cfg, scopes, None)
+    diagnose_table(table, cfg, scopes, None, &|_| {})
 }
 
 /// The diagnosis of an indexed table (its covariates in memory or read per
 /// observable from a file). `results_dir`: where each observable's per-row
 /// results wait for diagnosis.parquet (a folder of the output, removed
 /// with the output's `per_row`); None holds them in memory.
+/// `progress` is told each observable as its diagnosis starts (a large
+/// fleet's take minutes each).
 pub fn diagnose_table(
     table: Table,
     cfg: &DiagnoseConfig,
     scopes: &[EffectScope],
     results_dir: Option<&Path>,
+    progress: &dyn Fn(&str),
 ) -> Result<DiagnosisOutput> {
     let mut notes = Notes::default();
     for d in &table.dropped {
@@ -264,7 +267,14 @@ pub fn diagnose_table(
         Some(dir) => Accum::spilled(per_row::ResultSpill::create(dir)?),
         None => Accum::fleet(table.n),
     };
-    for oi in 0..table.obs_names.len() {
+    let n_obs = table.obs_names.len();
+    for oi in 0..n_obs {
+        // An observable of a large fleet takes minutes: say which.
+        progress(&format!(
+            "diagnosing the sim-to-real gap: {} ({} of {n_obs})",
+            table.obs_names[oi],
+            oi + 1
+        ));
         diagnose_observable(&table, oi, cfg, scopes, results_dir, &mut acc, &mut notes)?;
         // An observable's working set (its covariates, pooled cells, fold
         // targets) is freed in pieces the allocator keeps between live

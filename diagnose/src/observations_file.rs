@@ -31,13 +31,15 @@ const READ_ROWS: usize = 1 << 16;
 /// `spilled`: each row's gap and covariates kept apart per observable as
 /// the file was written ([`RowValueSpill`]), read instead of the file's
 /// columns when given. `results_dir`: where the per-row results wait for
-/// diagnosis.parquet ([`crate::diagnose_table`]).
+/// diagnosis.parquet ([`crate::diagnose_table`]). `progress` is told each
+/// observable as its diagnosis starts.
 pub fn diagnose_observations_file(
     path: &Path,
     cfg: &Checked<DiagnoseConfig>,
     scopes: &[EffectScope],
     mut spilled: Option<Spilled>,
     results_dir: Option<&Path>,
+    progress: &dyn Fn(&str),
 ) -> Result<DiagnosisOutput> {
     let file = match spilled.as_mut().and_then(|s| s.index.take()) {
         Some(table) => IndexedFile {
@@ -46,7 +48,7 @@ pub fn diagnose_observations_file(
         },
         None => index_observations_file(path)?,
     };
-    diagnose_indexed(file, cfg, scopes, spilled, results_dir)
+    diagnose_indexed(file, cfg, scopes, spilled, results_dir, progress)
 }
 
 /// The columns an index reads: every one but the covariates (keys, sim,
@@ -123,6 +125,7 @@ pub fn diagnose_indexed(
     scopes: &[EffectScope],
     spilled: Option<Spilled>,
     results_dir: Option<&Path>,
+    progress: &dyn Fn(&str),
 ) -> Result<DiagnosisOutput> {
     let IndexedFile { path, mut table } = file;
     match spilled {
@@ -137,7 +140,7 @@ pub fn diagnose_indexed(
             table.values = Box::new(values);
         }
     }
-    crate::diagnose_table(table, cfg, scopes, results_dir)
+    crate::diagnose_table(table, cfg, scopes, results_dir, progress)
 }
 
 /// Each row's gap (real − sim, read as the index read them) and

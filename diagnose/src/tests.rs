@@ -682,7 +682,8 @@ fn the_file_read_per_observable_diagnoses_as_the_file_read_whole() {
     let cfg = crate::config_check::Checked::check(super::DiagnoseConfig::default()).unwrap();
     let whole =
         super::diagnose_checked(crate::contracts::read_parquet(&path).unwrap(), &cfg, &[]).unwrap();
-    let by_observable = super::diagnose_observations_file(&path, &cfg, &[], None, None).unwrap();
+    let by_observable =
+        super::diagnose_observations_file(&path, &cfg, &[], None, None, &|_| {}).unwrap();
     let json = |d: &super::DiagnosisOutput| serde_json::to_string(&d.diagnosis).unwrap();
     assert_eq!(json(&whole), json(&by_observable));
     assert_eq!(
@@ -707,9 +708,15 @@ fn the_file_read_per_observable_diagnoses_as_the_file_read_whole() {
     // …and with the per-row results on disk until written, read back a
     // slice at a time (the observables' rows interleaved in each slice).
     let results_dir = dir.path().join(".results");
-    let from_spill =
-        super::diagnose_observations_file(&path, &cfg, &[], Some(spilled), Some(&results_dir))
-            .unwrap();
+    let from_spill = super::diagnose_observations_file(
+        &path,
+        &cfg,
+        &[],
+        Some(spilled),
+        Some(&results_dir),
+        &|_| {},
+    )
+    .unwrap();
     assert_eq!(json(&whole), json(&from_spill));
     assert_eq!(
         whole.per_row.to_batch().unwrap(),
@@ -755,7 +762,7 @@ fn a_nan_covariate_in_the_file_names_file_column_and_row() {
     let path = dir.path().join("observations.parquet");
     crate::contracts::write_parquet_atomic(&path, &b).unwrap();
     let cfg = crate::config_check::Checked::check(super::DiagnoseConfig::default()).unwrap();
-    let e = super::diagnose_observations_file(&path, &cfg, &[], None, None)
+    let e = super::diagnose_observations_file(&path, &cfg, &[], None, None, &|_| {})
         .err()
         .unwrap()
         .to_string();
@@ -811,7 +818,7 @@ fn rows_the_index_refuses_leave_the_file_to_name_them() {
     let spilled = spill.finish().unwrap();
     assert!(spilled.index.is_none());
     let cfg = crate::config_check::Checked::check(super::DiagnoseConfig::default()).unwrap();
-    let e = super::diagnose_observations_file(&path, &cfg, &[], Some(spilled), None)
+    let e = super::diagnose_observations_file(&path, &cfg, &[], Some(spilled), None, &|_| {})
         .err()
         .unwrap()
         .to_string();
@@ -899,7 +906,7 @@ fn the_file_read_in_batches_accepts_foreign_types_and_names_a_corrupt_covariate_
         super::diagnose_checked(super::read_observations(&path).unwrap(), &cfg, &[]).unwrap();
     let file = super::index_observations_file(&path).unwrap();
     assert_eq!(file.observables(), ["a_um", "b"]);
-    let by_file = super::diagnose_indexed(file, &cfg, &[], None, None).unwrap();
+    let by_file = super::diagnose_indexed(file, &cfg, &[], None, None, &|_| {}).unwrap();
     let json = |d: &super::DiagnosisOutput| serde_json::to_string(&d.diagnosis).unwrap();
     assert_eq!(json(&whole), json(&by_file));
     assert_eq!(
@@ -920,7 +927,7 @@ fn the_file_read_in_batches_accepts_foreign_types_and_names_a_corrupt_covariate_
     let mut bytes = std::fs::read(&path).unwrap();
     bytes[at..at + 24].fill(0xFF);
     std::fs::write(&path, bytes).unwrap();
-    let e = super::diagnose_observations_file(&path, &cfg, &[], None, None)
+    let e = super::diagnose_observations_file(&path, &cfg, &[], None, None, &|_| {})
         .err()
         .unwrap();
     assert!(e.input().is_some(), "{e:#}");

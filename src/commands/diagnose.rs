@@ -79,7 +79,15 @@ pub fn diagnose(observations: &Path, out: &Path, flags: &Flags) -> anyhow::Resul
     // run created stays only if the diagnosis succeeds.
     let created = !out.exists();
     let results_dir = out.join(".diagnosis-results");
-    let d = match diagnose::diagnose_indexed(file, &cfg, &scopes, None, Some(&results_dir)) {
+    let progress = |msg: &str| tracing::info!("{msg}");
+    let d = match diagnose::diagnose_indexed(
+        file,
+        &cfg,
+        &scopes,
+        None,
+        Some(&results_dir),
+        &progress,
+    ) {
         Ok(d) => d,
         Err(e) => {
             if created {

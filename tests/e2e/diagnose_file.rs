@@ -43,7 +43,7 @@ fn a_pyarrow_table_diagnoses_the_same_read_whole_per_observable_or_spilled() {
         "{:#?}",
         d.where_
     );
-    let by_observable = diagnose_observations_file(&path, &cfg, &[], None, None).unwrap();
+    let by_observable = diagnose_observations_file(&path, &cfg, &[], None, None, &|_| {}).unwrap();
     assert_eq!(json(&whole), json(&by_observable));
     assert_eq!(
         whole.per_row.to_batch().unwrap(),
@@ -62,8 +62,15 @@ fn a_pyarrow_table_diagnoses_the_same_read_whole_per_observable_or_spilled() {
     for b in reader {
         spill.push(&b.unwrap(), &path).unwrap();
     }
-    let spilled =
-        diagnose_observations_file(&path, &cfg, &[], Some(spill.finish().unwrap()), None).unwrap();
+    let spilled = diagnose_observations_file(
+        &path,
+        &cfg,
+        &[],
+        Some(spill.finish().unwrap()),
+        None,
+        &|_| {},
+    )
+    .unwrap();
     assert_eq!(json(&whole), json(&spilled));
     assert_eq!(
         whole.per_row.to_batch().unwrap(),

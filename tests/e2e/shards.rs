@@ -343,6 +343,44 @@ fn walk(dir: &Path) -> Vec<PathBuf> {
     files
 }
 
+/// `aggregate` says which observable it is diagnosing (a large fleet's
+/// take minutes each), in order, each once.
+#[test]
+fn aggregate_reports_each_observable_as_it_is_diagnosed() {
+    let d = tempfile::tempdir().unwrap();
+    let root = fleet(d.path());
+    let (a, b) = (d.path().join("a"), d.path().join("b"));
+    ok(shard(&root, &a, "0/2", &[]));
+    ok(shard(&root, &b, "1/2", &[]));
+    let out = d.path().join("out");
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_sparkout"))
+        .args(["aggregate", "--out", out.to_str().unwrap(), "--shards"])
+        .args([&a, &b])
+        .env("SPARKOUT_LOG", "info")
+        .output()
+        .unwrap();
+    let log = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success() || o.status.code() == Some(2), "{log}");
+    let diagnosis: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("fleet/diagnosis.json")).unwrap()).unwrap();
+    let names: Vec<&str> = diagnosis["observables"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|n| n.as_str().unwrap())
+        .collect();
+    let said: Vec<&str> = log
+        .lines()
+        .filter_map(|l| l.split("diagnosing the sim-to-real gap: ").nth(1))
+        .collect();
+    let want: Vec<String> = names
+        .iter()
+        .enumerate()
+        .map(|(k, n)| format!("{n} ({} of {})", k + 1, names.len()))
+        .collect();
+    assert_eq!(said, want, "{log}");
+}
+
 /// Copies run `from` to a new run `id` beside it (a run arriving mid-night).
 fn arrive(root: &Path, from: &str, id: &str) -> PathBuf {
     let first = root.join(from);

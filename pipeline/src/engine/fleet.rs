@@ -353,6 +353,7 @@ impl Engine {
             &scopes,
             spilled,
             Some(&fleet_dir.join(RESULTS_SPILL_DIR)),
+            &|msg: &str| progress.message(msg),
         )
         .context("fleet diagnosis")?;
         progress.message("writing the diagnosis");
