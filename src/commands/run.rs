@@ -174,7 +174,19 @@ pub fn aggregate(
         })
         .collect::<anyhow::Result<Vec<_>>>()?;
     let progress = BatchProgress::new();
-    let outcome = engine.aggregate(&shards, &out.local, &progress)?;
+    // A refused set of shards leaves no empty output folder behind (only
+    // an empty one is removed: anything written there stays).
+    let created = !out.local.exists();
+    let outcome = match engine.aggregate(&shards, &out.local, &progress) {
+        Ok(o) => o,
+        Err(e) => {
+            progress.finish();
+            if created {
+                let _ = std::fs::remove_dir(&out.local);
+            }
+            return Err(e.into());
+        }
+    };
     progress.finish();
     print_outcome(&outcome);
     out.publish()?;

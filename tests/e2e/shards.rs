@@ -180,6 +180,7 @@ fn incomplete_or_mixed_shard_sets_are_refused() {
     assert!(e.contains("different splits"), "{e}");
     let e = err(aggregate(&[a.clone(), d.path().join("nowhere")], &out));
     assert!(e.contains("is not a finished shard"), "{e}");
+    assert!(!out.exists(), "a refused aggregate left its output folder");
     let e = err(shard(&root, &a, "2/2", &[]));
     assert!(e.contains("0 ≤ i < n"), "{e}");
     assert!(!out.join("manifest.json").exists());
@@ -286,6 +287,17 @@ fn a_shard_whose_run_outputs_were_tampered_with_is_refused() {
         first["run"].as_str().unwrap(),
     );
     let run_dir = a.join(machine).join(run);
+    // A name that is a path, refused as the runs are gathered (the output
+    // folder already made is removed again: it is empty).
+    let renamed = d.path().join("renamed");
+    ok(shard(&root, &renamed, "0/2", &[]));
+    let file = renamed.join("shard.json");
+    let mut m: serde_json::Value = serde_json::from_slice(&std::fs::read(&file).unwrap()).unwrap();
+    m["runs"][0]["machine"] = "../escape".into();
+    std::fs::write(&file, serde_json::to_vec(&m).unwrap()).unwrap();
+    let e = err(aggregate(&[renamed, b.clone()], &out));
+    assert!(e.contains("../escape") && e.contains("plain name"), "{e}");
+    assert!(!out.exists(), "a refused aggregate left its output folder");
     // A link to a file outside the shard.
     let secret = d.path().join("secret.txt");
     std::fs::write(&secret, b"not for the bucket").unwrap();
