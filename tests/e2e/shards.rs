@@ -194,13 +194,16 @@ fn incomplete_or_mixed_shard_sets_are_refused() {
     std::fs::write(&file, serde_json::to_vec(&m).unwrap()).unwrap();
     let e = err(aggregate(&[older.clone(), b.clone()], &out));
     assert!(e.contains("sparkout 0.0.1") && e.contains("re-run"), "{e}");
-    // An output in or equal to a shard would mix with its files (around
-    // one too: `names::check_out_apart` refuses both directions).
-    for bad in [a.clone(), a.join("agg")] {
+    // An output inside a shard would mix with its files (around one too:
+    // `names::check_out_apart` refuses both directions); the shard's own
+    // directory is allowed (`aggregate --help`).
+    for bad in [a.join("agg")] {
         let e = err(aggregate(&[a.clone(), b.clone()], &bad));
         assert!(e.contains("--shards"), "{}: {e}", bad.display());
         assert!(!bad.join("manifest.json").exists());
     }
+    ok(aggregate(&[a.clone(), b.clone()], &a));
+    assert!(a.join("manifest.json").is_file());
 }
 
 #[test]

@@ -563,9 +563,13 @@ impl Engine {
             names::check_out_apart(&input_root, out, "the shards' input").map_err(|e| err!(e))?;
         }
         // The output gathers from the shards and cleans up after itself:
-        // in, around or equal to a shard it would mix with (and tidy) the
-        // shard's own files.
+        // inside a shard, or holding one, it would mix with (and tidy) the
+        // shard's own files. A shard's own directory is allowed (`--out`
+        // may be one of the shards': its runs are then already in place).
         for d in shard_dirs {
+            if names::resolve(d).is_some_and(|r| Some(r) == names::resolve(out)) {
+                continue;
+            }
             names::check_out_apart(d, out, "--shards").map_err(|e| err!(e))?;
         }
         let _lock = lock::BatchLock::acquire(out)?;
