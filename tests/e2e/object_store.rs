@@ -205,7 +205,7 @@ fn a_batch_on_object_storage_equals_the_local_batch() {
 
     // The AE logs were not downloaded: a stub stands for each, and the
     // ingest read its row groups by ranged GETs.
-    let staged: Vec<PathBuf> = walk(&work)
+    let staged: Vec<PathBuf> = super::common::files_under(&work)
         .into_iter()
         .filter(|p| p.to_string_lossy().contains("/input-"))
         .collect();
@@ -297,21 +297,6 @@ fn an_unknown_scheme_is_refused_by_name() {
     assert!(err.contains("unknown storage scheme `ftp://`"), "{err}");
 }
 
-fn walk(dir: &Path) -> Vec<PathBuf> {
-    let mut out = Vec::new();
-    if let Ok(rd) = std::fs::read_dir(dir) {
-        for e in rd.flatten() {
-            let p = e.path();
-            if p.is_dir() {
-                out.extend(walk(&p));
-            } else {
-                out.push(p);
-            }
-        }
-    }
-    out
-}
-
 /// Every key under `prefix` in `bucket`, from a ListObjectsV2 response.
 fn keys(port: u16, bucket: &str, prefix: &str) -> Vec<String> {
     let listing = http(
@@ -353,7 +338,7 @@ fn publishing_checks_the_bucket_and_shards_fetch_only_their_runs() {
 
     // A folder synced: nothing of sparkout's is left in it.
     ok(sparkout_s3(port, &["sync", s(&root), "s3://fleet/in"]));
-    let leftovers: Vec<PathBuf> = walk(&root)
+    let leftovers: Vec<PathBuf> = super::common::files_under(&root)
         .into_iter()
         .filter(|p| p.to_string_lossy().contains(".sparkout"))
         .collect();
@@ -364,7 +349,7 @@ fn publishing_checks_the_bucket_and_shards_fetch_only_their_runs() {
     let n_in = keys(port, "fleet", "in/").len();
     // The same folder to a second location: every file goes.
     let text = ok(sparkout_s3(port, &["sync", s(&root), "s3://second/in"]));
-    let n_files = walk(&root).len();
+    let n_files = super::common::files_under(&root).len();
     assert!(text.contains(&format!("{n_files} uploaded")), "{text}");
     // Unchanged: nothing sent again.
     let text = ok(sparkout_s3(port, &["sync", s(&root), "s3://second/in"]));
@@ -475,7 +460,7 @@ fn publishing_checks_the_bucket_and_shards_fetch_only_their_runs() {
         assert!(text.contains("of other shards' runs not fetched"), "{text}");
         // Only this shard's runs' files were downloaded: every run.toml is
         // here, but the data of the other shard's runs is a stub.
-        let staged: Vec<PathBuf> = walk(&w)
+        let staged: Vec<PathBuf> = super::common::files_under(&w)
             .into_iter()
             .filter(|p| p.to_string_lossy().contains("/input-"))
             .collect();

@@ -197,11 +197,10 @@ fn incomplete_or_mixed_shard_sets_are_refused() {
     // An output inside a shard would mix with its files (around one too:
     // `names::check_out_apart` refuses both directions); the shard's own
     // directory is allowed (`aggregate --help`).
-    for bad in [a.join("agg")] {
-        let e = err(aggregate(&[a.clone(), b.clone()], &bad));
-        assert!(e.contains("--shards"), "{}: {e}", bad.display());
-        assert!(!bad.join("manifest.json").exists());
-    }
+    let inside = a.join("agg");
+    let e = err(aggregate(&[a.clone(), b.clone()], &inside));
+    assert!(e.contains("--shards"), "{e}");
+    assert!(!inside.join("manifest.json").exists());
     ok(aggregate(&[a.clone(), b.clone()], &a));
     assert!(a.join("manifest.json").is_file());
 }
@@ -266,6 +265,15 @@ fn shards_that_would_lose_or_double_a_run_are_refused() {
     assert!(!out.join("manifest.json").exists());
 }
 
+/// A fleet under `dir` and its two shards `dir/a` (0/2) and `dir/b` (1/2).
+fn two_shards(dir: &Path) -> (PathBuf, PathBuf, PathBuf) {
+    let root = fleet(dir);
+    let (a, b) = (dir.join("a"), dir.join("b"));
+    ok(shard(&root, &a, "0/2", &[]));
+    ok(shard(&root, &b, "1/2", &[]));
+    (root, a, b)
+}
+
 /// A shard whose outputs changed after it ran: a run folder gone is
 /// refused naming the shard, the run and what to re-run; a symbolic link
 /// in a run folder is refused naming it, and nothing it points to is
@@ -273,10 +281,7 @@ fn shards_that_would_lose_or_double_a_run_are_refused() {
 #[test]
 fn a_shard_whose_run_outputs_were_tampered_with_is_refused() {
     let d = tempfile::tempdir().unwrap();
-    let root = fleet(d.path());
-    let (a, b) = (d.path().join("a"), d.path().join("b"));
-    ok(shard(&root, &a, "0/2", &[]));
-    ok(shard(&root, &b, "1/2", &[]));
+    let (root, a, b) = two_shards(d.path());
     let out = d.path().join("out");
     let err = |o: Output| {
         assert!(!o.status.success());
@@ -313,7 +318,7 @@ fn a_shard_whose_run_outputs_were_tampered_with_is_refused() {
             "{e}"
         );
         std::fs::remove_file(run_dir.join("extra.txt")).unwrap();
-        let litter: Vec<PathBuf> = walk(&out)
+        let litter: Vec<PathBuf> = super::common::files_under(&out)
             .into_iter()
             .filter(|p| p.to_string_lossy().contains(".tmp"))
             .collect();
@@ -333,7 +338,7 @@ fn a_shard_whose_run_outputs_were_tampered_with_is_refused() {
     );
     assert!(!out.join("manifest.json").exists());
     let mut found = Vec::new();
-    for e in walk(&out) {
+    for e in super::common::files_under(&out) {
         if std::fs::read(&e).ok().as_deref() == Some(b"not for the bucket".as_slice()) {
             found.push(e);
         }
@@ -341,32 +346,12 @@ fn a_shard_whose_run_outputs_were_tampered_with_is_refused() {
     assert!(found.is_empty(), "carried into the output: {found:?}");
 }
 
-/// Every file under `dir`.
-fn walk(dir: &Path) -> Vec<PathBuf> {
-    let mut files = Vec::new();
-    let Ok(entries) = std::fs::read_dir(dir) else {
-        return files;
-    };
-    for e in entries.flatten() {
-        let p = e.path();
-        if p.is_dir() {
-            files.extend(walk(&p));
-        } else {
-            files.push(p);
-        }
-    }
-    files
-}
-
 /// `aggregate` says which observable it is diagnosing (a large fleet's
 /// take minutes each), in order, each once.
 #[test]
 fn aggregate_reports_each_observable_as_it_is_diagnosed() {
     let d = tempfile::tempdir().unwrap();
-    let root = fleet(d.path());
-    let (a, b) = (d.path().join("a"), d.path().join("b"));
-    ok(shard(&root, &a, "0/2", &[]));
-    ok(shard(&root, &b, "1/2", &[]));
+    let (_, a, b) = two_shards(d.path());
     let out = d.path().join("out");
     let o = std::process::Command::new(env!("CARGO_BIN_EXE_sparkout"))
         .args(["aggregate", "--out", out.to_str().unwrap(), "--shards"])

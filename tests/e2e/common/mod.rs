@@ -123,3 +123,19 @@ pub fn tables() -> sparkout_pipeline::contracts::TableRegistry {
     sparkout_pipeline::contracts::TableRegistry::of(plugins.iter().map(|p| (p.name(), p.tables())))
         .unwrap()
 }
+
+/// Every file under `dir`, at any depth (none when it does not exist).
+pub fn files_under(dir: &Path) -> Vec<std::path::PathBuf> {
+    let mut files = Vec::new();
+    if let Ok(entries) = std::fs::read_dir(dir) {
+        for e in entries.flatten() {
+            let p = e.path();
+            if p.is_dir() {
+                files.extend(files_under(&p));
+            } else {
+                files.push(p);
+            }
+        }
+    }
+    files
+}
