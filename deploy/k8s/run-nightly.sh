@@ -24,7 +24,20 @@ ns=${1:-default}
 SHARDS=${SHARDS:-4}
 NIGHT=${NIGHT:-$(date -u +%Y-%m-%d)}
 case "$SHARDS" in
-    '' | *[!0-9]* | 0) echo "SHARDS must be a whole number ≥ 1, not '$SHARDS'" >&2; exit 2 ;;
+    '' | *[!0-9]* | 0*) echo "SHARDS must be a whole number ≥ 1, not '$SHARDS'" >&2; exit 2 ;;
+esac
+# A typo (40000 for 4) would start that many pods.
+if [ "$SHARDS" -gt 1000 ]; then
+    echo "SHARDS must be at most 1000, not $SHARDS (a pod per shard; a night needs a few to a few dozen)" >&2
+    exit 2
+fi
+# The pods share nothing but the bucket: a path without a scheme would be
+# each pod's own disk (outputs lost, aggregate failing after every shard
+# ran); a space would split the shard list the aggregate pod builds.
+case "$BUCKET" in
+    *[[:space:]]*) echo "BUCKET must not contain spaces: '$BUCKET'" >&2; exit 2 ;;
+    s3://?* | gs://?* | az://?*) ;;
+    *) echo "BUCKET must be an object-store URL (s3://, gs:// or az://), not '$BUCKET'" >&2; exit 2 ;;
 esac
 case "$NIGHT" in
     [0-9][0-9][0-9][0-9]-[0-9][0-9]-[0-9][0-9]) ;;

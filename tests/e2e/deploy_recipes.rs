@@ -128,6 +128,7 @@ fn bad_settings_are_refused_before_anything_is_applied() {
     for (shards, night, want) in [
         ("0", "2026-11-27", "SHARDS must be"),
         ("four", "2026-11-27", "SHARDS must be"),
+        ("40000", "2026-11-27", "SHARDS must be at most"),
         ("4", "tonight", "NIGHT must be"),
     ] {
         let o = render(dir.path(), shards, night);
@@ -144,6 +145,25 @@ fn bad_settings_are_refused_before_anything_is_applied() {
         .unwrap();
     assert!(!o.status.success());
     assert!(String::from_utf8_lossy(&o.stderr).contains("set BUCKET"));
+    for bucket in [
+        "fleet-data",
+        "/mnt/fleet",
+        "file:///mnt/fleet",
+        "s3://fleet data",
+    ] {
+        let o = Command::new("bash")
+            .arg(repo().join("deploy/k8s/run-nightly.sh"))
+            .args(["--render", dir.path().to_str().unwrap()])
+            .env("BUCKET", bucket)
+            .env("IMAGE", "x")
+            .env("SHARDS", "4")
+            .env("NIGHT", "2026-11-27")
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{bucket}: {err}");
+        assert!(err.contains("BUCKET must"), "{bucket}: {err}");
+    }
 }
 
 /// The Slurm night refuses, before it lists a run or submits a job, a shard
