@@ -17,7 +17,13 @@ pub struct FirstStart {
 
 /// The start of run `index`: `first` plus `step_min` minutes per index.
 pub fn started_at(first: FirstStart, step_min: i64, index: usize) -> String {
-    let minutes = first.minute_of_day + step_min * index as i64;
+    started_after(first, step_min * index as i64)
+}
+
+/// `first` plus `minutes`, for a fleet whose runs are not evenly spaced
+/// (several a day, say).
+pub fn started_after(first: FirstStart, minutes: i64) -> String {
+    let minutes = first.minute_of_day + minutes;
     let days = minutes.div_euclid(24 * 60);
     let rem = minutes.rem_euclid(24 * 60);
     let z = days_from_civil(first.year, first.month, first.day) + days;

@@ -301,11 +301,16 @@ fn usage_and_config_errors_exit_1() {
 /// Every generator's runs carry a valid, increasing `[run].started` past a
 /// day of runs: a form fleet's clock once counted hours past 23 (run 54 of
 /// a 100-run fleet started at "24:00", and 46 of its runs were rejected),
-/// a guide-way's and a gantry's wrapped back to their first start.
+/// a guide-way's, a gantry's and a mill's wrapped back to their first start.
 #[test]
 fn generated_runs_start_at_valid_increasing_times_past_a_day() {
     let d = tempfile::tempdir().unwrap();
-    for (what, runs) in [("form", "60"), ("guideway", "70"), ("gantry", "30")] {
+    for (what, runs) in [
+        ("form", "60"),
+        ("guideway", "70"),
+        ("gantry", "30"),
+        ("mill", "290"),
+    ] {
         let root = d.path().join(what);
         ok(&sparkout(&[
             "generate",
