@@ -293,12 +293,7 @@ pub fn generate_fleet(
 }
 
 /// A form fleet's first run starts at 06:00, the next every 20 minutes.
-const FIRST_START: crate::started::FirstStart = crate::started::FirstStart {
-    year: 2026,
-    month: 11,
-    day: 20,
-    minute_of_day: 6 * 60,
-};
+const FIRST_START: crate::started::FirstStart = crate::started::FirstStart::at(2026, 11, 20, 6);
 
 fn generate_run(
     dir: &Path,

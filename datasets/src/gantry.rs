@@ -248,12 +248,7 @@ pub fn generate_fleet(
 }
 
 /// A gantry fleet runs once a day at 08:00 from 2026-11-01.
-const FIRST_START: crate::started::FirstStart = crate::started::FirstStart {
-    year: 2026,
-    month: 11,
-    day: 1,
-    minute_of_day: 8 * 60,
-};
+const FIRST_START: crate::started::FirstStart = crate::started::FirstStart::at(2026, 11, 1, 8);
 
 fn run_toml(cfg: &GantryFleetConfig, id: &str, index: usize, feed: f64) -> String {
     format!(

@@ -499,12 +499,7 @@ pub fn table(run: &GuidewayRun) -> RecordBatch {
 }
 
 /// A guide-way fleet's first run starts at 08:00, the next every 15 minutes.
-const FIRST_START: crate::started::FirstStart = crate::started::FirstStart {
-    year: 2026,
-    month: 11,
-    day: 20,
-    minute_of_day: 8 * 60,
-};
+const FIRST_START: crate::started::FirstStart = crate::started::FirstStart::at(2026, 11, 20, 8);
 
 fn run_toml(cfg: &GuidewayFleetConfig, id: &str, index: usize) -> String {
     format!(

@@ -314,12 +314,7 @@ struct Row {
 }
 
 /// A mill fleet's first run starts on 2026-11-01 at 08:00 (ten a day).
-const FIRST_START: crate::started::FirstStart = crate::started::FirstStart {
-    year: 2026,
-    month: 11,
-    day: 1,
-    minute_of_day: 8 * 60,
-};
+const FIRST_START: crate::started::FirstStart = crate::started::FirstStart::at(2026, 11, 1, 8);
 
 fn generate_run(
     dir: &Path,

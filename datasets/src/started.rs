@@ -15,6 +15,18 @@ pub struct FirstStart {
     pub minute_of_day: i64,
 }
 
+impl FirstStart {
+    /// `hour`:00 UTC on the civil date `year`-`month`-`day`.
+    pub const fn at(year: i64, month: i64, day: i64, hour: i64) -> FirstStart {
+        FirstStart {
+            year,
+            month,
+            day,
+            minute_of_day: hour * 60,
+        }
+    }
+}
+
 /// The start of run `index`: `first` plus `step_min` minutes per index.
 pub fn started_at(first: FirstStart, step_min: i64, index: usize) -> String {
     started_after(first, step_min * index as i64)
@@ -35,12 +47,7 @@ pub fn started_after(first: FirstStart, minutes: i64) -> String {
 mod tests {
     use super::*;
 
-    const AT_8: FirstStart = FirstStart {
-        year: 2026,
-        month: 11,
-        day: 20,
-        minute_of_day: 8 * 60,
-    };
+    const AT_8: FirstStart = FirstStart::at(2026, 11, 20, 8);
 
     #[test]
     fn dates_roll_over_at_midnight_month_and_year_ends() {

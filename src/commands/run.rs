@@ -177,17 +177,17 @@ pub fn aggregate(
     // A refused set of shards leaves no empty output folder behind (only
     // an empty one is removed: anything written there stays).
     let created = !out.local.exists();
-    let outcome = match engine.aggregate(&shards, &out.local, &progress) {
+    let aggregated = engine.aggregate(&shards, &out.local, &progress);
+    progress.finish();
+    let outcome = match aggregated {
         Ok(o) => o,
         Err(e) => {
-            progress.finish();
             if created {
                 let _ = std::fs::remove_dir(&out.local);
             }
             return Err(e.into());
         }
     };
-    progress.finish();
     print_outcome(&outcome);
     out.publish()?;
     Ok(outcome.exit_code() as u8)

@@ -177,13 +177,7 @@ pub(super) fn passes(
 
 /// `started`: 2026-11-20T08:00:00Z plus 15 minutes per run index.
 pub(super) fn started(index: usize) -> String {
-    let first = crate::started::FirstStart {
-        year: 2026,
-        month: 11,
-        day: 20,
-        minute_of_day: 8 * 60,
-    };
-    crate::started::started_at(first, 15, index)
+    crate::started::started_at(crate::started::FirstStart::at(2026, 11, 20, 8), 15, index)
 }
 
 pub(super) fn run_toml(

@@ -566,8 +566,9 @@ impl Engine {
         // inside a shard, or holding one, it would mix with (and tidy) the
         // shard's own files. A shard's own directory is allowed (`--out`
         // may be one of the shards': its runs are then already in place).
+        let out_resolved = names::resolve(out);
         for d in shard_dirs {
-            if names::resolve(d).is_some_and(|r| Some(r) == names::resolve(out)) {
+            if out_resolved.is_some() && names::resolve(d) == out_resolved {
                 continue;
             }
             names::check_out_apart(d, out, "--shards").map_err(|e| err!(e))?;
