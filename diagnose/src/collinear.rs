@@ -33,10 +33,14 @@ pub struct Collinearity {
     pub vif: f64,
     /// What an engineer can change so the next runs tell the effects apart.
     pub advice: String,
-    /// Candidates indistinguishable from the selected effect on these runs
-    /// whose covariates are among those it moves with: the collinearity is
-    /// why they cannot be told apart. Printed only when not empty — a
-    /// collinearity that the held-out scores see through is no news.
+    /// Candidates of the selected effect's round that also passed the
+    /// held-out test and whose covariates are among those it moves with:
+    /// the same gap explained by another cause, which these runs cannot
+    /// rule out however much better the selected form scores (a
+    /// three-parameter curve on time can follow a wear curve on the
+    /// removed volume that rises with time in every run). Printed only
+    /// when not empty — a collinear covariate that no passing rival uses
+    /// is no news.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub confounds: Vec<String>,
 }
@@ -44,11 +48,13 @@ pub struct Collinearity {
 impl Collinearity {
     /// Names the rivals (`key`, its covariates) this collinearity explains:
     /// those using a covariate it moves with, or — when only its VIF is
-    /// high — any covariate other than its own.
-    pub fn add_confounds(&mut self, rivals: &[(String, Vec<String>)]) {
+    /// high, and only for rivals `indistinguishable` from the selected
+    /// effect (a high VIF names no partner, so a rival that scores worse
+    /// is not pinned on it) — any covariate other than its own.
+    pub fn add_confounds(&mut self, rivals: &[(String, Vec<String>)], indistinguishable: bool) {
         for (key, covs) in rivals {
             let hit = if self.moves_with.is_empty() {
-                covs.iter().any(|c| *c != self.covariate)
+                indistinguishable && covs.iter().any(|c| *c != self.covariate)
             } else {
                 covs.iter().any(|c| self.moves_with.contains_key(c))
             };

@@ -48,6 +48,13 @@ pub struct DiagnoseConfig {
     /// (within runs, against the other covariates) ≥ this is reported as
     /// collinear.
     pub collinear_vif: f64,
+    /// A rival that also passed the held-out test in the selected effect's
+    /// round, on a covariate that moves with the selected one's within
+    /// runs, is named beside it when it removes at least this share of the
+    /// held-out gap the selected effect removes (Σ before − Σ after over
+    /// the held-out units): the same gap, nearly as well explained by
+    /// another cause the runs cannot rule out.
+    pub confound_share: f64,
 }
 
 impl Default for DiagnoseConfig {
@@ -64,6 +71,7 @@ impl Default for DiagnoseConfig {
             min_gap_share: 0.03,
             collinear_r: 0.95,
             collinear_vif: 10.0,
+            confound_share: 0.95,
         }
     }
 }
@@ -80,6 +88,7 @@ impl Section for DiagnoseConfig {
         ("min_gap_share", Check::NonNegative),
         ("collinear_r", Check::Fraction),
         ("collinear_vif", Check::AtLeastOne),
+        ("confound_share", Check::Fraction),
     ];
     fn validate(&self) -> Result<()> {
         if let Some(e) = &self.effects {

@@ -247,6 +247,113 @@ pub fn with_rivals(key: &str, rivals: &[String]) -> String {
     }
 }
 
+/// What explains one observable's gap, as `sparkout run` prints it and
+/// the fleet report shows it: the selected effects, each with the rivals
+/// it cannot be told from on these runs; the minor effects; the rivals
+/// that passed on covariates moving with the selected ones', and the
+/// covariates that move together with what to change.
+pub fn explained_by(o: &ObservableSummary, effects: &[EffectEntry]) -> String {
+    let mut text = if o.selected.is_empty() {
+        o.stop_reason.clone()
+    } else {
+        let keys = o
+            .selected
+            .iter()
+            .map(|k| {
+                let rivals = effects
+                    .iter()
+                    .find(|e| e.observable == o.observable && e.selected && e.key() == *k)
+                    .map(|e| e.indistinguishable_from.as_slice())
+                    .unwrap_or_default();
+                with_rivals(k, rivals)
+            })
+            .collect::<Vec<_>>()
+            .join(", ");
+        format!("explained by {keys}")
+    };
+    if !o.minor.is_empty() {
+        text.push_str(&format!("; minor (not selected): {}", o.minor.join(", ")));
+    }
+    if let Some(also) = confounded_text(o, effects) {
+        text.push_str(&format!("; {also}"));
+    }
+    // News only where it is why a rival that passed cannot be ruled out.
+    for c in o.collinear.iter().filter(|c| !c.confounds.is_empty()) {
+        text.push_str(&format!(". Note: {}", c.advice));
+    }
+    text
+}
+
+/// The rivals of `o`'s selected effects that the collinearity notes are
+/// about and that are not already named as indistinguishable, best
+/// held-out RMS first: "also passing on covariates that move with t_s
+/// within every run: wear:removed_mm3 (held-out 3.64 µm), wear:pass
+/// (held-out 4.23 µm)" (the rival's held-out RMS when it was last scored
+/// in the selected effect's round). None when there are none. Read from
+/// diagnosis.json's fields alone, so the CLI and the report say the same.
+pub fn confounded_text(o: &ObservableSummary, effects: &[EffectEntry]) -> Option<String> {
+    let of_o = |key: &str| {
+        effects
+            .iter()
+            .find(|e| e.observable == o.observable && e.key() == key)
+    };
+    let named: Vec<&String> = o
+        .selected
+        .iter()
+        .filter_map(|k| of_o(k))
+        .flat_map(|e| &e.indistinguishable_from)
+        .collect();
+    let parts: Vec<String> = o
+        .collinear
+        .iter()
+        .filter_map(|c| {
+            // A rival's figures are its last round's: shown only when that
+            // is the round of a selected effect on this covariate.
+            let rounds: Vec<usize> = o
+                .selected
+                .iter()
+                .filter_map(|k| of_o(k))
+                .filter(|e| {
+                    e.covariate
+                        .as_deref()
+                        .is_some_and(|cs| cs.split(',').any(|x| x == c.covariate))
+                })
+                .map(|e| e.step)
+                .collect();
+            let mut rivals: Vec<(f64, String)> = c
+                .confounds
+                .iter()
+                .filter(|k| !named.contains(k))
+                .map(|k| {
+                    match of_o(k)
+                        .filter(|e| rounds.contains(&e.step))
+                        .and_then(|e| e.cv_rms_after_mm)
+                    {
+                        Some(after) => (
+                            after,
+                            format!(
+                                "{k} (held-out {})",
+                                crate::units::format::show_in(after, &o.unit)
+                            ),
+                        ),
+                        None => (f64::INFINITY, k.clone()),
+                    }
+                })
+                .collect();
+            rivals.sort_by(|a, b| a.0.total_cmp(&b.0));
+            (!rivals.is_empty()).then(|| {
+                let listed: Vec<String> = rivals.into_iter().map(|(_, t)| t).collect();
+                format!(
+                    "also passing on covariates that move with {} within every run: {}",
+                    c.covariate,
+                    listed.join(", ")
+                )
+            })
+        })
+        .collect();
+    (!parts.is_empty()).then(|| parts.join("; "))
+}
+
 /// One machine's fit of a selected effect (`EffectEntry::per_machine`).
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct MachineFit {

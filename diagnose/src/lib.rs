@@ -621,13 +621,24 @@ fn analyse(
     )?;
     for r in sel.records.iter().filter(|r| r.selected) {
         let own = cands[r.idx].covariates();
-        let rivals: Vec<(String, Vec<String>)> = r
-            .indistinguishable
-            .iter()
-            .map(|&i| (cands[i].key(), cands[i].covariates()))
-            .collect();
+        let keyed = |of: &mut dyn Iterator<Item = usize>| -> Vec<(String, Vec<String>)> {
+            of.map(|i| (cands[i].key(), cands[i].covariates()))
+                .collect()
+        };
+        // The rivals that remove nearly as much of the round's held-out
+        // gap as the selected effect (docs/models.md §8.6).
+        let removed = r.sse_before - r.sse_after;
+        let passed = keyed(
+            &mut r
+                .also_passed
+                .iter()
+                .filter(|(_, sse)| r.sse_before - sse >= cfg.confound_share * removed)
+                .map(|(i, _)| *i),
+        );
+        let indistinguishable = keyed(&mut r.indistinguishable.iter().copied());
         for c in collinear.iter_mut().filter(|c| own.contains(&c.covariate)) {
-            c.add_confounds(&rivals);
+            c.add_confounds(&indistinguishable, true);
+            c.add_confounds(&passed, false);
         }
     }
     clock.lap("collinear");

@@ -169,7 +169,7 @@ pub fn section(d: &Diagnosis) -> String {
     let mut s = String::from(r#"<section class="diagnosis"><h2>Sim-to-real gap diagnosis</h2>"#);
     // No pooled gap or "share unexplained" across observables: their
     // scales differ (a touch probe's noise would swamp every real gap). Each observable against its own floor, in its own row.
-    s.push_str("<table><tr><th>observable</th><th>n</th><th>gap RMS</th><th>noise floor</th><th>held-out RMS after</th><th>shrink</th><th>selected or why not</th></tr>");
+    s.push_str("<table><tr><th>observable</th><th>n</th><th>gap RMS</th><th>noise floor</th><th>held-out RMS after</th><th>shrink</th><th>explained by, or why not</th></tr>");
     for o in &d.per_observable {
         let _ = write!(
             s,
@@ -180,11 +180,7 @@ pub fn section(d: &Diagnosis) -> String {
             fig.show(&o.observable, Some(o.noise_floor_mm)),
             fig.show(&o.observable, Some(o.cv_rms_after_mm)),
             shrink(o.shrink),
-            esc(&if o.selected.is_empty() {
-                o.stop_reason.clone()
-            } else {
-                o.selected.join(", ")
-            })
+            esc(&crate::document::explained_by(o, &d.effects))
         );
     }
     s.push_str("</table>");

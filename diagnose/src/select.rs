@@ -173,6 +173,7 @@ fn score_round(
                     gap_share: f64::NAN,
                     minor: false,
                     indistinguishable: Vec::new(),
+                    also_passed: Vec::new(),
                 });
                 scored.push((i, ev, mlr, p));
             }
@@ -307,6 +308,14 @@ pub struct Record {
     /// Selected: candidates (indices) of the same round whose held-out
     /// error cannot be told from its own.
     pub indistinguishable: Vec<usize>,
+    /// Selected: every other candidate of the same round that passed the
+    /// held-out test against the round's targets (`indistinguishable`
+    /// among them), with its held-out Σ residual² in that round (its own
+    /// record may belong to a later round). Such a rival on a covariate
+    /// that moves with the selected one's within runs explains the same
+    /// gap by another cause — the collinearity note names it
+    /// (collinear.rs).
+    pub also_passed: Vec<(usize, f64)>,
 }
 
 impl Record {
@@ -327,6 +336,7 @@ impl Record {
             gap_share: f64::NAN,
             minor: false,
             indistinguishable: Vec::new(),
+            also_passed: Vec::new(),
         }
     }
 }
@@ -561,15 +571,20 @@ pub fn select(prob: &Problem, cands: &[&dyn Effect], opt: &SelectOptions) -> Res
             };
             break;
         };
-        let rivals: Vec<usize> = scored
+        let passed: Vec<&Scored> = scored
             .iter()
             .enumerate()
-            .filter(|(j, s)| {
-                *j != b
-                    && stability::passes(&before, &s.1.unit_sse, opt)
-                    && stability::indistinguishable(&scored[b].1.unit_sse, &s.1.unit_sse)
-            })
-            .map(|(_, s)| s.0)
+            .filter(|(j, s)| *j != b && stability::passes(&before, &s.1.unit_sse, opt))
+            .map(|(_, s)| s)
+            .collect();
+        let rivals: Vec<usize> = passed
+            .iter()
+            .filter(|s| stability::indistinguishable(&scored[b].1.unit_sse, &s.1.unit_sse))
+            .map(|s| s.0)
+            .collect();
+        let also_passed: Vec<(usize, f64)> = passed
+            .iter()
+            .map(|s| (s.0, s.1.unit_sse.iter().sum()))
             .collect();
         let (ci, ev, _, _) = scored.swap_remove(b);
         let t_out = std::time::Instant::now();
@@ -583,6 +598,7 @@ pub fn select(prob: &Problem, cands: &[&dyn Effect], opt: &SelectOptions) -> Res
         if let Some(r) = records[ci].as_mut() {
             r.selected = true;
             r.indistinguishable = rivals;
+            r.also_passed = also_passed;
         }
         chosen_before.push(std::mem::replace(&mut before, ev.unit_sse.clone()));
         chosen_evals.push(ev);

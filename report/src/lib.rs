@@ -212,40 +212,6 @@ pub struct ObservableSummary {
     pub shrink: f64,
 }
 
-/// What explains one observable's gap, as `sparkout run` prints it: the
-/// selected effects, each with the rivals it cannot be told from on these
-/// runs; the minor effects; the covariates that move together, with what
-/// to change.
-fn explained_by(diagnosis: &Diagnosis, o: &crate::diagnose::ObservableSummary) -> String {
-    let mut text = if o.selected.is_empty() {
-        o.stop_reason.clone()
-    } else {
-        let keys = o
-            .selected
-            .iter()
-            .map(|k| {
-                let rivals = diagnosis
-                    .effects
-                    .iter()
-                    .find(|e| e.observable == o.observable && e.selected && e.key() == *k)
-                    .map(|e| e.indistinguishable_from.as_slice())
-                    .unwrap_or_default();
-                crate::diagnose::output::with_rivals(k, rivals)
-            })
-            .collect::<Vec<_>>()
-            .join(", ");
-        format!("explained by {keys}")
-    };
-    if !o.minor.is_empty() {
-        text.push_str(&format!("; minor (not selected): {}", o.minor.join(", ")));
-    }
-    // News only where it is why rivals cannot be told apart.
-    for c in o.collinear.iter().filter(|c| !c.confounds.is_empty()) {
-        text.push_str(&format!(". Note: {}", c.advice));
-    }
-    text
-}
-
 /// The `per_observable` entries of a diagnosis.json.
 pub fn observable_summaries(diagnosis: &Diagnosis) -> Vec<ObservableSummary> {
     diagnosis
@@ -256,7 +222,7 @@ pub fn observable_summaries(diagnosis: &Diagnosis) -> Vec<ObservableSummary> {
             unit: o.unit.clone(),
             rms_mm: o.rms_mm,
             noise_floor_mm: o.noise_floor_mm,
-            explained_by: explained_by(diagnosis, o),
+            explained_by: crate::diagnose::document::explained_by(o, &diagnosis.effects),
             after_mm: o.cv_rms_after_mm,
             shrink: o.shrink,
         })
