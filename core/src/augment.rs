@@ -112,6 +112,7 @@ impl ModelFrame {
                 max: self.max,
                 step: self.step,
                 max_abs: self.max_abs,
+                run_span: None,
             })
     }
 }

@@ -221,6 +221,13 @@ pub struct CovStats {
     /// Median positive spacing of the sorted distinct values.
     pub step: f64,
     pub max_abs: f64,
+    /// A covariate counted from each run's start (time, docs/formats.md):
+    /// the largest range one run spans — a cycle longer than any run is
+    /// never seen whole, however the runs' ranges lie against each other
+    /// ([`periodic_lambda_bounds`]). None for covariates on a scale the
+    /// runs share (positions), and where the runs are not known.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub run_span: Option<f64>,
 }
 
 impl CovStats {
@@ -289,6 +296,7 @@ impl CovStats {
             max,
             step,
             max_abs: min.abs().max(max.abs()),
+            run_span: None,
         }
     }
 
@@ -300,6 +308,7 @@ impl CovStats {
                 max: 0.0,
                 step: 0.0,
                 max_abs: 0.0,
+                run_span: None,
             };
         }
         let (min, max) = (s[0], s[s.len() - 1]);
@@ -313,6 +322,10 @@ impl CovStats {
     }
     pub fn range(&self) -> f64 {
         self.max - self.min
+    }
+    /// These constants with `run_span` (see [`run_span_of`]).
+    pub fn with_run_span(self, run_span: Option<f64>) -> CovStats {
+        CovStats { run_span, ..self }
     }
     /// Centre and half range, used to standardise linear features so the
     /// normal equations stay well conditioned (removed_mm3 reaches 1e5).
@@ -557,13 +570,42 @@ pub const DRIFT_TAU_MIN_FRAC: f64 = 1.0 / 200.0;
 /// densely sampled time covariates (see [`periodic_lambda_bounds`]).
 pub const PERIODIC_MAX_CYCLES: f64 = 64.0;
 
+/// The largest range one run spans of the covariate `name` whose column
+/// `v` is in run order with runs `runs`, when it counts from each run's
+/// start (its unit is a time, docs/formats.md "Time"); None for a
+/// covariate on a scale the runs share (positions, speeds, volumes).
+pub fn run_span_of(name: &str, v: &[f64], runs: &[std::ops::Range<usize>]) -> Option<f64> {
+    use crate::units::format::{covariate_unit, Dims, ParamUnit};
+    if covariate_unit(name) != ParamUnit::of(Dims::time()) {
+        return None;
+    }
+    let span = |r: &std::ops::Range<usize>| {
+        let (lo, hi) = v[r.clone()]
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), x| {
+                (lo.min(*x), hi.max(*x))
+            });
+        if hi >= lo {
+            hi - lo
+        } else {
+            0.0
+        }
+    };
+    Some(runs.iter().map(span).fold(0.0, f64::max))
+}
+
 /// Periodic λ bounds: from max(3 sample steps, range/64) to the covariate
 /// range (docs/formats.md: at least one whole cycle inside the data, so
-/// periodic cannot impersonate scale or bow).
+/// periodic cannot impersonate scale or bow) — for a covariate counted
+/// from each run's start, to the largest span of one run (docs/models.md
+/// §8.1): runs that start their passes at two offsets a λ apart would
+/// otherwise let a part of one cycle, the same in every run, follow any
+/// smooth trend of the pass order.
 pub fn periodic_lambda_bounds(s: &CovStats) -> (f64, f64) {
     let range = s.range();
+    let hi = s.run_span.map_or(range, |r| r.min(range));
     let lo = (3.0 * s.step).max(range / PERIODIC_MAX_CYCLES);
-    (lo.min(range), range)
+    (lo.min(hi), hi)
 }
 
 #[cfg(test)]
@@ -691,5 +733,28 @@ mod sorted_tests {
                 }
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod run_span_tests {
+    use super::{periodic_lambda_bounds, run_span_of, CovStats};
+
+    #[test]
+    fn time_spans_runs_and_bounds_the_periodic_wavelength() {
+        // Two runs: 0..100 s and 500..580 s of their own clocks.
+        let t = [0.0, 50.0, 100.0, 500.0, 540.0, 580.0];
+        let runs = [0..3, 3..6];
+        assert_eq!(run_span_of("t_s", &t, &runs), Some(100.0));
+        // A position is on the machine's scale, shared by the runs.
+        assert_eq!(run_span_of("x_mm", &t, &runs), None);
+        let st = CovStats::from_values(&t);
+        assert_eq!(periodic_lambda_bounds(&st).1, 580.0);
+        let spanned = st.with_run_span(run_span_of("t_s", &t, &runs));
+        assert_eq!(periodic_lambda_bounds(&spanned).1, 100.0);
+        // Never above the range, never below the lower bound.
+        let short = st.with_run_span(Some(1e-9));
+        let (lo, hi) = periodic_lambda_bounds(&short);
+        assert!(lo <= hi && hi == 1e-9, "{lo} {hi}");
     }
 }

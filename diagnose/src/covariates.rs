@@ -314,10 +314,12 @@ impl Covariates {
                         let mut copies = DroppedCopies::of(drop.iter().map(|&p| v[p]));
                         copies.count(&v);
                         retain_positions(&mut v, drop);
+                        // The runs' spans as gathered: trimming isolated
+                        // spikes leaves the runs as long as they were.
                         let st = if copies.all_kept() {
                             st
                         } else {
-                            CovStats::from_values(&v)
+                            CovStats::from_values(&v).with_run_span(st.run_span)
                         };
                         ((c, v), st)
                     })
@@ -377,6 +379,7 @@ impl Covariates {
                             fresh
                                 .next()
                                 .expect("a fresh constant per column sorted again")
+                                .with_run_span(st.run_span)
                         }
                     })
                     .collect();

@@ -7,7 +7,7 @@ use std::ops::Range;
 use rayon::prelude::*;
 
 use super::covariates::{ColumnFile, Covariates};
-use super::effect::CovStats;
+use super::effect::{run_span_of, CovStats};
 use super::observations::Table;
 use super::Notes;
 
@@ -175,10 +175,13 @@ pub(crate) fn gather_within(
     let checked: Vec<(usize, CovStats, Option<Vec<f64>>)> = match &mut values {
         Values::Memory(v) => std::mem::take(v)
             .into_par_iter()
-            .map(|col| {
+            .enumerate()
+            .map(|(k, col)| {
                 let col = permuted(col);
                 let finite = col.iter().filter(|v| v.is_finite()).count();
-                (finite, CovStats::from_values(&col), Some(col))
+                let span = run_span_of(&names[k], &col, &run_ranges);
+                let st = CovStats::from_values(&col).with_run_span(span);
+                (finite, st, Some(col))
             })
             .collect(),
         Values::File(f) => (0..names.len())
@@ -191,7 +194,9 @@ pub(crate) fn gather_within(
                     f.write(k, 0, &col)?;
                 }
                 let finite = col.iter().filter(|v| v.is_finite()).count();
-                Ok((finite, CovStats::from_values_in_place(&mut col), None))
+                let span = run_span_of(&names[k], &col, &run_ranges);
+                let st = CovStats::from_values_in_place(&mut col).with_run_span(span);
+                Ok((finite, st, None))
             })
             .collect::<crate::Result<_>>()?,
     };

@@ -995,3 +995,50 @@ fn a_passing_rival_on_a_covariate_moving_with_the_selected_one_is_named() {
     let (_, strict) = explained(1.0);
     assert!(!strict.contains("also passing"), "{strict}");
 }
+
+/// Time counts from each run's start: a cycle longer than any run is never
+/// seen whole. Runs whose passes start at two offsets 330 s apart, each
+/// 240 s long, with a wear gap that bends as it nears the cut (clipped):
+/// the periodic candidate on t_s is fitted with λ no longer than one
+/// run's span — before, λ ≈ 330 s lined the two offsets up and let part
+/// of one cycle follow the wear in every run.
+#[test]
+fn a_periodic_on_time_is_never_longer_than_a_run() {
+    use crate::contracts::BatchBuilder;
+    let mut normal = normal_rng(3);
+    let (mut run, mut real, mut sim, mut removed, mut t) = (vec![], vec![], vec![], vec![], vec![]);
+    for r in 0..40 {
+        let start = if r % 2 == 0 { 360.0 } else { 690.0 } + (r % 5) as f64;
+        let mut vol = 0.0;
+        for i in 0..11 {
+            let model = if i < 7 { 0.3 } else { 0.1 / (i - 6) as f64 };
+            let cut = (model - 1e-4 * vol).max(0.0);
+            run.push(format!("r{r:02}"));
+            sim.push(model);
+            real.push(cut + 3e-3 * normal());
+            removed.push(Some(vol));
+            t.push(Some(start + 24.0 * i as f64));
+            vol += 100.0 * cut;
+        }
+    }
+    let n = real.len();
+    let batch = BatchBuilder::new()
+        .str("run", &run.iter().map(|s| s.as_str()).collect::<Vec<_>>())
+        .str("observable", &vec!["cut_depth"; n])
+        .f64("sim", sim)
+        .f64("real", real)
+        .opt_f64("removed_mm3", removed)
+        .opt_f64("t_s", t)
+        .build();
+    let d = super::diagnose(&batch, &super::DiagnoseConfig::default(), &[])
+        .unwrap()
+        .diagnosis;
+    let periodic = d
+        .effects
+        .iter()
+        .find(|e| e.key() == "periodic:t_s")
+        .expect("periodic:t_s scored");
+    let lambda = periodic.params["lambda"];
+    assert!(lambda <= 240.0 + 1e-9, "λ = {lambda} s: {:?}", d.selected);
+    assert_eq!(d.selected, vec!["wear:removed_mm3".to_string()]);
+}
