@@ -82,8 +82,10 @@ pub(super) fn probe_batch(plan: &[PlanRow], touches: &[Touch]) -> RecordBatch {
 /// Effects: thermal drift lifts the wheel between passes (the infeed loses
 /// the drift increment) and shifts every height reading by −drift(t); wear
 /// and depth-dependent compliance remove less than the compliance model says
-/// (the shortfall is not carried as deflection, so the cut_depth gap is the
-/// effect's own form).
+/// (the shortfall is not carried as deflection, so against the true α the
+/// cut_depth gap is the effect's own form; the pipeline calibrates α on the
+/// first pass, docs/models.md §1.4, which a depth-dependent compliance
+/// shrinks too, so that effect's gap is the recurrence's misfit instead).
 pub(super) fn passes(
     cfg: &RobotFleetConfig,
     fx: &Effects,
