@@ -374,6 +374,12 @@ pub enum Command {
         /// Print the report as JSON to stdout.
         #[arg(long)]
         json: bool,
+        /// Research: diagnose every fleet with each covariate rounded to the
+        /// centre of one of B equal cells across its range (2 to 100000),
+        /// the effects still made from the exact values — what a selection
+        /// on coarse fixed cells would lose (docs/validation.md).
+        #[arg(long, value_name = "B", conflicts_with = "nights", value_parser = clap::value_parser!(u32).range(2..=100_000))]
+        cells: Option<u32>,
         // The diagnosis settings: [diagnose] of --config, --set diagnose.KEY=VALUE.
         #[command(flatten)]
         config: ConfigArgs,

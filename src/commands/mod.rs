@@ -156,15 +156,17 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<u8> {
             seed,
             json,
             config,
+            ..
         } if nights => validate::validate_nights(quick, out, seed, json, &config),
         Command::Validate {
             quick,
             out,
             seed,
             json,
+            cells,
             config,
             ..
-        } => validate::validate(quick, out, seed, json, &config),
+        } => validate::validate(quick, out, seed, json, cells, &config),
         Command::Replay(args) => replay::replay(&args),
         Command::Can(crate::cli::CanCommand::Decode {
             log,

@@ -26,11 +26,13 @@ pub fn validate(
     out: Option<PathBuf>,
     seed: u64,
     json: bool,
+    cells: Option<u32>,
     config: &ConfigArgs,
 ) -> anyhow::Result<u8> {
     let (_, diagnose) = settings(config)?;
     let cfg = sparkout_datasets::validate::ValidateConfig {
         diagnose,
+        cells: cells.map(|b| b as usize),
         ..sparkout_datasets::validate::ValidateConfig::new(quick, seed)
     };
     let report = sparkout_datasets::validate::run(&cfg)?;

@@ -360,6 +360,13 @@ fn unknown_config_keys_and_a_machines_file_are_refused_everywhere() {
     assert!(text(&o).contains("mil"), "{}", text(&o));
     let o = sparkout(&["validate", "--quick", "--set", "mil.x.y=1"]);
     assert_eq!(o.status.code(), Some(1), "{}", text(&o));
+    // The research option's cells: at least two, and not with --nights
+    // (whose fleets it does not touch).
+    for args in [&["--cells", "1"][..], &["--cells", "8", "--nights"][..]] {
+        let o = sparkout(&[&["validate", "--quick"][..], args].concat());
+        assert_eq!(o.status.code(), Some(1), "{args:?}: {}", text(&o));
+        assert!(text(&o).contains("--cells"), "{args:?}: {}", text(&o));
+    }
     let cfg = d.path().join("c.toml");
     std::fs::write(&cfg, "[nosuch]\nx = 1\n").unwrap();
     let o = sparkout(&[
