@@ -43,6 +43,19 @@ pub struct Collinearity {
     /// is no news.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub confounds: Vec<String>,
+    /// Each of `confounds`' held-out RMS in the selected effect's round,
+    /// in the observable's `unit` (its entry in `effects` holds its last
+    /// round's figures, which may be a later one's).
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub confound_rms: BTreeMap<String, f64>,
+}
+
+/// A rival a collinearity may explain: its key, covariates and held-out
+/// RMS in the selected effect's round.
+pub struct Rival {
+    pub key: String,
+    pub covariates: Vec<String>,
+    pub rms: f64,
 }
 
 impl Collinearity {
@@ -51,15 +64,18 @@ impl Collinearity {
     /// high, and only for rivals `indistinguishable` from the selected
     /// effect (a high VIF names no partner, so a rival that scores worse
     /// is not pinned on it) — any covariate other than its own.
-    pub fn add_confounds(&mut self, rivals: &[(String, Vec<String>)], indistinguishable: bool) {
-        for (key, covs) in rivals {
+    pub fn add_confounds(&mut self, rivals: &[Rival], indistinguishable: bool) {
+        for r in rivals {
             let hit = if self.moves_with.is_empty() {
-                indistinguishable && covs.iter().any(|c| *c != self.covariate)
+                indistinguishable && r.covariates.iter().any(|c| *c != self.covariate)
             } else {
-                covs.iter().any(|c| self.moves_with.contains_key(c))
+                r.covariates.iter().any(|c| self.moves_with.contains_key(c))
             };
-            if hit && !self.confounds.contains(key) {
-                self.confounds.push(key.clone());
+            if hit && !self.confounds.contains(&r.key) {
+                self.confounds.push(r.key.clone());
+                if r.rms.is_finite() {
+                    self.confound_rms.insert(r.key.clone(), r.rms);
+                }
             }
         }
     }
@@ -187,6 +203,7 @@ fn collinear_in_chunks(
             moves_with,
             vif,
             confounds: Vec::new(),
+            confound_rms: BTreeMap::new(),
         });
     }
     Ok(out)

@@ -288,8 +288,8 @@ pub fn explained_by(o: &ObservableSummary, effects: &[EffectEntry]) -> String {
 /// about and that are not already named as indistinguishable, best
 /// held-out RMS first: "also passing on covariates that move with t_s
 /// within every run: wear:removed_mm3 (held-out 3.64 µm), wear:pass
-/// (held-out 4.23 µm)" (the rival's held-out RMS when it was last scored
-/// in the selected effect's round). None when there are none. Read from
+/// (held-out 4.23 µm)" (each rival's held-out RMS in the selected
+/// effect's round). None when there are none. Read from
 /// diagnosis.json's fields alone, so the CLI and the report say the same.
 pub fn confounded_text(o: &ObservableSummary, effects: &[EffectEntry]) -> Option<String> {
     let of_o = |key: &str| {
@@ -307,37 +307,19 @@ pub fn confounded_text(o: &ObservableSummary, effects: &[EffectEntry]) -> Option
         .collinear
         .iter()
         .filter_map(|c| {
-            // A rival's figures are its last round's: shown only when that
-            // is the round of a selected effect on this covariate.
-            let rounds: Vec<usize> = o
-                .selected
-                .iter()
-                .filter_map(|k| of_o(k))
-                .filter(|e| {
-                    e.covariate
-                        .as_deref()
-                        .is_some_and(|cs| cs.split(',').any(|x| x == c.covariate))
-                })
-                .map(|e| e.step)
-                .collect();
             let mut rivals: Vec<(f64, String)> = c
                 .confounds
                 .iter()
                 .filter(|k| !named.contains(k))
-                .map(|k| {
-                    match of_o(k)
-                        .filter(|e| rounds.contains(&e.step))
-                        .and_then(|e| e.cv_rms_after_mm)
-                    {
-                        Some(after) => (
-                            after,
-                            format!(
-                                "{k} (held-out {})",
-                                crate::units::format::show_in(after, &o.unit)
-                            ),
+                .map(|k| match c.confound_rms.get(k) {
+                    Some(&rms) => (
+                        rms,
+                        format!(
+                            "{k} (held-out {})",
+                            crate::units::format::show_in(rms, &o.unit)
                         ),
-                        None => (f64::INFINITY, k.clone()),
-                    }
+                    ),
+                    None => (f64::INFINITY, k.clone()),
                 })
                 .collect();
             rivals.sort_by(|a, b| a.0.total_cmp(&b.0));

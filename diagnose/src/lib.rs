@@ -621,21 +621,27 @@ fn analyse(
     )?;
     for r in sel.records.iter().filter(|r| r.selected) {
         let own = cands[r.idx].covariates();
-        let keyed = |of: &mut dyn Iterator<Item = usize>| -> Vec<(String, Vec<String>)> {
-            of.map(|i| (cands[i].key(), cands[i].covariates()))
-                .collect()
+        // Every indistinguishable rival passed too: its round's SSE is there.
+        let rival = |&(i, sse): &(usize, f64)| collinear::Rival {
+            key: cands[i].key(),
+            covariates: cands[i].covariates(),
+            rms: (sse / n as f64).sqrt(),
         };
         // The rivals that remove nearly as much of the round's held-out
         // gap as the selected effect (docs/models.md §8.6).
         let removed = r.sse_before - r.sse_after;
-        let passed = keyed(
-            &mut r
-                .also_passed
-                .iter()
-                .filter(|(_, sse)| r.sse_before - sse >= cfg.confound_share * removed)
-                .map(|(i, _)| *i),
-        );
-        let indistinguishable = keyed(&mut r.indistinguishable.iter().copied());
+        let passed: Vec<collinear::Rival> = r
+            .also_passed
+            .iter()
+            .filter(|(_, sse)| r.sse_before - sse >= cfg.confound_share * removed)
+            .map(rival)
+            .collect();
+        let indistinguishable: Vec<collinear::Rival> = r
+            .also_passed
+            .iter()
+            .filter(|(i, _)| r.indistinguishable.contains(i))
+            .map(rival)
+            .collect();
         for c in collinear.iter_mut().filter(|c| own.contains(&c.covariate)) {
             c.add_confounds(&indistinguishable, true);
             c.add_confounds(&passed, false);

@@ -986,6 +986,16 @@ fn a_passing_rival_on_a_covariate_moving_with_the_selected_one_is_named() {
         confounds.iter().any(|k| k.ends_with(":t_s")),
         "{confounds:?}: {text}"
     );
+    // Each with its held-out RMS of the selected effect's round.
+    for c in &o.collinear {
+        for k in &c.confounds {
+            assert!(
+                c.confound_rms.get(k).is_some_and(|r| *r > 0.0),
+                "{k}: {:?}",
+                c.confound_rms
+            );
+        }
+    }
     assert!(
         text.contains("also passing on covariates that move with removed_mm3 within every run: ")
             && text.contains("(held-out ")
