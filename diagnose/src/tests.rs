@@ -1002,6 +1002,11 @@ fn a_passing_rival_on_a_covariate_moving_with_the_selected_one_is_named() {
             && text.contains("Note: removed_mm3 moves with t_s"),
         "{text}"
     );
+    // The fleet report's table says the same.
+    assert!(
+        crate::report::section(&d).contains(&crate::html::esc(&text)),
+        "the report's 'explained by' column"
+    );
     let (_, strict) = explained(1.0);
     assert!(!strict.contains("also passing"), "{strict}");
 }
