@@ -124,3 +124,45 @@ fn runs_that_vary_direction_and_start_time_name_the_thermal_effect_alone() {
         assert!(!printed.contains("note:"), "{printed}");
     }
 }
+
+/// Observations written by pyarrow (datasets/fixtures/make_staggered_wear.py):
+/// a wheel wear on runs whose passes start at two offsets ≈ 330 s apart.
+/// A periodic on t_s once lined the offsets up and followed the wear
+/// within each run better than the wear's own line (clipped spark-out cuts
+/// bend it); bounded by one run's span, the wear is named, with the
+/// rival that also passed on a covariate moving with the removed volume.
+#[test]
+fn a_wear_on_runs_starting_a_cycle_apart_is_named_wear_with_its_rival() {
+    let obs = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("datasets/fixtures/adhoc/staggered_wear_observations.parquet");
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("d");
+    let d = sparkout(&[
+        "diagnose",
+        obs.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let printed = String::from_utf8_lossy(&d.stdout).into_owned();
+    assert!(d.status.success(), "{}", String::from_utf8_lossy(&d.stderr));
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("diagnosis.json")).unwrap())
+            .unwrap();
+    assert_eq!(json["selected"][0], "wear:removed_mm3", "{printed}");
+    let periodic = json["effects"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|e| key(e) == "periodic:t_s")
+        .expect("periodic:t_s scored");
+    let lambda = periodic["params"]["lambda"].as_f64().unwrap();
+    assert!(lambda <= 240.0 + 1e-9, "λ = {lambda} s");
+    assert!(
+        printed.contains("also passing on covariates that move with removed_mm3 within every run: wear:pass (held-out"),
+        "{printed}"
+    );
+    assert!(
+        printed.contains("note: removed_mm3 moves with"),
+        "{printed}"
+    );
+}
