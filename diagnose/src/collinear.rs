@@ -33,10 +33,12 @@ pub struct Collinearity {
     pub vif: f64,
     /// What an engineer can change so the next runs tell the effects apart.
     pub advice: String,
-    /// Candidates of the selected effect's round that also passed the
-    /// held-out test and whose covariates are among those it moves with:
-    /// the same gap explained by another cause, which these runs cannot
-    /// rule out however much better the selected form scores (a
+    /// Candidates of the selected effect's round whose covariates are
+    /// among those it moves with and that are indistinguishable from it or
+    /// also passed the held-out test removing ≥ `confound_share` of what it
+    /// removes (docs/models.md §8.6): the same gap explained by another
+    /// cause, which these runs cannot rule out even where the selected
+    /// form scores better (a
     /// three-parameter curve on time can follow a wear curve on the
     /// removed volume that rises with time in every run). Printed only
     /// when not empty — a collinear covariate that no passing rival uses
