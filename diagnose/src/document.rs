@@ -237,14 +237,39 @@ pub fn explained_text(key: &str, rivals: &[String]) -> String {
 
 /// "K — on these runs indistinguishable from R1, R2", or "K" alone.
 pub fn with_rivals(key: &str, rivals: &[String]) -> String {
-    if rivals.is_empty() {
-        key.to_string()
-    } else {
+    match rivals_text(rivals) {
+        Some(r) => format!("{key} — {r}"),
+        None => key.to_string(),
+    }
+}
+
+/// "on these runs indistinguishable from R1 and R2"; None without rivals.
+pub fn rivals_text(rivals: &[String]) -> Option<String> {
+    (!rivals.is_empty()).then(|| {
         format!(
-            "{key} — on these runs indistinguishable from {}",
+            "on these runs indistinguishable from {}",
             rivals.join(" and ")
         )
+    })
+}
+
+/// What the runs cannot rule out for `o`'s selected effects, as
+/// sentences for a report: the rivals that also passed on covariates
+/// moving with the selected ones' ([`confounded_text`]) and each
+/// collinearity's advice — empty when no rival is confounded.
+pub fn caution_sentences(o: &ObservableSummary, effects: &[EffectEntry]) -> Vec<String> {
+    let mut out = Vec::new();
+    if let Some(also) = confounded_text(o, effects) {
+        let mut first = also.chars();
+        out.push(match first.next() {
+            Some(c) => format!("{}{}.", c.to_uppercase(), first.as_str()),
+            None => also,
+        });
     }
+    for c in o.collinear.iter().filter(|c| !c.confounds.is_empty()) {
+        out.push(format!("Note: {}.", c.advice));
+    }
+    out
 }
 
 /// What explains one observable's gap, as `sparkout run` prints it and
@@ -274,12 +299,11 @@ pub fn explained_by(o: &ObservableSummary, effects: &[EffectEntry]) -> String {
     if !o.minor.is_empty() {
         text.push_str(&format!("; minor (not selected): {}", o.minor.join(", ")));
     }
-    if let Some(also) = confounded_text(o, effects) {
-        text.push_str(&format!("; {also}"));
-    }
-    // News only where it is why a rival that passed cannot be ruled out.
-    for c in o.collinear.iter().filter(|c| !c.confounds.is_empty()) {
-        text.push_str(&format!(". Note: {}", c.advice));
+    // News only where a rival that passed cannot be ruled out.
+    let cautions = caution_sentences(o, effects);
+    if !cautions.is_empty() {
+        text.push_str(". ");
+        text.push_str(cautions.join(" ").trim_end_matches('.'));
     }
     text
 }

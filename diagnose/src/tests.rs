@@ -997,7 +997,7 @@ fn a_passing_rival_on_a_covariate_moving_with_the_selected_one_is_named() {
         }
     }
     assert!(
-        text.contains("also passing on covariates that move with removed_mm3 within every run: ")
+        text.contains("Also passing on covariates that move with removed_mm3 within every run: ")
             && text.contains("(held-out ")
             && text.contains("Note: removed_mm3 moves with t_s"),
         "{text}"
@@ -1008,7 +1008,7 @@ fn a_passing_rival_on_a_covariate_moving_with_the_selected_one_is_named() {
         "the report's 'explained by' column"
     );
     let (_, strict) = explained(1.0);
-    assert!(!strict.contains("also passing"), "{strict}");
+    assert!(!strict.contains("Also passing"), "{strict}");
 }
 
 /// Time counts from each run's start: a cycle longer than any run is never

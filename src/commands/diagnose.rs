@@ -164,11 +164,8 @@ pub fn diagnose(observations: &Path, out: &Path, flags: &Flags) -> anyhow::Resul
                     o.minor.join(", ")
                 );
             }
-            if let Some(also) = diagnose::document::confounded_text(o, &d.diagnosis.effects) {
-                println!("  {}: {also}", o.observable);
-            }
-            for c in o.collinear.iter().filter(|c| !c.confounds.is_empty()) {
-                println!("  {}: note: {}", o.observable, c.advice);
+            for s in diagnose::document::caution_sentences(o, &d.diagnosis.effects) {
+                println!("  {}: {s}", o.observable);
             }
         }
         println!("wrote {}", out.join("diagnosis.json").display());

@@ -121,7 +121,7 @@ fn runs_that_vary_direction_and_start_time_name_the_thermal_effect_alone() {
         }
         assert!(per.get("collinear").is_none(), "seed {seed}: {per:#}");
         assert!(!printed.contains("indistinguishable"), "{printed}");
-        assert!(!printed.contains("note:"), "{printed}");
+        assert!(!printed.contains("Note:"), "{printed}");
     }
 }
 
@@ -158,11 +158,11 @@ fn a_wear_on_runs_starting_a_cycle_apart_is_named_wear_with_its_rival() {
     let lambda = periodic["params"]["lambda"].as_f64().unwrap();
     assert!(lambda <= 240.0 + 1e-9, "λ = {lambda} s");
     assert!(
-        printed.contains("also passing on covariates that move with removed_mm3 within every run: wear:pass (held-out"),
+        printed.contains("Also passing on covariates that move with removed_mm3 within every run: wear:pass (held-out"),
         "{printed}"
     );
     assert!(
-        printed.contains("note: removed_mm3 moves with"),
+        printed.contains("Note: removed_mm3 moves with"),
         "{printed}"
     );
 }

@@ -440,3 +440,44 @@ fn figures_read_as_the_rows_stream_are_the_figures_of_the_rows_at_hand() {
         .unwrap();
     assert!(format!("{e}").contains("do not line up"), "{e}");
 }
+
+/// The verdict line says what the runs cannot rule out: the rivals
+/// indistinguishable from the named effect, the rivals that also passed on
+/// a covariate moving with its own, and what to change.
+#[test]
+fn the_verdict_names_rivals_and_confounded_causes() {
+    let po = summary(serde_json::json!({"observable": "cut_depth", "unit": "mm",
+        "rms_mm": 0.014, "noise_floor_mm": 0.003, "gap_above_noise": true,
+        "selected": ["wear:removed_mm3"], "cv_rms_before_mm": 0.014, "cv_rms_after_mm": 0.0036,
+        "shrink": 0.74,
+        "collinear": [{"covariate": "removed_mm3", "moves_with": {"t_s": 0.988}, "vif": 50.0,
+            "advice": "removed_mm3 moves with t_s (r = 0.988) within every run",
+            "confounds": ["periodic:t_s", "wear:pass"], "confound_rms": {"wear:pass": 0.00412}}]}));
+    let mut d = diagnosis_of(std::slice::from_ref(&po));
+    d.effects = vec![
+        effect(
+            serde_json::json!({"name": "wear", "covariate": "removed_mm3",
+            "observable": "cut_depth", "selected": true, "params": {"k": -9e-5},
+            "indistinguishable_from": ["periodic:t_s"]}),
+        ),
+        effect(serde_json::json!({"name": "wear", "covariate": "pass",
+            "observable": "cut_depth", "selected": false})),
+    ];
+    let v = verdict(&d, &po, &[], "kr16");
+    assert!(
+        v.contains("<b>wear:removed_mm3</b> (on these runs indistinguishable from periodic:t_s)"),
+        "{v}"
+    );
+    // The indistinguishable rival is not listed again.
+    assert!(
+        v.contains("Also passing on covariates that move with removed_mm3 within every run: wear:pass (held-out 4.12 µm).")
+            && !v.contains("periodic:t_s (held-out"),
+        "{v}"
+    );
+    assert!(v.contains("Note: removed_mm3 moves with t_s"), "{v}");
+    // Without confounds: no caution.
+    let mut plain = po.clone();
+    plain.collinear[0].confounds.clear();
+    let v = verdict(&d, &plain, &[], "kr16");
+    assert!(!v.contains("Also passing") && !v.contains("Note:"), "{v}");
+}

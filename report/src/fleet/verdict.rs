@@ -4,6 +4,7 @@
 
 use super::*;
 use crate::diagnose::augment::{AugmentEntry, AugmentReport};
+use crate::diagnose::document::{caution_sentences, rivals_text};
 use crate::diagnose::intervals::ParamInterval;
 
 /// An observable's unit and how it is shown: gaps in mm are shown in µm;
@@ -299,6 +300,9 @@ pub(super) fn verdict(
         for k in selected {
             let e = effects.iter().find(|e| e.key() == *k);
             let mut t = format!("<b>{}</b>", esc(k));
+            if let Some(r) = e.and_then(|e| rivals_text(&e.indistinguishable_from)) {
+                let _ = write!(t, " ({})", esc(&r));
+            }
             if let Some(e) = e {
                 let p = effect_params_text(e);
                 if !p.is_empty() {
@@ -323,6 +327,11 @@ pub(super) fn verdict(
             named.push(t);
         }
         let _ = write!(v, "Explained by {}. ", named.join("; then "));
+        // What these runs cannot rule out: another cause on a covariate
+        // that moves with the named one's (docs/models.md §8.6).
+        for s in caution_sentences(po, &d.effects) {
+            let _ = write!(v, "<span class=\"bad\">{}</span> ", esc(&s));
+        }
         let si = po
             .shrink_interval
             .filter(|[lo, hi]| lo.is_finite() && hi.is_finite())
