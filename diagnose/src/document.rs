@@ -260,11 +260,7 @@ pub fn rivals_text(rivals: &[String]) -> Option<String> {
 pub fn caution_sentences(o: &ObservableSummary, effects: &[EffectEntry]) -> Vec<String> {
     let mut out = Vec::new();
     if let Some(also) = confounded_text(o, effects) {
-        let mut first = also.chars();
-        out.push(match first.next() {
-            Some(c) => format!("{}{}.", c.to_uppercase(), first.as_str()),
-            None => also,
-        });
+        out.push(format!("{also}."));
     }
     for c in o.collinear.iter().filter(|c| !c.confounds.is_empty()) {
         out.push(format!("Note: {}.", c.advice));
@@ -310,12 +306,12 @@ pub fn explained_by(o: &ObservableSummary, effects: &[EffectEntry]) -> String {
 
 /// The rivals of `o`'s selected effects that the collinearity notes are
 /// about and that are not already named as indistinguishable, best
-/// held-out RMS first: "also passing on covariates that move with t_s
+/// held-out RMS first: "Also passing on covariates that move with t_s
 /// within every run: wear:removed_mm3 (held-out 3.64 µm), wear:pass
 /// (held-out 4.23 µm)" (each rival's held-out RMS in the selected
 /// effect's round). None when there are none. Read from
 /// diagnosis.json's fields alone, so the CLI and the report say the same.
-pub fn confounded_text(o: &ObservableSummary, effects: &[EffectEntry]) -> Option<String> {
+fn confounded_text(o: &ObservableSummary, effects: &[EffectEntry]) -> Option<String> {
     let of_o = |key: &str| {
         effects
             .iter()
@@ -350,7 +346,7 @@ pub fn confounded_text(o: &ObservableSummary, effects: &[EffectEntry]) -> Option
             (!rivals.is_empty()).then(|| {
                 let listed: Vec<String> = rivals.into_iter().map(|(_, t)| t).collect();
                 format!(
-                    "also passing on covariates that move with {} within every run: {}",
+                    "Also passing on covariates that move with {} within every run: {}",
                     c.covariate,
                     listed.join(", ")
                 )
