@@ -579,26 +579,25 @@ pub fn run_span_of(name: &str, v: &[f64], runs: &[std::ops::Range<usize>]) -> Op
     if covariate_unit(name) != ParamUnit::of(Dims::time()) {
         return None;
     }
-    let span = |r: &std::ops::Range<usize>| {
-        let (lo, hi) = v[r.clone()]
-            .iter()
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), x| {
-                (lo.min(*x), hi.max(*x))
-            });
-        if hi >= lo {
-            hi - lo
-        } else {
-            0.0
-        }
-    };
+    let span = |r: &std::ops::Range<usize>| min_max(&v[r.clone()]).map_or(0.0, |(lo, hi)| hi - lo);
     Some(runs.iter().map(span).fold(0.0, f64::max))
+}
+
+/// The smallest and largest non-NaN value of `v`; None when it has none.
+pub fn min_max(v: &[f64]) -> Option<(f64, f64)> {
+    let (lo, hi) = v
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), x| {
+            (lo.min(*x), hi.max(*x))
+        });
+    (hi >= lo).then_some((lo, hi))
 }
 
 /// Periodic λ bounds: from max(3 sample steps, range/64) to the covariate
 /// range (docs/formats.md: at least one whole cycle inside the data, so
 /// periodic cannot impersonate scale or bow) — for a covariate counted
 /// from each run's start, to the largest span of one run (docs/models.md
-/// §8.1): runs that start their passes at two offsets a λ apart would
+/// §8.4): runs that start their passes at two offsets a λ apart would
 /// otherwise let a part of one cycle, the same in every run, follow any
 /// smooth trend of the pass order.
 pub fn periodic_lambda_bounds(s: &CovStats) -> (f64, f64) {

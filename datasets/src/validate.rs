@@ -293,10 +293,8 @@ fn run_fleet(
             real[i] += if k % 2 == 0 { 30.0 } else { -30.0 } * sigma;
         }
     }
-    let mut batch = match cfg.cells {
-        Some(b) => to_batch(&in_cells_of(&l, b), &real, &fleet.observable)?,
-        None => to_batch(&l, &real, &fleet.observable)?,
-    };
+    let rounded = cfg.cells.map(|b| in_cells_of(&l, b));
+    let mut batch = to_batch(rounded.as_ref().unwrap_or(&l), &real, &fleet.observable)?;
     if let Some(m) = &machine_of_row {
         batch = sparkout_pipeline::engine::with_machine_column(batch, "")?;
         let idx = batch.schema().index_of("machine")?;
@@ -380,13 +378,11 @@ fn in_cells_of(l: &ObsLayout, b: usize) -> ObsLayout {
         if name == "pass" || name == "dir" {
             continue;
         }
-        let (lo, hi) = v
-            .iter()
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), x| {
-                (lo.min(*x), hi.max(*x))
-            });
+        let Some((lo, hi)) = sparkout_pipeline::effect::min_max(v) else {
+            continue;
+        };
         let w = (hi - lo) / b as f64;
-        if w.is_nan() || w <= 0.0 {
+        if w <= 0.0 {
             continue;
         }
         for x in v.iter_mut() {
