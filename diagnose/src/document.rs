@@ -176,8 +176,8 @@ impl EffectEntry {
             None => self.name.clone(),
         }
     }
-    /// "explained by K" plus, when rivals fit these runs as well, "— on
-    /// these runs indistinguishable from R1, R2".
+    /// "explained by K" plus, when rivals fit these runs as well, " (on
+    /// these runs indistinguishable from R1 and R2)".
     pub fn explained_text(&self) -> String {
         explained_text(&self.key(), &self.indistinguishable_from)
     }
@@ -229,16 +229,19 @@ pub fn param_text(
     )
 }
 
-/// "explained by K — on these runs indistinguishable from R…" (the rivals
+/// "explained by K (on these runs indistinguishable from R…)" (the rivals
 /// part only when there are rivals).
 pub fn explained_text(key: &str, rivals: &[String]) -> String {
     format!("explained by {}", with_rivals(key, rivals))
 }
 
-/// "K — on these runs indistinguishable from R1, R2", or "K" alone.
+/// "K (on these runs indistinguishable from R1 and R2)", or "K" alone:
+/// in parentheses, so a list of selected effects stays readable when a
+/// rival is also selected later ("drift:t_s (… from periodic:t_s),
+/// periodic:t_s").
 pub fn with_rivals(key: &str, rivals: &[String]) -> String {
     match rivals_text(rivals) {
-        Some(r) => format!("{key} — {r}"),
+        Some(r) => format!("{key} ({r})"),
         None => key.to_string(),
     }
 }

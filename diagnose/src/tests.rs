@@ -1057,3 +1057,16 @@ fn a_periodic_on_time_is_never_longer_than_a_run() {
     assert!(lambda <= 240.0 + 1e-9, "λ = {lambda} s: {:?}", d.selected);
     assert_eq!(d.selected, vec!["wear:removed_mm3".to_string()]);
 }
+
+/// A selected effect's rivals are in parentheses, so a rival selected in a
+/// later round reads as the next effect, not as a second rival
+/// ("drift:t_s — … from periodic:t_s, periodic:t_s" before).
+#[test]
+fn rivals_of_one_selected_effect_are_set_apart_from_the_next() {
+    let one = crate::document::with_rivals("drift:t_s", &["periodic:t_s".to_string()]);
+    assert_eq!(
+        one,
+        "drift:t_s (on these runs indistinguishable from periodic:t_s)"
+    );
+    assert_eq!(crate::document::with_rivals("wear:pass", &[]), "wear:pass");
+}

@@ -48,3 +48,26 @@ fn effect_free_fleet_names_nothing() {
     let diag = diagnose_fleet(d.path(), 33, None);
     assert_eq!(diag["selected"], serde_json::json!([]), "{diag:#}");
 }
+
+/// A compliance that grows with the depth of cut also shortens the first
+/// pass, from which the model's α is calibrated: the gap is the loss seen
+/// through that calibration (docs/models.md §1.4), which the robot's
+/// `depth_compliance` models — named, with the generator's k = 0.2 /mm
+/// inside its interval. The loss's own form k·δ′² left the gap to
+/// `drift:t_s` / `periodic:t_s` / `wear:removed_mm3` before.
+#[test]
+fn depth_compliance_is_named_first_with_its_k() {
+    let d = tempfile::tempdir().unwrap();
+    let diag = diagnose_fleet(d.path(), 34, Some("compliance"));
+    let first = first_selected(&diag);
+    assert_eq!(
+        first, "depth_compliance:compliance_response_mm2",
+        "selected {}",
+        diag["selected"]
+    );
+    assert!(shrink_of(&diag, &first) > 0.5, "{diag:#}");
+    let e = common::selected_entry(&diag, &first).unwrap();
+    let k = &e["intervals"]["k"];
+    let (lo, hi) = (k["lo"].as_f64().unwrap(), k["hi"].as_f64().unwrap());
+    assert!(lo < 0.2 && 0.2 < hi, "k interval {lo} … {hi}: {e:#}");
+}

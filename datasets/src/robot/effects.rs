@@ -34,7 +34,7 @@ pub fn known_effects() -> Vec<(&'static str, &'static str)> {
         ),
         (
             "compliance",
-            "depth-dependent compliance: each infeed pass's real cut is reduced by k·nominal_doc_mm² (k in 1/mm, default k=0.2: −18 µm at δ′=0.3, −2 µm at 0.1) — the model's α is calibrated on the first pass, which this shrinks too, so the cut_depth gap is the recurrence's misfit (0 on pass 1, growing over the passes), not −k·nominal_doc_mm²; with a covariate (compliance:nominal_doc_mm=k=…) the catalogue form k·nominal_doc_mm is added to cut_depth instead",
+            "depth-dependent compliance: each infeed pass's real cut is reduced by k·nominal_doc_mm² (k in 1/mm, default k=0.2: −18 µm at δ′=0.3, −2 µm at 0.1) — the model's α is calibrated on the first pass, which this shrinks too, so the cut_depth gap is k·compliance_response_mm2 (0 on pass 1, growing over the passes, persisting through spark-out; the robot plugin's depth_compliance), not −k·nominal_doc_mm²; with a covariate (compliance:nominal_doc_mm=k=…) the catalogue form k·nominal_doc_mm is added to cut_depth instead",
         ),
         (
             "backlash",

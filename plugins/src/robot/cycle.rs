@@ -97,6 +97,47 @@ pub fn predict_cuts(alpha: f64, docs: &[f64]) -> Vec<f64> {
         .collect()
 }
 
+/// ∂δ_i/∂α of the recurrence at `alpha`, per pass: differentiating
+/// δ_i = (δ′_i + α·δ_{i−1})/(1+α) gives
+/// S_i = (δ_{i−1} + α·S_{i−1} − δ_i)/(1+α), S_0 = δ_0 = 0 (docs/models.md §1.4,
+/// "Depth-dependent compliance through the calibration").
+pub fn cut_sensitivity_to_alpha(alpha: f64, docs: &[f64]) -> Vec<f64> {
+    let (mut prev_cut, mut prev_s) = (0.0, 0.0);
+    docs.iter()
+        .map(|&dp| {
+            let cut = (dp + alpha * prev_cut) / (1.0 + alpha);
+            let s = (prev_cut + alpha * prev_s - cut) / (1.0 + alpha);
+            (prev_cut, prev_s) = (cut, s);
+            s
+        })
+        .collect()
+}
+
+/// The cut_depth gap per unit k (mm², gap = k·x, k in 1/mm) of a
+/// depth-dependent compliance that removes k·δ′_i² less than the recurrence
+/// on every pass, as the model calibrated on the first pass sees it
+/// (docs/models.md §1.4): the first cut is short by k·δ′_1² too, so α̂
+/// exceeds the true α by ≈ k·δ′_1³/δ_1², and the model's cuts move by
+/// S_i·(α̂ − α). To first order in k,
+/// x_i = −(δ′_i² + S_i·δ′_1³/δ_1²), which is 0 on the first pass and on
+/// spark-out carries the over-estimated deflection. `first_cut_mm`: the
+/// measured δ_1 that calibrated `alpha_first_pass`.
+pub fn depth_compliance_response_mm2(
+    alpha_first_pass: f64,
+    docs: &[f64],
+    first_cut_mm: f64,
+) -> Vec<f64> {
+    let Some(&d1) = docs.first() else {
+        return Vec::new();
+    };
+    let shift_per_k = d1.powi(3) / (first_cut_mm * first_cut_mm);
+    cut_sensitivity_to_alpha(alpha_first_pass, docs)
+        .iter()
+        .zip(docs)
+        .map(|(s, d)| -(d * d + s * shift_per_k))
+        .collect()
+}
+
 /// α from the first infeed pass: δ_1 = δ′/(1+α) ⇒ α = δ′/δ_1 − 1. A first
 /// cut larger than δ′ would mean negative compliance: clamped to 0.
 pub fn alpha_from_first_cut(doc_mm: f64, first_cut_mm: f64) -> Result<f64> {

@@ -97,30 +97,33 @@ impl MachinePlugin for RobotPlugin {
     /// touches whose normal coordinate is z (face `xy`) move, by the drift
     /// A·(1 − e^(−t/τ)).
     ///
-    /// `depth_compliance` = compliance(nominal_doc_mm)·nominal_doc_mm: a
-    /// compliance α that grows with the depth of cut (docs/models.md §1.4 takes α
-    /// constant) loses a cut ∝ δ′², which neither the constant-α model nor
-    /// the catalogue's linear `compliance` has.
+    /// `depth_compliance` = k·compliance_response_mm2: a compliance that
+    /// grows with the depth of cut (docs/models.md §1.4 takes α constant)
+    /// loses a cut ∝ δ′² on every pass — the first one too, from which the
+    /// model's α is calibrated, so the gap it leaves is that loss plus the
+    /// model's cuts at the over-estimated α (0 on pass 1, persisting
+    /// through spark-out): the covariate observe.rs computes from the
+    /// recurrence (`cycle::depth_compliance_response_mm2`). The loss's own
+    /// form, k·δ′², misses all of that but its size.
     fn effects(&self) -> Vec<Box<dyn Effect>> {
         let mut out = vec![composite(
             "trigger_latency",
             catalogue_effect(Kind::Lag, &["approach_normal_mm_s"]),
         )];
-        let products = [
+        // Both factors are linear forms by construction: an error here is a
+        // programming error, caught by the unit test below.
+        out.extend(
             product(
                 "thermal_drift",
                 catalogue_effect(Kind::Drift, &["t_s"]),
                 catalogue_effect(Kind::Scale, &["normal_axis_z"]),
-            ),
-            product(
-                "depth_compliance",
-                catalogue_effect(Kind::Compliance, &["nominal_doc_mm"]),
-                catalogue_effect(Kind::Scale, &["nominal_doc_mm"]),
-            ),
-        ];
-        // Both factors are linear forms by construction: an error here is a
-        // programming error, caught by the unit test below.
-        out.extend(products.into_iter().filter_map(|p| p.ok()));
+            )
+            .ok(),
+        );
+        out.push(composite(
+            "depth_compliance",
+            catalogue_effect(Kind::Scale, &["compliance_response_mm2"]),
+        ));
         out
     }
     fn observables(&self) -> Vec<&'static str> {

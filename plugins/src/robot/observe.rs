@@ -18,7 +18,10 @@
 //! - `cut_depth`, one row per pass: real = measured cut, sim = the
 //!   compliance model's cut with α from the first pass (docs/models.md §1.4).
 //!   Covariates: pass, t_s, feed_mm_s, nominal_doc_mm, removed_mm3
-//!   (cumulative removal before the pass).
+//!   (cumulative removal before the pass), compliance_response_mm2 (the
+//!   gap per unit k of a cut loss k·δ′² seen through the first-pass
+//!   calibration of α, `cycle::depth_compliance_response_mm2`: such a loss
+//!   shortens the first cut too, so its gap is not its own form).
 //!
 //! Covariates that do not apply to an observable are null in its rows.
 
@@ -102,6 +105,7 @@ struct Row {
     feed: Option<f64>,
     doc: Option<f64>,
     removed: Option<f64>,
+    compliance_response: Option<f64>,
 }
 
 /// The face planes (scope `all`) of the `planes` artifact for one fit.
@@ -171,12 +175,13 @@ fn build(run: &str, rows: &[Row]) -> arrow::record_batch::RecordBatch {
         .opt_f64("feed_mm_s", f(&|r| r.feed))
         .opt_f64("nominal_doc_mm", f(&|r| r.doc))
         .opt_f64("removed_mm3", f(&|r| r.removed))
+        .opt_f64("compliance_response_mm2", f(&|r| r.compliance_response))
         .build()
 }
 
 const SPEC: StageSpec = StageSpec {
     name: "observe",
-    version: 2,
+    version: 3,
     reads: &[],
     reads_artifacts: &["touches", "planes", "cycle"],
     writes: &["observations"],
@@ -226,6 +231,15 @@ impl Stage for ObserveStage {
                 let removed = batch_f64(&c, "removed_mm3")?;
                 let ts = opt_col(&c, "t_start_s")?;
                 let te = opt_col(&c, "t_end_s")?;
+                let alpha = batch_f64(&c, "alpha_first_pass")?;
+                // The cycle's passes in order; α was calibrated on the first
+                // one's measured cut (cycle::model).
+                let response = match meas.first() {
+                    Some(&Some(first_cut)) if alpha[0].is_finite() => {
+                        super::cycle::depth_compliance_response_mm2(alpha[0], doc, first_cut)
+                    }
+                    _ => vec![f64::NAN; c.num_rows()],
+                };
                 for i in 0..c.num_rows() {
                     let Some(m) = meas[i] else { continue };
                     let t = match (ts[i], te[i]) {
@@ -241,6 +255,7 @@ impl Stage for ObserveStage {
                         feed: Some(feed[i]),
                         doc: Some(doc[i]),
                         removed: Some(removed[i]),
+                        compliance_response: fin(response[i]),
                         ..Row::default()
                     });
                 }
