@@ -84,6 +84,10 @@ impl MachinePlugin for ServoPlugin {
     ///   (k > 0, s) than the model's (1 − ff)/Kv.
     /// - `accel_lag` = inertia(cmd_a_mm_s2): an error ∝ acceleration — the
     ///   loop is not first order (velocity loop, drive inertia).
+    /// - `jerk_lag` = k·cmd_j_mm_s3 (k in s²): an error ∝ the commanded
+    ///   jerk. On `velocity_error_*` this is how an `accel_lag` shows (the
+    ///   rate of k·a is k·j, same k), as a `servo_lag` shows there as
+    ///   `accel_lag`; on following errors, a loop of still higher order.
     /// - `reversal_spike` = edge(reversal_mm)·backlash(dir): friction at a
     ///   reversal, decaying with the distance travelled since, its sign
     ///   following the new direction (a ballbar's reversal spike).
@@ -95,6 +99,12 @@ impl MachinePlugin for ServoPlugin {
             composite(
                 "accel_lag",
                 catalogue_effect(Kind::Inertia, &["cmd_a_mm_s2"]),
+            ),
+            // The catalogue has no kind for a jerk (k·c on any covariate is
+            // the inertia form): only this composite uses it.
+            composite(
+                "jerk_lag",
+                catalogue_effect(Kind::Inertia, &["cmd_j_mm_s3"]),
             ),
         ];
         // Both factors are linear forms: an error is a programming error,
@@ -122,6 +132,7 @@ mod tests {
             [
                 "servo_lag:cmd_v_mm_s",
                 "accel_lag:cmd_a_mm_s2",
+                "jerk_lag:cmd_j_mm_s3",
                 "reversal_spike:reversal_mm,dir"
             ]
         );

@@ -8,7 +8,9 @@
 //! floor at or above it).
 //!
 //! Covariates: `t_s`; the axis' commanded velocity `cmd_v_mm_s` (signed:
-//! lag), acceleration `cmd_a_mm_s2` (inertia), direction `dir` (±1, held
+//! lag), acceleration `cmd_a_mm_s2` (inertia), jerk `cmd_j_mm_s3` (central
+//! differences of the acceleration: on a velocity error an error ∝
+//! acceleration shows ∝ jerk), direction `dir` (±1, held
 //! at rest: backlash), commanded distance since the axis last reversed
 //! `reversal_mm` (reversal spike); all three commanded positions `x_mm`,
 //! `y_mm`, `z_mm` (scale, bow, periodic, squareness); and, when logged,
@@ -23,7 +25,7 @@ use sparkout_pipeline::contracts::{batch_f64, BatchBuilder};
 use sparkout_pipeline::{Result, Stage, StageContext, StageOutput, StageSpec};
 
 use super::config::ObserveConfig;
-use super::trace::{direction, Trace};
+use super::trace::{derivative, direction, Trace};
 
 pub struct ObserveStage;
 
@@ -37,7 +39,7 @@ pub fn observables(axis: &str) -> [String; 2] {
 
 const SPEC: StageSpec = StageSpec {
     name: "observe",
-    version: 1,
+    version: 2,
     reads: &[&MOTION],
     reads_artifacts: &["following_error"],
     writes: &["observations"],
@@ -83,11 +85,13 @@ impl Stage for ObserveStage {
         // diagnosis prints each observable in its own unit.
         let mut units: Vec<&str> = Vec::new();
         let (mut v, mut a, mut dir, mut rev) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        let mut j = Vec::new();
         let mut rows: Vec<usize> = Vec::new();
         let mut per = BTreeMap::new();
         for ax in &trace.axes {
             let (d, r) = direction(&trace.t_s, &ax.cmd_v_mm_s, cfg.standstill_mm_s);
             let reversals = d.windows(2).filter(|w| w[0] != w[1]).count();
+            let jerk = derivative(&trace.t_s, &ax.cmd_a_mm_s2);
             let [fe_name, ve_name] = observables(ax.axis);
             for (name, kind) in [(fe_name, "e"), (ve_name, "ve")] {
                 let unit = if kind == "e" { "mm" } else { "mm_s" };
@@ -101,6 +105,7 @@ impl Stage for ObserveStage {
                 ));
                 v.extend_from_slice(&ax.cmd_v_mm_s);
                 a.extend_from_slice(&ax.cmd_a_mm_s2);
+                j.extend_from_slice(&jerk);
                 dir.extend_from_slice(&d);
                 rev.extend_from_slice(&r);
                 rows.extend(0..n);
@@ -118,6 +123,7 @@ impl Stage for ObserveStage {
             .f64("t_s", pick(&trace.t_s))
             .f64("cmd_v_mm_s", v)
             .f64("cmd_a_mm_s2", a)
+            .f64("cmd_j_mm_s3", j)
             .f64("dir", dir)
             .f64("reversal_mm", rev)
             .f64("x_mm", pick(&trace.cmd_xyz_mm[0]))
