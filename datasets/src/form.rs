@@ -1,7 +1,9 @@
 //! Synthetic form-grinding fleet (docs/models.md §4): one run per ground part.
 //!
 //! The wheel starts new (the machine's largest radius) and is dressed every
-//! `parts_per_dressing` parts, losing `dressing_mm` of radius each time.
+//! `parts_per_dressing` parts, losing `dressing_mm` of radius each time;
+//! when the next dressing would leave the usable range, a new wheel is
+//! mounted (as a shop does), so a fleet of any length stays in range.
 //! Each part is ground with the program of the segment its dressed radius
 //! falls into (the segmentation strategy of the source: N programs, each
 //! for its segment's mean radius). Parts alternate between elliptical
@@ -91,11 +93,11 @@ impl FormFleetConfig {
             bail!("parts_per_dressing must be ≥ 1");
         }
         self.range.check().map_err(|m| crate::err!(m))?;
-        let dressings = (self.runs - 1) / self.parts_per_dressing;
-        if dressings as f64 * self.dressing_mm > self.range.range_mm {
+        if !(self.dressing_mm > 0.0 && self.dressing_mm <= self.range.range_mm) {
             bail!(
-                "{} runs at {} parts per dressing and {} mm per dressing would dress the wheel below its usable range ({} mm); use fewer runs",
-                self.runs, self.parts_per_dressing, self.dressing_mm, self.range.range_mm
+                "dressing_mm must be > 0 and at most the wheel's usable range ({} mm), found {}",
+                self.range.range_mm,
+                self.dressing_mm
             );
         }
         if !(self.noise_mm >= 0.0
@@ -106,6 +108,26 @@ impl FormFleetConfig {
             bail!("noise_mm must be ≥ 0 and stock_mm, width_mm, feed_mm_s > 0");
         }
         Ok(())
+    }
+
+    /// Dressings a wheel takes, counting the new wheel as dressing 0:
+    /// every radius r_max − d·dressing_mm that stays in the usable range.
+    pub fn dressings_per_wheel(&self) -> usize {
+        // 1e-9: a range that is an exact multiple of dressing_mm keeps its
+        // last dressing despite rounding (50 / 1.25 = 40 dressings).
+        (self.range.range_mm / self.dressing_mm + 1e-9).floor() as usize + 1
+    }
+
+    /// Part `index`'s wheel (0 = the first), dressing on that wheel and
+    /// part since that dressing.
+    pub fn wheel_dressing_part(&self, index: usize) -> (usize, usize, usize) {
+        let dressing = index / self.parts_per_dressing;
+        let per_wheel = self.dressings_per_wheel();
+        (
+            dressing / per_wheel,
+            dressing % per_wheel,
+            index % self.parts_per_dressing,
+        )
     }
 }
 
@@ -183,6 +205,10 @@ struct RunTruth {
     shape: String,
     shape_params: std::collections::BTreeMap<String, f64>,
     z_mm: f64,
+    /// The wheel the part was ground with (0 = the first; a new one is
+    /// mounted when the next dressing would leave the usable range).
+    wheel: usize,
+    /// Dressings of that wheel before the part.
     dressing: usize,
     part_in_dressing: usize,
     dressed_radius_mm: f64,
@@ -305,8 +331,7 @@ fn generate_run(
     let mut rng = stream_rng(cfg.seed, index as u64 + 1);
     let run_id = format!("r{index:04}");
     let (shape, params, z, phi, r) = design(cfg, index, &mut rng)?;
-    let dressing = index / cfg.parts_per_dressing;
-    let part = index % cfg.parts_per_dressing;
+    let (wheel_no, dressing, part) = cfg.wheel_dressing_part(index);
     let rk = cfg.range.r_max_mm - dressing as f64 * cfg.dressing_mm;
     // The program of the segment the dressed radius falls into.
     let width = cfg.range.range_mm / cfg.segments as f64;
@@ -391,6 +416,7 @@ fn generate_run(
         shape: shape.clone(),
         shape_params: params,
         z_mm: z,
+        wheel: wheel_no,
         dressing,
         part_in_dressing: part,
         dressed_radius_mm: rk,
@@ -472,10 +498,42 @@ mod tests {
         assert!(t.wear_max_mm > 0.0);
     }
 
+    /// 34 dressed radii per wheel at the defaults (175 … 125.5 mm), 3 parts
+    /// each: part 102 is the second wheel's first, new again.
+    #[test]
+    fn a_worn_out_wheel_is_replaced() {
+        let cfg = FormFleetConfig {
+            runs: 200,
+            ..Default::default()
+        };
+        cfg.validate().unwrap();
+        assert_eq!(cfg.dressings_per_wheel(), 34);
+        assert_eq!(cfg.wheel_dressing_part(101), (0, 33, 2));
+        assert_eq!(cfg.wheel_dressing_part(102), (1, 0, 0));
+        assert_eq!(cfg.wheel_dressing_part(199), (1, 32, 1));
+        let exact = FormFleetConfig {
+            dressing_mm: 1.25,
+            ..Default::default()
+        };
+        assert_eq!(exact.dressings_per_wheel(), 41);
+        let d = tempfile::tempdir().unwrap();
+        let cfg = FormFleetConfig {
+            runs: 104,
+            points: 64,
+            ..Default::default()
+        };
+        generate_fleet(d.path(), &cfg, &[]).unwrap();
+        let t: RunTruth = sparkout_pipeline::files::json::read_json(
+            &d.path().join("form-grinder/r0103/truth.json"),
+        )
+        .unwrap();
+        assert_eq!((t.wheel, t.dressing, t.dressed_radius_mm), (1, 0, 175.0));
+    }
+
     #[test]
     fn bad_settings_are_rejected() {
         let cfg = FormFleetConfig {
-            runs: 200,
+            dressing_mm: 60.0,
             ..Default::default()
         };
         assert!(cfg.validate().is_err());
