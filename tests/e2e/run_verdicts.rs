@@ -12,11 +12,25 @@ use std::sync::OnceLock;
 
 use super::common::{sparkout, text};
 
-/// The demo, generated once for the tests of this file.
+/// The demo, generated once for the tests of this file, under cargo's
+/// scratch folder for integration tests (inside target/, so `cargo clean`
+/// takes it; a static is never dropped, so a temporary directory would
+/// outlive every run). The folders of earlier test processes that have
+/// exited are removed first.
 fn demo() -> &'static Path {
     static DIR: OnceLock<PathBuf> = OnceLock::new();
     DIR.get_or_init(|| {
-        let dir = std::env::temp_dir().join(format!("sparkout-verdicts-{}", std::process::id()));
+        const PREFIX: &str = "run-verdicts-demo-";
+        let scratch = Path::new(env!("CARGO_TARGET_TMPDIR"));
+        for e in std::fs::read_dir(scratch).into_iter().flatten().flatten() {
+            let name = e.file_name().to_string_lossy().into_owned();
+            if let Some(pid) = name.strip_prefix(PREFIX) {
+                if !Path::new("/proc").join(pid).exists() {
+                    let _ = std::fs::remove_dir_all(e.path());
+                }
+            }
+        }
+        let dir = scratch.join(format!("{PREFIX}{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
         let o = sparkout(&["demo", "--out", dir.to_str().unwrap()]);
         assert!(
