@@ -63,7 +63,14 @@ fn effects() -> String {
         kinds.join(", ")
     );
     for p in registry::plugins() {
-        let fx: Vec<String> = p.effects().iter().map(|e| e.name().to_string()).collect();
+        // One name may have a form per family of observables (the
+        // servo's lag): listed once.
+        let mut fx: Vec<String> = Vec::new();
+        for e in p.effects() {
+            if !fx.iter().any(|n| n == e.name()) {
+                fx.push(e.name().to_string());
+            }
+        }
         s.push_str(&format!("\n  {:<10} {}", p.name(), fx.join(", ")));
     }
     s

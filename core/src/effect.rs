@@ -108,6 +108,13 @@ pub trait Effect: Send + Sync {
     fn replaces(&self) -> Option<String> {
         None
     }
+    /// Whether the effect is a candidate for `observable`: a plugin
+    /// composite meant for one family of its plugin's observables says
+    /// which ([`only_on`]); every other effect applies wherever its
+    /// covariates are.
+    fn applies_to(&self, _observable: &str) -> bool {
+        true
+    }
     fn key(&self) -> String {
         let c = self.covariates();
         if c.is_empty() {

@@ -67,7 +67,10 @@ pub fn candidates<'a>(
         .collect();
     for scope in scopes.iter().filter(|s| s.applies_to(observable)) {
         for e in scope.effects {
-            if !wanted(e.as_ref()) {
+            // A composite of another family of the plugin's observables
+            // (e.g. the servo's lag on positions, k·v, on a velocity
+            // error, where it is k·a) is no candidate here, nor a note.
+            if !wanted(e.as_ref()) || !e.applies_to(observable) {
                 continue;
             }
             let missing: Vec<String> = e

@@ -57,8 +57,8 @@ use std::path::Path;
 pub use candidates::EffectScope;
 pub use config::DiagnoseConfig;
 pub use effect::{
-    catalogue, catalogue_effect, composite, product, shape_value, CovStats, Effect, EffectData,
-    FittedEffect, Kind, LinearForm,
+    catalogue, catalogue_effect, composite, only_on, product, shape_value, CovStats, Effect,
+    EffectData, FittedEffect, Kind, LinearForm,
 };
 pub use observations::read_observations;
 pub use observations_file::{

@@ -52,6 +52,15 @@ fn servo_lag_is_named_on_every_axis_with_its_lag() {
         let k = e["params"]["k"].as_f64().unwrap();
         assert!((k - 0.004).abs() < 0.0008, "{obs}: k {k} s (true 0.004)");
         assert!(e["shrink"].as_f64().unwrap() > 0.5, "{e:#}");
+        // The velocity error, the following error's rate, names the same
+        // cause by its rate's form (k·a) with the same k.
+        let vel = format!("velocity_error_{axis}");
+        let sel = &per(&diag, &vel)["selected"];
+        assert_eq!(sel[0], "servo_lag:cmd_a_mm_s2", "{vel}: {sel}");
+        let kv = entry(&diag, &vel, "servo_lag:cmd_a_mm_s2")["params"]["k"]
+            .as_f64()
+            .unwrap();
+        assert!((kv - 0.004).abs() < 0.0008, "{vel}: k {kv} s (true 0.004)");
         // observations v1.1 `unit`: positions in mm, velocities in mm/s.
         assert_eq!(per(&diag, &obs)["unit"], "mm");
         assert_eq!(
@@ -100,9 +109,9 @@ fn backlash_is_named_with_its_lost_motion() {
 }
 
 /// An error ∝ commanded acceleration in position is ∝ jerk in velocity:
-/// `accel_lag` on every following error and `jerk_lag` on every velocity
-/// error, with the same k. Without the jerk covariate the velocity errors
-/// were 11 % explained, by `servo_lag` and `backlash`.
+/// `accel_lag` on every observable, k·a on the following errors and k·j
+/// on the velocity errors, with the same k. Without the jerk covariate the
+/// velocity errors were 11 % explained, by `servo_lag` and `backlash`.
 #[test]
 fn accel_lag_is_named_on_positions_and_its_rate_on_velocities() {
     let d = tempfile::tempdir().unwrap();
@@ -110,7 +119,7 @@ fn accel_lag_is_named_on_positions_and_its_rate_on_velocities() {
     for axis in ["x", "y", "z"] {
         for (obs, key) in [
             (format!("following_error_{axis}"), "accel_lag:cmd_a_mm_s2"),
-            (format!("velocity_error_{axis}"), "jerk_lag:cmd_j_mm_s3"),
+            (format!("velocity_error_{axis}"), "accel_lag:cmd_j_mm_s3"),
         ] {
             let sel = &per(&diag, &obs)["selected"];
             assert_eq!(sel[0], key, "{obs}: {sel}");

@@ -38,6 +38,50 @@ impl Effect for Renamed {
     }
 }
 
+/// `base`, a candidate only for observables whose name starts with one of
+/// `prefixes`: a plugin names one physical cause on observables of
+/// different orders by a different form on each — the servo's lag is k·v
+/// on a following error and k·a on a velocity error, its rate
+/// (docs/models.md §7).
+pub fn only_on(prefixes: &[&str], base: Box<dyn Effect>) -> Box<dyn Effect> {
+    Box::new(OnlyOn {
+        prefixes: prefixes.iter().map(|p| p.to_string()).collect(),
+        base,
+    })
+}
+
+pub(super) struct OnlyOn {
+    prefixes: Vec<String>,
+    base: Box<dyn Effect>,
+}
+
+impl Effect for OnlyOn {
+    fn name(&self) -> &str {
+        self.base.name()
+    }
+    fn covariates(&self) -> Vec<String> {
+        self.base.covariates()
+    }
+    fn n_params(&self) -> usize {
+        self.base.n_params()
+    }
+    fn fit(&self, x: &EffectData, gap: &[f64]) -> Result<Box<dyn FittedEffect>> {
+        self.base.fit(x, gap)
+    }
+    fn linear_form(&self) -> Option<Arc<dyn LinearForm>> {
+        self.base.linear_form()
+    }
+    fn replaces(&self) -> Option<String> {
+        self.base.replaces()
+    }
+    fn applies_to(&self, observable: &str) -> bool {
+        self.prefixes
+            .iter()
+            .any(|p| observable.starts_with(p.as_str()))
+            && self.base.applies_to(observable)
+    }
+}
+
 /// The product of two effects' shapes with one joint amplitude per pair of
 /// features, e.g. the gantry's `thermal_bow` = bow(y_mm)·drift(t_s). Both
 /// must be linear forms and at most one may have a nonlinear θ.

@@ -39,7 +39,7 @@ use cache::{hash_bytes, hash_file, hash_input, read_run_cache, record_valid, Key
 pub use config::{CheckedConfig, PipelineConfig, PipelineSection, ReportSection};
 
 /// Version of the fleet `diagnose` step (bump when its output changes).
-pub const DIAGNOSE_STAGE_VERSION: u32 = 9;
+pub const DIAGNOSE_STAGE_VERSION: u32 = 10;
 
 /// Run directories with their run.toml, read and checked once.
 type RunSpecs = BTreeMap<PathBuf, RunSpec>;

@@ -18,7 +18,7 @@
 
 use std::sync::Arc;
 
-use sparkout_pipeline::diagnose::{catalogue_effect, composite, product, Effect, Kind};
+use sparkout_pipeline::diagnose::{catalogue_effect, composite, only_on, product, Effect, Kind};
 use sparkout_pipeline::report::Verdict;
 use sparkout_pipeline::{ArtifactStore, MachinePlugin, ReportSection, Run, Stage};
 
@@ -79,32 +79,51 @@ impl MachinePlugin for ServoPlugin {
     }
     /// Physically named versions of catalogue shapes on the servo's own
     /// covariates (names no other plugin emits, so they rename nothing of
-    /// another fleet's diagnosis):
-    /// - `servo_lag` = lag(cmd_v_mm_s): the axis lags more (k < 0) or less
-    ///   (k > 0, s) than the model's (1 − ff)/Kv.
-    /// - `accel_lag` = inertia(cmd_a_mm_s2): an error ∝ acceleration — the
-    ///   loop is not first order (velocity loop, drive inertia).
-    /// - `jerk_lag` = k·cmd_j_mm_s3 (k in s²): an error ∝ the commanded
-    ///   jerk. On `velocity_error_*` this is how an `accel_lag` shows (the
-    ///   rate of k·a is k·j, same k), as a `servo_lag` shows there as
-    ///   `accel_lag`; on following errors, a loop of still higher order.
+    /// another fleet's diagnosis), one name per physical cause whichever
+    /// observable shows it. A velocity error is the rate of the following
+    /// error, so each cause's form there is the rate of its form on
+    /// positions, with the same k (docs/models.md §7):
+    /// - `servo_lag`: the axis lags more (k < 0) or less (k > 0, s) than
+    ///   the model's (1 − ff)/Kv — k·cmd_v_mm_s on a following error,
+    ///   k·cmd_a_mm_s2 on a velocity error.
+    /// - `accel_lag`: an error ∝ acceleration, the loop is not first order
+    ///   (velocity loop, drive inertia; k in s²) — k·cmd_a_mm_s2 on a
+    ///   following error, k·cmd_j_mm_s3 (jerk) on a velocity error.
     /// - `reversal_spike` = edge(reversal_mm)·backlash(dir): friction at a
     ///   reversal, decaying with the distance travelled since, its sign
-    ///   following the new direction (a ballbar's reversal spike).
+    ///   following the new direction (a ballbar's reversal spike); by
+    ///   shape on both.
     ///
     /// `backlash:dir` keeps its catalogue name (lost motion b·dir/2).
     fn effects(&self) -> Vec<Box<dyn Effect>> {
+        let (position, velocity) = (&["following_error_"], &["velocity_error_"]);
         let mut v = vec![
-            composite("servo_lag", catalogue_effect(Kind::Lag, &["cmd_v_mm_s"])),
-            composite(
-                "accel_lag",
-                catalogue_effect(Kind::Inertia, &["cmd_a_mm_s2"]),
+            only_on(
+                position,
+                composite("servo_lag", catalogue_effect(Kind::Lag, &["cmd_v_mm_s"])),
             ),
-            // The catalogue has no kind for a jerk (k·c on any covariate is
-            // the inertia form): only this composite uses it.
-            composite(
-                "jerk_lag",
-                catalogue_effect(Kind::Inertia, &["cmd_j_mm_s3"]),
+            only_on(
+                position,
+                composite(
+                    "accel_lag",
+                    catalogue_effect(Kind::Inertia, &["cmd_a_mm_s2"]),
+                ),
+            ),
+            // k·c on any covariate is the inertia form; the catalogue has no
+            // kind for a jerk, so only this composite reads it.
+            only_on(
+                velocity,
+                composite(
+                    "servo_lag",
+                    catalogue_effect(Kind::Inertia, &["cmd_a_mm_s2"]),
+                ),
+            ),
+            only_on(
+                velocity,
+                composite(
+                    "accel_lag",
+                    catalogue_effect(Kind::Inertia, &["cmd_j_mm_s3"]),
+                ),
             ),
         ];
         // Both factors are linear forms: an error is a programming error,
@@ -126,13 +145,39 @@ mod tests {
 
     #[test]
     fn composites_are_built() {
-        let names: Vec<String> = ServoPlugin.effects().iter().map(|e| e.key()).collect();
+        let fx = ServoPlugin.effects();
+        let names: Vec<String> = fx.iter().map(|e| e.key()).collect();
         assert_eq!(
             names,
             [
                 "servo_lag:cmd_v_mm_s",
                 "accel_lag:cmd_a_mm_s2",
-                "jerk_lag:cmd_j_mm_s3",
+                "servo_lag:cmd_a_mm_s2",
+                "accel_lag:cmd_j_mm_s3",
+                "reversal_spike:reversal_mm,dir"
+            ]
+        );
+        // One form of each cause per family: on a velocity error the lag
+        // is k·a, the acceleration lag k·j.
+        let on = |obs: &str| -> Vec<String> {
+            fx.iter()
+                .filter(|e| e.applies_to(obs))
+                .map(|e| e.key())
+                .collect()
+        };
+        assert_eq!(
+            on("following_error_x"),
+            [
+                "servo_lag:cmd_v_mm_s",
+                "accel_lag:cmd_a_mm_s2",
+                "reversal_spike:reversal_mm,dir"
+            ]
+        );
+        assert_eq!(
+            on("velocity_error_z"),
+            [
+                "servo_lag:cmd_a_mm_s2",
+                "accel_lag:cmd_j_mm_s3",
                 "reversal_spike:reversal_mm,dir"
             ]
         );
