@@ -6,36 +6,11 @@ use super::*;
 /// A catalogue (or any) effect under a physical name, e.g. the robot's
 /// `trigger_latency` = `lag` on `approach_mm_s` (docs/design.md §7 point 2).
 pub fn composite(name: &str, base: Box<dyn Effect>) -> Box<dyn Effect> {
-    Box::new(Renamed {
-        name: name.to_string(),
+    Box::new(Wrapped {
+        name: Some(name.to_string()),
+        only_on: Vec::new(),
         base,
     })
-}
-
-pub(super) struct Renamed {
-    name: String,
-    base: Box<dyn Effect>,
-}
-
-impl Effect for Renamed {
-    fn name(&self) -> &str {
-        &self.name
-    }
-    fn covariates(&self) -> Vec<String> {
-        self.base.covariates()
-    }
-    fn n_params(&self) -> usize {
-        self.base.n_params()
-    }
-    fn fit(&self, x: &EffectData, gap: &[f64]) -> Result<Box<dyn FittedEffect>> {
-        self.base.fit(x, gap)
-    }
-    fn linear_form(&self) -> Option<Arc<dyn LinearForm>> {
-        self.base.linear_form()
-    }
-    fn replaces(&self) -> Option<String> {
-        Some(self.base.key())
-    }
 }
 
 /// `base`, a candidate only for observables whose name starts with one of
@@ -44,20 +19,25 @@ impl Effect for Renamed {
 /// on a following error and k·a on a velocity error, its rate
 /// (docs/models.md §7).
 pub fn only_on(prefixes: &[&str], base: Box<dyn Effect>) -> Box<dyn Effect> {
-    Box::new(OnlyOn {
-        prefixes: prefixes.iter().map(|p| p.to_string()).collect(),
+    Box::new(Wrapped {
+        name: None,
+        only_on: prefixes.iter().map(|p| p.to_string()).collect(),
         base,
     })
 }
 
-pub(super) struct OnlyOn {
-    prefixes: Vec<String>,
+/// `base` under another name ([`composite`]) or for some observables
+/// only ([`only_on`]); everything else is `base`'s.
+pub(super) struct Wrapped {
+    name: Option<String>,
+    /// Observable-name prefixes; empty: wherever `base` applies.
+    only_on: Vec<String>,
     base: Box<dyn Effect>,
 }
 
-impl Effect for OnlyOn {
+impl Effect for Wrapped {
     fn name(&self) -> &str {
-        self.base.name()
+        self.name.as_deref().unwrap_or_else(|| self.base.name())
     }
     fn covariates(&self) -> Vec<String> {
         self.base.covariates()
@@ -71,13 +51,20 @@ impl Effect for OnlyOn {
     fn linear_form(&self) -> Option<Arc<dyn LinearForm>> {
         self.base.linear_form()
     }
+    /// A renamed effect replaces the catalogue candidate it names
+    /// physically; a scoped one, whatever its base replaces.
     fn replaces(&self) -> Option<String> {
-        self.base.replaces()
+        match self.name {
+            Some(_) => Some(self.base.key()),
+            None => self.base.replaces(),
+        }
     }
     fn applies_to(&self, observable: &str) -> bool {
-        self.prefixes
-            .iter()
-            .any(|p| observable.starts_with(p.as_str()))
+        (self.only_on.is_empty()
+            || self
+                .only_on
+                .iter()
+                .any(|p| observable.starts_with(p.as_str())))
             && self.base.applies_to(observable)
     }
 }
