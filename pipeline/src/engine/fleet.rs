@@ -305,8 +305,10 @@ impl Engine {
             .part("config", dcfg.effective())
             .part("observations", okey);
         for (plugin, effects) in effects.iter().filter(|pe| plugins_in_batch.contains(pe.0)) {
+            // The key (name and covariates), not the name alone: one name
+            // may have a form per family of observables (the servo's lag).
             for e in effects {
-                dkey.part("effect", &format!("{plugin}/{}", e.name()));
+                dkey.part("effect", &format!("{plugin}/{}", e.key()));
             }
         }
         let dkey = dkey.finish();
