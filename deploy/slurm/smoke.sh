@@ -98,7 +98,10 @@ for f in fleet/observations.parquet fleet/diagnosis.json fleet/diagnosis.parquet
     fi
 done
 if [ "$status" -eq 0 ]; then
-    echo "PASS: a 4-shard Slurm nightly equals the single-node run ($d)"
+    echo "PASS: a 4-shard Slurm nightly equals the single-node run"
+    # Kept only when it failed, for its logs; the daemons stop first
+    # (cleanup), then the folder goes.
+    trap 'cleanup; rm -rf "$d"' EXIT
 else
     echo "FAIL: see $d/work/*.log and $d/*.log"
 fi
