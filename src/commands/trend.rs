@@ -95,10 +95,21 @@ pub fn append(
         .collect::<sparkout_pipeline::Result<Vec<_>>>()?;
     let d: Diagnosis =
         read_json(diagnosis).with_context(|| format!("{} for the history", diagnosis.display()))?;
-    // The settings the diagnosis ran with: a change between nights is an
-    // event, not an alert.
+    // The settings the diagnosis ran with and the code behind it (the
+    // diagnosis' version, the named plugins' effects): a change between
+    // nights is an event, not an alert.
     let dcfg = super::diagnose::config(flags)?;
-    let settings = serde_json::to_string(&(&*dcfg, &flags.plugins))?;
+    let effects: Vec<String> = registry::plugins()
+        .iter()
+        .filter(|p| flags.plugins.iter().any(|n| n == p.name()))
+        .flat_map(|p| p.effects().iter().map(|e| e.key()).collect::<Vec<_>>())
+        .collect();
+    let settings = serde_json::to_string(&(
+        &*dcfg,
+        &flags.plugins,
+        sparkout_pipeline::engine::DIAGNOSE_STAGE_VERSION,
+        effects,
+    ))?;
     let file = append_night(n.history, n.night, &d, &fingerprint(&settings))?;
     append_events(n.history, &events)?;
     println!("history: {}", file.display());

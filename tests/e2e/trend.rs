@@ -362,3 +362,33 @@ fn the_index_page_leads_with_the_nights_news() {
     let first = &first[..first.find("</li>").unwrap()];
     assert!(first.contains("servo_lag"), "{first}");
 }
+
+/// The history's config fingerprint covers the models a night ran, not
+/// only its settings: an update of sparkout that renames an effect or
+/// changes a stage (what a night computes) is a `config` event — a new
+/// baseline — never a night of "appeared"/"disappeared" alerts. Only the
+/// night's plugins count: a robot stage's update is no event for a servo
+/// fleet.
+#[test]
+fn the_models_behind_a_night_are_part_of_its_config_fingerprint() {
+    use sparkout_pipeline::engine::{models_text, DIAGNOSE_STAGE_VERSION};
+    let plugins = sparkout_plugins::all_plugins();
+    let servo_night: std::collections::BTreeSet<&str> = ["servo"].into();
+    let text = models_text(&plugins, &servo_night);
+    assert!(
+        text.contains(&format!("diagnose v{DIAGNOSE_STAGE_VERSION}")),
+        "{text}"
+    );
+    let servo = plugins.iter().find(|p| p.name() == "servo").unwrap();
+    for s in servo.stages() {
+        let stage = format!("{} v{}", s.name(), s.spec().version);
+        assert!(text.contains(&stage), "{stage} not in {text}");
+    }
+    for e in servo.effects() {
+        assert!(text.contains(&e.key()), "{} not in {text}", e.key());
+    }
+    assert!(!text.contains("robot:"), "{text}");
+    // The same night's models give the same text (no config event between
+    // two nights of one sparkout).
+    assert_eq!(text, models_text(&plugins, &servo_night));
+}

@@ -511,11 +511,21 @@ impl Engine {
             .map(|e| report::trend::parse_event(e, Some(&night)))
             .collect::<Result<Vec<_>>>()?;
         // What the night's results depend on: every section but the
-        // report's title and the trend's own settings.
+        // report's title and the trend's own settings, and the code that
+        // made them — an update of sparkout that changes a stage or the
+        // diagnosis' candidates (an effect renamed, a form added) is an
+        // event that restarts the baselines, not a night of alerts.
         let mut settings = self.config.table.clone();
         settings.remove("report");
         settings.remove("trend");
-        let config = report::trend::fingerprint(&super::config_text(&settings));
+        let config = report::trend::fingerprint(&format!(
+            "{}\n{}",
+            super::config_text(&settings),
+            models_text(
+                &self.plugins,
+                &outcome.runs.iter().map(|r| r.plugin.as_str()).collect()
+            )
+        ));
         let file = report::trend::append_night(dir, &night, diagnosis, &config)?;
         report::trend::append_events(dir, &events)?;
         progress.message(&format!("history: {}", file.display()));
@@ -618,6 +628,28 @@ pub fn with_machine_field(schema: &arrow::datatypes::Schema) -> arrow::datatypes
 }
 
 /// Distinct values of a batch's `observable` column.
+/// The code a night's results come from, as text (a part of the history's
+/// config fingerprint): the fleet diagnosis' version and, for each plugin
+/// in `in_batch`, its stages' versions and its effects' keys.
+pub fn models_text(plugins: &[Arc<dyn MachinePlugin>], in_batch: &BTreeSet<&str>) -> String {
+    let mut text = format!("diagnose v{DIAGNOSE_STAGE_VERSION}");
+    for p in plugins.iter().filter(|p| in_batch.contains(p.name())) {
+        let stages: Vec<String> = p
+            .stages()
+            .iter()
+            .map(|s| format!("{} v{}", s.name(), s.spec().version))
+            .collect();
+        let effects: Vec<String> = p.effects().iter().map(|e| e.key()).collect();
+        text.push_str(&format!(
+            "\n{}: {}; {}",
+            p.name(),
+            stages.join(", "),
+            effects.join(", ")
+        ));
+    }
+    text
+}
+
 pub(super) fn observable_names(batch: &RecordBatch) -> BTreeSet<String> {
     use arrow::array::AsArray;
     let Some(a) = batch.column_by_name("observable") else {

@@ -15,7 +15,7 @@ pub use crate::outcome::*;
 pub use checks::check_finite;
 use checks::check_plugin;
 use fleet::json_bytes;
-pub use fleet::{parquet_bytes, with_machine_column};
+pub use fleet::{models_text, parquet_bytes, with_machine_column};
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};

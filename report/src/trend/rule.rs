@@ -686,7 +686,9 @@ fn alert_of(t: &Test, night: &str, p_adj: f64, m: usize, cfg: &TrendConfig) -> A
     }
 }
 
-/// A night whose settings differ from the night before is a config event.
+/// A night whose settings (or the sparkout models behind them: stage and
+/// diagnosis versions, the plugins' effects) differ from the night before
+/// is a config event.
 fn config_changes(rows: &[HistoryRow], nights: &[String]) -> Vec<Event> {
     let mut config: BTreeMap<&str, &str> = BTreeMap::new();
     for r in rows {
@@ -702,7 +704,10 @@ fn config_changes(rows: &[HistoryRow], nights: &[String]) -> Vec<Event> {
                     night: w[1].clone(),
                     machine: String::new(),
                     kind: "config".into(),
-                    note: format!("settings differ from {}'s ({a} → {b})", w[0]),
+                    note: format!(
+                        "settings or sparkout's models differ from {}'s ({a} → {b})",
+                        w[0]
+                    ),
                     source: "history".into(),
                 });
             }
