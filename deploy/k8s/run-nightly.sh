@@ -61,7 +61,13 @@ render() { # TEMPLATE → stdout; only our four variables are filled (the pod
             sed -e 's/^  backoffLimitPerIndex: .*/  backoffLimit: '"$((2 * SHARDS))"'/' -e '/^  maxFailedIndexes:/d'
         fi
 }
-dir=${render_only:-$(mktemp -d)}
+if [ -n "$render_only" ]; then
+    dir=$render_only
+else
+    # The rendered manifests live as long as the night's script.
+    dir=$(mktemp -d)
+    trap 'rm -rf "$dir"' EXIT
+fi
 mkdir -p "$dir"
 render "$here/shards-job.yaml" >"$dir/shards-job.yaml"
 render "$here/aggregate-job.yaml" >"$dir/aggregate-job.yaml"
